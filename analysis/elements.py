@@ -1,0 +1,118 @@
+"""Unknown (or simulated) elements: where they sit and which laws they obey.
+
+An element is grounded at one DOF (``dof = "x1"``) or acts between two
+(``between = ["x1", "x2"]``); its displacement is ``x_a`` or ``x_a - x_b``
+(CONTRACTS.md §1). Its force is the sum of its law terms.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import InputError
+from .laws import Law, get_law
+from .structures import Structure
+from .tables import Fields
+
+
+@dataclass
+class LawTerm:
+    """One law on an element with its parameter values (possibly partial: starting values)."""
+
+    law: Law
+    values: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        return all(name in self.values for name in self.law.param_names)
+
+    def describing_function(self, X, w) -> np.ndarray:
+        return self.law.describing_function(X, w, **self.values)
+
+    def to_toml(self) -> dict:
+        return {"law": self.law.name, **self.values}
+
+
+@dataclass
+class Element:
+    """An element of the structure: a name, its DOF(s) and its laws."""
+
+    name: str
+    dofs: tuple[str, ...]  # (a,) grounded, or (a, b) between
+    laws: list[LawTerm] = field(default_factory=list)
+
+    @property
+    def grounded(self) -> bool:
+        return len(self.dofs) == 1
+
+    def indices(self, structure: Structure) -> tuple[int, int | None]:
+        a = structure.index(self.dofs[0])
+        return a, (structure.index(self.dofs[1]) if len(self.dofs) == 2 else None)
+
+    def vector(self, structure: Structure) -> np.ndarray:
+        """e with x_element = e @ x: +1 at a, -1 at b."""
+        e = np.zeros(structure.n)
+        a, b = self.indices(structure)
+        e[a] = 1.0
+        if b is not None:
+            e[b] = -1.0
+        return e
+
+    def rotational(self, structure: Structure) -> bool:
+        return structure.is_rotational(self.dofs[0])
+
+    def describing_function(self, X, w) -> np.ndarray:
+        """Sum of the law terms' kbar (0 when the element has no laws)."""
+        X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
+        total = np.zeros(X.shape, complex)
+        for term in self.laws:
+            total = total + term.describing_function(X, w)
+        return total
+
+
+def load_elements(document: dict, structure: Structure, source: str | None = None,
+                  complete: bool = False) -> list[Element]:
+    """Read the ``[[element]]`` array of a rig or model file.
+
+    ``complete=True`` (rig files: the truth) requires every parameter of every law;
+    otherwise (model files) values are optional starting values.
+    """
+    root = Fields(document, source, "")
+    elements: list[Element] = []
+    seen: set[str] = set()
+    for i, f in enumerate(root.list_of_tables("element")):
+        f.where = f"[[element]][{i}]"
+        f.unknown_keys({"name", "dof", "between", "laws"})
+        name = f.string("name")
+        if name in seen:
+            raise f.error("name", f"element name {name!r} is used twice")
+        seen.add(name)
+        if f.has("dof") == f.has("between"):
+            raise f.error(None, "give exactly one of dof (grounded) or between = [a, b]")
+        if f.has("dof"):
+            dofs = (f.string("dof"),)
+            structure.index(dofs[0], f.path("dof"))
+        else:
+            dofs = tuple(f.strings("between"))
+            if len(dofs) != 2 or dofs[0] == dofs[1]:
+                raise f.error("between", "must name two different DOFs")
+            for d in dofs:
+                structure.index(d, f.path("between"))
+            if structure.is_rotational(dofs[0]) != structure.is_rotational(dofs[1]):
+                raise f.error("between", "cannot join a rotation to a displacement")
+        raw = f.table.get("laws", [])
+        if not isinstance(raw, list):
+            raise f.error("laws", "must be a list of law names or tables")
+        terms = []
+        for j, entry in enumerate(raw):
+            where = f.path(f"laws[{j}]")
+            if isinstance(entry, str):
+                entry = {"law": entry}
+            if not isinstance(entry, dict) or "law" not in entry:
+                raise InputError("each law is a name or a table with a 'law' key", source, where)
+            law = get_law(entry["law"], source, f"{where}.law")
+            values = {k: v for k, v in entry.items() if k != "law"}
+            terms.append(LawTerm(law, law.check_params(values, complete, source, where)))
+        elements.append(Element(name, dofs, terms))
+    return elements

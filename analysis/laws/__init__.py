@@ -1,0 +1,43 @@
+"""The element laws of CONTRACTS.md §2, one module per law, and their registry."""
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import InputError
+from .base import Law, Param
+from .cubic import Cubic
+from .linear import Linear
+
+LAWS: dict[str, Law] = {law.name: law for law in (
+    Linear(), Cubic(),
+)}
+
+
+def get_law(name: str, source: str | None = None, field: str | None = None) -> Law:
+    """The law called ``name``; InputError naming the field if there is none."""
+    try:
+        return LAWS[name]
+    except (KeyError, TypeError):
+        raise InputError(f"unknown law {name!r} (known laws: {', '.join(LAWS)})", source, field) from None
+
+
+def describing_function(name: str, X, w, **params: float) -> np.ndarray:
+    """Equivalent complex stiffness of law ``name``: complex array broadcast over X and w.
+
+    Parameters
+    ----------
+    name : str
+        Law name (CONTRACTS.md §2).
+    X : array_like
+        Amplitude of the element displacement, m (or rad), > 0.
+    w : array_like
+        Angular frequency, rad/s.
+    **params : float
+        The law's parameters by their contract names.
+    """
+    return get_law(name).describing_function(X, w, **params)
+
+
+__all__ = ["LAWS", "Law", "Param", "get_law", "describing_function"]

@@ -1,0 +1,197 @@
+"""What every element law provides.
+
+A law is one physical mechanism of an element (NLvib style): a time-domain force
+with its internal state, and the describing function -- the equivalent complex
+stiffness ``kbar(X, w) = (A1 + j B1) / X`` of the force's fundamental under
+``x = X sin(w t)`` (CONTRACTS.md §1).
+
+The describing function is written once, as a sum of *basis* functions weighted by
+the parameters that enter it linearly: ``kbar = sum_j lin_j * basis_j(X, w; shape)``.
+The fitter uses the same basis (variable projection), so a law's describing function
+and its fitted form can never disagree.
+
+Some laws are fitted in a parametrisation different from the contract's, so that
+more parameters enter linearly: jenkins is fitted as ``kt`` (linear) and the slip
+displacement ``xs = fs / kt`` (shape). ``to_fit`` / ``from_fit`` convert.
+
+The time-domain force is a numba kernel ``kernel(x, v, p, s) -> f``: ``x`` and
+``v`` the element displacement and velocity, ``p`` the contract parameters in the
+order of ``params``, ``s`` the law's state (updated in place). For rate-independent
+hysteretic laws the update is exact along any monotone path between two calls, so
+a marched force is exact at the sample points. Laws with a jump in the velocity
+sign (dry friction) also provide ``stick_limit(x, p)``: the largest force the
+mechanism can hold at zero velocity, which a time integrator needs to model true
+stick.
+"""
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+import numpy as np
+from numba import njit
+
+from ..errors import InputError
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter of a law.
+
+    ``unit`` is a template in ``{F}`` (force) and ``{L}`` (displacement) so the same
+    law renders as N/m^3 on a translational DOF and N·m/rad^3 on a rotational one.
+    """
+
+    name: str
+    unit: str
+    description: str
+    lower: float = -math.inf
+    upper: float = math.inf
+
+    def render_unit(self, rotational: bool = False) -> str:
+        force, length = ("N·m", "rad") if rotational else ("N", "m")
+        return self.unit.replace("{F}", force).replace("{L}", length)
+
+
+@njit(cache=True)
+def _march(kernel, x, v, p, s):
+    f = np.empty(x.shape[0])
+    for i in range(x.shape[0]):
+        f[i] = kernel(x[i], v[i], p, s)
+    return f
+
+
+class Law(ABC):
+    """Base class of the element laws; one subclass (and one module) per law."""
+
+    name: ClassVar[str]
+    summary: ClassVar[str]
+    params: ClassVar[tuple[Param, ...]]
+    # Fit parametrisation: names entering kbar linearly, and the shape parameters
+    # (entering nonlinearly). Default: the contract parameters split in two.
+    linear: ClassVar[tuple[str, ...]]
+    shape: ClassVar[tuple[Param, ...]] = ()
+    n_state: ClassVar[int] = 0
+    hysteretic: ClassVar[bool] = False
+    kernel: ClassVar[Any]
+    stick_limit: ClassVar[Any] = None
+    # Typical values on a translational DOF (for tests, docs and fit starting points)
+    # and the amplitude range over which the law's effect is visible.
+    example: ClassVar[dict[str, float]]
+    example_amplitude: ClassVar[tuple[float, float]] = (1e-4, 1e-1)
+
+    # --- describing function -------------------------------------------------
+    @abstractmethod
+    def basis(self, X, w, **shape) -> np.ndarray:
+        """Basis functions of kbar, shape ``(len(linear),) + broadcast(X, w).shape``.
+
+        ``X`` (element amplitude, m or rad, > 0) and ``w`` (rad/s) broadcast.
+        """
+
+    def describing_function(self, X, w, **params) -> np.ndarray:
+        """Equivalent complex stiffness kbar(X, w), complex, broadcast over X and w.
+
+        Parameters are the contract parameters (CONTRACTS.md §2) by name.
+        """
+        values = self.check_params(params, complete=True)
+        lin, shp = self.to_fit(values)
+        B = self.basis(np.asarray(X, float), np.asarray(w, float), **shp)
+        return np.tensordot(np.array([lin[n] for n in self.linear], float), B, axes=1)
+
+    # --- parametrisation -----------------------------------------------------
+    def to_fit(self, values: Mapping[str, float]) -> tuple[dict, dict]:
+        """Contract parameters -> (linear, shape) fit parameters."""
+        return ({n: values[n] for n in self.linear},
+                {p.name: values[p.name] for p in self.shape})
+
+    def from_fit(self, linear: Mapping[str, float], shape: Mapping[str, float]) -> dict:
+        """(linear, shape) fit parameters -> contract parameters."""
+        out = dict(linear)
+        out.update(shape)
+        return {p.name: out[p.name] for p in self.params}
+
+    def fit_jacobian(self, linear: Mapping[str, float], shape: Mapping[str, float]) -> np.ndarray:
+        """d(contract params)/d(fit params), rows in ``params`` order and columns in
+        ``linear`` then ``shape`` order; used to carry standard errors across."""
+        names = list(self.linear) + [p.name for p in self.shape]
+        x0 = np.array([*(linear[n] for n in self.linear), *(shape[p.name] for p in self.shape)], float)
+
+        def contract(x):
+            lin = dict(zip(self.linear, x[: len(self.linear)]))
+            shp = dict(zip([p.name for p in self.shape], x[len(self.linear):]))
+            d = self.from_fit(lin, shp)
+            return np.array([d[p.name] for p in self.params])
+
+        J = np.empty((len(self.params), len(names)))
+        for j in range(len(names)):
+            h = 1e-7 * max(abs(x0[j]), 1e-12)
+            xp, xm = x0.copy(), x0.copy()
+            xp[j] += h
+            xm[j] -= h
+            J[:, j] = (contract(xp) - contract(xm)) / (2 * h)
+        return J
+
+    # --- parameters ----------------------------------------------------------
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.params)
+
+    def check_params(self, values: Mapping[str, Any], complete: bool = False,
+                     source: str | None = None, field: str | None = None) -> dict[str, float]:
+        """Validate parameter names and values; return them as floats.
+
+        Raises InputError naming the field for a misspelt or missing name, a value
+        that is not a finite number, or one outside the parameter's bounds.
+        """
+        known = {p.name: p for p in self.params}
+        out: dict[str, float] = {}
+        for key, value in values.items():
+            if key not in known:
+                raise InputError(
+                    f"law '{self.name}' has no parameter '{key}' (its parameters: {', '.join(known)})",
+                    source, f"{field}.{key}" if field else key)
+            try:
+                number = float(value)
+            except (TypeError, ValueError):
+                raise InputError(f"must be a number, got {value!r}", source,
+                                 f"{field}.{key}" if field else key) from None
+            p = known[key]
+            if not math.isfinite(number) or not (p.lower <= number <= p.upper):
+                raise InputError(f"{number!r} is outside the allowed range [{p.lower}, {p.upper}]",
+                                 source, f"{field}.{key}" if field else key)
+            out[key] = number
+        if complete:
+            missing = [n for n in known if n not in out]
+            if missing:
+                raise InputError(f"law '{self.name}' needs parameter(s) {', '.join(missing)}",
+                                 source, field)
+        return out
+
+    def unit(self, name: str, rotational: bool = False) -> str:
+        for p in (*self.params, *self.shape):
+            if p.name == name:
+                return p.render_unit(rotational)
+        raise KeyError(name)
+
+    # --- time domain ---------------------------------------------------------
+    def parameter_vector(self, **params) -> np.ndarray:
+        values = self.check_params(params, complete=True)
+        return np.array([values[p.name] for p in self.params], float)
+
+    def initial_state(self, p: np.ndarray) -> np.ndarray:
+        """State at rest (x = 0, never moved)."""
+        return np.zeros(max(self.n_state, 1))
+
+    def force(self, x, v, state: np.ndarray | None = None, **params) -> np.ndarray:
+        """Time-domain force along a sampled history ``x[i], v[i]`` (1-D arrays).
+
+        The state starts at rest unless given, and is updated in place when given.
+        """
+        p = self.parameter_vector(**params)
+        s = self.initial_state(p) if state is None else state
+        return _march(self.kernel, np.ascontiguousarray(x, float), np.ascontiguousarray(v, float), p, s)
+
+    def __repr__(self) -> str:
+        return f"<law {self.name}({', '.join(self.param_names)})>"

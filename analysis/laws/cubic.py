@@ -1,0 +1,23 @@
+"""cubic: hardening (k3 > 0) or softening (k3 < 0) spring, f = k3 x^3."""
+import numpy as np
+from numba import njit
+
+from .base import Law, Param
+
+
+@njit(cache=True)
+def cubic_force(x, v, p, s):
+    return p[0] * x * x * x
+
+
+class Cubic(Law):
+    name = "cubic"
+    summary = "cubic spring"
+    params = (Param("k3", "{F}/{L}^3", "cubic stiffness"),)
+    linear = ("k3",)
+    example = {"k3": 1.0e6}
+    kernel = cubic_force
+
+    def basis(self, X, w):
+        X, w = np.broadcast_arrays(X, w)
+        return (0.75 * X**2)[None].astype(complex)

@@ -1,0 +1,24 @@
+"""linear: spring and viscous damper, f = k x + c x'."""
+import numpy as np
+from numba import njit
+
+from .base import Law, Param
+
+
+@njit(cache=True)
+def linear_force(x, v, p, s):
+    return p[0] * x + p[1] * v
+
+
+class Linear(Law):
+    name = "linear"
+    summary = "linear spring and viscous damper"
+    params = (Param("k", "{F}/{L}", "stiffness"),
+              Param("c", "{F}·s/{L}", "viscous damping coefficient"))
+    linear = ("k", "c")
+    example = {"k": 1.0e4, "c": 5.0}
+    kernel = linear_force
+
+    def basis(self, X, w):
+        X, w = np.broadcast_arrays(X, w)
+        return np.stack([np.ones(X.shape, complex), 1j * w.astype(complex)])

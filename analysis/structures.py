@@ -1,0 +1,292 @@
+"""Reference linear structures: lumped systems and 2D Euler-Bernoulli beams.
+
+Both are built from the ``[structure]`` TOML table (CONTRACTS.md §3) by
+:func:`load_structure` and give named DOFs, mass/stiffness/damping matrices, the
+receptance matrix H(w) and the normal modes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from .errors import InputError
+from .tables import Fields
+
+BOUNDARIES = ("clamped", "pinned", "free")
+
+
+@dataclass
+class Structure:
+    """A linear structure ``M x'' + C x' + K x = F`` with named DOFs.
+
+    Attributes
+    ----------
+    dofs : list of str
+        DOF names in matrix order.
+    M, K, C : ndarray, shape (n, n)
+        Mass (kg or kg·m^2), stiffness (N/m, N/rad, N·m/rad ...) and viscous damping.
+    rotational : set of str
+        Names of the DOFs that are rotations (rad) rather than displacements (m).
+    description : str
+        One line saying what was built (type, mesh, boundaries).
+    """
+
+    dofs: list[str]
+    M: np.ndarray
+    K: np.ndarray
+    C: np.ndarray
+    rotational: set[str] = field(default_factory=set)
+    description: str = ""
+    source: str | None = None
+
+    def __post_init__(self):
+        self._index = {name: i for i, name in enumerate(self.dofs)}
+
+    # --- names ---------------------------------------------------------------
+    @property
+    def n(self) -> int:
+        return len(self.dofs)
+
+    def index(self, name: str, field: str | None = None) -> int:
+        """Matrix index of DOF ``name``; InputError naming ``field`` if unknown."""
+        try:
+            return self._index[name]
+        except (KeyError, TypeError):
+            shown = ", ".join(self.dofs[:12]) + (", ..." if self.n > 12 else "")
+            raise InputError(f"DOF {name!r} is not in the structure (its DOFs: {shown})",
+                             self.source, field) from None
+
+    def is_rotational(self, name: str) -> bool:
+        return name in self.rotational
+
+    # --- frequency response --------------------------------------------------
+    def dynamic_stiffness(self, w) -> np.ndarray:
+        """Z(w) = K - w^2 M + j w C, shape (len(w), n, n); ``w`` in rad/s."""
+        w = np.atleast_1d(np.asarray(w, float))[:, None, None]
+        return self.K[None] - w**2 * self.M[None] + 1j * w * self.C[None]
+
+    def frf(self, w, columns=None, method: str = "direct", n_modes: int | None = None) -> np.ndarray:
+        """Receptance H(w) = Z(w)^-1 (m/N), complex.
+
+        Parameters
+        ----------
+        w : array_like, shape (L,)
+            Angular frequencies, rad/s.
+        columns : sequence of int or str, optional
+            Excitation DOFs (indices or names); default all, giving shape (L, n, n).
+            With columns the result has shape (L, n, len(columns)).
+        method : {"direct", "modal"}
+            "direct" solves Z H = I per line (no explicit inverse). "modal" sums the
+            lowest ``n_modes`` normal modes; it needs classical damping (C
+            diagonalised by the modes) -- see :meth:`modal_truncation_error`.
+        """
+        w = np.atleast_1d(np.asarray(w, float))
+        cols = self._columns(columns)
+        if method == "direct":
+            rhs = np.broadcast_to(np.eye(self.n)[:, cols], (len(w), self.n, len(cols)))
+            return np.linalg.solve(self.dynamic_stiffness(w), rhs)
+        if method == "modal":
+            return self._modal_frf(w, cols, n_modes)
+        raise ValueError(f"method must be 'direct' or 'modal', got {method!r}")
+
+    def _columns(self, columns) -> list[int]:
+        if columns is None:
+            return list(range(self.n))
+        return [c if isinstance(c, (int, np.integer)) else self.index(c) for c in columns]
+
+    def _modal_frf(self, w, cols, n_modes):
+        freqs_hz, phi = self.modes()
+        m = phi.shape[1] if n_modes is None else int(n_modes)
+        if not 1 <= m <= phi.shape[1]:
+            raise ValueError(f"n_modes must be between 1 and {phi.shape[1]}, got {n_modes}")
+        phi = phi[:, :m]
+        modal_c = phi.T @ self.C @ phi
+        off = modal_c - np.diag(np.diag(modal_c))
+        if np.abs(off).max(initial=0.0) > 1e-9 * max(np.abs(modal_c).max(initial=0.0), 1e-300):
+            raise ValueError("modal superposition needs classical damping (C diagonal in the "
+                             "normal modes); use method='direct'")
+        wr2 = (2 * np.pi * freqs_hz[:m]) ** 2
+        denom = wr2[None, :] - w[:, None] ** 2 + 1j * w[:, None] * np.diag(modal_c)[None, :]
+        return np.einsum("ir,lr,jr->lij", phi, 1.0 / denom, phi[cols, :])
+
+    def modal_truncation_error(self, w, n_modes: int, columns=None) -> float:
+        """Largest relative error of the ``n_modes`` modal FRF against the direct
+        solution over the lines ``w`` (max |H_modal - H| / max |H|)."""
+        exact = self.frf(w, columns)
+        approx = self.frf(w, columns, method="modal", n_modes=n_modes)
+        return float(np.abs(approx - exact).max() / np.abs(exact).max())
+
+    # --- modes ---------------------------------------------------------------
+    def modes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Undamped normal modes: (frequencies in Hz ascending, mass-normalised shapes (n, n))."""
+        if not hasattr(self, "_modes"):
+            lam, phi = scipy.linalg.eigh(self.K, self.M)
+            self._modes = (np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi), phi)
+        return self._modes
+
+    def natural_frequencies(self) -> np.ndarray:
+        """Undamped natural frequencies, Hz, ascending."""
+        return self.modes()[0].copy()
+
+    def with_matrices(self, M=None, K=None, C=None, description: str | None = None) -> "Structure":
+        """A copy with some matrices replaced (model updating, added effects)."""
+        return Structure(list(self.dofs), self.M if M is None else M, self.K if K is None else K,
+                         self.C if C is None else C, set(self.rotational),
+                         self.description if description is None else description, self.source)
+
+
+def load_structure(table: dict, source: str | None = None) -> Structure:
+    """Build a Structure from the ``[structure]`` table (a dict, as read by tomllib).
+
+    Raises InputError naming ``source`` and the field for a malformed table,
+    unknown type, non-symmetric or indefinite matrices, or a singular structure.
+    """
+    f = Fields(table, source, "[structure]")
+    kind = f.string("type", choices=("lumped", "beam"))
+    s = _lumped(f) if kind == "lumped" else _beam(f)
+    _check_physical(s, f)
+    return s
+
+
+def _lumped(f: Fields) -> Structure:
+    f.unknown_keys({"type", "dofs", "mass", "stiffness", "damping", "rayleigh", "springs", "masses"})
+    dofs = f.strings("dofs")
+    if not dofs:
+        raise f.error("dofs", "must name at least one DOF")
+    if len(set(dofs)) != len(dofs):
+        raise f.error("dofs", "DOF names must be unique")
+    n = len(dofs)
+    M, K = f.matrix("mass", n), f.matrix("stiffness", n)
+    s = Structure(dofs, M, K, np.zeros((n, n)), set(), f"lumped, {n} DOF", f.source)
+    _add_points(s, f)
+    if f.has("damping") and f.has("rayleigh"):
+        raise f.error("rayleigh", "give either damping or rayleigh, not both")
+    if f.has("damping"):
+        s.C = f.matrix("damping", n)
+    elif f.has("rayleigh"):
+        r = f.table["rayleigh"]
+        if not isinstance(r, list) or len(r) != 2:
+            raise f.error("rayleigh", "must be [a_mass, b_stiffness]")
+        a, b = (f.check_number("rayleigh", x, nonnegative=True) for x in r)
+        s.C = a * s.M + b * s.K
+    return s
+
+
+def _add_points(s: Structure, f: Fields) -> None:
+    """Grounded point springs and point masses (``springs``, ``masses``)."""
+    for g in f.list_of_tables("springs"):
+        g.unknown_keys({"dof", "k"})
+        i = s.index(g.string("dof"), g.path("dof"))
+        s.K[i, i] += g.number("k")
+    for g in f.list_of_tables("masses"):
+        g.unknown_keys({"dof", "m"})
+        i = s.index(g.string("dof"), g.path("dof"))
+        s.M[i, i] += g.number("m", nonnegative=True)
+    s.__post_init__()
+
+
+def _beam(f: Fields) -> Structure:
+    f.unknown_keys({"type", "length", "youngs_modulus", "density", "width", "thickness", "elements",
+                    "left", "right", "points", "springs", "masses", "damping"})
+    length = f.number("length", positive=True)
+    E = f.number("youngs_modulus", positive=True)
+    rho = f.number("density", positive=True)
+    b, h = f.number("width", positive=True), f.number("thickness", positive=True)
+    n_el = f.table.get("elements", 20)
+    if isinstance(n_el, bool) or not isinstance(n_el, int) or n_el < 1:
+        raise f.error("elements", f"must be a whole number >= 1, got {n_el!r}")
+    left, right = f.string("left", "clamped", BOUNDARIES), f.string("right", "free", BOUNDARIES)
+    points = f.sub("points", default_empty=True)
+    stations = {}
+    for name, x in points.table.items():
+        if not isinstance(name, str) or not name.replace("_", "").isalnum() or name[0].isdigit():
+            raise points.error(name, "station names must be identifiers such as A, B, tip")
+        x = points.check_number(name, x)
+        if not 0.0 <= x <= length:
+            raise points.error(name, f"station at {x} m lies outside the beam [0, {length}]")
+        stations[name] = x
+    nodes_x = _mesh(length, n_el, sorted(set(stations.values())))
+    area, inertia = b * h, b * h**3 / 12.0
+    n_nodes = len(nodes_x)
+    Kf = np.zeros((2 * n_nodes, 2 * n_nodes))
+    Mf = np.zeros_like(Kf)
+    for e in range(n_nodes - 1):
+        le = nodes_x[e + 1] - nodes_x[e]
+        ke, me = _beam_element(E * inertia, rho * area, le)
+        sl = slice(2 * e, 2 * e + 4)
+        Kf[sl, sl] += ke
+        Mf[sl, sl] += me
+    node_names = [f"n{i}" for i in range(n_nodes)]
+    for name, x in stations.items():
+        node_names[int(np.argmin(np.abs(nodes_x - x)))] = name
+    names = [f"{nn}.{d}" for nn in node_names for d in ("w", "theta")]
+    fixed = set()
+    for end, node in ((left, 0), (right, n_nodes - 1)):
+        if end in ("clamped", "pinned"):
+            fixed.add(2 * node)
+        if end == "clamped":
+            fixed.add(2 * node + 1)
+    keep = [i for i in range(2 * n_nodes) if i not in fixed]
+    dofs = [names[i] for i in keep]
+    s = Structure(dofs, Mf[np.ix_(keep, keep)], Kf[np.ix_(keep, keep)], np.zeros((len(keep),) * 2),
+                  {d for d in dofs if d.endswith(".theta")},
+                  f"beam, {n_nodes - 1} Euler-Bernoulli elements, {left}-{right}, L = {length} m", f.source)
+    constrained = {names[i]: i for i in fixed}
+    for g in (*f.list_of_tables("springs"), *f.list_of_tables("masses")):
+        dof = g.table.get("dof")
+        if dof in constrained:
+            raise g.error("dof", f"DOF {dof!r} is fixed by the {left if constrained[dof] < 2 else right} "
+                                 "boundary; a spring or mass there has no effect")
+    _add_points(s, f)
+    damping = f.sub("damping", default_empty=True)
+    damping.unknown_keys({"stiffness_proportional", "mass_proportional"})
+    # Stiffness-proportional damping uses K with the boundary springs, as the paper's C = 1e-5 K.
+    s.C = (damping.number("mass_proportional", 0.0, nonnegative=True) * s.M
+           + damping.number("stiffness_proportional", 0.0, nonnegative=True) * s.K)
+    return s
+
+
+def _mesh(length: float, n_el: int, stations: list[float]) -> np.ndarray:
+    """Node positions: about ``n_el`` elements spread in proportion to segment length,
+    with every station on a node."""
+    keys = sorted({0.0, length, *stations})
+    seg = np.diff(keys)
+    share = seg / length * n_el
+    counts = np.maximum(1, np.floor(share).astype(int))
+    for i in np.argsort(-(share - np.floor(share))):
+        if counts.sum() >= n_el:
+            break
+        counts[i] += 1
+    return np.concatenate([np.linspace(a, b, c, endpoint=False) for a, b, c in zip(keys[:-1], keys[1:], counts)]
+                          + [[length]])
+
+
+def _beam_element(EI: float, rho_a: float, le: float) -> tuple[np.ndarray, np.ndarray]:
+    """Consistent stiffness and mass of a 2-node Euler-Bernoulli element (w1, t1, w2, t2)."""
+    l2 = le * le
+    k = EI / le**3 * np.array([[12, 6 * le, -12, 6 * le],
+                               [6 * le, 4 * l2, -6 * le, 2 * l2],
+                               [-12, -6 * le, 12, -6 * le],
+                               [6 * le, 2 * l2, -6 * le, 4 * l2]])
+    m = rho_a * le / 420.0 * np.array([[156, 22 * le, 54, -13 * le],
+                                       [22 * le, 4 * l2, 13 * le, -3 * l2],
+                                       [54, 13 * le, 156, -22 * le],
+                                       [-13 * le, -3 * l2, -22 * le, 4 * l2]])
+    return k, m
+
+
+def _check_physical(s: Structure, f: Fields) -> None:
+    for key, A in (("mass", s.M), ("stiffness", s.K), ("damping", s.C)):
+        scale = np.abs(A).max(initial=0.0)
+        if np.abs(A - A.T).max(initial=0.0) > 1e-12 * max(scale, 1e-300):
+            raise f.error(key, "matrix must be symmetric")
+    for key, A, what in (("mass", s.M, "mass"), ("stiffness", s.K, "stiffness")):
+        lam = np.linalg.eigvalsh(A)
+        if lam.min() <= 1e-12 * max(abs(lam).max(), 1e-300):
+            hint = ("a DOF has no mass, or a mass is negative" if what == "mass" else
+                    "the structure can move as a rigid body or is unstable: add a support or boundary spring")
+            raise f.error(key, f"{what} matrix is not positive definite (smallest eigenvalue {lam.min():.3g}): {hint}")
+    if np.linalg.eigvalsh(s.C).min() < -1e-12 * max(np.abs(s.C).max(initial=0.0), 1e-300):
+        raise f.error("damping", "damping matrix must not be negative (it would add energy)")
