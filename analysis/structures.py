@@ -159,7 +159,7 @@ def _lumped(f: Fields) -> Structure:
         raise f.error("dofs", "DOF names must be unique")
     n = len(dofs)
     M, K = f.matrix("mass", n), f.matrix("stiffness", n)
-    s = Structure(dofs, M, K, np.zeros((n, n)), set(), f"lumped, {n} DOF", f.source)
+    s = Structure(dofs, M, K, np.zeros((n, n)), set(), "lumped", f.source)
     _add_points(s, f)
     if f.has("damping") and f.has("rayleigh"):
         raise f.error("rayleigh", "give either damping or rayleigh, not both")
