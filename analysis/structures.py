@@ -85,11 +85,18 @@ class Structure:
         w = np.atleast_1d(np.asarray(w, float))
         cols = self._columns(columns)
         if method == "direct":
-            rhs = np.broadcast_to(np.eye(self.n)[:, cols], (len(w), self.n, len(cols)))
-            return np.linalg.solve(self.dynamic_stiffness(w), rhs)
+            return self.response(w, np.eye(self.n)[:, cols])
         if method == "modal":
             return self._modal_frf(w, cols, n_modes)
         raise ValueError(f"method must be 'direct' or 'modal', got {method!r}")
+
+    def response(self, w, loads) -> np.ndarray:
+        """Complex amplitudes Z(w)^-1 @ loads, shape (len(w), n, m), for ``loads`` of shape
+        (n, m) (the same at every line) or (len(w), n, m)."""
+        w = np.atleast_1d(np.asarray(w, float))
+        loads = np.asarray(loads)
+        rhs = np.broadcast_to(loads, (len(w),) + loads.shape[-2:]) if loads.ndim == 2 else loads
+        return np.linalg.solve(self.dynamic_stiffness(w), rhs)
 
     def _columns(self, columns) -> list[int]:
         if columns is None:

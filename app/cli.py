@@ -43,6 +43,19 @@ def cmd_laws(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    """Write a session's FRFs as UFF58 or CSV."""
+    from .export import export_csv, export_uff
+
+    if args.uff:
+        n = export_uff(args.session, args.uff, overwrite=args.force)
+        print(f"wrote {n} FRF records to {args.uff}")
+    else:
+        paths = export_csv(args.session, args.csv, overwrite=args.force)
+        print(f"wrote {len(paths)} CSV files to {args.csv}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contactid", description=(
         "Identify how a joint or contact interface behaves: stepped-sine tests, equivalent complex "
@@ -56,6 +69,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-n", "--count", type=int, default=6, help="how many modes to print (default 6)")
     p.add_argument("--all-dofs", action="store_true", help="list every DOF name")
     p.set_defaults(run=cmd_modes)
+
+    p = sub.add_parser("export", help="export a session's FRFs (UFF58 or CSV)")
+    p.add_argument("session", help="session file (.h5)")
+    target = p.add_mutually_exclusive_group(required=True)
+    target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records to FILE")
+    target.add_argument("--csv", metavar="DIR", help="write one CSV per run into DIR")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.set_defaults(run=cmd_export)
 
     p = sub.add_parser("laws", help="list the element laws and their parameters")
     p.set_defaults(run=cmd_laws)

@@ -7,11 +7,27 @@ import numpy as np
 
 from ..errors import InputError
 from .base import Law, Param
+from .anderson_ferri import AndersonFerri
+from .arctan_softening import ArctanSoftening
+from .bilinear import Bilinear
+from .coulomb import Coulomb
 from .cubic import Cubic
+from .cubic_damping import CubicDamping
+from .gap import Gap
+from .iwan import Iwan
+from .jenkins import Jenkins
 from .linear import Linear
+from .quadratic_damping import QuadraticDamping
+from .quintic import Quintic
+from .tanh_softening import TanhSoftening
+from .unilateral import Unilateral
+from .velocity_stiffness import VelocityStiffness
 
+# in the order of CONTRACTS.md §2
 LAWS: dict[str, Law] = {law.name: law for law in (
-    Linear(), Cubic(),
+    Linear(), Cubic(), Quintic(), QuadraticDamping(), CubicDamping(), Coulomb(),
+    TanhSoftening(), ArctanSoftening(), VelocityStiffness(), AndersonFerri(),
+    Jenkins(), Iwan(), Gap(), Unilateral(), Bilinear(),
 )}
 
 

@@ -42,6 +42,8 @@ class Param:
 
     ``unit`` is a template in ``{F}`` (force) and ``{L}`` (displacement) so the same
     law renders as N/m^3 on a translational DOF and N·m/rad^3 on a rotational one.
+    ``lower_open`` excludes the lower bound itself (a stiffness that must be strictly
+    positive, an exponent that must exceed -1).
     """
 
     name: str
@@ -49,6 +51,16 @@ class Param:
     description: str
     lower: float = -math.inf
     upper: float = math.inf
+    lower_open: bool = False
+
+    def admits(self, value: float) -> bool:
+        """Whether ``value`` is finite and inside the bounds."""
+        above = value > self.lower if self.lower_open else value >= self.lower
+        return math.isfinite(value) and above and value <= self.upper
+
+    @property
+    def range_text(self) -> str:
+        return f"{'(' if self.lower_open else '['}{self.lower}, {self.upper}]"
 
     def render_unit(self, rotational: bool = False) -> str:
         force, length = ("N·m", "rad") if rotational else ("N", "m")
@@ -81,6 +93,16 @@ class Law(ABC):
     # and the amplitude range over which the law's effect is visible.
     example: ClassVar[dict[str, float]]
     example_amplitude: ClassVar[tuple[float, float]] = (1e-4, 1e-1)
+
+    def __init_subclass__(cls, **kwargs):
+        # A jitted function stored on a class binds like a method; keep the numba
+        # functions plain so ``law.kernel(x, v, p, s)`` and ``law.stick_limit(x, p)``
+        # work from Python as well as from jitted code.
+        super().__init_subclass__(**kwargs)
+        for attr in ("kernel", "stick_limit"):
+            value = cls.__dict__.get(attr)
+            if value is not None and not isinstance(value, staticmethod):
+                setattr(cls, attr, staticmethod(value))
 
     # --- describing function -------------------------------------------------
     @abstractmethod
@@ -158,8 +180,8 @@ class Law(ABC):
                 raise InputError(f"must be a number, got {value!r}", source,
                                  f"{field}.{key}" if field else key) from None
             p = known[key]
-            if not math.isfinite(number) or not (p.lower <= number <= p.upper):
-                raise InputError(f"{number!r} is outside the allowed range [{p.lower}, {p.upper}]",
+            if not p.admits(number):
+                raise InputError(f"{number!r} is outside the allowed range {p.range_text}",
                                  source, f"{field}.{key}" if field else key)
             out[key] = number
         if complete:

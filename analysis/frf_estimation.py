@@ -1,0 +1,120 @@
+"""FRF estimation from random excitation: H1, H2, Hv and coherence by Welch averaging.
+
+One estimator object (pyFRF style): feed it blocks of force and response samples as they arrive with
+:meth:`FRFEstimator.add_data`, read the estimates whenever you like. Segments are Hann-windowed with 50 %
+overlap by default (Bendat & Piersol; ISO 7626-2 practice); samples left over from one block are kept for the
+next, so streaming in blocks of any size gives the same result as one long record.
+
+Estimators, with ``G_ab = E[conj(A) B]`` the averaged cross-spectra:
+- ``H1 = G_fx / G_ff``   -- unbiased by noise on the response;
+- ``H2 = G_xx / G_xf``   -- unbiased by noise on the force;
+- ``Hv``                  -- total least squares (equal noise on both): the principal eigenvector of the 2x2
+  spectral matrix, ``(G_xx - G_ff + sqrt((G_ff - G_xx)^2 + 4 |G_fx|^2)) / (2 G_xf)``;
+- ``coherence = |G_fx|^2 / (G_ff G_xx)``.
+The normalised random error of ``|H1|`` is ``sqrt(1 - coh) / (sqrt(coh) sqrt(2 n_avg))`` (Bendat & Piersol,
+Random Data, table 9.6).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.signal
+
+
+class FRFEstimator:
+    """Welch-averaged FRF estimates for one force and several response channels.
+
+    Parameters
+    ----------
+    sample_rate : float
+        Hz.
+    segment_length : int
+        Samples per FFT segment (frequency resolution ``sample_rate / segment_length``).
+    overlap : float
+        Fraction of a segment shared with the next, in [0, 1).
+    window : str
+        Any window scipy.signal.get_window knows; "hann" by default.
+    """
+
+    def __init__(self, sample_rate: float, segment_length: int, overlap: float = 0.5, window: str = "hann"):
+        if segment_length < 8:
+            raise ValueError(f"segment_length must be >= 8 samples, got {segment_length}")
+        if not 0.0 <= overlap < 1.0:
+            raise ValueError(f"overlap must be in [0, 1), got {overlap}")
+        self.sample_rate = float(sample_rate)
+        self.segment_length = int(segment_length)
+        self.step = max(1, int(round(self.segment_length * (1.0 - overlap))))
+        self.window = scipy.signal.get_window(window, self.segment_length)
+        self.frequency = np.fft.rfftfreq(self.segment_length, 1.0 / self.sample_rate)
+        self.n_averages = 0
+        self._pending: np.ndarray | None = None      # samples not yet in a full segment, (m, 1 + p)
+        self._Gff = self._Gfx = self._Gxx = None
+
+    def add_data(self, force, responses) -> None:
+        """Append samples: ``force`` shape (m,), ``responses`` shape (m,) or (m, p), same units throughout."""
+        force = np.asarray(force, float).reshape(-1, 1)
+        responses = np.asarray(responses, float)
+        responses = responses.reshape(-1, 1) if responses.ndim == 1 else responses
+        if responses.shape[0] != force.shape[0]:
+            raise ValueError(f"force has {force.shape[0]} samples but responses have {responses.shape[0]}")
+        block = np.hstack([force, responses])
+        if self._pending is not None:
+            if self._pending.shape[1] != block.shape[1]:
+                raise ValueError("the number of response channels changed between blocks")
+            block = np.vstack([self._pending, block])
+        n_seg = 0 if len(block) < self.segment_length else 1 + (len(block) - self.segment_length) // self.step
+        if n_seg:
+            starts = np.arange(n_seg) * self.step
+            idx = starts[:, None] + np.arange(self.segment_length)[None, :]
+            segs = block[idx] * self.window[None, :, None]            # (n_seg, N, 1 + p)
+            spec = np.fft.rfft(segs, axis=1)
+            F, X = spec[:, :, 0], spec[:, :, 1:]
+            Gff = np.sum(np.abs(F) ** 2, axis=0)
+            Gfx = np.sum(np.conj(F)[:, :, None] * X, axis=0)
+            Gxx = np.sum(np.abs(X) ** 2, axis=0)
+            if self._Gff is None:
+                self._Gff, self._Gfx, self._Gxx = Gff, Gfx, Gxx
+            else:
+                self._Gff, self._Gfx, self._Gxx = self._Gff + Gff, self._Gfx + Gfx, self._Gxx + Gxx
+            self.n_averages += n_seg
+            block = block[n_seg * self.step:]
+        self._pending = block
+
+    def _spectra(self):
+        if not self.n_averages:
+            raise ValueError(f"no complete segment yet: need at least {self.segment_length} samples")
+        return self._Gff[:, None], self._Gfx, self._Gxx
+
+    def get_H1(self) -> np.ndarray:
+        """H1, shape (n_freq, p), response units per force unit."""
+        Gff, Gfx, _ = self._spectra()
+        return Gfx / Gff
+
+    def get_H2(self) -> np.ndarray:
+        """H2, shape (n_freq, p)."""
+        _, Gfx, Gxx = self._spectra()
+        return Gxx / np.conj(Gfx)
+
+    def get_Hv(self) -> np.ndarray:
+        """Hv (total least squares), shape (n_freq, p)."""
+        Gff, Gfx, Gxx = self._spectra()
+        return (Gxx - Gff + np.sqrt((Gff - Gxx) ** 2 + 4 * np.abs(Gfx) ** 2)) / (2 * np.conj(Gfx))
+
+    def get_coherence(self) -> np.ndarray:
+        """Ordinary coherence in [0, 1], shape (n_freq, p)."""
+        Gff, Gfx, Gxx = self._spectra()
+        return np.abs(Gfx) ** 2 / (Gff * Gxx)
+
+    def get_random_error(self) -> np.ndarray:
+        """Normalised random error of |H1| (one standard deviation, relative), shape (n_freq, p)."""
+        coh = np.clip(self.get_coherence(), 1e-12, 1.0)
+        return np.sqrt(1.0 - coh) / (np.sqrt(coh) * np.sqrt(2.0 * self.n_averages))
+
+    def get_force_autospectrum(self) -> np.ndarray:
+        """One-sided force power spectral density, N^2/Hz, shape (n_freq,)."""
+        Gff, _, _ = self._spectra()
+        scale = 2.0 / (self.sample_rate * np.sum(self.window ** 2) * self.n_averages)
+        psd = Gff[:, 0] * scale
+        psd[0] /= 2.0
+        if self.segment_length % 2 == 0:
+            psd[-1] /= 2.0
+        return psd

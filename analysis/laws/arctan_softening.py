@@ -1,0 +1,46 @@
+"""arctan_softening: saturating spring, f = alpha arctan(beta x).
+
+Initial stiffness ``alpha beta``; the force saturates at ``(pi/2) alpha``. Exact
+describing function (z = beta X):
+
+    kbar = 2 alpha (sqrt(1 + z^2) - 1) / (beta X^2) = 2 alpha beta / (1 + sqrt(1 + z^2)),
+
+evaluated in the second form (no cancellation at small z). Small X: alpha beta (1 - z^2/4);
+large X: 2 alpha / X.
+
+The paper's eq. 34 prints the stiffness term as ``2 alpha (sqrt((beta X)^2 + 1) - 1) / (beta X)``
+and attributes it to the tanh law of eq. 32. As printed it has the units of a force,
+not of a stiffness. With ``beta X^2`` in the denominator it is exactly the describing
+function of this arctan law, not of tanh; the tanh law (tanh_softening.py) differs from
+it by 26 % at ``beta X = 4``.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from .base import Law, Param
+
+# beta is the law's shape parameter: the same object in both lists
+_BETA = Param("beta", "1/{L}", "inverse of the softening displacement", lower=0.0, lower_open=True)
+
+
+@njit(cache=True)
+def arctan_softening_force(x, v, p, s):
+    return p[0] * math.atan(p[1] * x)
+
+
+class ArctanSoftening(Law):
+    name = "arctan_softening"
+    summary = "arctan saturating spring"
+    params = (Param("alpha", "{F}", "force scale (the force saturates at (pi/2) alpha)"), _BETA)
+    linear = ("alpha",)
+    shape = (_BETA,)
+    example = {"alpha": 10.0, "beta": 1.0e3}
+    example_amplitude = (1e-4, 1e-1)
+    kernel = arctan_softening_force
+
+    def basis(self, X, w, beta):
+        X, w = np.broadcast_arrays(X, w)
+        z = beta * X
+        return np.asarray(2.0 * beta / (1.0 + np.sqrt(1.0 + z * z)), complex)[None]

@@ -1,0 +1,26 @@
+"""cubic_damping: cubic viscous damper, f = c3 x'^3.
+
+Describing function: kbar = j (3/4) c3 w^3 X^2.
+"""
+import numpy as np
+from numba import njit
+
+from .base import Law, Param
+
+
+@njit(cache=True)
+def cubic_damping_force(x, v, p, s):
+    return p[0] * v * v * v
+
+
+class CubicDamping(Law):
+    name = "cubic_damping"
+    summary = "cubic viscous damper"
+    params = (Param("c3", "{F}·s^3/{L}^3", "cubic damping coefficient"),)
+    linear = ("c3",)
+    example = {"c3": 10.0}
+    kernel = cubic_damping_force
+
+    def basis(self, X, w):
+        X, w = np.broadcast_arrays(X, w)
+        return np.asarray(0.75j * w**3 * X**2, complex)[None]

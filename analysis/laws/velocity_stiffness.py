@@ -1,0 +1,34 @@
+"""velocity_stiffness: stiffness growing with frequency, f = (pi/2) gamma |x'| sgn(x).
+
+The second term of the paper's eq. 32. Its fundamental is in phase with ``x``:
+kbar = gamma w (real, independent of the amplitude). The paper's fitted values of
+gamma are negative (Table 3), so the sign is free.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from .base import Law, Param
+
+
+@njit(cache=True)
+def velocity_stiffness_force(x, v, p, s):
+    if x > 0.0:
+        return 0.5 * math.pi * p[0] * abs(v)
+    if x < 0.0:
+        return -0.5 * math.pi * p[0] * abs(v)
+    return 0.0
+
+
+class VelocityStiffness(Law):
+    name = "velocity_stiffness"
+    summary = "frequency-proportional stiffness (paper eq. 32)"
+    params = (Param("gamma", "{F}·s/{L}", "stiffness per unit angular frequency"),)
+    linear = ("gamma",)
+    example = {"gamma": 10.0}
+    kernel = velocity_stiffness_force
+
+    def basis(self, X, w):
+        X, w = np.broadcast_arrays(X, w)
+        return np.asarray(w, complex)[None]
