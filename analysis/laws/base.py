@@ -67,7 +67,9 @@ class Param:
         return self.unit.replace("{F}", force).replace("{L}", length)
 
 
-@njit(cache=True)
+# Not disk-cached: the cache key of a function taking another jitted function includes its address, so a
+# cached copy would never be reused and the cache would only grow. Compiling per law costs ~0.1 s once per process.
+@njit
 def _march(kernel, x, v, p, s):
     f = np.empty(x.shape[0])
     for i in range(x.shape[0]):

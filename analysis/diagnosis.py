@@ -1,0 +1,275 @@
+"""Which physical effect is missing: candidate laws ranked by what they do to the FRF error, explained by
+the signature of the complex stiffness (METHOD.md §3).
+
+For every element and every law of the library not yet on it, the element's laws plus the candidate are
+fitted to the element's kbar samples, the FRFs of every stepped-sine run are predicted by harmonic balance,
+and the error is computed.
+
+Two numbers judge a candidate:
+- *kbar evidence* ``E = chi2_kbar(current) - chi2_kbar(with candidate) - k ln N``: how much of the element's
+  measured kbar the law explains, with a BIC penalty of ln N per added parameter. A candidate is *supported*
+  when ``E > 0`` and it falls short of the best evidence among the candidates of that element by no more than
+  the noise explains (the chi-square quantile) or ``tie`` (5 %) of that best evidence -- a tie, as between
+  coulomb and jenkins with a tiny slip displacement.
+  This keeps a law that merely compensates another missing effect in the FRFs (a quintic standing in for
+  missing damping near resonance) from ranking above the law the kbar signature points to.
+- *FRF criterion* ``BIC = chi2_FRF + k ln N_FRF`` (or ``N ln(error^2) + k ln N`` without noise estimates).
+Supported candidates come first. Elements are ordered by the FRF criterion of their best supported candidate,
+and the candidates of one element by their kbar evidence, so among laws that explain the kbar equally well the
+simplest comes first (the penalty decides a tie). A candidate is *significant* only if
+it is supported, cuts the FRF error by at least ``min_gain`` (x1.25, i.e. 20 %) *and* by more than the noise
+explains (chi-square drop above its 1e-3 quantile). The ``linear`` law is the linear correction: a constant
+offset in kbar means the reference stiffness or damping at that element is wrong (the paper's k_w).
+
+The explanation of a candidate is built from the signature measured in the data -- log-slopes of Im kbar
+against X and w, the change of Re kbar over the amplitude range in standard deviations -- the element name, and
+the physics of the law.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.stats
+
+from .comparison import Comparison, Predictor, kbar_functions_with
+from .elements import LawTerm
+from .errors import InputError
+from .fit import LawFit, fit_laws
+from .laws import LAWS
+
+# Laws whose kbar carries no amplitude information beyond a constant (only harmonics reveal them): they cannot
+# be told from the linear correction on kbar alone and are not proposed.
+NOT_FROM_KBAR = ("bilinear",)
+
+
+@dataclass
+class ElementSamples:
+    """Identified kbar samples of one element over all runs (well-conditioned lines only).
+
+    X in m (rad), w in rad/s, kbar and kbar_std in N/m (N·m/rad); ``level`` is the run's force, N.
+    """
+
+    name: str
+    X: np.ndarray
+    w: np.ndarray
+    kbar: np.ndarray
+    kbar_std: np.ndarray | None
+    level: np.ndarray
+    rotational: bool = False
+
+    @property
+    def units(self) -> tuple[str, str]:
+        return ("N·m/rad", "rad") if self.rotational else ("N/m", "m")
+
+
+@dataclass
+class Signature:
+    """What the kbar samples (minus the current model) look like, in numbers."""
+
+    im_slope_X: float | None        # d ln Im / d ln X
+    im_slope_w: float | None        # d ln Im / d ln w
+    re_slope_X: float | None        # d ln |Re - Re(smallest X)| / d ln X
+    re_change_sigma: float          # (Re at large X - Re at small X) / its std
+    im_change_sigma: float
+    mean_re: float
+    mean_im: float
+    re_small: float                 # mean Re over the smallest-amplitude quarter
+    re_large: float
+    im_small: float
+    im_large: float
+    X_range: tuple[float, float]
+    w_varies: bool
+
+
+@dataclass
+class Candidate:
+    """A law proposed for an element, with the error after adding it and refitting."""
+
+    element: str
+    law: str
+    error: float
+    error_before: float
+    bic: float
+    significant: bool
+    explanation: str
+    evidence: float = 0.0
+    supported: bool = True
+    fit: LawFit | None = field(default=None, repr=False)
+    comparison: Comparison | None = field(default=None, repr=False)
+
+    @property
+    def gain(self) -> float:
+        """error_before / error (> 1 means better)."""
+        return self.error_before / self.error if self.error > 0 else float("inf")
+
+    def to_json(self) -> dict:
+        return {"element": self.element, "law": self.law, "error": self.error, "gain": self.gain,
+                "significant": self.significant, "kbar_evidence": self.evidence, "supported": self.supported,
+                "explanation": self.explanation,
+                "params": {} if self.fit is None else self.fit.terms[-1].params}
+
+
+def signature(samples: ElementSamples, model_kbar: np.ndarray | None = None) -> Signature:
+    """The signature of ``samples.kbar - model_kbar`` (METHOD.md §3 table)."""
+    res = samples.kbar - (0.0 if model_kbar is None else model_kbar)
+    X, w = samples.X, samples.w
+    lx, lw = np.log(X), np.log(w)
+    std = samples.kbar_std if samples.kbar_std is not None else np.full(len(X), np.std(res) + 1e-300)
+    order = np.argsort(X)
+    q = max(1, len(X) // 4)
+    small, large = order[:q], order[-q:]
+
+    def change(values):
+        a, b = values[small].mean(), values[large].mean()
+        s = np.sqrt(np.mean(std[small] ** 2) / (2 * q) + np.mean(std[large] ** 2) / (2 * q)) + 1e-300
+        return a, b, (b - a) / s
+
+    re_small, re_large, re_sig = change(res.real)
+    im_small, im_large, im_sig = change(res.imag)
+    w_varies = np.ptp(lw) > 0.05
+    im = res.imag
+    usable = im > 2 * std / np.sqrt(2)
+    im_slope_X = im_slope_w = None
+    if usable.sum() >= 4 and np.ptp(lx[usable]) > 0.1:
+        cols = [np.ones(usable.sum()), lx[usable]] + ([lw[usable]] if w_varies else [])
+        coef, *_ = np.linalg.lstsq(np.stack(cols, axis=1), np.log(im[usable]), rcond=None)
+        im_slope_X = float(coef[1])
+        im_slope_w = float(coef[2]) if w_varies else None
+    dre = np.abs(res.real - re_small)
+    usable = dre > 2 * std / np.sqrt(2)
+    re_slope_X = None
+    if usable.sum() >= 4 and np.ptp(lx[usable]) > 0.1:
+        re_slope_X = float(np.polyfit(lx[usable], np.log(dre[usable]), 1)[0])
+    return Signature(im_slope_X, im_slope_w, re_slope_X, float(re_sig), float(im_sig), float(res.real.mean()),
+                     float(res.imag.mean()), float(re_small), float(re_large), float(im_small), float(im_large),
+                     (float(X.min()), float(X.max())), bool(w_varies))
+
+
+def _slope(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:+.2f}"
+
+
+def explain(element: str, law: str, sig: Signature, fit: LawFit | None, units: tuple[str, str]) -> str:
+    """One sentence: what the data show for ``element`` and why ``law`` is the physics behind it."""
+    k_u, x_u = units
+    re_flat = abs(sig.re_change_sigma) < 3
+    im_flat = abs(sig.im_change_sigma) < 3
+    re_text = ("Re kbar stays flat" if re_flat else
+               f"Re kbar {'rises' if sig.re_change_sigma > 0 else 'falls'} from {sig.re_small:.3g} to "
+               f"{sig.re_large:.3g} {k_u} ({abs(sig.re_change_sigma):.0f} sigma)")
+    im_text = ("Im kbar stays flat" if im_flat else
+               f"Im kbar {'rises' if sig.im_change_sigma > 0 else 'falls'} from {sig.im_small:.3g} to "
+               f"{sig.im_large:.3g} {k_u} (log-slope {_slope(sig.im_slope_X)} in X"
+               + (f", {_slope(sig.im_slope_w)} in w)" if sig.im_slope_w is not None else ")"))
+    params = ""
+    if fit is not None:
+        term = fit.terms[-1]
+        params = ", ".join(f"{k} = {v:.4g}" for k, v in term.params.items())
+    X0, X1 = sig.X_range
+    head = f"'{element}' over X = {X0:.3g}..{X1:.3g} {x_u}: "
+    physics = {
+        "linear": (f"kbar is a constant offset (Re {sig.mean_re:+.3g} {k_u}, Im {sig.mean_im:+.3g} {k_u}) that does "
+                   "not change with amplitude: the element is linear but the reference stiffness or damping there "
+                   "is wrong -- a linear correction"),
+        "cubic": f"{re_text} while Im stays flat: a {'hardening' if sig.re_large > sig.re_small else 'softening'} "
+                 "spring whose force grows as x^3",
+        "quintic": f"{re_text} steeply (log-slope {_slope(sig.re_slope_X)}) while Im stays flat: a spring whose "
+                   "force grows as x^5",
+        "quadratic_damping": f"{im_text} while Re stays flat: damping that grows with velocity amplitude -- "
+                             "quadratic (drag-like) damping",
+        "cubic_damping": f"{im_text} while Re stays flat: damping that grows as the square of the velocity "
+                         "amplitude -- cubic damping",
+        "coulomb": f"{im_text} while Re stays flat: energy lost per cycle does not grow with amplitude -- dry "
+                   "friction",
+        "tanh_softening": f"{re_text} and Im stays flat: a spring that saturates -- tanh softening",
+        "arctan_softening": f"{re_text} and Im stays flat: a spring that saturates -- arctan softening",
+        "velocity_stiffness": f"Re kbar changes with frequency, not amplitude ({re_text}): "
+                              "velocity-dependent stiffness",
+        "anderson_ferri": f"{im_text}: friction whose normal load follows the motion (Anderson-Ferri)",
+        "jenkins": f"{re_text} and {im_text}: the contact sticks at small amplitude and slips beyond a "
+                   "threshold -- macro-slip friction (Jenkins)",
+        "iwan": f"{re_text} and {im_text}: slip spreads over the contact from the smallest amplitudes -- "
+                "micro-slip friction (Iwan)",
+        "gap": f"{re_text} with Im flat, little below a threshold amplitude: a clearance that closes -- gap",
+        "unilateral": f"{re_text} with Im flat: contact on one side only -- unilateral spring",
+        "bilinear": "kbar is constant: a bilinear stiffness shows only in the mean and even harmonics",
+    }[law]
+    return head + physics + (f"; fitted {params}" if params else "")
+
+
+def _kbar_chi_square(samples: ElementSamples, fit: LawFit | None) -> float:
+    """chi-square of the element's kbar against its current laws, in the convention of fit_laws."""
+    if fit is not None:
+        return fit.chi_square
+    if samples.kbar_std is None:
+        return float(np.sum(np.abs(samples.kbar) ** 2))
+    return float(np.sum(2 * np.abs(samples.kbar) ** 2 / samples.kbar_std ** 2))
+
+
+def rank_candidates(predictor: Predictor, samples: dict[str, ElementSamples], fits: dict[str, LawFit | None],
+                    base: Comparison, laws=None, min_gain: float = 1.25, tie: float = 0.05,
+                    false_alarm: float = 1e-3) -> list[Candidate]:
+    """Rank every (element, law) candidate, best first (module docstring).
+
+    Parameters
+    ----------
+    predictor : Predictor for the model (structure + elements) and the measurements.
+    samples : element name -> its identified kbar samples.
+    fits : element name -> the current fit of its laws (None: no laws yet).
+    base : the current model's comparison.
+    laws : law names to try (default: the whole library but ``NOT_FROM_KBAR``).
+    min_gain : error_before / error needed, with a chi-square drop above the noise, to call it significant.
+    tie : fraction of the element's best kbar evidence within which a candidate still counts as supported.
+    """
+    elements = predictor.model.elements
+    names = [n for n in (laws or LAWS) if n not in NOT_FROM_KBAR]
+    current_fns = {i: (fits[el.name].describing_function if fits.get(el.name) else el.describing_function)
+                   for i, el in enumerate(elements)}
+    n_obs = base.n_observations
+    out: list[Candidate] = []
+    for i, el in enumerate(elements):
+        s = samples.get(el.name)
+        if s is None or len(s.X) < 3:
+            continue
+        current = fits.get(el.name)
+        present = {t.law.name for t in el.laws}
+        terms = [LawTerm(t.law, dict(current.terms[j].params) if current else dict(t.values))
+                 for j, t in enumerate(el.laws)]
+        model_kbar = current.describing_function(s.X, s.w) if current else None
+        sig = signature(s, model_kbar)
+        chi2_now = _kbar_chi_square(s, current)
+        mine: list[Candidate] = []
+        for law in names:
+            if law in present:
+                continue
+            try:
+                fit = fit_laws(terms + [LawTerm(LAWS[law], {})], s.X, s.w, s.kbar, s.kbar_std)
+            except InputError:
+                continue                          # too few samples for this many parameters
+            k_added = len(LAWS[law].params)
+            evidence = chi2_now - fit.chi_square - k_added * np.log(2 * len(s.X))
+            fns = kbar_functions_with(elements, {**current_fns, i: fit.describing_function})
+            comp = predictor.compare(fns)
+            if not np.isfinite(comp.error):
+                continue
+            if base.chi_square is not None and comp.chi_square is not None:
+                bic = comp.chi_square + k_added * np.log(n_obs)
+                noise_ok = base.chi_square - comp.chi_square > scipy.stats.chi2.ppf(1 - false_alarm, k_added)
+            else:
+                bic = n_obs * np.log(comp.error ** 2) + k_added * np.log(n_obs)
+                noise_ok = True
+            mine.append(Candidate(el.name, law, comp.error, base.error, float(bic), bool(noise_ok), 
+                                  explain(el.name, law, sig, fit, s.units), float(evidence), True, fit, comp))
+        best = max((c.evidence for c in mine), default=0.0)
+        for c in mine:
+            slack = max(scipy.stats.chi2.ppf(1 - false_alarm, len(LAWS[c.law].params)), tie * best)
+            c.supported = c.evidence > 0 and best - c.evidence <= slack
+            c.significant = bool(c.significant and c.supported and c.gain >= min_gain)
+        out += mine
+    element_key = {}
+    for c in out:
+        if c.supported:
+            element_key[c.element] = min(element_key.get(c.element, np.inf), c.bic)
+    out.sort(key=lambda c: (0, element_key[c.element], -c.evidence) if c.supported else (1, c.bic, 0.0))
+    return out

@@ -1,0 +1,88 @@
+"""Measured data as the analysis sees it: arrays with their meaning, no files.
+
+The application reads sessions into these containers (app/session_data.py); tests and scripts can build them
+from any source. Receptances are ``X/F`` in m/N (rad/N on rotations) in the phasor convention of
+CONTRACTS.md §1.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class SineRun:
+    """One stepped-sine run at one force level and sweep direction.
+
+    Attributes
+    ----------
+    name : str
+    force : float
+        Force amplitude held at every line, N.
+    direction : str
+        "up" or "down".
+    excitation_dof : str
+    sensor_dofs : list of str
+    frequency_hz : ndarray, shape (L,)
+        In the order measured.
+    receptance : ndarray, shape (L, P), complex
+        Fundamental receptance per sensor, m/N.
+    receptance_std : ndarray, shape (L, P), optional
+        Its standard deviation ``sqrt(E|n|^2)``, m/N.
+    force_achieved : ndarray, shape (L,), optional
+        Force amplitude actually held, N.
+    """
+
+    name: str
+    force: float
+    direction: str
+    excitation_dof: str
+    sensor_dofs: list[str]
+    frequency_hz: np.ndarray
+    receptance: np.ndarray
+    receptance_std: np.ndarray | None = None
+    force_achieved: np.ndarray | None = None
+
+    @property
+    def w(self) -> np.ndarray:
+        return 2 * np.pi * np.asarray(self.frequency_hz, float)
+
+    @property
+    def force_per_line(self) -> np.ndarray:
+        if self.force_achieved is not None:
+            return np.asarray(self.force_achieved, float)
+        return np.full(len(self.frequency_hz), float(self.force))
+
+
+@dataclass
+class RandomRun:
+    """The low-level random run: H1 per sensor with coherence and random error."""
+
+    excitation_dof: str
+    sensor_dofs: list[str]
+    frequency_hz: np.ndarray
+    receptance: np.ndarray                 # (L, P) H1, m/N
+    coherence: np.ndarray | None = None    # (L, P)
+    random_error: np.ndarray | None = None  # (L, P) normalised random error of |H1|
+    force_rms: float = 0.0
+
+
+@dataclass
+class Measurements:
+    """Everything measured in a session, ready for the workbench."""
+
+    sine: list[SineRun] = field(default_factory=list)
+    random: RandomRun | None = None
+
+    @property
+    def levels(self) -> list[float]:
+        return sorted({round(r.force, 12) for r in self.sine})
+
+    def dofs(self) -> set[str]:
+        out = set()
+        for r in self.sine:
+            out |= {r.excitation_dof, *r.sensor_dofs}
+        if self.random is not None:
+            out |= {self.random.excitation_dof, *self.random.sensor_dofs}
+        return out

@@ -1,0 +1,274 @@
+"""The model workbench: reference model, identification, verdicts, fits, prediction, error, missing effects.
+
+One object carries a model through the loop a test engineer works (docs/workbench.md):
+
+1. :meth:`Workbench.update_reference` -- natural frequencies and damping from the random run (modal fit),
+   then the structure parameters marked uncertain updated to them (eigenvalue sensitivity);
+2. :meth:`Workbench.identify` -- kbar of every element at every well-conditioned stepped-sine line and force
+   level, with its standard deviation, and a linear/nonlinear verdict per element;
+3. :meth:`Workbench.fit` -- each element's laws fitted to its kbar samples;
+4. :meth:`Workbench.compare` -- FRFs of every run predicted by harmonic balance, the error and where it fails;
+5. :meth:`Workbench.candidates` / :meth:`Workbench.add` -- the ranked missing effects, and adding one; every
+   step is kept in :attr:`Workbench.history` so the error falling is visible step by step.
+
+Analysis sees only measured data (``Measurements``) and the user's model: never the rig a simulated session
+came from.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .comparison import Comparison, Predictor
+from .diagnosis import Candidate, ElementSamples, rank_candidates
+from .elements import LawTerm
+from .errors import InputError
+from .fit import LawFit, fit_laws
+from .identify import identify_complex_stiffness
+from .laws import get_law
+from .linearity import LinearityVerdict, linearity_verdict
+from .measurements import Measurements
+from .modal_fit import ModalFit, fit_modes
+from .model import Model
+from .updating import UpdateResult, update_parameters
+
+
+@dataclass
+class ElementReport:
+    """What identification found for one element."""
+
+    name: str
+    samples: ElementSamples | None
+    verdict: LinearityVerdict | None
+    lines_used: int
+    lines_flagged: int
+    fit: LawFit | None = None
+
+    def to_json(self, element) -> dict:
+        laws = []
+        for j, term in enumerate(element.laws):
+            entry = {"law": term.law.name, "params": dict(term.values)}
+            if self.fit is not None:
+                entry["stderr"] = {k: (None if not np.isfinite(v) else float(v))
+                                   for k, v in self.fit.terms[j].stderr.items()}
+            laws.append(entry)
+        out = {"name": self.name, "verdict": None if self.verdict is None else
+               ("linear" if self.verdict.linear else "nonlinear"),
+               "evidence": "" if self.verdict is None else self.verdict.evidence,
+               "lines_used": self.lines_used, "lines_flagged": self.lines_flagged, "laws": laws}
+        if self.verdict is not None:
+            out["statistic"], out["threshold"] = self.verdict.statistic, self.verdict.threshold
+        return out
+
+
+@dataclass
+class HistoryStep:
+    """One step of the model history: what was done and what error it gave."""
+
+    step: int
+    action: str
+    model_toml: str
+    error: float
+    error_by_level: list[tuple[float, float]]
+    laws: dict[str, list[dict]]
+
+    def to_json(self) -> dict:
+        return {"step": self.step, "action": self.action, "error": self.error,
+                "error_by_level": [{"force": f, "error": e} for f, e in self.error_by_level],
+                "laws": self.laws, "model": self.model_toml}
+
+
+@dataclass
+class ReferenceReport:
+    """Modal fit of the random run and (optionally) the updating of the structure."""
+
+    modal: ModalFit | None
+    update: UpdateResult | None
+
+    def text(self) -> str:
+        lines = []
+        if self.modal is not None:
+            lines.append("modes from the random run (modal fit):")
+            lines += [f"  mode {i + 1}: {f:10.4f} Hz, damping {100 * z:.3f} %"
+                      for i, (f, z) in enumerate(zip(self.modal.frequency, self.modal.damping))]
+        if self.update is not None:
+            lines.append("reference model updated to the measured frequencies:")
+            lines += ["  " + line for line in self.update.table_text().splitlines()]
+        return "\n".join(lines)
+
+    def to_json(self) -> dict:
+        out: dict = {}
+        if self.modal is not None:
+            out["modes"] = [{"frequency": float(f), "damping": float(z)}
+                            for f, z in zip(self.modal.frequency, self.modal.damping)]
+        if self.update is not None:
+            u = self.update
+            out["updating"] = {"parameters": {p: {"before": float(b), "after": float(a)}
+                                              for p, b, a in zip(u.parameters, u.before, u.after)},
+                               "modes": u.modes, "measured_hz": u.measured_hz.tolist(),
+                               "before_hz": u.before_hz.tolist(), "after_hz": u.after_hz.tolist()}
+        return out
+
+
+class Workbench:
+    """Carry one model through identification, fitting, comparison and the missing-effect loop."""
+
+    def __init__(self, model: Model, measurements: Measurements):
+        if not measurements.sine:
+            raise InputError("the session has no stepped-sine run to identify from")
+        missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
+        if missing:
+            raise InputError(f"measured DOF(s) {', '.join(missing)} are not in the model's structure", model.source)
+        self.model = model.copy()
+        self.measurements = measurements
+        self.reference: ReferenceReport | None = None
+        self.reports: dict[str, ElementReport] = {}
+        self.history: list[HistoryStep] = []
+        self._comparison: Comparison | None = None
+        self._predictor: Predictor | None = None
+
+    # ------------------------------------------------------------------ reference
+    def update_reference(self) -> ReferenceReport:
+        """Modal fit of the random run; update the parameters named in the model's ``[updating]`` table."""
+        rnd = self.measurements.random
+        modal = update = None
+        if rnd is not None:
+            n_wanted = max(self.model.updating_modes or [len(self.model.updating_parameters) or 1])
+            modal = fit_modes(rnd.frequency_hz, rnd.receptance, n_modes=n_wanted)
+            if self.model.updating_parameters:
+                modes = self.model.updating_modes or list(range(1, len(modal.frequency) + 1))
+                if len(modal.frequency) < len(modes):
+                    raise InputError(f"the random run shows {len(modal.frequency)} modes but {len(modes)} are to "
+                                     "be matched", self.model.source, "[updating].modes")
+                update = update_parameters(self.model.structure_table, self.model.updating_parameters,
+                                           modal.frequency[: len(modes)], modes, self.model.source)
+                self.model = self.model.with_structure(update.table)
+                self._predictor = None
+        self.reference = ReferenceReport(modal, update)
+        return self.reference
+
+    # ------------------------------------------------------------------ identification
+    def identify(self) -> dict[str, ElementReport]:
+        """kbar samples and a verdict for every element of the model."""
+        els = self.model.elements
+        if not els:
+            raise InputError("the model has no [[element]] to identify", self.model.source)
+        per: dict[str, list] = {e.name: [] for e in els}
+        flagged = {e.name: 0 for e in els}
+        for run in self.measurements.sine:
+            if len(run.sensor_dofs) < len(els):
+                raise InputError(f"run {run.name} measured {len(run.sensor_dofs)} FRF(s) but the model has "
+                                 f"{len(els)} unknown elements: at least as many sensors as elements are needed")
+            std = None
+            if run.receptance_std is not None:
+                # a noise-free simulation still needs a positive std: floor at round-off of the data
+                std = np.maximum(np.asarray(run.receptance_std, float), 1e-9 * np.abs(run.receptance).max())
+            ident = identify_complex_stiffness(self.model.structure, run.receptance, run.sensor_dofs,
+                                               run.excitation_dof, els, w=run.w, force=run.force_per_line,
+                                               noise_std=std)
+            good = ~ident.ill_conditioned & np.isfinite(ident.kbar).all(axis=1) & (ident.amplitude > 0).all(axis=1)
+            for i, el in enumerate(els):
+                flagged[el.name] += int((~good).sum())
+                kstd = None if ident.kbar_std is None else ident.kbar_std[good, i]
+                per[el.name].append((ident.amplitude[good, i], run.w[good], ident.kbar[good, i], kstd,
+                                     np.full(good.sum(), run.force)))
+        self.reports = {}
+        for el in els:
+            parts = per[el.name]
+            X = np.concatenate([p[0] for p in parts])
+            stds = [p[3] for p in parts]
+            samples = ElementSamples(el.name, X, np.concatenate([p[1] for p in parts]),
+                                     np.concatenate([p[2] for p in parts]),
+                                     None if any(s is None for s in stds) else np.concatenate(stds),
+                                     np.concatenate([p[4] for p in parts]), el.rotational(self.model.structure))
+            verdict = None
+            if len(X) >= 4:
+                k_u, x_u = samples.units
+                try:
+                    verdict = linearity_verdict(X, samples.w, samples.kbar, samples.kbar_std, level=samples.level,
+                                                stiffness_unit=k_u, amplitude_unit=x_u)
+                except InputError:
+                    verdict = None
+            self.reports[el.name] = ElementReport(el.name, samples if len(X) else None, verdict, len(X),
+                                                  flagged[el.name])
+        return self.reports
+
+    # ------------------------------------------------------------------ fitting and comparison
+    def fit(self, names: list[str] | None = None) -> None:
+        """Fit the laws of the named elements (default all) to their samples; values go into the model."""
+        if not self.reports:
+            self.identify()
+        for el in self.model.elements:
+            if names is not None and el.name not in names:
+                continue
+            report = self.reports[el.name]
+            if not el.laws:
+                report.fit = None
+                continue
+            s = report.samples
+            if s is None:
+                raise InputError(f"element {el.name!r} has no well-conditioned line to fit its laws to")
+            report.fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std)
+            el.laws = [LawTerm(t.law, dict(report.fit.terms[j].params)) for j, t in enumerate(el.laws)]
+        self._comparison = None
+
+    @property
+    def predictor(self) -> Predictor:
+        if self._predictor is None:
+            self._predictor = Predictor(self.model, self.measurements)
+        return self._predictor
+
+    def compare(self) -> Comparison:
+        """Predict every stepped-sine run with the current model and compare."""
+        if self._comparison is None:
+            for el in self.model.elements:
+                for t in el.laws:
+                    if not t.complete:
+                        raise InputError(f"element {el.name!r}: law {t.law.name} has no values; fit it first")
+            self._comparison = self.predictor.compare()
+        return self._comparison
+
+    def candidates(self, laws=None) -> list[Candidate]:
+        """Ranked missing-effect candidates for the current model (best first)."""
+        base = self.compare()
+        samples = {n: r.samples for n, r in self.reports.items() if r.samples is not None}
+        fits = {n: r.fit for n, r in self.reports.items()}
+        return rank_candidates(self.predictor, samples, fits, base, laws)
+
+    # ------------------------------------------------------------------ the loop
+    def record(self, action: str) -> HistoryStep:
+        """Append the current model and its error to the history."""
+        comp = self.compare()
+        step = HistoryStep(len(self.history), action, self.model.to_toml(), comp.error, comp.error_by_level,
+                           {el.name: [t.to_toml() for t in el.laws] for el in self.model.elements})
+        self.history.append(step)
+        return step
+
+    def add(self, element: str, law: str) -> HistoryStep:
+        """Add ``law`` to ``element``, refit that element and record the new error."""
+        el = self.model.element(element)
+        new = get_law(law, self.model.source, "--add")
+        if any(t.law.name == new.name for t in el.laws):
+            raise InputError(f"element {element!r} already has law {law!r}", self.model.source, "--add")
+        el.laws.append(LawTerm(new, {}))
+        self.fit([element])
+        return self.record(f"add {element}:{law}")
+
+    def start(self) -> HistoryStep:
+        """Reference, identification and fit of the model as given; the first history step."""
+        if self.reference is None:
+            self.update_reference()
+        self.identify()
+        self.fit()
+        return self.record("start")
+
+    def to_json(self, candidates: list[Candidate] | None = None) -> dict:
+        comp = self.compare()
+        out = {"elements": [self.reports[el.name].to_json(el) for el in self.model.elements],
+               **comp.to_json(),
+               "candidates": [c.to_json() for c in (candidates or [])],
+               "history": [h.to_json() for h in self.history]}
+        if self.reference is not None:
+            out["reference"] = self.reference.to_json()
+        return out

@@ -1,0 +1,526 @@
+"""Numba kernels of the rig simulator: the whole integration loop of a block.
+
+The linear part (structure, shaker, the elements' small-amplitude stiffness and
+damping) is advanced exactly by precomputed matrix exponentials; the element laws
+enter as the *residual* force ``g = f_law(x, x', state) - k0 x - c0 x'`` with a
+first-order hold over each step, solved implicitly at the step end (modified Newton
+on the r element forces, with a finite-difference Jacobian kept while it converges
+well). Dry-friction terms (laws with a ``stick_limit``) are handled as a set-valued
+force: an element either sticks (its velocity is held at zero by a constraint force
+no larger than the stick limit) or slides with the friction law's force in the
+direction of the slip.
+
+Law forces are never written here: every force comes from the law's own numba
+kernel, called through a C callback (:func:`law_callbacks`) whose address the loop
+receives in an integer array. One compiled, disk-cached integration loop therefore
+serves every combination of laws, and a new rig costs only the callbacks of laws not
+yet used in the process.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from llvmlite import ir
+from numba import carray, cfunc, njit, types
+from numba.extending import intrinsic
+
+# element modes of the friction solver
+FREE = 0     # no dry-friction term: smooth law forces only
+STICK = 1    # dry friction holds the element: relative velocity zero
+SLIP = 2     # dry friction slides in direction sigma
+
+# velocity handed to a dry-friction law while it slides but the Newton iterate says
+# otherwise: it selects the slip branch of the law's sgn(v) without changing the force
+_SLIP_PROBE = 1e-300
+_MAX_NEWTON = 40
+_MAX_BACKTRACK = 30
+_RTOL = 1e-10
+# a Newton step that reduces the residual less than this factor refreshes the Jacobian
+_SLOW_CONTRACTION = 0.25
+
+_FORCE_SIGNATURE = types.float64(types.float64, types.float64, types.CPointer(types.float64), types.intp,
+                                 types.CPointer(types.float64), types.intp)
+_LIMIT_SIGNATURE = types.float64(types.float64, types.CPointer(types.float64), types.intp)
+
+_CALLBACKS: dict[str, tuple] = {}
+
+
+def law_callbacks(law) -> tuple:
+    """C callbacks ``(force, stick_limit)`` calling ``law.kernel`` and ``law.stick_limit``.
+
+    ``force(x, v, p_ptr, n_p, s_ptr, n_s) -> f`` and ``stick_limit(x, p_ptr, n_p)``
+    (None for laws without a stick limit). Built once per law and process and kept
+    alive here (the integration loop holds only their addresses). A callback compiles
+    in a fraction of a second; the law kernels come from their own disk cache.
+    """
+    if law.name not in _CALLBACKS:
+        limit = None if law.stick_limit is None else _limit_callback(law.stick_limit)
+        _CALLBACKS[law.name] = (_force_callback(law.kernel), limit)
+    return _CALLBACKS[law.name]
+
+
+def _force_callback(kernel):
+    @cfunc(_FORCE_SIGNATURE)
+    def force(x, v, p, n_p, s, n_s):
+        return kernel(x, v, carray(p, (n_p,)), carray(s, (n_s,)))
+    return force
+
+
+def _limit_callback(stick_limit):
+    @cfunc(_LIMIT_SIGNATURE)
+    def limit(x, p, n_p):
+        return stick_limit(x, carray(p, (n_p,)))
+    return limit
+
+
+@intrinsic
+def _call_force(typingctx, address, x, v, p_address, n_p, s_address, n_s):
+    """Call the force callback at ``address`` with parameter and state rows at the given addresses."""
+    sig = types.float64(types.intp, types.float64, types.float64, types.intp, types.intp, types.intp,
+                        types.intp)
+
+    def codegen(context, builder, signature, args):
+        double = ir.DoubleType()
+        pointer = double.as_pointer()
+        index = context.get_value_type(types.intp)
+        function = builder.inttoptr(args[0], ir.FunctionType(double, [double, double, pointer, index, pointer,
+                                                                      index]).as_pointer())
+        return builder.call(function, [args[1], args[2], builder.inttoptr(args[3], pointer), args[4],
+                                       builder.inttoptr(args[5], pointer), args[6]])
+
+    return sig, codegen
+
+
+@intrinsic
+def _call_limit(typingctx, address, x, p_address, n_p):
+    """Call the stick-limit callback at ``address``."""
+    sig = types.float64(types.intp, types.float64, types.intp, types.intp)
+
+    def codegen(context, builder, signature, args):
+        double = ir.DoubleType()
+        pointer = double.as_pointer()
+        index = context.get_value_type(types.intp)
+        function = builder.inttoptr(args[0], ir.FunctionType(double, [double, pointer, index]).as_pointer())
+        return builder.call(function, [args[1], builder.inttoptr(args[2], pointer), args[3]])
+
+    return sig, codegen
+
+
+# --- law evaluation --------------------------------------------------------------
+@njit(cache=True, _nrt=False, inline="always")
+def _element_forces(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_trial,
+                    x, v, mode, sigma, out):
+    """Sum of the law forces per element at (x, v), from the committed law states ``S``.
+
+    The updated states land in ``S_trial`` (``S`` is untouched). Dry-friction terms of
+    a stuck element are left out (their force is the constraint force); the other
+    terms of a stuck element see zero velocity.
+    """
+    out[:] = 0.0
+    p_base = P.ctypes.data
+    s_base = S_trial.ctypes.data
+    for k in range(n_terms):
+        e = term_element[k]
+        ns = n_state[k]
+        for j in range(ns):
+            S_trial[k, j] = S[k, j]
+        ve = v[e]
+        if mode[e] == STICK:
+            if term_friction[k]:
+                continue
+            ve = 0.0
+        elif mode[e] == SLIP and term_friction[k] and sigma[e] * ve <= 0.0:
+            ve = sigma[e] * _SLIP_PROBE
+        out[e] += _call_force(force_address[k], x[e], ve, p_base + k * P.strides[0], n_params[k],
+                              s_base + k * S_trial.strides[0], ns)
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _stick_limits(limit_address, n_terms, term_element, term_friction, P, n_params, x, out):
+    """Largest friction force each element can hold at zero velocity (sum over its friction terms)."""
+    out[:] = 0.0
+    p_base = P.ctypes.data
+    for k in range(n_terms):
+        if term_friction[k]:
+            e = term_element[k]
+            out[e] += _call_limit(limit_address[k], x[e], p_base + k * P.strides[0], n_params[k])
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _solve_small(J, b, out, n):
+    """Solve J out = b (n x n, partial pivoting); J and b are overwritten. False if singular."""
+    for c in range(n):
+        p = c
+        best = abs(J[c, c])
+        for i in range(c + 1, n):
+            if abs(J[i, c]) > best:
+                best = abs(J[i, c])
+                p = i
+        if best == 0.0 or not math.isfinite(best):
+            return False
+        if p != c:
+            for j in range(n):
+                J[c, j], J[p, j] = J[p, j], J[c, j]
+            b[c], b[p] = b[p], b[c]
+        for i in range(c + 1, n):
+            f = J[i, c] / J[c, c]
+            for j in range(c, n):
+                J[i, j] -= f * J[c, j]
+            b[i] -= f * b[c]
+    for i in range(n - 1, -1, -1):
+        acc = b[i]
+        for j in range(i + 1, n):
+            acc -= J[i, j] * out[j]
+        out[i] = acc / J[i, i]
+    return True
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _element_motion(y_free, D, g, r, x, v):
+    """Element displacement and velocity at the step end for residual forces g."""
+    for e in range(r):
+        xe = y_free[e]
+        ve = y_free[r + e]
+        for j in range(r):
+            xe += D[e, j] * g[j]
+            ve += D[r + e, j] * g[j]
+        x[e] = xe
+        v[e] = ve
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res):
+    """Residuals of the step-end equations; returns the largest |res| / tolerance.
+
+    Force rows (sliding or smooth elements) are judged against the largest force
+    term of all elements, velocity rows (stuck elements) against the largest
+    velocity term: an element whose forces are tiny is then not held to a
+    tolerance below round-off of the coupled solve.
+    """
+    force_scale = 0.0
+    velocity_scale = 0.0
+    for e in range(r):
+        if mode[e] == STICK:
+            res[e] = v[e]
+            scale = abs(y_free[r + e])
+            for j in range(r):
+                scale += abs(D[r + e, j] * g[j])
+            velocity_scale = max(velocity_scale, scale)
+        else:
+            smooth = F[e] - k0[e] * x[e] - c0[e] * v[e]
+            res[e] = g[e] - smooth
+            force_scale = max(force_scale, abs(g[e]) + abs(F[e]) + abs(k0[e] * x[e]) + abs(c0[e] * v[e]))
+    worst = 0.0
+    for e in range(r):
+        scale = velocity_scale if mode[e] == STICK else force_scale
+        ratio = abs(res[e]) / (_RTOL * scale + 1e-300)
+        if not math.isfinite(ratio):
+            return math.inf
+        worst = max(worst, ratio)
+    return worst
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _jacobian(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_probe,
+              k0, c0, D, r, mode, sigma, x, v, F, work, jac):
+    """Jacobian of the step-end residuals in g, by forward differences of the law forces."""
+    x_probe, v_probe, F_probe, dfdx, dfdv = work[3], work[4], work[5], work[8], work[9]
+    for e in range(r):
+        x_probe[e] = x[e] + (1e-7 * abs(x[e]) + 1e-13)
+        v_probe[e] = v[e]
+    _element_forces(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_probe,
+                    x_probe, v_probe, mode, sigma, F_probe)
+    for e in range(r):
+        dfdx[e] = (F_probe[e] - F[e]) / (x_probe[e] - x[e]) - k0[e]
+        x_probe[e] = x[e]
+        v_probe[e] = v[e] + (1e-7 * abs(v[e]) + 1e-12)
+    _element_forces(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_probe,
+                    x_probe, v_probe, mode, sigma, F_probe)
+    for e in range(r):
+        dfdv[e] = (F_probe[e] - F[e]) / (v_probe[e] - v[e]) - c0[e]
+    for e in range(r):
+        for j in range(r):
+            if mode[e] == STICK:
+                jac[e, j] = D[r + e, j]
+            else:
+                jac[e, j] = (1.0 if e == j else 0.0) - dfdx[e] * D[e, j] - dfdv[e] * D[r + e, j]
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _newton(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_trial, S_probe,
+            k0, c0, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J):
+    """Solve the step-end equations for the residual forces g with the element modes fixed.
+
+    Modified Newton: the Jacobian in ``jac`` is reused across iterations and steps
+    while ``jac_valid[0]`` is set, and refreshed when a step fails or converges slowly.
+    On return x, v, F and S_trial belong to the accepted g. Returns the number of
+    iterations, or -1 if the iteration did not converge.
+    """
+    res, res_trial, g_trial, x_probe, v_probe, F_probe, step, rhs = (work[0], work[1], work[2], work[3],
+                                                                    work[4], work[5], work[6], work[7])
+    _element_motion(y_free, D, g, r, x, v)
+    _element_forces(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_trial,
+                    x, v, mode, sigma, F)
+    worst = _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res)
+    for it in range(_MAX_NEWTON):
+        if worst <= 1.0:
+            return it
+        fresh = jac_valid[0] == 0
+        if fresh:
+            _jacobian(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_probe,
+                      k0, c0, D, r, mode, sigma, x, v, F, work, jac)
+            jac_valid[0] = 1
+        for e in range(r):
+            for j in range(r):
+                J[e, j] = jac[e, j]
+            rhs[e] = -res[e]
+        if not _solve_small(J, rhs, step, r):
+            if fresh:
+                return -1
+            jac_valid[0] = 0
+            continue
+        lam = 1.0
+        accepted = False
+        trial = worst
+        for _ in range(_MAX_BACKTRACK):
+            for e in range(r):
+                g_trial[e] = g[e] + lam * step[e]
+            _element_motion(y_free, D, g_trial, r, x_probe, v_probe)
+            _element_forces(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state,
+                            S_probe, x_probe, v_probe, mode, sigma, F_probe)
+            trial = _residual(g_trial, x_probe, v_probe, F_probe, k0, c0, mode, y_free, D, r, res_trial)
+            if trial < worst or trial <= 1.0:
+                accepted = True
+                break
+            if not fresh:
+                break  # an old Jacobian: refresh it before shortening the step
+            lam *= 0.5
+        if not accepted:
+            if fresh:
+                return -1
+            jac_valid[0] = 0
+            continue
+        if trial > _SLOW_CONTRACTION * worst and trial > 1.0:
+            jac_valid[0] = 0
+        worst = trial
+        for e in range(r):
+            g[e] = g_trial[e]
+            x[e] = x_probe[e]
+            v[e] = v_probe[e]
+            F[e] = F_probe[e]
+            res[e] = res_trial[e]
+        for k in range(n_terms):
+            for j in range(n_state[k]):
+                S_trial[k, j] = S_probe[k, j]
+    return -1 if worst > 1.0 else _MAX_NEWTON
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _solve_step(force_address, limit_address, n_terms, term_element, term_friction, P, n_params, S, n_state,
+                S_trial, S_probe, k0, c0, has_friction, y_free, D, r, mode, sigma, g, x, v, F, work, jac,
+                jac_valid, J):
+    """Step-end element forces with stick/slip decided for every friction element.
+
+    Active-set iteration: solve with the modes fixed, then let a stuck element slip
+    when its constraint force exceeds its stick limit (in the direction of that
+    force) and stop a sliding element whose velocity would reverse. Commits the law
+    states. Returns False if the Newton iteration failed.
+    """
+    limit = work[10]
+    ok = True
+    for _ in range(2 + 4 * r):
+        if _newton(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_trial,
+                   S_probe, k0, c0, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J) < 0:
+            ok = False
+        changed = False
+        _stick_limits(limit_address, n_terms, term_element, term_friction, P, n_params, x, limit)
+        for e in range(r):
+            if not has_friction[e]:
+                continue
+            if mode[e] == STICK:
+                # friction force needed to hold the element: total force minus the other laws
+                needed = g[e] + k0[e] * x[e] - F[e]
+                if abs(needed) > limit[e]:
+                    mode[e] = SLIP
+                    sigma[e] = 1.0 if needed > 0.0 else -1.0
+                    changed = True
+            elif sigma[e] * v[e] < 0.0:
+                mode[e] = STICK
+                changed = True
+        if not changed:
+            break
+        jac_valid[0] = 0
+    for k in range(n_terms):
+        for j in range(n_state[k]):
+            S[k, j] = S_trial[k, j]
+    return ok
+
+
+# --- the block loop ----------------------------------------------------------------
+def scratch_space(nz: int, r: int, law_states: np.ndarray) -> tuple:
+    """Work arrays for :func:`integrate_block` (state size nz, r elements, law-state rows)."""
+    return (np.empty(nz), np.empty(2 * r), np.empty(r), np.empty(r), np.empty(r), np.empty(r),
+            np.empty((11, max(r, 1))), np.empty((r, r)), np.empty_like(law_states), np.empty_like(law_states))
+
+
+@njit(cache=True, _nrt=False)
+def integrate_block(n_steps, oversample, Phi, Qu, Pg0, Pg1, Cy, D, Co, Dou, Dog, u, z, g, g_prev,
+                    force_address, limit_address, n_terms, term_element, term_friction, P, n_params, S, n_state,
+                    k0, c0, has_friction, mode, sigma, jac, jac_valid, out, z_daq, f_daq, scratch):
+    """Advance the rig by ``n_steps`` internal steps.
+
+    Parameters
+    ----------
+    n_steps : int
+        Internal steps (a multiple of ``oversample``).
+    oversample : int
+        Internal steps per DAQ sample; z and the element forces are recorded at the
+        first step of every group.
+    Phi : (nz, nz)
+        State transition over one step.
+    Qu : (nz, 3)
+        Drive input at the step start, middle and end (quadratic hold).
+    Pg0, Pg1 : (nz, r)
+        Residual element forces at the step start and end (first-order hold).
+    Cy : (2 r, nz)
+        Element displacements then velocities from the state.
+    D : (2 r, r)
+        ``Cy @ Pg1``: how the step-end element motion depends on the step-end forces.
+    Co, Dou, Dog : (nch, nz), (nch,), (nch, r)
+        Channel outputs (force, accelerations) from state, drive and residual forces.
+    u : (2 n_steps + 1,)
+        Drive at every half step, V (shaker) or drive units of an ideal source.
+    z, g, g_prev : state (nz,), residual forces now and one step earlier (r,); updated.
+    force_address, limit_address : (n_terms,) int64
+        Addresses of the law terms' C callbacks (:func:`law_callbacks`; 0 = no stick limit).
+    n_terms, term_element, term_friction, P, n_params, S, n_state :
+        The law terms: element of each, whether it is dry friction, parameters and
+        committed states (rows; S updated).
+    k0, c0 : (r,)
+        Small-amplitude stiffness and damping moved into the linear part.
+    has_friction : (r,) bool
+    mode, sigma : (r,) int64 and float64
+        Friction mode and slip direction per element; updated.
+    jac, jac_valid : (r, r) and (1,) int64
+        The Newton Jacobian kept across steps and whether it is usable; updated.
+    out : (n_steps, nch)
+        Channel values at every internal step (before the anti-alias filter).
+    z_daq : (n_steps // oversample, nz)
+    f_daq : (n_steps // oversample, r)
+        State and element law forces at the DAQ instants.
+    scratch : tuple of arrays
+        Work space from :func:`scratch_space` (the loop allocates nothing: it runs
+        without reference counting, which would otherwise dominate its cost).
+
+    Returns
+    -------
+    (int, int)
+        Index of the step where the integration stopped (-1: all done) and whether it
+        stopped because the implicit solve failed (1) rather than on a non-finite state (0).
+    """
+    nz = z.shape[0]
+    r = k0.shape[0]
+    nch = out.shape[1]
+    zf, y_free, x, v, F, g_new, work, J, S_trial, S_probe = scratch
+    for m in range(n_steps):
+        u0 = u[2 * m]
+        um = u[2 * m + 1]
+        u1 = u[2 * m + 2]
+        for c in range(nch):
+            acc = Dou[c] * u0
+            for i in range(nz):
+                acc += Co[c, i] * z[i]
+            for e in range(r):
+                acc += Dog[c, e] * g[e]
+            out[m, c] = acc
+        if m % oversample == 0:
+            row = m // oversample
+            for i in range(nz):
+                z_daq[row, i] = z[i]
+            for e in range(r):
+                xe = 0.0
+                ve = 0.0
+                for i in range(nz):
+                    xe += Cy[e, i] * z[i]
+                    ve += Cy[r + e, i] * z[i]
+                f_daq[row, e] = g[e] + k0[e] * xe + c0[e] * ve
+            total = 0.0
+            for i in range(nz):
+                total += z[i]
+            if not math.isfinite(total):
+                return m, 0
+        for i in range(nz):
+            acc = Qu[i, 0] * u0 + Qu[i, 1] * um + Qu[i, 2] * u1
+            for j in range(nz):
+                acc += Phi[i, j] * z[j]
+            for e in range(r):
+                acc += Pg0[i, e] * g[e]
+            zf[i] = acc
+        if r > 0:
+            for k in range(2 * r):
+                acc = 0.0
+                for i in range(nz):
+                    acc += Cy[k, i] * zf[i]
+                y_free[k] = acc
+            for e in range(r):
+                g_new[e] = 2.0 * g[e] - g_prev[e]
+            if not _solve_step(force_address, limit_address, n_terms, term_element, term_friction, P, n_params,
+                               S, n_state, S_trial, S_probe, k0, c0, has_friction, y_free, D, r, mode, sigma,
+                               g_new, x, v, F, work, jac, jac_valid, J):
+                return m, 1
+            for e in range(r):
+                g_prev[e] = g[e]
+                g[e] = g_new[e]
+            for i in range(nz):
+                acc = zf[i]
+                for e in range(r):
+                    acc += Pg1[i, e] * g[e]
+                zf[i] = acc
+        for i in range(nz):
+            z[i] = zf[i]
+    total = 0.0
+    for i in range(nz):
+        total += z[i]
+    if not math.isfinite(total):
+        return n_steps, 0
+    return -1, 0
+
+
+@njit(cache=True)
+def fir_decimate(samples, history, taps, factor):
+    """Low-pass FIR filter and keep every ``factor``-th output (polyphase: only kept outputs).
+
+    Parameters
+    ----------
+    samples : (n, nch)
+        New input at the internal rate; n is a multiple of ``factor``.
+    history : (len(taps) - 1, nch)
+        The previous inputs (oldest first); updated.
+    taps : (L,)
+    factor : int
+
+    Returns
+    -------
+    (n // factor, nch)
+        Output at the inputs 0, factor, 2 factor, ... of this block.
+    """
+    n, nch = samples.shape
+    L = taps.shape[0]
+    H = L - 1
+    out = np.empty((n // factor, nch))
+    for k in range(n // factor):
+        m = k * factor  # index in samples; in the joined record it is m + H
+        for c in range(nch):
+            acc = 0.0
+            for j in range(L):
+                idx = m + H - j
+                acc += taps[j] * (samples[idx - H, c] if idx >= H else history[idx, c])
+            out[k, c] = acc
+    if H > 0:
+        if n >= H:
+            history[:, :] = samples[n - H:, :]
+        else:
+            history[: H - n, :] = history[n:, :].copy()
+            history[H - n:, :] = samples
+    return out

@@ -1,0 +1,835 @@
+"""Time-domain simulator of a nonlinear test rig, streaming what a DAQ would record.
+
+Physics: ``M x'' + C x' + K x + sum_e f_e(x_e, x_e', state) = F(t)`` (CONTRACTS.md §1)
+for lumped and beam rigs, with the element laws of analysis.laws integrated through
+their own numba kernels (see :mod:`drivers.sim_kernels` for the integration scheme
+and the true stick-slip of dry friction). Beam rigs are reduced (Craig-Bampton
+type: element and excitation DOFs stay physical, the rest follows their static
+shapes plus the lowest normal modes). The excitation is an ideal force source or an
+electrodynamic shaker driven by the generator's voltage; the sensors are a force
+gauge and accelerometers seen through an anti-alias filter, noise, an ADC of finite
+resolution and range, and a DAQ clock that may run off the generator's by some ppm.
+
+Streaming API (used by the instrument emulator and the campaign)::
+
+    sim = RigSimulator(rig, seed=0)
+    sim.set_sine(frequency_hz, amplitude)    # V with a shaker, drive units of an ideal source
+    sim.set_noise(rms, (f_low, f_high))      # band-limited random drive
+    sim.set_output(True)
+    block = sim.advance(n)                   # (n, len(sim.channels)) in sim.units
+
+The structure, law states, generator phase and filter states carry across calls and
+generator changes, so up and down sweeps show the jumps and hysteresis of the rig.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+
+from analysis.elements import Element
+from analysis.errors import InputError
+from analysis.structures import Structure
+
+from . import sim_kernels
+from .rig import Rig, load_rig
+
+# The internal rate must be at least this many times the highest mode the simulator
+# keeps: the mode is then sampled without aliasing (below 80 % of the internal
+# Nyquist frequency), with margin for elements that stiffen it.
+RESOLUTION_FACTOR = 2.5
+# Displacement and velocity steps for the elements' small-amplitude stiffness and damping
+_TANGENT_DX = 1e-9
+_TANGENT_DV = 1e-9
+# Stop-band attenuation of the anti-alias filter, dB
+_ANTI_ALIAS_DB = 90.0
+# Largest number of DAQ samples integrated in one kernel call (bounds the work arrays)
+_CHUNK = 1 << 15
+
+
+class SimulationError(RuntimeError):
+    """The integration failed: the response diverged (e.g. a softening element escaped)."""
+
+
+# --- linear model -----------------------------------------------------------------
+@dataclass
+class LinearModel:
+    """The rig's linear part in the coordinates the simulator integrates.
+
+    Attributes
+    ----------
+    coordinates : list of str
+        Names of the generalised coordinates q: physical DOF names (kept DOFs) and
+        ``mode1``, ``mode2``, ... (normal-mode coordinates of a reduced beam).
+    T : ndarray, shape (n_dofs, n_q)
+        Physical displacements ``x = T q`` (every DOF of the structure).
+    M, C, K : ndarray, shape (n_q, n_q)
+        Reduced mass, damping and stiffness, including the shaker's armature and
+        suspension and the elements' small-amplitude stiffness ``k0`` and damping ``c0``.
+    element_vectors : ndarray, shape (r, n_q)
+        Element displacement ``x_e = element_vectors[e] @ q``.
+    excitation_vector : ndarray, shape (n_q,)
+    sensor_rows : ndarray, shape (n_sensors, n_q)
+    k0, c0 : ndarray, shape (r,)
+        Small-amplitude stiffness (N/m or N·m/rad) and damping of each element's
+        smooth laws, moved into the linear part (the simulator integrates the rest).
+    natural_frequencies : ndarray
+        Undamped natural frequencies of (M, K), Hz.
+    kept_modes : int
+        Normal modes in a reduced model (0 when not reduced).
+    """
+
+    coordinates: list[str]
+    T: np.ndarray
+    M: np.ndarray
+    C: np.ndarray
+    K: np.ndarray
+    element_vectors: np.ndarray
+    excitation_vector: np.ndarray
+    sensor_rows: np.ndarray
+    k0: np.ndarray
+    c0: np.ndarray
+    natural_frequencies: np.ndarray
+    kept_modes: int
+
+    @property
+    def n(self) -> int:
+        return len(self.coordinates)
+
+    @property
+    def highest_mode_hz(self) -> float:
+        return float(self.natural_frequencies[-1])
+
+    def structure(self) -> Structure:
+        """The reduced linear model as a Structure over its coordinates (for FRFs)."""
+        return Structure(list(self.coordinates), self.M, self.K, self.C, set(), "reduced rig model")
+
+    def physical_frf(self, w, excitation_row: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Receptance of physical rows ``rows @ x`` to a force on ``excitation_row @ x``.
+
+        Parameters
+        ----------
+        w : array_like, rad/s
+        excitation_row : (n_dofs,)
+        rows : (m, n_dofs)
+
+        Returns
+        -------
+        ndarray, shape (len(w), m), complex
+        """
+        load = (self.T.T @ excitation_row)[:, None]
+        q = self.structure().response(w, load)[:, :, 0]
+        return q @ (rows @ self.T).T
+
+
+def element_tangent(element: Element) -> tuple[float, float]:
+    """Small-amplitude stiffness and damping of an element's smooth laws.
+
+    Central differences of each law's own kernel about rest (fresh state); dry
+    friction is left out (it has no stiffness at rest and its damping is set-valued).
+    Any value is exact for the simulator (only the residual is integrated implicitly);
+    a good one makes the implicit solve easy and lets the linear check see the rig
+    the elements make at rest.
+    """
+    k0 = c0 = 0.0
+    for term in element.laws:
+        law = term.law
+        if law.stick_limit is not None:
+            continue
+        p = law.parameter_vector(**term.values)
+
+        def force(x, v):
+            return float(law.kernel(x, v, p, law.initial_state(p)))
+
+        k0 += (force(_TANGENT_DX, 0.0) - force(-_TANGENT_DX, 0.0)) / (2 * _TANGENT_DX)
+        c0 += (force(0.0, _TANGENT_DV) - force(0.0, -_TANGENT_DV)) / (2 * _TANGENT_DV)
+    return k0, c0
+
+
+def build_linear_model(rig: Rig) -> LinearModel:
+    """Assemble, check and (for beams) reduce the rig's linear part.
+
+    Raises
+    ------
+    InputError
+        If the rig is unstable or adds energy at rest, or the internal time step
+        cannot resolve the highest mode kept.
+    """
+    s = rig.structure
+    M, C, K = s.M.copy(), s.C.copy(), s.K.copy()
+    exc = s.index(rig.excitation_dof)
+    if rig.shaker is not None:
+        M[exc, exc] += rig.shaker.armature_mass
+        K[exc, exc] += rig.shaker.suspension_stiffness
+        C[exc, exc] += rig.shaker.suspension_damping
+    r = len(rig.elements)
+    tangents = np.array([element_tangent(el) for el in rig.elements], float).reshape(r, 2)
+    k0, c0 = tangents[:, 0].copy(), tangents[:, 1].copy()
+    E = np.array([el.vector(s) for el in rig.elements], float).reshape(r, s.n)
+    K += E.T @ (k0[:, None] * E)
+    C += E.T @ (c0[:, None] * E)
+    _check_definite(rig, K, k0, "stiffness", "unstable at rest: its stiffness with the elements' "
+                                             "small-amplitude stiffness is not positive definite")
+    _check_definite(rig, C, c0, "damping", "would add energy: its damping with the elements' "
+                                           "small-amplitude damping is negative", semidefinite=True)
+
+    if rig.simulation.reduction == "craig-bampton":
+        cutoff = rig.simulation.mode_cutoff or rig.daq.passband * rig.daq.sample_rate
+        boundary = sorted({exc, *(i for el in rig.elements for i in el.indices(s) if i is not None)})
+        T, coordinates, kept = _craig_bampton(s, M, K, boundary, cutoff)
+    else:
+        T, coordinates, kept = np.eye(s.n), list(s.dofs), 0
+    Mr, Cr, Kr = (T.T @ A @ T for A in (M, C, K))
+    Mr, Cr, Kr = (0.5 * (A + A.T) for A in (Mr, Cr, Kr))
+    lam = scipy.linalg.eigh(Kr, Mr, eigvals_only=True)
+    freqs = np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi)
+    model = LinearModel(coordinates, T, Mr, Cr, Kr, E @ T, T[exc].copy(),
+                        T[[s.index(d) for d in rig.sensor_dofs]], k0, c0, freqs, kept)
+    _check_resolution(rig, model)
+    return model
+
+
+def _check_definite(rig: Rig, A, tangent, key, message, semidefinite=False) -> None:
+    """InputError naming the first element with a negative tangent (else the structure)
+    when A is not positive (semi)definite."""
+    lam = np.linalg.eigvalsh(A)
+    scale = max(np.abs(lam).max(initial=0.0), 1e-300)
+    bad = lam.min() < -1e-12 * scale if semidefinite else lam.min() <= 1e-12 * scale
+    if not bad:
+        return
+    culprits = [i for i, value in enumerate(tangent) if value < 0]
+    field_name = f"[[element]][{culprits[0]}].laws" if culprits else f"[structure].{key}"
+    who = f" (element {rig.elements[culprits[0]].name!r} has {'k0' if key == 'stiffness' else 'c0'} = " \
+          f"{tangent[culprits[0]]:.4g})" if culprits else ""
+    raise InputError(f"the rig is {message}{who}", rig.source, field_name)
+
+
+def _craig_bampton(s: Structure, M, K, boundary: list[int], cutoff_hz: float):
+    """Reduction basis: boundary DOFs physical, interior = static shapes + normal-mode residuals.
+
+    The interior follows the boundary through the static (constraint) modes
+    ``psi = -K_ii^-1 K_ib``; the lowest normal modes of the whole linear rig below
+    ``cutoff_hz`` are added through their interior residuals ``phi_i - psi phi_b``, so
+    the basis holds those modes exactly and the boundary DOFs stay physical.
+    """
+    n = s.n
+    interior = [i for i in range(n) if i not in set(boundary)]
+    T = np.zeros((n, len(boundary)))
+    T[boundary, range(len(boundary))] = 1.0
+    if not interior:
+        return T, [s.dofs[i] for i in boundary], 0
+    psi = -np.linalg.solve(K[np.ix_(interior, interior)], K[np.ix_(interior, boundary)])
+    T[interior] = psi
+    lam, phi = scipy.linalg.eigh(K, M)
+    kept = int(np.sum(np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi) < cutoff_hz))
+    residual = phi[interior, :kept] - psi @ phi[boundary, :kept]
+    Mii = M[np.ix_(interior, interior)]
+    columns = []
+    for k in range(kept):
+        norm = math.sqrt(max(float(residual[:, k] @ Mii @ residual[:, k]), 0.0))
+        if norm > 1e-12 * math.sqrt(float(phi[:, k] @ M @ phi[:, k])):
+            column = np.zeros(n)
+            column[interior] = residual[:, k] / norm
+            columns.append(column)
+    if columns:
+        T = np.column_stack([T, *columns])
+    names = [s.dofs[i] for i in boundary] + [f"mode{k + 1}" for k in range(len(columns))]
+    return T, names, len(columns)
+
+
+def _check_resolution(rig: Rig, model: LinearModel) -> None:
+    f_max = model.highest_mode_hz
+    needed = RESOLUTION_FACTOR * f_max
+    daq = rig.daq
+    internal = daq.sample_rate * daq.oversample
+    if internal >= needed:
+        return
+    reduced = rig.simulation.reduction == "craig-bampton"
+    which = f"mode {len(model.natural_frequencies)} of the {'reduced ' if reduced else ''}model (the highest kept)"
+    hint = (f"raise sample_rate to {needed / daq.oversample:.6g} Hz or oversample to "
+            f"{math.ceil(needed / daq.sample_rate)}")
+    if reduced:
+        hint += ", or lower [simulation].mode_cutoff"
+    raise InputError(f"the internal rate {daq.oversample} x {daq.sample_rate:g} Hz = {internal:.6g} Hz cannot "
+                     f"resolve {which} at {f_max:.6g} Hz: it needs at least {needed:.6g} Hz "
+                     f"({RESOLUTION_FACTOR} x the mode); {hint}", rig.source, "[daq].sample_rate")
+
+
+# --- state space and its exact discretisation --------------------------------------
+@dataclass
+class _Discrete:
+    """One step of the state-space model (amplifier enabled or disabled)."""
+
+    Phi: np.ndarray
+    Qu: np.ndarray
+    Pg0: np.ndarray
+    Pg1: np.ndarray
+    Cy: np.ndarray
+    D: np.ndarray
+    Co: np.ndarray
+    Dou: np.ndarray
+    Dog: np.ndarray
+
+
+def _state_space(rig: Rig, model: LinearModel, enabled: bool):
+    """Continuous model ``z' = A z + b_u u + B_g g`` with outputs, z = [q, q', (coil current)].
+
+    Returns A, b_u, B_g, Cy (element x and v), Co, dou, Dog (channels: gauge force, accelerations).
+    """
+    nq, r = model.n, len(model.k0)
+    shaker = rig.shaker
+    nz = 2 * nq + (1 if shaker else 0)
+    Minv = np.linalg.inv(model.M)
+    b = model.excitation_vector
+    A = np.zeros((nz, nz))
+    A[:nq, nq:2 * nq] = np.eye(nq)
+    A[nq:2 * nq, :nq] = -Minv @ model.K
+    A[nq:2 * nq, nq:2 * nq] = -Minv @ model.C
+    b_u = np.zeros(nz)
+    if shaker is None:
+        b_u[nq:2 * nq] = Minv @ b * rig.source_gain
+    elif enabled:
+        A[nq:2 * nq, 2 * nq] = Minv @ b * shaker.force_factor
+        A[2 * nq, nq:2 * nq] = -shaker.force_factor / shaker.inductance * b
+        A[2 * nq, 2 * nq] = -shaker.resistance / shaker.inductance
+        b_u[2 * nq] = 1.0 / shaker.inductance
+    # disabled amplifier: open coil, the current stays zero and the drive does nothing
+    B_g = np.zeros((nz, r))
+    B_g[nq:2 * nq] = -Minv @ model.element_vectors.T
+    Cy = np.zeros((2 * r, nz))
+    Cy[:r, :nq] = model.element_vectors
+    Cy[r:, nq:2 * nq] = model.element_vectors
+    qdd = slice(nq, 2 * nq)
+    n_s = model.sensor_rows.shape[0]
+    Co = np.zeros((1 + n_s, nz))
+    dou = np.zeros(1 + n_s)
+    Dog = np.zeros((1 + n_s, r))
+    Co[1:] = model.sensor_rows @ A[qdd]
+    dou[1:] = model.sensor_rows @ b_u[qdd]
+    Dog[1:] = model.sensor_rows @ B_g[qdd]
+    if shaker is None:
+        dou[0] = rig.source_gain
+    else:
+        # force into the structure = coil force - suspension - armature inertia
+        Co[0, 2 * nq] = shaker.force_factor
+        Co[0, :nq] -= shaker.suspension_stiffness * b
+        Co[0, nq:2 * nq] -= shaker.suspension_damping * b
+        Co[0] -= shaker.armature_mass * (b @ A[qdd])
+        dou[0] = -shaker.armature_mass * (b @ b_u[qdd])
+        Dog[0] = -shaker.armature_mass * (b @ B_g[qdd])
+    return A, b_u, B_g, Cy, Co, dou, Dog
+
+
+def _discretise(A, b_u, B_g, Cy, Co, dou, Dog, h: float) -> _Discrete:
+    """Exact step of length h for a drive held quadratically and forces held linearly.
+
+    Van Loan: the blocks of expm([[A, B, 0, 0], [0, 0, I, 0], [0, 0, 0, I], 0] h) are
+    Phi and J_k = int_0^h e^{A (h - s)} B s^k / k! ds, k = 0, 1, 2; the hold
+    polynomials are combinations of them.
+    """
+    nz = A.shape[0]
+    B = np.column_stack([b_u, B_g])
+    m = B.shape[1]
+    N = nz + 3 * m
+    aug = np.zeros((N, N))
+    aug[:nz, :nz] = A
+    aug[:nz, nz:nz + m] = B
+    aug[nz:nz + m, nz + m:nz + 2 * m] = np.eye(m)
+    aug[nz + m:nz + 2 * m, nz + 2 * m:] = np.eye(m)
+    E = scipy.linalg.expm(aug * h)
+    Phi = E[:nz, :nz]
+    J0, J1, J2 = (E[:nz, nz + k * m:nz + (k + 1) * m] for k in range(3))
+    # quadratic hold through (0, h/2, h) for the drive
+    Q0 = J0[:, 0] - 3 * J1[:, 0] / h + 4 * J2[:, 0] / h**2
+    Qm = 4 * J1[:, 0] / h - 8 * J2[:, 0] / h**2
+    Q1 = -J1[:, 0] / h + 4 * J2[:, 0] / h**2
+    # first-order hold for the residual element forces
+    Pg1 = J1[:, 1:] / h
+    Pg0 = J0[:, 1:] - Pg1
+    return _Discrete(np.ascontiguousarray(Phi), np.column_stack([Q0, Qm, Q1]), np.ascontiguousarray(Pg0),
+                     np.ascontiguousarray(Pg1), np.ascontiguousarray(Cy), np.ascontiguousarray(Cy @ Pg1),
+                     np.ascontiguousarray(Co),
+                     np.ascontiguousarray(dou), np.ascontiguousarray(Dog))
+
+
+# --- the element laws as arrays ---------------------------------------------------
+@dataclass
+class _Terms:
+    """The law terms of all elements as the arrays the integration kernel takes."""
+
+    force_address: np.ndarray
+    limit_address: np.ndarray
+    count: int
+    element: np.ndarray
+    friction: np.ndarray
+    P: np.ndarray
+    n_params: np.ndarray
+    S: np.ndarray
+    n_state: np.ndarray
+    has_friction: np.ndarray
+
+
+def _law_terms(elements: list[Element]) -> _Terms:
+    rows = [(e, term) for e, el in enumerate(elements) for term in el.laws]
+    params = [term.law.parameter_vector(**term.values) for _, term in rows]
+    states = [np.asarray(term.law.initial_state(p), float) for (_, term), p in zip(rows, params)]
+    callbacks = [sim_kernels.law_callbacks(term.law) for _, term in rows]
+    n = len(rows)
+    P = np.zeros((max(n, 1), max([len(p) for p in params], default=1)))
+    S = np.zeros((max(n, 1), max([len(s) for s in states], default=1)))
+    for k, (p, s) in enumerate(zip(params, states)):
+        P[k, :len(p)] = p
+        S[k, :len(s)] = s
+    friction = np.array([term.law.stick_limit is not None for _, term in rows], bool)
+    has_friction = np.zeros(len(elements), bool)
+    for (e, _), fr in zip(rows, friction):
+        has_friction[e] |= fr
+    return _Terms(np.array([force.address for force, _ in callbacks], np.int64),
+                  np.array([limit.address if limit is not None else 0 for _, limit in callbacks], np.int64), n,
+                  np.array([e for e, _ in rows], np.int64), friction, P,
+                  np.array([len(p) for p in params], np.int64), S,
+                  np.array([len(s) for s in states], np.int64), has_friction)
+
+
+# --- generator ----------------------------------------------------------------------
+@dataclass
+class _Ramp:
+    """A level that moves linearly to a target at a fixed rate (per second)."""
+
+    level: float = 0.0
+    target: float = 0.0
+    rate: float = 0.0
+
+    def set(self, target: float, duration: float) -> None:
+        """Move from the present level to ``target`` in ``duration`` s (> 0)."""
+        self.target = target
+        self.rate = abs(target - self.level) / duration
+
+    def values(self, tau: np.ndarray) -> np.ndarray:
+        """The level at times ``tau`` (s, >= 0) from now."""
+        if self.level == self.target:
+            return np.full(tau.shape, self.level)
+        if self.target > self.level:
+            return np.minimum(self.level + self.rate * tau, self.target)
+        return np.maximum(self.level - self.rate * tau, self.target)
+
+    def advance(self, dt: float) -> None:
+        self.level = float(self.values(np.array([dt]))[0])
+
+
+@dataclass
+class _NoiseSource:
+    """Band-limited Gaussian noise of unit rms, scaled by a ramped level."""
+
+    band: tuple[float, float]
+    sos: np.ndarray
+    zi: np.ndarray
+    gain: float
+    ramp: _Ramp
+    last: float = 0.0
+
+
+@dataclass
+class SimulatorState:
+    """Everything that evolves in a :class:`RigSimulator` (see ``state_snapshot``)."""
+
+    samples: int
+    z: np.ndarray
+    g: np.ndarray
+    g_prev: np.ndarray
+    law_states: np.ndarray
+    mode: np.ndarray
+    sigma: np.ndarray
+    fir_history: np.ndarray
+    mean_square: np.ndarray
+    generator: dict
+    output_on: bool
+    clip_counts: np.ndarray
+    time: float
+
+
+@dataclass
+class BlockTruth:
+    """Noise-free truth of the last block, at the DAQ instants (before the anti-alias filter).
+
+    Attributes
+    ----------
+    time : (n,)
+        DAQ clock, s.
+    q, qdot : (n, n_q)
+        Generalised coordinates and velocities.
+    element_force : (n, r)
+        Law force of each element (the force it adds to the left side of the equation of motion).
+    channels : (n, n_channels)
+        Unfiltered, noise-free channel values (gauge force, accelerations).
+    drive : (n,)
+        Generator output, V (shaker) or drive units of the ideal source.
+    """
+
+    time: np.ndarray
+    q: np.ndarray
+    qdot: np.ndarray
+    element_force: np.ndarray
+    channels: np.ndarray
+    drive: np.ndarray
+    _model: LinearModel = field(repr=False)
+    _dofs: list[str] = field(repr=False)
+
+    def displacement(self, dof: str) -> np.ndarray:
+        """Displacement history of a physical DOF, m or rad."""
+        return self.q @ self.model_row(dof)
+
+    def velocity(self, dof: str) -> np.ndarray:
+        """Velocity history of a physical DOF, m/s or rad/s."""
+        return self.qdot @ self.model_row(dof)
+
+    def model_row(self, dof: str) -> np.ndarray:
+        return self._model.T[self._dofs.index(dof)]
+
+    @property
+    def element_displacement(self) -> np.ndarray:
+        """(n, r): x_e of every element, m or rad."""
+        return self.q @ self._model.element_vectors.T
+
+    @property
+    def element_velocity(self) -> np.ndarray:
+        """(n, r): x_e' of every element."""
+        return self.qdot @ self._model.element_vectors.T
+
+
+class RigSimulator:
+    """Streaming simulation of a rig as its DAQ sees it.
+
+    Parameters
+    ----------
+    rig : Rig, str or Path
+        A loaded rig, a rig file or a built-in rig name.
+    seed : int, optional
+        Seed of the measurement noise and the random drive; default the rig's ``[noise].seed``.
+
+    Attributes
+    ----------
+    sample_rate : float
+        DAQ sample rate, Hz (DAQ clock).
+    channels : list of str
+        ``["force", "acc:<dof>", ...]``.
+    units : list of str
+        Unit of each channel.
+    lsb : ndarray
+        ADC step of each channel, in its unit.
+    ranges : ndarray
+        ADC full scale (+-) of each channel.
+    clip_counts : ndarray of int
+        Samples per channel that exceeded the ADC range since the start (or the last reset).
+    filter_delay : int
+        Group delay of the anti-alias filter, DAQ samples (channels lag the truth by it).
+    truth : BlockTruth or None
+        Truth of the last block.
+    """
+
+    def __init__(self, rig: Rig | str | Path, seed: int | None = None):
+        self.rig = rig if isinstance(rig, Rig) else load_rig(rig)
+        rig = self.rig
+        self.model: LinearModel = rig.linear
+        daq = rig.daq
+        self.sample_rate = daq.sample_rate
+        self.oversample = daq.oversample
+        self.step = 1.0 / daq.internal_rate          # generator seconds
+        self.channels = rig.channels
+        n_s = len(rig.sensor_dofs)
+        self.units = ["N"] + ["m/s^2"] * n_s
+        self.ranges = np.array([daq.force_range] + [daq.acceleration_range] * n_s)
+        self.lsb = 2.0 * self.ranges / 2.0**daq.resolution
+        self._relative_noise = np.array([rig.noise.force] + [rig.noise.acceleration] * n_s)
+        noise_seq, drive_seq = np.random.SeedSequence(rig.noise.seed if seed is None else seed).spawn(2)
+        self._noise_rng = np.random.default_rng(noise_seq)
+        self._drive_rng = np.random.default_rng(drive_seq)
+
+        self._terms = _law_terms(rig.elements)
+        systems = _state_space(rig, self.model, True)
+        self._on = _discretise(*systems, self.step)
+        self._off = _discretise(*_state_space(rig, self.model, False), self.step) if rig.shaker else self._on
+        self._nz = self._on.Phi.shape[0]
+        self._taps = _anti_alias_taps(daq.sample_rate, daq.oversample, daq.passband)
+        self.filter_delay = (len(self._taps) - 1) // (2 * daq.oversample)
+
+        r = len(rig.elements)
+        self._z = np.zeros(self._nz)
+        self._g = np.zeros(r)
+        self._g_prev = np.zeros(r)
+        self._mode = np.where(self._terms.has_friction, sim_kernels.STICK, sim_kernels.FREE).astype(np.int64)
+        self._sigma = np.zeros(r)
+        self._jacobian = np.zeros((r, r))
+        self._jacobian_valid = np.zeros(1, np.int64)
+        self._scratch = sim_kernels.scratch_space(self._nz, r, self._terms.S)
+        self._fir_history = np.zeros((len(self._taps) - 1, 1 + n_s))
+        self._mean_square = np.zeros(1 + n_s)
+        self._samples = 0
+        self.clip_counts = np.zeros(1 + n_s, np.int64)
+        self.truth: BlockTruth | None = None
+        # generator
+        self._frequency = 0.0
+        self._phase = 0.0
+        self._sine = _Ramp()
+        self._noise_sources: list[_NoiseSource] = []
+        self._output_on = False
+
+    # --- properties ---------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        """Time of the next sample on the DAQ clock, s."""
+        return self._samples / self.sample_rate
+
+    @property
+    def output_on(self) -> bool:
+        return self._output_on
+
+    @property
+    def frequency(self) -> float:
+        """Current sine frequency of the generator, Hz (generator clock)."""
+        return self._frequency
+
+    @property
+    def element_names(self) -> list[str]:
+        return [el.name for el in self.rig.elements]
+
+    # --- generator ----------------------------------------------------------------
+    def set_sine(self, frequency_hz: float, amplitude: float) -> None:
+        """Sine drive: the frequency changes at once with continuous phase; the amplitude
+        ramps linearly to ``amplitude`` over ``[generator].ramp_cycles`` cycles.
+
+        Parameters
+        ----------
+        frequency_hz : float
+            Hz, above 0 and below the DAQ's Nyquist frequency.
+        amplitude : float
+            Peak drive: V with a shaker; with an ideal force source, V of drive into its
+            gain (``[excitation].gain`` N/V, default 1: newtons). 0 ramps the sine out.
+        """
+        frequency_hz, amplitude = float(frequency_hz), float(amplitude)
+        if not (0.0 < frequency_hz < 0.5 * self.sample_rate):
+            raise ValueError(f"sine frequency must be in (0, {0.5 * self.sample_rate:g}) Hz, got {frequency_hz!r}")
+        if not (math.isfinite(amplitude) and amplitude >= 0.0):
+            raise ValueError(f"sine amplitude must be a finite number >= 0, got {amplitude!r}")
+        self._frequency = frequency_hz
+        self._sine.set(amplitude, self.rig.generator.ramp_cycles / frequency_hz)
+
+    def set_noise(self, rms: float, band_hz: tuple[float, float]) -> None:
+        """Band-limited Gaussian random drive (4th-order Butterworth band-pass of white noise).
+
+        The rms ramps over ``[generator].ramp_time``; a new band fades the old noise out
+        while the new one fades in. ``rms = 0`` ramps the noise out.
+
+        Parameters
+        ----------
+        rms : float
+            Drive rms (V with a shaker; drive units of an ideal source).
+        band_hz : (float, float)
+            Pass band, Hz, inside (0, Nyquist of the DAQ).
+        """
+        rms = float(rms)
+        low, high = (float(b) for b in band_hz)
+        if not (math.isfinite(rms) and rms >= 0.0):
+            raise ValueError(f"noise rms must be a finite number >= 0, got {rms!r}")
+        if not (0.0 < low < high < 0.5 * self.sample_rate):
+            raise ValueError(f"noise band must satisfy 0 < low < high < {0.5 * self.sample_rate:g} Hz, "
+                             f"got {band_hz!r}")
+        duration = self.rig.generator.ramp_time
+        for source in self._noise_sources:
+            source.ramp.set(rms if source.band == (low, high) else 0.0, duration)
+        if rms > 0.0 and not any(s.band == (low, high) for s in self._noise_sources):
+            rate = 2.0 / self.step  # noise is drawn at every half step
+            sos = scipy.signal.butter(4, [low, high], btype="bandpass", fs=rate, output="sos")
+            _, response = scipy.signal.sosfreqz(sos, worN=1 << 14, fs=rate)
+            gain = 1.0 / math.sqrt(float(np.mean(np.abs(response) ** 2)))
+            source = _NoiseSource((low, high), sos, np.zeros((sos.shape[0], 2)), gain, _Ramp())
+            source.ramp.set(rms, duration)
+            self._noise_sources.append(source)
+
+    def set_output(self, on: bool) -> None:
+        """Arm or disarm the output. Off: zero drive at once and the amplifier disabled
+        (open coil). On: the sine and noise ramp up from zero to their set levels."""
+        on = bool(on)
+        if on == self._output_on:
+            return
+        self._output_on = on
+        self._sine.level = 0.0
+        self._sine.set(self._sine.target, self.rig.generator.ramp_cycles / self._frequency
+                       if self._frequency > 0 else self.rig.generator.ramp_time)
+        for source in self._noise_sources:
+            source.ramp.level = 0.0
+            source.ramp.set(source.ramp.target, self.rig.generator.ramp_time)
+        if not on and self.rig.shaker is not None:
+            self._z[-1] = 0.0  # the coil circuit opens: no current
+
+    def _drive(self, n_steps: int) -> np.ndarray:
+        """Generator output at every half step of the next ``n_steps`` internal steps."""
+        tau = np.arange(2 * n_steps + 1) * (0.5 * self.step)
+        if not self._output_on:
+            return np.zeros(tau.shape)
+        u = self._sine.values(tau) * np.sin(self._phase + 2 * np.pi * self._frequency * tau)
+        for source in self._noise_sources:
+            white = self._drive_rng.standard_normal(2 * n_steps)
+            filtered, source.zi = scipy.signal.sosfilt(source.sos, white, zi=source.zi)
+            unit = np.concatenate([[source.last], filtered * source.gain])
+            u += source.ramp.values(tau) * unit
+            source.last = float(unit[-1])
+        return u
+
+    def _advance_generator(self, n_steps: int) -> None:
+        duration = n_steps * self.step
+        self._phase = math.fmod(self._phase + 2 * np.pi * self._frequency * duration, 2 * np.pi)
+        self._sine.advance(duration)
+        for source in self._noise_sources:
+            source.ramp.advance(duration)
+        self._noise_sources = [s for s in self._noise_sources if s.ramp.level > 0 or s.ramp.target > 0]
+
+    # --- integration --------------------------------------------------------------
+    def advance(self, n: int) -> np.ndarray:
+        """Acquire the next ``n`` DAQ samples.
+
+        Returns
+        -------
+        ndarray, shape (n, len(channels))
+            Physical units (``units``) after the anti-alias filter, noise and ADC.
+
+        Raises
+        ------
+        SimulationError
+            If the response diverges.
+        """
+        n = int(n)
+        if n < 0:
+            raise ValueError("n must be >= 0")
+        blocks, truths = [], []
+        done = 0
+        while done < n or (n == 0 and not blocks):
+            chunk = min(_CHUNK, n - done)
+            block, truth = self._advance_chunk(chunk)
+            blocks.append(block)
+            truths.append(truth)
+            done += chunk
+        self.truth = truths[0] if len(truths) == 1 else BlockTruth(
+            *(np.concatenate([getattr(t, name) for t in truths])
+              for name in ("time", "q", "qdot", "element_force", "channels", "drive")),
+            self.model, self.rig.structure.dofs)
+        return blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+
+    def _advance_chunk(self, n: int) -> tuple[np.ndarray, BlockTruth]:
+        n_steps = n * self.oversample
+        system = self._on if self._output_on else self._off
+        self._jacobian_valid[0] = 0  # the step matrices may have changed (amplifier on/off)
+        u = self._drive(n_steps)
+        nch = len(self.channels)
+        internal = np.empty((n_steps, nch))
+        z_daq = np.empty((n, self._nz))
+        f_daq = np.empty((n, len(self._g)))
+        t = self._terms
+        stop, solve_failed = sim_kernels.integrate_block(
+            n_steps, self.oversample, system.Phi, system.Qu, system.Pg0, system.Pg1, system.Cy, system.D,
+            system.Co, system.Dou, system.Dog, u, self._z, self._g, self._g_prev, t.force_address,
+            t.limit_address, t.count, t.element, t.friction, t.P, t.n_params, t.S, t.n_state, self.model.k0,
+            self.model.c0, t.has_friction, self._mode, self._sigma, self._jacobian, self._jacobian_valid,
+            internal, z_daq, f_daq, self._scratch)
+        if stop >= 0:
+            cause = "the element forces have no solution" if solve_failed else "the state is no longer finite"
+            raise SimulationError(f"the response diverged at t = {self.time + stop * self.step:.6g} s: {cause} "
+                                  "(a softening element may have lost its stability); the simulator must be "
+                                  "rebuilt")
+        self._advance_generator(n_steps)
+        clean = sim_kernels.fir_decimate(internal, self._fir_history, self._taps, self.oversample)
+        block = self._sensors(clean)
+        nq = self.model.n
+        time = (self._samples + np.arange(n)) / self.sample_rate
+        u_daq = u[: 2 * n_steps: 2 * self.oversample]
+        x = z_daq[:, :nq] @ self.model.element_vectors.T
+        v = z_daq[:, nq:2 * nq] @ self.model.element_vectors.T
+        g_daq = f_daq - x * self.model.k0 - v * self.model.c0
+        channels = z_daq @ system.Co.T + np.outer(u_daq, system.Dou) + g_daq @ system.Dog.T
+        truth = BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), f_daq, channels, u_daq,
+                           self.model, self.rig.structure.dofs)
+        self._samples += n
+        return block, truth
+
+    def _sensors(self, clean: np.ndarray) -> np.ndarray:
+        """Noise relative to each channel's running rms, then the ADC (range, resolution)."""
+        y = clean
+        if np.any(self._relative_noise > 0) and len(y):
+            alpha = 1.0 - math.exp(-1.0 / (self.rig.noise.averaging_time * self.sample_rate))
+            mean_square, zf = scipy.signal.lfilter([alpha], [1.0, alpha - 1.0], clean**2, axis=0,
+                                                   zi=((1.0 - alpha) * self._mean_square)[None, :])
+            self._mean_square = zf[0] / (1.0 - alpha)
+            noise = self._noise_rng.standard_normal(clean.shape)
+            y = clean + noise * np.sqrt(mean_square) * self._relative_noise
+        over = np.abs(y) > self.ranges
+        self.clip_counts += over.sum(axis=0)
+        codes = np.clip(np.round(y / self.lsb), -(2.0 ** (self.rig.daq.resolution - 1)),
+                        2.0 ** (self.rig.daq.resolution - 1) - 1)
+        return codes * self.lsb
+
+    def reset_clip_counts(self) -> None:
+        self.clip_counts[:] = 0
+
+    # --- truth and state ----------------------------------------------------------
+    def displacements(self) -> dict[str, float]:
+        """Current displacement of every physical DOF, m or rad."""
+        x = self.model.T @ self._z[: self.model.n]
+        return dict(zip(self.rig.structure.dofs, x.tolist()))
+
+    def element_states(self) -> dict[str, dict]:
+        """Current displacement, velocity and friction mode of every element."""
+        nq = self.model.n
+        x = self.model.element_vectors @ self._z[:nq]
+        v = self.model.element_vectors @ self._z[nq:2 * nq]
+        modes = {sim_kernels.FREE: "free", sim_kernels.STICK: "stick", sim_kernels.SLIP: "slip"}
+        return {el.name: {"displacement": float(x[e]), "velocity": float(v[e]), "mode": modes[int(self._mode[e])]}
+                for e, el in enumerate(self.rig.elements)}
+
+    def state_snapshot(self) -> SimulatorState:
+        """A deep copy of everything that evolves (restore it with :meth:`restore_state`)."""
+        generator = {"frequency": self._frequency, "phase": self._phase, "sine": copy.deepcopy(self._sine),
+                     "noise": copy.deepcopy(self._noise_sources),
+                     "rng": (self._noise_rng.bit_generator.state, self._drive_rng.bit_generator.state)}
+        state = SimulatorState(self._samples, self._z.copy(), self._g.copy(), self._g_prev.copy(),
+                               self._terms.S.copy(), self._mode.copy(), self._sigma.copy(),
+                               self._fir_history.copy(), self._mean_square.copy(), generator, self._output_on,
+                               self.clip_counts.copy(), self.time)
+        return state
+
+    def restore_state(self, state: SimulatorState) -> None:
+        """Return to a state taken with :meth:`state_snapshot` of this simulator."""
+        self._samples = state.samples
+        self._z[:] = state.z
+        self._g[:] = state.g
+        self._g_prev[:] = state.g_prev
+        self._terms.S[:] = state.law_states
+        self._mode[:] = state.mode
+        self._sigma[:] = state.sigma
+        self._fir_history[:] = state.fir_history
+        self._mean_square = state.mean_square.copy()
+        gen = state.generator
+        self._frequency, self._phase = gen["frequency"], gen["phase"]
+        self._sine = copy.deepcopy(gen["sine"])
+        self._noise_sources = copy.deepcopy(gen["noise"])
+        self._noise_rng.bit_generator.state, self._drive_rng.bit_generator.state = gen["rng"]
+        self._output_on = state.output_on
+        self.clip_counts[:] = state.clip_counts
+
+
+def _anti_alias_taps(sample_rate: float, oversample: int, passband: float) -> np.ndarray:
+    """Linear-phase low-pass FIR at the internal rate: flat to ``passband`` fs, stopping
+    from ``(1 - passband)`` fs (so nothing aliases into the pass band), with a group
+    delay of a whole number of DAQ samples."""
+    if oversample == 1:
+        return np.ones(1)
+    internal = sample_rate * oversample
+    width = (1.0 - 2.0 * passband) * sample_rate / (0.5 * internal)
+    numtaps, beta = scipy.signal.kaiserord(_ANTI_ALIAS_DB, width)
+    delay = math.ceil((numtaps - 1) / (2 * oversample))
+    numtaps = 2 * oversample * delay + 1
+    return scipy.signal.firwin(numtaps, 0.5 * sample_rate, window=("kaiser", beta), fs=internal)

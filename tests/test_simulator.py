@@ -1,0 +1,457 @@
+"""Rig simulator: physics against analytic and exact references, sensors, generator, paper example."""
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from analysis.harmonics import harmonics, sine_fit
+from analysis.structures import Structure
+from drivers.rig import load_rig, parse_rig
+from drivers.simulator import RigSimulator, SimulationError
+
+TWO_PI = 2 * math.pi
+
+
+def sdof_rig(k, laws="", mass=1.0, damping=None, rate=512.0, extra=""):
+    """A one-DOF rig: mass on a spring, an element of the given laws, force and accelerometer on it."""
+    damping_line = f"damping = [[{damping!r}]]" if damping is not None else ""
+    return parse_rig(f"""
+name = "sdof"
+[structure]
+type = "lumped"
+dofs = ["x"]
+mass = [[{mass!r}]]
+stiffness = [[{k!r}]]
+{damping_line}
+[[element]]
+name = "contact"
+dof = "x"
+laws = [{laws}]
+[excitation]
+dof = "x"
+[sensors]
+dofs = ["x"]
+[daq]
+sample_rate = {rate!r}
+acceleration_range = 1000.0
+{extra}
+""", "sdof.toml")
+
+
+def steady_harmonics(sim, frequency, amplitude, settle, periods=10, n_harmonics=3):
+    """Drive at a coherent frequency near ``frequency``, wait ``settle`` s, analyse whole periods."""
+    n = int(round(periods * sim.sample_rate / frequency))
+    frequency = periods * sim.sample_rate / n
+    sim.set_sine(frequency, amplitude)
+    sim.advance(int(settle * sim.sample_rate))
+    return frequency, harmonics(sim.advance(n), sim.sample_rate, frequency, n_harmonics)
+
+
+# --- linear response --------------------------------------------------------------
+LINEAR_2DOF = """
+name = "linear"
+[structure]
+type = "lumped"
+dofs = ["x1", "x2"]
+mass = [[1.0, 0.0], [0.0, 2.0]]
+stiffness = [[200.0, -100.0], [-100.0, 200.0]]
+rayleigh = [0.5, 0.005]
+[[element]]
+name = "spring"
+between = ["x1", "x2"]
+laws = [ { law = "linear", k = 50.0, c = 0.3 } ]
+[excitation]
+dof = "x2"
+[sensors]
+dofs = ["x1", "x2"]
+[daq]
+sample_rate = 256.0
+acceleration_range = 20.0
+"""
+
+
+def test_linear_steady_state_matches_the_analytic_frf():
+    rig = parse_rig(LINEAR_2DOF, "linear.toml")
+    s = rig.structure
+    e = rig.elements[0].vector(s)
+    full = Structure(s.dofs, s.M, s.K + 50.0 * np.outer(e, e), s.C + 0.3 * np.outer(e, e))
+    for f in (0.7, 1.27, 2.0, 2.8, 4.0):
+        sim = RigSimulator(rig)
+        sim.set_output(True)
+        f, h = steady_harmonics(sim, f, 0.5, settle=60.0)
+        w = TWO_PI * f
+        measured = h.fundamental[1:] / h.fundamental[0]
+        expected = -w**2 * full.frf(w, ["x2"])[0, :, 0]
+        np.testing.assert_allclose(measured, expected, rtol=1e-4)
+
+
+def test_reduced_beam_matches_the_full_linear_frf():
+    """Truncation check: the reduction keeps the rig's linear FRFs below the cutoff."""
+    rig = load_rig("paper-beam")
+    s, model = rig.structure, rig.linear
+    M, K, C = s.M.copy(), s.K.copy(), s.C.copy()
+    a = s.index("A.w")
+    M[a, a] += rig.shaker.armature_mass
+    K[a, a] += rig.shaker.suspension_stiffness
+    C[a, a] += rig.shaker.suspension_damping
+    for el, k0 in zip(rig.elements, model.k0):
+        e = el.vector(s)
+        K += k0 * np.outer(e, e)
+    full = Structure(s.dofs, M, K, C)
+    w = TWO_PI * np.linspace(5.0, 200.0, 800)
+    sensors = [s.index(d) for d in rig.sensor_dofs]
+    exact = full.frf(w, ["A.w"])[:, sensors, 0]
+    rows = np.eye(s.n)[sensors]
+    reduced = model.physical_frf(w, np.eye(s.n)[a], rows)
+    assert np.abs(reduced - exact).max() / np.abs(exact).max() < 1e-4
+    assert model.n == 6 and K.shape[0] == 40
+    # the check can fail: a cutoff below the second mode loses it
+    coarse = parse_rig(rig.text.replace("mode_cutoff = 400.0", "mode_cutoff = 100.0"), "coarse.toml").linear
+    worse = coarse.physical_frf(w, np.eye(s.n)[a], rows)
+    assert np.abs(worse - exact).max() / np.abs(exact).max() > 1e-2
+
+
+# --- nonlinear physics --------------------------------------------------------------
+def test_duffing_peak_follows_the_backbone_and_sweeps_show_hysteresis():
+    """Small amplitude (displacement THD below 1 %): the up-sweep peak sits on the backbone
+    w^2 = w0^2 + 3 k3 X^2 / (4 m); the down sweep stays on the lower branch there."""
+    k, k3, c, force = (TWO_PI * 5.0) ** 2, 2.0e5, 1.0, 1.0
+    rig = sdof_rig(k, f'{{ law = "cubic", k3 = {k3!r} }}', damping=c, rate=256.0)
+    lines = np.arange(5.0, 5.6, 0.01)
+
+    def sweep(frequencies):
+        sim = RigSimulator(rig)
+        sim.set_output(True)
+        out = []
+        for f in frequencies:
+            f, h = steady_harmonics(sim, f, force, settle=5.0, periods=5)
+            # acceleration harmonics / (k w)^2: displacement THD
+            displacement_thd = abs(h.amplitudes[3, 1]) / 9 / abs(h.fundamental[1])
+            out.append((f, abs(h.fundamental[1]) / (TWO_PI * f) ** 2, displacement_thd))
+        return np.array(out)
+
+    up = sweep(lines)
+    peak = np.argmax(up[:, 1])
+    f_peak, X_peak, thd = up[peak]
+    backbone = math.sqrt(k + 0.75 * k3 * X_peak**2) / TWO_PI
+    assert thd < 0.01
+    assert f_peak / 5.0 - 1 > 0.03                      # a clear hardening shift ...
+    assert f_peak == pytest.approx(backbone, rel=0.01)  # ... that sits on the backbone
+    down = sweep(lines[::-1])[::-1]
+    assert up[peak, 1] > 1.5 * down[peak, 1]
+    assert np.abs(up[:, 1] - down[:, 1]).max() > 0.5 * X_peak   # jumps: the branches differ
+
+
+def coulomb_reference(m, k, fs, F0, w, periods, samples):
+    """Exact response of m x'' + k x + fs sgn(x') = F0 sin(w t) from rest, with true stops.
+
+    Piecewise analytic: while sliding in direction s the motion is the closed-form solution
+    of m x'' + k x = F0 sin(w t) - s fs; velocity zeros and the end of a stop (when
+    |F0 sin(w t) - k x| reaches fs) are located by bracketing and brentq.
+    Returns x on ``samples`` points per period over the last two periods.
+    """
+    wn = math.sqrt(k / m)
+    P = F0 / (k - m * w * w)
+    T = TWO_PI / w
+    t_end = periods * T
+    scan = min(T, TWO_PI / wn) / 400
+
+    def slide(t0, x0, v0, s, t):
+        A = x0 - P * math.sin(w * t0) + s * fs / k
+        B = (v0 - P * w * math.cos(w * t0)) / wn
+        c, sn = math.cos(wn * (t - t0)), math.sin(wn * (t - t0))
+        return A * c + B * sn + P * math.sin(w * t) - s * fs / k, -A * wn * sn + B * wn * c + P * w * math.cos(w * t)
+
+    def drive(t, x):
+        return F0 * math.sin(w * t) - k * x
+
+    events = [(0.0, 0.0, 0.0, True, 0.0)]
+    t, x, v, stuck, s = 0.0, 0.0, 0.0, True, 0.0
+    while t < t_end:
+        if stuck:
+            x0 = x
+
+            def excess(tt):
+                return abs(drive(tt, x0)) - fs
+            tt = t
+            while excess(tt + scan) <= 0 and tt < t_end:
+                tt += scan
+            if tt >= t_end:
+                break
+            t = brentq(excess, tt, tt + scan, xtol=1e-14) if excess(tt) <= 0 else tt
+            s, stuck, v = math.copysign(1.0, drive(t, x0)), False, 0.0
+        else:
+            t0, x0, v0 = t, x, v
+
+            def forward(tt):
+                return slide(t0, x0, v0, s, tt)[1] * s
+            tt = t0 + 1e-12
+            while forward(tt + scan) > 0 and tt < t_end:
+                tt += scan
+            if tt >= t_end:
+                break
+            t = brentq(forward, tt, tt + scan, xtol=1e-14)
+            x, v = slide(t0, x0, v0, s, t)[0], 0.0
+            if abs(drive(t, x)) <= fs:
+                stuck = True
+            else:
+                s = math.copysign(1.0, drive(t, x))
+        events.append((t, x, v, stuck, s))
+    times = np.linspace(t_end - 2 * T, t_end, 2 * samples, endpoint=False)
+    out = np.empty_like(times)
+    j = 0
+    for i, tt in enumerate(times):
+        while j + 1 < len(events) and events[j + 1][0] <= tt:
+            j += 1
+        t0, x0, v0, st, s = events[j]
+        out[i] = x0 if st else slide(t0, x0, v0, s, tt)[0]
+    return out
+
+
+def den_hartog_amplitude(m, k, fs, F0, w):
+    """Den Hartog (1931): steady non-stop motion of the Coulomb oscillator under F0 sin(w t)."""
+    beta = w / math.sqrt(k / m)
+    V = 1.0 / (1.0 - beta**2)
+    U = math.sin(math.pi / beta) / (beta * (1.0 + math.cos(math.pi / beta)))
+    return F0 / k * math.sqrt(V**2 - (fs / F0 * U) ** 2)
+
+
+@pytest.mark.parametrize("fs, f, stops", [(0.3, 0.7, False), (0.3, 1.4, False), (0.5, 0.9, False),
+                                          (0.8, 0.5, True)])
+def test_coulomb_true_stick_slip_matches_exact_references(fs, f, stops):
+    m, k, F0 = 1.0, TWO_PI**2, 1.0
+    w = TWO_PI * f
+    rate = 512.0
+    sim = RigSimulator(sdof_rig(k, f'{{ law = "coulomb", fs = {fs!r} }}', rate=rate))
+    sim.set_sine(f, F0)
+    sim.set_output(True)
+    sim.advance(int(rate * 60 / f))
+    sim.advance(int(round(2 * rate / f)))
+    x = sim.truth.displacement("x")
+    amplitude = (x.max() - x.min()) / 2
+    reference = coulomb_reference(m, k, fs, F0, w, periods=60, samples=2000)
+    assert amplitude == pytest.approx((reference.max() - reference.min()) / 2, rel=0.01)
+    if stops:
+        # the mass rests for part of each cycle, so Den Hartog's non-stop solution does not apply
+        stopped = np.mean(np.abs(sim.truth.velocity("x")) < 1e-9)
+        assert stopped > 0.1
+        assert abs(amplitude / den_hartog_amplitude(m, k, fs, F0, w) - 1) > 0.1
+    else:
+        assert amplitude == pytest.approx(den_hartog_amplitude(m, k, fs, F0, w), rel=0.01)
+
+
+@pytest.mark.parametrize("laws", ['{ law = "coulomb", fs = 0.4 }', '{ law = "jenkins", kt = 20.0, fs = 0.4 }',
+                                  '{ law = "quadratic_damping", c2 = 0.8 }'])
+def test_energy_balance_per_cycle(laws):
+    """Steady state: the work of the force gauge per cycle equals what the damping dissipates."""
+    c = 0.05
+    sim = RigSimulator(sdof_rig(TWO_PI**2, laws, damping=c, rate=2048.0))
+    sim.set_output(True)
+    f, _ = steady_harmonics(sim, 0.9, 1.0, settle=60.0, periods=4)
+    truth = sim.truth
+    v = truth.velocity("x")
+    dt = 1.0 / sim.sample_rate
+    work_in = np.sum(truth.channels[:, 0] * v) * dt
+    dissipated = np.sum(truth.element_force[:, 0] * v) * dt + np.sum(c * v * v) * dt
+    assert work_in > 0
+    assert dissipated == pytest.approx(work_in, rel=0.01)
+    assert np.sum(truth.element_force[:, 0] * v) * dt > 0.2 * work_in  # the element does dissipate
+
+
+def test_shaker_force_drops_at_resonance_as_the_frequency_domain_model_says():
+    k, m, c = (TWO_PI * 20.0) ** 2, 1.0, 2.0
+    R, L, Bl, ma, ks, cs = 4.0, 1e-3, 10.0, 0.05, 500.0, 0.5
+    shaker = (f"[shaker]\nresistance = {R}\ninductance = {L}\nforce_factor = {Bl}\narmature_mass = {ma}\n"
+              f"suspension_stiffness = {ks}\nsuspension_damping = {cs}\n")
+    rig = sdof_rig(k, "", mass=m, damping=c, rate=1024.0, extra=shaker)
+    forces = {}
+    for f in (10.0, 19.9, 40.0):
+        sim = RigSimulator(rig)
+        sim.set_output(True)
+        f, _ = steady_harmonics(sim, f, 1.0, settle=4.0)
+        # gauge force per volt from the unfiltered truth (the filter delays every channel alike)
+        force = harmonics(sim.truth.channels[:, 0], sim.sample_rate, f, 3).fundamental
+        volts = harmonics(sim.truth.drive, sim.sample_rate, f, 3).fundamental
+        w = TWO_PI * f
+        receptance = 1.0 / (k - m * w**2 + 1j * w * c)
+        armature = -ma * w**2 + 1j * w * cs + ks
+        expected = Bl / ((R + 1j * w * L) * (1 + armature * receptance) + Bl**2 * 1j * w * receptance)
+        assert force / volts == pytest.approx(expected, rel=1e-3)
+        forces[f] = abs(force)
+    low, resonance, high = forces.values()
+    assert resonance < 0.25 * min(low, high)
+
+
+def test_paper_beam_softens_and_gains_damping_over_the_plan_force_range():
+    rig = load_rig("paper-beam")
+    peaks = []
+    for voltage in (0.05, 3.0):   # gauge force about 0.02 N and 1.2 N at resonance: the plan's range
+        sim = RigSimulator(rig)
+        sim.set_output(True)
+        lines = []
+        for f in np.arange(51.6, 53.6, 0.1):
+            f, h = steady_harmonics(sim, f, voltage, settle=3.0, periods=20, n_harmonics=2)
+            lines.append((f, abs(h.fundamental[1] / h.fundamental[0]), abs(h.fundamental[0])))
+        lines = np.array(lines)
+        peak = lines[np.argmax(lines[:, 1])]
+        peaks.append(peak)
+    (f_low, a_low, force_low), (f_high, a_high, force_high) = peaks
+    assert force_low < 0.03 and force_high > 1.0
+    assert f_high < f_low - 0.3          # softening: the resonance moves down
+    assert a_high < 0.6 * a_low          # damping grows: the accelerance peak drops
+
+
+# --- sensors, clock, generator ----------------------------------------------------
+def test_clock_offset_shifts_the_apparent_frequency():
+    rig = sdof_rig(TWO_PI**2 * 25, "", damping=1.0, rate=1024.0, extra="clock_offset_ppm = 250.0")
+    sim = RigSimulator(rig)
+    sim.set_sine(37.0, 1.0)
+    sim.set_output(True)
+    sim.advance(1024)
+    fit = sine_fit(sim.advance(20480)[:, 0], sim.sample_rate, 37.0)
+    assert fit.frequency == pytest.approx(37.0 / (1 + 250e-6), rel=2e-8)
+
+
+def test_adc_clipping_counter_and_resolution():
+    rig = sdof_rig(TWO_PI**2, "", damping=1.0, rate=256.0,
+                   extra="force_range = 0.5\nresolution = 12")
+    sim = RigSimulator(rig)
+    sim.set_sine(1.0, 1.0)
+    sim.set_output(True)
+    block = sim.advance(2048)
+    truth = sim.truth.channels[:, 0]
+    assert sim.lsb[0] == pytest.approx(1.0 / 4096)
+    np.testing.assert_allclose(block[:, 0] / sim.lsb[0], np.round(block[:, 0] / sim.lsb[0]), atol=1e-9)
+    assert block[:, 0].max() <= 0.5 and block[:, 0].min() >= -0.5
+    # the filter delays the channels: compare the counts with the delayed truth
+    assert sim.clip_counts[0] == pytest.approx(np.sum(np.abs(truth) > 0.5), abs=2 * sim.filter_delay + 4)
+    assert sim.clip_counts[0] > 100 and sim.clip_counts[1] == 0
+    sim.reset_clip_counts()
+    sim.set_sine(1.0, 0.3)
+    sim.advance(2048)
+    sim.advance(1024)
+    assert sim.clip_counts[0] <= 2 * 256  # only the ramp-down transient may still clip
+
+
+def test_noise_level_statistics():
+    noisy = sdof_rig(TWO_PI**2 * 16, "", damping=1.0, rate=512.0, extra="[noise]\nforce = 0.02\nacceleration = 0.05")
+    clean = sdof_rig(TWO_PI**2 * 16, "", damping=1.0, rate=512.0)
+    blocks = []
+    for rig in (noisy, clean):
+        sim = RigSimulator(rig, seed=4)
+        sim.set_sine(3.0, 1.0)
+        sim.set_output(True)
+        sim.advance(5120)
+        blocks.append(sim.advance(8192))
+    difference = blocks[0] - blocks[1]
+    rms = np.sqrt(np.mean(blocks[1] ** 2, axis=0))
+    np.testing.assert_allclose(np.std(difference, axis=0) / rms, [0.02, 0.05], rtol=0.05)
+    assert abs(np.corrcoef(difference[:-1, 1], difference[1:, 1])[0, 1]) < 0.05  # white
+
+
+def test_generator_phase_continuity_ramps_and_output_off():
+    sim = RigSimulator(sdof_rig(TWO_PI**2 * 16, "", damping=1.0, rate=1024.0))
+    sim.set_sine(5.0, 1.0)
+    sim.set_output(True)
+    sim.advance(1024)
+    first = sim.truth.drive
+    # the amplitude ramps over 3 cycles (0.6 s) from zero
+    envelope_end = np.abs(first[:int(0.6 * 1024)]).max()
+    assert envelope_end < 1.0 and np.abs(first[int(0.7 * 1024):]).max() == pytest.approx(1.0, abs=1e-3)
+    sim.set_sine(7.0, 2.0)
+    sim.advance(2048)
+    drive = np.concatenate([first, sim.truth.drive])
+    steps = np.abs(np.diff(drive))
+    assert steps.max() < TWO_PI * 7.0 * 2.0 / 1024 * 1.05   # no jump: slope-limited everywhere
+    sim.set_output(False)
+    block = sim.advance(256)
+    assert np.all(sim.truth.drive == 0.0)
+    assert abs(block[-1, 0]) < 1e-6
+    sim.set_output(True)
+    sim.advance(64)
+    assert np.abs(sim.truth.drive).max() < 2.0 * 64 / 1024 / (3 / 7.0) * 1.01  # ramps up again
+
+
+def noise_run(seed):
+    sim = RigSimulator(sdof_rig(TWO_PI**2 * 16, "", damping=1.0, rate=512.0), seed=seed)
+    sim.set_noise(0.3, (10.0, 60.0))
+    sim.set_output(True)
+    sim.advance(512)
+    return sim.advance(512 * 40), sim.truth.drive
+
+
+def test_band_limited_noise_drive_level_band_and_seed():
+    block, drive = noise_run(seed=2)
+    assert np.std(drive) == pytest.approx(0.3, rel=0.05)
+    spectrum = np.abs(np.fft.rfft(drive)) ** 2
+    f = np.fft.rfftfreq(len(drive), 1 / 512.0)
+    inside = spectrum[(f > 10) & (f < 60)].sum()
+    assert spectrum[(f < 3) | (f > 150)].sum() < 1e-3 * inside
+    np.testing.assert_array_equal(noise_run(seed=2)[0], block)
+    assert not np.array_equal(noise_run(seed=3)[0], block)
+
+
+def test_snapshot_restore_repeats_the_future_exactly():
+    sim = RigSimulator(load_rig("paper-2dof"))
+    sim.set_sine(1.3, 0.8)
+    sim.set_output(True)
+    sim.advance(1000)
+    state = sim.state_snapshot()
+    future = sim.advance(777)
+    sim.set_sine(2.0, 0.1)
+    sim.advance(100)
+    sim.restore_state(state)
+    sim.set_sine(1.3, 0.8)
+    assert sim.time == pytest.approx(1000 / 256)
+    np.testing.assert_array_equal(sim.advance(777), future)
+
+
+def test_divergence_is_reported():
+    sim = RigSimulator(sdof_rig(100.0, '{ law = "cubic", k3 = -1.0e4 }', damping=0.1, rate=256.0))
+    sim.set_sine(1.0, 50.0)
+    sim.set_output(True)
+    with pytest.raises(SimulationError, match="diverged"):
+        sim.advance(256 * 20)
+
+
+# --- the paper's numerical example end to end --------------------------------------
+def test_paper_example_end_to_end():
+    """Paper eqs. 22-24: stepped sine up at 0.8 N on paper-2dof, fundamental per line, closed-form
+    identification, law fits: kn1, kn2, cn, mu within 1.5 %."""
+    from analysis.fit import fit_laws
+    from analysis.identify import identify_complex_stiffness
+
+    rig = load_rig("paper-2dof")
+    fs = rig.daq.sample_rate
+    sim = RigSimulator(rig)
+    sim.set_output(True)
+    lines, receptance, distortion = [], [], []
+    for f in np.arange(0.8, 3.2 + 1e-9, 0.025):
+        periods = max(4, math.ceil(4 * f))
+        n = int(round(periods * fs / f))
+        f = periods * fs / n                      # coherent line next to the plan's
+        sim.set_sine(f, 0.8)
+        previous = None
+        for _ in range(40):                       # settle: until one block repeats the last
+            h = harmonics(sim.advance(n), fs, f, 5)
+            if previous is not None and np.abs(h.fundamental - previous).max() <= 1e-4 * np.abs(previous).max():
+                break
+            previous = h.fundamental
+        w = TWO_PI * f
+        lines.append(w)
+        receptance.append(-h.fundamental[1:] / h.fundamental[0] / w**2)
+        distortion.append(h.thd[1:].max())
+    w, receptance, distortion = np.array(lines), np.array(receptance), np.array(distortion)
+    result = identify_complex_stiffness(rig.structure, receptance, ["x1", "x2"], "x2", rig.elements,
+                                        w=w, force=0.8)
+    # describing functions describe a harmonic motion: leave out lines the contact turns into
+    # stick-slip (THD above 10 %)
+    use = ~result.ill_conditioned & (distortion < 0.1)
+    assert use.sum() > 60
+    left = fit_laws(["cubic", "quadratic_damping"], result.amplitude[use, 0], w[use], result.kbar[use, 0])
+    right = fit_laws(["cubic", "coulomb"], result.amplitude[use, 1], w[use], result.kbar[use, 1])
+    assert -left.terms[0].params["k3"] == pytest.approx(500.0, rel=0.015)
+    assert left.terms[1].params["c2"] == pytest.approx(1.0, rel=0.015)
+    assert -right.terms[0].params["k3"] == pytest.approx(750.0, rel=0.015)
+    assert right.terms[1].params["fs"] == pytest.approx(0.1, rel=0.015)
