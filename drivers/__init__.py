@@ -1,0 +1,40 @@
+"""contactid drivers: bytes <-> instruments.
+
+- :func:`open_shaker` / :func:`open_daq`: the serial drivers (:class:`SerialShaker`,
+  :class:`SerialDaq`) for a port name or any pyserial URL.
+- :class:`OutputGuard`, :class:`AbortLimits`: the output-off guarantees (:mod:`drivers.safety`).
+- :mod:`drivers.emulator`: the emulated instruments; :mod:`drivers.serve`: serving them
+  over pseudo terminals or TCP.
+- docs/protocol.md: the instrument protocol.
+
+Importing this package registers the ``sim://`` pyserial URL handler, so every
+driver (and plain ``serial.serial_for_url``) can open in-process emulated
+instruments the same way as ports, ``socket://`` and ``rfc2217://`` URLs.
+"""
+import serial
+
+if "drivers.urlhandler" not in serial.protocol_handler_packages:
+    serial.protocol_handler_packages.append("drivers.urlhandler")
+
+from .daq import SerialDaq
+from .errors import (ArmingRefused, DeviceError, InstrumentError, LinkError, LinkLost, LinkTimeout,
+                     OutputTripped, ProtocolError, WrongDevice)
+from .interfaces import Block, Daq, Identity, ShakerController
+from .safety import AbortLimits, LimitExceeded, OutputGuard, check_limits
+from .shaker import SerialShaker
+
+
+def open_shaker(url: str, **options) -> SerialShaker:
+    """Open the shaker controller at ``url`` (port name or pyserial URL); options as SerialShaker."""
+    return SerialShaker(url, **options)
+
+
+def open_daq(url: str, **options) -> SerialDaq:
+    """Open the DAQ at ``url`` (port name or pyserial URL); options as SerialDaq."""
+    return SerialDaq(url, **options)
+
+
+__all__ = ["AbortLimits", "ArmingRefused", "Block", "Daq", "DeviceError", "Identity", "InstrumentError",
+           "LimitExceeded", "LinkError", "LinkLost", "LinkTimeout", "OutputGuard", "OutputTripped",
+           "ProtocolError", "SerialDaq", "SerialShaker", "ShakerController", "WrongDevice", "check_limits",
+           "open_daq", "open_shaker"]

@@ -1,0 +1,176 @@
+"""Plan files (CONTRACTS.md §5): what a campaign runs, checked before the shaker is armed.
+
+Beyond the contract's keys, each ``[[stepped_sine]]`` table may set ``refine`` (adaptive refinement near
+resonance, default true) and ``min_step`` (Hz, default step / 8); ``[settle]`` tunes steady-state detection
+(``tolerance`` relative change between successive blocks, default 2e-3; ``max_periods`` before a line is
+measured anyway, default 600; ``block_periods``, default 10) and ``[control]`` the force loop (``tolerance``,
+default 0.01 = 1 %). docs/campaigns.md describes them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from analysis.errors import InputError
+from analysis.tables import Fields, load_toml
+
+
+@dataclass
+class RandomSpec:
+    force_rms: float            # N
+    band: tuple[float, float]   # Hz
+    duration: float             # s
+
+
+@dataclass
+class SineSpec:
+    """One force level of stepped sine (one table of the plan)."""
+
+    force: float                # N amplitude
+    start: float                # Hz
+    stop: float                 # Hz
+    step: float                 # Hz
+    direction: str              # up | down | both
+    refine: bool = True
+    min_step: float = 0.0
+
+    @property
+    def directions(self) -> list[str]:
+        return ["up", "down"] if self.direction == "both" else [self.direction]
+
+    def lines(self, direction: str) -> np.ndarray:
+        """The planned lines of one sweep, in the order measured (refinement may add more)."""
+        n = int(np.floor((self.stop - self.start) / self.step + 1e-9)) + 1
+        f = self.start + self.step * np.arange(n)
+        if f[-1] < self.stop - 1e-9 * self.stop:
+            f = np.append(f, self.stop)
+        return f if direction == "up" else f[::-1]
+
+    def run_name(self, direction: str) -> str:
+        return f"sine_{self.force:g}N_{direction}"
+
+
+@dataclass
+class Limits:
+    max_force: float                 # N
+    max_acceleration: float          # m/s^2
+
+
+@dataclass
+class SettleSpec:
+    tolerance: float = 2e-3
+    max_periods: int = 600
+    block_periods: int = 10
+    min_blocks: int = 2
+
+
+@dataclass
+class Plan:
+    random: RandomSpec | None
+    sine: list[SineSpec]
+    limits: Limits
+    settle: SettleSpec = field(default_factory=SettleSpec)
+    control_tolerance: float = 0.01
+    text: str = ""
+    source: str | None = None
+
+    @property
+    def runs(self) -> list[tuple[SineSpec, str]]:
+        return [(spec, d) for spec in self.sine for d in spec.directions]
+
+
+def load_plan(path) -> Plan:
+    """Read and validate a plan file."""
+    with open(path, encoding="utf-8") as fh:
+        text = fh.read()
+    return parse_plan(load_toml(path), text, str(path))
+
+
+def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
+    root = Fields(doc, source, "")
+    root.unknown_keys({"random", "stepped_sine", "limits", "settle", "control"})
+    random = None
+    if root.has("random"):
+        f = root.sub("random")
+        f.where = "[random]"
+        f.unknown_keys({"force_rms", "band", "duration"})
+        band = f.require("band")
+        if not isinstance(band, list) or len(band) != 2:
+            raise f.error("band", "must be [low, high] in Hz")
+        lo, hi = (f.check_number("band", b, positive=True) for b in band)
+        if hi <= lo:
+            raise f.error("band", f"high end {hi} Hz must exceed the low end {lo} Hz")
+        random = RandomSpec(f.number("force_rms", positive=True), (lo, hi), f.number("duration", positive=True))
+    sines = []
+    for i, f in enumerate(root.list_of_tables("stepped_sine")):
+        f.where = f"[[stepped_sine]][{i}]"
+        f.unknown_keys({"force", "start", "stop", "step", "direction", "refine", "min_step"})
+        start, stop, step = f.number("start", positive=True), f.number("stop", positive=True), \
+            f.number("step", positive=True)
+        if stop <= start:
+            raise f.error("stop", f"stop ({stop} Hz) must be above start ({start} Hz); use direction = \"down\" "
+                                  "to sweep downwards")
+        if step > stop - start:
+            raise f.error("step", f"step {step} Hz is larger than the span {stop - start:g} Hz")
+        refine = f.table.get("refine", True)
+        if not isinstance(refine, bool):
+            raise f.error("refine", "must be true or false")
+        min_step = f.number("min_step", step / 8, positive=True)
+        if min_step > step:
+            raise f.error("min_step", f"must not exceed step ({step} Hz)")
+        sines.append(SineSpec(f.number("force", positive=True), start, stop, step,
+                              f.string("direction", "up", ("up", "down", "both")), refine, min_step))
+    if random is None and not sines:
+        raise InputError("plans nothing: give [random] and/or [[stepped_sine]] tables", source)
+    names = [spec.run_name(d) for spec in sines for d in spec.directions]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise InputError(f"two stepped-sine tables make the same run {sorted(dup)[0]} (same force and direction)",
+                         source, "[[stepped_sine]]")
+    lim = root.sub("limits")
+    lim.where = "[limits]"
+    lim.unknown_keys({"max_force", "max_acceleration"})
+    limits = Limits(lim.number("max_force", positive=True), lim.number("max_acceleration", positive=True))
+    for i, spec in enumerate(sines):
+        if spec.force >= limits.max_force:
+            raise InputError(f"force {spec.force} N is not below the abort limit max_force = {limits.max_force} N",
+                             source, f"[[stepped_sine]][{i}].force")
+    if random is not None and 3 * random.force_rms >= limits.max_force:
+        raise InputError(f"force_rms {random.force_rms} N: its peaks (~3 x rms) would reach max_force = "
+                         f"{limits.max_force} N", source, "[random].force_rms")
+    settle = SettleSpec()
+    if root.has("settle"):
+        s = root.sub("settle")
+        s.where = "[settle]"
+        s.unknown_keys({"tolerance", "max_periods", "block_periods", "min_blocks"})
+        settle = SettleSpec(s.number("tolerance", settle.tolerance, positive=True),
+                            int(s.number("max_periods", settle.max_periods, positive=True)),
+                            int(s.number("block_periods", settle.block_periods, positive=True)),
+                            int(s.number("min_blocks", settle.min_blocks, positive=True)))
+    control = 0.01
+    if root.has("control"):
+        c = root.sub("control")
+        c.where = "[control]"
+        c.unknown_keys({"tolerance"})
+        control = c.number("tolerance", 0.01, positive=True)
+    return Plan(random, sines, limits, settle, control, text, source)
+
+
+def check_against_instruments(plan: Plan, sample_rate: float, frequency_range: tuple[float, float],
+                              n_harmonics: int = 5) -> None:
+    """Refuse a plan the instruments cannot run: frequencies beyond the generator's range or too high for the
+    DAQ to measure the fundamental (and, as far as possible, its harmonics) below Nyquist."""
+    nyquist = sample_rate / 2
+    lo, hi = frequency_range
+    for i, spec in enumerate(plan.sine):
+        where = f"[[stepped_sine]][{i}].stop"
+        if spec.stop >= nyquist:
+            raise InputError(f"{spec.stop} Hz is beyond the DAQ's Nyquist frequency ({nyquist:g} Hz at "
+                             f"{sample_rate:g} Hz sampling)", plan.source, where)
+        if spec.start < lo or spec.stop > hi:
+            raise InputError(f"{spec.start}-{spec.stop} Hz is outside the generator's range {lo:g}-{hi:g} Hz",
+                             plan.source, where)
+    if plan.random is not None and plan.random.band[1] >= nyquist:
+        raise InputError(f"band reaches {plan.random.band[1]} Hz, beyond the DAQ's Nyquist frequency "
+                         f"({nyquist:g} Hz)", plan.source, "[random].band")

@@ -1,0 +1,521 @@
+"""The DAQ driver: SCPI configuration and the binary stream over any pyserial URL.
+
+While a stream runs, the port's owner thread reads the frames, checks them
+(:class:`drivers.stream.FrameDecoder`), converts counts to physical units and cuts
+them into blocks of contiguous samples, which wait in a bounded queue for the
+consumer. A block ends early where samples were lost, and the next block lists
+the loss (:class:`drivers.stream.Gap`), so no block ever bridges a gap. When the
+queue is full the owner thread stops reading: a fast emulator then waits for the
+consumer, a real-time instrument overruns its FIFO and the loss is reported.
+
+Stopping sends ``ABORt``, reads on to the END frame and then knows how many
+samples the instrument sent; if the END frame was lost it asks ``STReam:COUNt?``.
+Either way ``stats.samples_received + stats.samples_lost == stats.samples_sent``.
+"""
+from __future__ import annotations
+
+import collections
+import re
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Iterator, Sequence
+
+import numpy as np
+import serial
+
+from .errors import DeviceError, InstrumentError, LinkLost, LinkTimeout, ProtocolError
+from .interfaces import Block, Identity
+from .scpi import POLL, PortIO, ScpiInstrument, SerialLink
+from .stream import FLAG_OVERLOAD, FLAG_OVERRUN, MAX_POINTS, Frame, FrameDecoder, Gap, StreamFormatError, frame_size
+
+MANUFACTURER = "contactid"
+DAQ_MODELS = ("DAQ-1",)
+END_QUIET = 0.5
+"""After ABORt, give up waiting for the END frame when the line is silent this long (s)."""
+END_LIMIT = 10.0
+"""After ABORt, give up waiting for the END frame after this long in any case (s)."""
+COUNT_ATTEMPTS = 5
+"""Attempts at reading the instrument's sample count when the END frame was lost."""
+_SCAN = re.compile(r"^\(@([0-9,]+)\)$")
+
+
+@dataclass
+class StreamStats:
+    """What a stream delivered and lost (samples are per channel).
+
+    ``samples_sent`` is known once the stream has stopped; then
+    ``samples_received + samples_lost == samples_sent``.
+    """
+
+    samples_received: int = 0
+    samples_lost: int = 0
+    samples_sent: int | None = None
+    gaps: list[Gap] = field(default_factory=list)
+    corrupt_frames: int = 0
+    skipped_bytes: int = 0
+    overrun_frames: int = 0
+    end_frame_received: bool = False
+
+    @property
+    def balanced(self) -> bool:
+        """Whether every sent sample is either received or reported lost."""
+        return self.samples_sent is not None and self.samples_received + self.samples_lost == self.samples_sent
+
+
+class BlockAssembler:
+    """Cut checked frames into blocks of contiguous samples in physical units.
+
+    Parameters
+    ----------
+    block_size : int
+        Samples per channel in a full block.
+    lsb : ndarray, shape (c,)
+        Physical units per count of each channel.
+    channels, units : tuple of str
+        Column names and units.
+    sample_rate : float
+        Hz.
+    """
+
+    def __init__(self, block_size: int, lsb: np.ndarray, channels: tuple[str, ...], units: tuple[str, ...],
+                 sample_rate: float):
+        if block_size < 1:
+            raise ValueError(f"block_size must be >= 1, got {block_size}")
+        self.block_size = block_size
+        self.lsb = np.asarray(lsb, dtype=float)
+        self.channels = channels
+        self.units = units
+        self.sample_rate = sample_rate
+        self._parts: list[np.ndarray] = []
+        self._count = 0
+        self._first = 0
+        self._gaps: list[Gap] = []
+        self._overload = False
+
+    def add(self, frame: Frame) -> list[Block]:
+        """The blocks completed by ``frame`` (a gap before it closes the block in progress)."""
+        blocks = []
+        if frame.gap is not None:
+            if self._count:
+                blocks.append(self._emit())
+            self._gaps.append(frame.gap)
+        counts = frame.counts
+        offset = 0
+        while offset < counts.shape[0]:
+            if self._count == 0:
+                self._first = frame.first_sample + offset
+            take = min(self.block_size - self._count, counts.shape[0] - offset)
+            self._parts.append(counts[offset:offset + take])
+            self._count += take
+            self._overload |= bool(frame.flags & FLAG_OVERLOAD)
+            offset += take
+            if self._count == self.block_size:
+                blocks.append(self._emit())
+        return blocks
+
+    def flush(self) -> Block | None:
+        """The last, short block at the end of the stream (None if empty)."""
+        return self._emit() if self._count else None
+
+    def _emit(self) -> Block:
+        data = np.concatenate(self._parts).astype(float) * self.lsb
+        block = Block(data, self.channels, self.units, self.sample_rate, self._first, tuple(self._gaps),
+                      self._overload)
+        self._parts = []
+        self._count = 0
+        self._gaps = []
+        self._overload = False
+        return block
+
+
+class _BlockQueue:
+    """Blocks from the owner thread to the consumer; bounded while the stream runs."""
+
+    def __init__(self, capacity: int):
+        self.capacity = capacity
+        self._blocks: collections.deque[Block] = collections.deque()
+        self._ready = threading.Condition()
+        self.finished = False
+        self.error: BaseException | None = None
+
+    def put(self, block: Block, unbounded: threading.Event) -> None:
+        with self._ready:
+            while len(self._blocks) >= self.capacity and not unbounded.is_set():
+                self._ready.wait(POLL)
+            self._blocks.append(block)
+            self._ready.notify_all()
+
+    def finish(self, error: BaseException | None) -> None:
+        with self._ready:
+            self.finished = True
+            self.error = error
+            self._ready.notify_all()
+
+    def get(self, timeout: float, url: str) -> Block | None:
+        """The next block; None when the stream has ended and nothing is left."""
+        deadline = time.monotonic() + timeout
+        with self._ready:
+            while not self._blocks:
+                if self.finished:
+                    if self.error is not None:
+                        raise self.error
+                    return None
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise LinkTimeout(url, f"no block from the DAQ stream within {timeout:.3g} s")
+                self._ready.wait(left)
+            block = self._blocks.popleft()
+            self._ready.notify_all()
+            return block
+
+
+class DaqStream:
+    """A running acquisition (see module docstring); use as a context manager and iterator.
+
+    Parameters
+    ----------
+    daq : SerialDaq
+        The instrument.
+    block_size : int
+        Samples per channel per block.
+    buffered_blocks : int
+        Blocks the driver reads ahead of the consumer.
+    timeout : float, optional
+        Longest :meth:`read` waits for a block (s); default ``max(2, 2 x block duration)``.
+    no_data_timeout : float
+        The stream fails with LinkTimeout after this long without a byte (s).
+    """
+
+    def __init__(self, daq: "SerialDaq", block_size: int, buffered_blocks: int, timeout: float | None,
+                 no_data_timeout: float):
+        self.daq = daq
+        self.url = daq.url
+        self.stats = StreamStats()
+        self.timeout = timeout if timeout is not None else max(2.0, 2.0 * block_size / daq.sample_rate)
+        self._no_data_timeout = no_data_timeout
+        self._assembler = BlockAssembler(block_size, daq.lsb, daq.channels, daq.units, daq.sample_rate)
+        self._decoder = FrameDecoder(len(daq.channels), daq.frame_points)
+        self._queue = _BlockQueue(max(1, buffered_blocks))
+        self._stopping = threading.Event()
+        self._request = daq._link.submit(self._run)
+
+    # ----- owner thread --------------------------------------------------------------------
+    def _run(self, io: PortIO) -> None:
+        error: BaseException | None = None
+        chunk = 4 * frame_size(self.daq.frame_points, len(self.daq.channels))
+        try:
+            if io.desynced or io.rx:
+                io.discard_input()
+            self.daq._scpi.send(io, "INIT")
+            last = time.monotonic()
+            while not self._stopping.is_set():
+                data = io.read_some(chunk, POLL)
+                if data:
+                    self._deliver(data)
+                    if self._decoder.ended:
+                        self._ended_by_instrument(io)
+                    last = time.monotonic()
+                elif time.monotonic() - last > self._no_data_timeout:
+                    raise LinkTimeout(self.url, f"no stream data for {self._no_data_timeout:.3g} s")
+            self._finish(io, chunk)
+        except StreamFormatError as exc:
+            error = ProtocolError(self.url, f"stream: {exc}")
+        except BaseException as exc:  # handed to the consumer through the queue
+            error = exc
+        if error is not None and not isinstance(error, LinkLost):
+            self._abandon(io)
+        self._queue.finish(error)
+        if isinstance(error, LinkLost):
+            raise error  # marks the port dead for every later call
+
+    def _deliver(self, data: bytes) -> None:
+        stats = self.stats
+        for frame in self._decoder.feed(data):
+            if frame.gap is not None:
+                stats.gaps.append(frame.gap)
+                stats.samples_lost += frame.gap.samples
+            stats.corrupt_frames += frame.corrupt_frames
+            stats.skipped_bytes += frame.skipped_bytes
+            stats.overrun_frames += bool(frame.flags & FLAG_OVERRUN)
+            if frame.is_end:
+                stats.samples_sent = frame.first_sample
+                stats.end_frame_received = True
+            stats.samples_received += frame.points
+            for block in self._assembler.add(frame):
+                self._queue.put(block, self._stopping)
+
+    def _finish(self, io: PortIO, chunk: int) -> None:
+        self.daq._scpi.send(io, "ABOR")
+        start = last = time.monotonic()
+        while not self._decoder.ended:
+            data = io.read_some(chunk, POLL)
+            now = time.monotonic()
+            if data:
+                self._deliver(data)
+                last = now
+            elif now - last > END_QUIET or now - start > END_LIMIT:
+                break
+        if self._decoder.ended:
+            io.unread(self._decoder.remainder())
+        else:
+            io.discard_input()
+            sent = self._instrument_count(io)
+            gap = self._decoder.finish(sent)
+            if gap is not None:
+                self.stats.gaps.append(gap)
+                self.stats.samples_lost += gap.samples
+            self.stats.samples_sent = sent
+            self.stats.skipped_bytes = self._decoder.stats.skipped_bytes
+            self.stats.corrupt_frames = self._decoder.stats.corrupt_frames
+        tail = self._assembler.flush()
+        if tail is not None:
+            self._queue.put(tail, self._stopping)
+
+    def _ended_by_instrument(self, io: PortIO) -> None:
+        """The DAQ sent END unasked: keep the samples, then raise what its error queue says."""
+        io.unread(self._decoder.remainder())
+        tail = self._assembler.flush()
+        if tail is not None:
+            self._queue.put(tail, self._stopping)
+        errors = self.daq._scpi.drain_errors(io)
+        if errors:
+            raise DeviceError(self.url, errors, "INIT (the instrument ended the stream)")
+        raise ProtocolError(self.url, "the DAQ ended the stream without ABORt")
+
+    def _instrument_count(self, io: PortIO) -> int:
+        """``STReam:COUNt?``, asked until two answers agree (a noisy line can garble one)."""
+        previous = None
+        for _ in range(COUNT_ATTEMPTS):
+            try:
+                reply = self.daq._scpi.ask(io, "STR:COUN?").strip()
+            except LinkTimeout:
+                continue
+            if reply.isdigit():
+                if reply == previous:
+                    return int(reply)
+                previous = reply
+        raise ProtocolError(self.url, f"STR:COUN? gave no two equal answers in {COUNT_ATTEMPTS} attempts")
+
+    def _abandon(self, io: PortIO) -> None:
+        """After a failure: stop the instrument streaming so the port is usable again."""
+        try:
+            self.daq._scpi.send(io, "ABOR")
+            io.drain(quiet=0.1, limit=END_LIMIT)
+        except InstrumentError:
+            pass  # the original failure is what the consumer needs to see
+
+    # ----- consumer ------------------------------------------------------------------------
+    def read(self, timeout: float | None = None) -> Block:
+        """The next block.
+
+        Raises
+        ------
+        LinkTimeout
+            No block within ``timeout`` (default: the stream's timeout).
+        EOFError
+            The stream has stopped and every block was read.
+        InstrumentError
+            The stream failed (link lost, protocol error); raised on every later read too.
+        """
+        block = self._queue.get(self.timeout if timeout is None else timeout, self.url)
+        if block is None:
+            raise EOFError(f"{self.url}: stream stopped")
+        return block
+
+    def __iter__(self) -> Iterator[Block]:
+        return self
+
+    def __next__(self) -> Block:
+        try:
+            return self.read()
+        except EOFError:
+            raise StopIteration from None
+
+    def stop(self, timeout: float = END_LIMIT + 5.0) -> StreamStats:
+        """End the acquisition and wait until the instrument confirmed it; the final stats.
+
+        Blocks still queued stay readable; reading past them raises EOFError.
+        A stream that failed raises its error here.
+        """
+        self._stopping.set()
+        self._request.wait(self.url, timeout)
+        if self._queue.error is not None:
+            raise self._queue.error
+        return self.stats
+
+    @property
+    def running(self) -> bool:
+        return not self._queue.finished
+
+    def __enter__(self) -> "DaqStream":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self.stop()
+        except InstrumentError:
+            if exc_type is None:
+                raise
+        finally:
+            self.daq._stream = None
+
+
+class SerialDaq:
+    """A :class:`~drivers.interfaces.Daq` on a serial link.
+
+    Parameters
+    ----------
+    url : str
+        Port name or pyserial URL.
+    baudrate : int
+        Line rate of a real serial port.
+    timeout : float
+        Deadline for each reply (s).
+    models : tuple of str
+        ``*IDN?`` model fields accepted.
+    port : serial.SerialBase, optional
+        An open port to use instead of opening ``url``.
+    """
+
+    def __init__(self, url: str, *, baudrate: int = 2_000_000, timeout: float = 1.0,
+                 models: tuple[str, ...] = DAQ_MODELS, port: serial.SerialBase | None = None):
+        self.url = url
+        self._link = SerialLink(url, name="daq", baudrate=baudrate, port=port)
+        self._scpi = ScpiInstrument(self._link, timeout)
+        self._stream: DaqStream | None = None
+        try:
+            self.identity: Identity = self._link.call(lambda io: self._connect(io, models), 4 * timeout + END_LIMIT)
+        except BaseException:
+            self._link.close()
+            raise
+
+    def _connect(self, io: PortIO, models: tuple[str, ...]) -> Identity:
+        scpi = self._scpi
+        scpi.send(io, "")
+        scpi.send(io, "ABOR")  # a stream left running by an earlier session must not garble the replies
+        io.drain(quiet=0.1, limit=END_LIMIT)
+        identity = scpi.identify(io, MANUFACTURER, models, "contactid DAQ", 2 * scpi.timeout)
+        scpi.execute(io, "*RST;*CLS")
+        self._read_setup(io)
+        return identity
+
+    def _read_setup(self, io: PortIO) -> None:
+        scpi = self._scpi
+        count = self._ask_int(io, "SYST:CHAN:COUN?")
+        names, units, lsb = [], [], []
+        for n in range(1, count + 1):
+            names.append(scpi.ask(io, f"SENS:CHAN{n}:NAME?"))
+            units.append(scpi.ask(io, f"SENS:CHAN{n}:UNIT?"))
+            lsb.append(self._ask_float(io, f"SENS:CHAN{n}:LSB?"))
+        scan_reply = scpi.ask(io, "ROUT:SCAN?").replace(" ", "")
+        match = _SCAN.match(scan_reply)
+        if match is None:
+            raise ProtocolError(self.url, f"ROUT:SCAN? answered {scan_reply!r}")
+        scan = [int(x) - 1 for x in match.group(1).split(",")]
+        if not all(0 <= i < count for i in scan):
+            raise ProtocolError(self.url, f"ROUT:SCAN? names channels outside 1..{count}: {scan_reply!r}")
+        self.all_channels = tuple(names)
+        self.channels = tuple(names[i] for i in scan)
+        self.units = tuple(units[i] for i in scan)
+        self.lsb = np.array([lsb[i] for i in scan])
+        self.sample_rate = self._ask_float(io, "SRAT?")
+        self.frame_points = self._ask_int(io, "STR:POIN?")
+
+    def _ask_float(self, io: PortIO, command: str) -> float:
+        reply = self._scpi.ask(io, command)
+        try:
+            return float(reply)
+        except ValueError:
+            raise ProtocolError(self.url, f"{command} answered {reply!r}, expected a number") from None
+
+    def _ask_int(self, io: PortIO, command: str) -> int:
+        reply = self._scpi.ask(io, command)
+        if not reply.strip().isdigit():
+            raise ProtocolError(self.url, f"{command} answered {reply!r}, expected a count")
+        return int(reply)
+
+    def _idle(self) -> None:
+        if self._stream is not None and self._stream.running:
+            raise InstrumentError(self.url, "a stream is running: stop it first")
+
+    def configure(self, *, channels: Sequence[str] | None = None, sensitivities: dict[str, float] | None = None,
+                  ranges: dict[str, float] | None = None, frame_points: int | None = None) -> None:
+        """Select and set up channels (names as in ``all_channels``).
+
+        Parameters
+        ----------
+        channels : sequence of str, optional
+            Channels to acquire, in column order.
+        sensitivities : dict, optional
+            Sensor sensitivity per channel name (V per physical unit).
+        ranges : dict, optional
+            Input range per channel name (V peak).
+        frame_points : int, optional
+            Samples per channel per stream frame (1..4096).
+        """
+        self._idle()
+        commands = []
+        if channels is not None:
+            commands.append("ROUT:SCAN (@" + ",".join(str(self._number(c)) for c in channels) + ")")
+        for name, value in (sensitivities or {}).items():
+            commands.append(f"SENS:CHAN{self._number(name)}:SENS {float(value)!r}")
+        for name, value in (ranges or {}).items():
+            commands.append(f"SENS:CHAN{self._number(name)}:RANG {float(value)!r}")
+        if frame_points is not None:
+            if not 1 <= frame_points <= MAX_POINTS:
+                raise ValueError(f"frame_points must be 1..{MAX_POINTS}, got {frame_points}")
+            commands.append(f"STR:POIN {int(frame_points)}")
+
+        def apply(io: PortIO) -> None:
+            for command in commands:
+                self._scpi.execute(io, command)
+            self._read_setup(io)
+
+        self._link.call(apply, self._scpi.timeout * (len(commands) + 10) + 1)
+
+    def _number(self, name: str) -> int:
+        try:
+            return self.all_channels.index(name) + 1
+        except ValueError:
+            raise KeyError(f"{self.url}: no channel {name!r}; channels are {', '.join(self.all_channels)}") from None
+
+    def stream(self, block_size: int, *, buffered_blocks: int = 4, timeout: float | None = None,
+               no_data_timeout: float = 2.0) -> DaqStream:
+        """Start streaming (see :class:`DaqStream`)."""
+        self._idle()
+        if self._link.failure is not None:
+            raise self._link.failure
+        self._stream = DaqStream(self, block_size, buffered_blocks, timeout, no_data_timeout)
+        return self._stream
+
+    def read(self, points: int) -> Block:
+        """Acquire ``points`` samples per channel now (IEEE 488.2 block read); first_sample is 0."""
+        self._idle()
+        wait = points / self.sample_rate + self._scpi.timeout
+        payload = self._scpi.query_block(f"READ? {int(points)}", timeout=wait)
+        width = len(self.channels)
+        if len(payload) != 4 * width * points:
+            raise ProtocolError(self.url, f"READ? {points} returned {len(payload)} bytes, "
+                                          f"expected {4 * width * points}")
+        counts = np.frombuffer(payload, dtype="<i4").reshape(points, width)
+        return Block(counts * self.lsb, self.channels, self.units, self.sample_rate, 0)
+
+    def errors(self) -> list:
+        """Empty the instrument's error queue (entries oldest first)."""
+        self._idle()
+        return self._scpi.errors()
+
+    def close(self) -> None:
+        """Stop a running stream and release the port."""
+        try:
+            if self._stream is not None and self._stream.running:
+                self._stream.stop()
+        finally:
+            self._link.close()
+
+    def __enter__(self) -> "SerialDaq":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

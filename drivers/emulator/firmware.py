@@ -1,0 +1,140 @@
+"""What both emulated instruments share: a command thread, IEEE 488.2 common commands.
+
+Each instrument processes the host's lines in its own thread, in order, holding
+the rig lock while a line executes, so a command takes effect between two chunks
+of physics and never in the middle of one.
+"""
+from __future__ import annotations
+
+import queue
+import threading
+from typing import TYPE_CHECKING
+
+from ..faults import FaultInjector
+from .link import OutputFifo
+from .scpi_server import ScpiError, ScpiServer, action, reply_with
+
+if TYPE_CHECKING:
+    from .core import EmulatedRig
+
+MANUFACTURER = "contactid"
+FIRMWARE_VERSION = "1.0"
+SCPI_VERSION = "1999.0"
+MAX_LINE = 4096
+"""Longest program message the instruments accept (bytes); longer input is error -363."""
+
+
+class Firmware:
+    """Base of the emulated instruments.
+
+    Parameters
+    ----------
+    rig : EmulatedRig
+        The rig the instrument belongs to (its lock, clock and backend).
+    role : str
+        ``"shaker"`` or ``"daq"``.
+    """
+
+    model = ""
+
+    def __init__(self, rig: "EmulatedRig", role: str):
+        self.rig = rig
+        self.role = role
+        self.output = OutputFifo()
+        self.scpi = ScpiServer()
+        self.injector: FaultInjector | None = None
+        self._input: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+        self._unprocessed = 0
+        self._count_lock = threading.Lock()
+        self._line_buffer = bytearray()
+        self._thread = threading.Thread(target=self._run, name=f"{rig.name} {role} firmware", daemon=True)
+        self._add_common_commands()
+
+    # ----- lifecycle ---------------------------------------------------------------------
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._input.put(None)
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(2.0)
+
+    def receive(self, data: bytes) -> None:
+        """Bytes from the host (called by the link, any thread)."""
+        with self._count_lock:
+            self._unprocessed += 1
+        self._input.put(bytes(data))
+
+    @property
+    def pending(self) -> bool:
+        """Whether host bytes are waiting or being processed (fast mode holds the physics meanwhile)."""
+        return self._unprocessed > 0
+
+    def _run(self) -> None:
+        while True:
+            data = self._input.get()
+            if data is None:
+                return
+            try:
+                self._process(data)
+            finally:
+                with self._count_lock:
+                    self._unprocessed -= 1
+
+    def _process(self, data: bytes) -> None:
+        self._line_buffer += data
+        while True:
+            end = self._line_buffer.find(b"\n")
+            if end < 0:
+                break
+            line = bytes(self._line_buffer[:end])
+            del self._line_buffer[:end + 1]
+            self.handle_line(line.rstrip(b"\r"))
+        if len(self._line_buffer) > MAX_LINE:
+            self._line_buffer.clear()
+            self.scpi.errors.push(ScpiError(-363))
+
+    def handle_line(self, line: bytes) -> None:
+        """Execute one program message under the rig lock and queue its reply."""
+        with self.rig.lock:
+            self.before_command()
+            try:
+                text = line.decode("ascii")
+            except UnicodeDecodeError:
+                self.scpi.errors.push(ScpiError(-102, "non-ASCII byte"))
+                return
+            injector = self.injector
+            reply = self.scpi.execute(text, busy=self.busy(),
+                                      reject=injector.reject_command if injector is not None else None)
+            if reply is not None:
+                self.output.put(reply)
+
+    # ----- hooks for the instruments ------------------------------------------------------
+    def before_command(self) -> None:
+        """Called with the rig lock held before each program message (the shaker feeds its watchdog)."""
+
+    def busy(self) -> bool:
+        """Whether only ``while_busy`` commands are accepted now (the DAQ while streaming)."""
+        return False
+
+    def produce(self) -> bool:
+        """Fast mode: make more output when the host finds none; whether output will follow."""
+        return False
+
+    def reset(self) -> None:
+        """``*RST``: the power-on state."""
+
+    # ----- common commands ----------------------------------------------------------------
+    def identity(self) -> str:
+        return f"{MANUFACTURER},{self.model},{self.rig.name},{FIRMWARE_VERSION}"
+
+    def _add_common_commands(self) -> None:
+        add = self.scpi.add
+        add("*IDN", query=reply_with(self.identity))
+        add("*RST", write=action(self.reset), while_busy=True)
+        add("*CLS", write=action(self.scpi.errors.clear), while_busy=True)
+        add("*OPC", query=reply_with(lambda: "1"))
+        add("*TST", query=reply_with(lambda: "0"))
+        add("SYSTem:ERRor[:NEXT]", query=reply_with(lambda: str(self.scpi.errors.pop())))
+        add("SYSTem:ERRor:COUNt", query=reply_with(lambda: str(len(self.scpi.errors))))
+        add("SYSTem:VERSion", query=reply_with(lambda: SCPI_VERSION))

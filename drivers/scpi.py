@@ -1,0 +1,449 @@
+"""SCPI over a pyserial port: one owner thread per port, a deadline on every read.
+
+The port is opened with :func:`serial.serial_for_url`, so a device name
+(``/dev/ttyUSB0``, ``COM4``), ``socket://host:port``, ``rfc2217://...`` and the
+in-process emulator's ``sim://rig/instrument`` all work the same way.
+
+Only the owner thread of a :class:`SerialLink` touches its port. Other threads hand
+it work (:meth:`SerialLink.call`), so replies can never interleave. Reads poll the
+port in short slices (:data:`POLL` s) until a deadline, so a silent instrument
+raises :class:`~drivers.errors.LinkTimeout` instead of hanging, and a vanished port
+raises :class:`~drivers.errors.LinkLost`. Between slices the owner thread services
+emergency writes (output off from a signal handler) ahead of everything queued.
+
+Messages are ASCII lines terminated by LF; replies to several queries in one line
+come back joined by ``;``. Binary replies use IEEE 488.2 definite-length block data
+``#<d><length><bytes>`` followed by LF.
+"""
+from __future__ import annotations
+
+import collections
+import queue
+import re
+import threading
+import time
+from typing import Any, Callable
+
+import serial
+
+from .errors import (DeviceError, InstrumentError, LinkLost, LinkTimeout, ProtocolError, ScpiErrorEntry,
+                     WrongDevice)
+from .interfaces import Identity
+
+POLL = 0.02
+"""Slice of a blocking read (s): the longest an emergency write waits for the owner thread."""
+MAX_LINE = 1 << 16
+"""Longest reply line accepted (bytes); anything longer is a protocol error."""
+MAX_ERRORS_DRAINED = 64
+"""Error-queue entries read after a failed command before giving up draining."""
+_ERROR_REPLY = re.compile(r'^\s*([+-]?\d+)\s*,\s*"(.*)"\s*$')
+
+
+def open_port(url: str, *, baudrate: int, write_timeout: float) -> serial.SerialBase:
+    """Open ``url`` with pyserial; LinkLost with the reason if it cannot be opened."""
+    try:
+        return serial.serial_for_url(url, baudrate=baudrate, timeout=POLL, write_timeout=write_timeout)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise LinkLost(url, f"cannot open port: {exc}") from None
+
+
+def parse_error_entry(url: str, reply: str) -> ScpiErrorEntry:
+    """Parse a ``SYSTem:ERRor?`` reply such as ``-222,"Data out of range"``."""
+    match = _ERROR_REPLY.match(reply)
+    if match is None:
+        raise ProtocolError(url, f"SYST:ERR? answered {reply!r}, expected <code>,\"<message>\"")
+    return ScpiErrorEntry(int(match.group(1)), match.group(2))
+
+
+class PortIO:
+    """Buffered reads with deadlines on one open port (used only by its owner thread).
+
+    Parameters
+    ----------
+    port : serial.SerialBase
+        The open port.
+    url : str
+        Its URL, for messages.
+    service : callable
+        Called after every read slice (the owner's emergency-write check).
+    """
+
+    def __init__(self, port: serial.SerialBase, url: str, service: Callable[[], None]):
+        self.port = port
+        self.url = url
+        self.rx = bytearray()
+        self.last_activity = time.monotonic()
+        self.desynced = False
+        self._service = service
+        self._timeout = port.timeout
+
+    def _receive(self, size: int, timeout: float) -> bytes:
+        if timeout != self._timeout:
+            self.port.timeout = timeout
+            self._timeout = timeout
+        try:
+            data = self.port.read(size)
+        except (serial.SerialException, OSError) as exc:
+            raise LinkLost(self.url, f"port lost while reading: {exc}") from None
+        if data:
+            self.last_activity = time.monotonic()
+        self._service()
+        return data
+
+    def write(self, data: bytes) -> None:
+        """Write all of ``data``; LinkTimeout if the port does not take it in time."""
+        try:
+            self.port.write(data)
+        except serial.SerialTimeoutException:
+            raise LinkTimeout(self.url, f"port did not accept {len(data)} bytes in time") from None
+        except (serial.SerialException, OSError) as exc:
+            raise LinkLost(self.url, f"port lost while writing: {exc}") from None
+        self.last_activity = time.monotonic()
+
+    def _fill(self, deadline: float, what: str) -> None:
+        """Append at least one byte to ``rx`` or raise LinkTimeout at the deadline."""
+        chunk = self._receive(MAX_LINE, 0)
+        while not chunk:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.desynced = True
+                raise LinkTimeout(self.url, f"no complete reply to {what} in time")
+            chunk = self._receive(1, min(POLL, left))
+        self.rx += chunk
+
+    def read_line(self, deadline: float, what: str) -> bytes:
+        """The next LF-terminated line (terminator and a trailing CR removed)."""
+        while True:
+            end = self.rx.find(b"\n")
+            if end >= 0:
+                line = bytes(self.rx[:end])
+                del self.rx[:end + 1]
+                return line[:-1] if line.endswith(b"\r") else line
+            if len(self.rx) > MAX_LINE:
+                self.rx.clear()
+                self.desynced = True
+                raise ProtocolError(self.url, f"reply to {what} exceeds {MAX_LINE} bytes without a line end")
+            self._fill(deadline, what)
+
+    def read_exact(self, count: int, deadline: float, what: str) -> bytes:
+        """Exactly ``count`` bytes, or LinkTimeout at the deadline."""
+        while len(self.rx) < count:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.desynced = True
+                raise LinkTimeout(self.url, f"reply to {what} incomplete: {len(self.rx)} of {count} bytes")
+            self.rx += self._receive(count - len(self.rx), min(POLL, left))
+        data = bytes(self.rx[:count])
+        del self.rx[:count]
+        return data
+
+    def read_some(self, size: int, timeout: float) -> bytes:
+        """Whatever arrives within ``timeout`` (buffered bytes first), at most about ``size`` bytes."""
+        if self.rx:
+            data = bytes(self.rx)
+            self.rx.clear()
+            return data
+        return self._receive(size, timeout)
+
+    def unread(self, data: bytes) -> None:
+        """Put bytes back in front of the receive buffer."""
+        self.rx[:0] = data
+
+    def discard_input(self) -> None:
+        """Drop everything received and not yet read (after a timeout left the link out of step)."""
+        self.rx.clear()
+        try:
+            self.port.reset_input_buffer()
+        except (serial.SerialException, OSError) as exc:
+            raise LinkLost(self.url, f"port lost: {exc}") from None
+        self.desynced = False
+
+    def drain(self, quiet: float, limit: float) -> None:
+        """Discard input until nothing arrives for ``quiet`` s (at most ``limit`` s)."""
+        self.rx.clear()
+        start = last = time.monotonic()
+        while True:
+            now = time.monotonic()
+            if now - last >= quiet or now - start >= limit:
+                return
+            if self._receive(MAX_LINE, min(POLL, quiet)):
+                last = time.monotonic()
+
+
+class _Request:
+    __slots__ = ("fn", "done", "result", "error")
+
+    def __init__(self, fn: Callable[[PortIO], Any]):
+        self.fn = fn
+        self.done = threading.Event()
+        self.result: Any = None
+        self.error: BaseException | None = None
+
+    def wait(self, url: str, timeout: float) -> Any:
+        if not self.done.wait(timeout):
+            raise LinkTimeout(url, f"port owner did not finish the request within {timeout:.3g} s")
+        if self.error is not None:
+            raise self.error
+        return self.result
+
+
+class SerialLink:
+    """A pyserial port with its owner thread.
+
+    Parameters
+    ----------
+    url : str
+        Port name or pyserial URL.
+    name : str
+        Short role name (``"shaker"``, ``"daq"``) for the thread name.
+    baudrate : int
+        Line rate for real serial ports (ignored by socket and sim transports).
+    write_timeout : float
+        Longest a write may block (s).
+    port : serial.SerialBase, optional
+        An already open port to own instead of opening ``url`` (tests use scripted ports).
+    """
+
+    def __init__(self, url: str, *, name: str, baudrate: int = 115200, write_timeout: float = 1.0,
+                 port: serial.SerialBase | None = None):
+        self.url = url
+        self.port = port if port is not None else open_port(url, baudrate=baudrate,
+                                                            write_timeout=write_timeout)
+        self.port.timeout = POLL
+        self.io = PortIO(self.port, url, self._service_emergencies)
+        self.failure: LinkLost | None = None
+        self._requests: queue.Queue[_Request | None] = queue.Queue()
+        self._emergencies: collections.deque[tuple[bytes, threading.Event]] = collections.deque()
+        self._idle_hook: Callable[[PortIO], None] | None = None
+        self._idle_interval = 0.0
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name=f"{name} port {url}", daemon=True)
+        self._thread.start()
+
+    # ----- owner thread -------------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            while True:
+                self._service_emergencies()
+                try:
+                    request = self._requests.get(timeout=POLL)
+                except queue.Empty:
+                    self._idle()
+                    continue
+                if request is None:
+                    break
+                self._execute(request)
+        finally:
+            self._service_emergencies()
+            try:
+                self.port.close()
+            except (serial.SerialException, OSError):
+                pass  # the port is gone already; closing it is all that was left to do
+
+    def _execute(self, request: _Request) -> None:
+        try:
+            request.result = request.fn(self.io)
+        except LinkLost as exc:
+            self.failure = exc
+            request.error = exc
+        except BaseException as exc:  # handed to the calling thread, which re-raises it
+            request.error = exc
+        finally:
+            request.done.set()
+
+    def _idle(self) -> None:
+        hook = self._idle_hook
+        if hook is None or self.failure is not None:
+            return
+        if time.monotonic() - self.io.last_activity < self._idle_interval:
+            return
+        try:
+            hook(self.io)
+        except LinkLost as exc:
+            self.failure = exc
+        except InstrumentError:
+            pass  # the hook records instrument faults itself; the link stays usable
+
+    def _service_emergencies(self) -> None:
+        while self._emergencies:
+            data, sent = self._emergencies.popleft()
+            if self.failure is None:
+                try:
+                    self.io.write(data)
+                except LinkLost as exc:
+                    self.failure = exc
+                except LinkTimeout:
+                    continue
+                else:
+                    sent.set()
+
+    # ----- any thread ---------------------------------------------------------------------
+    def _check_usable(self) -> None:
+        if self.failure is not None:
+            raise LinkLost(self.url, f"link is down ({self.failure.message})")
+        if self._closed:
+            raise LinkLost(self.url, "port is closed")
+
+    def submit(self, fn: Callable[[PortIO], Any]) -> _Request:
+        """Queue ``fn(io)`` for the owner thread; wait on the returned request yourself."""
+        self._check_usable()
+        request = _Request(fn)
+        self._requests.put(request)
+        return request
+
+    def call(self, fn: Callable[[PortIO], Any], timeout: float) -> Any:
+        """Run ``fn(io)`` on the owner thread and return its result (or raise its exception).
+
+        Called on the owner thread itself (from a fault listener, say), ``fn`` runs at once.
+        """
+        if threading.current_thread() is self._thread:
+            self._check_usable()
+            return fn(self.io)
+        return self.submit(fn).wait(self.url, timeout)
+
+    def set_idle_hook(self, hook: Callable[[PortIO], None] | None, interval: float) -> None:
+        """Run ``hook(io)`` on the owner thread whenever the port was silent ``interval`` s."""
+        self._idle_interval = interval
+        self._idle_hook = hook
+
+    def emergency_write(self, data: bytes, timeout: float) -> bool:
+        """Write ``data`` before anything queued; True once written.
+
+        Safe in a signal handler: it takes no lock the interrupted thread could hold
+        (a deque append and a fresh Event).
+        """
+        if self.failure is not None or self._closed:
+            return False
+        sent = threading.Event()
+        self._emergencies.append((data, sent))
+        return sent.wait(timeout)
+
+    def close(self, timeout: float = 2.0) -> None:
+        """Stop the owner thread after the queued requests and close the port."""
+        if self._closed:
+            return
+        self._closed = True
+        self._requests.put(None)
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout)
+
+    @property
+    def alive(self) -> bool:
+        return self.failure is None and not self._closed
+
+
+class ScpiInstrument:
+    """SCPI request/reply helpers over a :class:`SerialLink`.
+
+    Parameters
+    ----------
+    link : SerialLink
+        The owned port.
+    timeout : float
+        Deadline for one reply (s).
+    """
+
+    def __init__(self, link: SerialLink, timeout: float):
+        self.link = link
+        self.url = link.url
+        self.timeout = timeout
+
+    def _deadline(self, timeout: float | None) -> float:
+        return time.monotonic() + (self.timeout if timeout is None else timeout)
+
+    def _wait(self, timeout: float | None) -> float:
+        return (self.timeout if timeout is None else timeout) + 1.0
+
+    # ----- functions that run on the owner thread -------------------------------------------
+    def send(self, io: PortIO, command: str) -> None:
+        io.write(command.encode("ascii") + b"\n")
+
+    def ask(self, io: PortIO, command: str, timeout: float | None = None) -> str:
+        """Send a query and read its reply line."""
+        if io.desynced:
+            io.discard_input()
+        self.send(io, command)
+        line = io.read_line(self._deadline(timeout), repr(command))
+        return line.decode("ascii", errors="replace")
+
+    def ask_block(self, io: PortIO, command: str, timeout: float | None = None) -> bytes:
+        """Send a query whose reply is IEEE 488.2 definite-length block data; its payload."""
+        if io.desynced:
+            io.discard_input()
+        self.send(io, command)
+        deadline = self._deadline(timeout)
+        what = repr(command)
+        head = io.read_exact(2, deadline, what)
+        if head[:1] != b"#" or not head[1:2].isdigit() or head[1:2] == b"0":
+            io.desynced = True
+            raise ProtocolError(self.url, f"reply to {what} is not definite-length block data: {head!r}")
+        digits = io.read_exact(int(head[1:2]), deadline, what)
+        if not digits.isdigit():
+            io.desynced = True
+            raise ProtocolError(self.url, f"block length of the reply to {what} is not a number: {digits!r}")
+        payload = io.read_exact(int(digits), deadline, what)
+        if io.read_line(deadline, what):
+            io.desynced = True
+            raise ProtocolError(self.url, f"extra bytes after the block data of {what}")
+        return payload
+
+    def drain_errors(self, io: PortIO) -> list[ScpiErrorEntry]:
+        """Read the error queue until it reports 0 (at most MAX_ERRORS_DRAINED entries)."""
+        errors = []
+        for _ in range(MAX_ERRORS_DRAINED):
+            entry = parse_error_entry(self.url, self.ask(io, "SYST:ERR?"))
+            if entry.code == 0:
+                break
+            errors.append(entry)
+        return errors
+
+    def execute(self, io: PortIO, command: str) -> None:
+        """Send a command and check the error queue in the same round trip; DeviceError if not 0."""
+        first = parse_error_entry(self.url, self.ask(io, f"{command};:SYST:ERR?"))
+        if first.code != 0:
+            raise DeviceError(self.url, [first] + self.drain_errors(io), command)
+
+    # ----- the same from any thread ----------------------------------------------------------
+    def write(self, command: str) -> None:
+        """Send a command that has no reply."""
+        self.link.call(lambda io: self.send(io, command), self._wait(None))
+
+    def query(self, command: str, timeout: float | None = None) -> str:
+        """Send a query and return its reply line."""
+        return self.link.call(lambda io: self.ask(io, command, timeout), self._wait(timeout))
+
+    def query_block(self, command: str, timeout: float | None = None) -> bytes:
+        """Send a query and return its block-data payload."""
+        return self.link.call(lambda io: self.ask_block(io, command, timeout), self._wait(timeout))
+
+    def command(self, command: str, timeout: float | None = None) -> None:
+        """Send a command and raise DeviceError if the instrument reports an error for it."""
+        self.link.call(lambda io: self.execute(io, command), self._wait(timeout))
+
+    def errors(self) -> list[ScpiErrorEntry]:
+        """Empty the instrument's error queue; its entries, oldest first."""
+        return self.link.call(self.drain_errors, self._wait(None) * 4)
+
+    def query_float(self, command: str) -> float:
+        reply = self.query(command)
+        try:
+            return float(reply)
+        except ValueError:
+            raise ProtocolError(self.url, f"{command} answered {reply!r}, expected a number") from None
+
+    def identify(self, io: PortIO, manufacturer: str, models: tuple[str, ...], role: str,
+                 timeout: float) -> Identity:
+        """Ask ``*IDN?`` and check the instrument is one of ``models`` by ``manufacturer``."""
+        try:
+            reply = self.ask(io, "*IDN?", timeout)
+        except LinkTimeout:
+            raise LinkTimeout(self.url, f"no reply to *IDN? within {timeout:.3g} s: is this the {role} "
+                                        "and is the baud rate right?") from None
+        identity = Identity.parse(reply)
+        if identity is None:
+            raise WrongDevice(self.url, f"*IDN? answered {reply!r}, which is not an IEEE 488.2 identity: "
+                                        f"not a {role}")
+        if identity.manufacturer.lower() != manufacturer.lower() or identity.model not in models:
+            raise WrongDevice(self.url, f"*IDN? answered {reply!r}: not a {role} "
+                                        f"(expected {manufacturer} model {' or '.join(models)})")
+        return identity

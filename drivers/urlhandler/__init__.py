@@ -1,0 +1,1 @@
+"""pyserial URL handlers of contactid (registered in ``serial.protocol_handler_packages``)."""

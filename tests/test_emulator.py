@@ -1,0 +1,321 @@
+"""The drivers against the emulated instruments: in process (sim://), over pseudo terminals and TCP."""
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from analysis.errors import InputError
+
+import drivers  # noqa: F401  (registers sim://)
+from drivers.daq import SerialDaq
+from drivers.discovery import find_instruments
+from drivers.emulator import EmulatedRig, set_backend_factory
+from drivers.emulator.registry import builtin_backend, find_rig
+from drivers.emulator.shaker import RAMP_STEP
+from drivers.errors import DeviceError, LinkLost, LinkTimeout, WrongDevice
+from drivers.faults import LinkFaults, parse_faults
+from drivers.safety import OutputGuard
+from drivers.serve import parse_tcp_address, serve_emulator
+from drivers.shaker import SerialShaker
+from rig_double import ACC_GAIN, FORCE_GAIN, RigDouble, bench, signature, stream_start
+
+
+def assert_exact(rig, blocks, start):
+    """Every delivered sample is the backend's sample at its index (the drive is off)."""
+    lsb = rig.lsb
+    for block in blocks:
+        index = start + block.first_sample + np.arange(len(block))
+        truth = np.column_stack([signature(index, k) * lsb[k] for k in range(3)])
+        np.testing.assert_array_equal(block.data, truth)
+
+
+def single_bin(x, cycles):
+    """Complex amplitude of the component with ``cycles`` periods in ``x`` (sin convention: |.| = amplitude)."""
+    n = len(x)
+    return 2.0 / n * np.sum(x * np.exp(-2j * np.pi * cycles * np.arange(n) / n))
+
+
+@pytest.mark.parametrize("transport", ["sim", "pty", "tcp"])
+def test_sine_reaches_the_daq_with_the_right_amplitude(transport):
+    with bench(transport) as (rig, shaker, daq):
+        shaker.set_sine(12.5, 0.5)
+        with OutputGuard(shaker) as guard:
+            guard.arm()
+            with daq.stream(800) as stream:
+                blocks = [stream.read() for _ in range(3)]
+            assert rig.shaker.output_on
+        assert not rig.shaker.output_on
+        assert stream.stats.balanced and stream.stats.samples_lost == 0
+        assert [b.first_sample for b in blocks] == [0, 800, 1600]
+        settled = blocks[2]
+        force = single_bin(settled.channel("force"), 10)
+        assert abs(force) == pytest.approx(FORCE_GAIN * 0.5, abs=2e-3)
+        for name, gain in zip(("acc:x1", "acc:x2"), ACC_GAIN):
+            ratio = single_bin(settled.channel(name), 10) / force
+            assert ratio.real == pytest.approx(gain / FORCE_GAIN, rel=2e-3) and abs(ratio.imag) < 2e-2
+
+
+def test_amplitude_ramps_in_small_steps_and_switches_off_at_once():
+    with bench() as (rig, shaker, daq):
+        shaker.set_ramp_rate(4.0)
+        shaker.set_sine(10.0, 1.0)
+        with OutputGuard(shaker) as guard:
+            guard.arm()
+            with daq.stream(500, buffered_blocks=1) as stream:
+                stream.read()
+                shaker.set_sine(10.0, 0.2)
+                for _ in range(4):  # more than the read-ahead plus the 0.2 s ramp down
+                    stream.read()
+            assert shaker.output_level() == pytest.approx(0.2)
+        calls = rig.backend.calls
+        on = next(i for i, c in enumerate(calls) if c[1:] == ("set_output", (True,)))
+        off = next(i for i, c in enumerate(calls) if c[1:] == ("set_output", (False,)))
+        amplitudes = [0.0] + [c[2][1] for c in calls[on + 1:off] if c[1] == "set_sine"]
+        steps = np.abs(np.diff(amplitudes))
+        assert steps.max() <= 4.0 * RAMP_STEP * (1 + 1e-9)
+        assert max(amplitudes) == pytest.approx(1.0) and amplitudes[-1] == pytest.approx(0.2)
+        assert rig.backend.output is False
+
+
+def test_paced_mode_streams_contiguous_samples_and_block_reads():
+    with bench(paced=True) as (rig, shaker, daq):
+        with daq.stream(100) as stream:
+            blocks = [stream.read() for _ in range(3)]
+        assert stream.stats.balanced
+        assert_exact(rig, blocks, stream_start(rig))
+        before = rig.time
+        block = daq.read(50)
+        assert len(block) == 50 and rig.time >= before + 0.05
+
+
+def test_noise_drives_the_backend_with_the_asked_rms_and_band():
+    with bench() as (rig, shaker, daq):
+        shaker.set_noise(0.1, (2.0, 50.0))
+        with OutputGuard(shaker) as guard:
+            guard.arm()
+            with daq.stream(4000) as stream:
+                stream.read()
+                block = stream.read()
+        rms, band = [c[2] for c in rig.backend.calls if c[1] == "set_noise"][-1]
+        assert rms == pytest.approx(0.1) and band == (2.0, 50.0)
+        assert rig.backend.sine[1] == 0.0  # the sine generator was silenced
+        assert np.std(block.channel("force")) == pytest.approx(FORCE_GAIN * 0.1, rel=0.06)
+
+
+def test_channel_selection_and_range_saturation():
+    with bench() as (rig, shaker, daq):
+        daq.configure(channels=["acc:x2", "force"], sensitivities={"force": 0.5}, ranges={"force": 0.1},
+                      frame_points=50)
+        assert daq.channels == ("acc:x2", "force") and daq.frame_points == 50
+        shaker.set_sine(10.0, 0.5)
+        with OutputGuard(shaker) as guard:
+            guard.arm()
+            with daq.stream(1000) as stream:
+                stream.read()
+                block = stream.read()
+        assert block.overload
+        assert np.abs(block.channel("force")).max() == pytest.approx(0.2)
+        assert np.abs(block.channel("acc:x2")).max() > 5.0
+
+
+@pytest.mark.parametrize("faults, reported", [
+    ({"drop": 2e-3, "seed": 1}, "corrupt"),
+    ({"flip": 2e-3, "seed": 2}, "corrupt"),
+    ({"overrun": 0.05, "seed": 3}, "overrun"),
+    ({"drop": 5e-4, "flip": 5e-4, "overrun": 0.02, "seed": 4}, "corrupt"),
+    ({"stall": 2e-4, "stall_time": 0.02, "seed": 5}, None),
+])
+def test_injected_stream_faults_are_reported_and_every_sample_accounted_for(faults, reported):
+    with bench() as (rig, shaker, daq):
+        injector = rig.inject("daq", faults)
+        with daq.stream(200, buffered_blocks=2) as stream:
+            blocks = [stream.read() for _ in range(25)]
+        blocks += list(stream)
+        stats = stream.stats
+        assert stats.balanced
+        assert sum(len(b) for b in blocks) == stats.samples_received
+        assert_exact(rig, blocks, stream_start(rig))
+        if reported == "corrupt":
+            assert stats.corrupt_frames + stats.skipped_bytes > 0 and stats.samples_lost > 0
+            assert injector.dropped_bytes + injector.flipped_bits > 0
+        elif reported == "overrun":
+            assert stats.overrun_frames > 0
+            assert sum(g.frames for g in stats.gaps) == rig.daq.frames_overrun == injector.lost_frames > 0
+            assert 301 in [e.code for e in daq.errors()]
+        else:
+            assert injector.stalls > 0 and stats.samples_lost == 0
+        assert sum(g.samples for g in stats.gaps) == stats.samples_lost
+
+
+def test_a_long_stall_is_a_timeout():
+    with bench() as (rig, shaker, daq):
+        rig.inject("daq", {"stall": 1e-3, "stall_time": 3.0})
+        stream = daq.stream(200, no_data_timeout=0.3)
+        with pytest.raises(LinkTimeout, match="no stream data"):
+            for _ in range(100):
+                stream.read()
+
+
+@pytest.mark.parametrize("transport", ["sim", "pty", "tcp"])
+def test_a_dropped_link_is_link_lost(transport):
+    with bench(transport, faults={"daq": {"disconnect": 20000}}) as (rig, shaker, daq):
+        with pytest.raises(LinkLost):
+            with daq.stream(100) as stream:
+                for _ in range(1000):
+                    stream.read()
+        with pytest.raises(LinkLost):
+            daq.stream(100)
+
+
+def test_scpi_error_injection_is_reported_by_the_driver():
+    with EmulatedRig(RigDouble(), paced=False, name="scpierr") as rig:
+        rig.register("scpierr")
+        with pytest.raises(DeviceError) as info:
+            SerialShaker("sim://scpierr/shaker?scpi_error=1")
+        assert info.value.codes == [-300] * 3 and "*RST" in str(info.value)  # *RST, *CLS, SYST:WDOG
+
+
+def test_wrong_device_and_missing_port_are_clear_errors():
+    with bench() as (rig, shaker, daq):
+        shaker_url, daq_url = shaker.url, daq.url
+        shaker.close()
+        daq.close()
+        with pytest.raises(WrongDevice, match="not a contactid DAQ"):
+            SerialDaq(shaker_url)
+        with pytest.raises(WrongDevice, match="not a contactid shaker controller"):
+            SerialShaker(daq_url)
+    with pytest.raises(LinkLost, match="cannot open port"):
+        SerialShaker("/dev/no-such-port-here")
+
+
+def test_an_instrument_that_goes_away_is_link_lost():
+    with bench(paced=True) as (rig, shaker, daq):
+        stream = daq.stream(100)
+        stream.read()
+        rig.close()
+        with pytest.raises(LinkLost):
+            for _ in range(100):
+                stream.read()
+
+
+@pytest.mark.parametrize("url, message", [
+    ("sim://{name}/shaker?bogus=1", "unknown option"),
+    ("sim://{name}/pump", "expected sim://"),
+    ("sim://nowhere-{name}/daq", "no built-in rig has that name"),
+    ("sim://{name}/daq?fast=0", "already running fast"),
+    ("sim://{name}/daq?drop=2", "probability"),
+    ("sim://{name}/shaker", "already open"),
+])
+def test_bad_sim_urls_are_explained(url, message):
+    with bench() as (rig, shaker, daq):
+        with pytest.raises(LinkLost, match=message):
+            SerialShaker(url.format(name=rig.name))
+
+
+def test_a_backend_factory_builds_rigs_on_demand():
+    set_backend_factory(lambda name, seed: (RigDouble(seed=seed or 0), {"daq": {"overrun": 0.5}}))
+    try:
+        shaker = SerialShaker("sim://ondemand/shaker?fast=1&seed=4")
+        daq = SerialDaq("sim://ondemand/daq")
+        rig = find_rig("ondemand")
+        assert not rig.paced and shaker.identity.serial == "ondemand"
+        with daq.stream(100) as stream:
+            stream.read()
+        assert stream.stats.overrun_frames > 0  # the factory's fault table applies
+        shaker.close()
+        assert find_rig("ondemand") is rig
+        daq.close()
+        assert find_rig("ondemand") is None and not rig.running
+    finally:
+        set_backend_factory(builtin_backend)
+
+
+def test_discovery_classifies_ports():
+    with bench() as (rig, shaker, daq):
+        urls = [shaker.url, daq.url]
+        shaker.close()
+        daq.close()
+        found, probes = find_instruments(urls + ["sim://nowhere/daq"], timeout=0.3)
+        assert found == {"shaker": urls[0], "daq": urls[1]}
+        assert probes[2].role is None and "no emulated rig named 'nowhere'" in probes[2].detail
+
+
+class FailingRig(RigDouble):
+    """Diverges after ``limit`` samples, as the simulator does when a softening element escapes."""
+
+    def __init__(self, limit):
+        super().__init__()
+        self.limit = limit
+
+    def advance(self, n):
+        if self.samples + n > self.limit:
+            raise FloatingPointError("the response diverged")
+        return super().advance(n)
+
+
+def test_a_physics_failure_switches_off_and_ends_the_stream_with_the_reason():
+    with EmulatedRig(FailingRig(3000), paced=False, name="diverging") as rig:
+        rig.register()
+        shaker = SerialShaker("sim://diverging/shaker")
+        daq = SerialDaq("sim://diverging/daq")
+        shaker.set_sine(10.0, 0.5)
+        with OutputGuard(shaker) as guard:
+            guard.arm()
+            stream = daq.stream(500)
+            with pytest.raises(DeviceError, match="physics stopped: FloatingPointError") as info:
+                for _ in range(100):
+                    stream.read()
+            assert info.value.codes == [-300]
+            assert not rig.shaker.output_on and rig.output_events()[-1].detail == "off: physics failure"
+        assert stream.stats.balanced and stream.stats.samples_sent == rig.daq.acquired
+        shaker.close()
+        daq.close()
+
+
+def test_serve_emulator_announces_urls_and_serves_until_stopped():
+    lines, stop = [], threading.Event()
+    server = threading.Thread(target=serve_emulator, args=(RigDouble(),),
+                              kwargs=dict(transport="tcp", fast=True, name="served", announce=lines.append,
+                                          stop=stop))
+    server.start()
+    try:
+        deadline = time.monotonic() + 10
+        while len(lines) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        roles = dict(line.split(": ", 1) for line in lines)
+        assert set(roles) == {"shaker", "daq"} and all(u.startswith("socket://127.0.0.1:") for u in roles.values())
+        with SerialShaker(roles["shaker"]) as shaker, SerialDaq(roles["daq"]) as daq:
+            assert shaker.identity.serial == "served" and daq.read(10).data.shape == (10, 3)
+    finally:
+        stop.set()
+        server.join(10)
+    assert not server.is_alive()
+    assert parse_tcp_address("localhost:5025") == ("localhost", 5025)
+    with pytest.raises(InputError, match="HOST:PORT"):
+        parse_tcp_address("5025")
+
+
+def test_fault_tables_are_checked_and_merged_per_link():
+    faults = parse_faults({"seed": 3, "drop": 1e-4, "daq": {"overrun": 0.01}, "shaker": {"drop": 0.0}})
+    assert faults["daq"] == LinkFaults(drop=1e-4, overrun=0.01, seed=3)
+    assert faults["shaker"] == LinkFaults(seed=3)
+    with pytest.raises(InputError, match=r"rig.toml: \[faults\].daq.flip: is a probability"):
+        parse_faults({"daq": {"flip": 1.5}}, "rig.toml")
+    with pytest.raises(InputError, match="unknown fault"):
+        parse_faults({"jitter": 1.0})
+    with pytest.raises(InputError, match="non-negative integer"):
+        parse_faults({"disconnect": 2.5})
+
+
+def test_built_in_rigs_are_reachable_by_name():
+    with SerialShaker("sim://paper-2dof/shaker?fast=1") as shaker, SerialDaq("sim://paper-2dof/daq") as daq:
+        assert shaker.identity.serial == "paper-2dof"
+        assert daq.channels == ("force", "acc:x1", "acc:x2") and daq.units == ("N", "m/s^2", "m/s^2")
+        shaker.set_sine(1.5, 0.5)
+        with OutputGuard(shaker) as guard:
+            guard.arm()
+            with daq.stream(256) as stream:
+                blocks = [stream.read() for _ in range(4)]
+        assert stream.stats.balanced and np.abs(blocks[-1].channel("force")).max() > 0.01
+    assert find_rig("paper-2dof") is None

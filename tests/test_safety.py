@@ -1,0 +1,221 @@
+"""Everything that breaks a test drives the shaker output OFF, within 100 ms of emulated time.
+
+Each test breaks something (an exception, an abort, a limit breach, a dropped link,
+a signal, interpreter exit, a killed host, a silent host) and then asks the
+emulated controller when its output went off.
+"""
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import serial
+
+import drivers  # noqa: F401  (registers sim://)
+from drivers.emulator import EmulatedRig
+from drivers.errors import ArmingRefused, LinkLost
+from drivers.interfaces import Block
+from drivers.safety import AbortLimits, LimitExceeded, OutputGuard, check_limits
+from drivers.serve import EmulatorServer
+
+from rig_double import RigDouble, bench, stream_start
+
+ROOT = Path(__file__).resolve().parents[1]
+LATENCY = 0.1
+"""Longest the output may stay on after a fault (s of emulated time)."""
+
+CHILD = """
+import sys, threading, time
+from drivers import OutputGuard, open_daq, open_shaker
+mode, shaker_url, daq_url = sys.argv[1:4]
+shaker = open_shaker(shaker_url, watchdog=0.08 if mode == "kill" else 1.0)
+daq = open_daq(daq_url)
+shaker.set_sine(10.0, 0.2)
+
+def session():
+    with OutputGuard(shaker) as guard:
+        guard.arm()
+        with daq.stream(50) as stream:
+            for block in stream:
+                guard.check(block)
+
+if mode == "exit":
+    threading.Thread(target=session, daemon=True).start()
+    time.sleep(1.0)
+else:
+    session()
+"""
+
+
+def wait_for(condition, timeout=20.0):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError("condition not reached in time")
+        time.sleep(0.005)
+
+
+def last_off(rig):
+    events = rig.output_events()
+    assert events and events[-1].detail.startswith("off"), events
+    return events[-1]
+
+
+def test_arming_needs_a_guard_and_the_guard_starts_with_the_output_off():
+    with bench() as (rig, shaker, daq):
+        with pytest.raises(ArmingRefused):
+            shaker.arm()
+        assert not rig.shaker.output_on
+        with rig.lock:
+            rig.shaker.switch_on()  # as if left on by someone else
+        with OutputGuard(shaker) as guard:
+            assert not rig.shaker.output_on
+            guard.arm()
+            assert rig.shaker.output_on and shaker.armed
+        assert not rig.shaker.output_on and not shaker.armed
+
+
+@pytest.mark.parametrize("fault", ["exception", "abort"])
+def test_exception_or_abort_mid_stream_switches_off(fault):
+    with bench() as (rig, shaker, daq):
+        daq.configure(frame_points=10)
+        shaker.set_sine(10.0, 0.5)
+        with pytest.raises(RuntimeError, match="analysis failed"):
+            with OutputGuard(shaker) as guard:
+                guard.arm()
+                with daq.stream(20, buffered_blocks=1) as stream:
+                    for count, block in enumerate(stream):
+                        if count == 30:
+                            fault_time = rig.time
+                            if fault == "abort":
+                                guard.trip("abort button")
+                                assert not rig.shaker.output_on
+                            raise RuntimeError("analysis failed")
+        off = last_off(rig)
+        assert off.detail == "off: command"
+        assert 0.0 <= off.time - fault_time <= LATENCY
+        assert guard.events[-1].kind == "end" and "RuntimeError: analysis failed" in guard.events[-1].detail
+        assert any(e.kind == "trip" and e.detail == "abort button" for e in guard.events) == (fault == "abort")
+
+
+def test_limit_breach_switches_off_within_100_ms_of_the_offending_sample():
+    with bench() as (rig, shaker, daq):
+        daq.configure(frame_points=10)
+        shaker.set_sine(10.0, 0.5)  # 1.0 N at full amplitude, reached through the ramp
+        with OutputGuard(shaker, limits=AbortLimits(max_force=0.8)) as guard:
+            guard.arm()
+            with pytest.raises(LimitExceeded) as info:
+                with daq.stream(20, buffered_blocks=1) as stream:
+                    for block in stream:
+                        guard.check(block)
+        breach = info.value.breach
+        assert breach.channel == "force" and breach.peak > 0.8
+        breach_time = (stream_start(rig) + breach.sample) / rig.sample_rate
+        off = last_off(rig)
+        assert off.detail == "off: command" and 0.0 <= off.time - breach_time <= LATENCY
+        assert any(e.kind == "trip" and "limit" in e.detail for e in guard.events)
+
+
+def test_dropped_shaker_link_is_reported_and_the_watchdog_switches_off():
+    with EmulatedRig(RigDouble(), paced=True, name="droplink") as rig:
+        rig.register()
+        shaker = drivers.open_shaker("sim://droplink/shaker", watchdog=0.08)
+        shaker.set_sine(10.0, 0.5)
+        with OutputGuard(shaker) as guard:
+            guard.arm()
+            rig.inject("shaker", {"disconnect": 0})
+            wait_for(lambda: shaker.fault is not None)
+            with pytest.raises(LinkLost):
+                guard.check()
+            wait_for(lambda: not rig.shaker.output_on)
+        off = last_off(rig)
+        assert off.detail == "off: watchdog"
+        assert off.time - rig.shaker.last_feed <= LATENCY
+        assert any(e.kind == "fault" for e in guard.events)
+        assert any(e.kind == "unconfirmed" for e in guard.events)
+        shaker.close()
+
+
+@pytest.mark.parametrize("paced", [True, False])
+def test_a_silent_host_is_switched_off_by_the_instrument_watchdog(paced):
+    with EmulatedRig(RigDouble(), paced=paced, name=f"silent{int(paced)}") as rig:
+        rig.register()
+        port = serial.serial_for_url(f"sim://{rig.name}/shaker", timeout=1.0)
+        port.write(b"SYST:WDOG 0.05;:VOLT 0.5;:OUTP ON;*OPC?\n")
+        assert port.readline() == b"1\n"
+        wait_for(lambda: not rig.shaker.output_on)
+        off = last_off(rig)
+        assert off.detail == "off: watchdog"
+        if paced:  # the watchdog counts emulated time only when that is real time
+            assert off.time - rig.shaker.last_feed <= LATENCY
+        port.write(b"SYST:ERR?\n")
+        assert port.readline() == b'201,"Watchdog expired; output switched off"\n'
+        port.close()
+
+
+def test_sigterm_in_process_switches_off_and_chains_to_the_previous_handler():
+    calls = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: calls.append(signum))
+    try:
+        with bench() as (rig, shaker, daq):
+            shaker.set_sine(10.0, 0.2)
+            with OutputGuard(shaker) as guard:
+                guard.arm()
+                signal.raise_signal(signal.SIGTERM)
+                assert calls == [signal.SIGTERM]
+                wait_for(lambda: not rig.shaker.output_on)
+                assert guard.tripped and any(e.kind == "emergency" and "sent" in e.detail for e in guard.events)
+            assert last_off(rig).detail == "off: command"
+        assert signal.getsignal(signal.SIGTERM) is not previous and calls == [signal.SIGTERM]
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@pytest.mark.parametrize("mode, action, detail, returncodes", [
+    ("stream", signal.SIGTERM, "off: command", {143}),
+    ("stream", signal.SIGINT, "off: command", {-signal.SIGINT, 130, 1}),
+    ("kill", signal.SIGKILL, "off: watchdog", {-signal.SIGKILL}),
+    ("exit", None, "off: command", {0}),
+])
+def test_a_guarded_session_in_another_process_always_ends_with_the_output_off(mode, action, detail, returncodes):
+    with EmulatedRig(RigDouble(), paced=True, name=f"child-{mode}") as rig, EmulatorServer(rig, "tcp") as server:
+        env = dict(os.environ, PYTHONPATH=str(ROOT))
+        child = subprocess.Popen([sys.executable, "-c", CHILD, mode, server.urls["shaker"], server.urls["daq"]],
+                                 cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            wait_for(lambda: rig.shaker.output_on and rig.daq.acquiring or child.poll() is not None, timeout=60)
+            assert child.poll() is None, child.communicate()[1].decode()
+            fault_time = rig.time
+            if action is not None:
+                child.send_signal(action)
+            child.wait(timeout=30)
+        finally:
+            if child.poll() is None:
+                child.kill()
+                child.wait()
+        assert child.returncode in returncodes, child.stderr.read().decode()
+        wait_for(lambda: not rig.shaker.output_on)
+        off = last_off(rig)
+        assert off.detail == detail
+        if action is not None:
+            assert off.time - fault_time <= LATENCY
+
+
+def test_limits_from_a_plan_table_and_the_check_function():
+    limits = AbortLimits.from_table({"max_force": 5.0, "max_acceleration": 50.0})
+    data = np.zeros((10, 3))
+    data[7, 1] = -60.0
+    block = Block(data, ("force", "acc:x1", "volts"), ("N", "m/s^2", "V"), 100.0, first_sample=1000)
+    breach = check_limits(block, limits)
+    assert (breach.channel, breach.peak, breach.limit, breach.sample) == ("acc:x1", 60.0, 50.0, 1007)
+    data[7, 1] = 0.0
+    data[:, 2] = 1e6  # a channel with no limit
+    assert check_limits(block, limits) is None
+    with pytest.raises(Exception, match=r"\[limits\].max_force"):
+        AbortLimits.from_table({"max_force": -1.0}, "plan.toml")
+    with pytest.raises(Exception, match="unknown key"):
+        AbortLimits.from_table({"max_speed": 1.0})
