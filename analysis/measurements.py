@@ -32,6 +32,10 @@ class SineRun:
         Its standard deviation ``sqrt(E|n|^2)``, m/N.
     force_achieved : ndarray, shape (L,), optional
         Force amplitude actually held, N.
+    distortion : ndarray, shape (L,), optional
+        Largest total harmonic distortion of the response channels at each line: a describing function
+        describes a harmonic motion, so lines far from harmonic (stick-slip, impacts) are left out of the
+        identification.
     """
 
     name: str
@@ -43,6 +47,7 @@ class SineRun:
     receptance: np.ndarray
     receptance_std: np.ndarray | None = None
     force_achieved: np.ndarray | None = None
+    distortion: np.ndarray | None = None
 
     @property
     def w(self) -> np.ndarray:

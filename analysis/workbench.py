@@ -5,7 +5,9 @@ One object carries a model through the loop a test engineer works (docs/workbenc
 1. :meth:`Workbench.update_reference` -- natural frequencies and damping from the random run (modal fit),
    then the structure parameters marked uncertain updated to them (eigenvalue sensitivity);
 2. :meth:`Workbench.identify` -- kbar of every element at every well-conditioned stepped-sine line and force
-   level, with its standard deviation, and a linear/nonlinear verdict per element;
+   level, with its standard deviation, and a linear/nonlinear verdict per element. Lines whose response is far
+   from harmonic (THD above ``distortion_limit``, 10 %: stick-slip, impacts) are left out, since a describing
+   function describes a harmonic motion;
 3. :meth:`Workbench.fit` -- each element's laws fitted to its kbar samples;
 4. :meth:`Workbench.compare` -- FRFs of every run predicted by harmonic balance, the error and where it fails;
 5. :meth:`Workbench.candidates` / :meth:`Workbench.add` -- the ranked missing effects, and adding one; every
@@ -114,7 +116,7 @@ class ReferenceReport:
 class Workbench:
     """Carry one model through identification, fitting, comparison and the missing-effect loop."""
 
-    def __init__(self, model: Model, measurements: Measurements):
+    def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.1):
         if not measurements.sine:
             raise InputError("the session has no stepped-sine run to identify from")
         missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
@@ -122,6 +124,7 @@ class Workbench:
             raise InputError(f"measured DOF(s) {', '.join(missing)} are not in the model's structure", model.source)
         self.model = model.copy()
         self.measurements = measurements
+        self.distortion_limit = distortion_limit   # lines with a larger THD are not harmonic: left out
         self.reference: ReferenceReport | None = None
         self.reports: dict[str, ElementReport] = {}
         self.history: list[HistoryStep] = []
@@ -168,6 +171,8 @@ class Workbench:
                                                run.excitation_dof, els, w=run.w, force=run.force_per_line,
                                                noise_std=std)
             good = ~ident.ill_conditioned & np.isfinite(ident.kbar).all(axis=1) & (ident.amplitude > 0).all(axis=1)
+            if run.distortion is not None:
+                good &= np.asarray(run.distortion) <= self.distortion_limit
             for i, el in enumerate(els):
                 flagged[el.name] += int((~good).sum())
                 kstd = None if ident.kbar_std is None else ident.kbar_std[good, i]

@@ -56,6 +56,98 @@ def cmd_export(args) -> int:
     return 0
 
 
+def _load_plan_for(rig_name: str | None, plan_arg: str | None):
+    from drivers.rig import builtin_plan_path, builtin_rigs
+
+    from .plan import load_plan
+
+    if plan_arg is None:
+        if rig_name in builtin_rigs():
+            return load_plan(builtin_plan_path(rig_name))
+        raise InputError("give a PLAN file (only built-in rigs have a default plan)")
+    return load_plan(plan_arg)
+
+
+def _finish(summary, output) -> int:
+    print(summary.text())
+    print(f"session: {output}")
+    if summary.aborted:
+        print(f"contactid: campaign aborted: {summary.aborted} (output off; the lines measured so far are kept)",
+              file=sys.stderr)
+        return 3
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    """Run a plan on an emulated rig through the real drivers."""
+    from drivers.rig import builtin_rigs, load_rig
+
+    from .instruments import emulated_instruments
+    from .measure import ProgressBar, run_plan
+
+    if args.list:
+        for name in builtin_rigs():
+            print(name)
+        return 0
+    if not args.rig or not args.output:
+        raise InputError("usage: contactid simulate RIG [PLAN] -o SESSION.h5 (or --list)")
+    rig = load_rig(args.rig)
+    plan = _load_plan_for(args.rig, args.plan)
+    with emulated_instruments(rig, seed=args.seed) as inst:
+        summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
+                           software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
+    return _finish(summary, args.output)
+
+
+def cmd_acquire(args) -> int:
+    """Run a plan on real instruments."""
+    from .instruments import real_instruments
+    from .measure import ProgressBar, run_plan
+    from .plan import load_plan
+
+    plan = load_plan(args.plan)
+    with real_instruments(args.shaker, args.daq, args.excitation, args.sensors) as inst:
+        summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
+                           software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
+    return _finish(summary, args.output)
+
+
+def cmd_emulate(args) -> int:
+    """Serve a rig's emulated instruments over pseudo terminals or TCP until interrupted."""
+    from drivers.rig import load_rig
+    from drivers.serve import parse_tcp_address, serve_emulator
+    from drivers.simulator import RigSimulator
+
+    rig = load_rig(args.rig)
+    if args.tcp:
+        host, port = parse_tcp_address(args.tcp)
+        transport = {"transport": "tcp", "host": host, "port": port}
+    else:
+        transport = {"transport": "pty"}
+    serve_emulator(RigSimulator(rig, seed=args.seed), fast=args.fast, faults=rig.faults, name=rig.name,
+                   **transport)
+    return 0
+
+
+def cmd_analyze(args) -> int:
+    """Identify, fit, predict, compare and rank missing effects."""
+    import json
+
+    from .analyze import report_text, run_workbench
+
+    wb, candidates = run_workbench(args.session, args.model, args.add or [], store_history=not args.no_history)
+    if args.output:
+        with open(args.output, "w", encoding="utf-8") as fh:
+            fh.write(wb.model.to_toml())
+    if args.json:
+        print(json.dumps(wb.to_json(candidates), indent=1, default=float))
+    else:
+        print(report_text(wb, candidates))
+        if args.output:
+            print(f"fitted model written to {args.output}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contactid", description=(
         "Identify how a joint or contact interface behaves: stepped-sine tests, equivalent complex "
@@ -69,6 +161,46 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-n", "--count", type=int, default=6, help="how many modes to print (default 6)")
     p.add_argument("--all-dofs", action="store_true", help="list every DOF name")
     p.set_defaults(run=cmd_modes)
+
+    p = sub.add_parser("simulate", help="run a plan on an emulated rig through the real drivers")
+    p.add_argument("rig", nargs="?", help="built-in rig name or rig file")
+    p.add_argument("plan", nargs="?", help="plan file (default: the built-in rig's plan)")
+    p.add_argument("-o", "--output", metavar="SESSION.h5", help="session file to write")
+    p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated rig")
+    p.add_argument("--force", action="store_true", help="overwrite an existing session file")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--list", action="store_true", help="list the built-in rigs")
+    p.set_defaults(run=cmd_simulate)
+
+    p = sub.add_parser("acquire", help="run a plan on real instruments")
+    p.add_argument("plan", help="plan file")
+    p.add_argument("-o", "--output", required=True, metavar="SESSION.h5")
+    p.add_argument("--shaker", required=True, metavar="URL", help="shaker controller: port name or pyserial URL")
+    p.add_argument("--daq", required=True, metavar="URL", help="DAQ: port name or pyserial URL")
+    p.add_argument("--excitation", required=True, metavar="DOF", help="DOF of the force gauge, e.g. A.w")
+    p.add_argument("--sensors", nargs="+", metavar="DOF",
+                   help="accelerometer DOFs (default: the DAQ's acc:<dof> channels)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing session file")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(run=cmd_acquire)
+
+    p = sub.add_parser("emulate", help="serve a rig's emulated shaker controller and DAQ")
+    p.add_argument("rig", help="built-in rig name or rig file")
+    way = p.add_mutually_exclusive_group()
+    way.add_argument("--pty", action="store_true", help="pseudo terminals (default)")
+    way.add_argument("--tcp", metavar="HOST:PORT", help="TCP: PORT for the shaker, PORT+1 for the DAQ")
+    p.add_argument("--fast", action="store_true", help="as fast as the host reads instead of real time")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(run=cmd_emulate)
+
+    p = sub.add_parser("analyze", help="identify, fit, predict, compare and rank missing effects")
+    p.add_argument("session", help="session file (.h5)")
+    p.add_argument("model", help="model file (TOML)")
+    p.add_argument("--add", action="append", metavar="ELEMENT:LAW", help="add a law before fitting (repeatable)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-o", "--output", metavar="FITTED.toml", help="write the fitted model")
+    p.add_argument("--no-history", action="store_true", help="do not append the model history to the session")
+    p.set_defaults(run=cmd_analyze)
 
     p = sub.add_parser("export", help="export a session's FRFs (UFF58 or CSV)")
     p.add_argument("session", help="session file (.h5)")

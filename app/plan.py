@@ -1,9 +1,9 @@
 """Plan files (CONTRACTS.md §5): what a campaign runs, checked before the shaker is armed.
 
 Beyond the contract's keys, each ``[[stepped_sine]]`` table may set ``refine`` (adaptive refinement near
-resonance, default true) and ``min_step`` (Hz, default step / 8); ``[settle]`` tunes steady-state detection
+resonance, default true) and ``min_step`` (Hz, default step / 4); ``[settle]`` tunes steady-state detection
 (``tolerance`` relative change between successive blocks, default 2e-3; ``max_periods`` before a line is
-measured anyway, default 600; ``block_periods``, default 10) and ``[control]`` the force loop (``tolerance``,
+measured anyway, default 600; ``block_periods``, default 5) and ``[control]`` the force loop (``tolerance``,
 default 0.01 = 1 %). docs/campaigns.md describes them.
 """
 from __future__ import annotations
@@ -61,7 +61,7 @@ class Limits:
 class SettleSpec:
     tolerance: float = 2e-3
     max_periods: int = 600
-    block_periods: int = 10
+    block_periods: int = 5
     min_blocks: int = 2
 
 
@@ -116,7 +116,7 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         refine = f.table.get("refine", True)
         if not isinstance(refine, bool):
             raise f.error("refine", "must be true or false")
-        min_step = f.number("min_step", step / 8, positive=True)
+        min_step = f.number("min_step", step / 4, positive=True)
         if min_step > step:
             raise f.error("min_step", f"must not exceed step ({step} Hz)")
         sines.append(SineSpec(f.number("force", positive=True), start, stop, step,

@@ -88,6 +88,7 @@ class SessionWriter:
         self.t0 = time.monotonic()
         self._file: h5py.File | None = None
         self._run: str | None = None
+        self._datasets: dict[str, h5py.Dataset] = {}     # the open run's datasets, by path in the run
         try:
             with h5py.File(self.path, "w", libver="latest") as f:
                 f.attrs["format"] = FORMAT
@@ -118,7 +119,14 @@ class SessionWriter:
                 self._file.swmr_mode = True
         return self._file
 
+    def _dataset(self, name: str) -> h5py.Dataset:
+        ds = self._datasets.get(name)
+        if ds is None:
+            ds = self._datasets[name] = self._file["runs"][self._run][name]
+        return ds
+
     def _close(self) -> None:
+        self._datasets = {}
         if self._file is not None:
             try:
                 self._file.close()
@@ -176,29 +184,27 @@ class SessionWriter:
                     raw: np.ndarray | None = None) -> None:
         """Append one completed line (frequency, FRF per sensor DOF, extras, raw samples) and flush."""
         with self._guard("appending a line"):
-            g = self._file["runs"][self._run]
-            _append(g["frequency"], frequency_hz)
+            _append(self._dataset("frequency"), frequency_hz)
             for dof, value in frf.items():
-                _append(g["frf"][dof], value)
+                _append(self._dataset(f"frf/{dof}"), value)
             for name, value in (extras or {}).items():
-                _append(g[name], value)
-            rawg = g["raw"]
-            start = rawg["data"].shape[0]
+                _append(self._dataset(name), value)
+            data = self._dataset("raw/data")
+            start = data.shape[0]
             count = 0 if raw is None else len(raw)
             if count:
-                rawg["data"].resize(start + count, axis=0)
-                rawg["data"][start:] = raw
-            _append(rawg["line_start"], start)
-            _append(rawg["line_count"], count)
+                data.resize(start + count, axis=0)
+                data[start:] = raw
+            _append(self._dataset("raw/line_start"), start)
+            _append(self._dataset("raw/line_count"), count)
             self._file.flush()
 
     def write_arrays(self, arrays: dict[str, np.ndarray]) -> None:
         """Write whole per-line arrays at once (a random run's FRFs): resize each dataset and fill it."""
         with self._guard("writing the run's results"):
-            g = self._file["runs"][self._run]
             for name, value in arrays.items():
                 value = np.asarray(value)
-                ds = g[name]
+                ds = self._dataset(name)
                 ds.resize(value.shape[0], axis=0)
                 ds[...] = value.astype(ds.dtype)
             self._file.flush()
@@ -206,7 +212,7 @@ class SessionWriter:
     def append_raw(self, samples: np.ndarray) -> None:
         """Append raw samples that belong to no single line (the random run's record)."""
         with self._guard("appending raw samples"):
-            d = self._file["runs"][self._run]["raw"]["data"]
+            d = self._dataset("raw/data")
             start = d.shape[0]
             d.resize(start + len(samples), axis=0)
             d[start:] = samples
@@ -471,3 +477,44 @@ def recover_session(path) -> list[str]:
                                  .encode()[:400])], dtype=EVENT_DTYPE)
     os.replace(tmp, path)
     return marked
+
+
+def append_model_history(path, steps: list[dict], model_source: str = "") -> str:
+    """Store one analysis's model history (the workbench's steps) under ``/models/analysis_<k>``.
+
+    Each step keeps its action, error, error by level and the model as TOML text, so the error falling step by
+    step can be read back. A crashed session is recovered first. Returns the group's name.
+    """
+    recover_session(path)
+    try:
+        with h5py.File(path, "r+", libver="latest") as f:
+            models = f.require_group("models")
+            name = f"analysis_{len(models)}"
+            g = models.create_group(name)
+            g.attrs["created"] = _now_iso()
+            g.attrs["model_source"] = model_source
+            for step in steps:
+                s = g.create_group(f"step_{step['step']:03d}")
+                s.attrs["action"] = step["action"]
+                s.attrs["error"] = float(step["error"])
+                s.create_dataset("model", data=step["model"])
+                levels = np.array([[e["force"], e["error"]] for e in step["error_by_level"]], float)
+                d = s.create_dataset("error_by_level", data=levels.reshape(-1, 2))
+                d.attrs["columns"] = json.dumps(["force [N]", "error [1]"])
+            return name
+    except OSError as exc:
+        raise SessionWriteError(f"{path}: cannot store the model history ({exc})") from None
+
+
+def read_model_history(session: Session) -> list[dict]:
+    """Every stored analysis: ``{"name", "created", "steps": [{"action", "error", "model"}]}``."""
+    f = session._file
+    if "models" not in f:
+        return []
+    out = []
+    for name, g in f["models"].items():
+        steps = [{"action": _text(s.attrs["action"]), "error": float(s.attrs["error"]),
+                  "model": _text(s["model"][()]), "error_by_level": s["error_by_level"][()].tolist()}
+                 for _, s in sorted(g.items())]
+        out.append({"name": name, "created": _text(g.attrs.get("created", "")), "steps": steps})
+    return out

@@ -1,0 +1,422 @@
+"""A campaign: a plan turned into measured FRFs through the driver interfaces, written to a session.
+
+The runner talks only to a ``ShakerController`` and a ``Daq`` (drivers/interfaces.py) and a
+:class:`~app.session.SessionWriter`. The whole campaign runs inside one :class:`drivers.OutputGuard`: the output
+starts off, is armed explicitly for each run, and is switched off on every way out -- end of run, abort, limit
+breach, lost link, exception, signal. Every completed line is in the session before the next one starts;
+every fault and operator action is in the session's event log.
+
+The caller (command line or GUI worker thread) calls :meth:`Campaign.run`; another thread may call
+:meth:`Campaign.pause`, :meth:`Campaign.resume` and :meth:`Campaign.abort`. Progress reaches a
+:class:`CampaignListener` (all methods optional).
+"""
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from analysis.frf_estimation import FRFEstimator
+from drivers import AbortLimits, InstrumentError, LimitExceeded, OutputGuard
+from drivers.interfaces import Block
+
+from .acquisition import RecordFeed
+from .plan import Plan, RandomSpec, SineSpec
+from .session import RunSpec, SessionWriteError, SessionWriter
+from .stepped_sine import N_HARMONICS, LineMeasurement, LineMeter, next_step
+
+BLOCK_SECONDS = 0.5           # longest DAQ frame/block: the abort limits are checked at least this often
+BLOCK_POINTS = (64, 256)      # ...within these sizes (small frames cost throughput, large ones latency)
+RANDOM_SEGMENT_SECONDS = 8.0  # Welch segment length for the random run (frequency resolution 1/8 Hz)
+
+
+class CampaignAborted(RuntimeError):
+    """The operator (or the application) aborted the campaign."""
+
+
+class CampaignListener:
+    """Progress callbacks; override what you need. Called from the campaign's thread."""
+
+    def run_started(self, name: str, spec: RunSpec) -> None: ...
+    def block(self, block: Block) -> None: ...
+    def line(self, run: str, index: int, m: LineMeasurement, target_force: float) -> None: ...
+    def random_result(self, run: str, frequency: np.ndarray, frf: dict, coherence: dict) -> None: ...
+    def run_ended(self, run: str, status: str) -> None: ...
+    def event(self, kind: str, message: str) -> None: ...
+    def progress(self, done: int, total: int, eta_s: float | None, run: str) -> None: ...
+
+
+@dataclass
+class CampaignSummary:
+    runs: dict[str, str] = field(default_factory=dict)          # name -> status
+    lines: int = 0
+    worst_force_error: float = 0.0                              # relative, over all lines
+    unsteady_lines: int = 0
+    shaker_seconds: float = 0.0                                 # DAQ time spent driving
+    faults: int = 0
+    samples_lost: int = 0
+    aborted: str = ""
+
+    def text(self) -> str:
+        lines = [f"{name}: {status}" for name, status in self.runs.items()]
+        lines.append(f"{self.lines} lines; force held within {100 * self.worst_force_error:.2f} % of target; "
+                     f"{self.unsteady_lines} line(s) measured at the settling limit; "
+                     f"{self.shaker_seconds:.1f} s on the shaker")
+        if self.faults or self.samples_lost:
+            lines.append(f"{self.faults} fault(s) logged, {self.samples_lost} samples lost in transit")
+        if self.aborted:
+            lines.append(f"aborted: {self.aborted}")
+        return "\n".join(lines)
+
+
+class Campaign:
+    """Run a plan on a shaker controller and DAQ, writing a session.
+
+    Parameters
+    ----------
+    plan : Plan
+    shaker, daq : opened drivers (any transport).
+    writer : SessionWriter
+    excitation_dof : str
+        DOF of the force gauge.
+    sensor_dofs : list of str
+        Accelerometer DOFs; the DAQ must have channels ``force`` and ``acc:<dof>`` for each.
+    listener : CampaignListener, optional
+    """
+
+    def __init__(self, plan: Plan, shaker, daq, writer: SessionWriter, excitation_dof: str,
+                 sensor_dofs: list[str], listener: CampaignListener | None = None):
+        self.plan = plan
+        self.shaker = shaker
+        self.daq = daq
+        self.writer = writer
+        self.excitation_dof = excitation_dof
+        self.sensor_dofs = list(sensor_dofs)
+        self.listener = listener or CampaignListener()
+        self.channels = ["force"] + [f"acc:{d}" for d in self.sensor_dofs]
+        missing = [c for c in self.channels if c not in daq.channels]
+        if missing:
+            raise ValueError(f"the DAQ at {daq.url} has no channel(s) {', '.join(missing)} "
+                             f"(it has {', '.join(daq.channels)})")
+        fs = daq.sample_rate
+        self.block = int(np.clip(2 ** np.floor(np.log2(BLOCK_SECONDS * fs)), *BLOCK_POINTS))
+        daq.configure(frame_points=self.block)
+        self.summary = CampaignSummary()
+        self._abort = threading.Event()
+        self._abort_reason = ""
+        self._paused = threading.Event()
+        self._resume = threading.Event()
+        self._events: queue.SimpleQueue = queue.SimpleQueue()
+        self._guard: OutputGuard | None = None
+        self._gain = None              # N per V, learnt as the campaign runs
+        self._total_lines = sum(len(spec.lines(d)) for spec, d in plan.runs) + (1 if plan.random else 0)
+        self._done_lines = 0
+        self._t_start = 0.0
+
+    # ------------------------------------------------------------------ control (any thread)
+    def abort(self, reason: str = "operator abort") -> None:
+        """Stop at once: the output goes off now, the run in progress is closed as aborted."""
+        self._abort_reason = reason
+        self._abort.set()
+        self._resume.set()
+        guard = self._guard
+        if guard is not None:
+            guard.trip(reason)
+
+    def pause(self) -> None:
+        """Switch the output off at the next record and wait; the current line is measured again on resume."""
+        self._resume.clear()
+        self._paused.set()
+
+    def resume(self) -> None:
+        self._paused.clear()
+        self._resume.set()
+
+    @property
+    def paused(self) -> bool:
+        return self._paused.is_set()
+
+    # ------------------------------------------------------------------ main
+    def run(self) -> CampaignSummary:
+        """Run every run of the plan; returns the summary (also when aborted)."""
+        self._t_start = time.monotonic()
+        limits = AbortLimits(max_force=self.plan.limits.max_force,
+                             max_acceleration=self.plan.limits.max_acceleration)
+        try:
+            with OutputGuard(self.shaker, limits=limits, on_event=self._safety_event) as guard:
+                self._guard = guard
+                if self._abort.is_set():
+                    guard.trip(self._abort_reason)
+                    raise CampaignAborted(self._abort_reason)
+                if self.plan.random is not None:
+                    self._random_run(guard, self.plan.random)
+                for spec, direction in self.plan.runs:
+                    self._sine_run(guard, spec, direction)
+        except (CampaignAborted, LimitExceeded, InstrumentError, SessionWriteError) as exc:
+            # the guard has switched the output off; the lines measured so far are in the session
+            self.summary.aborted = str(exc)
+        finally:
+            self._guard = None
+            self._drain_events()
+        return self.summary
+
+    # ------------------------------------------------------------------ events
+    def _safety_event(self, event) -> None:
+        # may come from the port thread or a signal handler: queue it for the campaign thread
+        self._events.put(("safety", f"{event.kind}: {event.detail}"))
+
+    def _log(self, kind: str, message: str) -> None:
+        self.listener.event(kind, message)
+        try:
+            self.writer.log(kind, message)
+        except SessionWriteError as exc:           # the session is failing: say so, keep switching off
+            self.listener.event("fault", str(exc))
+
+    def _drain_events(self) -> None:
+        while True:
+            try:
+                kind, message = self._events.get_nowait()
+            except queue.Empty:
+                return
+            if kind == "fault":
+                self.summary.faults += 1
+            self._log(kind, message)
+
+    def _on_gap(self, gap) -> None:
+        self.summary.samples_lost += gap.samples
+        self._events.put(("fault", f"DAQ {gap}: record restarted"))
+
+    def _check(self, guard: OutputGuard):
+        def check(block: Block) -> None:
+            guard.check(block)
+            if block.overload:
+                self._events.put(("fault", f"DAQ overload (a channel at its range limit) at sample "
+                                           f"{block.first_sample}"))
+        return check
+
+    def _interrupt(self, guard: OutputGuard) -> None:
+        """Called at every record: abort, or pause (output off until resumed)."""
+        self._drain_events()
+        if self._abort.is_set():
+            raise CampaignAborted(self._abort_reason)
+        if self._paused.is_set():
+            self.shaker.disarm()
+            self._log("operator", "paused: output off")
+            self._resume.wait()
+            if self._abort.is_set():
+                raise CampaignAborted(self._abort_reason)
+            self._log("operator", "resumed: output on, the current line is measured again")
+            guard.arm()
+            raise _Restart
+
+    def _progress(self, run: str) -> None:
+        self._done_lines += 1
+        elapsed = time.monotonic() - self._t_start
+        rate = elapsed / self._done_lines
+        eta = rate * max(self._total_lines - self._done_lines, 0)
+        self.listener.progress(self._done_lines, self._total_lines, eta, run)
+
+    # ------------------------------------------------------------------ random run
+    def _random_run(self, guard: OutputGuard, spec: RandomSpec) -> None:
+        name = "random"
+        fs = self.daq.sample_rate
+        segment = int(2 ** np.ceil(np.log2(RANDOM_SEGMENT_SECONDS * fs)))
+        run_spec = RunSpec(name, "random", spec.force_rms, "none", self.excitation_dof, self.sensor_dofs, fs,
+                           list(self.daq.channels), list(self.daq.units), self._random_extras(),
+                           {"band": list(spec.band), "duration": spec.duration, "segment_length": segment})
+        self._begin(run_spec)
+        status, reason = "aborted", ""
+        try:
+            drive = self._noise_calibrate(guard, spec, fs)
+            est = FRFEstimator(fs, segment)
+            n_total = int(spec.duration * fs)
+            got = 0
+            with self.daq.stream(self.block) as stream:
+                feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
+                feed.skip(int(2.0 * fs))                         # let the response to the new level settle
+                while got < n_total:
+                    self._interrupt_random(guard)
+                    rec = feed.record(min(segment, n_total - got))
+                    idx = [self.daq.channels.index(c) for c in self.channels]
+                    data = rec.data[:, idx]
+                    est.add_data(data[:, 0], data[:, 1:])
+                    self.writer.append_raw(rec.data.astype(np.float32))
+                    got += len(rec.data)
+            self.summary.shaker_seconds += got / fs + 2.0
+            self.shaker.disarm()
+            self._write_random(est, spec, drive)
+            status = "complete"
+        except CampaignAborted as exc:
+            reason = str(exc)
+            raise
+        except Exception as exc:
+            reason = f"{type(exc).__name__}: {exc}"
+            raise
+        finally:
+            self._end(name, status, reason)
+        self._progress(name)
+
+    def _interrupt_random(self, guard: OutputGuard) -> None:
+        try:
+            self._interrupt(guard)
+        except _Restart:
+            pass                         # a paused random run simply continues averaging
+
+    def _random_extras(self) -> dict:
+        extras = {}
+        for kind, units in (("h2", "m/N"), ("hv", "m/N")):
+            for d in self.sensor_dofs:
+                extras[f"{kind}/{d}"] = (units, (), "c16")
+        for d in self.sensor_dofs:
+            extras[f"coherence/{d}"] = ("1", (), "f8")
+            extras[f"random_error/{d}"] = ("1", (), "f8")
+        extras["force_psd"] = ("N^2/Hz", (), "f8")
+        return extras
+
+    def _noise_calibrate(self, guard: OutputGuard, spec: RandomSpec, fs: float) -> float:
+        """Find the noise drive (V rms) that gives the plan's force rms, starting low."""
+        drive = min(0.02, self.shaker.amplitude_range[1] / 100)
+        self.shaker.set_noise(drive, spec.band)
+        guard.arm()
+        self._log("operator", f"armed: random noise {spec.band[0]:g}-{spec.band[1]:g} Hz")
+        for _ in range(6):
+            with self.daq.stream(self.block) as stream:
+                feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
+                feed.skip(int(0.5 * fs))
+                rec = feed.record(int(2.0 * fs))
+            rms = float(np.std(rec.data[:, self.daq.channels.index("force")]))
+            self.summary.shaker_seconds += 2.5
+            if abs(rms / spec.force_rms - 1) < 0.05:
+                break
+            drive = float(min(drive * np.clip(spec.force_rms / max(rms, 1e-12), 0.1, 10.0),
+                              self.shaker.amplitude_range[1]))
+            self.shaker.set_noise(drive, spec.band)
+        self._gain = rms / drive if drive > 0 else None
+        self._log("control", f"random drive {drive:.4g} V rms for {rms:.4g} N rms (target {spec.force_rms:g} N)")
+        return drive
+
+    def _write_random(self, est: FRFEstimator, spec: RandomSpec, drive: float) -> None:
+        f = est.frequency
+        band = (f >= spec.band[0]) & (f <= spec.band[1]) & (f > 0)
+        to_receptance = (-(2 * np.pi * f[band]) ** 2)[:, None]
+        H1, H2, Hv = (est.get_H1()[band] / to_receptance, est.get_H2()[band] / to_receptance,
+                      est.get_Hv()[band] / to_receptance)
+        coh, err = est.get_coherence()[band], est.get_random_error()[band]
+        arrays = {"frequency": f[band], "force_psd": est.get_force_autospectrum()[band]}
+        for p, d in enumerate(self.sensor_dofs):
+            arrays[f"frf/{d}"] = H1[:, p]
+            arrays[f"h2/{d}"] = H2[:, p]
+            arrays[f"hv/{d}"] = Hv[:, p]
+            arrays[f"coherence/{d}"] = coh[:, p]
+            arrays[f"random_error/{d}"] = err[:, p]
+        self.writer.write_arrays(arrays)
+        self._log("run", f"random: {est.n_averages} averages, drive {drive:.4g} V rms")
+        self.listener.random_result("random", f[band], {d: H1[:, p] for p, d in enumerate(self.sensor_dofs)},
+                                    {d: coh[:, p] for p, d in enumerate(self.sensor_dofs)})
+
+    # ------------------------------------------------------------------ stepped sine
+    def _sine_extras(self) -> dict:
+        extras = {"force_amplitude": ("N", (), "f8"), "force_target": ("N", (), "f8"),
+                  "force_phasor": ("N", (), "c16"), "measured_frequency": ("Hz", (), "f8"),
+                  "drive": ("V", (), "f8"), "settle_time": ("s", (), "f8"), "settle_periods": ("1", (), "f8"),
+                  "steady": ("bool", (), "?"), "control_steps": ("1", (), "i4")}
+        for d in self.sensor_dofs:
+            extras[f"frf_std/{d}"] = ("m/N", (), "f8")
+        for c, u in zip(self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs)):
+            extras[f"harmonics/{c}"] = (u, (N_HARMONICS + 1,), "c16")
+            extras[f"thd/{c}"] = ("1", (), "f8")
+        return extras
+
+    def _sine_run(self, guard: OutputGuard, spec: SineSpec, direction: str) -> None:
+        name = spec.run_name(direction)
+        fs = self.daq.sample_rate
+        run_spec = RunSpec(name, "stepped_sine", spec.force, direction, self.excitation_dof, self.sensor_dofs, fs,
+                           self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._sine_extras(),
+                           {"start": spec.start, "stop": spec.stop, "step": spec.step, "refine": spec.refine})
+        self._begin(run_spec)
+        status, reason = "aborted", ""
+        try:
+            planned = spec.lines(direction)
+            f, stop = planned[0], planned[-1]
+            sign = 1.0 if direction == "up" else -1.0
+            drive = spec.force / self._gain if self._gain else min(0.05, self.shaker.amplitude_range[1] / 10)
+            drive = min(drive, self.shaker.amplitude_range[1])
+            self.shaker.set_sine(f, drive)
+            guard.arm()
+            self._log("operator", f"armed: {name}")
+            step, previous, index = spec.step, None, 0
+            with self.daq.stream(self.block) as stream:
+                feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
+                meter = LineMeter(self.shaker, feed, list(self.daq.channels), self.sensor_dofs, fs,
+                                  self.plan.settle, self.plan.control_tolerance, lambda: self._interrupt(guard))
+                while True:
+                    m = self._measure(meter, f, spec.force, drive)
+                    drive = m.drive
+                    self._gain = abs(m.force) / drive
+                    self._store_line(name, index, m, spec.force)
+                    index += 1
+                    if sign * (f - stop) >= -1e-9 * abs(stop):
+                        break
+                    if spec.refine and previous is not None:
+                        change = max(abs(m.frf[d] / previous.frf[d] - 1) for d in self.sensor_dofs)
+                        step = next_step(step, spec.step, spec.min_step, change)
+                    previous = m
+                    f_next = f + sign * step
+                    f = stop if sign * (f_next - stop) > 0 else f_next
+            self.shaker.disarm()
+            status = "complete"
+        except CampaignAborted as exc:
+            reason = str(exc)
+            raise
+        except Exception as exc:
+            reason = f"{type(exc).__name__}: {exc}"
+            raise
+        finally:
+            self._end(name, status, reason)
+
+    def _measure(self, meter: LineMeter, f: float, force: float, drive: float) -> LineMeasurement:
+        while True:
+            try:
+                return meter.measure(f, force, drive)
+            except _Restart:
+                continue
+
+    def _store_line(self, name: str, index: int, m: LineMeasurement, target: float) -> None:
+        extras = {"force_amplitude": abs(m.force), "force_target": target, "force_phasor": m.force,
+                  "measured_frequency": m.measured_frequency, "drive": m.drive, "settle_time": m.settle_time,
+                  "settle_periods": m.settle_periods, "steady": m.steady, "control_steps": m.control_steps}
+        for d in self.sensor_dofs:
+            extras[f"frf_std/{d}"] = m.frf_std[d]
+        for i, c in enumerate(self.daq.channels):
+            if c in self.channels:
+                extras[f"harmonics/{c}"] = m.harmonics[:, i]
+                extras[f"thd/{c}"] = m.thd[i]
+        raw = m.raw[:, [self.daq.channels.index(c) for c in self.channels]].astype(np.float32)
+        self.writer.append_line(m.frequency, m.frf, extras, raw)
+        self.summary.lines += 1
+        self.summary.worst_force_error = max(self.summary.worst_force_error, abs(abs(m.force) / target - 1))
+        self.summary.unsteady_lines += int(not m.steady)
+        self.summary.shaker_seconds += m.settle_time
+        if not m.steady:
+            self._log("settle", f"{name}: {m.frequency:.4f} Hz measured at the settling limit "
+                                f"({m.settle_periods:.0f} periods)")
+        self.listener.line(name, index, m, target)
+        self._progress(name)
+
+    # ------------------------------------------------------------------ runs
+    def _begin(self, spec: RunSpec) -> None:
+        self.writer.begin_run(spec)
+        self.listener.run_started(spec.name, spec)
+
+    def _end(self, name: str, status: str, reason: str) -> None:
+        self._drain_events()
+        self.writer.end_run(status, reason)
+        self.summary.runs[name] = status
+        self.listener.run_ended(name, status)
+
+
+class _Restart(Exception):
+    """Internal: measure the current line again (after a pause)."""

@@ -1,0 +1,67 @@
+"""Opening the instruments for a campaign: emulated in-process (a rig) or real (URLs).
+
+Either way the campaign gets driver objects opened by URL -- the emulated ones through ``sim://`` -- so the
+same code path runs in CI, in the demo and at the bench.
+"""
+from __future__ import annotations
+
+import itertools
+import os
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import drivers
+from drivers.emulator import EmulatedRig
+from drivers.rig import Rig
+from drivers.simulator import RigSimulator
+
+_names = itertools.count()
+
+
+@dataclass
+class Instruments:
+    shaker: object
+    daq: object
+    excitation_dof: str
+    sensor_dofs: list[str]
+    rig: Rig | None = None
+    emulator: EmulatedRig | None = None
+
+    def identities(self) -> dict:
+        return {"shaker": {"url": self.shaker.url, "idn": str(self.shaker.identity)},
+                "daq": {"url": self.daq.url, "idn": str(self.daq.identity)}}
+
+
+@contextmanager
+def emulated_instruments(rig: Rig, seed: int = 0, paced: bool = False, faults: dict | None = None):
+    """The rig's emulated shaker controller and DAQ, opened through ``sim://`` URLs."""
+    name = f"{rig.name}-{os.getpid()}-{next(_names)}"
+    with EmulatedRig(RigSimulator(rig, seed=seed), paced=paced, name=name,
+                     faults=rig.faults if faults is None else faults) as emulator:
+        emulator.register()
+        shaker = daq = None
+        try:
+            shaker = drivers.open_shaker(f"sim://{name}/shaker")
+            daq = drivers.open_daq(f"sim://{name}/daq")
+            yield Instruments(shaker, daq, rig.excitation_dof, list(rig.sensor_dofs), rig, emulator)
+        finally:
+            for instrument in (shaker, daq):
+                if instrument is not None:
+                    instrument.close()
+
+
+@contextmanager
+def real_instruments(shaker_url: str, daq_url: str, excitation_dof: str, sensor_dofs: list[str] | None = None):
+    """Instruments at ``shaker_url`` and ``daq_url`` (port names or pyserial URLs).
+
+    The accelerometer DOFs default to the DAQ's ``acc:<dof>`` channel names."""
+    shaker = daq = None
+    try:
+        shaker = drivers.open_shaker(shaker_url)
+        daq = drivers.open_daq(daq_url)
+        dofs = sensor_dofs or [c.split(":", 1)[1] for c in daq.channels if c.startswith("acc:")]
+        yield Instruments(shaker, daq, excitation_dof, dofs)
+    finally:
+        for instrument in (shaker, daq):
+            if instrument is not None:
+                instrument.close()

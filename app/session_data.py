@@ -1,0 +1,39 @@
+"""A session's measurements as the analysis sees them (analysis never opens files itself)."""
+from __future__ import annotations
+
+import numpy as np
+
+from analysis.measurements import Measurements, RandomRun, SineRun
+
+from .session import Session
+
+
+def measurements_from_session(session: Session, include_incomplete: bool = True) -> Measurements:
+    """Collect the stepped-sine and random runs of a session.
+
+    Aborted or incomplete stepped-sine runs are used up to their last complete line (each line was measured
+    whole); ``include_incomplete=False`` leaves them out. Nothing of ``/provenance`` is read.
+    """
+    sine, random = [], None
+    for run in session.runs():
+        if not len(run.frequency) or (run.incomplete and not include_incomplete):
+            continue
+        dofs = run.sensor_dofs
+        H = np.stack([run.frf[d] for d in dofs], axis=1)
+        if run.kind == "random":
+            random = RandomRun(run.excitation_dof, dofs, run.frequency, H,
+                               _stack(run.arrays, "coherence", dofs), _stack(run.arrays, "random_error", dofs),
+                               run.force)
+            continue
+        thd = [run.arrays[f"thd/acc:{d}"] for d in dofs if f"thd/acc:{d}" in run.arrays]
+        sine.append(SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, run.frequency, H,
+                            _stack(run.arrays, "frf_std", dofs), run.arrays.get("force_amplitude"),
+                            np.max(np.stack(thd), axis=0) if thd else None))
+    return Measurements(sine, random)
+
+
+def _stack(arrays: dict, prefix: str, dofs: list[str]):
+    keys = [f"{prefix}/{d}" for d in dofs]
+    if not all(k in arrays for k in keys):
+        return None
+    return np.stack([arrays[k] for k in keys], axis=1)

@@ -1,0 +1,204 @@
+"""One stepped-sine line: closed-loop force control, steady-state detection, harmonics and the FRF.
+
+At each line the drive runs at the line's frequency and records of ``block_periods`` whole periods are taken
+one after another. Each record gives, per channel, the harmonics by least squares at the frequency fitted on
+the force channel (IEEE 1057 sine fit: it also absorbs a DAQ clock that differs from the generator's by some
+ppm). Then:
+
+- **steady state**: a line is steady when successive records agree -- every FRF and the force magnitude
+  within ``tolerance`` relative -- and the decay seen over the last three records says the rest of the
+  transient is within the tolerance too (or the change is down at the noise of the estimate); not after a
+  fixed number of cycles. ``max_periods`` bounds the wait; a line measured at that bound is recorded with
+  ``steady = False``.
+- **force control**: once steady, if the fundamental force differs from the target by more than the
+  tolerance (1 %), the drive voltage is scaled by target / measured (by x0.5 .. x2 per step, within the
+  generator's range) and the line settles again -- a voltage-driven shaker loses force at resonance, and kbar
+  only means something at a stated force. Correcting an unsettled force would chase the transient. The
+  instrument ramps the amplitude, so the drive never jumps.
+
+The FRF is the receptance ``h_p = A_p / (-(2 pi f)^2 F)`` from the accelerometer and force fundamentals; its
+standard deviation comes from the residual noise of the fit (a complex amplitude from N samples with white
+noise of rms s has ``E|dY|^2 = 4 s^2 / N``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from analysis.harmonics import harmonics_at, sine_fit, total_harmonic_distortion
+
+from .acquisition import RecordFeed
+from .plan import SettleSpec
+
+N_HARMONICS = 5
+
+
+@dataclass
+class LineMeasurement:
+    """Everything measured at one line.
+
+    Attributes
+    ----------
+    frequency : float
+        Generator frequency, Hz.
+    measured_frequency : float
+        Frequency fitted on the force channel, Hz (DAQ time base).
+    force : complex
+        Fundamental of the force, N (sine convention).
+    frf, frf_std : dict dof -> complex / float
+        Receptance and its standard deviation, m/N.
+    harmonics : ndarray, shape (N_HARMONICS + 1, channels), complex
+        Mean and harmonics of every channel, channel units.
+    thd : ndarray, shape (channels,)
+    drive : float
+        Drive amplitude at the end of the line, V peak.
+    settle_time, settle_periods : float
+        Time (s, DAQ clock) and periods from the start of the line to the measurement.
+    steady : bool
+    control_steps : int
+        Drive corrections made at this line.
+    raw : ndarray, shape (n, channels)
+        The samples of the two records that agreed (the measurement and the one before it).
+    """
+
+    frequency: float
+    measured_frequency: float
+    force: complex
+    frf: dict
+    frf_std: dict
+    harmonics: np.ndarray
+    thd: np.ndarray
+    drive: float
+    settle_time: float
+    settle_periods: float
+    steady: bool
+    control_steps: int
+    raw: np.ndarray
+
+
+class LineMeter:
+    """Measures lines one after another on a running stream (the structure's state carries over)."""
+
+    def __init__(self, shaker, feed: RecordFeed, channels: list[str], sensor_dofs: list[str], sample_rate: float,
+                 settle: SettleSpec, control_tolerance: float, should_stop=lambda: None):
+        self.shaker = shaker
+        self.feed = feed
+        self.channels = channels
+        self.force_index = channels.index("force")
+        self.sensor_index = [channels.index(f"acc:{d}") for d in sensor_dofs]
+        self.sensor_dofs = sensor_dofs
+        self.sample_rate = sample_rate
+        self.settle = settle
+        self.control_tolerance = control_tolerance
+        self.should_stop = should_stop         # raises to interrupt (pause/abort); called at every record
+        self.v_max = shaker.amplitude_range[1]
+
+    def _set_drive(self, frequency: float, drive: float) -> None:
+        self.shaker.set_sine(frequency, drive)
+
+    def measure(self, frequency: float, target_force: float, drive: float) -> LineMeasurement:
+        """Hold ``target_force`` N at ``frequency`` Hz starting from ``drive`` V and measure the line."""
+        fs = self.sample_rate
+        n_rec = max(int(round(self.settle.block_periods * fs / frequency)), 32)
+        periods_per_record = n_rec * frequency / fs
+        self._set_drive(frequency, drive)
+        self.feed.discard()
+        start = None
+        history: list[dict] = []     # records since the drive last changed
+        waited = 0.0
+        steps = 0
+        while True:
+            self.should_stop()
+            rec = self.feed.record(n_rec)
+            start = rec.first_sample if start is None else start
+            waited += periods_per_record
+            out = self._analyse(rec.data, frequency, fit_frequency=False)
+            out["record"] = rec
+            history.append(out)
+            at_limit = waited >= self.settle.max_periods
+            steady = self._steady(history)
+            if not steady and not at_limit:
+                continue
+            force_error = abs(out["force"]) / target_force - 1.0
+            if steady and abs(force_error) > self.control_tolerance and not at_limit:
+                # correct only a settled force: a transient would make the loop chase itself
+                ratio = np.clip(target_force / max(abs(out["force"]), 1e-12), 0.5, 2.0)
+                new_drive = float(min(drive * ratio, self.v_max))
+                if new_drive != drive:
+                    drive = new_drive
+                    steps += 1
+                    self._set_drive(frequency, drive)
+                    history = []
+                    continue
+            before = history[-2]["raw"] if len(history) > 1 else rec.data[:0]
+            return self._line(frequency, self._analyse(rec.data, frequency, fit_frequency=True), drive, rec,
+                              start, waited, steady, steps, before)
+
+    def _steady(self, history: list[dict]) -> bool:
+        """Whether the last records show a settled response.
+
+        The change between the last two records must be within the tolerance, and so must what is still to
+        come: a transient decaying by a ratio r per record still moves the result by change * r / (1 - r),
+        which for a lightly damped structure is many times the last change. r comes from the last three
+        records; a change within three times the noise of the estimate counts as settled whatever r says.
+        """
+        if len(history) < max(self.settle.min_blocks, 2):
+            return False
+        last, prev = history[-1], history[-2]
+        change = self._change(last, prev)
+        if change > self.settle.tolerance:
+            return False
+        if change <= 3.0 * max(last["noise"], prev["noise"]):
+            return True
+        if len(history) < 3:
+            return False
+        ratio = change / max(self._change(prev, history[-3]), 1e-300)
+        return ratio < 1.0 and change * ratio / (1.0 - ratio) <= self.settle.tolerance
+
+    def _change(self, a: dict, b: dict) -> float:
+        # magnitudes for the force (its phase depends on where the record starts), ratios for the FRFs
+        return max(abs(abs(a["force"]) / abs(b["force"]) - 1),
+                   max(abs(a["frf"][d] / b["frf"][d] - 1) for d in self.sensor_dofs))
+
+    def _analyse(self, data: np.ndarray, frequency: float, fit_frequency: bool) -> dict:
+        """Harmonics of a record. While settling the generator frequency is good enough (a clock offset of
+        some ppm moves both channels alike, so FRF ratios and the force magnitude do not see it); the record
+        that is kept is analysed at the frequency fitted on the force channel."""
+        fs = self.sample_rate
+        f_meas = frequency
+        if fit_frequency:
+            fit = sine_fit(data[:, self.force_index], fs, frequency)
+            if abs(fit.frequency / frequency - 1) < 1e-3:
+                f_meas = fit.frequency
+        H = harmonics_at(data, fs, f_meas, N_HARMONICS)
+        Y1 = H.amplitudes[1]
+        F = Y1[self.force_index]
+        w2 = (2 * np.pi * f_meas) ** 2
+        n = data.shape[0]
+        amp_std = 2 * H.residual_rms / np.sqrt(n)                  # std of each complex amplitude
+        frf, frf_std = {}, {}
+        for d, i in zip(self.sensor_dofs, self.sensor_index):
+            h = Y1[i] / (-w2 * F)
+            frf[d] = h
+            rel = np.hypot(amp_std[i] / max(abs(Y1[i]), 1e-300), amp_std[self.force_index] / max(abs(F), 1e-300))
+            frf_std[d] = abs(h) * rel
+        noise = max(frf_std[d] / max(abs(frf[d]), 1e-300) for d in self.sensor_dofs)
+        return {"force": F, "frf": frf, "frf_std": frf_std, "harmonics": H.amplitudes, "noise": noise,
+                "thd": total_harmonic_distortion(H.amplitudes), "f": f_meas, "raw": data}
+
+    def _line(self, frequency, out, drive, rec, start, waited, steady, steps, before) -> LineMeasurement:
+        return LineMeasurement(frequency, out["f"], out["force"], out["frf"], out["frf_std"], out["harmonics"],
+                               out["thd"], drive, (rec.first_sample + len(rec.data) - start) / self.sample_rate,
+                               waited, steady, steps, np.concatenate([before, rec.data], axis=0))
+
+
+def next_step(step: float, plan_step: float, min_step: float, change: float, threshold: float = 0.25) -> float:
+    """Adaptive refinement: halve the step after a line whose FRF changed by more than ``threshold``
+    (relative, amplitude and phase together) from the previous one, grow it back toward the plan's step when
+    the change is small."""
+    if change > threshold:
+        return max(step / 2, min_step)
+    if change < threshold / 4:
+        return min(step * 2, plan_step)
+    return step
