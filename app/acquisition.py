@@ -61,6 +61,23 @@ class RecordFeed:
         """Drop what was collected (after the drive changed, the old samples describe another state)."""
         self._buffer, self._buffered, self._start, self._overload = [], 0, None, False
 
+    def flush(self) -> None:
+        """Drop every sample taken before now: what is collected and what waits in the stream's queue.
+
+        Called after the generator changes: blocks already queued were sampled before the instrument acted on
+        the command (still checked against the limits, as every block is)."""
+        self.discard()
+        for _ in range(self.stream.pending()):
+            self._pull()
+        self.discard()
+
+    def unread(self, record: Record) -> None:
+        """Put a record back in front of what is collected (it will be returned again)."""
+        data = np.concatenate([record.data] + self._buffer, axis=0) if self._buffer else record.data
+        self._buffer, self._buffered = [data], len(data)
+        self._start = record.first_sample
+        self._overload |= record.overload
+
     def skip(self, n: int) -> None:
         """Read and drop ``n`` samples (still checking every block)."""
         self.discard()

@@ -32,6 +32,7 @@ from .acquisition import RecordFeed
 from .plan import SettleSpec
 
 N_HARMONICS = 5
+MAX_LATENCY_S = 10.0     # a generator change not seen in the data after this long is a fault of the set-up
 
 
 @dataclass
@@ -93,17 +94,47 @@ class LineMeter:
         self.control_tolerance = control_tolerance
         self.should_stop = should_stop         # raises to interrupt (pause/abort); called at every record
         self.v_max = shaker.amplitude_range[1]
+        self.latency = 0                       # samples from a generator command to data that show it
+        self._frequency: float | None = None   # generator frequency of the last line
 
-    def _set_drive(self, frequency: float, drive: float) -> None:
+    def _set_drive(self, frequency: float, drive: float, previous: float | None) -> None:
+        """Change the generator amplitude, then drop the samples taken before it acted (the learnt latency of
+        the command-to-data path) and those of its amplitude ramp."""
         self.shaker.set_sine(frequency, drive)
+        self.feed.flush()
+        ramp_s = abs(drive - (previous or 0.0)) / max(getattr(self.shaker, "ramp_rate", np.inf), 1e-12)
+        self.feed.skip(self.latency + int(np.ceil((ramp_s + 3.0 / frequency) * self.sample_rate)))
+
+    def _new_line(self, frequency: float, drive: float, n_rec: int) -> None:
+        """Move the generator to a new line and wait until the data show it.
+
+        Samples taken before the instrument acted on the command still arrive for a while (queues and FIFOs
+        between the DAQ's converter and this program): a record counts only once the frequency fitted on its
+        force channel is the new one. The samples that took is the path's latency, kept (largest seen) for
+        the amplitude changes of the force loop, where no frequency tells old data from new.
+        """
+        self.shaker.set_sine(frequency, drive)
+        self.feed.flush()
+        stale = 0
+        tolerance = 1e-4 + 0.25 * abs(frequency - self._frequency) / frequency if self._frequency else np.inf
+        while self._frequency and stale < self.sample_rate * MAX_LATENCY_S:
+            self.should_stop()
+            rec = self.feed.record(n_rec)
+            fit = sine_fit(rec.data[:, self.force_index], self.sample_rate, frequency)
+            if abs(fit.frequency / frequency - 1) <= tolerance:
+                self.feed.unread(rec)
+                break
+            stale += len(rec.data)
+        self.latency = max(self.latency, stale)
+        self._frequency = frequency
+        self.feed.skip(int(np.ceil(3.0 / frequency * self.sample_rate)))
 
     def measure(self, frequency: float, target_force: float, drive: float) -> LineMeasurement:
         """Hold ``target_force`` N at ``frequency`` Hz starting from ``drive`` V and measure the line."""
         fs = self.sample_rate
         n_rec = max(int(round(self.settle.block_periods * fs / frequency)), 32)
         periods_per_record = n_rec * frequency / fs
-        self._set_drive(frequency, drive)
-        self.feed.discard()
+        self._new_line(frequency, drive, n_rec)
         start = None
         history: list[dict] = []     # records since the drive last changed
         waited = 0.0
@@ -126,9 +157,9 @@ class LineMeter:
                 ratio = np.clip(target_force / max(abs(out["force"]), 1e-12), 0.5, 2.0)
                 new_drive = float(min(drive * ratio, self.v_max))
                 if new_drive != drive:
-                    drive = new_drive
                     steps += 1
-                    self._set_drive(frequency, drive)
+                    self._set_drive(frequency, new_drive, drive)
+                    drive = new_drive
                     history = []
                     continue
             before = history[-2]["raw"] if len(history) > 1 else rec.data[:0]
@@ -140,26 +171,31 @@ class LineMeter:
 
         The change between the last two records must be within the tolerance, and so must what is still to
         come: a transient decaying by a ratio r per record still moves the result by change * r / (1 - r),
-        which for a lightly damped structure is many times the last change. r comes from the last three
-        records; a change within three times the noise of the estimate counts as settled whatever r says.
+        which for a lightly damped structure is many times the last change. r is the slower of the last two
+        ratios of successive changes, and the changes must shrink monotonically over the last four records
+        (a beat between the drive and a free vibration makes single ratios lie). Once only measurement noise
+        is left the changes stop shrinking, so three successive changes all within the tolerance and within
+        three times the estimated noise also count as settled (the noise estimate, the fit residual, is
+        inflated while a transient lasts, hence three in a row).
         """
-        if len(history) < max(self.settle.min_blocks, 2):
+        if len(history) < max(self.settle.min_blocks, 4):
             return False
-        last, prev = history[-1], history[-2]
-        change = self._change(last, prev)
-        if change > self.settle.tolerance:
+        c1, c2, c3 = (self._change(history[-k], history[-k - 1]) for k in (1, 2, 3))
+        if c1 > self.settle.tolerance:
             return False
-        if change <= 3.0 * max(last["noise"], prev["noise"]):
-            return True
-        if len(history) < 3:
-            return False
-        ratio = change / max(self._change(prev, history[-3]), 1e-300)
-        return ratio < 1.0 and change * ratio / (1.0 - ratio) <= self.settle.tolerance
+        if c1 < c2 < c3:
+            ratio = max(c1 / c2, c2 / c3)
+            if c1 * ratio / (1.0 - ratio) <= self.settle.tolerance:
+                return True
+        noise = [max(history[-k]["noise"], history[-k - 1]["noise"]) for k in (1, 2, 3)]
+        return all(c <= min(3.0 * n, self.settle.tolerance) for c, n in zip((c1, c2, c3), noise))
 
     def _change(self, a: dict, b: dict) -> float:
         # magnitudes for the force (its phase depends on where the record starts), ratios for the FRFs
-        return max(abs(abs(a["force"]) / abs(b["force"]) - 1),
-                   max(abs(a["frf"][d] / b["frf"][d] - 1) for d in self.sensor_dofs))
+        with np.errstate(divide="ignore", invalid="ignore"):   # a record without drive: an infinite change
+            change = max(abs(abs(a["force"]) / abs(b["force"]) - 1),
+                         max(abs(a["frf"][d] / b["frf"][d] - 1) for d in self.sensor_dofs))
+        return float(change) if np.isfinite(change) else np.inf
 
     def _analyse(self, data: np.ndarray, frequency: float, fit_frequency: bool) -> dict:
         """Harmonics of a record. While settling the generator frequency is good enough (a clock offset of

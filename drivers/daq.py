@@ -323,6 +323,11 @@ class DaqStream:
             raise EOFError(f"{self.url}: stream stopped")
         return block
 
+    def pending(self) -> int:
+        """Blocks already received and waiting to be read (samples the instrument sent before now)."""
+        with self._queue._ready:
+            return len(self._queue._blocks)
+
     def __iter__(self) -> Iterator[Block]:
         return self
 

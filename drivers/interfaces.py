@@ -149,6 +149,9 @@ class BlockStream(Protocol):
     def read(self, timeout: float | None = None) -> Block:
         """The next block; raises a LinkError if none arrives in time."""
 
+    def pending(self) -> int:
+        """Blocks received and waiting to be read: they were sampled before this call."""
+
     def stop(self) -> object:
         """End the acquisition and return its statistics; later reads return the blocks still queued."""
 

@@ -23,6 +23,11 @@ MANUFACTURER = "contactid"
 SHAKER_MODELS = ("SC-1",)
 
 
+def _number(value) -> str:
+    """A number as SCPI <NRf> text, whatever numeric type it arrives as (numpy's repr is not a number)."""
+    return repr(float(value))
+
+
 class SerialShaker:
     """A :class:`~drivers.interfaces.ShakerController` on a serial link.
 
@@ -73,7 +78,7 @@ class SerialShaker:
         scpi.send(io, "")  # ends any half-written command left on the line
         io.discard_input()
         identity = scpi.identify(io, MANUFACTURER, models, "contactid shaker controller", 2 * scpi.timeout)
-        scpi.execute(io, f"*RST;*CLS;:SYST:WDOG {self.watchdog!r}")
+        scpi.execute(io, f"*RST;*CLS;:SYST:WDOG {_number(self.watchdog)}")
         reply = scpi.ask(io, "FREQ? MIN;:FREQ? MAX;:VOLT:UNIT VPP;:VOLT? MAX;:VOLT:RAMP?")
         try:
             f_min, f_max, vpp_max, ramp = (float(x) for x in reply.split(";"))
@@ -88,14 +93,15 @@ class SerialShaker:
     def set_sine(self, frequency: float, amplitude: float) -> None:
         """Sine of ``frequency`` Hz and ``amplitude`` V peak; the instrument ramps to it."""
         self._require_function("SIN")
-        self._scpi.command(f"FUNC SIN;:VOLT:UNIT VPP;:FREQ {float(frequency)!r};:VOLT {2.0 * amplitude!r}")
+        self._scpi.command(f"FUNC SIN;:VOLT:UNIT VPP;:FREQ {_number(frequency)};:VOLT {_number(2.0 * amplitude)}")
         self._function = "SIN"
 
     def set_noise(self, rms: float, band: tuple[float, float]) -> None:
         """Gaussian noise of ``rms`` V in the pass band ``band = (low, high)`` Hz."""
         self._require_function("NOIS")
         low, high = (float(f) for f in band)
-        self._scpi.command(f"FUNC NOIS;:VOLT:UNIT VRMS;:FUNC:NOIS:BAND {low!r},{high!r};:VOLT {float(rms)!r}")
+        self._scpi.command(f"FUNC NOIS;:VOLT:UNIT VRMS;:FUNC:NOIS:BAND {_number(low)},{_number(high)};"
+                           f":VOLT {_number(rms)}")
         self._function = "NOIS"
 
     def _require_function(self, function: str) -> None:
@@ -104,7 +110,7 @@ class SerialShaker:
 
     def set_ramp_rate(self, volts_per_second: float) -> None:
         """Largest rate of change of the peak amplitude (V/s)."""
-        self._scpi.command(f"VOLT:RAMP {float(volts_per_second)!r}")
+        self._scpi.command(f"VOLT:RAMP {_number(volts_per_second)}")
         self.ramp_rate = float(volts_per_second)
 
     # ----- output --------------------------------------------------------------------------

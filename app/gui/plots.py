@@ -1,0 +1,149 @@
+"""Plot building blocks shared by the tabs: one colour per force level, axis set-up, PNG export, and the
+frame clock that paces every live redraw.
+
+Live data never draws itself: whoever receives it marks a :class:`Redraw` dirty, and the window-wide
+:class:`FrameClock` redraws what is dirty at most ``MAX_FPS`` times a second, so a fast stream costs the
+window the same as a slow one.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pyqtgraph as pg
+from pyqtgraph.exporters import ImageExporter
+from PySide6.QtCore import QObject, QTimer, Signal
+
+MAX_FPS = 30
+"""Upper bound of live redraws per second."""
+
+# white background and antialiasing off: readable in print, cheap while streaming
+pg.setConfigOptions(background="w", foreground="k", antialias=False)
+
+LEVEL_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
+                "#bcbd22", "#7f7f7f")
+SENSOR_SYMBOLS = ("o", "t", "s", "d", "star", "x")
+CHANNEL_COLORS = ("#000000", "#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b")
+
+
+class LevelPalette:
+    """A colour per force level, in the order levels first appear (stable while data arrive).
+
+    The window keeps one palette so a level has the same colour on every tab.
+    """
+
+    def __init__(self):
+        self._index: dict[float, int] = {}
+
+    def color(self, force: float) -> str:
+        key = round(float(force), 9)
+        if key not in self._index:
+            self._index[key] = len(self._index)
+        return LEVEL_COLORS[self._index[key] % len(LEVEL_COLORS)]
+
+    def pen(self, force: float, width: float = 1.5, dashed: bool = False):
+        style = {"style": pg.QtCore.Qt.PenStyle.DashLine} if dashed else {}
+        return pg.mkPen(self.color(force), width=width, **style)
+
+    def brush(self, force: float):
+        return pg.mkBrush(self.color(force))
+
+
+def sensor_symbol(index: int) -> str:
+    """Scatter symbol of the ``index``-th sensor (levels are told apart by colour, sensors by symbol)."""
+    return SENSOR_SYMBOLS[index % len(SENSOR_SYMBOLS)]
+
+
+def configure_plot(plot: pg.PlotItem, title: str, x_label: str, x_units: str | None, y_label: str,
+                   y_units: str | None, *, log_x: bool = False, log_y: bool = False,
+                   legend: bool = False) -> pg.PlotItem:
+    """Title, axis labels with units (SI prefixes on linear axes), grid and log modes of a plot."""
+    plot.setTitle(title, size="10pt")
+    plot.setLabel("bottom", x_label, units=x_units)
+    plot.setLabel("left", y_label, units=y_units)
+    for side, log in (("bottom", log_x), ("left", log_y)):
+        # SI prefixes make no sense on a log axis (its ticks are already powers of ten)
+        plot.getAxis(side).enableAutoSIPrefix(not log)
+    plot.showGrid(x=True, y=True, alpha=0.25)
+    plot.setLogMode(x=log_x, y=log_y)
+    if legend:
+        plot.addLegend(offset=(-4, 4), labelTextSize="8pt", verSpacing=-6)
+    return plot
+
+
+def scatter(plot: pg.PlotItem, color: str, symbol: str = "o", size: float = 6, name: str | None = None):
+    """An empty scatter curve (no line) to fill with ``setData``."""
+    return plot.plot([], [], pen=None, symbol=symbol, symbolSize=size, symbolPen=None,
+                     symbolBrush=pg.mkBrush(color), name=name)
+
+
+def finite_log(values: np.ndarray) -> np.ndarray:
+    """``values`` with non-positive entries dropped from a log axis (set to NaN, which pyqtgraph skips)."""
+    out = np.asarray(values, float).copy()
+    out[~(out > 0)] = np.nan
+    return out
+
+
+def export_png(item: pg.GraphicsItem, path, width: int = 1600) -> Path:
+    """Write a plot (or a whole plot layout) as a PNG of ``width`` pixels with pyqtgraph's ImageExporter."""
+    path = Path(path)
+    exporter = ImageExporter(item)
+    exporter.parameters()["width"] = int(width)
+    exporter.export(str(path))
+    return path
+
+
+def safe_file_name(text: str) -> str:
+    """A file-name fragment from a plot title: letters, digits, ``-`` and ``_`` only."""
+    cleaned = "".join(c if c.isalnum() or c in "-_" else "_" for c in text.strip().lower())
+    return "_".join(part for part in cleaned.split("_") if part) or "plot"
+
+
+class FrameClock(QObject):
+    """One timer for every live plot of the window: ``tick`` at most ``fps`` times a second.
+
+    Attributes
+    ----------
+    frames : int
+        Redraws done so far (over every :class:`Redraw` on this clock).
+    """
+
+    tick = Signal()
+
+    def __init__(self, fps: int = MAX_FPS, parent: QObject | None = None):
+        super().__init__(parent)
+        self.frames = 0
+        self._timer = QTimer(self)
+        self._timer.setInterval(max(1, round(1000 / fps)))
+        self._timer.timeout.connect(self.tick)
+        self._timer.start()
+
+    def stop(self) -> None:
+        self._timer.stop()
+
+
+class Redraw(QObject):
+    """Redraw something on the next clock tick if it was marked dirty since the last one."""
+
+    def __init__(self, clock: FrameClock, draw: Callable[[], None], parent: QObject | None = None):
+        super().__init__(parent)
+        self._clock = clock
+        self._draw = draw
+        self._dirty = False
+        clock.tick.connect(self._on_tick)
+
+    def request(self) -> None:
+        self._dirty = True
+
+    def now(self) -> None:
+        """Redraw at once (data that arrive rarely, e.g. when a run ends)."""
+        self._dirty = False
+        self._draw()
+
+    def _on_tick(self) -> None:
+        if self._dirty:
+            self._dirty = False
+            self._draw()
+            self._clock.frames += 1
+
