@@ -184,20 +184,44 @@ def harmonics_at(record, sample_rate: float, frequency: float, n_harmonics: int 
     leakage that a single-bin DFT would suffer. Records shorter than one period are
     ill-conditioned and refused.
 
-    Parameters and returns as :func:`harmonics`.
+    Parameters and returns as :func:`harmonics`. For many records of one length at one
+    frequency, :class:`HarmonicProjector` does the same without refactoring each time.
     """
     y = np.asarray(record, float)
-    n = y.shape[0]
-    if whole_periods(frequency, sample_rate, n) < 1.0:
-        raise ValueError("the record must span at least one period")
-    _check_harmonics(frequency, sample_rate, n_harmonics)
-    A = _design(frequency, sample_rate, n, n_harmonics)
-    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-    Y = np.empty((n_harmonics + 1,) + y.shape[1:], complex)
-    Y[0] = coef[0]
-    Y[1:] = coef[1::2] + 1j * coef[2::2]
-    residual = y - A @ coef
-    return Harmonics(float(frequency), Y, np.sqrt(np.mean(residual**2, axis=0)))
+    return HarmonicProjector(frequency, sample_rate, y.shape[0], n_harmonics)(y)
+
+
+class HarmonicProjector:
+    """:func:`harmonics_at` for records of ``n`` samples at one frequency: the least-squares
+    projector is computed once (a stepped-sine line analyses many records alike).
+
+    Parameters
+    ----------
+    frequency, sample_rate : float
+        Hz.
+    n : int
+        Samples per record (at least one period).
+    n_harmonics : int
+    """
+
+    def __init__(self, frequency: float, sample_rate: float, n: int, n_harmonics: int = 5):
+        if whole_periods(frequency, sample_rate, n) < 1.0:
+            raise ValueError("the record must span at least one period")
+        _check_harmonics(frequency, sample_rate, n_harmonics)
+        self.frequency, self.n, self.n_harmonics = float(frequency), int(n), int(n_harmonics)
+        self._A = _design(frequency, sample_rate, n, n_harmonics)
+        self._pinv = np.linalg.pinv(self._A)
+
+    def __call__(self, record) -> Harmonics:
+        y = np.asarray(record, float)
+        if y.shape[0] != self.n:
+            raise ValueError(f"record has {y.shape[0]} samples, the projector {self.n}")
+        coef = self._pinv @ y
+        Y = np.empty((self.n_harmonics + 1,) + y.shape[1:], complex)
+        Y[0] = coef[0]
+        Y[1:] = coef[1::2] + 1j * coef[2::2]
+        residual = y - self._A @ coef
+        return Harmonics(self.frequency, Y, np.sqrt(np.mean(residual**2, axis=0)))
 
 
 @dataclass

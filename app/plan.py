@@ -3,7 +3,8 @@
 Beyond the contract's keys, each ``[[stepped_sine]]`` table may set ``refine`` (adaptive refinement near
 resonance, default true) and ``min_step`` (Hz, default step / 4); ``[settle]`` tunes steady-state detection
 (``tolerance`` relative change between successive blocks, default 2e-3; ``max_periods`` before a line is
-measured anyway, default 600; ``block_periods``, default 5) and ``[control]`` the force loop (``tolerance``,
+measured anyway, default 600; ``block_periods``, default 5; ``fixed_periods`` replaces the detection by the
+fixed-count practice, waiting that many periods after every change) and ``[control]`` the force loop (``tolerance``,
 default 0.01 = 1 %). docs/campaigns.md describes them.
 """
 from __future__ import annotations
@@ -63,6 +64,7 @@ class SettleSpec:
     max_periods: int = 600
     block_periods: int = 5
     min_blocks: int = 2
+    fixed_periods: int = 0       # > 0: the fixed-count practice, wait this many periods after every change
 
 
 @dataclass
@@ -143,11 +145,12 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
     if root.has("settle"):
         s = root.sub("settle")
         s.where = "[settle]"
-        s.unknown_keys({"tolerance", "max_periods", "block_periods", "min_blocks"})
+        s.unknown_keys({"tolerance", "max_periods", "block_periods", "min_blocks", "fixed_periods"})
         settle = SettleSpec(s.number("tolerance", settle.tolerance, positive=True),
                             int(s.number("max_periods", settle.max_periods, positive=True)),
                             int(s.number("block_periods", settle.block_periods, positive=True)),
-                            int(s.number("min_blocks", settle.min_blocks, positive=True)))
+                            int(s.number("min_blocks", settle.min_blocks, positive=True)),
+                            int(s.number("fixed_periods", 0, nonnegative=True)))
     control = 0.01
     if root.has("control"):
         c = root.sub("control")

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.harmonics import harmonics_at, sine_fit, total_harmonic_distortion
+from analysis.harmonics import HarmonicProjector, harmonics_at, sine_fit, total_harmonic_distortion
 
 from .acquisition import RecordFeed
 from .plan import SettleSpec
@@ -96,6 +96,7 @@ class LineMeter:
         self.v_max = shaker.amplitude_range[1]
         self.latency = 0                       # samples from a generator command to data that show it
         self._frequency: float | None = None   # generator frequency of the last line
+        self._projector = None                 # ((frequency, n), HarmonicProjector) of the current line
 
     def _set_drive(self, frequency: float, drive: float, previous: float | None) -> None:
         """Change the generator amplitude, then drop the samples taken before it acted (the learnt latency of
@@ -178,6 +179,8 @@ class LineMeter:
         three times the estimated noise also count as settled (the noise estimate, the fit residual, is
         inflated while a transient lasts, hence three in a row).
         """
+        if self.settle.fixed_periods:
+            return len(history) * self.settle.block_periods >= self.settle.fixed_periods
         if len(history) < max(self.settle.min_blocks, 4):
             return False
         c1, c2, c3 = (self._change(history[-k], history[-k - 1]) for k in (1, 2, 3))
@@ -207,7 +210,12 @@ class LineMeter:
             fit = sine_fit(data[:, self.force_index], fs, frequency)
             if abs(fit.frequency / frequency - 1) < 1e-3:
                 f_meas = fit.frequency
-        H = harmonics_at(data, fs, f_meas, N_HARMONICS)
+            H = harmonics_at(data, fs, f_meas, N_HARMONICS)
+        else:
+            key = (frequency, data.shape[0])
+            if self._projector is None or self._projector[0] != key:
+                self._projector = (key, HarmonicProjector(frequency, fs, data.shape[0], N_HARMONICS))
+            H = self._projector[1](data)
         Y1 = H.amplitudes[1]
         F = Y1[self.force_index]
         w2 = (2 * np.pi * f_meas) ** 2

@@ -1,0 +1,503 @@
+"""The window's state and actions: instruments, plan and arming, the campaign, the session, the model and the
+analysis. The tabs are views of one :class:`Lab`; it calls the application layer (app/, drivers/ through
+app.instruments) and never computes anything itself.
+
+Threads: everything here runs in the GUI thread except the tasks it hands to its two runners -- one for the
+instruments (connecting, probing ports, polling the output state), one for the analysis (live
+identification, analyze / add / undo; the workbench lives on that thread only) -- and the campaign thread.
+"""
+from __future__ import annotations
+
+import tomllib
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+
+from PySide6.QtCore import QObject, QTimer, Signal
+
+from analysis.errors import InputError
+from analysis.model import Model, load_model
+from analysis.tables import load_toml
+from analysis.workbench import Workbench
+from drivers import InstrumentError
+from drivers.discovery import find_instruments
+from drivers.rig import Rig, load_rig
+
+from ..campaign import CampaignSummary
+from ..instruments import Instruments, emulated_instruments, real_instruments
+from ..plan import Plan, check_against_instruments, parse_plan
+from ..session import Session, open_session
+from ..session_data import measurements_from_session
+from .live import CampaignFeed, LinkCounters, LiveSession, SignalRing
+from .plan_doc import plan_toml
+from .results import AnalysisView, IdentificationView, analysis_view, identification_view
+from .workers import CampaignThread, TaskRunner
+
+IDENTIFY_INTERVAL_MS = 1500
+"""Least time between two live identifications (they run while lines arrive)."""
+STATUS_INTERVAL_MS = 1000
+"""Polling period of the output state and instrument faults."""
+
+
+@dataclass(frozen=True)
+class InstrumentStatus:
+    """The shaker's output as the instrument reports it, and any fault its supervision found."""
+
+    output_on: bool
+    level: float                  # V peak (sine) or V rms (noise)
+    armed_by_host: bool
+    fault: str
+
+
+def starter_model(rig: Rig) -> Model:
+    """A first hypothesis for a rig: its structure as designed, an unknown element (no laws) at each of its
+    joints. Only the places come from the rig, never its laws."""
+    doc = tomllib.loads(rig.text)
+    elements = [{"name": el.name, "laws": [], **({"dof": el.dofs[0]} if el.grounded else {"between": list(el.dofs)})}
+                for el in rig.elements]
+    return load_model({"structure": doc["structure"], "element": elements}, f"starter model for {rig.name}")
+
+
+class Lab(QObject):
+    """State and actions of the lab window (see module docstring)."""
+
+    instrumentsChanged = Signal()
+    statusPolled = Signal(object)              # InstrumentStatus
+    planChecked = Signal(bool, str)            # valid, message
+    limitsChanged = Signal(float, float)       # max force N, max acceleration m/s^2
+    armedChanged = Signal(bool, str)
+    campaignStarted = Signal(object)           # CampaignFeed
+    campaignFinished = Signal(str, bool)       # summary text, aborted
+    sessionChanged = Signal()
+    modelChanged = Signal()
+    identificationUpdated = Signal(object)     # IdentificationView
+    analysisUpdated = Signal(object)           # AnalysisView
+    analysisBusy = Signal(bool)
+    instrumentsBusy = Signal(bool)
+    error = Signal(str)
+
+    def __init__(self, software_version: str = "", parent: QObject | None = None):
+        super().__init__(parent)
+        self.software_version = software_version
+        self.instrument_tasks = TaskRunner("instruments", self)
+        self.analysis_tasks = TaskRunner("analysis", self)
+        for runner in (self.instrument_tasks, self.analysis_tasks):
+            runner.failed.connect(self.error)
+        self.instrument_tasks.busyChanged.connect(self.instrumentsBusy)
+        self.analysis_tasks.busyChanged.connect(self.analysisBusy)
+        # instruments
+        self.instruments: Instruments | None = None
+        self.rig: Rig | None = None
+        self.connection_label = ""
+        self._stack: ExitStack | None = None
+        # plan and arming
+        self.limits = (5.0, 50.0)
+        self.plan_document: dict | None = None
+        self.plan: Plan | None = None
+        self.plan_message = "no plan yet"
+        self.armed_plan: Plan | None = None
+        # campaign
+        self.campaign: CampaignThread | None = None
+        self.feed: CampaignFeed | None = None
+        self.live: LiveSession | None = None
+        self.campaign_output: str | None = None
+        self.last_summary: CampaignSummary | None = None
+        # session, model, analysis
+        self.session: Session | None = None
+        self.session_path: str | None = None
+        self.model: Model | None = None
+        self.model_label = ""
+        self.analysis: AnalysisView | None = None
+        self.identification: IdentificationView | None = None
+        self._workbench: tuple[int, Workbench] | None = None     # touched by analysis tasks only
+        self._generation = 0                                      # bumped when the session or model changes
+        self._identify_timer = QTimer(self, singleShot=True, interval=IDENTIFY_INTERVAL_MS)
+        self._identify_timer.timeout.connect(self._identify_now)
+        self._status_timer = QTimer(self, interval=STATUS_INTERVAL_MS)
+        self._status_timer.timeout.connect(self.poll_status)
+        self._status_timer.start()
+
+    def act(self, action, *args) -> bool:
+        """Run an operator's action; a refusal (bad input, instrument error) becomes a message, not an
+        exception. Returns whether it went through."""
+        try:
+            action(*args)
+        except (InputError, InstrumentError) as exc:
+            self.error.emit(str(exc))
+            return False
+        return True
+
+    # ================================================================== instruments
+    @property
+    def connected(self) -> bool:
+        return self.instruments is not None
+
+    @property
+    def campaign_running(self) -> bool:
+        return self.campaign is not None
+
+    def connect_simulated(self, rig_name_or_path: str, paced: bool = False, seed: int = 0) -> None:
+        """Open a rig's emulated shaker controller and DAQ (in-process ``sim://`` links) in the background."""
+        def task():
+            rig = load_rig(rig_name_or_path)
+            stack = ExitStack()
+            instruments = stack.enter_context(emulated_instruments(rig, seed=seed, paced=paced))
+            return stack, instruments, rig, f"simulated rig {rig.name} ({'real time' if paced else 'fast'})"
+        self._connect(task)
+
+    def connect_real(self, shaker_url: str, daq_url: str, excitation_dof: str,
+                     sensor_dofs: list[str] | None = None) -> None:
+        """Open real instruments at two port names or pyserial URLs in the background."""
+        if not shaker_url or not daq_url:
+            raise InputError("give the shaker controller's and the DAQ's port or URL")
+        if not excitation_dof:
+            raise InputError("give the DOF of the force gauge (the excitation DOF), e.g. A.w")
+
+        def task():
+            stack = ExitStack()
+            instruments = stack.enter_context(real_instruments(shaker_url, daq_url, excitation_dof, sensor_dofs))
+            return stack, instruments, None, f"instruments at {shaker_url} and {daq_url}"
+        self._connect(task)
+
+    def _connect(self, task) -> None:
+        if self.campaign_running:
+            raise InputError("a campaign is running: abort it before changing instruments")
+        self.disconnect()
+
+        def connected(result):
+            self._stack, self.instruments, self.rig, self.connection_label = result
+            self.disarm("instruments changed")
+            self._check_plan()
+            if self.model is None and self.rig is not None:
+                self.set_model(starter_model(self.rig), f"starter model for {self.rig.name} (structure, no laws)")
+            self.instrumentsChanged.emit()
+        self.instrument_tasks.submit(task, connected)
+
+    def disconnect(self) -> None:
+        """Close the instruments (their drivers switch the output off on the way)."""
+        if self.campaign_running:
+            raise InputError("a campaign is running: abort it before disconnecting")
+        stack, self._stack = self._stack, None
+        if stack is None:
+            return
+        self.instruments = self.rig = None
+        self.connection_label = ""
+        self.disarm("instruments closed")
+        self.instrument_tasks.submit(stack.close)
+        self.instrumentsChanged.emit()
+
+    def probe_ports(self, on_done) -> None:
+        """Ask every listed serial port ``*IDN?`` (background); ``on_done((found, probes))``."""
+        self.instrument_tasks.submit(find_instruments, on_done)
+
+    def poll_status(self) -> None:
+        """Read the output state and faults (background; skipped while another instrument task runs)."""
+        instruments = self.instruments
+        if instruments is None or self.instrument_tasks.busy:
+            return
+        shaker = instruments.shaker
+
+        def task():
+            fault = ""
+            try:
+                shaker.check()
+            except InstrumentError as exc:
+                fault = str(exc)
+            return InstrumentStatus(shaker.output_enabled(), shaker.output_level(), shaker.armed, fault)
+        self.instrument_tasks.submit(task, self.statusPolled.emit, self._status_failed)
+
+    def _status_failed(self, message: str) -> None:
+        self.statusPolled.emit(InstrumentStatus(False, 0.0, False, message))
+
+    def link_health(self) -> LinkCounters | None:
+        """Blocks, samples and losses of the current (or last) campaign's stream."""
+        return None if self.feed is None else self.feed.ring.health()
+
+    # ================================================================== plan, limits, arming
+    def set_limits(self, max_force: float, max_acceleration: float) -> None:
+        if (max_force, max_acceleration) == self.limits:
+            return
+        self.limits = (float(max_force), float(max_acceleration))
+        self.limitsChanged.emit(*self.limits)
+        self.disarm("limits changed")
+        self._check_plan()
+
+    def set_plan_document(self, doc: dict) -> None:
+        """The editor's plan without limits (they come from :attr:`limits`); validated at once."""
+        self.plan_document = doc
+        self.disarm("plan changed")
+        self._check_plan()
+
+    def full_plan_document(self) -> dict | None:
+        if self.plan_document is None:
+            return None
+        return {**self.plan_document, "limits": {"max_force": self.limits[0], "max_acceleration": self.limits[1]}}
+
+    def _check_plan(self) -> None:
+        doc = self.full_plan_document()
+        self.plan = None
+        if doc is None:
+            self.plan_message = "no plan yet"
+            self.planChecked.emit(False, self.plan_message)
+            return
+        try:
+            plan = parse_plan(doc, plan_toml(doc), "plan")
+            if self.instruments is not None:
+                check_against_instruments(plan, self.instruments.daq.sample_rate,
+                                          self.instruments.shaker.frequency_range)
+        except InputError as exc:
+            self.plan_message = str(exc)
+            self.planChecked.emit(False, self.plan_message)
+            return
+        self.plan = plan
+        lines = sum(len(spec.lines(d)) for spec, d in plan.runs)
+        parts = [f"{len(plan.runs)} stepped-sine run(s), {lines} planned lines"]
+        if plan.random is not None:
+            parts.insert(0, f"random run {plan.random.duration:g} s")
+        self.plan_message = "plan valid: " + ", ".join(parts) + \
+            ("" if self.instruments is not None else " (not yet checked against instruments)")
+        self.planChecked.emit(True, self.plan_message)
+
+    def arm(self) -> None:
+        """The explicit arm step: a valid plan on connected instruments may now switch the output on."""
+        if self.instruments is None:
+            raise InputError("connect the instruments first")
+        if self.campaign_running:
+            raise InputError("a campaign is running")
+        self._check_plan()
+        if self.plan is None:
+            raise InputError(f"cannot arm: {self.plan_message}")
+        self.armed_plan = self.plan
+        self.armedChanged.emit(True, f"ARMED: Start switches the output on (max force {self.limits[0]:g} N, "
+                                     f"max acceleration {self.limits[1]:g} m/s²)")
+
+    def disarm(self, reason: str = "disarmed") -> None:
+        if self.armed_plan is None:
+            return
+        self.armed_plan = None
+        self.armedChanged.emit(False, f"not armed ({reason})")
+
+    # ================================================================== campaign
+    def start_campaign(self, output: str) -> None:
+        """Run the armed plan into a new session file ``output`` (the arm is used up)."""
+        if self.armed_plan is None or self.instruments is None:
+            raise InputError("arm first (Rig tab): the output is switched on only after an explicit arm")
+        if not output:
+            raise InputError("choose the session file to write")
+        if Path(output).exists():
+            raise InputError("exists already; choose another session file name", output)
+        if self.session_path is not None and Path(self.session_path).resolve() == Path(output).resolve():
+            self.close_session()
+        daq = self.instruments.daq
+        ring = SignalRing(daq.channels, daq.units, daq.sample_rate)
+        self.feed = CampaignFeed(ring)
+        self.live = LiveSession(daq.channels)
+        signals = self.feed.signals
+        signals.runStarted.connect(self.live.begin)
+        signals.lineMeasured.connect(self._on_line)
+        signals.randomMeasured.connect(self.live.add_random)
+        signals.runEnded.connect(self.live.end)
+        plan, self.armed_plan = self.armed_plan, None
+        self.armedChanged.emit(False, "not armed (the arm was used by the campaign)")
+        self.campaign_output = output
+        self.campaign = CampaignThread(plan, self.instruments, output, self.feed, self.software_version, self)
+        self.campaign.finishedWith.connect(self._campaign_finished)
+        self.campaign.failedWith.connect(self._campaign_failed)
+        self._bump_generation()
+        self.campaignStarted.emit(self.feed)
+        self.campaign.start()
+
+    def _on_line(self, run: str, index: int, m, target: float) -> None:
+        self.live.add_line(run, m, target)
+        self.request_identification()
+
+    def pause(self) -> None:
+        if self.campaign is not None:
+            self.campaign.pause()
+
+    def resume(self) -> None:
+        if self.campaign is not None:
+            self.campaign.resume()
+
+    def abort(self, reason: str = "operator abort") -> None:
+        """Output off at once; the lines measured so far stay in the session."""
+        if self.campaign is not None:
+            self.campaign.abort(reason)
+
+    def _campaign_finished(self, summary: CampaignSummary) -> None:
+        self.last_summary = summary
+        self._end_campaign(summary.text(), bool(summary.aborted))
+
+    def _campaign_failed(self, message: str) -> None:
+        self.error.emit(f"campaign stopped: {message}")
+        self._end_campaign(f"campaign stopped: {message}", True)
+
+    def _end_campaign(self, text: str, aborted: bool) -> None:
+        thread, self.campaign = self.campaign, None
+        if thread is not None:
+            thread.wait()
+            thread.deleteLater()
+        self.campaignFinished.emit(text, aborted)
+        if self.campaign_output and Path(self.campaign_output).exists():
+            self.open_session(self.campaign_output)
+
+    # ================================================================== session
+    def open_session(self, path: str) -> None:
+        """Read a session file (also one another process is still writing)."""
+        if self.campaign_running and Path(path).resolve() == Path(self.campaign_output).resolve():
+            raise InputError("is being written by this window's campaign; it opens here when the campaign ends",
+                             path)
+        session = open_session(path)
+        self.close_session()
+        self.session, self.session_path = session, str(path)
+        self._bump_generation()
+        self.sessionChanged.emit()
+        self.request_identification()
+
+    def close_session(self) -> None:
+        if self.session is not None:
+            self.session.close()
+        self.session = self.session_path = None
+        self.sessionChanged.emit()
+
+    def refresh_session(self) -> bool:
+        """Re-read a session another process is writing; True when it has new lines."""
+        if self.session is None:
+            return False
+        before = self._line_count()
+        self.session.refresh()
+        if self._line_count() != before:
+            self.request_identification()
+            return True
+        return False
+
+    def _line_count(self) -> int:
+        return sum(len(self.session.run(n).frequency) for n in self.session.run_names())
+
+    # ================================================================== model
+    def load_model_file(self, path: str) -> None:
+        self.set_model(load_model(load_toml(path), str(path)), str(path))
+
+    def set_model(self, model: Model, label: str) -> None:
+        self.model, self.model_label = model, label
+        self.analysis = None
+        self._bump_generation()
+        self.modelChanged.emit()
+        self.request_identification()
+
+    def use_starter_model(self) -> None:
+        if self.rig is None:
+            raise InputError("a starter model needs a simulated rig or rig file (Rig tab)")
+        self.set_model(starter_model(self.rig), f"starter model for {self.rig.name} (structure, no laws)")
+
+    def _bump_generation(self) -> None:
+        self._generation += 1
+
+    # ================================================================== analysis
+    def _measurement_reader(self):
+        """A callable the worker runs to get the measurements: the live lines of a running campaign (frozen
+        now), else the open session file (read in the worker); None when there is nothing to analyse."""
+        if self.campaign_running and self.live is not None:
+            snapshot = self.live.snapshot()
+            return lambda: measurements_from_session(snapshot)
+        if self.session_path is not None:
+            path = self.session_path
+
+            def read():
+                with open_session(path) as s:
+                    return measurements_from_session(s)
+            return read
+        return None
+
+    def request_identification(self) -> None:
+        """Identify again soon (coalesced: at most one live identification per IDENTIFY_INTERVAL_MS)."""
+        if self.model is not None and not self._identify_timer.isActive():
+            self._identify_timer.start()
+
+    def _identify_now(self) -> None:
+        reader, model = self._measurement_reader(), self.model
+        if reader is None or model is None:
+            return
+        if self.analysis_tasks.busy:
+            self._identify_timer.start()          # try again after the running task
+            return
+        live = self.campaign_running
+
+        def task():
+            measurements = reader()
+            if not measurements.sine:
+                return None
+            wb = Workbench(model, measurements)
+            wb.identify()
+            return identification_view(wb, live)
+
+        def done(view):
+            if view is not None:
+                self.identification = view
+                self.identificationUpdated.emit(view)
+        self.analysis_tasks.submit(task, done)
+
+    def analyze(self) -> None:
+        """Reference, identification, fit, comparison and candidate ranking of the current model."""
+        reader, model, generation = self._measurement_reader(), self.model, self._generation
+        if model is None:
+            raise InputError("open a model first (Model tab)")
+        if reader is None:
+            raise InputError("open a session or run a campaign first")
+
+        def task():
+            wb = Workbench(model, reader())
+            wb.start()
+            self._workbench = (generation, wb)
+            return self._view(wb)
+        self.analysis_tasks.submit(task, self._analysis_done)
+
+    def add_law(self, element: str, law: str) -> None:
+        """Add a law to an element, refit it and rank again."""
+        self._on_workbench(lambda wb: wb.add(element, law))
+
+    def undo(self) -> None:
+        """Take back the last added law."""
+        self._on_workbench(lambda wb: wb.undo())
+
+    def _on_workbench(self, change) -> None:
+        generation = self._generation
+
+        def task():
+            if self._workbench is None or self._workbench[0] != generation:
+                raise InputError("the model or the session changed: press Analyze first")
+            wb = self._workbench[1]
+            change(wb)
+            return self._view(wb)
+        self.analysis_tasks.submit(task, self._analysis_done)
+
+    @staticmethod
+    def _view(wb: Workbench) -> AnalysisView:
+        return analysis_view(wb, wb.candidates())
+
+    def _analysis_done(self, view: AnalysisView) -> None:
+        self.analysis = view
+        self.analysisUpdated.emit(view)
+        self.identification = IdentificationView(view.elements, sum(len(r.frequency_hz) for r in view.runs),
+                                                 False, sorted({r.force for r in view.runs}))
+        self.identificationUpdated.emit(self.identification)
+
+    # ================================================================== closing
+    def shutdown(self, timeout_s: float = 30.0) -> None:
+        """Output off and everything released: abort the campaign and wait for it, stop the workers, close
+        the session and the instruments."""
+        self._status_timer.stop()
+        self._identify_timer.stop()
+        if self.campaign is not None:
+            self.campaign.abort("window closed")
+            self.campaign.wait(int(timeout_s * 1000))
+            self.campaign = None
+        self.analysis_tasks.shutdown()
+        self.instrument_tasks.shutdown()
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        if self._stack is not None:
+            stack, self._stack = self._stack, None
+            self.instruments = None
+            stack.close()

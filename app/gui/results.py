@@ -1,0 +1,143 @@
+"""What the Identify and Model tabs show, taken out of a workbench in the worker thread.
+
+The workbench belongs to the analysis worker; the GUI gets these views instead, whose arrays the workbench
+never changes afterwards (identification and comparison make new arrays each time).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from analysis.diagnosis import Candidate, ElementSamples
+from analysis.measurements import SineRun
+from analysis.workbench import Workbench
+
+
+@dataclass(frozen=True)
+class ParamView:
+    name: str
+    value: float
+    stderr: float | None          # None: not fitted yet; inf: not determined by the data
+    unit: str
+
+    def text(self) -> str:
+        value = f"{self.name} = {self.value:.5g} {self.unit}".rstrip()
+        if self.stderr is None:
+            return value
+        if not math.isfinite(self.stderr):
+            return value + "  (not determined by the data)"
+        return f"{self.name} = {self.value:.5g} ± {self.stderr:.2g} {self.unit}".rstrip()
+
+
+@dataclass(frozen=True)
+class LawView:
+    law: str
+    params: tuple[ParamView, ...]
+
+
+@dataclass(frozen=True)
+class ElementView:
+    """One element: where it sits, its kbar samples, the verdict and its laws."""
+
+    name: str
+    where: str
+    samples: ElementSamples | None
+    linear: bool | None               # None: too few lines for a verdict
+    evidence: str
+    lines_used: int
+    lines_flagged: int
+    laws: tuple[LawView, ...] = ()
+
+    @property
+    def verdict(self) -> str:
+        if self.linear is None:
+            return "no verdict yet (too few lines)"
+        return "LINEAR" if self.linear else "NONLINEAR"
+
+
+@dataclass(frozen=True)
+class CandidateView:
+    element: str
+    law: str
+    error: float
+    gain: float
+    significant: bool
+    explanation: str
+
+
+@dataclass(frozen=True)
+class HistoryView:
+    step: int
+    action: str
+    error: float
+
+
+@dataclass
+class AnalysisView:
+    """The model tab's content after analyze / add / undo."""
+
+    elements: list[ElementView]
+    error: float
+    error_by_level: list[tuple[float, float]]
+    runs: list[SineRun]
+    predicted: dict[str, np.ndarray]
+    residual_map: dict[str, np.ndarray]
+    candidates: list[CandidateView]
+    history: list[HistoryView]
+    model_toml: str
+    reference_text: str = ""
+
+    @property
+    def can_undo(self) -> bool:
+        return len(self.history) > 1
+
+
+@dataclass
+class IdentificationView:
+    """The identify tab's content: kbar samples and verdicts, from ``lines`` stepped-sine lines."""
+
+    elements: list[ElementView]
+    lines: int
+    live: bool = False
+    levels: list[float] = field(default_factory=list)
+
+
+def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
+    """Identification results (and, after fitting, the laws with their values) of every element."""
+    views = []
+    for el in wb.model.elements:
+        report = wb.reports[el.name]
+        rotational = el.rotational(wb.model.structure)
+        laws = []
+        if with_laws:
+            for j, term in enumerate(el.laws):
+                units = {p.name: p.render_unit(rotational) for p in term.law.params}
+                stderr = report.fit.terms[j].stderr if report.fit is not None else {}
+                laws.append(LawView(term.law.name, tuple(ParamView(k, float(v), stderr.get(k), units.get(k, ""))
+                                                         for k, v in term.values.items())))
+        where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
+        verdict = report.verdict
+        views.append(ElementView(el.name, where, report.samples, None if verdict is None else verdict.linear,
+                                 "" if verdict is None else verdict.evidence, report.lines_used,
+                                 report.lines_flagged, tuple(laws)))
+    return views
+
+
+def identification_view(wb: Workbench, live: bool) -> IdentificationView:
+    """After :meth:`Workbench.identify`."""
+    lines = sum(len(r.frequency_hz) for r in wb.measurements.sine)
+    return IdentificationView(element_views(wb, with_laws=False), lines, live,
+                              sorted({r.force for r in wb.measurements.sine}))
+
+
+def analysis_view(wb: Workbench, candidates: list[Candidate]) -> AnalysisView:
+    """After :meth:`Workbench.start` / ``add`` / ``undo`` and the candidate ranking."""
+    comp = wb.compare()
+    return AnalysisView(
+        element_views(wb, with_laws=True), comp.error, list(comp.error_by_level), list(wb.measurements.sine),
+        dict(comp.predicted), dict(comp.residual_map),
+        [CandidateView(c.element, c.law, c.error, c.gain, c.significant, c.explanation) for c in candidates],
+        [HistoryView(h.step, h.action, h.error) for h in wb.history], wb.model.to_toml(),
+        wb.reference.text() if wb.reference is not None else "")
