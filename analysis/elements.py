@@ -28,7 +28,11 @@ class LawTerm:
         return all(name in self.values for name in self.law.param_names)
 
     def describing_function(self, X, w) -> np.ndarray:
-        return self.law.describing_function(X, w, **self.values)
+        key = tuple(self.values.items())
+        cached = getattr(self, "_kbar", None)
+        if cached is None or cached[0] != key:          # values may be edited in place: rebuild then
+            cached = self._kbar = (key, self.law.kbar_function(**self.values))
+        return cached[1](X, w)
 
     def to_toml(self) -> dict:
         return {"law": self.law.name, **self.values}

@@ -79,7 +79,9 @@ class TermFit:
 
     def describing_function(self, X, w) -> np.ndarray:
         """kbar of this term, complex, broadcast over X (m or rad) and w (rad/s)."""
-        return self.law.describing_function(X, w, **self.params)
+        if not hasattr(self, "_term"):            # one validated LawTerm, reused by the solvers
+            self._term = self.law_term()
+        return self._term.describing_function(X, w)
 
 
 @dataclass(frozen=True)

@@ -86,6 +86,27 @@ def _residual(y, w, G, gF, kbar_fns, floor):
     return y + np.einsum("bij,bj->bi", G, _kbar(kbar_fns, y, w, floor) * y) - gF
 
 
+def _residual_jacobian(y, w, G, kbar_fns, floor) -> np.ndarray:
+    """d[Re R; Im R] / d[Re y; Im y] of :func:`_residual`, shape (B, 2r, 2r).
+
+    With u_i = k_i(|y_i|) y_i:  du_i/dRe y_i = k_i + y_i k_i' Re y_i / |y_i|,
+    du_i/dIm y_i = j k_i + y_i k_i' Im y_i / |y_i|, and k_i' = dk_i/dX by one difference in X.
+    """
+    X = np.maximum(np.abs(y), floor[:, None])
+    k = _kbar(kbar_fns, y, w, floor)
+    h = 1e-6
+    dk = (np.stack([fn(X[:, i] * (1 + h), w) for i, fn in enumerate(kbar_fns)], axis=1) - k) / (X * h)
+    du_re = k + y * dk * (y.real / X)
+    du_im = 1j * k + y * dk * (y.imag / X)
+    r = y.shape[1]
+    eye = np.eye(r)[None]
+    dR_re = eye + G * du_re[:, None, :]          # column j: d R / d Re y_j
+    dR_im = 1j * eye + G * du_im[:, None, :]
+    top = np.concatenate([dR_re.real, dR_im.real], axis=2)
+    bottom = np.concatenate([dR_re.imag, dR_im.imag], axis=2)
+    return np.concatenate([top, bottom], axis=1)
+
+
 # --------------------------------------------------------------------------- batched Newton
 def _to_real(y):
     return np.concatenate([y.real, y.imag], axis=-1)
@@ -97,11 +118,12 @@ def _to_complex(z):
 
 
 def _newton(fun: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, tol: float = 1e-11,
-            max_iter: int = 40) -> tuple[np.ndarray, np.ndarray]:
+            max_iter: int = 40, jac: Callable[[np.ndarray], np.ndarray] | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
     """Damped Newton for a batch of independent real systems ``fun(z) = 0``, z of shape (B, m).
 
-    The Jacobian comes from forward differences (the residual is not analytic in z); a backtracking line
-    search keeps each item's residual norm decreasing. Returns (z, converged).
+    The Jacobian is ``jac(z)`` (B, m, m) when given, else forward differences (the residual is not analytic
+    in z); a backtracking line search keeps each item's residual norm decreasing. Returns (z, converged).
     """
     z = z0.copy()
     B, m = z.shape
@@ -111,12 +133,15 @@ def _newton(fun: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, tol: float 
         active = norm > tol
         if not active.any():
             break
-        J = np.empty((B, m, m))
-        h = 1e-7 * np.maximum(np.abs(z), 1e-3)
-        for j in range(m):
-            zp = z.copy()
-            zp[:, j] += h[:, j]
-            J[:, :, j] = (fun(zp) - R) / h[:, j, None]
+        if jac is not None:
+            J = jac(z)
+        else:
+            J = np.empty((B, m, m))
+            h = 1e-7 * np.maximum(np.abs(z), 1e-3)
+            for j in range(m):
+                zp = z.copy()
+                zp[:, j] += h[:, j]
+                J[:, :, j] = (fun(zp) - R) / h[:, j, None]
         try:
             dz = np.linalg.solve(J, -R[..., None])[..., 0]
         except np.linalg.LinAlgError:  # a singular Jacobian (exactly at a fold): least-norm step
@@ -211,13 +236,17 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
             yy = _to_complex(z) * scale[:, None]
             return _to_real(_residual(yy, wl, G, gF, fns, 1e-9 * scale) / scale[:, None])
 
+        def jac(z, G=G, wl=wl, scale=scale):
+            return _residual_jacobian(_to_complex(z) * scale[:, None], wl, G, fns, 1e-9 * scale)
+
         starts = [gF] if previous is None else _restarts(previous, gF)
         ok = np.zeros(B, bool)
         for attempt, start in enumerate(starts):
             todo = np.flatnonzero(~ok)
             if not len(todo):
                 break
-            z, conv = _newton(lambda zz, t=todo: fun(_pad(zz, t, B))[t], _to_real(start[todo] / scale[todo, None]))
+            z, conv = _newton(lambda zz, t=todo: fun(_pad(zz, t, B))[t], _to_real(start[todo] / scale[todo, None]),
+                              jac=lambda zz, t=todo: jac(_pad(zz, t, B))[t])
             sol = _to_complex(z) * scale[todo, None]
             if attempt == 0:
                 y[line, todo] = sol  # kept, flagged, if no start converges

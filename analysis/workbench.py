@@ -18,6 +18,7 @@ came from.
 """
 from __future__ import annotations
 
+import tomllib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,7 +33,7 @@ from .laws import get_law
 from .linearity import LinearityVerdict, linearity_verdict
 from .measurements import Measurements
 from .modal_fit import ModalFit, fit_modes
-from .model import Model
+from .model import Model, load_model
 from .updating import UpdateResult, update_parameters
 
 
@@ -259,6 +260,44 @@ class Workbench:
         el.laws.append(LawTerm(new, {}))
         self.fit([element])
         return self.record(f"add {element}:{law}")
+
+    def linear_corrections(self, min_sigma: float = 5.0) -> list[str]:
+        """Elements whose verdict is linear but whose kbar is a clear constant offset (more than ``min_sigma``
+        standard deviations from zero) and that have no laws yet: the reference is wrong there, and the offset
+        is a linear correction (the paper's k_w). Corrections of several elements are coupled -- a wrong
+        reference stiffness at one place is compensated elsewhere by the updating -- so they are applied
+        together, before laws are added one at a time."""
+        out = []
+        for el in self.model.elements:
+            v = self.reports[el.name].verdict if el.name in self.reports else None
+            if v is None or not v.linear or el.laws:
+                continue
+            if abs(v.mean_kbar) > min_sigma * max(v.mean_kbar_std, 1e-300):
+                out.append(el.name)
+        return out
+
+    def apply_linear_corrections(self, names: list[str]) -> HistoryStep:
+        """Add the ``linear`` law to each named element, refit them, record one history step."""
+        for name in names:
+            self.model.element(name).laws.append(LawTerm(get_law("linear"), {}))
+        self.fit(names)
+        return self.record("linear correction " + ", ".join(names))
+
+    def undo(self) -> HistoryStep:
+        """Take back the last step of the history (an added law): the previous step's laws and values return,
+        the elements whose laws change are refitted, and the step is dropped. Returns the step now current."""
+        if len(self.history) < 2:
+            raise InputError("nothing to undo: the model is as analysis started it")
+        self.history.pop()
+        before = load_model(tomllib.loads(self.history[-1].model_toml), self.model.source)
+        changed = []
+        for el, old in zip(self.model.elements, before.elements):
+            if [t.law.name for t in el.laws] != [t.law.name for t in old.laws]:
+                changed.append(el.name)
+            el.laws = old.laws
+        self.fit(changed)
+        self._comparison = None
+        return self.history[-1]
 
     def start(self) -> HistoryStep:
         """Reference, identification and fit of the model as given; the first history step."""

@@ -148,6 +148,25 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+def cmd_demo(args) -> int:
+    """The main job on the built-in paper-beam rig."""
+    from .demo import main_demo
+
+    return main_demo(args.out, args.quick, software_version())
+
+
+def cmd_gui(args) -> int:
+    """Open the lab window (default: the first built-in simulated rig)."""
+    if bool(args.shaker) != bool(args.daq):
+        raise InputError("real instruments need both --shaker URL and --daq URL")
+    if args.shaker and args.rig:
+        raise InputError("give either --rig or --shaker/--daq, not both")
+    from .gui import run
+
+    return run(session=args.session, rig=args.rig, shaker=args.shaker, daq=args.daq, excitation=args.excitation,
+               model=args.model, software_version=software_version())
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contactid", description=(
         "Identify how a joint or contact interface behaves: stepped-sine tests, equivalent complex "
@@ -161,6 +180,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-n", "--count", type=int, default=6, help="how many modes to print (default 6)")
     p.add_argument("--all-dofs", action="store_true", help="list every DOF name")
     p.set_defaults(run=cmd_modes)
+
+    p = sub.add_parser("demo", help="the main job on the built-in simulated beam: campaign, identification, "
+                                    "missing effects, report")
+    p.add_argument("--out", default="contactid-demo", help="output folder (default ./contactid-demo)")
+    p.add_argument("--quick", action="store_true", help="a shorter campaign")
+    p.set_defaults(run=cmd_demo)
 
     p = sub.add_parser("simulate", help="run a plan on an emulated rig through the real drivers")
     p.add_argument("rig", nargs="?", help="built-in rig name or rig file")
@@ -209,6 +234,15 @@ def build_parser() -> argparse.ArgumentParser:
     target.add_argument("--csv", metavar="DIR", help="write one CSV per run into DIR")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(run=cmd_export)
+
+    p = sub.add_parser("gui", help="the lab window: rig, acquisition, identification, model, session")
+    p.add_argument("session", nargs="?", help="session file to open")
+    p.add_argument("--rig", help="built-in rig name or rig file to emulate (default: the first built-in rig)")
+    p.add_argument("--shaker", metavar="URL", help="real shaker controller: port name or pyserial URL")
+    p.add_argument("--daq", metavar="URL", help="real DAQ: port name or pyserial URL")
+    p.add_argument("--excitation", metavar="DOF", help="DOF of the force gauge on real instruments")
+    p.add_argument("--model", metavar="MODEL.toml", help="model file to open")
+    p.set_defaults(run=cmd_gui)
 
     p = sub.add_parser("laws", help="list the element laws and their parameters")
     p.set_defaults(run=cmd_laws)

@@ -36,7 +36,9 @@ def synthesise(truth_laws, forces=(0.4, 0.8), seed=0, lines=49, structure=STRUCT
 
 
 def test_missing_effect_loop_recovers_the_paper_laws_and_the_error_falls():
-    wb = Workbench(load_model(model_doc({"left": [], "right": []})), synthesise(PAPER_LAWS))
+    # the two dissipative effects missing, one at each element
+    wb = Workbench(load_model(model_doc({"left": [{"law": "cubic"}], "right": [{"law": "cubic"}]})),
+                   synthesise(PAPER_LAWS))
     wb.start()
     assert all(not r.verdict.linear for r in wb.reports.values())
     for _ in range(6):

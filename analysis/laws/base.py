@@ -119,10 +119,23 @@ class Law(ABC):
 
         Parameters are the contract parameters (CONTRACTS.md §2) by name.
         """
+        return self.kbar_function(**params)(X, w)
+
+    def kbar_function(self, **params):
+        """``f(X, w) -> kbar`` for fixed parameter values, validated once (solvers call it many times)."""
         values = self.check_params(params, complete=True)
         lin, shp = self.to_fit(values)
-        B = self.basis(np.asarray(X, float), np.asarray(w, float), **shp)
-        return np.tensordot(np.array([lin[n] for n in self.linear], float), B, axes=1)
+        coefficients = [lin[n] for n in self.linear]
+        basis = self.basis
+
+        def kbar(X, w):
+            B = basis(np.asarray(X, float), np.asarray(w, float), **shp)
+            out = coefficients[0] * B[0]
+            for c, b in zip(coefficients[1:], B[1:]):
+                out = out + c * b
+            return out
+
+        return kbar
 
     # --- parametrisation -----------------------------------------------------
     def to_fit(self, values: Mapping[str, float]) -> tuple[dict, dict]:

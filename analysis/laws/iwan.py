@@ -46,17 +46,24 @@ stack:
 
     s[0] number of remembered reversal points n, s[1] current direction (0 at rest),
     s[2], s[3] the previous position and force,
-    s[4 + 2k], s[5 + 2k] reversal point k (k = 0 oldest).
+    s[4 + 2k], s[5 + 2k] reversal point k (k = 0 oldest; room for one more than the
+    memory holds, pushed before a merge).
 
 At most ``MAX_REVERSALS`` = 64 nested reversal points are remembered (a slowly decaying
-oscillation piles them up). When one more is needed, the pair of consecutive points
-``(x_j, x_{j+1})`` whose removal changes the remembered loops least -- the smallest gap
-between the same-side points ``x_{j-1}`` and ``x_{j+1}`` -- is forgotten: the path
-then closes at ``x_{j-1}`` instead of at ``x_{j+1}``, and the force jumps there by at most
-the force change of the branch over that gap. The oldest point (on the backbone) is
-never forgotten. Below 64 nested reversals the force is exact at every sample point
-(the update is exact along any monotone path between two calls); the velocity argument
-is not used (rate independent).
+oscillation, or a random response followed by a steady one, piles them up). When one
+more is needed, the smallest remembered loop is merged away: of the consecutive turning
+points ``x_(j-1), x_j, x_(j+1)`` with the smallest gap between the same-side points
+``x_(j-1)`` and ``x_(j+1)``, the three are replaced by one turning point ``x'`` between
+``x_(j+1)`` and ``x_(j-1)`` on the branch that reached ``x_(j-1)``, placed so that the
+branch leaving ``x'`` passes through the next remembered point. The memory is then the
+exact memory of another history (the path turned at ``x'`` instead of making the
+forgotten excursion): every remembered point lies on the branch from its predecessor,
+so the force stays continuous (``|dF| <= kt |dx|``, as for any Jenkins ensemble) when the
+path later closes loops across a merged point, and the error is that of moving one
+turning point by less than the gap. The oldest point (on the virgin curve) is never
+moved. Below 64 nested reversals the force is exact at every sample point (the update is
+exact along any monotone path between two calls); the velocity argument is not used
+(rate independent).
 """
 from __future__ import annotations
 
@@ -72,6 +79,8 @@ from .base import Law, Param
 
 MAX_REVERSALS = 64
 _HEADER = 4  # n, direction, previous x, previous force
+# bisection steps placing a merged turning point (each halves the bracket; it stops early at adjacent doubles)
+_BISECTIONS = 100
 
 
 @njit(cache=True)
@@ -89,14 +98,61 @@ def _backbone(u, kt, fs, chi, beta, phi_max):
 
 
 @njit(cache=True)
-def _forget_one_loop(s, n):
-    """Remove the pair of reversal points whose loss changes the remembered loops least."""
-    best, best_gap = 1, math.inf
-    for j in range(1, n - 1):
+def _virgin(x, kt, fs, chi, beta, phi_max):
+    """Force at x on the virgin curve (the backbone, odd in x)."""
+    f = _backbone(abs(x), kt, fs, chi, beta, phi_max)
+    return -f if x < 0.0 else f
+
+
+@njit(cache=True)
+def _branch(x, x_r, f_r, direction, kt, fs, chi, beta, phi_max):
+    """Force at x on the Masing branch leaving the reversal point (x_r, f_r) in ``direction``."""
+    return f_r + 2.0 * direction * _backbone(0.5 * direction * (x - x_r), kt, fs, chi, beta, phi_max)
+
+
+@njit(cache=True)
+def _merge_one_loop(s, n, kt, fs, chi, beta, phi_max):
+    """Merge away the smallest remembered loop (module docstring); return the new count.
+
+    Over the reversal points ``x_0 .. x_(n-1)`` (n >= 5), ``j`` runs over ``2 .. n-3``;
+    ``x_(j-1), x_j, x_(j+1)`` become one turning point ``x'`` on the branch from ``x_(j-2)``,
+    where the branch leaving ``x'`` meets point ``j + 2``. All branches have the shape
+    ``2 B(u / 2)``, so a branch nested inside another in the same direction stays on its
+    inner side until they meet: the mismatch at point ``j + 2`` has opposite signs (or a
+    zero) at ``x' = x_(j+1)`` and ``x' = x_(j-1)``, and bisection finds ``x'`` between them.
+    The virgin curve has another shape, so the oldest point is never moved.
+    """
+    best, best_gap = 2, math.inf
+    for j in range(2, n - 2):
         gap = abs(s[_HEADER + 2 * (j + 1)] - s[_HEADER + 2 * (j - 1)])
         if gap < best_gap:
             best, best_gap = j, gap
-    for k in range(best, n - 2):
+    j = best
+    x_outer, f_outer = s[_HEADER + 2 * (j - 2)], s[_HEADER + 2 * (j - 2) + 1]
+    x_next, f_next = s[_HEADER + 2 * (j + 2)], s[_HEADER + 2 * (j + 2) + 1]
+    lower, upper = s[_HEADER + 2 * (j + 1)], s[_HEADER + 2 * (j - 1)]
+    outer_direction = 1.0 if upper > x_outer else -1.0  # the branch leaving x' runs the other way
+
+    def mismatch(x_turn):
+        f_turn = _branch(x_turn, x_outer, f_outer, outer_direction, kt, fs, chi, beta, phi_max)
+        return _branch(x_next, x_turn, f_turn, -outer_direction, kt, fs, chi, beta, phi_max) - f_next
+
+    m_lower, m_upper = mismatch(lower), mismatch(upper)
+    # bisect while the ends bracket the root; without a sign change the root is at an end (it is there
+    # exactly when the forgotten excursion saturated in macro-slip) up to round-off
+    for _ in range(_BISECTIONS):
+        middle = 0.5 * (lower + upper)
+        if (m_lower > 0.0) == (m_upper > 0.0) or middle == lower or middle == upper:
+            break
+        m_middle = mismatch(middle)
+        if (m_middle > 0.0) == (m_lower > 0.0):
+            lower, m_lower = middle, m_middle
+        else:
+            upper, m_upper = middle, m_middle
+    x_turn = lower if abs(m_lower) < abs(m_upper) else upper
+    s[_HEADER + 2 * (j - 1)] = x_turn
+    s[_HEADER + 2 * (j - 1) + 1] = _branch(x_turn, x_outer, f_outer, outer_direction, kt, fs, chi, beta, phi_max)
+    for k in range(j, n - 2):
         s[_HEADER + 2 * k] = s[_HEADER + 2 * (k + 2)]
         s[_HEADER + 2 * k + 1] = s[_HEADER + 2 * (k + 2) + 1]
     return n - 2
@@ -113,11 +169,11 @@ def iwan_force(x, v, p, s):
     direction = 1.0 if x > x_last else -1.0
     if s[1] != 0.0 and direction != s[1]:
         # x_last was a turning point: remember it
-        if n == MAX_REVERSALS:
-            n = _forget_one_loop(s, n)
         s[_HEADER + 2 * n] = x_last
         s[_HEADER + 2 * n + 1] = f_last
         n += 1
+        if n > MAX_REVERSALS:
+            n = _merge_one_loop(s, n, kt, fs, chi, beta, phi_max)
     # Madelung memory: close every loop whose starting point the path has passed
     while n > 0:
         x_r = s[_HEADER + 2 * (n - 1)]
@@ -126,13 +182,10 @@ def iwan_force(x, v, p, s):
             break
         n = n - 2 if n >= 2 else 0
     if n == 0:
-        f = _backbone(abs(x), kt, fs, chi, beta, phi_max)
-        if x < 0.0:
-            f = -f
+        f = _virgin(x, kt, fs, chi, beta, phi_max)
     else:
-        x_r = s[_HEADER + 2 * (n - 1)]
-        f_r = s[_HEADER + 2 * (n - 1) + 1]
-        f = f_r + 2.0 * direction * _backbone(0.5 * direction * (x - x_r), kt, fs, chi, beta, phi_max)
+        f = _branch(x, s[_HEADER + 2 * (n - 1)], s[_HEADER + 2 * (n - 1) + 1], direction, kt, fs, chi, beta,
+                    phi_max)
     s[0] = n
     s[1] = direction
     s[2] = x
@@ -190,7 +243,7 @@ class Iwan(Law):
               _CHI, _BETA)
     linear = ("kt",)
     shape = (_XS, _CHI, _BETA)
-    n_state = _HEADER + 2 * MAX_REVERSALS
+    n_state = _HEADER + 2 * (MAX_REVERSALS + 1)  # room to push one before merging
     hysteretic = True
     example = {"kt": 1.0e5, "fs": 10.0, "chi": -0.5, "beta": 0.1}
     example_amplitude = (1e-6, 1e-2)

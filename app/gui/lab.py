@@ -24,6 +24,7 @@ from drivers.discovery import find_instruments
 from drivers.rig import Rig, load_rig
 
 from ..campaign import CampaignSummary
+from ..export import export_csv, export_uff
 from ..instruments import Instruments, emulated_instruments, real_instruments
 from ..plan import Plan, check_against_instruments, parse_plan
 from ..session import Session, open_session
@@ -81,7 +82,8 @@ class Lab(QObject):
         self.software_version = software_version
         self.instrument_tasks = TaskRunner("instruments", self)
         self.analysis_tasks = TaskRunner("analysis", self)
-        for runner in (self.instrument_tasks, self.analysis_tasks):
+        self.file_tasks = TaskRunner("files", self)
+        for runner in (self.instrument_tasks, self.analysis_tasks, self.file_tasks):
             runner.failed.connect(self.error)
         self.instrument_tasks.busyChanged.connect(self.instrumentsBusy)
         self.analysis_tasks.busyChanged.connect(self.analysisBusy)
@@ -111,8 +113,10 @@ class Lab(QObject):
         self.identification: IdentificationView | None = None
         self._workbench: tuple[int, Workbench] | None = None     # touched by analysis tasks only
         self._generation = 0                                      # bumped when the session or model changes
-        self._identify_timer = QTimer(self, singleShot=True, interval=IDENTIFY_INTERVAL_MS)
-        self._identify_timer.timeout.connect(self._identify_now)
+        self._closed = False
+        # coalesces identification requests; its interval is the least time between two live identifications
+        self.identify_timer = QTimer(self, singleShot=True, interval=IDENTIFY_INTERVAL_MS)
+        self.identify_timer.timeout.connect(self._identify_now)
         self._status_timer = QTimer(self, interval=STATUS_INTERVAL_MS)
         self._status_timer.timeout.connect(self.poll_status)
         self._status_timer.start()
@@ -333,6 +337,8 @@ class Lab(QObject):
         self._end_campaign(f"campaign stopped: {message}", True)
 
     def _end_campaign(self, text: str, aborted: bool) -> None:
+        if self._closed:                      # the window closed meanwhile: shutdown() has joined the thread
+            return
         thread, self.campaign = self.campaign, None
         if thread is not None:
             thread.wait()
@@ -361,18 +367,34 @@ class Lab(QObject):
         self.sessionChanged.emit()
 
     def refresh_session(self) -> bool:
-        """Re-read a session another process is writing; True when it has new lines."""
+        """Re-read a session another process is writing; True when a run, a line or a status changed."""
         if self.session is None:
             return False
-        before = self._line_count()
+        before = self._contents()
         self.session.refresh()
-        if self._line_count() != before:
+        if self._contents() != before:
             self.request_identification()
             return True
         return False
 
-    def _line_count(self) -> int:
-        return sum(len(self.session.run(n).frequency) for n in self.session.run_names())
+    def export(self, kind: str, target: str, on_done) -> None:
+        """Write the open session's FRFs as UFF58 (``kind="uff"``, a file the save dialog let the operator
+        overwrite) or CSV (one file per run into a folder; existing files are refused), in the background;
+        ``on_done(message)``."""
+        if self.session_path is None:
+            raise InputError("open a session first")
+        path = self.session_path
+        if kind == "uff":
+            def task():
+                return f"wrote {export_uff(path, target, overwrite=True)} FRF records to {target}"
+        else:
+            def task():
+                return f"wrote {len(export_csv(path, target))} CSV files to {target}"
+        self.file_tasks.submit(task, on_done)
+
+    def _contents(self) -> list[tuple[str, str, int]]:
+        return [(n, run.status, len(run.frequency))
+                for n in self.session.run_names() for run in (self.session.run(n),)]
 
     # ================================================================== model
     def load_model_file(self, path: str) -> None:
@@ -411,15 +433,15 @@ class Lab(QObject):
 
     def request_identification(self) -> None:
         """Identify again soon (coalesced: at most one live identification per IDENTIFY_INTERVAL_MS)."""
-        if self.model is not None and not self._identify_timer.isActive():
-            self._identify_timer.start()
+        if self.model is not None and not self._closed and not self.identify_timer.isActive():
+            self.identify_timer.start()
 
     def _identify_now(self) -> None:
         reader, model = self._measurement_reader(), self.model
         if reader is None or model is None:
             return
         if self.analysis_tasks.busy:
-            self._identify_timer.start()          # try again after the running task
+            self.identify_timer.start()          # try again after the running task
             return
         live = self.campaign_running
 
@@ -486,14 +508,15 @@ class Lab(QObject):
     def shutdown(self, timeout_s: float = 30.0) -> None:
         """Output off and everything released: abort the campaign and wait for it, stop the workers, close
         the session and the instruments."""
+        self._closed = True
         self._status_timer.stop()
-        self._identify_timer.stop()
+        self.identify_timer.stop()
         if self.campaign is not None:
             self.campaign.abort("window closed")
             self.campaign.wait(int(timeout_s * 1000))
             self.campaign = None
-        self.analysis_tasks.shutdown()
-        self.instrument_tasks.shutdown()
+        for runner in (self.analysis_tasks, self.file_tasks, self.instrument_tasks):
+            runner.shutdown()
         if self.session is not None:
             self.session.close()
             self.session = None

@@ -26,6 +26,16 @@ from ..session import RunData, RunSpec
 from ..stepped_sine import LineMeasurement
 
 
+ALARM_COLOR = "#d62728"
+ALARM_SAFETY = ("trip", "fault", "unconfirmed", "emergency")
+
+
+def is_alarm(kind: str, message: str) -> bool:
+    """Whether a campaign event needs the operator's attention: a fault, or the safety guard tripping or
+    failing to confirm the output off (its routine on/off records do not)."""
+    return kind == "fault" or (kind == "safety" and message.startswith(ALARM_SAFETY))
+
+
 @dataclass
 class LinkCounters:
     """Stream health seen by the window since the campaign started (samples are per channel)."""
@@ -35,6 +45,7 @@ class LinkCounters:
     lost_samples: int = 0
     gaps: int = 0
     overloads: int = 0
+    faults: int = 0
 
 
 class SignalRing:
@@ -99,7 +110,11 @@ class SignalRing:
     def health(self) -> LinkCounters:
         with self._lock:
             c = self.counters
-            return LinkCounters(c.blocks, c.samples, c.lost_samples, c.gaps, c.overloads)
+            return LinkCounters(c.blocks, c.samples, c.lost_samples, c.gaps, c.overloads, c.faults)
+
+    def count_fault(self) -> None:
+        with self._lock:
+            self.counters.faults += 1
 
 
 class FeedSignals(QObject):
@@ -140,6 +155,8 @@ class CampaignFeed(CampaignListener):
         self.signals.runEnded.emit(run, status)
 
     def event(self, kind, message):
+        if is_alarm(kind, message):
+            self.ring.count_fault()
         self.signals.eventLogged.emit(kind, message)
 
     def progress(self, done, total, eta_s, run):

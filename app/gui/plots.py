@@ -55,10 +55,27 @@ def sensor_symbol(index: int) -> str:
     return SENSOR_SYMBOLS[index % len(SENSOR_SYMBOLS)]
 
 
+class LogAxis(pg.AxisItem):
+    """A log axis labelled at 1, 2 and 5 times the powers of ten (labels at every minor tick overlap), or at
+    every tick when none of those is in view."""
+
+    LABELLED = (1, 2, 5)
+
+    def logTickStrings(self, values, scale, spacing):  # noqa: N802 (pyqtgraph API)
+        numbers = [10.0 ** float(v) * scale for v in values]
+        keep = [round(x / 10.0 ** np.floor(np.log10(x))) in self.LABELLED for x in numbers]
+        if not any(keep):
+            keep = [True] * len(numbers)
+        return [f"{x:.1g}" if k else "" for x, k in zip(numbers, keep)]
+
+
 def configure_plot(plot: pg.PlotItem, title: str, x_label: str, x_units: str | None, y_label: str,
                    y_units: str | None, *, log_x: bool = False, log_y: bool = False,
                    legend: bool = False) -> pg.PlotItem:
     """Title, axis labels with units (SI prefixes on linear axes), grid and log modes of a plot."""
+    logs = {side: LogAxis(side) for side, log in (("bottom", log_x), ("left", log_y)) if log}
+    if logs:
+        plot.setAxisItems(logs)
     plot.setTitle(title, size="10pt")
     plot.setLabel("bottom", x_label, units=x_units)
     plot.setLabel("left", y_label, units=y_units)

@@ -37,6 +37,7 @@ class RigPanel(QWidget):
         columns.addLayout(right, 2)
         left.addWidget(self._source_box())
         left.addWidget(self._identity_box())
+        left.addWidget(self._safety_box())
         left.addStretch(1)
         right.addWidget(self._output_box())
         right.addWidget(self._health_box())
@@ -153,11 +154,22 @@ class RigPanel(QWidget):
     def _health_box(self) -> QGroupBox:
         box = QGroupBox("Link health (last campaign's stream)")
         form = QFormLayout(box)
-        self.health = {key: _value_label() for key in ("blocks", "samples", "lost", "overloads")}
+        self.health = {key: _value_label() for key in ("blocks", "samples", "lost", "overloads", "faults")}
         form.addRow("Blocks received", self.health["blocks"])
         form.addRow("Samples per channel", self.health["samples"])
         form.addRow("Samples lost (gaps)", self.health["lost"])
         form.addRow("Overloaded blocks", self.health["overloads"])
+        form.addRow("Faults logged", self.health["faults"])
+        return box
+
+    def _safety_box(self) -> QGroupBox:
+        box = QGroupBox("Safety")
+        text = QLabel("The output starts OFF and is switched on only by a Start after an explicit Arm. Abort, a "
+                      "limit breach, a lost link, an instrument fault, closing this window, Ctrl+C or SIGTERM "
+                      "switch it off at once; the instrument's own watchdog switches it off when the host falls "
+                      "silent. Every fault is logged in the session with its time.")
+        text.setWordWrap(True)
+        QVBoxLayout(box).addWidget(text)
         return box
 
     def _arm_box(self) -> QGroupBox:
@@ -290,6 +302,7 @@ class RigPanel(QWidget):
             self.health["samples"].setText(str(health.samples))
             self.health["lost"].setText(f"{health.lost_samples} ({health.gaps} gaps)")
             self.health["overloads"].setText(str(health.overloads))
+            self.health["faults"].setText(str(health.faults))
 
     def _show_armed(self, armed: bool, message: str) -> None:
         self.armed_state.setText(message)

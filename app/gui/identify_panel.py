@@ -1,0 +1,114 @@
+"""Identify tab: Re and Im of the equivalent complex stiffness kbar against the element amplitude X for every
+element, coloured by force level, growing while a campaign runs; the linear/nonlinear verdict with its
+evidence."""
+from __future__ import annotations
+
+import html
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import QLabel, QSplitter, QTextBrowser, QVBoxLayout, QWidget
+
+from .lab import Lab
+from .plots import FrameClock, LevelPalette, Redraw, configure_plot, scatter
+from .results import IdentificationView
+
+
+class IdentifyPanel(QWidget):
+    """The Identify tab (module docstring)."""
+
+    def __init__(self, lab: Lab, clock: FrameClock, palette: LevelPalette, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.lab = lab
+        self.palette = palette
+        self.view: IdentificationView | None = None
+        layout = QVBoxLayout(self)
+        self.status = QLabel("No identification yet: run a campaign or open a session, with a model (Model tab).")
+        self.status.setWordWrap(True)
+        layout.addWidget(self.status)
+        splitter = QSplitter(Qt.Orientation.Horizontal)
+        layout.addWidget(splitter, 1)
+        self.graphics = pg.GraphicsLayoutWidget()
+        splitter.addWidget(self.graphics)
+        self.verdicts = QTextBrowser()
+        self.verdicts.setOpenLinks(False)
+        splitter.addWidget(self.verdicts)
+        splitter.setSizes([1000, 420])
+        self._rows: dict[str, tuple[pg.PlotItem, pg.PlotItem]] = {}
+        self._curves: dict[tuple, pg.PlotDataItem] = {}
+        self.redraw = Redraw(clock, self._draw, self)
+        lab.identificationUpdated.connect(self._update)
+        lab.modelChanged.connect(self._model_changed)
+
+    def plots(self) -> dict[str, pg.PlotItem]:
+        out = {}
+        for name, (re_plot, im_plot) in self._rows.items():
+            out[f"kbar_re_{name}"] = re_plot
+            out[f"kbar_im_{name}"] = im_plot
+        return out
+
+    def _model_changed(self) -> None:
+        self.graphics.clear()
+        self._rows.clear()
+        self._curves.clear()
+        self.verdicts.clear()
+
+    def _update(self, view: IdentificationView) -> None:
+        self.view = view
+        self.redraw.request()
+
+    def _ensure_rows(self, names: list[str]) -> None:
+        if list(self._rows) == names:
+            return
+        self._model_changed()
+        for i, name in enumerate(names):
+            re_plot = configure_plot(self.graphics.addPlot(i, 0), f"{name}: Re kbar (stiffness)", "amplitude X",
+                                     None, "Re kbar", "N/m", log_x=True, legend=i == 0)
+            im_plot = configure_plot(self.graphics.addPlot(i, 1), f"{name}: Im kbar (damping)", "amplitude X",
+                                     None, "Im kbar", "N/m", log_x=True)
+            self._rows[name] = (re_plot, im_plot)
+
+    def _draw(self) -> None:
+        view = self.view
+        if view is None:
+            return
+        self._ensure_rows([e.name for e in view.elements])
+        for el in view.elements:
+            re_plot, im_plot = self._rows[el.name]
+            samples = el.samples
+            if samples is not None:
+                x_unit, k_unit = samples.units[1], samples.units[0]
+                for plot, part in ((re_plot, "Re"), (im_plot, "Im")):
+                    plot.setLabel("bottom", "amplitude X", units=x_unit)
+                    plot.setLabel("left", f"{part} kbar", units=k_unit)
+            for level in view.levels:
+                for plot, part in ((re_plot, np.real), (im_plot, np.imag)):
+                    key = (el.name, id(plot), level)
+                    curve = self._curves.get(key)
+                    if curve is None:
+                        curve = scatter(plot, self.palette.color(level), size=5,
+                                        name=f"{level:g} N" if plot is re_plot else None)
+                        self._curves[key] = curve
+                    if samples is None:
+                        curve.setData([], [])
+                        continue
+                    mask = np.isclose(samples.level, level)
+                    curve.setData(samples.X[mask], part(samples.kbar[mask]))
+        origin = "live, while the campaign runs" if view.live else "from the session"
+        self.status.setText(f"kbar identified at {view.lines} stepped-sine lines ({origin}); "
+                            f"levels {', '.join(f'{f:g} N' for f in view.levels)}")
+        self.verdicts.setHtml(self._verdict_html(view))
+
+    @staticmethod
+    def _verdict_html(view: IdentificationView) -> str:
+        parts = []
+        for el in view.elements:
+            color = "#555" if el.linear is None else ("#2ca02c" if el.linear else "#d62728")
+            parts.append(f"<h3 style='margin-bottom:2px'>{html.escape(el.name)} ({html.escape(el.where)}): "
+                         f"<span style='color:{color}'>{el.verdict}</span></h3>"
+                         f"<p style='margin-top:0'>{el.lines_used} lines used, {el.lines_flagged} left out "
+                         f"(ill-conditioned or distorted)</p>")
+            if el.evidence:
+                parts.append(f"<p><b>Evidence:</b> {html.escape(el.evidence)}</p>")
+        return "".join(parts)

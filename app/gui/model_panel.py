@@ -1,0 +1,254 @@
+"""Model tab: the model's laws per element with fitted values and uncertainties, measured against predicted FRFs
+per level, the residual map, the ranked missing-effect candidates with their explanations and an Add button
+each, the error history (the error falling as effects are added) and undo."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxLayout, QHeaderView, QLabel,
+                               QPushButton, QSplitter, QTableWidget, QTableWidgetItem, QTextBrowser, QTreeWidget,
+                               QTreeWidgetItem, QVBoxLayout, QWidget)
+
+from .lab import Lab
+from .plots import FrameClock, LevelPalette, Redraw, configure_plot, finite_log, sensor_symbol
+from .results import AnalysisView
+
+CANDIDATE_COLUMNS = ("Element", "Law", "Error after", "Gain", "Significant", "")
+
+
+class ModelPanel(QWidget):
+    """The Model tab (module docstring)."""
+
+    def __init__(self, lab: Lab, clock: FrameClock, palette: LevelPalette, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.lab = lab
+        self.palette = palette
+        self.view: AnalysisView | None = None
+        layout = QVBoxLayout(self)
+
+        bar = QHBoxLayout()
+        self.model_label = QLabel("no model")
+        self.model_label.setWordWrap(True)
+        bar.addWidget(QLabel("<b>Model:</b>"))
+        bar.addWidget(self.model_label, 1)
+        self.open_button = QPushButton("Open model…")
+        self.open_button.clicked.connect(self.open_model_dialog)
+        self.starter_button = QPushButton("Starter model from rig")
+        self.starter_button.setToolTip("The rig's structure with an unknown element (no laws) at each joint")
+        self.starter_button.clicked.connect(lambda: self.lab.act(self.lab.use_starter_model))
+        self.save_button = QPushButton("Save fitted model…")
+        self.save_button.clicked.connect(self._save_model)
+        self.analyze_button = QPushButton("Analyze")
+        self.analyze_button.setStyleSheet("font-weight:bold")
+        self.analyze_button.setToolTip("Identify, fit the laws, predict every run, rank the missing effects")
+        self.analyze_button.clicked.connect(lambda: self.lab.act(self.lab.analyze))
+        self.undo_button = QPushButton("Undo")
+        self.undo_button.setToolTip("Take back the last added law")
+        self.undo_button.clicked.connect(lambda: self.lab.act(self.lab.undo))
+        for b in (self.open_button, self.starter_button, self.save_button, self.analyze_button, self.undo_button):
+            bar.addWidget(b)
+        layout.addLayout(bar)
+        self.error_label = QLabel("FRF error: — (press Analyze)")
+        self.error_label.setStyleSheet("font-size:14pt; font-weight:bold")
+        self.busy_label = QLabel("")
+        row = QHBoxLayout()
+        row.addWidget(self.error_label, 1)
+        row.addWidget(self.busy_label)
+        layout.addLayout(row)
+
+        splitter = QSplitter(Qt.Orientation.Horizontal)
+        layout.addWidget(splitter, 1)
+        left = QWidget()
+        column = QVBoxLayout(left)
+        column.setContentsMargins(0, 0, 0, 0)
+        laws_box = QGroupBox("Laws per element (fitted value ± standard error)")
+        self.laws = QTreeWidget()
+        self.laws.setHeaderHidden(True)
+        QVBoxLayout(laws_box).addWidget(self.laws)
+        column.addWidget(laws_box, 2)
+        cand_box = QGroupBox("Missing effects, best first (error after adding each one)")
+        cand_layout = QVBoxLayout(cand_box)
+        self.candidates = QTableWidget(0, len(CANDIDATE_COLUMNS))
+        self.candidates.setHorizontalHeaderLabels(CANDIDATE_COLUMNS)
+        self.candidates.verticalHeader().setVisible(False)
+        self.candidates.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        self.candidates.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.candidates.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        self.candidates.horizontalHeader().setStretchLastSection(True)
+        self.candidates.itemSelectionChanged.connect(self._show_explanation)
+        cand_layout.addWidget(self.candidates, 2)
+        self.explanation = QTextBrowser()
+        self.explanation.setPlaceholderText("Select a candidate to read why it is proposed")
+        cand_layout.addWidget(self.explanation, 1)
+        column.addWidget(cand_box, 3)
+        splitter.addWidget(left)
+
+        self.graphics = pg.GraphicsLayoutWidget()
+        self.frf = configure_plot(self.graphics.addPlot(0, 0, colspan=2),
+                                  "Receptance |H|: measured (dots) and predicted (lines) per level",
+                                  "frequency", "Hz", "|H|", "m/N", log_y=True, legend=True)
+        self.residual = configure_plot(self.graphics.addPlot(1, 0), "Residual map: relative error per line",
+                                       "frequency", "Hz", "|H pred − H meas| / |H meas|", None, log_y=True)
+        self.history = configure_plot(self.graphics.addPlot(1, 1), "Error history", "step", None,
+                                      "FRF error", None, log_y=True)
+        self.graphics.ci.layout.setRowStretchFactor(0, 3)
+        self.graphics.ci.layout.setRowStretchFactor(1, 2)
+        splitter.addWidget(self.graphics)
+        splitter.setSizes([520, 900])
+
+        self.redraw = Redraw(clock, self._draw, self)
+        lab.analysisUpdated.connect(self._update)
+        lab.analysisBusy.connect(self._show_busy)
+        lab.modelChanged.connect(self._model_changed)
+        lab.sessionChanged.connect(self._update_enabled)
+        lab.instrumentsChanged.connect(self._update_enabled)
+        self._model_changed()
+
+    def plots(self) -> dict[str, pg.PlotItem]:
+        return {"frf_measured_predicted": self.frf, "residual_map": self.residual, "error_history": self.history}
+
+    # ------------------------------------------------------------------ actions
+    def open_model_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Model file", "", "Model files (*.toml)")
+        if path:
+            self.lab.act(self.lab.load_model_file, path)
+
+    def _save_model(self) -> None:
+        if self.view is None:
+            return
+        path, _ = QFileDialog.getSaveFileName(self, "Save fitted model", "fitted-model.toml", "Model files (*.toml)")
+        if path:
+            Path(path).write_text(self.view.model_toml, encoding="utf-8")
+
+    def add_candidate(self, row: int) -> None:
+        """The Add button of candidate ``row``: add its law to its element, refit, rank again."""
+        c = self.view.candidates[row]
+        self.lab.act(self.lab.add_law, c.element, c.law)
+
+    # ------------------------------------------------------------------ views
+    def _model_changed(self) -> None:
+        self.view = None
+        self.model_label.setText(self.lab.model_label or "no model: open one, or make a starter model from the rig")
+        self.error_label.setText("FRF error: — (press Analyze)")
+        self.laws.clear()
+        self.candidates.setRowCount(0)
+        self.explanation.clear()
+        for plot in self.plots().values():
+            plot.clear()
+            if plot.legend is not None:
+                plot.legend.clear()
+        if self.lab.model is not None:
+            for el in self.lab.model.elements:
+                where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
+                laws = " + ".join(t.law.name for t in el.laws) or "no laws (identify kbar only)"
+                QTreeWidgetItem(self.laws, [f"{el.name} ({where}): {laws}"])
+        self._update_enabled()
+
+    def _update(self, view: AnalysisView) -> None:
+        self.view = view
+        self.redraw.request()
+
+    def _show_busy(self, busy: bool) -> None:
+        self.busy_label.setText("working …" if busy else "")
+        self._update_enabled()
+
+    def _update_enabled(self) -> None:
+        busy = self.lab.analysis_tasks.busy
+        have_view = self.view is not None
+        self.analyze_button.setEnabled(not busy and self.lab.model is not None)
+        self.undo_button.setEnabled(not busy and have_view and self.view.can_undo)
+        self.save_button.setEnabled(have_view)
+        self.starter_button.setEnabled(self.lab.rig is not None)
+        for row in range(self.candidates.rowCount()):
+            button = self.candidates.cellWidget(row, len(CANDIDATE_COLUMNS) - 1)
+            if button is not None:
+                button.setEnabled(not busy)
+
+    def _show_explanation(self) -> None:
+        rows = {i.row() for i in self.candidates.selectedIndexes()}
+        if self.view is None or not rows:
+            return
+        c = self.view.candidates[min(rows)]
+        self.explanation.setPlainText(f"{c.element}:{c.law} — error {c.error:.4g} (×{c.gain:.2f} better, "
+                                      f"{'significant' if c.significant else 'not significant'})\n\n{c.explanation}")
+
+    def _draw(self) -> None:
+        view = self.view
+        if view is None:
+            return
+        by_level = ", ".join(f"{f:g} N: {e:.3g}" for f, e in view.error_by_level)
+        self.error_label.setText(f"FRF error {view.error:.4g}   ({by_level})")
+        self._draw_laws(view)
+        self._draw_candidates(view)
+        self._draw_frf(view)
+        self._draw_history(view)
+        self._update_enabled()
+
+    def _draw_laws(self, view: AnalysisView) -> None:
+        self.laws.clear()
+        for el in view.elements:
+            top = QTreeWidgetItem(self.laws, [f"{el.name} ({el.where}): {el.verdict}"])
+            if not el.laws:
+                QTreeWidgetItem(top, ["no laws yet (kbar identified only)"])
+            for law in el.laws:
+                item = QTreeWidgetItem(top, [law.law])
+                for p in law.params:
+                    QTreeWidgetItem(item, [p.text()])
+        self.laws.expandAll()
+
+    def _draw_candidates(self, view: AnalysisView) -> None:
+        table = self.candidates
+        table.setRowCount(len(view.candidates))
+        for row, c in enumerate(view.candidates):
+            cells = (c.element, c.law, f"{c.error:.4g}", f"×{c.gain:.2f}", "yes" if c.significant else "no")
+            for col, text in enumerate(cells):
+                item = QTableWidgetItem(text)
+                item.setToolTip(c.explanation)
+                table.setItem(row, col, item)
+            button = QPushButton("Add")
+            button.setToolTip(f"Add {c.law} to {c.element}, refit and rank again")
+            button.clicked.connect(lambda _=False, r=row: self.add_candidate(r))
+            table.setCellWidget(row, len(CANDIDATE_COLUMNS) - 1, button)
+        if view.candidates:
+            table.selectRow(0)
+        else:
+            self.explanation.setPlainText("No candidate: every law of the library was tried.")
+
+    def _draw_frf(self, view: AnalysisView) -> None:
+        for plot in (self.frf, self.residual):
+            plot.clear()
+            if plot.legend is not None:
+                plot.legend.clear()
+        for run in view.runs:
+            color = self.palette.color(run.force)
+            order = np.argsort(run.frequency_hz)
+            f = run.frequency_hz[order]
+            predicted = view.predicted[run.name][order]
+            for p, dof in enumerate(run.sensor_dofs):
+                self.frf.plot(f, finite_log(np.abs(run.receptance[order, p])), pen=None, symbol=sensor_symbol(p),
+                              symbolSize=5, symbolBrush=pg.mkBrush(color), symbolPen=None,
+                              name=f"{run.force:g} N {run.direction} · {dof}")
+                self.frf.plot(f, finite_log(np.abs(predicted[:, p])), pen=pg.mkPen(color, width=1.5))
+            self.residual.plot(f, finite_log(view.residual_map[run.name][order]), pen=pg.mkPen(color, width=1),
+                               symbol="o", symbolSize=4, symbolBrush=pg.mkBrush(color), symbolPen=None)
+
+    def _draw_history(self, view: AnalysisView) -> None:
+        self.history.clear()
+        steps = np.array([h.step for h in view.history], float)
+        errors = np.array([h.error for h in view.history], float)
+        self.history.plot(steps, finite_log(errors), pen=pg.mkPen("#1f77b4", width=2), symbol="o", symbolSize=8,
+                          symbolBrush=pg.mkBrush("#1f77b4"))
+        for h in view.history:
+            label = pg.TextItem(f"{h.action}\n{h.error:.3g}", color="#333", anchor=(0.5, 1.15))
+            self.history.addItem(label)
+            label.setPos(h.step, np.log10(h.error) if h.error > 0 else 0.0)
+        self.history.setXRange(-0.5, max(len(view.history) - 0.5, 1.5), padding=0.05)
+        logs = np.log10(errors[errors > 0]) if (errors > 0).any() else np.zeros(1)
+        span = logs.max() - logs.min()
+        # room above the points for their labels (view coordinates are decades on a log axis)
+        self.history.setYRange(logs.min() - 0.15 * span - 0.1, logs.max() + 0.4 * span + 0.3, padding=0)
+        ticks = [(h.step, str(h.step)) for h in view.history]
+        self.history.getAxis("bottom").setTicks([ticks])
