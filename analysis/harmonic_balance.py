@@ -118,7 +118,7 @@ def _to_complex(z):
 
 
 def _newton(fun: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, tol: float = 1e-11,
-            max_iter: int = 40, jac: Callable[[np.ndarray], np.ndarray] | None = None
+            max_iter: int = 30, jac: Callable[[np.ndarray], np.ndarray] | None = None
             ) -> tuple[np.ndarray, np.ndarray]:
     """Damped Newton for a batch of independent real systems ``fun(z) = 0``, z of shape (B, m).
 
@@ -239,10 +239,13 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
         def jac(z, G=G, wl=wl, scale=scale):
             return _residual_jacobian(_to_complex(z) * scale[:, None], wl, G, fns, 1e-9 * scale)
 
+        # where the previous line had no solution either (e.g. friction holding), one more attempt from the
+        # linear response is all that is worth trying
         starts = [gF] if previous is None else _restarts(previous, gF)
         ok = np.zeros(B, bool)
+        hopeless = np.zeros(B, bool) if previous is None else ~converged[prev_line]
         for attempt, start in enumerate(starts):
-            todo = np.flatnonzero(~ok)
+            todo = np.flatnonzero(~ok & ~(hopeless & (attempt > 1)))
             if not len(todo):
                 break
             z, conv = _newton(lambda zz, t=todo: fun(_pad(zz, t, B))[t], _to_real(start[todo] / scale[todo, None]),
@@ -253,7 +256,7 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
             y[line, todo[conv]] = sol[conv]
             ok[todo[conv]] = True
         converged[line] = ok
-        previous = y[line]
+        previous, prev_line = y[line], line
     floor = 1e-9 * np.abs(sys_.g[:, None, :] * F[None, :, None]).max(axis=2).reshape(-1)
     kb = _kbar(fns, y.reshape(L * B, r), np.repeat(w, B), floor).reshape(L, B, r)
     x = sys_.Hq[:, None, :] * F[None, :, None] - np.einsum("lnr,lbr->lbn", sys_.HE, kb * y)
@@ -264,9 +267,8 @@ def _restarts(previous, linear):
     """Starting points for one line of a sweep: the previous line's solution first (stay on the branch);
     then, for a jump off a fold where that branch ends, the linear solution and the previous one scaled and
     turned through the quadrants (the other branch has another amplitude and phase)."""
-    turned = [previous * a * np.exp(1j * phi) for a in (1.0, 2.0, 0.5, 4.0)
-              for phi in (np.pi / 2, np.pi, -np.pi / 2)]
-    return [previous, linear, 2.0 * previous, 0.5 * previous, *turned]
+    turned = [previous * a * np.exp(1j * phi) for a in (1.0, 3.0) for phi in (np.pi / 2, np.pi, -np.pi / 2)]
+    return [previous, linear, 3.0 * previous, *turned]
 
 
 def _pad(z_subset, idx, batch):

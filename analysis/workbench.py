@@ -164,10 +164,7 @@ class Workbench:
             if len(run.sensor_dofs) < len(els):
                 raise InputError(f"run {run.name} measured {len(run.sensor_dofs)} FRF(s) but the model has "
                                  f"{len(els)} unknown elements: at least as many sensors as elements are needed")
-            std = None
-            if run.receptance_std is not None:
-                # a noise-free simulation still needs a positive std: floor at round-off of the data
-                std = np.maximum(np.asarray(run.receptance_std, float), 1e-9 * np.abs(run.receptance).max())
+            std = None if run.receptance_std is None else np.asarray(run.receptance_std, float)
             ident = identify_complex_stiffness(self.model.structure, run.receptance, run.sensor_dofs,
                                                run.excitation_dof, els, w=run.w, force=run.force_per_line,
                                                noise_std=std)

@@ -26,7 +26,7 @@ from drivers.interfaces import Block
 from .acquisition import RecordFeed
 from .plan import Plan, RandomSpec, SineSpec
 from .session import RunSpec, SessionWriteError, SessionWriter
-from .stepped_sine import N_HARMONICS, LineMeasurement, LineMeter, next_step
+from .stepped_sine import N_HARMONICS, LineMeasurement, LineMeter, frf_change, next_step
 
 BLOCK_SECONDS = 0.5           # longest DAQ frame/block: the abort limits are checked at least this often
 BLOCK_POINTS = (64, 256)      # ...within these sizes (small frames cost throughput, large ones latency)
@@ -361,8 +361,7 @@ class Campaign:
                     if sign * (f - stop) >= -1e-9 * abs(stop):
                         break
                     if spec.refine and previous is not None:
-                        change = max(abs(m.frf[d] / previous.frf[d] - 1) for d in self.sensor_dofs)
-                        step = next_step(step, spec.step, spec.min_step, change)
+                        step = next_step(step, spec.step, spec.min_step, frf_change(m.frf, previous.frf))
                     previous = m
                     f_next = f + sign * step
                     f = stop if sign * (f_next - stop) > 0 else f_next

@@ -7,6 +7,8 @@ from analysis.measurements import Measurements, RandomRun, SineRun
 
 from .session import Session
 
+NOISE_FLOOR = 1e-9     # relative to the largest FRF value of the run
+
 
 def measurements_from_session(session: Session, include_incomplete: bool = True) -> Measurements:
     """Collect the stepped-sine and random runs of a session.
@@ -26,8 +28,12 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
                                run.force)
             continue
         thd = [run.arrays[f"thd/acc:{d}"] for d in dofs if f"thd/acc:{d}" in run.arrays]
+        std = _stack(run.arrays, "frf_std", dofs)
+        if std is not None:
+            # a noise-free (simulated) record has zero residual: floor at the round-off of the data
+            std = np.maximum(std, NOISE_FLOOR * np.abs(H).max())
         sine.append(SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, run.frequency, H,
-                            _stack(run.arrays, "frf_std", dofs), run.arrays.get("force_amplitude"),
+                            std, run.arrays.get("force_amplitude"),
                             np.max(np.stack(thd), axis=0) if thd else None))
     return Measurements(sine, random)
 

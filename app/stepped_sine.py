@@ -196,9 +196,8 @@ class LineMeter:
     def _change(self, a: dict, b: dict) -> float:
         # magnitudes for the force (its phase depends on where the record starts), ratios for the FRFs
         with np.errstate(divide="ignore", invalid="ignore"):   # a record without drive: an infinite change
-            change = max(abs(abs(a["force"]) / abs(b["force"]) - 1),
-                         max(abs(a["frf"][d] / b["frf"][d] - 1) for d in self.sensor_dofs))
-        return float(change) if np.isfinite(change) else np.inf
+            force = abs(abs(a["force"]) / abs(b["force"]) - 1)
+        return max(float(force) if np.isfinite(force) else np.inf, frf_change(a["frf"], b["frf"]))
 
     def _analyse(self, data: np.ndarray, frequency: float, fit_frequency: bool) -> dict:
         """Harmonics of a record. While settling the generator frequency is good enough (a clock offset of
@@ -235,6 +234,14 @@ class LineMeter:
         return LineMeasurement(frequency, out["f"], out["force"], out["frf"], out["frf_std"], out["harmonics"],
                                out["thd"], drive, (rec.first_sample + len(rec.data) - start) / self.sample_rate,
                                waited, steady, steps, np.concatenate([before, rec.data], axis=0))
+
+
+def frf_change(a: dict, b: dict) -> float:
+    """Largest relative change between two lines' FRFs (amplitude and phase together); a sensor that read
+    zero on one line and not on the other (a DOF held by friction) counts as an infinite change."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        change = max(abs(a[d] / b[d] - 1) for d in a)
+    return float(change) if np.isfinite(change) else np.inf
 
 
 def next_step(step: float, plan_step: float, min_step: float, change: float, threshold: float = 0.25) -> float:
