@@ -194,9 +194,11 @@ def _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res):
     """Residuals of the step-end equations; returns the largest |res| / tolerance.
 
     Force rows (sliding or smooth elements) are judged against the largest force
-    term of all elements, velocity rows (stuck elements) against the largest
-    velocity term: an element whose forces are tiny is then not held to a
-    tolerance below round-off of the coupled solve.
+    term of all elements, the constraint forces of stuck elements included, velocity
+    rows (stuck elements) against the largest velocity term: an element whose forces
+    are tiny is then not held to a tolerance below round-off of the coupled solve (a
+    free element next to a stuck one moves by the difference of the free motion and
+    the constraint force's effect, which cancel to round-off).
     """
     force_scale = 0.0
     velocity_scale = 0.0
@@ -207,6 +209,7 @@ def _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res):
             for j in range(r):
                 scale += abs(D[r + e, j] * g[j])
             velocity_scale = max(velocity_scale, scale)
+            force_scale = max(force_scale, abs(g[e]))
         else:
             smooth = F[e] - k0[e] * x[e] - c0[e] * v[e]
             res[e] = g[e] - smooth

@@ -737,10 +737,11 @@ class RigSimulator:
             self.model.c0, t.has_friction, self._mode, self._sigma, self._jacobian, self._jacobian_valid,
             internal, z_daq, f_daq, self._scratch)
         if stop >= 0:
-            cause = "the element forces have no solution" if solve_failed else "the state is no longer finite"
-            raise SimulationError(f"the response diverged at t = {self.time + stop * self.step:.6g} s: {cause} "
-                                  "(a softening element may have lost its stability); the simulator must be "
-                                  "rebuilt")
+            cause = ("the element forces have no solution (a softening element may have lost its stability, "
+                     "or a law force jumps)" if solve_failed else
+                     "the state is no longer finite (a softening element may have lost its stability)")
+            raise SimulationError(f"the response diverged at t = {self.time + stop * self.step:.6g} s: {cause}; "
+                                  "the simulator must be rebuilt")
         self._advance_generator(n_steps)
         clean = sim_kernels.fir_decimate(internal, self._fir_history, self._taps, self.oversample)
         block = self._sensors(clean)

@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.integrate import quad
 from scipy.special import beta as beta_function
 
@@ -347,8 +349,56 @@ def test_iwan_kernel_bounds_the_error_when_its_reversal_memory_overflows():
     error = np.abs(kernel - ensemble)
     exact_until = 3 * (MAX_REVERSALS + 1)  # samples before the memory first overflows
     assert np.max(error[:exact_until]) <= 1e-7 * fs
-    # forgotten loops: a small error where the path crosses them (0.25 % of fs measured)
-    assert np.max(error) <= 5e-3 * fs
+    # forgotten loops: the merged turning points move by less than the decrement of a cycle
+    # (1.5e-5 fs measured; a memory that drops the loops without moving the outer point: 2.5e-3 fs)
+    assert np.max(error) <= 1e-4 * fs
+
+
+def iwan_lipschitz_excess(state, values, reach, samples=100001):
+    """Largest ``(|dF| - kt |dx|) / (kt |dx|)`` over fine sweeps from ``state`` to ``+-reach``.
+
+    A parallel ensemble of Jenkins elements of total stiffness kt changes its force by at
+    most ``kt |dx|`` along any path, so an exact Iwan state gives at most round-off
+    (negative values: slack). A remembered reversal point off the branch of its
+    predecessor shows as a force jump where the sweep closes the loop there.
+    """
+    law = LAWS["iwan"]
+    worst = -math.inf
+    for target in (reach, -reach):
+        x = np.linspace(state[2], target, samples)
+        f = law.force(x, np.zeros_like(x), state=state.copy(), **values)
+        dx = np.abs(np.diff(x))
+        worst = max(worst, float(np.max((np.abs(np.diff(f)) - values["kt"] * dx) / (values["kt"] * dx))))
+    return worst
+
+
+def _overflowing_turning_points(kind, phi, level, rng, n=600):
+    """Turning points of a long history that nests more reversals than the memory holds."""
+    k = np.arange(n)
+    if kind == "decay":  # a slow decay with jitter, from micro- to macro-slip levels
+        amplitude = level * phi * np.exp(-k / rng.uniform(50.0, 400.0)) * (1.0 + 0.05 * rng.standard_normal(n))
+        points = amplitude * (-1.0) ** k + 1e-3 * level * phi * rng.standard_normal(n)
+    elif kind == "beat":  # slowly rising and falling amplitude
+        points = level * phi * (1.2 + np.sin(k / rng.uniform(20.0, 100.0))) * (-1.0) ** k
+    else:  # a random walk: offset loops of random size
+        points = level * phi * np.cumsum(rng.standard_normal(n))
+    return np.concatenate(([0.0], points))
+
+
+@settings(max_examples=30, deadline=None)
+@given(kind=st.sampled_from(["decay", "beat", "walk"]), chi=st.floats(-0.95, 1.0),
+       beta=st.sampled_from([0.0, 0.1, 1.5]), log_level=st.floats(-3.0, 1.0), seed=st.integers(0, 2**32 - 1))
+def test_iwan_force_stays_continuous_when_its_reversal_memory_overflows(kind, chi, beta, log_level, seed):
+    """Merging remembered loops keeps the memory of a real history: no force jump when the
+    path later closes loops across a merged point (a jump leaves an implicit time step
+    with no solution)."""
+    values = {"kt": 1.0e5, "fs": 10.0, "chi": chi, "beta": beta}
+    phi = slip_range(values["fs"] / values["kt"], chi, beta)
+    turning = _overflowing_turning_points(kind, phi, 10.0**log_level, np.random.default_rng(seed))
+    law = LAWS["iwan"]
+    state = law.initial_state(law.parameter_vector(**values))
+    law.force(_monotone_history(turning, 3), np.zeros(3 * (len(turning) - 1)), state=state, **values)
+    assert iwan_lipschitz_excess(state, values, 1.1 * np.max(np.abs(turning))) <= 1e-6
 
 
 def test_iwan_virgin_loading_is_the_population_backbone():
