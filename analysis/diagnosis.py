@@ -9,16 +9,19 @@ Two numbers judge a candidate:
 - *kbar evidence* ``E = chi2_kbar(current) - chi2_kbar(with candidate) - k ln N``: how much of the element's
   measured kbar the law explains, with a BIC penalty of ln N per added parameter. A candidate is *supported*
   when ``E > 0`` and it falls short of the best evidence among the candidates of that element by no more than
-  the noise explains (the chi-square quantile) or ``tie`` (5 %) of that best evidence -- a tie, as between
+  the noise explains (the chi-square quantile) or ``tie`` (0.1 %) of that best evidence -- a tie, as between
   coulomb and jenkins with a tiny slip displacement.
   This keeps a law that merely compensates another missing effect in the FRFs (a quintic standing in for
   missing damping near resonance) from ranking above the law the kbar signature points to.
 - *FRF criterion* ``BIC = chi2_FRF + k ln N_FRF`` (or ``N ln(error^2) + k ln N`` without noise estimates).
 A candidate whose parameters the fit cannot separate from those of the laws already on the element (a
 linear spring beside an Iwan element that stays in micro-slip) is not proposed: it could only slide along a
-flat direction of the fit. Supported candidates come first. Elements are ordered by the FRF criterion of their best supported candidate,
-and the candidates of one element by their kbar evidence, so among laws that explain the kbar equally well the
-simplest comes first (the penalty decides a tie). A candidate is *significant* only if
+flat direction of the fit. Where the element's verdict is linear, only laws whose kbar does not depend on the amplitude (``linear``,
+``velocity_stiffness``) are supported: the verdict found nothing else to explain. Supported candidates come
+first. Elements are ordered by the FRF criterion of their best supported candidate. Within an element the
+candidates whose FRF errors lie within ``frf_tie`` (5 %) of the best are tied and come first, the simplest law
+first (fewest parameters, then no amplitude dependence), then the larger kbar evidence (coulomb before jenkins and iwan, which reduce to it; ``linear`` before a
+softening law that is linear over the amplitudes seen); the others follow by the FRF criterion. A candidate is *significant* only if
 it is supported, cuts the FRF error by at least ``min_gain`` (x1.3) *and* by more than the noise
 explains (chi-square drop above its 1e-3 quantile). The ``linear`` law is the linear correction: a constant
 offset in kbar means the reference stiffness or damping at that element is wrong (the paper's k_w). The gain
@@ -225,8 +228,9 @@ def _duplicates_present_laws(fit: LawFit) -> bool:
 
 
 def rank_candidates(predictor: Predictor, samples: dict[str, ElementSamples], fits: dict[str, LawFit | None],
-                    base: Comparison, laws=None, min_gain: float = 1.3, tie: float = 0.05,
-                    false_alarm: float = 1e-3) -> list[Candidate]:
+                    base: Comparison, laws=None, min_gain: float = 1.3, tie: float = 1e-3,
+                    false_alarm: float = 1e-3, linear_elements: frozenset = frozenset(),
+                    frf_tie: float = 0.05) -> list[Candidate]:
     """Rank every (element, law) candidate, best first (module docstring).
 
     Parameters
@@ -238,6 +242,10 @@ def rank_candidates(predictor: Predictor, samples: dict[str, ElementSamples], fi
     laws : law names to try (default: the whole library but ``NOT_FROM_KBAR``).
     min_gain : error_before / error needed, with a chi-square drop above the noise, to call it significant.
     tie : fraction of the element's best kbar evidence within which a candidate still counts as supported.
+    linear_elements : elements whose verdict is linear: only laws whose kbar does not depend on the amplitude
+        are supported there.
+    frf_tie : supported candidates of one element whose FRF errors lie within this fraction of the best are
+        tied; ties go to the simpler law, then to the larger kbar evidence.
     """
     elements = predictor.model.elements
     names = [n for n in (laws or LAWS) if n not in NOT_FROM_KBAR]
@@ -284,11 +292,23 @@ def rank_candidates(predictor: Predictor, samples: dict[str, ElementSamples], fi
         for c in mine:
             slack = max(scipy.stats.chi2.ppf(1 - false_alarm, len(LAWS[c.law].params)), tie * best)
             c.supported = c.evidence > 0 and best - c.evidence <= slack
+            if el.name in linear_elements and LAWS[c.law].amplitude_dependent:
+                c.supported = False               # the verdict found no amplitude dependence to explain
             c.significant = bool(c.significant and c.supported and c.gain >= min_gain)
         out += mine
-    element_key = {}
+    element_key, best_error = {}, {}
     for c in out:
         if c.supported:
             element_key[c.element] = min(element_key.get(c.element, np.inf), c.bic)
-    out.sort(key=lambda c: (0, element_key[c.element], -c.evidence) if c.supported else (1, c.bic, 0.0))
+            best_error[c.element] = min(best_error.get(c.element, np.inf), c.error)
+
+    def order(c: Candidate):
+        if not c.supported:
+            return (1, c.bic, 0, 0, 0.0)
+        tied = c.error <= (1 + frf_tie) * best_error[c.element]
+        law = LAWS[c.law]
+        return (0, element_key[c.element], 0 if tied else 1,
+                (len(law.params), law.amplitude_dependent) if tied else (c.bic, True), -c.evidence)
+
+    out.sort(key=order)
     return out

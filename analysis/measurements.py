@@ -33,9 +33,9 @@ class SineRun:
     force_achieved : ndarray, shape (L,), optional
         Force amplitude actually held, N.
     distortion : ndarray, shape (L,), optional
-        Largest total harmonic distortion of the response channels at each line: a describing function
-        describes a harmonic motion, so lines far from harmonic (stick-slip, impacts) are left out of the
-        identification.
+        Largest total harmonic distortion of the measured displacements at each line: a describing function
+        describes a harmonic motion, so lines far from harmonic (stick-slip with stops, impacts) are left out
+        of the identification.
     """
 
     name: str

@@ -5,9 +5,9 @@ One object carries a model through the loop a test engineer works (docs/workbenc
 1. :meth:`Workbench.update_reference` -- natural frequencies and damping from the random run (modal fit),
    then the structure parameters marked uncertain updated to them (eigenvalue sensitivity);
 2. :meth:`Workbench.identify` -- kbar of every element at every well-conditioned stepped-sine line and force
-   level, with its standard deviation, and a linear/nonlinear verdict per element. Lines whose response is far
-   from harmonic (THD above ``distortion_limit``, 10 %: stick-slip, impacts) are left out, since a describing
-   function describes a harmonic motion;
+   level, with its standard deviation, and a linear/nonlinear verdict per element. Lines whose motion is far
+   from harmonic (displacement THD above ``distortion_limit``, 5 %: stick-slip with stops, impacts) are left
+   out, since a describing function describes a harmonic motion;
 3. :meth:`Workbench.fit` -- each element's laws fitted to its kbar samples;
 4. :meth:`Workbench.compare` -- FRFs of every run predicted by harmonic balance, the error and where it fails;
 5. :meth:`Workbench.candidates` / :meth:`Workbench.add` -- the ranked missing effects, and adding one; every
@@ -117,7 +117,7 @@ class ReferenceReport:
 class Workbench:
     """Carry one model through identification, fitting, comparison and the missing-effect loop."""
 
-    def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.1):
+    def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.05):
         if not measurements.sine:
             raise InputError("the session has no stepped-sine run to identify from")
         missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
@@ -125,7 +125,7 @@ class Workbench:
             raise InputError(f"measured DOF(s) {', '.join(missing)} are not in the model's structure", model.source)
         self.model = model.copy()
         self.measurements = measurements
-        self.distortion_limit = distortion_limit   # lines with a larger THD are not harmonic: left out
+        self.distortion_limit = distortion_limit   # lines whose displacement THD is larger: left out
         self.reference: ReferenceReport | None = None
         self.reports: dict[str, ElementReport] = {}
         self.history: list[HistoryStep] = []
@@ -237,7 +237,8 @@ class Workbench:
         base = self.compare()
         samples = {n: r.samples for n, r in self.reports.items() if r.samples is not None}
         fits = {n: r.fit for n, r in self.reports.items()}
-        return rank_candidates(self.predictor, samples, fits, base, laws)
+        linear = frozenset(n for n, r in self.reports.items() if r.verdict is not None and r.verdict.linear)
+        return rank_candidates(self.predictor, samples, fits, base, laws, linear_elements=linear)
 
     # ------------------------------------------------------------------ the loop
     def record(self, action: str) -> HistoryStep:

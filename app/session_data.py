@@ -27,7 +27,8 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
                                _stack(run.arrays, "coherence", dofs), _stack(run.arrays, "random_error", dofs),
                                run.force)
             continue
-        thd = [run.arrays[f"thd/acc:{d}"] for d in dofs if f"thd/acc:{d}" in run.arrays]
+        thd = [displacement_distortion(run.arrays[f"harmonics/acc:{d}"]) for d in dofs
+               if f"harmonics/acc:{d}" in run.arrays]
         std = _stack(run.arrays, "frf_std", dofs)
         if std is not None:
             # a noise-free (simulated) record has zero residual: floor at the round-off of the data
@@ -43,3 +44,16 @@ def _stack(arrays: dict, prefix: str, dofs: list[str]):
     if not all(k in arrays for k in keys):
         return None
     return np.stack([arrays[k] for k in keys], axis=1)
+
+
+def displacement_distortion(acceleration_harmonics: np.ndarray) -> np.ndarray:
+    """THD of the displacement from the harmonics 0..K of an acceleration, shape (L, K + 1) -> (L,).
+
+    Harmonic k of the displacement is that of the acceleration divided by (k w)^2, so the acceleration's THD
+    overstates how far the motion is from harmonic -- which is what decides whether a describing function
+    applies -- by up to k^2."""
+    Y = np.asarray(acceleration_harmonics)
+    k = np.arange(Y.shape[1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.sqrt(np.sum(np.abs(Y[:, 2:] / k[2:] ** 2) ** 2, axis=1)) / np.abs(Y[:, 1])
+    return np.where(np.abs(Y[:, 1]) > 0, ratio, 0.0)

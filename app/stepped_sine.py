@@ -17,8 +17,9 @@ ppm). Then:
   instrument ramps the amplitude, so the drive never jumps.
 
 The FRF is the receptance ``h_p = A_p / (-(2 pi f)^2 F)`` from the accelerometer and force fundamentals; its
-standard deviation comes from the residual noise of the fit (a complex amplitude from N samples with white
-noise of rms s has ``E|dY|^2 = 4 s^2 / N``).
+standard deviation combines the residual noise of the fit (a complex amplitude from N samples with white
+noise of rms s has ``E|dY|^2 = 4 s^2 / N``) with what settling leaves: the last record-to-record change,
+relative (without it a noise-free measurement would claim a precision its transient does not allow).
 """
 from __future__ import annotations
 
@@ -164,8 +165,12 @@ class LineMeter:
                     history = []
                     continue
             before = history[-2]["raw"] if len(history) > 1 else rec.data[:0]
-            return self._line(frequency, self._analyse(rec.data, frequency, fit_frequency=True), drive, rec,
-                              start, waited, steady, steps, before)
+            out = self._analyse(rec.data, frequency, fit_frequency=True)
+            # what is left of the transient is uncertain by about the last change: part of the FRF's std
+            settling = self._change(history[-1], history[-2]) if len(history) > 1 else 1.0
+            for d in self.sensor_dofs:
+                out["frf_std"][d] = float(np.hypot(out["frf_std"][d], abs(out["frf"][d]) * min(settling, 1.0)))
+            return self._line(frequency, out, drive, rec, start, waited, steady, steps, before)
 
     def _steady(self, history: list[dict]) -> bool:
         """Whether the last records show a settled response.
@@ -237,11 +242,18 @@ class LineMeter:
 
 
 def frf_change(a: dict, b: dict) -> float:
-    """Largest relative change between two lines' FRFs (amplitude and phase together); a sensor that read
-    zero on one line and not on the other (a DOF held by friction) counts as an infinite change."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        change = max(abs(a[d] / b[d] - 1) for d in a)
-    return float(change) if np.isfinite(change) else np.inf
+    """Largest relative change between two lines' (or records') FRFs, amplitude and phase together. A sensor
+    that reads exactly zero on both (a DOF held by friction) has not changed; zero on one only is an infinite
+    change."""
+    changes = []
+    for d in a:
+        if a[d] == 0 and b[d] == 0:
+            changes.append(0.0)                       # held still on both lines: no change
+        elif b[d] == 0:
+            changes.append(np.inf)
+        else:
+            changes.append(abs(a[d] / b[d] - 1))
+    return float(max(changes))
 
 
 def next_step(step: float, plan_step: float, min_step: float, change: float, threshold: float = 0.25) -> float:

@@ -252,3 +252,33 @@ def test_sigkill_of_a_campaign_keeps_every_completed_line(tmp_path):
         assert run.incomplete and len(run.frequency) >= 8
         assert np.all(np.isfinite(run.frf["x1"])) and np.all(np.diff(run.frequency) > 0)
     assert recover_session(out) == ["sine_0.8N_up"]
+
+
+def test_paper_2dof_campaign_reproduces_table_1(tmp_path):
+    """The paper's numerical example through drivers, emulator, campaign, session, identification and fit:
+    kn1, cn, kn2, mu within 1.5 % of 500, 1.0, 750, 0.1 (the paper reached 3 %)."""
+    import tomllib
+
+    from analysis.model import load_model
+    from analysis.workbench import Workbench
+    from app.session_data import measurements_from_session
+    from drivers.rig import builtin_rig_path
+
+    rig = load_rig("paper-2dof")
+    text = "[[stepped_sine]]\nforce = 0.8\nstart = 0.8\nstop = 3.2\nstep = 0.025\n[limits]\nmax_force = 5.0\n" \
+           "max_acceleration = 50.0\n"
+    with emulated_instruments(rig) as inst:
+        summary = run_plan(plan(text), inst, tmp_path / "p.h5")
+    assert not summary.aborted
+    doc = tomllib.loads(builtin_rig_path("paper-2dof").read_text())
+    for el in doc["element"]:
+        el["laws"] = [law["law"] for law in el["laws"]]          # the laws, not their values
+    with open_session(tmp_path / "p.h5") as s:
+        assert s.provenance("rig") is not None                   # kept for provenance, never read below
+        wb = Workbench(load_model(doc), measurements_from_session(s))
+    wb.start()
+    values = {el.name: {t.law.name: t.values for t in el.laws} for el in wb.model.elements}
+    assert -values["left"]["cubic"]["k3"] == pytest.approx(500.0, rel=0.015)
+    assert values["left"]["quadratic_damping"]["c2"] == pytest.approx(1.0, rel=0.015)
+    assert -values["right"]["cubic"]["k3"] == pytest.approx(750.0, rel=0.015)
+    assert values["right"]["coulomb"]["fs"] == pytest.approx(0.1, rel=0.015)

@@ -89,6 +89,8 @@ class Law(ABC):
     shape: ClassVar[tuple[Param, ...]] = ()
     n_state: ClassVar[int] = 0
     hysteretic: ClassVar[bool] = False
+    # Whether kbar depends on the amplitude X (False: a linear law, possibly frequency dependent)
+    amplitude_dependent: ClassVar[bool] = True
     kernel: ClassVar[Any]
     stick_limit: ClassVar[Any] = None
     # Typical values on a translational DOF (for tests, docs and fit starting points)

@@ -17,6 +17,7 @@ class Linear(Law):
               Param("c", "{F}·s/{L}", "viscous damping coefficient"))
     linear = ("k", "c")
     example = {"k": 1.0e4, "c": 5.0}
+    amplitude_dependent = False
     kernel = linear_force
 
     def basis(self, X, w):

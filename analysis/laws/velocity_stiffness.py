@@ -27,6 +27,7 @@ class VelocityStiffness(Law):
     params = (Param("gamma", "{F}·s/{L}", "stiffness per unit angular frequency"),)
     linear = ("gamma",)
     example = {"gamma": 10.0}
+    amplitude_dependent = False
     kernel = velocity_stiffness_force
 
     def basis(self, X, w):
