@@ -128,10 +128,13 @@ def signature(samples: ElementSamples, model_kbar: np.ndarray | None = None) -> 
     q = max(1, len(X) // 4)
     small, large = order[:q], order[-q:]
 
+    weight = 2.0 / np.maximum(std, 1e-300) ** 2          # per part: Re and Im each carry std / sqrt(2)
+
     def change(values):
-        a, b = values[small].mean(), values[large].mean()
-        s = np.sqrt(np.mean(std[small] ** 2) / (2 * q) + np.mean(std[large] ** 2) / (2 * q)) + 1e-300
-        return a, b, (b - a) / s
+        # inverse-variance means of the smallest- and largest-amplitude quarters, and the std of their difference
+        wa, wb = weight[small], weight[large]
+        a, b = np.sum(wa * values[small]) / wa.sum(), np.sum(wb * values[large]) / wb.sum()
+        return a, b, (b - a) / (np.sqrt(1 / wa.sum() + 1 / wb.sum()) + 1e-300)
 
     re_small, re_large, re_sig = change(res.real)
     im_small, im_large, im_sig = change(res.imag)

@@ -31,9 +31,12 @@ def _export(layout, path: Path, width: int = 1400, height: int = 900) -> Path:
     import pyqtgraph.exporters
 
     layout.resize(width, height)
+    layout.show()                       # off screen: lays the plots out at the export size
+    qt_application().processEvents()
     exporter = pyqtgraph.exporters.ImageExporter(layout.scene())
     exporter.parameters()["width"] = width
     exporter.export(str(path))
+    layout.close()
     return path
 
 
@@ -77,7 +80,8 @@ def plot_frfs(wb: Workbench, path: Path, sensor: str | None = None) -> Path:
 
 
 def plot_kbar(wb: Workbench, path: Path) -> Path:
-    """Re and Im of every element's kbar against its amplitude, coloured by force level, with the fit."""
+    """Re and Im of every element's kbar against its amplitude, coloured by force level; the fitted laws as
+    crosses at the same samples."""
     levels = wb.measurements.levels
     lay = _layout()
     for col, el in enumerate(wb.model.elements):
@@ -88,11 +92,12 @@ def plot_kbar(wb: Workbench, path: Path) -> Path:
                             ("linear" if rep.verdict.linear else "nonlinear")))
         im = lay.addPlot(row=1, col=col)
         k_u, x_u = s.units if s is not None else ("N/m", "m")
-        re.setLabel("left", f"Re kbar [{k_u}]")
-        im.setLabel("left", f"Im kbar [{k_u}]")
-        im.setLabel("bottom", f"amplitude X [{x_u}]")
+        re.setLabel("left", "Re kbar", units=k_u)
+        im.setLabel("left", "Im kbar", units=k_u)
+        im.setLabel("bottom", "amplitude X", units=x_u)
         for plot in (re, im):
             plot.setLogMode(x=True)
+            plot.getAxis("bottom").setStyle(maxTextLevel=0)     # decade labels only: no crowded minor labels
         if s is None:
             continue
         for force in levels:
@@ -103,10 +108,11 @@ def plot_kbar(wb: Workbench, path: Path) -> Path:
             re.plot(s.X[sel], s.kbar[sel].real, pen=None, symbol="o", symbolSize=4, symbolBrush=c, symbolPen=None)
             im.plot(s.X[sel], s.kbar[sel].imag, pen=None, symbol="o", symbolSize=4, symbolBrush=c, symbolPen=None)
         if el.laws and all(t.complete for t in el.laws):
-            order = np.argsort(s.X)
-            model = el.describing_function(s.X[order], s.w[order])
-            re.plot(s.X[order], model.real, pen={"color": "k", "width": 1})
-            im.plot(s.X[order], model.imag, pen={"color": "k", "width": 1})
+            # the model at each sample's (X, w): markers, since kbar may depend on w as well as X
+            model = el.describing_function(s.X, s.w)
+            style = {"pen": None, "symbol": "x", "symbolSize": 5, "symbolPen": {"color": "k", "width": 1}}
+            re.plot(s.X, model.real, **style)
+            im.plot(s.X, model.imag, **style)
     return _export(lay, path)
 
 
