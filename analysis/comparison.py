@@ -12,7 +12,7 @@ improvement is larger than the noise explains.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
@@ -50,7 +50,6 @@ class Comparison:
     converged: dict[str, np.ndarray]
     chi_square: float | None
     n_observations: int
-    sums: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return {"error": self.error,
@@ -108,7 +107,7 @@ def compare_predictions(runs: Sequence[SineRun], predicted: dict, converged: dic
     chi2 = 0.0
     have_std = all(r.receptance_std is not None for r in runs)
     by_level: dict[float, list[float]] = {}
-    residual_map, sums = {}, {}
+    residual_map = {}
     n_obs = 0
     for run in runs:
         diff = predicted[run.name] - run.receptance
@@ -116,7 +115,6 @@ def compare_predictions(runs: Sequence[SineRun], predicted: dict, converged: dic
         line_den = np.sum(np.abs(run.receptance) ** 2, axis=1)
         residual_map[run.name] = np.sqrt(line_num / line_den)
         rn, rd = float(line_num.sum()), float(line_den.sum())
-        sums[run.name] = (rn, rd)
         num, den = num + rn, den + rd
         acc = by_level.setdefault(round(run.force, 12), [0.0, 0.0])
         acc[0] += rn
@@ -126,7 +124,7 @@ def compare_predictions(runs: Sequence[SineRun], predicted: dict, converged: dic
             chi2 += float(np.sum(np.abs(diff) ** 2 / np.asarray(run.receptance_std) ** 2))
     return Comparison(float(np.sqrt(num / den)) if den else float("nan"),
                       [(f, float(np.sqrt(a / b))) for f, (a, b) in sorted(by_level.items())],
-                      residual_map, predicted, converged, chi2 if have_std else None, n_obs, sums)
+                      residual_map, predicted, converged, chi2 if have_std else None, n_obs)
 
 
 def kbar_functions_with(elements, replace: dict[int, Callable]) -> list[KbarFunction]:

@@ -12,7 +12,7 @@ so with the describing functions ``f_i = kbar_i(|y_i|, w) y_i`` the complex elem
 ``kbar`` depends on ``|y|``, so ``R`` is not holomorphic: Newton works on the ``2r`` real unknowns.
 Phasors follow CONTRACTS.md §1: a signal ``Im(Y e^{jwt})``, so ``x = X sin(wt)`` has ``Y = X``.
 
-Three solvers share the condensed residual:
+Three solvers work on the condensed system:
 - :func:`predict_sweep` -- what a stepped-sine sweep measures: Newton at each line starting from the previous
   line's solution, for all force levels at once. Past a fold the old branch ends and the solver lands on the
   remaining one, as the structure jumps.
@@ -64,11 +64,18 @@ class CondensedSystem:
 def condense(structure: Structure, elements: Sequence[Element], excitation_dof: str, w) -> CondensedSystem:
     """Condense ``structure`` onto ``elements`` at lines ``w`` (rad/s) for excitation at ``excitation_dof``."""
     w = np.atleast_1d(np.asarray(w, float))
-    E = np.stack([el.vector(structure) for el in elements], axis=1) if elements else np.zeros((structure.n, 0))
-    loads = np.concatenate([E, np.eye(structure.n)[:, [structure.index(excitation_dof)]]], axis=1)
+    E, loads = _element_loads(structure, elements, excitation_dof)
     resp = structure.response(w, loads)
     HE, Hq = resp[:, :, :-1], resp[:, :, -1]
     return CondensedSystem(w, np.einsum("ni,lnj->lij", E, HE), np.einsum("ni,ln->li", E, Hq), HE, Hq)
+
+
+def _element_loads(structure: Structure, elements: Sequence[Element], excitation_dof: str
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Element vectors ``E``, shape (n, r), and the loads ``[E, e_q]``, shape (n, r + 1), whose responses
+    ``H [E, e_q]`` condense the structure onto its elements."""
+    E = np.stack([el.vector(structure) for el in elements], axis=1) if elements else np.zeros((structure.n, 0))
+    return E, np.concatenate([E, np.eye(structure.n)[:, [structure.index(excitation_dof)]]], axis=1)
 
 
 def element_kbar_functions(elements: Sequence[Element]) -> list[KbarFunction]:
@@ -225,7 +232,7 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
     order = np.argsort(w) if direction == "up" else np.argsort(-w)
     y = np.zeros((L, B, r), complex)
     converged = np.zeros((L, B), bool)
-    previous = None
+    prev_line = None
     for line in order:
         gF = sys_.g[line][None, :] * F[:, None]                                     # (B, r)
         scale = np.maximum(np.abs(gF).max(axis=1), 1e-300)                          # (B,)
@@ -241,9 +248,9 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
 
         # where the previous line had no solution either (e.g. friction holding), one more attempt from the
         # linear response is all that is worth trying
-        starts = [gF] if previous is None else _restarts(previous, gF)
+        starts = [gF] if prev_line is None else _restarts(y[prev_line], gF)
         ok = np.zeros(B, bool)
-        hopeless = np.zeros(B, bool) if previous is None else ~converged[prev_line]
+        hopeless = np.zeros(B, bool) if prev_line is None else ~converged[prev_line]
         for attempt, start in enumerate(starts):
             todo = np.flatnonzero(~ok & ~(hopeless & (attempt > 1)))
             if not len(todo):
@@ -256,7 +263,7 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
             y[line, todo[conv]] = sol[conv]
             ok[todo[conv]] = True
         converged[line] = ok
-        previous, prev_line = y[line], line
+        prev_line = line
     floor = 1e-9 * np.abs(sys_.g[:, None, :] * F[None, :, None]).max(axis=2).reshape(-1)
     kb = _kbar(fns, y.reshape(L * B, r), np.repeat(w, B), floor).reshape(L, B, r)
     x = sys_.Hq[:, None, :] * F[None, :, None] - np.einsum("lnr,lbr->lbn", sys_.HE, kb * y)
@@ -316,9 +323,7 @@ def continue_response(structure: Structure, elements: Sequence[Element], excitat
     """
     fns = list(kbar_fns) if kbar_fns is not None else element_kbar_functions(elements)
     r = len(fns)
-    E = np.stack([el.vector(structure) for el in elements], axis=1)
-    q = np.eye(structure.n)[:, [structure.index(excitation_dof)]]
-    loads = np.concatenate([E, q], axis=1)
+    E, loads = _element_loads(structure, elements, excitation_dof)
     w_scale = abs(w_stop - w_start)
     # unknowns scaled by the largest linear element response over the span, so a resonance peak is O(1)
     grid = np.linspace(w_start, w_stop, 400)
@@ -437,20 +442,18 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     if H < 1 or n_time < 4 * H + 2:
         raise ValueError("need n_harmonics >= 1 and n_time >= 4 n_harmonics + 2")
     r = len(elements)
-    E = np.stack([el.vector(structure) for el in elements], axis=1)
+    E, loads = _element_loads(structure, elements, excitation_dof)
     theta = 2 * np.pi * np.arange(n_time) / n_time
     k = np.arange(H + 1)
     S, C = np.sin(np.outer(theta, k)), np.cos(np.outer(theta, k))
     single = predict_sweep(structure, elements, excitation_dof, w, force, direction)
-    q = structure.index(excitation_dof)
     order = np.argsort(w) if direction == "up" else np.argsort(-w)
     out = np.zeros((len(w), H + 1, structure.n), complex)
     converged = np.zeros(len(w), bool)
     previous = None
     for line in order:
         wl = w[line]
-        resp = [structure.response([kk * wl], np.concatenate([E, np.eye(structure.n)[:, [q]]], axis=1))[0]
-                for kk in k]
+        resp = [structure.response([kk * wl], loads)[0] for kk in k]
         HE = np.stack([rsp[:, :-1] for rsp in resp])        # (H+1, n, r)
         Hq = np.stack([rsp[:, -1] for rsp in resp])          # (H+1, n)
         G = np.einsum("ni,knj->kij", E, HE)
@@ -501,7 +504,7 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
 
 # --------------------------------------------------------------------------- explicit single-element relation
 def single_element_force(h_aa, h_aq, kbar) -> np.ndarray:
-    """Force amplitude that produces element amplitude X, for ONE grounded element at DOF a.
+    """Force amplitude per unit element amplitude, ``F / X``, for ONE grounded element at DOF a.
 
     From ``y (1 + h_aa kbar) = h_aq F``: ``F = X |1 + h_aa kbar(X, w)| / |h_aq|``. Given ``kbar`` already
     evaluated at (X, w), returns ``F / X``; multiply by X. Every branch of the response is explicit in X,

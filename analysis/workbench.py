@@ -19,7 +19,7 @@ came from.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -293,8 +293,7 @@ class Workbench:
             if [t.law.name for t in el.laws] != [t.law.name for t in old.laws]:
                 changed.append(el.name)
             el.laws = old.laws
-        self.fit(changed)
-        self._comparison = None
+        self.fit(changed)                      # also drops the cached comparison
         return self.history[-1]
 
     def start(self) -> HistoryStep:

@@ -25,10 +25,6 @@ class Record:
     sample_rate: float
     overload: bool
 
-    @property
-    def time(self) -> float:
-        return self.first_sample / self.sample_rate
-
 
 class RecordFeed:
     """Cut records out of a block stream.
@@ -55,7 +51,6 @@ class RecordFeed:
         self._start: int | None = None
         self._overload = False
         self.sample_rate: float | None = None
-        self.samples_seen = 0
 
     def discard(self) -> None:
         """Drop what was collected (after the drive changed, the old samples describe another state)."""
@@ -110,7 +105,6 @@ class RecordFeed:
         self.check(block)
         if self.on_block is not None:
             self.on_block(block)
-        self.samples_seen += len(block)
         if block.gaps:
             for gap in block.gaps:
                 self.on_gap(gap)

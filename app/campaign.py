@@ -15,6 +15,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -227,12 +228,11 @@ class Campaign:
         run_spec = RunSpec(name, "random", spec.force_rms, "none", self.excitation_dof, self.sensor_dofs, fs,
                            list(self.daq.channels), list(self.daq.units), self._random_extras(),
                            {"band": list(spec.band), "duration": spec.duration, "segment_length": segment})
-        self._begin(run_spec)
-        status, reason = "aborted", ""
-        try:
+        with self._run(run_spec):
             drive = self._noise_calibrate(guard, spec, fs)
             est = FRFEstimator(fs, segment)
             n_total = int(spec.duration * fs)
+            idx = [self.daq.channels.index(c) for c in self.channels]
             got = 0
             with self.daq.stream(self.block) as stream:
                 feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
@@ -240,7 +240,6 @@ class Campaign:
                 while got < n_total:
                     self._interrupt_random(guard)
                     rec = feed.record(min(segment, n_total - got))
-                    idx = [self.daq.channels.index(c) for c in self.channels]
                     data = rec.data[:, idx]
                     est.add_data(data[:, 0], data[:, 1:])
                     self.writer.append_raw(rec.data.astype(np.float32))
@@ -248,15 +247,6 @@ class Campaign:
             self.summary.shaker_seconds += got / fs + 2.0
             self.shaker.disarm()
             self._write_random(est, spec, drive)
-            status = "complete"
-        except CampaignAborted as exc:
-            reason = str(exc)
-            raise
-        except Exception as exc:
-            reason = f"{type(exc).__name__}: {exc}"
-            raise
-        finally:
-            self._end(name, status, reason)
         self._progress(name)
 
     def _interrupt_random(self, guard: OutputGuard) -> None:
@@ -336,9 +326,7 @@ class Campaign:
         run_spec = RunSpec(name, "stepped_sine", spec.force, direction, self.excitation_dof, self.sensor_dofs, fs,
                            self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._sine_extras(),
                            {"start": spec.start, "stop": spec.stop, "step": spec.step, "refine": spec.refine})
-        self._begin(run_spec)
-        status, reason = "aborted", ""
-        try:
+        with self._run(run_spec):
             planned = spec.lines(direction)
             f, stop = planned[0], planned[-1]
             sign = 1.0 if direction == "up" else -1.0
@@ -366,15 +354,6 @@ class Campaign:
                     f_next = f + sign * step
                     f = stop if sign * (f_next - stop) > 0 else f_next
             self.shaker.disarm()
-            status = "complete"
-        except CampaignAborted as exc:
-            reason = str(exc)
-            raise
-        except Exception as exc:
-            reason = f"{type(exc).__name__}: {exc}"
-            raise
-        finally:
-            self._end(name, status, reason)
 
     def _measure(self, meter: LineMeter, f: float, force: float, drive: float) -> LineMeasurement:
         while True:
@@ -384,15 +363,7 @@ class Campaign:
                 continue
 
     def _store_line(self, name: str, index: int, m: LineMeasurement, target: float) -> None:
-        extras = {"force_amplitude": abs(m.force), "force_target": target, "force_phasor": m.force,
-                  "measured_frequency": m.measured_frequency, "drive": m.drive, "settle_time": m.settle_time,
-                  "settle_periods": m.settle_periods, "steady": m.steady, "control_steps": m.control_steps}
-        for d in self.sensor_dofs:
-            extras[f"frf_std/{d}"] = m.frf_std[d]
-        for i, c in enumerate(self.daq.channels):
-            if c in self.channels:
-                extras[f"harmonics/{c}"] = m.harmonics[:, i]
-                extras[f"thd/{c}"] = m.thd[i]
+        extras = line_extras(m, target, list(self.daq.channels), self.channels, self.sensor_dofs)
         raw = m.raw[:, [self.daq.channels.index(c) for c in self.channels]].astype(np.float32)
         self.writer.append_line(m.frequency, m.frf, extras, raw)
         self.summary.lines += 1
@@ -406,15 +377,44 @@ class Campaign:
         self._progress(name)
 
     # ------------------------------------------------------------------ runs
-    def _begin(self, spec: RunSpec) -> None:
+    @contextmanager
+    def _run(self, spec: RunSpec):
+        """Open the run in the session for the ``with`` body; close it as complete when the body finishes,
+        else as aborted with the reason (abort message, or the exception's type and text), and re-raise."""
         self.writer.begin_run(spec)
         self.listener.run_started(spec.name, spec)
+        status, reason = "aborted", ""
+        try:
+            yield
+            status = "complete"
+        except CampaignAborted as exc:
+            reason = str(exc)
+            raise
+        except Exception as exc:
+            reason = f"{type(exc).__name__}: {exc}"
+            raise
+        finally:
+            self._drain_events()
+            self.writer.end_run(status, reason)
+            self.summary.runs[spec.name] = status
+            self.listener.run_ended(spec.name, status)
 
-    def _end(self, name: str, status: str, reason: str) -> None:
-        self._drain_events()
-        self.writer.end_run(status, reason)
-        self.summary.runs[name] = status
-        self.listener.run_ended(name, status)
+
+def line_extras(m: LineMeasurement, target: float, daq_channels: list[str], channels: list[str],
+                sensor_dofs: list[str]) -> dict:
+    """The per-line quantities a stepped-sine line stores besides its frequency and FRF, by their names in the
+    session (docs/session-format.md); ``daq_channels`` orders ``m.harmonics`` and ``m.thd``, ``channels`` are
+    the ones recorded. The GUI's live view builds the same record from the listener's lines."""
+    extras = {"force_amplitude": abs(m.force), "force_target": target, "force_phasor": m.force,
+              "measured_frequency": m.measured_frequency, "drive": m.drive, "settle_time": m.settle_time,
+              "settle_periods": m.settle_periods, "steady": m.steady, "control_steps": m.control_steps}
+    for d in sensor_dofs:
+        extras[f"frf_std/{d}"] = m.frf_std[d]
+    for i, c in enumerate(daq_channels):
+        if c in channels:
+            extras[f"harmonics/{c}"] = m.harmonics[:, i]
+            extras[f"thd/{c}"] = m.thd[i]
+    return extras
 
 
 class _Restart(Exception):

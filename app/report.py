@@ -27,6 +27,11 @@ def _colour(levels: list[float], force: float):
     return LEVEL_COLOURS[levels.index(round(force, 12)) % len(LEVEL_COLOURS)]
 
 
+def _symbols(colour, size: int) -> dict:
+    """Plot style of measured points: filled circles of ``size`` px, no line."""
+    return {"pen": None, "symbol": "o", "symbolSize": size, "symbolBrush": colour, "symbolPen": None}
+
+
 def _export(layout, path: Path, width: int = 1400, height: int = 900) -> Path:
     import pyqtgraph.exporters
 
@@ -71,11 +76,11 @@ def plot_frfs(wb: Workbench, path: Path, sensor: str | None = None) -> Path:
         meas = run.receptance[order, p]
         pred = comp.predicted[run.name][order, p]
         c = _colour(levels, run.force)
-        mag.plot(f, np.abs(meas), pen=None, symbol="o", symbolSize=5, symbolBrush=c, symbolPen=None,
-                 name=f"{run.force:g} N {run.direction}")
-        mag.plot(f, np.abs(pred), pen={"color": c, "width": 2})
-        ph.plot(f, np.degrees(np.angle(meas)), pen=None, symbol="o", symbolSize=5, symbolBrush=c, symbolPen=None)
-        ph.plot(f, np.degrees(np.angle(pred)), pen={"color": c, "width": 2})
+        measured, model = _symbols(c, 5), {"pen": {"color": c, "width": 2}}
+        mag.plot(f, np.abs(meas), name=f"{run.force:g} N {run.direction}", **measured)
+        mag.plot(f, np.abs(pred), **model)
+        ph.plot(f, np.degrees(np.angle(meas)), **measured)
+        ph.plot(f, np.degrees(np.angle(pred)), **model)
     return _export(lay, path)
 
 
@@ -104,9 +109,9 @@ def plot_kbar(wb: Workbench, path: Path) -> Path:
             sel = np.isclose(s.level, force)
             if not sel.any():
                 continue
-            c = _colour(levels, force)
-            re.plot(s.X[sel], s.kbar[sel].real, pen=None, symbol="o", symbolSize=4, symbolBrush=c, symbolPen=None)
-            im.plot(s.X[sel], s.kbar[sel].imag, pen=None, symbol="o", symbolSize=4, symbolBrush=c, symbolPen=None)
+            measured = _symbols(_colour(levels, force), 4)
+            re.plot(s.X[sel], s.kbar[sel].real, **measured)
+            im.plot(s.X[sel], s.kbar[sel].imag, **measured)
         if el.laws and all(t.complete for t in el.laws):
             # the model at each sample's (X, w): markers, since kbar may depend on w as well as X
             model = el.describing_function(s.X, s.w)

@@ -44,6 +44,19 @@ def _text(value) -> str:
     return value.decode() if isinstance(value, bytes) else str(value)
 
 
+def _attrs(obj: h5py.HLObject) -> dict:
+    """An HDF5 object's attributes, text as ``str``."""
+    return {k: _text(v) if isinstance(v, (bytes, str)) else v for k, v in obj.attrs.items()}
+
+
+def _append_event(events: h5py.Dataset, seconds: float, run: str, kind: str, message: str) -> None:
+    """Append one row to the event log (kind and message cut to their column widths)."""
+    row = np.array([(seconds, _now_iso().encode(), run.encode(), kind.encode()[:24], message.encode()[:400])],
+                   dtype=EVENT_DTYPE)
+    events.resize(events.shape[0] + 1, axis=0)
+    events[-1:] = row
+
+
 # --------------------------------------------------------------------------- run description
 @dataclass
 class RunSpec:
@@ -78,6 +91,9 @@ class SessionWriter:
     plan_text, rig_text : str
         The plan file text and, for simulated sessions only, the rig file text (``/provenance/rig``).
     software_version, command : str
+    instruments : dict, optional
+        Identities of the instruments (role -> {"url", "idn"}), stored as JSON in the ``instruments``
+        attribute of ``/provenance``.
     """
 
     def __init__(self, path, *, overwrite: bool = False, plan_text: str = "", rig_text: str | None = None,
@@ -239,14 +255,11 @@ class SessionWriter:
     # -- events ---------------------------------------------------------------
     def log(self, kind: str, message: str, run: str | None = None) -> None:
         """Append an event (fault, operator action, note) with its time since the session started."""
-        row = np.array([(time.monotonic() - self.t0, _now_iso().encode(), (run or self._run or "").encode(),
-                         kind.encode()[:24], message.encode()[:400])], dtype=EVENT_DTYPE)
+        seconds = time.monotonic() - self.t0
         with self._guard("logging an event"):
             opened_here = self._file is None
             f = self._open(swmr=False)
-            ev = f["events"]
-            ev.resize(ev.shape[0] + 1, axis=0)
-            ev[-1:] = row
+            _append_event(f["events"], seconds, run or self._run or "", kind, message)
             f.flush()
             if opened_here:
                 self._close()
@@ -361,7 +374,7 @@ class Session:
 
     @property
     def attrs(self) -> dict:
-        return {k: _text(v) if isinstance(v, (bytes, str)) else v for k, v in self._file.attrs.items()}
+        return _attrs(self._file)
 
     def provenance(self, key: str) -> str | None:
         prov = self._file.get("provenance")
@@ -380,7 +393,7 @@ class Session:
 
     def run(self, name: str) -> RunData:
         g = self._file["runs"][name]
-        attrs = {k: _text(v) if isinstance(v, (bytes, str)) else v for k, v in g.attrs.items()}
+        attrs = _attrs(g)
         for ds in _datasets(g):
             ds.refresh()
         n = g["frequency"].shape[0]
@@ -470,11 +483,8 @@ def recover_session(path) -> list[str]:
                     g.attrs["incomplete"] = True
                     g.attrs["end_reason"] = "the writing process stopped without closing the run (crash or kill)"
                     marked.append(name)
-            ev = dst["events"]
-            ev.resize(ev.shape[0] + 1, axis=0)
-            ev[-1:] = np.array([(0.0, _now_iso().encode(), b"", b"recovery",
-                                 f"recovered after the writer stopped; incomplete runs: {', '.join(marked)}"
-                                 .encode()[:400])], dtype=EVENT_DTYPE)
+            _append_event(dst["events"], 0.0, "", "recovery",
+                          f"recovered after the writer stopped; incomplete runs: {', '.join(marked)}")
     os.replace(tmp, path)
     return marked
 
@@ -507,7 +517,8 @@ def append_model_history(path, steps: list[dict], model_source: str = "") -> str
 
 
 def read_model_history(session: Session) -> list[dict]:
-    """Every stored analysis: ``{"name", "created", "steps": [{"action", "error", "model"}]}``."""
+    """Every stored analysis: ``{"name", "created", "steps": [{"action", "error", "model", "error_by_level"}]}``,
+    ``error_by_level`` as ``[[force N, error], ...]``."""
     f = session._file
     if "models" not in f:
         return []

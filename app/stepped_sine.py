@@ -86,7 +86,6 @@ class LineMeter:
                  settle: SettleSpec, control_tolerance: float, should_stop=lambda: None):
         self.shaker = shaker
         self.feed = feed
-        self.channels = channels
         self.force_index = channels.index("force")
         self.sensor_index = [channels.index(f"acc:{d}") for d in sensor_dofs]
         self.sensor_dofs = sensor_dofs
@@ -147,7 +146,6 @@ class LineMeter:
             start = rec.first_sample if start is None else start
             waited += periods_per_record
             out = self._analyse(rec.data, frequency, fit_frequency=False)
-            out["record"] = rec
             history.append(out)
             at_limit = waited >= self.settle.max_periods
             steady = self._steady(history)

@@ -1,5 +1,4 @@
 """Campaigns through the real drivers and the in-process emulator, against analytic truth."""
-import os
 import signal
 import subprocess
 import sys
