@@ -21,7 +21,7 @@ from ..plan import load_plan
 from .lab import Lab
 from .live import ALARM_COLOR, CampaignFeed, is_alarm
 from .plan_doc import plan_document, plan_toml
-from .plots import (CHANNEL_COLORS, FrameClock, LevelPalette, Redraw, configure_plot, finite_log, scatter,
+from .plots import (CHANNEL_COLORS, FrameClock, LevelPalette, Redraw, configure_plot, finite_log, random_pen,
                     sensor_symbol)
 
 COLUMNS = ("Force [N]", "Start [Hz]", "Stop [Hz]", "Step [Hz]", "Direction", "Refine")
@@ -215,9 +215,10 @@ class LivePlots(pg.GraphicsLayoutWidget):
         self.palette = palette
         self.feed: CampaignFeed | None = None
         self.line_frequency: float | None = None
-        self.force_time = configure_plot(self.addPlot(0, 0), "Force", "time before now", "s", "force", "N")
+        self.force_time = configure_plot(self.addPlot(0, 0), "Force", "time before now", "s", "force", "N",
+                                         grid=False)
         self.acc_time = configure_plot(self.addPlot(0, 1), "Acceleration", "time before now", "s",
-                                       "acceleration", "m/s²", legend=True)
+                                       "acceleration", "m/s²", legend=True, grid=False)
         self.magnitude = configure_plot(self.addPlot(1, 0), "Receptance |H|", "frequency", "Hz", "|H|", "m/N",
                                         log_y=True, legend=True)
         self.phase = configure_plot(self.addPlot(1, 1), "Receptance phase", "frequency", "Hz", "phase", "°")
@@ -232,10 +233,9 @@ class LivePlots(pg.GraphicsLayoutWidget):
         self.ci.layout.setRowStretchFactor(1, 2)
         self._time_curves: list[pg.PlotDataItem] = []
         self._run_curves: dict[tuple, pg.PlotDataItem] = {}
-        self.time_redraw = Redraw(clock, self._draw_time, self)
-        self.lines_redraw = Redraw(clock, self._draw_lines, self)
-        clock.tick.connect(self._tick)
         self._drawn_end = -1
+        self.time_redraw = Redraw(clock, self._draw_time, self, stale=self._new_samples)
+        self.lines_redraw = Redraw(clock, self._draw_lines, self)
 
     def plots(self) -> dict[str, pg.PlotItem]:
         return {"force_time": self.force_time, "acceleration_time": self.acc_time, "frf_magnitude": self.magnitude,
@@ -281,9 +281,8 @@ class LivePlots(pg.GraphicsLayoutWidget):
         self.line_frequency = m.frequency
         self.lines_redraw.request()
 
-    def _tick(self) -> None:
-        if self.feed is not None and self.feed.ring.end != self._drawn_end:
-            self.time_redraw.request()
+    def _new_samples(self) -> bool:
+        return self.feed is not None and self.feed.ring.end != self._drawn_end
 
     # ------------------------------------------------------------------ drawing
     def time_window(self) -> float:
@@ -329,10 +328,10 @@ class LivePlots(pg.GraphicsLayoutWidget):
     def _draw_random(self, run) -> None:
         for p, dof in enumerate(run.sensor_dofs):
             h = run.frf[dof]
-            style = {"pen": pg.mkPen("#888888", width=1), "name": f"random · {dof}" if p == 0 else None}
-            self._curve(self.magnitude, (run.name, dof), **style).setData(run.frequency, finite_log(np.abs(h)))
-            self._curve(self.phase, (run.name, dof), pen=pg.mkPen("#888888", width=1)).setData(
-                run.frequency, np.degrees(np.angle(h)))
+            self._curve(self.magnitude, (run.name, dof), pen=random_pen(p), name=f"random · {dof}").setData(
+                run.frequency, finite_log(np.abs(h)))
+            self._curve(self.phase, (run.name, dof), pen=random_pen(p)).setData(run.frequency,
+                                                                                np.degrees(np.angle(h)))
 
     def _draw_sine(self, run) -> None:
         f, color = run.frequency, self.palette.color(run.force)
@@ -408,7 +407,7 @@ class AcquirePanel(QWidget):
         self.arm_hint.setWordWrap(True)
         run_layout.addWidget(self.arm_hint)
         self.progress = QProgressBar()
-        self.progress.setFormat("%v / %m lines")
+        self.progress.setFormat("%v / %m planned lines")
         self.progress.setValue(0)
         run_layout.addWidget(self.progress)
         self.run_label, self.eta_label, self.settle_label = QLabel("idle"), QLabel("ETA —"), QLabel("")
@@ -429,8 +428,7 @@ class AcquirePanel(QWidget):
         splitter.setStretchFactor(0, 0)
         splitter.setStretchFactor(1, 1)
         splitter.setSizes([430, 1000])
-        self.wait_redraw = Redraw(clock, self._draw_wait, self)
-        clock.tick.connect(lambda: self.wait_redraw.request() if self.lab.campaign_running else None)
+        self.wait_redraw = Redraw(clock, self._draw_wait, self, stale=lambda: self.lab.campaign_running)
 
         lab.armedChanged.connect(self._show_armed)
         lab.campaignStarted.connect(self._campaign_started)
@@ -482,9 +480,15 @@ class AcquirePanel(QWidget):
         self._last_line = (m.frequency, m.settle_periods, m.steady)
 
     def _on_progress(self, done: int, total: int, eta, run: str) -> None:
-        self.progress.setRange(0, max(total, done, 1))
-        self.progress.setValue(done)
-        self.eta_label.setText(_format_eta(eta))
+        """Lines done against lines planned; refinement near resonance may add lines beyond the plan."""
+        self.progress.setRange(0, max(total, 1))
+        self.progress.setValue(min(done, total))
+        if done > total:
+            self.progress.setFormat(f"{done} lines ({total} planned; refinement added {done - total})")
+            self.eta_label.setText("ETA — (more lines than planned: refining near a resonance)")
+        else:
+            self.progress.setFormat("%v / %m planned lines")
+            self.eta_label.setText(_format_eta(eta))
 
     def _draw_wait(self) -> None:
         """How long the line being measured has waited for steady state (stream time since the last line)."""

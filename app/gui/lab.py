@@ -2,12 +2,14 @@
 analysis. The tabs are views of one :class:`Lab`; it calls the application layer (app/, drivers/ through
 app.instruments) and never computes anything itself.
 
-Threads: everything here runs in the GUI thread except the tasks it hands to its two runners -- one for the
-instruments (connecting, probing ports, polling the output state), one for the analysis (live
-identification, analyze / add / undo; the workbench lives on that thread only) -- and the campaign thread.
+Threads: everything here runs in the GUI thread except the campaign thread and the tasks handed to three
+runners -- instruments (connecting, probing ports, polling the output state), analysis (live identification,
+analyze / add / undo; the workbench lives on that thread only) and files (exports). A result computed for a
+session or model that has since been replaced is dropped, not shown.
 """
 from __future__ import annotations
 
+import logging
 import tomllib
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -31,8 +33,10 @@ from ..session import Session, open_session
 from ..session_data import measurements_from_session
 from .live import CampaignFeed, LinkCounters, LiveSession, SignalRing
 from .plan_doc import plan_toml
-from .results import AnalysisView, IdentificationView, analysis_view, identification_view
+from .results import AnalysisView, IdentificationView, analysis_view, identification_of, identification_view
 from .workers import CampaignThread, TaskRunner
+
+log = logging.getLogger("contactid.gui")
 
 IDENTIFY_INTERVAL_MS = 1500
 """Least time between two live identifications (they run while lines arrive)."""
@@ -45,7 +49,7 @@ class InstrumentStatus:
     """The shaker's output as the instrument reports it, and any fault its supervision found."""
 
     output_on: bool
-    level: float                  # V peak (sine) or V rms (noise)
+    level: float | None           # V peak (sine) or V rms (noise); None when not asked (campaign running)
     armed_by_host: bool
     fault: str
 
@@ -103,10 +107,10 @@ class Lab(QObject):
         self.feed: CampaignFeed | None = None
         self.live: LiveSession | None = None
         self.campaign_output: str | None = None
-        self.last_summary: CampaignSummary | None = None
         # session, model, analysis
         self.session: Session | None = None
         self.session_path: str | None = None
+        self._session_contents: list[tuple[str, str, int]] = []   # runs, statuses and lines last shown
         self.model: Model | None = None
         self.model_label = ""
         self.analysis: AnalysisView | None = None
@@ -169,11 +173,14 @@ class Lab(QObject):
         self.disconnect()
 
         def connected(result):
+            if self._closed:                  # the window closed while connecting: release at once
+                result[0].close()
+                return
             self._stack, self.instruments, self.rig, self.connection_label = result
             self.disarm("instruments changed")
             self._check_plan()
             if self.model is None and self.rig is not None:
-                self.set_model(starter_model(self.rig), f"starter model for {self.rig.name} (structure, no laws)")
+                self.use_starter_model()
             self.instrumentsChanged.emit()
         self.instrument_tasks.submit(task, connected)
 
@@ -195,23 +202,37 @@ class Lab(QObject):
         self.instrument_tasks.submit(find_instruments, on_done)
 
     def poll_status(self) -> None:
-        """Read the output state and faults (background; skipped while another instrument task runs)."""
+        """Show the output state and faults.
+
+        Idle, the instrument is asked (in the background). While a campaign runs the instrument is left to
+        the campaign -- an extra query competing with its commands could only delay them -- and the state
+        shown is the driver's own (armed by the host, faults its supervision found), which costs no I/O.
+        """
         instruments = self.instruments
-        if instruments is None or self.instrument_tasks.busy:
+        if instruments is None:
             return
         shaker = instruments.shaker
+        if self.campaign_running:
+            self.statusPolled.emit(InstrumentStatus(shaker.armed, None, shaker.armed, self._driver_fault(shaker)))
+            return
+        if self.instrument_tasks.busy:
+            return
 
         def task():
-            fault = ""
-            try:
-                shaker.check()
-            except InstrumentError as exc:
-                fault = str(exc)
-            return InstrumentStatus(shaker.output_enabled(), shaker.output_level(), shaker.armed, fault)
+            return InstrumentStatus(shaker.output_enabled(), shaker.output_level(), shaker.armed,
+                                    self._driver_fault(shaker))
         self.instrument_tasks.submit(task, self.statusPolled.emit, self._status_failed)
 
+    @staticmethod
+    def _driver_fault(shaker) -> str:
+        try:
+            shaker.check()
+        except InstrumentError as exc:
+            return str(exc)
+        return ""
+
     def _status_failed(self, message: str) -> None:
-        self.statusPolled.emit(InstrumentStatus(False, 0.0, False, message))
+        self.statusPolled.emit(InstrumentStatus(False, None, False, message))
 
     def link_health(self) -> LinkCounters | None:
         """Blocks, samples and losses of the current (or last) campaign's stream."""
@@ -329,7 +350,6 @@ class Lab(QObject):
             self.campaign.abort(reason)
 
     def _campaign_finished(self, summary: CampaignSummary) -> None:
-        self.last_summary = summary
         self._end_campaign(summary.text(), bool(summary.aborted))
 
     def _campaign_failed(self, message: str) -> None:
@@ -356,6 +376,7 @@ class Lab(QObject):
         session = open_session(path)
         self.close_session()
         self.session, self.session_path = session, str(path)
+        self._session_contents = self._contents()
         self._bump_generation()
         self.sessionChanged.emit()
         self.request_identification()
@@ -370,12 +391,13 @@ class Lab(QObject):
         """Re-read a session another process is writing; True when a run, a line or a status changed."""
         if self.session is None:
             return False
-        before = self._contents()
         self.session.refresh()
-        if self._contents() != before:
-            self.request_identification()
-            return True
-        return False
+        contents = self._contents()
+        if contents == self._session_contents:
+            return False
+        self._session_contents = contents
+        self.request_identification()
+        return True
 
     def export(self, kind: str, target: str, on_done) -> None:
         """Write the open session's FRFs as UFF58 (``kind="uff"``, a file the save dialog let the operator
@@ -443,7 +465,7 @@ class Lab(QObject):
         if self.analysis_tasks.busy:
             self.identify_timer.start()          # try again after the running task
             return
-        live = self.campaign_running
+        live, generation = self.campaign_running, self._generation
 
         def task():
             measurements = reader()
@@ -454,10 +476,13 @@ class Lab(QObject):
             return identification_view(wb, live)
 
         def done(view):
-            if view is not None:
-                self.identification = view
-                self.identificationUpdated.emit(view)
+            if view is not None and generation == self._generation:
+                self._show_identification(view)
         self.analysis_tasks.submit(task, done)
+
+    def _show_identification(self, view: IdentificationView) -> None:
+        self.identification = view
+        self.identificationUpdated.emit(view)
 
     def analyze(self) -> None:
         """Reference, identification, fit, comparison and candidate ranking of the current model."""
@@ -472,7 +497,7 @@ class Lab(QObject):
             wb.start()
             self._workbench = (generation, wb)
             return self._view(wb)
-        self.analysis_tasks.submit(task, self._analysis_done)
+        self.analysis_tasks.submit(task, lambda view: self._analysis_done(view, generation))
 
     def add_law(self, element: str, law: str) -> None:
         """Add a law to an element, refit it and rank again."""
@@ -491,18 +516,18 @@ class Lab(QObject):
             wb = self._workbench[1]
             change(wb)
             return self._view(wb)
-        self.analysis_tasks.submit(task, self._analysis_done)
+        self.analysis_tasks.submit(task, lambda view: self._analysis_done(view, generation))
 
     @staticmethod
     def _view(wb: Workbench) -> AnalysisView:
         return analysis_view(wb, wb.candidates())
 
-    def _analysis_done(self, view: AnalysisView) -> None:
+    def _analysis_done(self, view: AnalysisView, generation: int) -> None:
+        if generation != self._generation:
+            return
         self.analysis = view
         self.analysisUpdated.emit(view)
-        self.identification = IdentificationView(view.elements, sum(len(r.frequency_hz) for r in view.runs),
-                                                 False, sorted({r.force for r in view.runs}))
-        self.identificationUpdated.emit(self.identification)
+        self._show_identification(identification_of(view))
 
     # ================================================================== closing
     def shutdown(self, timeout_s: float = 30.0) -> None:
@@ -523,4 +548,9 @@ class Lab(QObject):
         if self._stack is not None:
             stack, self._stack = self._stack, None
             self.instruments = None
-            stack.close()
+            try:
+                stack.close()
+            except InstrumentError as exc:
+                # an instrument that does not confirm the output off: its watchdog switches it off once the
+                # heartbeats stop; the window closes all the same
+                log.warning("closing the instruments: %s", exc)

@@ -21,7 +21,7 @@ from PySide6.QtCore import QObject, Signal
 
 from drivers.interfaces import Block
 
-from ..campaign import CampaignListener
+from ..campaign import CampaignListener, line_extras
 from ..session import RunData, RunSpec
 from ..stepped_sine import LineMeasurement
 
@@ -180,13 +180,13 @@ class LiveRun:
 class LiveSession:
     """The campaign's runs as they arrive, readable like a session (``runs()``, ``run_names()``).
 
-    Per-line quantities carry the names the session file uses (docs/session-format.md): ``force_amplitude``,
-    ``force_target``, ``frf_std/<dof>``, ``thd/<channel>``, ``settle_periods``, ``steady``.
+    Each line is recorded as the campaign stores it (:func:`app.campaign.line_extras`), so the per-line
+    quantities carry the session file's names (docs/session-format.md).
 
     Parameters
     ----------
     daq_channels : sequence of str
-        The DAQ's channels in the order of a line's ``thd`` array.
+        The DAQ's channels, in the order of a line's harmonics and THD.
     """
 
     def __init__(self, daq_channels):
@@ -198,16 +198,12 @@ class LiveSession:
 
     def add_line(self, name: str, m: LineMeasurement, target_force: float) -> None:
         run = self._runs[name]
-        run.frequency.append(m.measured_frequency)
+        run.frequency.append(m.frequency)
         for d in run.spec.sensor_dofs:
             run.frf[d].append(m.frf[d])
-            run.add(f"frf_std/{d}", m.frf_std[d])
-        run.add("force_amplitude", abs(m.force))
-        run.add("force_target", target_force)
-        run.add("settle_periods", m.settle_periods)
-        run.add("steady", m.steady)
-        for i, channel in enumerate(self.daq_channels):
-            run.add(f"thd/{channel}", m.thd[i])
+        for key, value in line_extras(m, target_force, self.daq_channels, run.spec.raw_channels,
+                                      run.spec.sensor_dofs).items():
+            run.add(key, value)
 
     def add_random(self, name: str, frequency, frf: dict, coherence: dict) -> None:
         run = self._runs[name]

@@ -64,7 +64,7 @@ class MainWindow(QMainWindow):
         self.rig = RigPanel(self.lab)
         self.acquire = AcquirePanel(self.lab, self.clock, self.palette)
         self.identify = IdentifyPanel(self.lab, self.clock, self.palette)
-        self.model = ModelPanel(self.lab, self.clock, self.palette)
+        self.model = ModelPanel(self.lab, self.palette)
         self.session = SessionPanel(self.lab, self.palette, self.all_plots)
         self.tabs = QTabWidget()
         for panel, title in ((self.rig, "Rig"), (self.acquire, "Acquire"), (self.identify, "Identify"),

@@ -13,7 +13,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxL
                                QTreeWidgetItem, QVBoxLayout, QWidget)
 
 from .lab import Lab
-from .plots import FrameClock, LevelPalette, Redraw, configure_plot, finite_log, sensor_symbol
+from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol
 from .results import AnalysisView
 
 CANDIDATE_COLUMNS = ("Element", "Law", "Error after", "Gain", "Significant", "")
@@ -22,7 +22,7 @@ CANDIDATE_COLUMNS = ("Element", "Law", "Error after", "Gain", "Significant", "")
 class ModelPanel(QWidget):
     """The Model tab (module docstring)."""
 
-    def __init__(self, lab: Lab, clock: FrameClock, palette: LevelPalette, parent: QWidget | None = None):
+    def __init__(self, lab: Lab, palette: LevelPalette, parent: QWidget | None = None):
         super().__init__(parent)
         self.lab = lab
         self.palette = palette
@@ -99,7 +99,6 @@ class ModelPanel(QWidget):
         splitter.addWidget(self.graphics)
         splitter.setSizes([520, 900])
 
-        self.redraw = Redraw(clock, self._draw, self)
         lab.analysisUpdated.connect(self._update)
         lab.analysisBusy.connect(self._show_busy)
         lab.modelChanged.connect(self._model_changed)
@@ -148,8 +147,9 @@ class ModelPanel(QWidget):
         self._update_enabled()
 
     def _update(self, view: AnalysisView) -> None:
+        # analysis results arrive a few times a minute at most: drawn at once, not paced by the frame clock
         self.view = view
-        self.redraw.request()
+        self._draw()
 
     def _show_busy(self, busy: bool) -> None:
         self.busy_label.setText("working …" if busy else "")
@@ -214,6 +214,7 @@ class ModelPanel(QWidget):
             table.setCellWidget(row, len(CANDIDATE_COLUMNS) - 1, button)
         if view.candidates:
             table.selectRow(0)
+            self._show_explanation()          # row 0 may have been selected already: no selection signal
         else:
             self.explanation.setPlainText("No candidate: every law of the library was tried.")
 
@@ -242,13 +243,16 @@ class ModelPanel(QWidget):
         self.history.plot(steps, finite_log(errors), pen=pg.mkPen("#1f77b4", width=2), symbol="o", symbolSize=8,
                           symbolBrush=pg.mkBrush("#1f77b4"))
         for h in view.history:
-            label = pg.TextItem(f"{h.action}\n{h.error:.3g}", color="#333", anchor=(0.5, 1.15))
+            action = h.action.replace("add ", "+ ", 1)
+            # labels alternate above and below the line so neighbours with close errors do not overlap
+            label = pg.TextItem(f"{action}\n{h.error:.3g}", color="#333",
+                                anchor=(0.5, 1.15) if h.step % 2 == 0 else (0.5, -0.15))
             self.history.addItem(label)
             label.setPos(h.step, np.log10(h.error) if h.error > 0 else 0.0)
         self.history.setXRange(-0.5, max(len(view.history) - 0.5, 1.5), padding=0.05)
         logs = np.log10(errors[errors > 0]) if (errors > 0).any() else np.zeros(1)
         span = logs.max() - logs.min()
-        # room above the points for their labels (view coordinates are decades on a log axis)
-        self.history.setYRange(logs.min() - 0.15 * span - 0.1, logs.max() + 0.4 * span + 0.3, padding=0)
+        # room above and below the points for their labels (view coordinates are decades on a log axis)
+        self.history.setYRange(logs.min() - 0.3 * span - 0.3, logs.max() + 0.3 * span + 0.3, padding=0)
         ticks = [(h.step, str(h.step)) for h in view.history]
         self.history.getAxis("bottom").setTicks([ticks])

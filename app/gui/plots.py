@@ -13,7 +13,7 @@ from typing import Callable
 import numpy as np
 import pyqtgraph as pg
 from pyqtgraph.exporters import ImageExporter
-from PySide6.QtCore import QObject, QTimer, Signal
+from PySide6.QtCore import QObject, Qt, QTimer, Signal
 
 MAX_FPS = 30
 """Upper bound of live redraws per second."""
@@ -43,11 +43,15 @@ class LevelPalette:
         return LEVEL_COLORS[self._index[key] % len(LEVEL_COLORS)]
 
     def pen(self, force: float, width: float = 1.5, dashed: bool = False):
-        style = {"style": pg.QtCore.Qt.PenStyle.DashLine} if dashed else {}
+        style = {"style": Qt.PenStyle.DashLine} if dashed else {}
         return pg.mkPen(self.color(force), width=width, **style)
 
-    def brush(self, force: float):
-        return pg.mkBrush(self.color(force))
+
+def random_pen(index: int):
+    """Pen of the random run's FRF at the ``index``-th sensor: greys (the colours belong to the sine levels),
+    solid, dashed, dotted."""
+    styles = (Qt.PenStyle.SolidLine, Qt.PenStyle.DashLine, Qt.PenStyle.DotLine)
+    return pg.mkPen("#555555" if index % 2 == 0 else "#999999", width=1.2, style=styles[index % len(styles)])
 
 
 def sensor_symbol(index: int) -> str:
@@ -61,18 +65,30 @@ class LogAxis(pg.AxisItem):
 
     LABELLED = (1, 2, 5)
 
+    def logTickValues(self, minVal, maxVal, size, stdTicks):  # noqa: N802 (pyqtgraph API)
+        # pyqtgraph lists each power of ten among the major and again among the minor ticks: keep it once
+        seen: set[float] = set()
+        levels = []
+        for spacing, values in super().logTickValues(minVal, maxVal, size, stdTicks):
+            levels.append((spacing, [v for v in values if round(v, 9) not in seen]))
+            seen.update(round(v, 9) for v in values)
+        return levels
+
     def logTickStrings(self, values, scale, spacing):  # noqa: N802 (pyqtgraph API)
         numbers = [10.0 ** float(v) * scale for v in values]
         keep = [round(x / 10.0 ** np.floor(np.log10(x))) in self.LABELLED for x in numbers]
         if not any(keep):
             keep = [True] * len(numbers)
-        return [f"{x:.1g}" if k else "" for x, k in zip(numbers, keep)]
+        return [f"{float(f'{x:.1g}'):g}" if k else "" for x, k in zip(numbers, keep)]
 
 
 def configure_plot(plot: pg.PlotItem, title: str, x_label: str, x_units: str | None, y_label: str,
                    y_units: str | None, *, log_x: bool = False, log_y: bool = False,
-                   legend: bool = False) -> pg.PlotItem:
-    """Title, axis labels with units (SI prefixes on linear axes), grid and log modes of a plot."""
+                   legend: bool = False, grid: bool = True) -> pg.PlotItem:
+    """Title, axis labels with units (SI prefixes on linear axes), grid and log modes of a plot.
+
+    A plot redrawn at the full frame rate goes without a grid: its axes are repainted every frame, and the
+    grid lines are most of their cost."""
     logs = {side: LogAxis(side) for side, log in (("bottom", log_x), ("left", log_y)) if log}
     if logs:
         plot.setAxisItems(logs)
@@ -82,7 +98,8 @@ def configure_plot(plot: pg.PlotItem, title: str, x_label: str, x_units: str | N
     for side, log in (("bottom", log_x), ("left", log_y)):
         # SI prefixes make no sense on a log axis (its ticks are already powers of ten)
         plot.getAxis(side).enableAutoSIPrefix(not log)
-    plot.showGrid(x=True, y=True, alpha=0.25)
+    if grid:
+        plot.showGrid(x=True, y=True, alpha=0.25)
     plot.setLogMode(x=log_x, y=log_y)
     if legend:
         plot.addLegend(offset=(-4, 4), labelTextSize="8pt", verSpacing=-6)
@@ -118,21 +135,17 @@ def safe_file_name(text: str) -> str:
 
 
 class FrameClock(QObject):
-    """One timer for every live plot of the window: ``tick`` at most ``fps`` times a second.
-
-    Attributes
-    ----------
-    frames : int
-        Redraws done so far (over every :class:`Redraw` on this clock).
-    """
+    """One timer for every live plot of the window: ``tick`` at most ``fps`` times a second."""
 
     tick = Signal()
 
     def __init__(self, fps: int = MAX_FPS, parent: QObject | None = None):
         super().__init__(parent)
-        self.frames = 0
         self._timer = QTimer(self)
-        self._timer.setInterval(max(1, round(1000 / fps)))
+        # a coarse timer may run 5 % late; a precise one still fires about a millisecond after its interval
+        # (measured: 33 ms gives 29 ticks/s), so the interval is one millisecond short of the period
+        self._timer.setTimerType(Qt.TimerType.PreciseTimer)
+        self._timer.setInterval(max(1, round(1000 / fps) - 1))
         self._timer.timeout.connect(self.tick)
         self._timer.start()
 
@@ -141,12 +154,14 @@ class FrameClock(QObject):
 
 
 class Redraw(QObject):
-    """Redraw something on the next clock tick if it was marked dirty since the last one."""
+    """Redraw something on the next clock tick if it was marked dirty since the last one, or if ``stale()``
+    says its source has changed (a stream that changes all the time, polled once per frame)."""
 
-    def __init__(self, clock: FrameClock, draw: Callable[[], None], parent: QObject | None = None):
+    def __init__(self, clock: FrameClock, draw: Callable[[], None], parent: QObject | None = None,
+                 stale: Callable[[], bool] | None = None):
         super().__init__(parent)
-        self._clock = clock
         self._draw = draw
+        self._stale = stale
         self._dirty = False
         clock.tick.connect(self._on_tick)
 
@@ -159,8 +174,7 @@ class Redraw(QObject):
         self._draw()
 
     def _on_tick(self) -> None:
-        if self._dirty:
+        if self._dirty or (self._stale is not None and self._stale()):
             self._dirty = False
             self._draw()
-            self._clock.frames += 1
 

@@ -125,11 +125,18 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
     return views
 
 
+def _identification(elements: list[ElementView], runs: list[SineRun], live: bool) -> IdentificationView:
+    return IdentificationView(elements, sum(len(r.frequency_hz) for r in runs), live, sorted({r.force for r in runs}))
+
+
 def identification_view(wb: Workbench, live: bool) -> IdentificationView:
     """After :meth:`Workbench.identify`."""
-    lines = sum(len(r.frequency_hz) for r in wb.measurements.sine)
-    return IdentificationView(element_views(wb, with_laws=False), lines, live,
-                              sorted({r.force for r in wb.measurements.sine}))
+    return _identification(element_views(wb, with_laws=False), wb.measurements.sine, live)
+
+
+def identification_of(view: AnalysisView) -> IdentificationView:
+    """The identification part of an analysis (from the session, not live)."""
+    return _identification(view.elements, view.runs, live=False)
 
 
 def analysis_view(wb: Workbench, candidates: list[Candidate]) -> AnalysisView:

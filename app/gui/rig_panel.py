@@ -146,7 +146,7 @@ class RigPanel(QWidget):
         self.output_state.setStyleSheet(OUTPUT_OFF_STYLE)
         self.output_level = _value_label()
         self.fault = _value_label()
-        form.addRow("State (instrument)", self.output_state)
+        form.addRow("State", self.output_state)
         form.addRow("Level", self.output_level)
         form.addRow("Fault", self.fault)
         return box
@@ -270,8 +270,8 @@ class RigPanel(QWidget):
             spin.blockSignals(False)
 
     def _show_busy(self, busy: bool) -> None:
-        if busy and self.lab.instruments is None:
-            self.connection.setText("working …")
+        if self.lab.instruments is None:
+            self.connection.setText("working …" if busy else "not connected")
         self._update_enabled()
 
     def _show_instruments(self) -> None:
@@ -294,7 +294,8 @@ class RigPanel(QWidget):
     def _show_status(self, status: InstrumentStatus) -> None:
         self.output_state.setText("ON" if status.output_on else "OFF")
         self.output_state.setStyleSheet(OUTPUT_ON_STYLE if status.output_on else OUTPUT_OFF_STYLE)
-        self.output_level.setText(f"{status.level:.4g} V" + ("  (host: armed)" if status.armed_by_host else ""))
+        level = "— (the campaign owns the instrument)" if status.level is None else f"{status.level:.4g} V"
+        self.output_level.setText(level + ("  (host: armed)" if status.armed_by_host else ""))
         self.fault.setText(status.fault or "none")
         health = self.lab.link_health()
         if health is not None:

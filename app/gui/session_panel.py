@@ -17,7 +17,8 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxL
 
 from .lab import Lab
 from .live import ALARM_COLOR, is_alarm
-from .plots import LevelPalette, configure_plot, export_png, finite_log, safe_file_name, sensor_symbol
+from .plots import (LevelPalette, configure_plot, export_png, finite_log, random_pen, safe_file_name,
+                    sensor_symbol)
 
 RUN_COLUMNS = ("Run", "Kind", "Force [N]", "Direction", "Status", "Lines")
 FOLLOW_INTERVAL_MS = 1000
@@ -224,12 +225,14 @@ class SessionPanel(QWidget):
         run = self.lab.session.run(name)
         if not len(run.frequency):
             return
-        color = "#888888" if run.kind == "random" else self.palette.color(run.force)
         order = np.argsort(run.frequency)
         f = run.frequency[order]
         for p, (dof, h) in enumerate(run.frf.items()):
-            style = {"pen": pg.mkPen(color, width=1.2)}
-            if run.kind != "random":
-                style.update(symbol=sensor_symbol(p), symbolSize=5, symbolBrush=pg.mkBrush(color), symbolPen=None)
+            if run.kind == "random":          # a continuous spectrum at one low level: grey, a style per sensor
+                style = {"pen": random_pen(p)}
+            else:                             # the level's colour on every tab, sensors by symbol
+                color = self.palette.color(run.force)
+                style = {"pen": pg.mkPen(color, width=1.2), "symbol": sensor_symbol(p), "symbolSize": 5,
+                         "symbolBrush": pg.mkBrush(color), "symbolPen": None}
             self.magnitude.plot(f, finite_log(np.abs(h[order])), name=f"{dof}", **style)
             self.phase.plot(f, np.degrees(np.angle(h[order])), **style)
