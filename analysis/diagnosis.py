@@ -8,9 +8,12 @@ and the error is computed.
 Two numbers judge a candidate:
 - *kbar evidence* ``E = chi2_kbar(current) - chi2_kbar(with candidate) - k ln N``: how much of the element's
   measured kbar the law explains, with a BIC penalty of ln N per added parameter. A candidate is *supported*
-  when ``E > 0`` and it falls short of the best evidence among the candidates of that element by no more than
-  the noise explains (the chi-square quantile) or ``tie`` (0.1 %) of that best evidence -- a tie, as between
-  coulomb and jenkins with a tiny slip displacement.
+  when ``E > 0`` and either it falls short of the best evidence among the candidates of that element by no
+  more than the noise explains (the chi-square quantile) or ``tie`` (0.1 %) of that best evidence -- a tie, as
+  between coulomb and jenkins with a tiny slip displacement -- or it explains at least half as much and its FRF
+  error is within ``frf_tie`` of the best FRF error of that element's candidates with positive evidence (a
+  look-alike law may fit the kbar's model-form residue marginally better and still predict the FRFs worse;
+  a law the kbar hardly indicates may compensate another missing effect in the FRFs and is not supported).
   This keeps a law that merely compensates another missing effect in the FRFs (a quintic standing in for
   missing damping near resonance) from ranking above the law the kbar signature points to.
 - *FRF criterion* ``BIC = chi2_FRF + k ln N_FRF`` (or ``N ln(error^2) + k ln N`` without noise estimates).
@@ -292,9 +295,12 @@ def rank_candidates(predictor: Predictor, samples: dict[str, ElementSamples], fi
             mine.append(Candidate(el.name, law, comp.error, base.error, float(bic), bool(noise_ok),
                                   explain(el.name, law, sig, fit, s.units), float(evidence), True, fit, comp))
         best = max((c.evidence for c in mine), default=0.0)
+        best_frf = min((c.error for c in mine if c.evidence > 0), default=np.inf)
         for c in mine:
             slack = max(scipy.stats.chi2.ppf(1 - false_alarm, len(LAWS[c.law].params)), tie * best)
-            c.supported = c.evidence > 0 and best - c.evidence <= slack
+            # near the best kbar evidence, or as good as the best in the FRFs -- what the ranking is about
+            c.supported = c.evidence > 0 and (best - c.evidence <= slack or
+                                              (c.error <= (1 + frf_tie) * best_frf and c.evidence >= 0.5 * best))
             if el.name in linear_elements and LAWS[c.law].amplitude_dependent:
                 c.supported = False               # the verdict found no amplitude dependence to explain
             c.significant = bool(c.significant and c.supported and c.gain >= min_gain)
