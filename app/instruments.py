@@ -36,7 +36,11 @@ class Instruments:
 def emulated_instruments(rig: Rig, seed: int = 0, paced: bool = False, faults: dict | None = None):
     """The rig's emulated shaker controller and DAQ, opened through ``sim://`` URLs."""
     name = f"{rig.name}-{os.getpid()}-{next(_names)}"
-    with EmulatedRig(RigSimulator(rig, seed=seed), paced=paced, name=name,
+    simulator = RigSimulator(rig, seed=seed)
+    # compile (or load) the physics kernels now, at rest with the output off: a first compile inside the
+    # running emulator would stall its replies for seconds
+    simulator.advance(1)
+    with EmulatedRig(simulator, paced=paced, name=name,
                      faults=rig.faults if faults is None else faults) as emulator:
         emulator.register()
         shaker = daq = None

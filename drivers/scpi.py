@@ -358,10 +358,26 @@ class ScpiInstrument:
     def send(self, io: PortIO, command: str) -> None:
         io.write(command.encode("ascii") + b"\n")
 
+    def resync(self, io: PortIO, timeout: float | None = None) -> None:
+        """Get back in step after a timeout or a garbled reply.
+
+        Dropping what has arrived is not enough: the reply to the request that timed out may still be on its
+        way and would be taken for the answer to the next query. So ``*IDN?`` is sent and lines are read
+        until its reply -- four comma-separated fields, unlike any other reply of the protocol -- comes back;
+        everything before it was late.
+        """
+        io.discard_input()
+        self.send(io, "*IDN?")
+        deadline = self._deadline(timeout)
+        while True:
+            line = io.read_line(deadline, "'*IDN?' (resynchronising)")
+            if line.count(b",") == 3:
+                return
+
     def ask(self, io: PortIO, command: str, timeout: float | None = None) -> str:
         """Send a query and read its reply line."""
         if io.desynced:
-            io.discard_input()
+            self.resync(io, timeout)
         self.send(io, command)
         line = io.read_line(self._deadline(timeout), repr(command))
         return line.decode("ascii", errors="replace")
@@ -369,7 +385,7 @@ class ScpiInstrument:
     def ask_block(self, io: PortIO, command: str, timeout: float | None = None) -> bytes:
         """Send a query whose reply is IEEE 488.2 definite-length block data; its payload."""
         if io.desynced:
-            io.discard_input()
+            self.resync(io, timeout)
         self.send(io, command)
         deadline = self._deadline(timeout)
         what = repr(command)

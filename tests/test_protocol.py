@@ -317,3 +317,48 @@ def test_parameter_parsing():
     assert parse_channel_list("(@1,3:4)", 4) == [0, 2, 3]
     assert split_outside('A "x;y";B (@1,2);C', ";") == ['A "x;y"', "B (@1,2)", "C"]
     assert block_data(b"abc") == b"#13abc" and block_data(b"x" * 12) == b"#212" + b"x" * 12
+
+
+class _LatePort:
+    """A port whose replies arrive only when released: the reply to a timed-out query comes late."""
+
+    def __init__(self):
+        self.timeout = 0.01
+        self.pending = bytearray()
+        self.held = []
+        self.written = []
+
+    def write(self, data):
+        self.written.append(bytes(data))
+        command = bytes(data).strip()
+        reply = {b"OUTP?": b"0\n", b"*IDN?": b"contactid,shaker,emu1,1.0\n",
+                 b"SYST:ERR?": b'0,"No error"\n'}[command]
+        self.held.append(reply)
+        return len(data)
+
+    def release(self):
+        while self.held:
+            self.pending += self.held.pop(0)
+
+    def read(self, size):
+        self.release() if len(self.written) > 1 else None     # the first reply is late
+        out = bytes(self.pending[:size])
+        del self.pending[:size]
+        return out
+
+    def reset_input_buffer(self):
+        self.pending.clear()
+
+
+def test_a_late_reply_after_a_timeout_is_not_taken_for_the_next_answer():
+    from drivers.errors import LinkTimeout
+    from drivers.scpi import PortIO, ScpiInstrument
+
+    port = _LatePort()
+    io = PortIO(port, "late://", lambda: None)
+    scpi = ScpiInstrument(link=type("Link", (), {"url": "late://"})(), timeout=0.05)
+    with pytest.raises(LinkTimeout):
+        scpi.ask(io, "OUTP?")                    # its reply "0" arrives only after the next write
+    assert io.desynced
+    assert scpi.ask(io, "SYST:ERR?") == '0,"No error"'
+    assert port.written[1].strip() == b"*IDN?"   # resynchronised on a reply no other query gives
