@@ -446,8 +446,9 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     theta = 2 * np.pi * np.arange(n_time) / n_time
     k = np.arange(H + 1)
     S, C = np.sin(np.outer(theta, k)), np.cos(np.outer(theta, k))
-    single = predict_sweep(structure, elements, excitation_dof, w, force, direction)
     order = np.argsort(w) if direction == "up" else np.argsort(-w)
+    # the single-harmonic solution starts the first line; later lines start from the previous one
+    single = predict_sweep(structure, elements, excitation_dof, w[order[:1]], force, direction).y[0, 0]
     out = np.zeros((len(w), H + 1, structure.n), complex)
     converged = np.zeros(len(w), bool)
     previous = None
@@ -490,7 +491,7 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
 
         if previous is None:
             start = np.zeros((H + 1, r), complex)
-            start[1] = single.y[line, 0]
+            start[1] = single
         else:
             start = previous
         sol = scipy.optimize.root(residual, pack(start), method="hybr", options={"xtol": 1e-12})

@@ -18,28 +18,17 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from analysis import load_structure  # noqa: E402
+from test_identify import FORCE, paper_case  # noqa: E402  (one definition of the paper case)
 from analysis.identify import identify_complex_stiffness  # noqa: E402
 from analysis.sherman_morrison import solve_per_line  # noqa: E402
 
-PAPER_2DOF = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
-              "stiffness": [[200.0, -100.0], [-100.0, 200.0]]}
-FORCE = 0.8
-
 
 def paper_data(n_lines: int):
-    s = load_structure(PAPER_2DOF)
-    w = 2 * np.pi * np.linspace(0.8, 3.2, n_lines)
-    damped = s.with_matrices(C=0.02 * s.K).frf(w, columns=[1])[:, :, 0]
-    X1, X2 = FORCE * np.abs(damped[:, 0]), FORCE * np.abs(damped[:, 1])
-    kbar = np.stack([-0.75 * 500.0 * X1**2 + 1j * 8.0 / (3.0 * np.pi) * 1.0 * X1 * w**2,
-                     -0.75 * 750.0 * X2**2 + 1j * 4.0 * 0.1 / (np.pi * X2)], axis=1)
-    Z = s.dynamic_stiffness(w)
-    Z[:, 0, 0] += kbar[:, 0]
-    Z[:, 1, 1] += kbar[:, 1]
-    measured = np.linalg.solve(Z, np.broadcast_to(np.eye(2)[:, [1]], (n_lines, 2, 1)))[:, :, 0]
+    """The test suite's paper case (tests/test_identify.py): reference H, measured rows, true kbar."""
+    s, w, kbar, measured = paper_case(n_lines)
     return s.frf(w), measured, kbar
 
 
