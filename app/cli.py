@@ -57,8 +57,9 @@ def cmd_export(args) -> int:
 
 
 def _load_plan_for(rig_name: str | None, plan_arg: str | None):
-    from drivers.rig import builtin_plan_path, builtin_rigs
+    from drivers.simulation.rig import builtin_rigs
 
+    from .models import builtin_plan_path
     from .plan import load_plan
 
     if plan_arg is None:
@@ -80,7 +81,7 @@ def _finish(summary, output) -> int:
 
 def cmd_simulate(args) -> int:
     """Run a plan on an emulated rig through the real drivers."""
-    from drivers.rig import builtin_rigs, load_rig
+    from drivers.simulation.rig import builtin_rigs, load_rig
 
     from .instruments import emulated_instruments
     from .measure import ProgressBar, run_plan
@@ -114,9 +115,9 @@ def cmd_acquire(args) -> int:
 
 def cmd_emulate(args) -> int:
     """Serve a rig's emulated instruments over pseudo terminals or TCP until interrupted."""
-    from drivers.rig import load_rig
+    from drivers.simulation.rig import load_rig
     from drivers.serve import parse_tcp_address, serve_emulator
-    from drivers.simulator import RigSimulator
+    from drivers.simulation.simulator import RigSimulator
 
     rig = load_rig(args.rig)
     if args.tcp:

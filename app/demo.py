@@ -10,17 +10,17 @@ from __future__ import annotations
 
 import sys
 import time
-from importlib import resources
 from pathlib import Path
 
 from analysis.model import load_model
 from analysis.tables import load_toml
 from analysis.workbench import Workbench
-from drivers.rig import builtin_plan_path, load_rig
+from drivers.simulation.rig import load_rig
 
 from .analyze import report_text
 from .instruments import emulated_instruments
 from .measure import ProgressBar, run_plan
+from .models import asset, builtin_plan_path
 from .plan import load_plan
 from .report import write_report
 from .session import append_model_history, open_session
@@ -29,17 +29,13 @@ from .session_data import measurements_from_session
 MAX_STEPS = 4
 
 
-def _asset(name: str) -> Path:
-    return Path(str(resources.files("app.models").joinpath(name)))
-
-
 def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: str = "", say=print) -> Workbench:
     """Run the demo into ``out``; returns the final workbench."""
     out.mkdir(parents=True, exist_ok=True)
     session = out / "paper-beam.h5"
     rig = load_rig("paper-beam")
-    plan = load_plan(_asset("paper-beam.quick.plan.toml") if quick else builtin_plan_path("paper-beam"))
-    model_path = _asset("paper-beam.model.toml")
+    plan = load_plan(asset("paper-beam.quick.plan.toml") if quick else builtin_plan_path("paper-beam"))
+    model_path = asset("paper-beam.model.toml")
     say("contactid demo: the frictionally supported clamped beam of the method paper (section 4), on the "
         "built-in simulated rig 'paper-beam'.")
     say("The rig's contact at the free end O is unknown to the analysis: it sees only what the emulated shaker "

@@ -10,12 +10,29 @@ import os
 from contextlib import contextmanager
 from dataclasses import dataclass
 
+from typing import Any, Mapping
+
 import drivers
-from drivers.emulator import EmulatedRig
-from drivers.rig import Rig
-from drivers.simulator import RigSimulator
+from analysis.errors import InputError
+from drivers.emulator import EmulatedRig, register, set_backend_factory
+from drivers.simulation.rig import Rig, builtin_rigs, load_rig
+from drivers.simulation.simulator import RigSimulator
 
 _names = itertools.count()
+
+
+def builtin_backend(name: str, seed: int | None) -> tuple[Any, Mapping[str, Any]]:
+    """The rig simulator of built-in rig ``name`` and its ``[faults]`` table: what a ``sim://NAME/...`` URL
+    reaches when no rig of that name runs in this process."""
+    if name not in builtin_rigs():
+        raise InputError(f"no emulated rig named {name!r} is running in this process, and no built-in rig "
+                         f"has that name (built-in: {', '.join(builtin_rigs())})")
+    rig = load_rig(name)
+    return RigSimulator(rig, seed=seed), rig.faults
+
+
+# the emulator is handed its physics here, so that drivers/ never imports the simulation it emulates
+set_backend_factory(builtin_backend)
 
 
 @dataclass
@@ -42,7 +59,7 @@ def emulated_instruments(rig: Rig, seed: int = 0, paced: bool = False, faults: d
     simulator.advance(1)
     with EmulatedRig(simulator, paced=paced, name=name,
                      faults=rig.faults if faults is None else faults) as emulator:
-        emulator.register()
+        register(emulator)
         shaker = daq = None
         try:
             shaker = drivers.open_shaker(f"sim://{name}/shaker")

@@ -24,7 +24,8 @@ from app.instruments import emulated_instruments  # noqa: E402
 from app.measure import run_plan  # noqa: E402
 from app.plan import load_plan, parse_plan  # noqa: E402
 from app.session import open_session  # noqa: E402
-from drivers.rig import builtin_plan_path, load_rig  # noqa: E402
+from app.models import builtin_plan_path  # noqa: E402
+from drivers.simulation.rig import load_rig  # noqa: E402
 
 SWEEP = """
 [[stepped_sine]]

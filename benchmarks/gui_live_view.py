@@ -38,7 +38,7 @@ from app.gui.main_window import MainWindow  # noqa: E402
 from app.instruments import emulated_instruments  # noqa: E402
 from app.measure import run_plan  # noqa: E402
 from app.plan import parse_plan  # noqa: E402
-from drivers.rig import load_rig  # noqa: E402
+from drivers.simulation.rig import load_rig  # noqa: E402
 
 RIG = """
 name = "chain-25k"

@@ -22,15 +22,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from drivers.rig import load_rig  # noqa: E402
-from drivers.simulator import RigSimulator  # noqa: E402
+from drivers.simulation.rig import load_rig  # noqa: E402
+from drivers.simulation.simulator import RigSimulator  # noqa: E402
 
 DRIVE = {"paper-2dof": (1.27, 0.8), "paper-beam": (53.0, 1.0)}
 
 FIRST_CALL = """
 import time
 t0 = time.perf_counter()
-from drivers.simulator import RigSimulator
+from drivers.simulation.simulator import RigSimulator
 sim = RigSimulator({name!r})
 sim.set_sine({f}, {a})
 sim.set_output(True)
@@ -67,7 +67,7 @@ def rk4_speed(name: str, seconds: float) -> float:
     rig = load_rig(name)
     sim = RigSimulator(rig)
     model = rig.linear
-    from drivers.simulator import _state_space
+    from drivers.simulation.simulator import _state_space
     A, b_u, B_g, Cy, *_ = _state_space(rig, model, True)
     r = len(rig.elements)
     terms = [(e, t.law, t.law.parameter_vector(**t.values)) for e, el in enumerate(rig.elements) for t in el.laws]

@@ -90,7 +90,8 @@ def ranking_benchmark(session: Path | None):
     from app.plan import load_plan
     from app.session import open_session
     from app.session_data import measurements_from_session
-    from drivers.rig import builtin_plan_path, load_rig
+    from app.models import builtin_plan_path
+    from drivers.simulation.rig import load_rig
 
     if session is None:
         session = Path(tempfile.mkdtemp()) / "paper-beam.h5"

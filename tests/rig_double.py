@@ -17,7 +17,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from drivers.daq import SerialDaq
-from drivers.emulator import EmulatedRig
+from drivers.emulator import EmulatedRig, register
 from drivers.serve import EmulatorServer
 from drivers.shaker import SerialShaker
 
@@ -100,7 +100,7 @@ def bench(transport="sim", paced=False, faults=None):
     with EmulatedRig(RigDouble(), paced=paced, name=name, faults=faults) as rig:
         server = None
         if transport == "sim":
-            rig.register()
+            register(rig)
             urls = {role: f"sim://{name}/{role}" for role in ("shaker", "daq")}
         else:
             server = EmulatorServer(rig, transport)

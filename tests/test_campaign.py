@@ -14,7 +14,7 @@ from app.instruments import emulated_instruments
 from app.measure import run_plan
 from app.plan import parse_plan
 from app.session import SessionWriteError, SessionWriter, open_session, recover_session
-from drivers.rig import load_rig
+from drivers.simulation.rig import load_rig
 
 RIGS = Path(__file__).parent / "rigs"
 ROOT = Path(__file__).resolve().parents[1]
@@ -261,7 +261,7 @@ def test_paper_2dof_campaign_reproduces_table_1(tmp_path):
     from analysis.model import load_model
     from analysis.workbench import Workbench
     from app.session_data import measurements_from_session
-    from drivers.rig import builtin_rig_path
+    from drivers.simulation.rig import builtin_rig_path
 
     rig = load_rig("paper-2dof")
     text = "[[stepped_sine]]\nforce = 0.8\nstart = 0.8\nstop = 3.2\nstep = 0.025\n[limits]\nmax_force = 5.0\n" \

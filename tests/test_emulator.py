@@ -10,8 +10,9 @@ from analysis.errors import InputError
 import drivers  # noqa: F401  (registers sim://)
 from drivers.daq import SerialDaq
 from drivers.discovery import find_instruments
-from drivers.emulator import EmulatedRig, set_backend_factory
-from drivers.emulator.registry import builtin_backend, find_rig
+from drivers.emulator import EmulatedRig, register, set_backend_factory
+from app.instruments import builtin_backend
+from drivers.emulator.registry import find_rig
 from drivers.emulator.shaker import RAMP_STEP
 from drivers.errors import DeviceError, LinkLost, LinkTimeout, WrongDevice
 from drivers.faults import LinkFaults, parse_faults
@@ -170,7 +171,7 @@ def test_a_dropped_link_is_link_lost(transport):
 
 def test_scpi_error_injection_is_reported_by_the_driver():
     with EmulatedRig(RigDouble(), paced=False, name="scpierr") as rig:
-        rig.register("scpierr")
+        register(rig, "scpierr")
         with pytest.raises(DeviceError) as info:
             SerialShaker("sim://scpierr/shaker?scpi_error=1")
         assert info.value.codes == [-300] * 3 and "*RST" in str(info.value)  # *RST, *CLS, SYST:WDOG
@@ -256,7 +257,7 @@ class FailingRig(RigDouble):
 
 def test_a_physics_failure_switches_off_and_ends_the_stream_with_the_reason():
     with EmulatedRig(FailingRig(3000), paced=False, name="diverging") as rig:
-        rig.register()
+        register(rig)
         shaker = SerialShaker("sim://diverging/shaker")
         daq = SerialDaq("sim://diverging/daq")
         shaker.set_sine(10.0, 0.5)

@@ -12,7 +12,7 @@ from app.gui.main_window import MainWindow
 from app.instruments import emulated_instruments
 from app.measure import run_plan
 from app.plan import parse_plan
-from drivers.rig import load_rig
+from drivers.simulation.rig import load_rig
 
 LINEAR_MODEL = """
 [structure]

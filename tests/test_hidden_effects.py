@@ -12,7 +12,7 @@ from app.measure import run_plan
 from app.plan import parse_plan
 from app.session import open_session
 from app.session_data import measurements_from_session
-from drivers.rig import parse_rig
+from drivers.simulation.rig import parse_rig
 
 LUMPED = """
 [structure]

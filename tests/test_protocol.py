@@ -13,7 +13,7 @@ import serial
 
 import drivers  # noqa: F401  (registers sim://)
 from drivers.daq import SerialDaq
-from drivers.emulator import EmulatedRig
+from drivers.emulator import EmulatedRig, register
 from drivers.emulator.scpi_server import (ScpiError, ScpiServer, block_data, compile_header, parse_channel_list,
                                           parse_number, split_outside)
 from drivers.errors import DeviceError, LinkTimeout, ProtocolError, WrongDevice
@@ -145,7 +145,7 @@ class ScriptedPort(serial.SerialBase):
 def rig():
     with EmulatedRig(RigDouble(), paced=False, name="proto") as emulated:
         name = f"proto{next(_names)}"
-        emulated.register(name)
+        register(emulated, name)
         emulated.url_name = name
         yield emulated
 

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from analysis.errors import InputError
-from drivers.rig import builtin_plan_path, builtin_rigs, load_rig, parse_rig
+from app.models import builtin_plan_path
+from drivers.simulation.rig import builtin_rigs, load_rig, parse_rig
 
 SMALL = """
 name = "small"

@@ -16,7 +16,7 @@ import pytest
 import serial
 
 import drivers  # noqa: F401  (registers sim://)
-from drivers.emulator import EmulatedRig
+from drivers.emulator import EmulatedRig, register
 from drivers.errors import ArmingRefused, LinkLost
 from drivers.interfaces import Block
 from drivers.safety import AbortLimits, LimitExceeded, OutputGuard, check_limits
@@ -122,7 +122,7 @@ def test_limit_breach_switches_off_within_100_ms_of_the_offending_sample():
 
 def test_dropped_shaker_link_is_reported_and_the_watchdog_switches_off():
     with EmulatedRig(RigDouble(), paced=True, name="droplink") as rig:
-        rig.register()
+        register(rig)
         shaker = drivers.open_shaker("sim://droplink/shaker", watchdog=0.08)
         shaker.set_sine(10.0, 0.5)
         with OutputGuard(shaker) as guard:
@@ -143,7 +143,7 @@ def test_dropped_shaker_link_is_reported_and_the_watchdog_switches_off():
 @pytest.mark.parametrize("paced", [True, False])
 def test_a_silent_host_is_switched_off_by_the_instrument_watchdog(paced):
     with EmulatedRig(RigDouble(), paced=paced, name=f"silent{int(paced)}") as rig:
-        rig.register()
+        register(rig)
         port = serial.serial_for_url(f"sim://{rig.name}/shaker", timeout=1.0)
         port.write(b"SYST:WDOG 0.05;:VOLT 0.5;:OUTP ON;*OPC?\n")
         assert port.readline() == b"1\n"

@@ -8,8 +8,8 @@ from scipy.optimize import brentq
 from analysis.harmonics import harmonics, sine_fit
 from analysis.laws import LAWS
 from analysis.structures import Structure
-from drivers.rig import load_rig, parse_rig
-from drivers.simulator import RigSimulator, SimulationError
+from drivers.simulation.rig import load_rig, parse_rig
+from drivers.simulation.simulator import RigSimulator, SimulationError
 from test_laws import iwan_lipschitz_excess
 
 TWO_PI = 2 * math.pi

@@ -15,7 +15,8 @@ from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QDoubleSpinBox, QFi
                                QHBoxLayout, QHeaderView, QLabel, QLineEdit, QListWidget, QProgressBar,
                                QPushButton, QSplitter, QTableWidget, QVBoxLayout, QWidget)
 
-from drivers.rig import builtin_plan_path, builtin_rigs
+from app.models import builtin_plan_path
+from drivers.simulation.rig import builtin_rigs
 
 from ..plan import load_plan
 from .lab import Lab

@@ -23,7 +23,7 @@ from analysis.tables import load_toml
 from analysis.workbench import Workbench
 from drivers import InstrumentError
 from drivers.discovery import find_instruments
-from drivers.rig import Rig, load_rig
+from drivers.simulation.rig import Rig, load_rig
 
 from ..campaign import CampaignSummary
 from ..export import export_csv, export_uff

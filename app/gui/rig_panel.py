@@ -9,7 +9,7 @@ from PySide6.QtWidgets import (QButtonGroup, QCheckBox, QComboBox, QDoubleSpinBo
                                QRadioButton, QSpinBox, QVBoxLayout, QWidget)
 
 from drivers.discovery import serial_ports
-from drivers.rig import builtin_rigs
+from drivers.simulation.rig import builtin_rigs
 
 from .lab import InstrumentStatus, Lab
 

@@ -7,13 +7,13 @@ terminals or TCP (:mod:`drivers.serve`).
 
 Example::
 
-    rig = EmulatedRig(RigSimulator("paper-2dof"), paced=False, name="bench").start().register()
+    rig = register(EmulatedRig(RigSimulator("paper-2dof"), paced=False, name="bench").start())
     shaker = drivers.open_shaker("sim://bench/shaker")
     daq = drivers.open_daq("sim://bench/daq")
 """
 from .core import EmulatedRig, EmulatorEvent, LinkBusy
 from .link import InstrumentLink, LinkDropped
-from .registry import find_rig, open_sim_link, parse_sim_url, set_backend_factory
+from .registry import find_rig, open_sim_link, parse_sim_url, register, set_backend_factory
 
 __all__ = ["EmulatedRig", "EmulatorEvent", "InstrumentLink", "LinkBusy", "LinkDropped", "find_rig",
-           "open_sim_link", "parse_sim_url", "set_backend_factory"]
+           "open_sim_link", "parse_sim_url", "register", "set_backend_factory"]

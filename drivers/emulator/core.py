@@ -28,12 +28,11 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from ..faults import ROLES, FaultInjector, LinkFaults, parse_faults
-from . import registry
 from .daq import DaqFirmware
 from .link import InstrumentLink
 from .scpi_server import ScpiError
@@ -107,6 +106,7 @@ class EmulatedRig:
         self.daq = DaqFirmware(self, fifo_seconds)
         self.instruments = {"shaker": self.shaker, "daq": self.daq}
         self._links: dict[str, InstrumentLink] = {}
+        self._close_hooks: list[Callable[["EmulatedRig"], None]] = []
         self._stop = threading.Event()
         self._clock = threading.Thread(target=self._run_clock, name=f"{name} clock", daemon=True)
 
@@ -128,7 +128,8 @@ class EmulatedRig:
             return
         self.running = False
         self._stop.set()
-        registry.unregister(self)
+        for hook in self._close_hooks:
+            hook(self)
         for link in list(self._links.values()):
             link.close()
         for firmware in self.instruments.values():
@@ -144,10 +145,9 @@ class EmulatedRig:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def register(self, name: str | None = None) -> "EmulatedRig":
-        """Make the rig reachable as ``sim://<name>/shaker`` and ``sim://<name>/daq``."""
-        registry.register(name or self.name, self)
-        return self
+    def on_close(self, hook: Callable[["EmulatedRig"], None]) -> None:
+        """Call ``hook(rig)`` when the rig closes (e.g. to drop it from the ``sim://`` name table)."""
+        self._close_hooks.append(hook)
 
     # ----- time ----------------------------------------------------------------------------
     @property

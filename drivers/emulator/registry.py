@@ -4,11 +4,12 @@ URL form::
 
     sim://<rig>/<instrument>[?option=value&...]
 
-``<rig>`` names a rig registered with :meth:`EmulatedRig.register`. If none is
+``<rig>`` names a rig registered with :func:`register`. If none is
 registered under that name, the handler builds the rig on first use with the
-backend factory (:func:`set_backend_factory`; by default the rig simulator of the
-built-in rig of that name, with the rig file's ``[faults]``) and closes it when its
-last link closes. ``<instrument>`` is ``shaker`` or ``daq``.
+backend factory that the application hands in (:func:`set_backend_factory`; the app
+installs the rig simulator of the built-in rig of that name, with the rig file's
+``[faults]``) and closes it when its last link closes. Without a factory only
+registered rigs are reachable: the emulator never imports the simulation itself. ``<instrument>`` is ``shaker`` or ``daq``.
 
 Options: ``fast=1`` (only for a rig the handler builds; a registered rig keeps its
 own mode, and ``fast`` must then match it), ``seed=N`` (seed of the link's fault
@@ -28,41 +29,35 @@ from analysis.errors import InputError
 
 from ..faults import FAULT_KEYS, ROLES, parse_query_value
 
+from .core import EmulatedRig
+
 if TYPE_CHECKING:
-    from .core import EmulatedRig
     from .link import InstrumentLink
 
 BackendFactory = Callable[[str, int | None], tuple[Any, Mapping[str, Any] | None]]
 """``factory(name, seed) -> (backend, faults table or None)``."""
 
 
-def builtin_backend(name: str, seed: int | None) -> tuple[Any, Mapping[str, Any]]:
-    """The rig simulator of built-in rig ``name`` and its ``[faults]`` table (the default factory)."""
-    from ..rig import builtin_rigs, load_rig
-    from ..simulator import RigSimulator
-
-    if name not in builtin_rigs():
-        raise InputError(f"no emulated rig named {name!r} is running in this process, and no built-in rig "
-                         f"has that name (built-in: {', '.join(builtin_rigs())})")
-    rig = load_rig(name)
-    return RigSimulator(rig, seed=seed), rig.faults
-
-
 _lock = threading.Lock()
 _rigs: dict[str, "EmulatedRig"] = {}
 _built: dict[str, int] = {}          # rigs built by the handler -> open link count
-_factory: BackendFactory | None = builtin_backend
+_factory: BackendFactory | None = None
 
 
-def register(name: str, rig: "EmulatedRig") -> None:
-    """Make ``rig`` reachable as ``sim://<name>/...`` (ValueError if the name is taken)."""
+def register(rig: EmulatedRig, name: str | None = None) -> EmulatedRig:
+    """Make ``rig`` reachable as ``sim://<name>/...`` (default: its own name) until it closes.
+
+    ValueError if the name is taken by another rig."""
+    name = name or rig.name
     with _lock:
         if _rigs.get(name, rig) is not rig:
             raise ValueError(f"an emulated rig named {name!r} is already registered")
         _rigs[name] = rig
+    rig.on_close(unregister)
+    return rig
 
 
-def unregister(rig: "EmulatedRig") -> None:
+def unregister(rig: EmulatedRig) -> None:
     """Forget ``rig`` under every name it was registered with."""
     with _lock:
         for name in [n for n, r in _rigs.items() if r is rig]:
@@ -70,7 +65,7 @@ def unregister(rig: "EmulatedRig") -> None:
             _built.pop(name, None)
 
 
-def find_rig(name: str) -> "EmulatedRig | None":
+def find_rig(name: str) -> EmulatedRig | None:
     """The rig reachable as ``sim://<name>/...``, if any."""
     with _lock:
         return _rigs.get(name)
@@ -118,9 +113,7 @@ def parse_sim_url(url: str) -> SimUrl:
     return SimUrl(parts.netloc, instrument, fast, seed, faults)
 
 
-def _find_or_build(spec: SimUrl, url: str) -> "EmulatedRig":
-    from .core import EmulatedRig
-
+def _find_or_build(spec: SimUrl, url: str) -> EmulatedRig:
     with _lock:
         rig = _rigs.get(spec.rig)
         if rig is not None:
@@ -134,12 +127,13 @@ def _find_or_build(spec: SimUrl, url: str) -> "EmulatedRig":
             raise InputError(f"no emulated rig named {spec.rig!r} is running in this process", url)
         backend, faults = _factory(spec.rig, spec.seed)
         rig = EmulatedRig(backend, paced=not spec.fast, name=spec.rig, faults=faults).start()
+        rig.on_close(unregister)
         _rigs[spec.rig] = rig
         _built[spec.rig] = 1
         return rig
 
 
-def _release(name: str, rig: "EmulatedRig") -> None:
+def _release(name: str, rig: EmulatedRig) -> None:
     with _lock:
         if name not in _built:
             return

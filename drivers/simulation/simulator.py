@@ -1,8 +1,8 @@
 """Time-domain simulator of a nonlinear test rig, streaming what a DAQ would record.
 
-Physics: ``M x'' + C x' + K x + sum_e f_e(x_e, x_e', state) = F(t)`` (CONTRACTS.md §1)
+Physics: ``M x'' + C x' + K x + sum_e f_e(x_e, x_e', state) = F(t)`` (docs/contracts.md §1)
 for lumped and beam rigs, with the element laws of analysis.laws integrated through
-their own numba kernels (see :mod:`drivers.sim_kernels` for the integration scheme
+their own numba kernels (see :mod:`drivers.simulation.kernels` for the integration scheme
 and the true stick-slip of dry friction). Beam rigs are reduced (Craig-Bampton
 type: element and excitation DOFs stay physical, the rest follows their static
 shapes plus the lowest normal modes). The excitation is an ideal force source or an
@@ -33,19 +33,11 @@ import scipy.linalg
 import scipy.signal
 
 from analysis.elements import Element
-from analysis.errors import InputError
-from analysis.structures import Structure
 
-from . import sim_kernels
+from . import kernels
+from .linear_model import LinearModel
 from .rig import Rig, load_rig
 
-# The internal rate must be at least this many times the highest mode the simulator
-# keeps: the mode is then sampled without aliasing (below 80 % of the internal
-# Nyquist frequency), with margin for elements that stiffen it.
-RESOLUTION_FACTOR = 2.5
-# Displacement and velocity steps for the elements' small-amplitude stiffness and damping
-_TANGENT_DX = 1e-9
-_TANGENT_DV = 1e-9
 # Stop-band attenuation of the anti-alias filter, dB
 _ANTI_ALIAS_DB = 90.0
 # Largest number of DAQ samples integrated in one kernel call (bounds the work arrays)
@@ -54,210 +46,6 @@ _CHUNK = 1 << 15
 
 class SimulationError(RuntimeError):
     """The integration failed: the response diverged (e.g. a softening element escaped)."""
-
-
-# --- linear model -----------------------------------------------------------------
-@dataclass
-class LinearModel:
-    """The rig's linear part in the coordinates the simulator integrates.
-
-    Attributes
-    ----------
-    coordinates : list of str
-        Names of the generalised coordinates q: physical DOF names (kept DOFs) and
-        ``mode1``, ``mode2``, ... (normal-mode coordinates of a reduced beam).
-    T : ndarray, shape (n_dofs, n_q)
-        Physical displacements ``x = T q`` (every DOF of the structure).
-    M, C, K : ndarray, shape (n_q, n_q)
-        Reduced mass, damping and stiffness, including the shaker's armature and
-        suspension and the elements' small-amplitude stiffness ``k0`` and damping ``c0``.
-    element_vectors : ndarray, shape (r, n_q)
-        Element displacement ``x_e = element_vectors[e] @ q``.
-    excitation_vector : ndarray, shape (n_q,)
-    sensor_rows : ndarray, shape (n_sensors, n_q)
-    k0, c0 : ndarray, shape (r,)
-        Small-amplitude stiffness (N/m or N·m/rad) and damping of each element's
-        smooth laws, moved into the linear part (the simulator integrates the rest).
-    natural_frequencies : ndarray
-        Undamped natural frequencies of (M, K), Hz.
-    kept_modes : int
-        Normal modes in a reduced model (0 when not reduced).
-    """
-
-    coordinates: list[str]
-    T: np.ndarray
-    M: np.ndarray
-    C: np.ndarray
-    K: np.ndarray
-    element_vectors: np.ndarray
-    excitation_vector: np.ndarray
-    sensor_rows: np.ndarray
-    k0: np.ndarray
-    c0: np.ndarray
-    natural_frequencies: np.ndarray
-    kept_modes: int
-
-    @property
-    def n(self) -> int:
-        return len(self.coordinates)
-
-    @property
-    def highest_mode_hz(self) -> float:
-        return float(self.natural_frequencies[-1])
-
-    def structure(self) -> Structure:
-        """The reduced linear model as a Structure over its coordinates (for FRFs)."""
-        return Structure(list(self.coordinates), self.M, self.K, self.C, set(), "reduced rig model")
-
-    def physical_frf(self, w, excitation_row: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """Receptance of physical rows ``rows @ x`` to a force on ``excitation_row @ x``.
-
-        Parameters
-        ----------
-        w : array_like, rad/s
-        excitation_row : (n_dofs,)
-        rows : (m, n_dofs)
-
-        Returns
-        -------
-        ndarray, shape (len(w), m), complex
-        """
-        load = (self.T.T @ excitation_row)[:, None]
-        q = self.structure().response(w, load)[:, :, 0]
-        return q @ (rows @ self.T).T
-
-
-def element_tangent(element: Element) -> tuple[float, float]:
-    """Small-amplitude stiffness and damping of an element's smooth laws.
-
-    Central differences of each law's own kernel about rest (fresh state); dry
-    friction is left out (it has no stiffness at rest and its damping is set-valued).
-    Any value is exact for the simulator (only the residual is integrated implicitly);
-    a good one makes the implicit solve easy and lets the linear check see the rig
-    the elements make at rest.
-    """
-    k0 = c0 = 0.0
-    for term in element.laws:
-        law = term.law
-        if law.stick_limit is not None:
-            continue
-        p = law.parameter_vector(**term.values)
-
-        def force(x, v):
-            return float(law.kernel(x, v, p, law.initial_state(p)))
-
-        k0 += (force(_TANGENT_DX, 0.0) - force(-_TANGENT_DX, 0.0)) / (2 * _TANGENT_DX)
-        c0 += (force(0.0, _TANGENT_DV) - force(0.0, -_TANGENT_DV)) / (2 * _TANGENT_DV)
-    return k0, c0
-
-
-def build_linear_model(rig: Rig) -> LinearModel:
-    """Assemble, check and (for beams) reduce the rig's linear part.
-
-    Raises
-    ------
-    InputError
-        If the rig is unstable or adds energy at rest, or the internal time step
-        cannot resolve the highest mode kept.
-    """
-    s = rig.structure
-    M, C, K = s.M.copy(), s.C.copy(), s.K.copy()
-    exc = s.index(rig.excitation_dof)
-    if rig.shaker is not None:
-        M[exc, exc] += rig.shaker.armature_mass
-        K[exc, exc] += rig.shaker.suspension_stiffness
-        C[exc, exc] += rig.shaker.suspension_damping
-    r = len(rig.elements)
-    tangents = np.array([element_tangent(el) for el in rig.elements], float).reshape(r, 2)
-    k0, c0 = tangents[:, 0].copy(), tangents[:, 1].copy()
-    E = np.array([el.vector(s) for el in rig.elements], float).reshape(r, s.n)
-    K += E.T @ (k0[:, None] * E)
-    C += E.T @ (c0[:, None] * E)
-    _check_definite(rig, K, k0, "stiffness", "unstable at rest: its stiffness with the elements' "
-                                             "small-amplitude stiffness is not positive definite")
-    _check_definite(rig, C, c0, "damping", "would add energy: its damping with the elements' "
-                                           "small-amplitude damping is negative", semidefinite=True)
-
-    if rig.simulation.reduction == "craig-bampton":
-        cutoff = rig.simulation.mode_cutoff or rig.daq.passband * rig.daq.sample_rate
-        boundary = sorted({exc, *(i for el in rig.elements for i in el.indices(s) if i is not None)})
-        T, coordinates, kept = _craig_bampton(s, M, K, boundary, cutoff)
-    else:
-        T, coordinates, kept = np.eye(s.n), list(s.dofs), 0
-    Mr, Cr, Kr = (T.T @ A @ T for A in (M, C, K))
-    Mr, Cr, Kr = (0.5 * (A + A.T) for A in (Mr, Cr, Kr))
-    lam = scipy.linalg.eigh(Kr, Mr, eigvals_only=True)
-    freqs = np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi)
-    model = LinearModel(coordinates, T, Mr, Cr, Kr, E @ T, T[exc].copy(),
-                        T[[s.index(d) for d in rig.sensor_dofs]], k0, c0, freqs, kept)
-    _check_resolution(rig, model)
-    return model
-
-
-def _check_definite(rig: Rig, A, tangent, key, message, semidefinite=False) -> None:
-    """InputError naming the first element with a negative tangent (else the structure)
-    when A is not positive (semi)definite."""
-    lam = np.linalg.eigvalsh(A)
-    scale = max(np.abs(lam).max(initial=0.0), 1e-300)
-    bad = lam.min() < -1e-12 * scale if semidefinite else lam.min() <= 1e-12 * scale
-    if not bad:
-        return
-    culprits = [i for i, value in enumerate(tangent) if value < 0]
-    field_name = f"[[element]][{culprits[0]}].laws" if culprits else f"[structure].{key}"
-    who = f" (element {rig.elements[culprits[0]].name!r} has {'k0' if key == 'stiffness' else 'c0'} = " \
-          f"{tangent[culprits[0]]:.4g})" if culprits else ""
-    raise InputError(f"the rig is {message}{who}", rig.source, field_name)
-
-
-def _craig_bampton(s: Structure, M, K, boundary: list[int], cutoff_hz: float):
-    """Reduction basis: boundary DOFs physical, interior = static shapes + normal-mode residuals.
-
-    The interior follows the boundary through the static (constraint) modes
-    ``psi = -K_ii^-1 K_ib``; the lowest normal modes of the whole linear rig below
-    ``cutoff_hz`` are added through their interior residuals ``phi_i - psi phi_b``, so
-    the basis holds those modes exactly and the boundary DOFs stay physical.
-    """
-    n = s.n
-    interior = [i for i in range(n) if i not in set(boundary)]
-    T = np.zeros((n, len(boundary)))
-    T[boundary, range(len(boundary))] = 1.0
-    if not interior:
-        return T, [s.dofs[i] for i in boundary], 0
-    psi = -np.linalg.solve(K[np.ix_(interior, interior)], K[np.ix_(interior, boundary)])
-    T[interior] = psi
-    lam, phi = scipy.linalg.eigh(K, M)
-    kept = int(np.sum(np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi) < cutoff_hz))
-    residual = phi[interior, :kept] - psi @ phi[boundary, :kept]
-    Mii = M[np.ix_(interior, interior)]
-    columns = []
-    for k in range(kept):
-        norm = math.sqrt(max(float(residual[:, k] @ Mii @ residual[:, k]), 0.0))
-        if norm > 1e-12 * math.sqrt(float(phi[:, k] @ M @ phi[:, k])):
-            column = np.zeros(n)
-            column[interior] = residual[:, k] / norm
-            columns.append(column)
-    if columns:
-        T = np.column_stack([T, *columns])
-    names = [s.dofs[i] for i in boundary] + [f"mode{k + 1}" for k in range(len(columns))]
-    return T, names, len(columns)
-
-
-def _check_resolution(rig: Rig, model: LinearModel) -> None:
-    f_max = model.highest_mode_hz
-    needed = RESOLUTION_FACTOR * f_max
-    daq = rig.daq
-    internal = daq.sample_rate * daq.oversample
-    if internal >= needed:
-        return
-    reduced = rig.simulation.reduction == "craig-bampton"
-    which = f"mode {len(model.natural_frequencies)} of the {'reduced ' if reduced else ''}model (the highest kept)"
-    hint = (f"raise sample_rate to {needed / daq.oversample:.6g} Hz or oversample to "
-            f"{math.ceil(needed / daq.sample_rate)}")
-    if reduced:
-        hint += ", or lower [simulation].mode_cutoff"
-    raise InputError(f"the internal rate {daq.oversample} x {daq.sample_rate:g} Hz = {internal:.6g} Hz cannot "
-                     f"resolve {which} at {f_max:.6g} Hz: it needs at least {needed:.6g} Hz "
-                     f"({RESOLUTION_FACTOR} x the mode); {hint}", rig.source, "[daq].sample_rate")
 
 
 # --- state space and its exact discretisation --------------------------------------
@@ -378,7 +166,7 @@ def _law_terms(elements: list[Element]) -> _Terms:
     rows = [(e, term) for e, el in enumerate(elements) for term in el.laws]
     params = [term.law.parameter_vector(**term.values) for _, term in rows]
     states = [np.asarray(term.law.initial_state(p), float) for (_, term), p in zip(rows, params)]
-    callbacks = [sim_kernels.law_callbacks(term.law) for _, term in rows]
+    callbacks = [kernels.law_callbacks(term.law) for _, term in rows]
     n = len(rows)
     P = np.zeros((max(n, 1), max([len(p) for p in params], default=1)))
     S = np.zeros((max(n, 1), max([len(s) for s in states], default=1)))
@@ -562,11 +350,11 @@ class RigSimulator:
         self._z = np.zeros(self._nz)
         self._g = np.zeros(r)
         self._g_prev = np.zeros(r)
-        self._mode = np.where(self._terms.has_friction, sim_kernels.STICK, sim_kernels.FREE).astype(np.int64)
+        self._mode = np.where(self._terms.has_friction, kernels.STICK, kernels.FREE).astype(np.int64)
         self._sigma = np.zeros(r)
         self._jacobian = np.zeros((r, r))
         self._jacobian_valid = np.zeros(1, np.int64)
-        self._scratch = sim_kernels.scratch_space(self._nz, r, self._terms.S)
+        self._scratch = kernels.scratch_space(self._nz, r, self._terms.S)
         self._fir_history = np.zeros((len(self._taps) - 1, 1 + n_s))
         self._mean_square = np.zeros(1 + n_s)
         self._samples = 0
@@ -730,7 +518,7 @@ class RigSimulator:
         z_daq = np.empty((n, self._nz))
         f_daq = np.empty((n, len(self._g)))
         t = self._terms
-        stop, solve_failed = sim_kernels.integrate_block(
+        stop, solve_failed = kernels.integrate_block(
             n_steps, self.oversample, system.Phi, system.Qu, system.Pg0, system.Pg1, system.Cy, system.D,
             system.Co, system.Dou, system.Dog, u, self._z, self._g, self._g_prev, t.force_address,
             t.limit_address, t.count, t.element, t.friction, t.P, t.n_params, t.S, t.n_state, self.model.k0,
@@ -743,7 +531,7 @@ class RigSimulator:
             raise SimulationError(f"the response diverged at t = {self.time + stop * self.step:.6g} s: {cause}; "
                                   "the simulator must be rebuilt")
         self._advance_generator(n_steps)
-        clean = sim_kernels.fir_decimate(internal, self._fir_history, self._taps, self.oversample)
+        clean = kernels.fir_decimate(internal, self._fir_history, self._taps, self.oversample)
         block = self._sensors(clean)
         nq = self.model.n
         time = (self._samples + np.arange(n)) / self.sample_rate
@@ -787,7 +575,7 @@ class RigSimulator:
         nq = self.model.n
         x = self.model.element_vectors @ self._z[:nq]
         v = self.model.element_vectors @ self._z[nq:2 * nq]
-        modes = {sim_kernels.FREE: "free", sim_kernels.STICK: "stick", sim_kernels.SLIP: "slip"}
+        modes = {kernels.FREE: "free", kernels.STICK: "stick", kernels.SLIP: "slip"}
         return {el.name: {"displacement": float(x[e]), "velocity": float(v[e]), "mode": modes[int(self._mode[e])]}
                 for e, el in enumerate(self.rig.elements)}
 

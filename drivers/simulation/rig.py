@@ -14,12 +14,14 @@ import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+
 
 from analysis.elements import Element, load_elements
 from analysis.errors import InputError
 from analysis.structures import Structure, load_structure
 from analysis.tables import Fields
+
+from .linear_model import LinearModel, build_linear_model
 
 RIG_TABLES = {"name", "structure", "element", "excitation", "sensors", "noise", "shaker", "daq",
               "generator", "simulation", "faults"}
@@ -147,7 +149,7 @@ class SimulationSpec:
 
 @dataclass
 class Rig:
-    """A simulated test rig, validated and ready for :class:`drivers.simulator.RigSimulator`.
+    """A simulated test rig, validated and ready for :class:`drivers.simulation.simulator.RigSimulator`.
 
     Attributes
     ----------
@@ -187,7 +189,7 @@ class Rig:
     faults: dict = field(default_factory=dict)
     text: str = ""
     source: str = "<rig>"
-    linear: Any = None  # drivers.simulator.LinearModel, built by load_rig
+    linear: LinearModel | None = None  # built by load_rig
 
     @property
     def channels(self) -> list[str]:
@@ -197,20 +199,13 @@ class Rig:
 
 # --- built-in rigs ---------------------------------------------------------------
 def _rig_folder():
-    return resources.files("drivers.rigs")
+    return resources.files("drivers.simulation.rigs")
 
 
 def builtin_rigs() -> list[str]:
     """Names of the rigs shipped with the package."""
     return sorted(p.name[: -len(".toml")] for p in _rig_folder().iterdir()
                   if p.name.endswith(".toml") and not p.name.endswith(".plan.toml"))
-
-
-def builtin_plan_path(name: str) -> Path:
-    """The default plan file of built-in rig ``name``."""
-    if name not in builtin_rigs():
-        raise InputError(f"no built-in rig {name!r} (built-in rigs: {', '.join(builtin_rigs())})")
-    return Path(str(_rig_folder().joinpath(f"{name}.plan.toml")))
 
 
 def builtin_rig_path(name: str) -> Path:
@@ -290,7 +285,6 @@ def parse_rig(text: str, source: str = "<rig>") -> Rig:
               simulation=_simulation(_table(root, "simulation"), structure.description.startswith("beam")),
               faults=dict(_table(root, "faults").table), text=text, source=source)
     # the linear model checks stability and time-step resolution before any integration
-    from .simulator import build_linear_model
     rig.linear = build_linear_model(rig)
     return rig
 

@@ -1,1 +1,0 @@
-"""Built-in rig files (``NAME.toml``) and their default plans (``NAME.plan.toml``)."""
