@@ -1,0 +1,99 @@
+"""Output files that never destroy what is already there.
+
+Every command that writes a file goes through here:
+
+* an existing file is refused unless the user said ``--force`` (:func:`check_output`);
+* an output that is one of the command's own inputs is refused even with ``--force``;
+* the file is written beside its destination under a temporary name and moved into place only when it is
+  complete (:func:`atomic_output`): a full disk, a crash or an error leaves the old file (or no file), never a
+  half-written one;
+* :func:`require_free_space` refuses to start a write that cannot fit.
+"""
+from __future__ import annotations
+
+import errno
+import os
+import shutil
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterable, Iterator
+
+from analysis.errors import InputError
+
+TEMP_PREFIX = "."
+TEMP_SUFFIX = ".partial"
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output(path, *, inputs: Iterable = (), overwrite: bool = False, field: str = "-o") -> Path:
+    """Validate an output path before anything is measured or computed.
+
+    Raises InputError (naming the file and the option) when the output is one of ``inputs``, when it exists and
+    ``overwrite`` is false, or when its folder does not exist or is not writable.
+    """
+    path = Path(path)
+    for source in inputs:
+        if source is not None and (_same_file(path, Path(source)) or path.resolve() == Path(source).resolve()):
+            raise InputError("is also an input of this command; choose another output file", str(path), field)
+    if path.is_dir():
+        raise InputError("is a folder; give a file name", str(path), field)
+    if path.exists() and not overwrite:
+        raise InputError("exists already; pass --force to overwrite it", str(path), field)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise InputError("its folder does not exist", str(path), field)
+    if not os.access(folder, os.W_OK):
+        raise InputError("its folder is not writable", str(path), field)
+    return path
+
+
+def free_bytes(path) -> int:
+    """Bytes free on the file system holding ``path`` (or its folder)."""
+    path = Path(path)
+    folder = path if path.is_dir() else (path.parent if str(path.parent) else Path("."))
+    return shutil.disk_usage(folder).free
+
+
+def require_free_space(path, needed: int, what: str = "write") -> None:
+    """OSError(ENOSPC) naming ``path`` when fewer than ``needed`` bytes are free where it lives."""
+    free = free_bytes(path)
+    if free < needed:
+        raise OSError(errno.ENOSPC, f"not enough free space to {what}: {free} bytes free, {needed} needed",
+                      str(path))
+
+
+def temporary_path(path) -> Path:
+    """Where :func:`atomic_output` writes ``path`` before moving it into place (same folder: same file system)."""
+    path = Path(path)
+    return path.with_name(f"{TEMP_PREFIX}{path.name}.{os.getpid()}{TEMP_SUFFIX}")
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+@contextmanager
+def atomic_output(path, *, inputs: Iterable = (), overwrite: bool = False, field: str = "-o") -> Iterator[Path]:
+    """Write ``path`` all at once: yields a temporary path to write; on success it is synced and renamed onto
+    ``path``; on any exception it is removed and ``path`` is left as it was.
+
+    The output is checked first (:func:`check_output`)."""
+    path = check_output(path, inputs=inputs, overwrite=overwrite, field=field)
+    temp = temporary_path(path)
+    try:
+        yield temp
+        _fsync(temp)
+        os.replace(temp, path)
+    except BaseException:
+        temp.unlink(missing_ok=True)
+        raise
