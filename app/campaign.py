@@ -22,6 +22,7 @@ import numpy as np
 
 from analysis.frf_estimation import FRFEstimator
 from drivers import AbortLimits, InstrumentError, LimitExceeded, OutputGuard
+from drivers.errors import describe_instrument_error
 from drivers.interfaces import Block
 
 from .acquisition import RecordFeed
@@ -32,6 +33,11 @@ from .stepped_sine import N_HARMONICS, LineMeasurement, LineMeter, frf_change, n
 BLOCK_SECONDS = 0.5           # longest DAQ frame/block: the abort limits are checked at least this often
 BLOCK_POINTS = (64, 256)      # ...within these sizes (small frames cost throughput, large ones latency)
 RANDOM_SEGMENT_SECONDS = 8.0  # Welch segment length for the random run (frequency resolution 1/8 Hz)
+START_DRIVE = 0.05            # V peak: the first line of every sine run starts at most here...
+START_FRACTION = 0.5          # ...or at this fraction of the drive the last gain predicts, if less
+MISSED_FORCE = 0.05           # a line this far (relative) from its target force fails its run
+UNSETTLED_SHARE = 0.5         # ...and so does a run with at least this share of lines at the settling limit
+RAMP_OUT_PERIODS = 10         # the drive ramps to zero over this many periods of the last line before OFF
 
 
 class CampaignAborted(RuntimeError):
@@ -55,21 +61,40 @@ class CampaignSummary:
     runs: dict[str, str] = field(default_factory=dict)          # name -> status
     lines: int = 0
     worst_force_error: float = 0.0                              # relative, over all lines
+    control_tolerance: float = 0.01                             # relative: what the force loop holds
+    lines_off_target: int = 0                                   # lines whose force is outside the tolerance
     unsteady_lines: int = 0
     shaker_seconds: float = 0.0                                 # DAQ time spent driving
     faults: int = 0
     samples_lost: int = 0
     aborted: str = ""
+    aborted_by_instrument: bool = False                         # a link or instrument failure ended it
+    failed: dict[str, str] = field(default_factory=dict)        # run -> why its data missed the plan
+
+    @property
+    def complete(self) -> bool:
+        """Every run measured as planned: not aborted, none failed."""
+        return not self.aborted and not self.failed and all(s == "complete" for s in self.runs.values())
+
+    def force_text(self) -> str:
+        tolerance = f"{100 * self.control_tolerance:g} %"
+        if not self.lines_off_target:
+            return f"force within {tolerance} of target at every line (worst {100 * self.worst_force_error:.2f} %)"
+        return (f"force OFF TARGET at {self.lines_off_target} of {self.lines} line(s) (worst "
+                f"{100 * self.worst_force_error:.2f} % from target, tolerance {tolerance})")
 
     def text(self) -> str:
-        lines = [f"{name}: {status}" for name, status in self.runs.items()]
-        lines.append(f"{self.lines} lines; force held within {100 * self.worst_force_error:.2f} % of target; "
+        lines = [f"{name}: {status}" + (f" ({self.failed[name]})" if name in self.failed else "")
+                 for name, status in self.runs.items()]
+        lines.append(f"{self.lines} lines; {self.force_text()}; "
                      f"{self.unsteady_lines} line(s) measured at the settling limit; "
                      f"{self.shaker_seconds:.1f} s on the shaker")
         if self.faults or self.samples_lost:
             lines.append(f"{self.faults} fault(s) logged, {self.samples_lost} samples lost in transit")
         if self.aborted:
             lines.append(f"aborted: {self.aborted}")
+        elif self.failed:
+            lines.append(f"INCOMPLETE: {len(self.failed)} run(s) failed: their data missed the plan")
         return "\n".join(lines)
 
 
@@ -105,7 +130,7 @@ class Campaign:
         fs = daq.sample_rate
         self.block = int(np.clip(2 ** np.floor(np.log2(BLOCK_SECONDS * fs)), *BLOCK_POINTS))
         daq.configure(frame_points=self.block)
-        self.summary = CampaignSummary()
+        self.summary = CampaignSummary(control_tolerance=plan.control_tolerance)
         self._abort = threading.Event()
         self._abort_reason = ""
         self._paused = threading.Event()
@@ -113,6 +138,7 @@ class Campaign:
         self._events: queue.SimpleQueue = queue.SimpleQueue()
         self._guard: OutputGuard | None = None
         self._gain = None              # N per V, learnt as the campaign runs
+        self._run_lines = _RunLines()
         self._total_lines = sum(len(spec.lines(d)) for spec, d in plan.runs) + (1 if plan.random else 0)
         self._done_lines = 0
         self._t_start = 0.0
@@ -158,11 +184,18 @@ class Campaign:
                     self._sine_run(guard, spec, direction)
         except (CampaignAborted, LimitExceeded, InstrumentError, SessionWriteError) as exc:
             # the guard has switched the output off; the lines measured so far are in the session
-            self.summary.aborted = str(exc)
+            self.summary.aborted = self._describe(exc)
+            self.summary.aborted_by_instrument = isinstance(exc, InstrumentError)
         finally:
             self._guard = None
             self._drain_events()
         return self.summary
+
+    def _describe(self, exc: BaseException) -> str:
+        """An abort reason in plain words; an instrument's failure names the instrument and its port."""
+        if isinstance(exc, InstrumentError):
+            return describe_instrument_error(exc, {self.shaker.url: "shaker", self.daq.url: "DAQ"})
+        return str(exc)
 
     # ------------------------------------------------------------------ events
     def _safety_event(self, event) -> None:
@@ -312,7 +345,8 @@ class Campaign:
         extras = {"force_amplitude": ("N", (), "f8"), "force_target": ("N", (), "f8"),
                   "force_phasor": ("N", (), "c16"), "measured_frequency": ("Hz", (), "f8"),
                   "drive": ("V", (), "f8"), "settle_time": ("s", (), "f8"), "settle_periods": ("1", (), "f8"),
-                  "steady": ("bool", (), "?"), "control_steps": ("1", (), "i4")}
+                  "steady": ("bool", (), "?"), "control_steps": ("1", (), "i4"),
+                  "force_on_target": ("bool", (), "?")}
         for d in self.sensor_dofs:
             extras[f"frf_std/{d}"] = ("m/N", (), "f8")
         for c, u in zip(self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs)):
@@ -330,8 +364,7 @@ class Campaign:
             planned = spec.lines(direction)
             f, stop = planned[0], planned[-1]
             sign = 1.0 if direction == "up" else -1.0
-            drive = spec.force / self._gain if self._gain else min(0.05, self.shaker.amplitude_range[1] / 10)
-            drive = min(drive, self.shaker.amplitude_range[1])
+            drive = self._start_drive(spec.force)
             self.shaker.set_sine(f, drive)
             guard.arm()
             self._log("operator", f"armed: {name}")
@@ -342,8 +375,8 @@ class Campaign:
                                   self.plan.settle, self.plan.control_tolerance, lambda: self._interrupt(guard))
                 while True:
                     m = self._measure(meter, f, spec.force, drive)
-                    drive = m.drive
-                    self._gain = abs(m.force) / drive
+                    drive = self._carry_drive(m)
+                    self._gain = abs(m.force) / m.drive
                     self._store_line(name, index, m, spec.force)
                     index += 1
                     if sign * (f - stop) >= -1e-9 * abs(stop):
@@ -353,7 +386,37 @@ class Campaign:
                     previous = m
                     f_next = f + sign * step
                     f = stop if sign * (f_next - stop) > 0 else f_next
+                meter.ramp_out(f, m.drive, RAMP_OUT_PERIODS)
             self.shaker.disarm()
+            self._judge(name, spec.force)
+
+    def _start_drive(self, force: float) -> float:
+        """The drive of a run's first line: low. A gain learnt at another frequency or level says little
+        here (an electrodynamic shaker's N/V varies several times across a sweep), so the loop approaches
+        the target from a level that cannot reach the abort limits (docs/campaigns.md)."""
+        drive = min(START_DRIVE, self.shaker.amplitude_range[1] / 10)
+        if self._gain:
+            drive = min(drive, START_FRACTION * force / self._gain)
+        return drive
+
+    def _carry_drive(self, m: LineMeasurement) -> float:
+        """The next line starts from this line's drive, rescaled when its force ended off target (x0.5..x2)."""
+        if m.on_target or abs(m.force) == 0:
+            return m.drive
+        ratio = float(np.clip(m.target_force / abs(m.force), 0.5, 2.0))
+        return min(m.drive * ratio, self.shaker.amplitude_range[1])
+
+    def _judge(self, name: str, force: float) -> None:
+        """Fail a run whose data missed the plan (docs/campaigns.md, "Complete or failed")."""
+        judge = self._run_lines
+        reasons = []
+        if judge.missed:
+            reasons.append(f"force missed its {force:g} N target by more than {100 * MISSED_FORCE:g} % at "
+                           f"{judge.missed} of {judge.lines} line(s)")
+        if judge.lines and judge.unsteady >= UNSETTLED_SHARE * judge.lines:
+            reasons.append(f"{judge.unsteady} of {judge.lines} line(s) hit the settling limit")
+        if reasons:
+            raise RunFailed("; ".join(reasons))
 
     def _measure(self, meter: LineMeter, f: float, force: float, drive: float) -> LineMeasurement:
         while True:
@@ -365,14 +428,24 @@ class Campaign:
     def _store_line(self, name: str, index: int, m: LineMeasurement, target: float) -> None:
         extras = line_extras(m, target, list(self.daq.channels), self.channels, self.sensor_dofs)
         raw = m.raw[:, [self.daq.channels.index(c) for c in self.channels]].astype(np.float32)
-        self.writer.append_line(m.frequency, m.frf, extras, raw)
+        self.writer.append_line(m.frequency, stored_frf(m.frf), extras, raw)
+        error = abs(abs(m.force) / target - 1)
         self.summary.lines += 1
-        self.summary.worst_force_error = max(self.summary.worst_force_error, abs(abs(m.force) / target - 1))
+        self.summary.worst_force_error = max(self.summary.worst_force_error, error)
+        self.summary.lines_off_target += int(not m.on_target)
         self.summary.unsteady_lines += int(not m.steady)
         self.summary.shaker_seconds += m.settle_time
+        self._run_lines.add(m, error > MISSED_FORCE)
         if not m.steady:
             self._log("settle", f"{name}: {m.frequency:.4f} Hz measured at the settling limit "
                                 f"({m.settle_periods:.0f} periods)")
+        if not m.on_target:
+            self._log("control", f"{name}: {m.frequency:.4f} Hz: force {abs(m.force):.4g} N, target {target:g} N "
+                                 f"({100 * (abs(m.force) / target - 1):+.2f} %, tolerance "
+                                 f"{100 * self.plan.control_tolerance:g} %)")
+        for dof in unresolved(m.frf):
+            self._log("settle", f"{name}: {m.frequency:.4f} Hz: no signal on acc:{dof} (below one count): "
+                                f"its FRF is stored as NaN, not as 0")
         self.listener.line(name, index, m, target)
         self._progress(name)
 
@@ -383,15 +456,19 @@ class Campaign:
         else as aborted with the reason (abort message, or the exception's type and text), and re-raise."""
         self.writer.begin_run(spec)
         self.listener.run_started(spec.name, spec)
+        self._run_lines = _RunLines()
         status, reason = "aborted", ""
         try:
             yield
             status = "complete"
+        except RunFailed as exc:
+            status, reason = "failed", str(exc)
+            self.summary.failed[spec.name] = reason
         except CampaignAborted as exc:
             reason = str(exc)
             raise
         except Exception as exc:
-            reason = f"{type(exc).__name__}: {exc}"
+            reason = self._describe(exc) if isinstance(exc, InstrumentError) else f"{type(exc).__name__}: {exc}"
             raise
         finally:
             self._drain_events()
@@ -407,14 +484,43 @@ def line_extras(m: LineMeasurement, target: float, daq_channels: list[str], chan
     the ones recorded. The GUI's live view builds the same record from the listener's lines."""
     extras = {"force_amplitude": abs(m.force), "force_target": target, "force_phasor": m.force,
               "measured_frequency": m.measured_frequency, "drive": m.drive, "settle_time": m.settle_time,
-              "settle_periods": m.settle_periods, "steady": m.steady, "control_steps": m.control_steps}
+              "settle_periods": m.settle_periods, "steady": m.steady, "control_steps": m.control_steps,
+              "force_on_target": m.on_target}
     for d in sensor_dofs:
-        extras[f"frf_std/{d}"] = m.frf_std[d]
+        extras[f"frf_std/{d}"] = m.frf_std[d] if m.frf[d] != 0 else np.nan
     for i, c in enumerate(daq_channels):
         if c in channels:
             extras[f"harmonics/{c}"] = m.harmonics[:, i]
             extras[f"thd/{c}"] = m.thd[i]
     return extras
+
+
+def stored_frf(frf: dict) -> dict:
+    """The FRFs as stored: a sensor that saw nothing (exactly 0, below one count) is NaN, never a value."""
+    return {d: (complex(np.nan, np.nan) if h == 0 else h) for d, h in frf.items()}
+
+
+def unresolved(frf: dict) -> list[str]:
+    """Sensors whose fundamental is exactly 0: below the DAQ's resolution, nothing was measured."""
+    return [d for d, h in frf.items() if h == 0]
+
+
+@dataclass
+class _RunLines:
+    """What the lines of the run in progress say about it."""
+
+    lines: int = 0
+    missed: int = 0          # force off target by more than MISSED_FORCE
+    unsteady: int = 0        # at the settling limit
+
+    def add(self, m: LineMeasurement, missed: bool) -> None:
+        self.lines += 1
+        self.missed += int(missed)
+        self.unsteady += int(not m.steady)
+
+
+class RunFailed(Exception):
+    """Internal: the run ended, but its data missed the plan (closed with status "failed")."""
 
 
 class _Restart(Exception):

@@ -1,7 +1,17 @@
 """The ``contactid`` command line (CONTRACTS.md §6).
 
-Every command reports bad input as one line on stderr and exits non-zero; the
-traceback is shown only with ``--debug``.
+Every command reports a problem as one line on stderr; the traceback is shown only with ``--debug``.
+
+Exit status (docs/campaigns.md, "Exit status"):
+
+- 0: done; for ``simulate``/``acquire``: every run complete
+- 1: an unexpected internal error (a bug: run again with ``--debug`` and report the traceback)
+- 2: bad input (a file, a field, a command-line value); nothing was armed or written
+- 3: a campaign ended aborted (operator, abort limit, session write failure) or incomplete (a run failed:
+  force off target, lines at the settling limit); the lines measured are in the session
+- 4: a link or instrument failure (a port that cannot be opened, does not answer, is another instrument,
+  or failed during the campaign); the message names the instrument and its port
+- 130: interrupted (Ctrl-C)
 """
 from __future__ import annotations
 
@@ -11,6 +21,15 @@ from importlib.metadata import PackageNotFoundError, version
 
 from analysis import LAWS, InputError, load_structure
 from analysis.tables import load_toml
+
+EXIT_OK = 0
+EXIT_INTERNAL = 1
+EXIT_BAD_INPUT = 2
+EXIT_INCOMPLETE = 3
+EXIT_INSTRUMENT = 4
+EXIT_INTERRUPTED = 130
+EXIT_CODES_HELP = ("exit status: 0 done (every run complete), 1 internal error, 2 bad input, 3 campaign aborted "
+                   "or incomplete (lines kept in the session), 4 link or instrument failure, 130 interrupted")
 
 
 def software_version() -> str:
@@ -70,13 +89,26 @@ def _load_plan_for(rig_name: str | None, plan_arg: str | None):
 
 
 def _finish(summary, output) -> int:
+    """Print the summary; the exit status says whether the campaign is complete (module docstring)."""
     print(summary.text())
     print(f"session: {output}")
     if summary.aborted:
         print(f"contactid: campaign aborted: {summary.aborted} (output off; the lines measured so far are kept)",
               file=sys.stderr)
-        return 3
-    return 0
+        return EXIT_INSTRUMENT if summary.aborted_by_instrument else EXIT_INCOMPLETE
+    if not summary.complete:
+        failed = "; ".join(f"{run}: {why}" for run, why in summary.failed.items())
+        print(f"contactid: campaign INCOMPLETE: {failed} (the lines are kept, marked in the session)",
+              file=sys.stderr)
+        return EXIT_INCOMPLETE
+    return EXIT_OK
+
+
+def _instrument_roles(args) -> dict[str, str]:
+    """Instrument names by the URLs given as --shaker/--daq, for messages (an emulated instrument's
+    ``sim://rig/shaker`` URL names itself)."""
+    urls = ((getattr(args, "shaker", None), "shaker"), (getattr(args, "daq", None), "DAQ"))
+    return {url: role for url, role in urls if url}
 
 
 def cmd_simulate(args) -> int:
@@ -171,7 +203,7 @@ def cmd_gui(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contactid", description=(
         "Identify how a joint or contact interface behaves: stepped-sine tests, equivalent complex "
-        "stiffness per element, nonlinear law fitting."))
+        "stiffness per element, nonlinear law fitting."), epilog=EXIT_CODES_HELP)
     parser.add_argument("--version", action="version", version=f"contactid {software_version()}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -188,7 +220,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="a shorter campaign")
     p.set_defaults(run=cmd_demo)
 
-    p = sub.add_parser("simulate", help="run a plan on an emulated rig through the real drivers")
+    p = sub.add_parser("simulate", help="run a plan on an emulated rig through the real drivers",
+                       epilog=EXIT_CODES_HELP)
     p.add_argument("rig", nargs="?", help="built-in rig name or rig file")
     p.add_argument("plan", nargs="?", help="plan file (default: the built-in rig's plan)")
     p.add_argument("-o", "--output", metavar="SESSION.h5", help="session file to write")
@@ -198,7 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--list", action="store_true", help="list the built-in rigs")
     p.set_defaults(run=cmd_simulate)
 
-    p = sub.add_parser("acquire", help="run a plan on real instruments")
+    p = sub.add_parser("acquire", help="run a plan on real instruments", epilog=EXIT_CODES_HELP)
     p.add_argument("plan", help="plan file")
     p.add_argument("-o", "--output", required=True, metavar="SESSION.h5")
     p.add_argument("--shaker", required=True, metavar="URL", help="shaker controller: port name or pyserial URL")
@@ -251,6 +284,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from drivers.errors import InstrumentError, describe_instrument_error
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -259,16 +294,22 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         print(f"contactid: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
+    except InstrumentError as exc:
+        if args.debug:
+            raise
+        where = describe_instrument_error(exc, _instrument_roles(args))
+        print(f"contactid: instrument failure: {where}", file=sys.stderr)
+        return EXIT_INSTRUMENT
     except KeyboardInterrupt:
         print("contactid: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except Exception as exc:  # a one-line report for anything unexpected; --debug shows the traceback
         if args.debug:
             raise
         print(f"contactid: error: {type(exc).__name__}: {exc} (run with --debug for the traceback)",
               file=sys.stderr)
-        return 1
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":

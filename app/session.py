@@ -235,9 +235,10 @@ class SessionWriter:
             self._file.flush()
 
     def end_run(self, status: str, reason: str = "") -> None:
-        """Leave SWMR mode and record the run's status ("complete" or "aborted")."""
-        if status not in ("complete", "aborted"):
-            raise ValueError(f"status must be 'complete' or 'aborted', got {status!r}")
+        """Leave SWMR mode and record the run's status ("complete", "failed": ended but its data missed the
+        plan, or "aborted")."""
+        if status not in ("complete", "failed", "aborted"):
+            raise ValueError(f"status must be 'complete', 'failed' or 'aborted', got {status!r}")
         run, self._run = self._run, None
         if run is None:
             return

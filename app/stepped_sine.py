@@ -34,6 +34,11 @@ from .plan import SettleSpec
 
 N_HARMONICS = 5
 MAX_LATENCY_S = 10.0     # a generator change not seen in the data after this long is a fault of the set-up
+FORCE_AGREEMENT = 0.05   # two records whose force magnitudes agree this well (relative) tell the force level
+COARSE_ERROR = 0.2       # a force this far off target (relative) is corrected before the FRFs settle
+LIMIT_RETRIES = 2        # corrections of a force still off target at the settling limit, per line
+MIN_RAMP_RATE = 1e-3     # V/s: the slowest ramp asked of a generator (SCPI instruments' usual lower limit)
+MAX_CONTROL_STEPS = 20   # drive corrections per line at most (a loop that cannot converge must still end)
 
 
 @dataclass
@@ -62,6 +67,10 @@ class LineMeasurement:
         Drive corrections made at this line.
     raw : ndarray, shape (n, channels)
         The samples of the two records that agreed (the measurement and the one before it).
+    target_force : float
+        N, what the line was to hold.
+    on_target : bool
+        Whether the force is within the control tolerance of its target.
     """
 
     frequency: float
@@ -77,6 +86,8 @@ class LineMeasurement:
     steady: bool
     control_steps: int
     raw: np.ndarray
+    target_force: float
+    on_target: bool
 
 
 class LineMeter:
@@ -106,6 +117,20 @@ class LineMeter:
         ramp_s = abs(drive - (previous or 0.0)) / max(getattr(self.shaker, "ramp_rate", np.inf), 1e-12)
         self.feed.skip(self.latency + int(np.ceil((ramp_s + 3.0 / frequency) * self.sample_rate)))
 
+    def ramp_out(self, frequency: float, drive: float, periods: float) -> None:
+        """Ramp the drive to zero over ``periods`` periods (at least the instrument's own ramp time) and wait
+        for it. Switching a steady sine off at once leaves a lightly damped structure ringing at its own
+        frequencies for minutes -- the state the next run, or the next connection, would start from."""
+        rate = getattr(self.shaker, "ramp_rate", None)
+        slow = max(drive * frequency / periods, MIN_RAMP_RATE)
+        if rate is not None and slow < rate:
+            self.shaker.set_ramp_rate(slow)
+        try:
+            self._set_drive(frequency, 0.0, drive)
+        finally:
+            if rate is not None and slow < rate:
+                self.shaker.set_ramp_rate(rate)
+
     def _new_line(self, frequency: float, drive: float, n_rec: int) -> None:
         """Move the generator to a new line and wait until the data show it.
 
@@ -121,8 +146,7 @@ class LineMeter:
         while self._frequency and stale < self.sample_rate * MAX_LATENCY_S:
             self.should_stop()
             rec = self.feed.record(n_rec)
-            fit = sine_fit(rec.data[:, self.force_index], self.sample_rate, frequency)
-            if abs(fit.frequency / frequency - 1) <= tolerance:
+            if self._shows(rec.data, frequency, tolerance):
                 self.feed.unread(rec)
                 break
             stale += len(rec.data)
@@ -130,47 +154,92 @@ class LineMeter:
         self._frequency = frequency
         self.feed.skip(int(np.ceil(3.0 / frequency * self.sample_rate)))
 
+    def _fitted_frequency(self, data: np.ndarray, frequency: float) -> float | None:
+        """The frequency of the force channel's tone near ``frequency``, or None where the fit finds no tone
+        there (a record of an older line, or of a ringing structure at a force too small to fit)."""
+        try:
+            return sine_fit(data[:, self.force_index], self.sample_rate, frequency).frequency
+        except ValueError:
+            return None
+
+    def _shows(self, data: np.ndarray, frequency: float, tolerance: float) -> bool:
+        """Whether a record was taken after the generator moved to ``frequency``."""
+        fitted = self._fitted_frequency(data, frequency)
+        return fitted is not None and abs(fitted / frequency - 1) <= tolerance
+
     def measure(self, frequency: float, target_force: float, drive: float) -> LineMeasurement:
         """Hold ``target_force`` N at ``frequency`` Hz starting from ``drive`` V and measure the line."""
         fs = self.sample_rate
         n_rec = max(int(round(self.settle.block_periods * fs / frequency)), 32)
-        periods_per_record = n_rec * frequency / fs
         self._new_line(frequency, drive, n_rec)
-        start = None
-        history: list[dict] = []     # records since the drive last changed
-        waited = 0.0
-        steps = 0
+        wait = LineWait(periods_per_record=n_rec * frequency / fs, drive=drive)
+        history: list[RecordAnalysis] = []     # records since the drive last changed
         while True:
             self.should_stop()
             rec = self.feed.record(n_rec)
-            start = rec.first_sample if start is None else start
-            waited += periods_per_record
-            out = self._analyse(rec.data, frequency, fit_frequency=False)
-            history.append(out)
-            at_limit = waited >= self.settle.max_periods
+            wait.add_record(rec.first_sample)
+            history.append(self._analyse(rec.data, frequency, fit_frequency=False))
             steady = self._steady(history)
-            if not steady and not at_limit:
-                continue
-            force_error = abs(out["force"]) / target_force - 1.0
-            if steady and abs(force_error) > self.control_tolerance and not at_limit:
-                # correct only a settled force: a transient would make the loop chase itself
-                ratio = np.clip(target_force / max(abs(out["force"]), 1e-12), 0.5, 2.0)
-                new_drive = float(min(drive * ratio, self.v_max))
-                if new_drive != drive:
-                    steps += 1
-                    self._set_drive(frequency, new_drive, drive)
-                    drive = new_drive
+            at_limit = wait.at_limit(self.settle.max_periods)
+            ratio = self._correction(history, steady, at_limit, target_force, wait)
+            if ratio is not None:
+                new_drive = float(min(wait.drive * ratio, self.v_max))
+                if new_drive != wait.drive:
+                    self._set_drive(frequency, new_drive, wait.drive)
+                    wait.drive_changed(new_drive, limit_retry=at_limit)
                     history = []
                     continue
-            before = history[-2]["raw"] if len(history) > 1 else rec.data[:0]
+            if not steady and not at_limit:
+                continue
+            before = history[-2].raw if len(history) > 1 else rec.data[:0]
             out = self._analyse(rec.data, frequency, fit_frequency=True)
             # what is left of the transient is uncertain by about the last change: part of the FRF's std
             settling = self._change(history[-1], history[-2]) if len(history) > 1 else 1.0
             for d in self.sensor_dofs:
-                out["frf_std"][d] = float(np.hypot(out["frf_std"][d], abs(out["frf"][d]) * min(settling, 1.0)))
-            return self._line(frequency, out, drive, rec, start, waited, steady, steps, before)
+                out.frf_std[d] = float(np.hypot(out.frf_std[d], abs(out.frf[d]) * min(settling, 1.0)))
+            wait.steady = steady
+            return self._line(frequency, target_force, out, wait, rec, before)
 
-    def _steady(self, history: list[dict]) -> bool:
+    # ----- force control: the decisions, one function each ---------------------------------------
+    def _on_target(self, force: complex, target: float) -> bool:
+        return abs(abs(force) / target - 1.0) <= self.control_tolerance
+
+    @staticmethod
+    def _force_known(history: list["RecordAnalysis"]) -> bool:
+        """The force level is known (the last two records agree on it within FORCE_AGREEMENT), although the
+        FRFs may still be settling: a structure ringing from before moves the accelerations far more than the
+        force."""
+        if len(history) < 2:
+            return False
+        a, b = abs(history[-1].force), abs(history[-2].force)
+        return b > 0 and abs(a / b - 1.0) <= FORCE_AGREEMENT
+
+    def _correction(self, history: list["RecordAnalysis"], steady: bool, at_limit: bool, target: float,
+                    wait: "LineWait") -> float | None:
+        """The factor to scale the drive by now, or None.
+
+        - force on target: none;
+        - settled: target / measured (fine control);
+        - far off target (more than COARSE_ERROR) with a known force level: target / measured, before the
+          FRFs settle (the approach from the low starting level; waiting for a ringing structure to settle
+          at a level the plan does not ask for wastes the settling limit and measures the wrong line);
+        - at the settling limit with the force off target: target / measured, LIMIT_RETRIES times, so that a
+          line which never settles is at least measured at its force.
+        Correcting an unsettled force within COARSE_ERROR chases the transient (measured: 20 corrections per
+        line and a limit breach), so that is left to the settled case. Every factor is clipped to
+        x0.5 .. x2 per step: the force approaches its target from where it was measured, never by a jump.
+        """
+        force = history[-1].force
+        if self._on_target(force, target) or abs(force) == 0.0 or wait.control_steps >= MAX_CONTROL_STEPS:
+            return None
+        if at_limit and wait.limit_retries >= LIMIT_RETRIES:
+            return None
+        coarse = abs(abs(force) / target - 1.0) > COARSE_ERROR and self._force_known(history)
+        if not (steady or coarse or at_limit):
+            return None
+        return float(np.clip(target / abs(force), 0.5, 2.0))
+
+    def _steady(self, history: list["RecordAnalysis"]) -> bool:
         """Whether the last records show a settled response.
 
         The change between the last two records must be within the tolerance, and so must what is still to
@@ -193,25 +262,25 @@ class LineMeter:
             ratio = max(c1 / c2, c2 / c3)
             if c1 * ratio / (1.0 - ratio) <= self.settle.tolerance:
                 return True
-        noise = [max(history[-k]["noise"], history[-k - 1]["noise"]) for k in (1, 2, 3)]
+        noise = [max(history[-k].noise, history[-k - 1].noise) for k in (1, 2, 3)]
         return all(c <= min(3.0 * n, self.settle.tolerance) for c, n in zip((c1, c2, c3), noise))
 
-    def _change(self, a: dict, b: dict) -> float:
+    def _change(self, a: "RecordAnalysis", b: "RecordAnalysis") -> float:
         # magnitudes for the force (its phase depends on where the record starts), ratios for the FRFs
         with np.errstate(divide="ignore", invalid="ignore"):   # a record without drive: an infinite change
-            force = abs(abs(a["force"]) / abs(b["force"]) - 1)
-        return max(float(force) if np.isfinite(force) else np.inf, frf_change(a["frf"], b["frf"]))
+            force = abs(abs(a.force) / abs(b.force) - 1)
+        return max(float(force) if np.isfinite(force) else np.inf, frf_change(a.frf, b.frf))
 
-    def _analyse(self, data: np.ndarray, frequency: float, fit_frequency: bool) -> dict:
+    def _analyse(self, data: np.ndarray, frequency: float, fit_frequency: bool) -> "RecordAnalysis":
         """Harmonics of a record. While settling the generator frequency is good enough (a clock offset of
         some ppm moves both channels alike, so FRF ratios and the force magnitude do not see it); the record
         that is kept is analysed at the frequency fitted on the force channel."""
         fs = self.sample_rate
         f_meas = frequency
         if fit_frequency:
-            fit = sine_fit(data[:, self.force_index], fs, frequency)
-            if abs(fit.frequency / frequency - 1) < 1e-3:
-                f_meas = fit.frequency
+            fitted = self._fitted_frequency(data, frequency)
+            if fitted is not None and abs(fitted / frequency - 1) < 1e-3:
+                f_meas = fitted
             H = harmonics_at(data, fs, f_meas, N_HARMONICS)
         else:
             key = (frequency, data.shape[0])
@@ -230,13 +299,60 @@ class LineMeter:
             rel = np.hypot(amp_std[i] / max(abs(Y1[i]), 1e-300), amp_std[self.force_index] / max(abs(F), 1e-300))
             frf_std[d] = abs(h) * rel
         noise = max(frf_std[d] / max(abs(frf[d]), 1e-300) for d in self.sensor_dofs)
-        return {"force": F, "frf": frf, "frf_std": frf_std, "harmonics": H.amplitudes, "noise": noise,
-                "thd": total_harmonic_distortion(H.amplitudes), "f": f_meas, "raw": data}
+        return RecordAnalysis(F, frf, frf_std, H.amplitudes, noise, total_harmonic_distortion(H.amplitudes),
+                              f_meas, data)
 
-    def _line(self, frequency, out, drive, rec, start, waited, steady, steps, before) -> LineMeasurement:
-        return LineMeasurement(frequency, out["f"], out["force"], out["frf"], out["frf_std"], out["harmonics"],
-                               out["thd"], drive, (rec.first_sample + len(rec.data) - start) / self.sample_rate,
-                               waited, steady, steps, np.concatenate([before, rec.data], axis=0))
+    def _line(self, frequency: float, target: float, out: "RecordAnalysis", wait: "LineWait", rec,
+              before: np.ndarray) -> LineMeasurement:
+        return LineMeasurement(frequency, out.frequency, out.force, out.frf, out.frf_std, out.harmonics, out.thd,
+                               wait.drive, (rec.first_sample + len(rec.data) - wait.first_sample) / self.sample_rate,
+                               wait.periods, wait.steady, wait.control_steps, np.concatenate([before, rec.data]),
+                               target, self._on_target(out.force, target))
+
+
+@dataclass
+class RecordAnalysis:
+    """What one record says: force and accelerometer fundamentals as FRFs, harmonics, noise of the estimate.
+
+    ``noise`` is the largest relative standard deviation of the FRFs (from the fit residual); ``frequency`` the
+    frequency the harmonics were fitted at; ``raw`` the record's samples."""
+
+    force: complex
+    frf: dict
+    frf_std: dict
+    harmonics: np.ndarray
+    noise: float
+    thd: np.ndarray
+    frequency: float
+    raw: np.ndarray
+
+
+@dataclass
+class LineWait:
+    """The wait at one line: where it began, how long it has lasted, what the force loop did."""
+
+    periods_per_record: float
+    drive: float                       # V peak now
+    first_sample: int | None = None
+    periods: float = 0.0               # since the line began
+    since_change: float = 0.0          # since the drive last changed
+    control_steps: int = 0
+    limit_retries: int = 0             # corrections made at the settling limit
+    steady: bool = False
+
+    def add_record(self, first_sample: int) -> None:
+        self.first_sample = first_sample if self.first_sample is None else self.first_sample
+        self.periods += self.periods_per_record
+        self.since_change += self.periods_per_record
+
+    def at_limit(self, max_periods: float) -> bool:
+        return self.since_change >= max_periods
+
+    def drive_changed(self, drive: float, limit_retry: bool) -> None:
+        self.drive = drive
+        self.since_change = 0.0
+        self.control_steps += 1
+        self.limit_retries += int(limit_retry)
 
 
 def frf_change(a: dict, b: dict) -> float:

@@ -98,3 +98,9 @@ class OutputTripped(InstrumentError):
 
 class ArmingRefused(InstrumentError):
     """The shaker was asked to switch on outside an :class:`drivers.safety.OutputGuard`."""
+
+
+def describe_instrument_error(error: InstrumentError, roles: dict[str, str]) -> str:
+    """``<role> at <url>: <message>`` in plain words, the role (``shaker``, ``DAQ``) looked up by URL."""
+    role = roles.get(error.url)
+    return f"{role} at {error.url}: {error.message}" if role else str(error)
