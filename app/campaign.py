@@ -54,6 +54,7 @@ class CampaignListener:
     def run_ended(self, run: str, status: str) -> None: ...
     def event(self, kind: str, message: str) -> None: ...
     def progress(self, done: int, total: int, eta_s: float | None, run: str) -> None: ...
+    def lines_added(self, planned: int, added: int) -> None: ...   # refinement: total = planned + added
 
 
 @dataclass
@@ -141,6 +142,7 @@ class Campaign:
         self._run_lines = _RunLines()
         self._total_lines = sum(len(spec.lines(d)) for spec, d in plan.runs) + (1 if plan.random else 0)
         self._done_lines = 0
+        self._added_lines = 0          # lines refinement added to the plan so far (runs before this one)
         self._t_start = 0.0
 
     # ------------------------------------------------------------------ control (any thread)
@@ -246,12 +248,16 @@ class Campaign:
             guard.arm()
             raise _Restart
 
-    def _progress(self, run: str) -> None:
+    def _progress(self, run: str, added: int = 0) -> None:
+        """One more line done; ``added`` is how many lines refinement has added to the plan so far."""
         self._done_lines += 1
+        if added != self._added_lines:
+            self._added_lines = added
+            self.listener.lines_added(self._total_lines, added)
+        total = self._total_lines + added
         elapsed = time.monotonic() - self._t_start
-        rate = elapsed / self._done_lines
-        eta = rate * max(self._total_lines - self._done_lines, 0)
-        self.listener.progress(self._done_lines, self._total_lines, eta, run)
+        eta = elapsed / self._done_lines * max(total - self._done_lines, 0)
+        self.listener.progress(self._done_lines, total, eta, run)
 
     # ------------------------------------------------------------------ random run
     def _random_run(self, guard: OutputGuard, spec: RandomSpec) -> None:
@@ -280,7 +286,7 @@ class Campaign:
             self.summary.shaker_seconds += got / fs + 2.0
             self.shaker.disarm()
             self._write_random(est, spec, drive)
-        self._progress(name)
+        self._progress(name, self._added_lines)
 
     def _interrupt_random(self, guard: OutputGuard) -> None:
         try:
@@ -369,6 +375,7 @@ class Campaign:
             guard.arm()
             self._log("operator", f"armed: {name}")
             step, previous, index = spec.step, None, 0
+            added_before = self._added_lines
             with self.daq.stream(self.block) as stream:
                 feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
                 meter = LineMeter(self.shaker, feed, list(self.daq.channels), self.sensor_dofs, fs,
@@ -379,6 +386,7 @@ class Campaign:
                     self._gain = abs(m.force) / m.drive
                     self._store_line(name, index, m, spec.force)
                     index += 1
+                    self._progress(name, added_before + _added(planned, f, sign, index))
                     if sign * (f - stop) >= -1e-9 * abs(stop):
                         break
                     if spec.refine and previous is not None:
@@ -447,7 +455,6 @@ class Campaign:
             self._log("settle", f"{name}: {m.frequency:.4f} Hz: no signal on acc:{dof} (below one count): "
                                 f"its FRF is stored as NaN, not as 0")
         self.listener.line(name, index, m, target)
-        self._progress(name)
 
     # ------------------------------------------------------------------ runs
     @contextmanager
@@ -493,6 +500,12 @@ def line_extras(m: LineMeasurement, target: float, daq_channels: list[str], chan
             extras[f"harmonics/{c}"] = m.harmonics[:, i]
             extras[f"thd/{c}"] = m.thd[i]
     return extras
+
+
+def _added(planned: list[float], f: float, sign: float, measured: int) -> int:
+    """Lines refinement added to a run: measured so far beyond the planned lines passed (up to ``f``)."""
+    passed = sum(1 for p in planned if sign * (p - f) <= 1e-9 * abs(f))
+    return max(measured - passed, 0)
 
 
 def stored_frf(frf: dict) -> dict:

@@ -295,6 +295,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"contactid: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except FileNotFoundError as exc:
+        if args.debug:
+            raise
+        print(f"contactid: error: {exc.filename}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except InstrumentError as exc:
         if args.debug:
             raise

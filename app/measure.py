@@ -11,36 +11,70 @@ from .session import SessionWriter
 
 
 class ProgressBar(CampaignListener):
-    """One updating line on a terminal (stderr): run, line, force level, ETA; faults on their own lines."""
+    """Campaign progress on stderr: lines done of planned plus added (refinement adds lines), run, force
+    level, ETA; faults on their own lines.
+
+    On a terminal one line updates in place (at most five times a second). Anywhere else (a log file, a
+    pipe) plain lines are written: one when a run starts and ends and one each time another tenth of the
+    lines is done -- never carriage-return frames.
+    """
 
     def __init__(self, stream=sys.stderr, quiet: bool = False):
         self.stream = stream
         self.quiet = quiet
+        self.live = bool(getattr(stream, "isatty", lambda: False)())
         self._last = 0.0
+        self._tenth = 0
         self._force = {}
+        self._planned: int | None = None
+        self._added = 0
+        self._counted = ""
 
     def run_started(self, name, spec):
         self._force[name] = spec.force
+        if not self.quiet and not self.live:
+            self._write(f"{name}: started ({spec.force:g} N)\n")
+
+    def lines_added(self, planned, added):
+        self._planned, self._added = planned, added
+
+    def _count(self, done: int, total: int) -> str:
+        planned = total if self._planned is None else self._planned
+        added = total - planned
+        return f"{done}/{planned}" + (f"+{added}" if added else "") + " lines"
 
     def progress(self, done, total, eta_s, run):
-        now = time.monotonic()
-        if self.quiet or (now - self._last < 0.2 and done < total):
+        if self.quiet:
             return
-        self._last = now
-        width = 30
-        filled = int(width * done / max(total, 1))
         eta = "" if eta_s is None else f" ETA {eta_s:5.0f} s"
-        self.stream.write(f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total} lines  {run} "
-                          f"({self._force.get(run, 0):g} N){eta}   ")
-        self.stream.flush()
+        self._counted = self._count(done, total)
+        text = f"{self._counted}  {run} ({self._force.get(run, 0):g} N){eta}"
+        if self.live:
+            now = time.monotonic()
+            if now - self._last < 0.2 and done < total:
+                return
+            self._last = now
+            width = 30
+            filled = int(width * min(done / max(total, 1), 1.0))
+            self._write(f"\r[{'#' * filled}{'.' * (width - filled)}] {text}   ")
+            return
+        tenth = int(10 * done / max(total, 1))
+        if tenth > self._tenth:
+            self._tenth = tenth
+            self._write(text + "\n")
 
     def event(self, kind, message):
         if kind == "fault" or (kind == "safety" and message.startswith("trip")):
-            self.stream.write(f"\n{kind}: {message}\n")
+            self._write(("\n" if self.live else "") + f"{kind}: {message}\n")
 
     def run_ended(self, run, status):
         if not self.quiet:
-            self.stream.write(f"\n{run}: {status}\n")
+            counted = f" ({self._counted})" if self._counted else ""
+            self._write(("\n" if self.live else "") + f"{run}: {status}{counted}\n")
+
+    def _write(self, text: str) -> None:
+        self.stream.write(text)
+        self.stream.flush()
 
 
 def run_plan(plan: Plan, instruments: Instruments, output, *, overwrite: bool = False, command: str = "",

@@ -34,7 +34,8 @@ from .plan import SettleSpec
 
 N_HARMONICS = 5
 MAX_LATENCY_S = 10.0     # a generator change not seen in the data after this long is a fault of the set-up
-FORCE_AGREEMENT = 0.05   # two records whose force magnitudes agree this well (relative) tell the force level
+FORCE_AGREEMENT = 0.05   # three records whose force magnitudes agree this well (relative) tell the force level
+TONE_TOLERANCE = 1e-3    # ...if the force's fitted frequency is the line's within this (relative)
 COARSE_ERROR = 0.2       # a force this far off target (relative) is corrected before the FRFs settle
 LIMIT_RETRIES = 2        # corrections of a force still off target at the settling limit, per line
 MIN_RAMP_RATE = 1e-3     # V/s: the slowest ramp asked of a generator (SCPI instruments' usual lower limit)
@@ -117,6 +118,30 @@ class LineMeter:
         ramp_s = abs(drive - (previous or 0.0)) / max(getattr(self.shaker, "ramp_rate", np.inf), 1e-12)
         self.feed.skip(self.latency + int(np.ceil((ramp_s + 3.0 / frequency) * self.sample_rate)))
 
+    def _await_level(self, frequency: float, n_rec: int, force: complex, ratio: float) -> None:
+        """After the drive was scaled by ``ratio`` from a level that gave ``force``, wait until the data show
+        the change, as :meth:`_new_line` waits for a new frequency: records whose force is still the old one
+        were sampled before the instrument acted (a socket or FIFO can hold seconds of them), and a loop
+        correcting on them doubles the drive again and again -- the first-line overshoots of the force limit.
+        The samples that took update the learnt latency."""
+        stale = 0
+        while stale < self.sample_rate * MAX_LATENCY_S:
+            self.should_stop()
+            rec = self.feed.record(n_rec)
+            now = abs(self._analyse(rec.data, frequency, fit_frequency=False).force)
+            if self._moved(abs(force), now, ratio):
+                self.feed.unread(rec)
+                break
+            stale += len(rec.data)
+        self.latency = max(self.latency, stale)
+
+    @staticmethod
+    def _moved(before: float, now: float, ratio: float) -> bool:
+        """Whether a force went at least half the way (in log) a drive change by ``ratio`` should take it."""
+        if before <= 0 or now <= 0:
+            return now > 0
+        return abs(np.log(now / before)) >= 0.5 * abs(np.log(ratio))
+
     def ramp_out(self, frequency: float, drive: float, periods: float) -> None:
         """Ramp the drive to zero over ``periods`` periods (at least the instrument's own ramp time) and wait
         for it. Switching a steady sine off at once leaves a lightly damped structure ringing at its own
@@ -155,12 +180,17 @@ class LineMeter:
         self.feed.skip(int(np.ceil(3.0 / frequency * self.sample_rate)))
 
     def _fitted_frequency(self, data: np.ndarray, frequency: float) -> float | None:
-        """The frequency of the force channel's tone near ``frequency``, or None where the fit finds no tone
-        there (a record of an older line, or of a ringing structure at a force too small to fit)."""
+        """The frequency of the force channel's tone near ``frequency``, or None where the record holds no
+        tone there: the fit diverges, or explains less than half the record's power (a record of an older
+        line: over a whole number of periods of both, a tone at 2 Hz projects to nothing at 2.5 Hz, and the
+        fit then stays at its guess; or a ringing structure at a force too small to fit)."""
         try:
-            return sine_fit(data[:, self.force_index], self.sample_rate, frequency).frequency
+            fit = sine_fit(data[:, self.force_index], self.sample_rate, frequency)
         except ValueError:
             return None
+        if not abs(fit.amplitude) / np.sqrt(2) > fit.residual_rms:
+            return None
+        return fit.frequency
 
     def _shows(self, data: np.ndarray, frequency: float, tolerance: float) -> bool:
         """Whether a record was taken after the generator moved to ``frequency``."""
@@ -181,11 +211,12 @@ class LineMeter:
             history.append(self._analyse(rec.data, frequency, fit_frequency=False))
             steady = self._steady(history)
             at_limit = wait.at_limit(self.settle.max_periods)
-            ratio = self._correction(history, steady, at_limit, target_force, wait)
+            ratio = self._correction(frequency, history, steady, at_limit, target_force, wait)
             if ratio is not None:
                 new_drive = float(min(wait.drive * ratio, self.v_max))
                 if new_drive != wait.drive:
                     self._set_drive(frequency, new_drive, wait.drive)
+                    self._await_level(frequency, n_rec, history[-1].force, new_drive / wait.drive)
                     wait.drive_changed(new_drive, limit_retry=at_limit)
                     history = []
                     continue
@@ -204,18 +235,20 @@ class LineMeter:
     def _on_target(self, force: complex, target: float) -> bool:
         return abs(abs(force) / target - 1.0) <= self.control_tolerance
 
-    @staticmethod
-    def _force_known(history: list["RecordAnalysis"]) -> bool:
-        """The force level is known (the last two records agree on it within FORCE_AGREEMENT), although the
-        FRFs may still be settling: a structure ringing from before moves the accelerations far more than the
-        force."""
-        if len(history) < 2:
+    def _force_known(self, frequency: float, history: list["RecordAnalysis"]) -> bool:
+        """The force level is known, although the FRFs may still be settling (a structure ringing from before
+        moves the accelerations far more than the force): the last three records agree on the force within
+        FORCE_AGREEMENT and the last one holds a tone at the line's frequency (samples taken before the
+        generator moved, still in the queues, hold none there and would read as almost no force)."""
+        if len(history) < 3:
             return False
-        a, b = abs(history[-1].force), abs(history[-2].force)
-        return b > 0 and abs(a / b - 1.0) <= FORCE_AGREEMENT
+        forces = [abs(h.force) for h in history[-3:]]
+        if min(forces) <= 0 or max(forces) / min(forces) - 1.0 > FORCE_AGREEMENT:
+            return False
+        return self._shows(history[-1].raw, frequency, TONE_TOLERANCE)
 
-    def _correction(self, history: list["RecordAnalysis"], steady: bool, at_limit: bool, target: float,
-                    wait: "LineWait") -> float | None:
+    def _correction(self, frequency: float, history: list["RecordAnalysis"], steady: bool, at_limit: bool,
+                    target: float, wait: "LineWait") -> float | None:
         """The factor to scale the drive by now, or None.
 
         - force on target: none;
@@ -234,7 +267,7 @@ class LineMeter:
             return None
         if at_limit and wait.limit_retries >= LIMIT_RETRIES:
             return None
-        coarse = abs(abs(force) / target - 1.0) > COARSE_ERROR and self._force_known(history)
+        coarse = abs(abs(force) / target - 1.0) > COARSE_ERROR and self._force_known(frequency, history)
         if not (steady or coarse or at_limit):
             return None
         return float(np.clip(target / abs(force), 0.5, 2.0))

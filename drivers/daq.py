@@ -399,9 +399,10 @@ class SerialDaq:
         scpi = self._scpi
         scpi.send(io, "")
         scpi.send(io, "ABOR")  # a stream left running by an earlier session must not garble the replies
-        io.drain(quiet=0.1, limit=END_LIMIT)
+        scpi.clear(io)
         identity = scpi.identify(io, MANUFACTURER, models, "contactid DAQ", 2 * scpi.timeout)
-        scpi.execute(io, "*RST;*CLS")
+        scpi.execute(io, "*CLS;*RST")
+        scpi.expect(io, {"SYST:ERR:COUN?": lambda r: r == "0"}, "*CLS;*RST")
         self._read_setup(io)
         return identity
 

@@ -36,6 +36,10 @@ MAX_LINE = 1 << 16
 """Longest reply line accepted (bytes); anything longer is a protocol error."""
 MAX_ERRORS_DRAINED = 64
 """Error-queue entries read after a failed command before giving up draining."""
+CLEAR_QUIET = 0.1
+"""Device clear on a byte link: the line must stay silent this long (s) before the first command..."""
+CLEAR_LIMIT = 10.0
+"""...waiting at most this long (s) for a previous client's late replies or stream to end."""
 _ERROR_REPLY = re.compile(r'^\s*([+-]?\d+)\s*,\s*"(.*)"\s*$')
 
 
@@ -107,7 +111,7 @@ class PortIO:
             left = deadline - time.monotonic()
             if left <= 0:
                 self.desynced = True
-                raise LinkTimeout(self.url, f"no complete reply to {what} in time")
+                raise LinkTimeout(self.url, f"no complete reply to {what} in time (the instrument went silent)")
             chunk = self._receive(1, min(POLL, left))
         self.rx += chunk
 
@@ -403,6 +407,27 @@ class ScpiInstrument:
             raise ProtocolError(self.url, f"extra bytes after the block data of {what}")
         return payload
 
+    def clear(self, io: PortIO) -> None:
+        """Device clear over a byte link (a serial line or a socket has no IEEE 488.1 DCL).
+
+        An instrument keeps its state from one connection to the next: a half-written command of the previous
+        client, replies it never read, a stream it left running. A line end completes (and so discards, as an
+        error the caller clears with ``*CLS``) any half-written command, and every byte still arriving is
+        dropped until the line has been silent for CLEAR_QUIET s. The caller then resets the instrument
+        (``*RST;*CLS``) and reads back what matters (:meth:`expect`)."""
+        self.send(io, "")
+        io.drain(quiet=CLEAR_QUIET, limit=CLEAR_LIMIT)
+        io.desynced = False
+
+    def expect(self, io: PortIO, checks: dict[str, Callable[[str], bool]], after: str) -> None:
+        """Ask each query of ``checks`` and raise InstrumentError naming the first whose reply fails its test
+        (after ``after``, e.g. ``"*RST"``: the instrument did not reach the state it promises)."""
+        for query, ok in checks.items():
+            reply = self.ask(io, query).strip()
+            if not ok(reply):
+                raise InstrumentError(self.url, f"{query} answered {reply!r} after {after}: the instrument is not "
+                                                f"in its reset state")
+
     def drain_errors(self, io: PortIO) -> list[ScpiErrorEntry]:
         """Read the error queue until it reports 0 (at most MAX_ERRORS_DRAINED entries)."""
         errors = []
@@ -450,12 +475,23 @@ class ScpiInstrument:
     def identify(self, io: PortIO, manufacturer: str, models: tuple[str, ...], role: str,
                  timeout: float) -> Identity:
         """Ask ``*IDN?`` and check the instrument is one of ``models`` by ``manufacturer``."""
-        try:
-            reply = self.ask(io, "*IDN?", timeout)
-        except LinkTimeout:
-            raise LinkTimeout(self.url, f"no reply to *IDN? within {timeout:.3g} s: is this the {role} "
-                                        "and is the baud rate right?") from None
-        identity = Identity.parse(reply)
+        if io.desynced:
+            self.resync(io, timeout)
+        self.send(io, "*IDN?")
+        deadline = self._deadline(timeout)
+        reply = None
+        while True:      # a late reply to a previous client's query may come first: skip non-identities
+            try:
+                line = io.read_line(deadline, "'*IDN?'").decode("ascii", errors="replace")
+            except LinkTimeout:
+                if reply is not None:
+                    break
+                raise LinkTimeout(self.url, f"no reply to *IDN? within {timeout:.3g} s: is this the {role} and "
+                                            "is the baud rate right?") from None
+            reply = line
+            identity = Identity.parse(line)
+            if identity is not None:
+                break
         if identity is None:
             raise WrongDevice(self.url, f"*IDN? answered {reply!r}, which is not an IEEE 488.2 identity: "
                                         f"not a {role}")

@@ -1,7 +1,10 @@
 """The shaker controller driver: SCPI over any pyserial URL.
 
-Opening the driver identifies the instrument (``*IDN?``), resets it (output OFF),
-sets the instrument's watchdog and reads its ranges. While the port is otherwise
+Opening the driver clears the line (a previous client's half-written command and late
+replies are dropped), identifies the instrument (``*IDN?``), resets it (``*CLS;*RST``),
+sets the watchdog and reads back that the output is OFF at zero amplitude, the error
+queue empty and the watchdog set -- every connection starts from the same known state --
+then reads the ranges. While the port is otherwise
 silent the owner thread sends a heartbeat (``OUTP?``) every quarter of the
 watchdog time: it feeds the watchdog, detects a dead link and notices an output
 the instrument switched off by itself (reported as :class:`OutputTripped`).
@@ -26,6 +29,17 @@ SHAKER_MODELS = ("SC-1",)
 def _number(value) -> str:
     """A number as SCPI <NRf> text, whatever numeric type it arrives as (numpy's repr is not a number)."""
     return repr(float(value))
+
+
+def _is_zero(reply: str) -> bool:
+    return _close_to(reply, 0.0)
+
+
+def _close_to(reply: str, value: float) -> bool:
+    try:
+        return abs(float(reply) - value) <= 1e-9 * max(1.0, abs(value))
+    except ValueError:
+        return False
 
 
 class SerialShaker:
@@ -75,10 +89,12 @@ class SerialShaker:
 
     def _connect(self, io: PortIO, models: tuple[str, ...]) -> Identity:
         scpi = self._scpi
-        scpi.send(io, "")  # ends any half-written command left on the line
-        io.discard_input()
+        scpi.clear(io)
         identity = scpi.identify(io, MANUFACTURER, models, "contactid shaker controller", 2 * scpi.timeout)
-        scpi.execute(io, f"*RST;*CLS;:SYST:WDOG {_number(self.watchdog)}")
+        scpi.execute(io, "*CLS;*RST")
+        scpi.execute(io, f"SYST:WDOG {_number(self.watchdog)}")
+        scpi.expect(io, {"OUTP?": lambda r: r == "0", "VOLT:ACT?": _is_zero, "SYST:ERR:COUN?": lambda r: r == "0",
+                         "SYST:WDOG?": lambda r: _close_to(r, self.watchdog)}, "*RST")
         reply = scpi.ask(io, "FREQ? MIN;:FREQ? MAX;:VOLT:UNIT VPP;:VOLT? MAX;:VOLT:RAMP?")
         try:
             f_min, f_max, vpp_max, ramp = (float(x) for x in reply.split(";"))

@@ -1,0 +1,218 @@
+"""A campaign never reports success on bad data: repeated acquisitions over TCP, runs that miss their force,
+the first line's approach, unresolved sensors, exit codes and progress output."""
+import io
+import re
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+import drivers
+from app.campaign import CampaignListener, _added, stored_frf
+from app.instruments import emulated_instruments
+from app.measure import ProgressBar, run_plan
+from app.plan import parse_plan
+from app.session import open_session
+from drivers.serve import serve_emulator
+from drivers.simulation.rig import load_rig
+from drivers.simulation.simulator import RigSimulator
+
+RIGS = Path(__file__).parent / "rigs"
+ROOT = Path(__file__).resolve().parents[1]
+FIVE_LINES = "[[stepped_sine]]\nforce = 0.8\nstart = 1.0\nstop = 3.0\nstep = 0.5\nrefine = false\n" \
+             "[limits]\nmax_force = 5.0\nmax_acceleration = 50.0\n"
+# one DOF on an ideal force source of 0.1 N/V: at most 1 N from the generator's 10 V
+WEAK_SOURCE = """
+name = "weak-source"
+[structure]
+type = "lumped"
+dofs = ["x"]
+mass = [[1.0]]
+stiffness = [[4000.0]]
+rayleigh = [2.0, 0.0]
+[excitation]
+dof = "x"
+gain = 0.1
+[sensors]
+dofs = ["x"]
+[daq]
+sample_rate = 256.0
+"""
+
+
+def plan(text: str):
+    import tomllib
+    return parse_plan(tomllib.loads(text), text, "plan.toml")
+
+
+def cli(*args, cwd=ROOT):
+    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd, capture_output=True,
+                          text=True, timeout=600)
+
+
+@pytest.fixture
+def tcp_emulator():
+    """paper-2dof served over TCP (fast) from a thread of this process: {"shaker": url, "daq": url}."""
+    urls, stop = {}, threading.Event()
+    announced = threading.Event()
+
+    def announce(line):
+        role, url = line.split(": ")
+        urls[role] = url
+        announced.set() if len(urls) == 2 else None
+
+    thread = threading.Thread(target=serve_emulator, args=(RigSimulator(load_rig("paper-2dof")),),
+                              kwargs={"transport": "tcp", "port": 0, "fast": True, "announce": announce,
+                                      "stop": stop}, daemon=True)
+    thread.start()
+    assert announced.wait(60)
+    yield urls
+    stop.set()
+    thread.join(10)
+
+
+def test_a_repeated_acquisition_holds_its_force_like_the_first(tmp_path, tcp_emulator):
+    """issue 13 §1: the second of two identical acquisitions on one emulator held 0.05 N instead of 0.8 N,
+    stored FRF x2 = 0 and still said "complete" with exit 0. Both must now be complete at 0.8 N."""
+    (tmp_path / "plan.toml").write_text(FIVE_LINES)
+    for name in ("A.h5", "B.h5"):
+        done = cli("acquire", tmp_path / "plan.toml", "-o", tmp_path / name, "--shaker", tcp_emulator["shaker"],
+                   "--daq", tcp_emulator["daq"], "--excitation", "x2")
+        assert done.returncode == 0, done.stderr
+        assert "force within 1 % of target at every line" in done.stdout
+        with open_session(tmp_path / name) as s:
+            run = s.run("sine_0.8N_up")
+            assert run.status == "complete" and len(run.frequency) == 5
+            np.testing.assert_allclose(run.arrays["force_amplitude"], 0.8, rtol=0.01)
+            assert run.arrays["force_on_target"].all() and run.arrays["steady"].all()
+            assert np.all(run.frf["x2"] != 0)
+
+
+def test_a_reconnection_starts_from_the_reset_state(tcp_emulator):
+    """What a previous client leaves behind -- settings, replies it never read, half a command -- is gone
+    when the driver opens the instrument."""
+    host, port = tcp_emulator["shaker"].removeprefix("socket://").split(":")
+    with socket.create_connection((host, int(port))) as raw:
+        raw.sendall(b"FREQ 3;:VOLT:UNIT VPP;:VOLT 4;:VOLT:RAMP 0.01\n*IDN?\nFREQ?\nFREQ 1")
+        threading.Event().wait(0.3)
+    with drivers.open_shaker(tcp_emulator["shaker"]) as shaker:
+        assert shaker._scpi.query("VOLT?") == "0.1"            # *RST: 0.05 V peak
+        assert float(shaker._scpi.query("FREQ?")) == 10.0       # neither 3 nor 15 ("FREQ 1" + "5")
+        assert shaker.ramp_rate == 2.0 and not shaker.output_enabled()
+        assert shaker.errors() == []
+
+
+def test_a_run_that_cannot_reach_its_force_fails_and_exits_3(tmp_path):
+    (tmp_path / "weak.toml").write_text(WEAK_SOURCE)
+    (tmp_path / "plan.toml").write_text("[[stepped_sine]]\nforce = 2.0\nstart = 8.0\nstop = 9.0\nstep = 0.5\nrefine = false\n"
+                                        "[limits]\nmax_force = 5.0\nmax_acceleration = 500.0\n")
+    done = cli("simulate", tmp_path / "weak.toml", tmp_path / "plan.toml", "-o", tmp_path / "w.h5")
+    assert done.returncode == 3, done.stderr
+    assert "force OFF TARGET at 3 of 3 line(s)" in done.stdout and "INCOMPLETE" in done.stdout
+    assert "sine_2N_up: force missed its 2 N target by more than 5 % at 3 of 3 line(s)" in done.stderr
+    with open_session(tmp_path / "w.h5") as s:
+        run = s.run("sine_2N_up")
+        assert run.status == "failed" and "force missed" in run.attrs["end_reason"]
+        assert not run.arrays["force_on_target"].any()
+        np.testing.assert_allclose(run.arrays["drive"], 10.0)        # it tried: the generator's largest
+        assert any("target 2 N (-50.00 %, tolerance 1 %)" in e["message"] for e in s.events())
+
+
+def test_a_run_whose_lines_sit_at_the_settling_limit_fails():
+    rig = load_rig(RIGS / "linear-shaker.toml")
+    text = "[[stepped_sine]]\nforce = 0.5\nstart = 6.0\nstop = 7.0\nstep = 0.5\nrefine = false\n" \
+           "[settle]\ntolerance = 1e-9\nmax_periods = 30\n[limits]\nmax_force = 5.0\nmax_acceleration = 150.0\n"
+    with emulated_instruments(rig) as inst:
+        summary = run_plan(plan(text), inst, Path(inst.emulator.name + ".h5"))
+    Path(inst.emulator.name + ".h5").unlink()
+    assert summary.runs == {"sine_0.5N_up": "failed"} and not summary.complete
+    assert "3 of 3 line(s) hit the settling limit" in summary.failed["sine_0.5N_up"]
+
+
+class ForcePeaks(CampaignListener):
+    def __init__(self):
+        self.peak = {}
+        self.run = None
+
+    def run_started(self, name, spec):
+        self.run = name
+
+    def block(self, block):
+        self.peak[self.run] = max(self.peak.get(self.run, 0.0), float(np.abs(block.data[:, 0]).max()))
+
+
+def test_the_first_line_approaches_its_force_from_below(tmp_path):
+    """A gain learnt at the structure's resonance (an electrodynamic shaker gives little force there) would
+    drive the next run, at the drive point's anti-resonance (more than twice the N/V), far over its abort limit; the
+    first line starts low and approaches its target instead."""
+    rig = load_rig(RIGS / "linear-shaker.toml")
+    text = ("[[stepped_sine]]\nforce = 0.1\nstart = 7.0\nstop = 7.2\nstep = 0.1\nrefine = false\n"
+            "[[stepped_sine]]\nforce = 0.5\nstart = 10.0\nstop = 10.2\nstep = 0.1\nrefine = false\n"
+            "[limits]\nmax_force = 1.0\nmax_acceleration = 150.0\n")
+    peaks = ForcePeaks()
+    with emulated_instruments(rig) as inst:
+        summary = run_plan(plan(text), inst, tmp_path / "o.h5", listener=peaks)
+    assert summary.complete, summary.text()
+    assert peaks.peak["sine_0.5N_up"] < 0.5 * 1.1
+    with open_session(tmp_path / "o.h5") as s:
+        first, second = (s.run(n).arrays for n in ("sine_0.1N_up", "sine_0.5N_up"))
+        gain = (first["force_amplitude"][-1] / first["drive"][-1], second["force_amplitude"][0] / second["drive"][0])
+        assert 0.5 * gain[1] / gain[0] > 1.0    # the old start, target / last gain, breached the 1 N limit
+
+
+def test_a_sensor_that_saw_nothing_is_stored_as_nan_not_zero(tmp_path):
+    assert np.isnan(stored_frf({"a": 0j, "b": 1 + 2j})["a"]) and stored_frf({"b": 1 + 2j})["b"] == 1 + 2j
+    # paper-2dof: at 0.05 N the friction on x2 (0.1 N) holds it: the accelerometers read exactly 0
+    text = "[[stepped_sine]]\nforce = 0.05\nstart = 2.0\nstop = 2.5\nstep = 0.5\nrefine = false\n" \
+           "[settle]\nmax_periods = 60\n[limits]\nmax_force = 5.0\nmax_acceleration = 50.0\n"
+    with emulated_instruments(load_rig("paper-2dof")) as inst:
+        run_plan(plan(text), inst, tmp_path / "n.h5")
+    with h5py.File(tmp_path / "n.h5", "r") as f:
+        x2 = f["runs/sine_0.05N_up/frf/x2"][:]
+        x1 = f["runs/sine_0.05N_up/frf/x1"][:]            # x2 held, x1 (driven through it) too
+        assert np.all(np.isnan(x2)) and np.all(np.isnan(x1))
+        assert np.all(np.isnan(f["runs/sine_0.05N_up/frf_std/x2"][:]))
+        messages = [m.decode() for m in f["events"]["message"]]
+    assert sum("no signal on acc:x2" in m for m in messages) == 2
+
+
+def test_exit_codes_name_the_failing_instrument(tmp_path):
+    (tmp_path / "plan.toml").write_text(FIVE_LINES)
+    with socket.socket() as probe, socket.socket() as other:      # ports nobody listens on
+        probe.bind(("127.0.0.1", 0))
+        other.bind(("127.0.0.1", 0))
+        port, daq_port = probe.getsockname()[1], other.getsockname()[1]
+    done = cli("acquire", tmp_path / "plan.toml", "-o", tmp_path / "x.h5", "--shaker", f"socket://127.0.0.1:{port}",
+               "--daq", f"socket://127.0.0.1:{daq_port}", "--excitation", "x2")
+    assert done.returncode == 4
+    assert done.stderr.startswith(f"contactid: instrument failure: shaker at socket://127.0.0.1:{port}: cannot open")
+    assert not (tmp_path / "x.h5").exists()
+    done = cli("acquire", tmp_path / "missing.toml", "-o", tmp_path / "x.h5", "--shaker", "socket://127.0.0.1:1",
+               "--daq", "socket://127.0.0.1:2", "--excitation", "x2")
+    assert done.returncode == 2 and "missing.toml" in done.stderr
+    assert "4 link or instrument failure" in " ".join(cli("acquire", "--help").stdout.split())
+
+
+def test_progress_counts_planned_plus_added_lines_and_writes_plain_lines_to_a_log():
+    planned = [1.0, 2.0, 3.0]
+    assert _added(planned, 1.0, 1.0, 1) == 0 and _added(planned, 1.5, 1.0, 3) == 2
+    assert _added(planned, 2.0, -1.0, 4) == 2          # down: 3 and 2 passed, 4 measured
+    log = io.StringIO()
+    bar = ProgressBar(stream=log)
+    bar.run_started("sine_1N_up", type("Spec", (), {"force": 1.0})())
+    for done in range(1, 31):              # refinement adds a line every third line, 10 in all
+        added = min(done // 3, 10)
+        if added:
+            bar.lines_added(20, added)
+        bar.progress(done, 20 + added, 1.0, "sine_1N_up")
+    bar.run_ended("sine_1N_up", "complete")
+    text = log.getvalue()
+    assert "\r" not in text and len(text.splitlines()) <= 12
+    assert "sine_1N_up: complete (30/20+10 lines)" in text
+    counts = re.findall(r"(\d+)/(\d+)(?:\+(\d+))? lines", text)
+    assert len(counts) > 5 and all(int(d) <= int(p) + int(a or 0) for d, p, a in counts)
