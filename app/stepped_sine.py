@@ -10,10 +10,12 @@ ppm). Then:
   transient is within the tolerance too (or the change is down at the noise of the estimate); not after a
   fixed number of cycles. ``max_periods`` bounds the wait; a line measured at that bound is recorded with
   ``steady = False``.
-- **force control**: once steady, if the fundamental force differs from the target by more than the
-  tolerance (1 %), the drive voltage is scaled by target / measured (by x0.5 .. x2 per step, within the
-  generator's range) and the line settles again -- a voltage-driven shaker loses force at resonance, and kbar
-  only means something at a stated force. Correcting an unsettled force would chase the transient. The
+- **force control**: the drive voltage is scaled by target / measured (x0.5 .. x2 per step, within the
+  generator's range) once the line is steady and its force is off by more than ``control_tolerance`` (1 %);
+  before it settles when the force is more than COARSE_ERROR off and its level is known (the approach from
+  a low start); and at the settling limit, LIMIT_RETRIES times. After each change the loop waits until the
+  data show it (:meth:`LineMeter._await_level`): samples from before the change still arrive for a while. A
+  voltage-driven shaker loses force at resonance, and kbar only means something at a stated force. The
   instrument ramps the amplitude, so the drive never jumps.
 
 The FRF is the receptance ``h_p = A_p / (-(2 pi f)^2 F)`` from the accelerometer and force fundamentals; its

@@ -401,8 +401,8 @@ class SerialDaq:
         scpi.send(io, "ABOR")  # a stream left running by an earlier session must not garble the replies
         scpi.clear(io)
         identity = scpi.identify(io, MANUFACTURER, models, "contactid DAQ", 2 * scpi.timeout)
-        scpi.execute(io, "*CLS;*RST")
-        scpi.expect(io, {"SYST:ERR:COUN?": lambda r: r == "0"}, "*CLS;*RST")
+        scpi.execute(io, "*RST;*CLS")
+        scpi.expect(io, {"SYST:ERR:COUN?": lambda r: r == "0"}, "*RST;*CLS")
         self._read_setup(io)
         return identity
 

@@ -420,13 +420,17 @@ class ScpiInstrument:
         io.desynced = False
 
     def expect(self, io: PortIO, checks: dict[str, Callable[[str], bool]], after: str) -> None:
-        """Ask each query of ``checks`` and raise InstrumentError naming the first whose reply fails its test
-        (after ``after``, e.g. ``"*RST"``: the instrument did not reach the state it promises)."""
-        for query, ok in checks.items():
-            reply = self.ask(io, query).strip()
-            if not ok(reply):
-                raise InstrumentError(self.url, f"{query} answered {reply!r} after {after}: the instrument is not "
-                                                f"in its reset state")
+        """Ask the queries of ``checks`` in one message and raise InstrumentError naming the first whose reply
+        fails its test (after ``after``, e.g. ``"*RST"``: the instrument is not in the state it promises)."""
+        queries = list(checks)
+        reply = self.ask(io, ";:".join(queries))
+        replies = reply.split(";")
+        if len(replies) != len(queries):
+            raise ProtocolError(self.url, f"{';:'.join(queries)} answered {reply!r}")
+        for query, answer in zip(queries, replies):
+            if not checks[query](answer.strip()):
+                raise InstrumentError(self.url, f"{query} answered {answer.strip()!r} after {after}: the "
+                                                f"instrument is not in its reset state")
 
     def drain_errors(self, io: PortIO) -> list[ScpiErrorEntry]:
         """Read the error queue until it reports 0 (at most MAX_ERRORS_DRAINED entries)."""

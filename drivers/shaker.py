@@ -1,7 +1,7 @@
 """The shaker controller driver: SCPI over any pyserial URL.
 
 Opening the driver clears the line (a previous client's half-written command and late
-replies are dropped), identifies the instrument (``*IDN?``), resets it (``*CLS;*RST``),
+replies are dropped), identifies the instrument (``*IDN?``), resets it (``*RST;*CLS``),
 sets the watchdog and reads back that the output is OFF at zero amplitude, the error
 queue empty and the watchdog set -- every connection starts from the same known state --
 then reads the ranges. While the port is otherwise
@@ -91,8 +91,7 @@ class SerialShaker:
         scpi = self._scpi
         scpi.clear(io)
         identity = scpi.identify(io, MANUFACTURER, models, "contactid shaker controller", 2 * scpi.timeout)
-        scpi.execute(io, "*CLS;*RST")
-        scpi.execute(io, f"SYST:WDOG {_number(self.watchdog)}")
+        scpi.execute(io, f"*RST;*CLS;:SYST:WDOG {_number(self.watchdog)}")
         scpi.expect(io, {"OUTP?": lambda r: r == "0", "VOLT:ACT?": _is_zero, "SYST:ERR:COUN?": lambda r: r == "0",
                          "SYST:WDOG?": lambda r: _close_to(r, self.watchdog)}, "*RST")
         reply = scpi.ask(io, "FREQ? MIN;:FREQ? MAX;:VOLT:UNIT VPP;:VOLT? MAX;:VOLT:RAMP?")

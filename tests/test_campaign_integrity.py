@@ -216,3 +216,17 @@ def test_progress_counts_planned_plus_added_lines_and_writes_plain_lines_to_a_lo
     assert "sine_1N_up: complete (30/20+10 lines)" in text
     counts = re.findall(r"(\d+)/(\d+)(?:\+(\d+))? lines", text)
     assert len(counts) > 5 and all(int(d) <= int(p) + int(a or 0) for d, p, a in counts)
+
+
+def test_a_link_lost_mid_run_names_the_instrument_and_is_an_instrument_failure(tmp_path):
+    rig = load_rig(RIGS / "linear-shaker.toml")
+    text = "[[stepped_sine]]\nforce = 0.5\nstart = 6.0\nstop = 9.0\nstep = 0.5\n[limits]\nmax_force = 5.0\n" \
+           "max_acceleration = 150.0\n"
+    with emulated_instruments(rig, faults={"daq": {"disconnect": 300_000}}) as inst:
+        summary = run_plan(plan(text), inst, tmp_path / "l.h5")
+        assert not inst.shaker.output_enabled()
+    assert summary.aborted_by_instrument and not summary.complete
+    assert summary.aborted.startswith(f"DAQ at {inst.daq.url}: ")
+    with open_session(tmp_path / "l.h5") as s:
+        run = s.run("sine_0.5N_up")
+        assert run.status == "aborted" and run.attrs["end_reason"].startswith("DAQ at ")

@@ -26,6 +26,7 @@ SHAKER_CONNECT = [
     ("", None),
     ("*IDN?", "contactid,SC-1,proto,1.0"),
     ("*RST;*CLS;:SYST:WDOG 1.0;:SYST:ERR?", '0,"No error"'),
+    ("OUTP?;:VOLT:ACT?;:SYST:ERR:COUN?;:SYST:WDOG?", "0;0;0;1"),
     ("FREQ? MIN;:FREQ? MAX;:VOLT:UNIT VPP;:VOLT? MAX;:VOLT:RAMP?", "0.01;450;20;2"),
 ]
 SHAKER_SESSION = [
@@ -40,8 +41,10 @@ SHAKER_SESSION = [
 DAQ_CONNECT = [
     ("", None),
     ("ABOR", None),
+    ("", None),
     ("*IDN?", "contactid,DAQ-1,proto,1.0"),
     ("*RST;*CLS;:SYST:ERR?", '0,"No error"'),
+    ("SYST:ERR:COUN?", "0"),
     ("SYST:CHAN:COUN?", "3"),
     ("SENS:CHAN1:NAME?", "force"), ("SENS:CHAN1:UNIT?", "N"), ("SENS:CHAN1:LSB?", "0.0001"),
     ("SENS:CHAN2:NAME?", "acc:x1"), ("SENS:CHAN2:UNIT?", "m/s^2"), ("SENS:CHAN2:LSB?", "0.001"),
