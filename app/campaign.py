@@ -44,6 +44,10 @@ class CampaignAborted(RuntimeError):
     """The operator (or the application) aborted the campaign."""
 
 
+class CampaignIncomplete(RuntimeError):
+    """A campaign ended aborted or with a failed run, where a caller needs it complete (the demo)."""
+
+
 class CampaignListener:
     """Progress callbacks; override what you need. Called from the campaign's thread."""
 

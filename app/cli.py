@@ -286,6 +286,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from drivers.errors import InstrumentError, describe_instrument_error
 
+    from .campaign import CampaignIncomplete
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -295,6 +297,9 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"contactid: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except CampaignIncomplete as exc:
+        print(f"contactid: {exc}", file=sys.stderr)
+        return EXIT_INCOMPLETE
     except FileNotFoundError as exc:
         if args.debug:
             raise

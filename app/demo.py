@@ -18,6 +18,7 @@ from analysis.workbench import Workbench
 from drivers.simulation.rig import load_rig
 
 from .analyze import report_text
+from .campaign import CampaignIncomplete
 from .instruments import emulated_instruments
 from .measure import ProgressBar, run_plan
 from .models import asset, builtin_plan_path
@@ -48,8 +49,9 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
                            software_version=software_version, listener=ProgressBar())
     say(summary.text())
     say(f"   ({time.monotonic() - t0:.0f} s)\n")
-    if summary.aborted:
-        raise RuntimeError(f"the campaign was aborted: {summary.aborted}")
+    if not summary.complete:
+        raise CampaignIncomplete(f"the campaign is incomplete, nothing is identified from it: "
+                                 f"{summary.aborted or '; '.join(summary.failed.values())}")
 
     with open_session(session) as s:
         measurements = measurements_from_session(s)

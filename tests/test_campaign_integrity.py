@@ -230,3 +230,18 @@ def test_a_link_lost_mid_run_names_the_instrument_and_is_an_instrument_failure(t
     with open_session(tmp_path / "l.h5") as s:
         run = s.run("sine_0.5N_up")
         assert run.status == "aborted" and run.attrs["end_reason"].startswith("DAQ at ")
+
+
+def test_the_demo_stops_with_3_on_an_incomplete_campaign(monkeypatch, tmp_path, capsys):
+    import app.demo
+    from app.campaign import CampaignSummary
+    from app.cli import main
+
+    summary = CampaignSummary(runs={"sine_1N_up": "failed"}, failed={"sine_1N_up": "force missed"})
+
+    def run_plan_failing(*args, **kwargs):
+        return summary
+
+    monkeypatch.setattr(app.demo, "run_plan", run_plan_failing)
+    assert main(["demo", "--quick", "--out", str(tmp_path / "demo")]) == 3
+    assert "the campaign is incomplete, nothing is identified from it: force missed" in capsys.readouterr().err
