@@ -111,7 +111,7 @@ class PortIO:
             left = deadline - time.monotonic()
             if left <= 0:
                 self.desynced = True
-                raise LinkTimeout(self.url, f"no complete reply to {what} in time (the instrument went silent)")
+                raise LinkTimeout(self.url, f"no complete reply to {what}")
             chunk = self._receive(1, min(POLL, left))
         self.rx += chunk
 
@@ -383,8 +383,12 @@ class ScpiInstrument:
         if io.desynced:
             self.resync(io, timeout)
         self.send(io, command)
-        line = io.read_line(self._deadline(timeout), repr(command))
+        line = io.read_line(self._deadline(timeout), self._what(command, timeout))
         return line.decode("ascii", errors="replace")
+
+    def _what(self, command: str, timeout: float | None) -> str:
+        """A request as error messages name it: ``'OUTP?' within 1 s``."""
+        return f"{command!r} within {self.timeout if timeout is None else timeout:.3g} s"
 
     def ask_block(self, io: PortIO, command: str, timeout: float | None = None) -> bytes:
         """Send a query whose reply is IEEE 488.2 definite-length block data; its payload."""
@@ -392,7 +396,7 @@ class ScpiInstrument:
             self.resync(io, timeout)
         self.send(io, command)
         deadline = self._deadline(timeout)
-        what = repr(command)
+        what = self._what(command, timeout)
         head = io.read_exact(2, deadline, what)
         if head[:1] != b"#" or not head[1:2].isdigit() or head[1:2] == b"0":
             io.desynced = True
