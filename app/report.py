@@ -1,5 +1,9 @@
 """Report plots (PNG) of a workbench: FRFs measured against predicted, kbar against amplitude, the residual
 per line, and the error history. Drawn with pyqtgraph off screen, so they work on a machine without a display.
+
+Log axes are labelled at the decades only, in engineering notation with the unit on every label (docs/workbench.md):
+pyqtgraph's own log axis labels every minor tick and prefixes the unit once for the whole axis, which crowds the
+labels into each other and reads badly.
 """
 from __future__ import annotations
 
