@@ -150,7 +150,7 @@ def test_the_docs_show_every_pinned_command():
 
 
 def test_law_vocabulary_matches_the_contract_table():
-    text = (ROOT / "docs" / "contracts.md").read_text(encoding="utf-8")
+    text = (ROOT / "docs/contracts.md").read_text(encoding="utf-8")
     section = text.split("## 2.")[1].split("## 3.")[0]
     rows = re.findall(r"^\| ([a-z_]+) \| ([a-z_0-9, ]+) \|", section, flags=re.M)[1:]   # after the header
     assert len(rows) == 15
@@ -225,7 +225,7 @@ def test_analyze_json_has_every_documented_key(analyzed, capsys):
     assert main(["analyze", str(session), str(model), "--add", "right:coulomb", "--json", "-o", str(fitted),
                  "--no-history"]) == 0
     out = json.loads(capsys.readouterr().out)
-    text = (ROOT / "docs" / "contracts.md").read_text(encoding="utf-8")
+    text = (ROOT / "docs/contracts.md").read_text(encoding="utf-8")
     example = json.loads(text.split("## 6.")[1].split("```json")[1].split("```")[0])
     assert _keys_missing(example, out) == []
     assert out["elements"][0]["verdict"] in ("linear", "nonlinear", None)
