@@ -1,7 +1,7 @@
 """contactid numerics: structures, element laws, identification, fitting.
 
 Pure numerics -- no Qt, no serial ports, no files beyond TOML tables handed in.
-Stable entry points (CONTRACTS.md §8): :func:`load_structure`, :func:`describing_function`.
+Stable entry points (docs/contracts.md §8): :func:`load_structure`, :func:`describing_function`.
 """
 from .elements import Element, LawTerm, load_elements
 from .errors import InputError

@@ -1,5 +1,5 @@
 """Which physical effect is missing: candidate laws ranked by what they do to the FRF error, explained by
-the signature of the complex stiffness (METHOD.md §3).
+the signature of the complex stiffness (docs/method.md §3).
 
 For every element and every law of the library not yet on it, the element's laws plus the candidate are
 fitted to the element's kbar samples, the FRFs of every stepped-sine run are predicted by harmonic balance,
@@ -122,7 +122,7 @@ class Candidate:
 
 
 def signature(samples: ElementSamples, model_kbar: np.ndarray | None = None) -> Signature:
-    """The signature of ``samples.kbar - model_kbar`` (METHOD.md §3 table)."""
+    """The signature of ``samples.kbar - model_kbar`` (docs/method.md §3 table)."""
     res = samples.kbar - (0.0 if model_kbar is None else model_kbar)
     X, w = samples.X, samples.w
     lx, lw = np.log(X), np.log(w)

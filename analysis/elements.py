@@ -2,7 +2,7 @@
 
 An element is grounded at one DOF (``dof = "x1"``) or acts between two
 (``between = ["x1", "x2"]``); its displacement is ``x_a`` or ``x_a - x_b``
-(CONTRACTS.md §1). Its force is the sum of its law terms.
+(docs/contracts.md §1). Its force is the sum of its law terms.
 """
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 Given samples ``kbar_k`` of one element's equivalent complex stiffness at amplitudes
 ``X_k`` and angular frequencies ``w_k`` (k = 1..N), :func:`fit_laws` finds the
-parameters of any sum of laws (CONTRACTS.md §2) that best explains them:
+parameters of any sum of laws (docs/contracts.md §2) that best explains them:
 
     kbar_model(X, w) = sum_j lin_j * B_j(X, w; shape)
 
@@ -59,7 +59,7 @@ class TermFit:
         Name used in notes: the law's name, or ``name[i]`` (``i`` its position in
         the list of laws) when the same law appears twice.
     params : dict[str, float]
-        Contract parameters (CONTRACTS.md §2), in the law's units.
+        Contract parameters (docs/contracts.md §2), in the law's units.
     stderr : dict[str, float]
         Standard errors of ``params``, same units; ``inf`` where the data do not
         determine the parameter (see :attr:`LawFit.degeneracies`).

@@ -1,4 +1,4 @@
-"""Nonlinear forced response by harmonic balance (METHOD.md §4).
+"""Nonlinear forced response by harmonic balance (docs/method.md §4).
 
 The structure is condensed onto its nonlinear elements (Tanrikulu et al., AIAA J. 31, 1993). With
 ``E`` the element vectors (``y = E^T x``, element displacements) and ``q`` the excitation DOF:
@@ -10,7 +10,7 @@ so with the describing functions ``f_i = kbar_i(|y_i|, w) y_i`` the complex elem
     R(y) = y + G(w) (kbar(|y|, w) * y) - g(w) F = 0,      G = E^T H E,  g = E^T H e_q.
 
 ``kbar`` depends on ``|y|``, so ``R`` is not holomorphic: Newton works on the ``2r`` real unknowns.
-Phasors follow CONTRACTS.md §1: a signal ``Im(Y e^{jwt})``, so ``x = X sin(wt)`` has ``Y = X``.
+Phasors follow docs/contracts.md §1: a signal ``Im(Y e^{jwt})``, so ``x = X sin(wt)`` has ``Y = X``.
 
 Three solvers work on the condensed system:
 - :func:`predict_sweep` -- what a stepped-sine sweep measures: Newton at each line starting from the previous

@@ -1,7 +1,7 @@
 """Amplitude and phase of the harmonics of a periodic record.
 
 Two estimators, both returning complex amplitudes in the project's sine convention
-(CONTRACTS.md §1): a component ``a sin(k w t) + b cos(k w t)`` has the complex
+(docs/contracts.md §1): a component ``a sin(k w t) + b cos(k w t)`` has the complex
 amplitude ``Y_k = a + j b``, so ``y(t) = Y_0 + sum_k Im(Y_k exp(j k w t))`` with ``t``
 measured from the first sample of the record, and ``X sin(w t)`` has ``Y_1 = X``.
 A ratio of two such amplitudes is the usual complex FRF.
@@ -9,7 +9,7 @@ A ratio of two such amplitudes is the usual complex FRF.
 - :func:`harmonics` -- single-bin DFT per harmonic (a lock-in amplifier) on a record
   holding a whole number of periods (coherent sampling). Exact for every harmonic
   below the Nyquist frequency; white noise of variance ``sigma^2`` gives each complex
-  amplitude an error variance ``4 sigma^2 / N`` (METHOD.md §5).
+  amplitude an error variance ``4 sigma^2 / N`` (docs/method.md §5).
 - :func:`sine_fit` -- the IEEE Std 1057 four-parameter sine fit (frequency, two
   quadrature amplitudes, offset), for records that are not coherent, e.g. when the
   DAQ clock differs from the generator's by some ppm. :func:`harmonics_at` then

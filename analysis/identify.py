@@ -5,7 +5,7 @@ The structure with its unknown elements has the dynamic stiffness ``Z + Delta`` 
 element's DOF ``a`` and -1 at ``b`` for an element between two DOFs. From
 ``(Z + Delta) Hbar = I`` and ``H = Z^-1`` follows ``Hbar = H - H Delta Hbar``; for one
 excited column ``q`` and the measured rows ``P`` this is *linear* in
-``u_i = kbar_i e_i^T hbar_q`` (METHOD.md §1)::
+``u_i = kbar_i e_i^T hbar_q`` (docs/method.md §1)::
 
     H_{P,A} u = h_{P,q} - hbar_{P,q}            (least squares when |P| > r)
     hbar_{e,q} = E^T h_q - E^T H E u            (element response, measured or not)

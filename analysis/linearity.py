@@ -16,7 +16,7 @@ Two forms of the linear hypothesis:
 ``polynomial``
     ``kbar = a + b w^2 + j (c w + d)``: a stiffness offset ``a``, a mass error
     ``-b``, a viscous ``c`` and a structural ``d`` term -- the ways a wrong linear
-    reference model shows up at one element (METHOD.md §3). Used when no line is
+    reference model shows up at one element (docs/method.md §3). Used when no line is
     shared, e.g. a single force level, where amplitude and frequency dependence
     cannot be fully separated.
 

@@ -2,7 +2,7 @@
 
 The application reads sessions into these containers (app/session_data.py); tests and scripts can build them
 from any source. Receptances are ``X/F`` in m/N (rad/N on rotations) in the phasor convention of
-CONTRACTS.md §1.
+docs/contracts.md §1.
 """
 from __future__ import annotations
 

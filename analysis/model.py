@@ -1,4 +1,4 @@
-"""The user's model (CONTRACTS.md §4): a reference structure plus unknown elements with believed laws.
+"""The user's model (docs/contracts.md §4): a reference structure plus unknown elements with believed laws.
 
 A model file has the ``[structure]`` table, ``[[element]]`` entries (laws optional, values optional starting
 values) and optionally ``[updating]`` naming the structure parameters that are uncertain::

@@ -1,6 +1,6 @@
 """Reference linear structures: lumped systems and 2D Euler-Bernoulli beams.
 
-Both are built from the ``[structure]`` TOML table (CONTRACTS.md §3) by
+Both are built from the ``[structure]`` TOML table (docs/contracts.md §3) by
 :func:`load_structure` and give named DOFs, mass/stiffness/damping matrices, the
 receptance matrix H(w) and the normal modes.
 """

@@ -1,4 +1,4 @@
-"""The ``contactid`` command line (CONTRACTS.md §6).
+"""The ``contactid`` command line (docs/contracts.md §6).
 
 Every command reports a problem as one line on stderr; the traceback is shown only with ``--debug``.
 

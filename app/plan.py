@@ -1,4 +1,4 @@
-"""Plan files (CONTRACTS.md §5): what a campaign runs, checked before the shaker is armed.
+"""Plan files (docs/contracts.md §5): what a campaign runs, checked before the shaker is armed.
 
 Beyond the contract's keys, each ``[[stepped_sine]]`` table may set ``refine`` (adaptive refinement near
 resonance, default true) and ``min_step`` (Hz, default step / 4); ``[settle]`` tunes steady-state detection

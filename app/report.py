@@ -1,5 +1,9 @@
 """Report plots (PNG) of a workbench: FRFs measured against predicted, kbar against amplitude, the residual
 per line, and the error history. Drawn with pyqtgraph off screen, so they work on a machine without a display.
+
+Log axes are labelled at the decades only, in engineering notation with the unit on every label (docs/workbench.md):
+pyqtgraph's own log axis labels every minor tick and prefixes the unit once for the whole axis, which crowds the
+labels into each other and reads badly.
 """
 from __future__ import annotations
 
@@ -38,11 +42,95 @@ def _export(layout, path: Path, width: int = 1400, height: int = 900) -> Path:
     layout.resize(width, height)
     layout.show()                       # off screen: lays the plots out at the export size
     qt_application().processEvents()
+    layout.grab()                       # a first paint sizes the axes to their tick labels ...
+    qt_application().processEvents()    # ... and the layout follows before the picture is taken
     exporter = pyqtgraph.exporters.ImageExporter(layout.scene())
     exporter.parameters()["width"] = width
     exporter.export(str(path))
     layout.close()
     return path
+
+
+_PREFIXES = {-15: "f", -12: "p", -9: "n", -6: "µ", -3: "m", 0: "", 3: "k", 6: "M", 9: "G", 12: "T"}
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def engineering(value: float, unit: str = "") -> str:
+    """``value`` in engineering notation: a mantissa in [1, 1000) and an SI prefix on ``unit`` ("20 µm",
+    "1.5 kN/m"). Without a unit, plain numbers from 0.001 to 1000 and powers of ten beyond ("10⁻⁶")."""
+    if value == 0 or not np.isfinite(value):
+        return f"{value:g} {unit}".strip()
+    exponent = int(np.floor(np.log10(abs(value)) + 1e-9))
+    if not unit:
+        if -3 <= exponent < 4:
+            return f"{value:.4g}"
+        mantissa = value / 10.0**exponent
+        head = "" if np.isclose(mantissa, 1.0) else f"{mantissa:.3g}·"
+        return f"{head}10{str(exponent).translate(_SUPERSCRIPT)}"
+    third = min(max(3 * (exponent // 3), min(_PREFIXES)), max(_PREFIXES))
+    return f"{value / 10.0**third:.3g} {_PREFIXES[third]}{unit}"
+
+
+def _labelled_log_ticks(low: float, high: float) -> list[float]:
+    """log10 of the labelled ticks between ``low`` and ``high`` (log10 values): the decades; when the view holds
+    fewer than two, 1-2-5 times the decades; when it holds fewer than two of those either (a range within a
+    factor of about 2), evenly spaced round values -- a log axis must never carry fewer than two numbers."""
+    decades = np.arange(np.ceil(low - 1e-9), np.floor(high + 1e-9) + 1)
+    if len(decades) >= 2:
+        return decades.tolist()
+    steps = np.log10([1.0, 2.0, 5.0])
+    one_two_five = (np.arange(np.floor(low), np.ceil(high) + 1)[:, None] + steps).ravel()
+    one_two_five = one_two_five[(one_two_five >= low - 1e-9) & (one_two_five <= high + 1e-9)]
+    if len(one_two_five) >= 2:
+        return one_two_five.tolist()
+    lo, hi = 10.0**low, 10.0**high
+    step = _round_step((hi - lo) / 4)
+    values = np.arange(np.ceil(lo / step) * step, hi + 1e-9 * step, step)
+    return np.log10(values[values > 0]).tolist()
+
+
+def _round_step(span: float) -> float:
+    """The 1-2-5 multiple of a power of ten nearest above ``span``."""
+    decade = 10.0 ** np.floor(np.log10(span))
+    return next(m * decade for m in (1.0, 2.0, 5.0, 10.0) if m * decade >= span * (1 - 1e-9))
+
+
+def _log_axis(orientation: str, unit: str):
+    """A log-scale axis labelled at the decades only, each label in engineering notation with its unit; the
+    other integers times a decade get unlabelled minor ticks."""
+    import pyqtgraph as pg
+
+    class LogAxis(pg.AxisItem):
+        def tickValues(self, minVal, maxVal, size):
+            low, high = sorted((minVal, maxVal))
+            labelled = _labelled_log_ticks(low, high)
+            minor = [v for d in range(int(np.floor(low)), int(np.ceil(high)) + 1)
+                     for v in d + np.log10(np.arange(2, 10))
+                     if low <= v <= high and not np.isclose(labelled, v).any()]
+            return [(1.0, labelled), (None, minor)]
+
+        def tickStrings(self, values, scale, spacing):
+            if spacing is None:
+                return ["" for _ in values]
+            return [engineering(10.0**v, unit) for v in values]
+
+    axis = LogAxis(orientation)
+    axis.enableAutoSIPrefix(False)
+    return axis
+
+
+def _log_plot(lay, row: int, col: int, title: str | None = None, x_unit: str | None = None,
+              y_unit: str | None = None):
+    """A plot whose x (when ``x_unit`` is given) and y (when ``y_unit`` is given) axes are logarithmic with
+    readable decade labels; "" is a dimensionless axis."""
+    axes = {}
+    if x_unit is not None:
+        axes["bottom"] = _log_axis("bottom", x_unit)
+    if y_unit is not None:
+        axes["left"] = _log_axis("left", y_unit)
+    plot = lay.addPlot(row=row, col=col, title=title, axisItems=axes)
+    plot.setLogMode(x=x_unit is not None, y=y_unit is not None)
+    return plot
 
 
 def _layout():
@@ -60,10 +148,10 @@ def plot_frfs(wb: Workbench, path: Path, sensor: str | None = None) -> Path:
     runs = wb.measurements.sine
     sensor = sensor or runs[0].sensor_dofs[0]
     lay = _layout()
-    mag = lay.addPlot(row=0, col=0, title=f"receptance {sensor} / {runs[0].excitation_dof}: measured (o) "
-                                          f"and model (line), error {comp.error:.3g}")
-    mag.setLogMode(y=True)
-    mag.setLabel("left", "|h|", units="m/N")
+    mag = _log_plot(lay, 0, 0, title=f"Receptance {sensor} / {runs[0].excitation_dof} at each force level: "
+                                     f"measured (dots) and model prediction (lines); FRF error {comp.error:.3g}",
+                    y_unit="m/N")
+    mag.setLabel("left", "|h|")
     mag.addLegend(offset=(-10, 10))
     ph = lay.addPlot(row=1, col=0)
     ph.setLabel("left", "phase", units="deg")
@@ -89,20 +177,23 @@ def plot_kbar(wb: Workbench, path: Path) -> Path:
     crosses at the same samples."""
     levels = wb.measurements.levels
     lay = _layout()
+    lay.addLabel("Equivalent complex stiffness kbar of each element against its amplitude X: identified "
+                 "(dots, one colour per force level) and fitted laws (crosses)", row=0, col=0,
+                 colspan=max(len(wb.model.elements), 1), size="11pt")
     for col, el in enumerate(wb.model.elements):
         rep = wb.reports.get(el.name)
         s = rep.samples if rep else None
-        re = lay.addPlot(row=0, col=col, title=f"{el.name} ({el.dofs[0]}): "
-                         + ("" if rep is None or rep.verdict is None else
-                            ("linear" if rep.verdict.linear else "nonlinear")))
-        im = lay.addPlot(row=1, col=col)
         k_u, x_u = s.units if s is not None else ("N/m", "m")
+        verdict = "" if rep is None or rep.verdict is None else (": linear" if rep.verdict.linear else
+                                                                 ": nonlinear")
+        re = _log_plot(lay, 1, col, title=f"element {el.name} at {' - '.join(el.dofs)}{verdict}", x_unit=x_u)
+        im = _log_plot(lay, 2, col, x_unit=x_u)
         re.setLabel("left", "Re kbar", units=k_u)
         im.setLabel("left", "Im kbar", units=k_u)
-        im.setLabel("bottom", "amplitude X", units=x_u)
-        for plot in (re, im):
-            plot.setLogMode(x=True)
-            plot.getAxis("bottom").setStyle(maxTextLevel=0)     # decade labels only: no crowded minor labels
+        im.setLabel("bottom", "amplitude X")
+        im.setXLink(re)
+        if col == 0:
+            re.addLegend(offset=(-10, 10))
         if s is None:
             continue
         for force in levels:
@@ -110,7 +201,7 @@ def plot_kbar(wb: Workbench, path: Path) -> Path:
             if not sel.any():
                 continue
             measured = _symbols(_colour(levels, force), 4)
-            re.plot(s.X[sel], s.kbar[sel].real, **measured)
+            re.plot(s.X[sel], s.kbar[sel].real, name=f"{force:g} N", **measured)
             im.plot(s.X[sel], s.kbar[sel].imag, **measured)
         if el.laws and all(t.complete for t in el.laws):
             # the model at each sample's (X, w): markers, since kbar may depend on w as well as X
@@ -126,9 +217,9 @@ def plot_residuals(wb: Workbench, path: Path) -> Path:
     comp = wb.compare()
     levels = wb.measurements.levels
     lay = _layout()
-    p = lay.addPlot(title="where the model fails: relative FRF error per line")
-    p.setLogMode(y=True)
-    p.setLabel("left", "relative error")
+    p = _log_plot(lay, 0, 0, title="Where the model fails: relative FRF error of the prediction at each "
+                                   "frequency line and force level", y_unit="")
+    p.setLabel("left", "relative FRF error")
     p.setLabel("bottom", "frequency", units="Hz")
     p.addLegend(offset=(-10, 10))
     for run in wb.measurements.sine:
@@ -143,14 +234,15 @@ def plot_history(wb: Workbench, path: Path) -> Path:
     import pyqtgraph as pg
 
     lay = _layout()
-    p = lay.addPlot(title="FRF error as effects are added")
-    p.setLogMode(y=True)
+    p = _log_plot(lay, 0, 0, title="FRF error of the model after each step: the start, linear corrections "
+                                   "and each effect added", y_unit="")
     x = np.arange(len(wb.history))
     errors = np.array([max(h.error, 1e-9) for h in wb.history])
     p.plot(x, errors, pen={"color": (31, 119, 180), "width": 2}, symbol="o", symbolSize=9,
            symbolBrush=(31, 119, 180))
     p.getAxis("bottom").setTicks([[(i, h.action.replace("add ", "+")) for i, h in enumerate(wb.history)]])
-    p.setLabel("left", "FRF error")
+    p.setXRange(-0.5, len(wb.history) - 0.5, padding=0)   # room for the first and last step's names
+    p.setLabel("left", "relative FRF error")
     for i, e in enumerate(errors):
         label = pg.TextItem(f"{e:.3g}", color="k", anchor=(0.5, 1.3))
         label.setPos(i, np.log10(e))

@@ -1,4 +1,4 @@
-"""Session files: HDF5, written incrementally and crash-safe (CONTRACTS.md §7, docs/session-format.md).
+"""Session files: HDF5, written incrementally and crash-safe (docs/contracts.md §7, docs/session-format.md).
 
 While a run is measured the file is in HDF5 single-writer/multiple-reader (SWMR) mode: each completed line is
 appended and flushed, readers (the GUI) follow along, and a crash or SIGKILL loses at most the line in

@@ -58,7 +58,7 @@ def test_thd_of_known_distortion():
 
 
 def test_noise_variance_of_single_bin_dft():
-    """White noise of variance s^2 gives E|dY|^2 = 4 s^2 / N (METHOD.md §5)."""
+    """White noise of variance s^2 gives E|dY|^2 = 4 s^2 / N (docs/method.md §5)."""
     rng = np.random.default_rng(3)
     n, sigma, frequency = 400, 0.5, 25.0
     errors = [harmonics(rng.normal(0, sigma, n), FS, frequency, 1).fundamental for _ in range(3000)]

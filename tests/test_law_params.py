@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 from analysis import InputError
 from analysis.laws import LAWS, describing_function, get_law
 
-CONTRACT = [  # CONTRACTS.md §2, in order
+CONTRACT = [  # docs/contracts.md §2, in order
     ("linear", ("k", "c")),
     ("cubic", ("k3",)),
     ("quintic", ("k5",)),

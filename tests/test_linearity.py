@@ -103,7 +103,7 @@ def test_end_to_end_with_identification(cubic_stiffness, linear):
     """Three-DOF chain, element grounded at x0 (not measured), force at x2, three levels.
 
     For a single element the response is explicit in the element amplitude X
-    (METHOD.md §4): choose X, then kbar(X), then Hbar, then the force F = X / |hbar_e|.
+    (docs/method.md §4): choose X, then kbar(X), then Hbar, then the force F = X / |hbar_e|.
     """
     rng = np.random.default_rng(7)
     M = np.diag([1.0, 1.5, 2.0])

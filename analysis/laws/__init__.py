@@ -1,4 +1,4 @@
-"""The element laws of CONTRACTS.md §2, one module per law, and their registry."""
+"""The element laws of docs/contracts.md §2, one module per law, and their registry."""
 from __future__ import annotations
 
 from typing import Mapping
@@ -23,7 +23,7 @@ from .tanh_softening import TanhSoftening
 from .unilateral import Unilateral
 from .velocity_stiffness import VelocityStiffness
 
-# in the order of CONTRACTS.md §2
+# in the order of docs/contracts.md §2
 LAWS: dict[str, Law] = {law.name: law for law in (
     Linear(), Cubic(), Quintic(), QuadraticDamping(), CubicDamping(), Coulomb(),
     TanhSoftening(), ArctanSoftening(), VelocityStiffness(), AndersonFerri(),
@@ -45,7 +45,7 @@ def describing_function(name: str, X, w, **params: float) -> np.ndarray:
     Parameters
     ----------
     name : str
-        Law name (CONTRACTS.md §2).
+        Law name (docs/contracts.md §2).
     X : array_like
         Amplitude of the element displacement, m (or rad), > 0.
     w : array_like

@@ -3,7 +3,7 @@
 A law is one physical mechanism of an element (NLvib style): a time-domain force
 with its internal state, and the describing function -- the equivalent complex
 stiffness ``kbar(X, w) = (A1 + j B1) / X`` of the force's fundamental under
-``x = X sin(w t)`` (CONTRACTS.md §1).
+``x = X sin(w t)`` (docs/contracts.md §1).
 
 The describing function is written once, as a sum of *basis* functions weighted by
 the parameters that enter it linearly: ``kbar = sum_j lin_j * basis_j(X, w; shape)``.
@@ -119,7 +119,7 @@ class Law(ABC):
     def describing_function(self, X, w, **params) -> np.ndarray:
         """Equivalent complex stiffness kbar(X, w), complex, broadcast over X and w.
 
-        Parameters are the contract parameters (CONTRACTS.md §2) by name.
+        Parameters are the contract parameters (docs/contracts.md §2) by name.
         """
         return self.kbar_function(**params)(X, w)
 

@@ -1,4 +1,4 @@
-"""Plan documents for the editor: the TOML tables of CONTRACTS.md §5 as a dict, to and from files.
+"""Plan documents for the editor: the TOML tables of docs/contracts.md §5 as a dict, to and from files.
 
 The editor builds the document, :func:`app.plan.parse_plan` validates it (the same checks as a plan file),
 and :func:`plan_toml` writes the text stored in the session's provenance and in a saved plan file.

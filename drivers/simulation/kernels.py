@@ -19,6 +19,7 @@ yet used in the process.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from llvmlite import ir
@@ -44,6 +45,74 @@ _FORCE_SIGNATURE = types.float64(types.float64, types.float64, types.CPointer(ty
 _LIMIT_SIGNATURE = types.float64(types.float64, types.CPointer(types.float64), types.intp)
 
 _CALLBACKS: dict[str, tuple] = {}
+
+
+# --- the records the integration loop takes ------------------------------------------
+class StepMatrices(NamedTuple):
+    """The linear part discretised over one internal step (nz states, r elements, nch channels)."""
+
+    Phi: np.ndarray   # (nz, nz) state transition over one step
+    Qu: np.ndarray    # (nz, 3) drive input at the step start, middle and end (quadratic hold)
+    Pg0: np.ndarray   # (nz, r) residual element forces at the step start (first-order hold)
+    Pg1: np.ndarray   # (nz, r) ... and at the step end
+    Cy: np.ndarray    # (2 r, nz) element displacements then velocities from the state
+    D: np.ndarray     # (2 r, r) Cy @ Pg1: how the step-end element motion depends on the step-end forces
+    Co: np.ndarray    # (nch, nz) channel outputs (force, accelerations) from the state,
+    Dou: np.ndarray   # (nch,) ... from the drive
+    Dog: np.ndarray   # (nch, r) ... and from the residual element forces
+
+
+class LawTable(NamedTuple):
+    """The law terms of all elements, one row per term, and the elements' linear part."""
+
+    force_address: np.ndarray   # (n_terms,) int64 address of each term's force callback (:func:`law_callbacks`)
+    limit_address: np.ndarray   # (n_terms,) int64 address of its stick-limit callback, 0 = none
+    count: int                  # n_terms
+    element: np.ndarray         # (n_terms,) int64 element of each term
+    friction: np.ndarray        # (n_terms,) bool: the term is dry friction
+    P: np.ndarray               # (n_terms, max params) parameters, row k padded
+    n_params: np.ndarray        # (n_terms,) int64 parameters used in each row of P
+    n_state: np.ndarray         # (n_terms,) int64 state entries used in each row of the law states
+    k0: np.ndarray              # (r,) small-amplitude stiffness moved into the linear part
+    c0: np.ndarray              # (r,) small-amplitude damping moved into the linear part
+    has_friction: np.ndarray    # (r,) bool: the element has a dry-friction term
+
+
+class SolverState(NamedTuple):
+    """What the integration carries from one step (and block) to the next; updated in place."""
+
+    z: np.ndarray            # (nz,) state
+    g: np.ndarray            # (r,) residual element forces now
+    g_prev: np.ndarray       # (r,) ... and one step earlier
+    S: np.ndarray            # (n_terms, max states) committed law states, rows as LawTable.P
+    mode: np.ndarray         # (r,) int64 friction mode per element (FREE, STICK, SLIP)
+    sigma: np.ndarray        # (r,) slip direction per element
+    jac: np.ndarray          # (r, r) the Newton Jacobian kept across steps
+    jac_valid: np.ndarray    # (1,) int64: whether jac is usable
+
+
+class Recording(NamedTuple):
+    """Where a block's results go."""
+
+    out: np.ndarray      # (n_steps, nch) channel values at every internal step (before the anti-alias filter)
+    z_daq: np.ndarray    # (n_steps // oversample, nz) state at the DAQ instants
+    f_daq: np.ndarray    # (n_steps // oversample, r) element law forces at the DAQ instants
+
+
+class Scratch(NamedTuple):
+    """Work space of :func:`integrate_block` (the loop allocates nothing: it runs without reference
+    counting, which would otherwise dominate its cost)."""
+
+    zf: np.ndarray        # (nz,) free state at the step end
+    y_free: np.ndarray    # (2 r,) element motion of the free state
+    x: np.ndarray         # (r,) element displacements at the step end
+    v: np.ndarray         # (r,) element velocities at the step end
+    F: np.ndarray         # (r,) law forces at the step end
+    g_new: np.ndarray     # (r,) step-end residual forces being solved for
+    work: np.ndarray      # (11, r) rows of Newton work vectors
+    J: np.ndarray         # (r, r) factorised copy of the Jacobian
+    S_trial: np.ndarray   # law states of the accepted iterate
+    S_probe: np.ndarray   # law states of a trial iterate
 
 
 def law_callbacks(law) -> tuple:
@@ -109,8 +178,7 @@ def _call_limit(typingctx, address, x, p_address, n_p):
 
 # --- law evaluation --------------------------------------------------------------
 @njit(cache=True, _nrt=False, inline="always")
-def _element_forces(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_trial,
-                    x, v, mode, sigma, out):
+def _element_forces(laws, S, S_trial, x, v, mode, sigma, out):
     """Sum of the law forces per element at (x, v), from the committed law states ``S``.
 
     The updated states land in ``S_trial`` (``S`` is untouched). Dry-friction terms of
@@ -118,33 +186,35 @@ def _element_forces(force_address, n_terms, term_element, term_friction, P, n_pa
     terms of a stuck element see zero velocity.
     """
     out[:] = 0.0
+    P = laws.P
     p_base = P.ctypes.data
     s_base = S_trial.ctypes.data
-    for k in range(n_terms):
-        e = term_element[k]
-        ns = n_state[k]
+    for k in range(laws.count):
+        e = laws.element[k]
+        ns = laws.n_state[k]
         for j in range(ns):
             S_trial[k, j] = S[k, j]
         ve = v[e]
         if mode[e] == STICK:
-            if term_friction[k]:
+            if laws.friction[k]:
                 continue
             ve = 0.0
-        elif mode[e] == SLIP and term_friction[k] and sigma[e] * ve <= 0.0:
+        elif mode[e] == SLIP and laws.friction[k] and sigma[e] * ve <= 0.0:
             ve = sigma[e] * _SLIP_PROBE
-        out[e] += _call_force(force_address[k], x[e], ve, p_base + k * P.strides[0], n_params[k],
+        out[e] += _call_force(laws.force_address[k], x[e], ve, p_base + k * P.strides[0], laws.n_params[k],
                               s_base + k * S_trial.strides[0], ns)
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _stick_limits(limit_address, n_terms, term_element, term_friction, P, n_params, x, out):
+def _stick_limits(laws, x, out):
     """Largest friction force each element can hold at zero velocity (sum over its friction terms)."""
     out[:] = 0.0
+    P = laws.P
     p_base = P.ctypes.data
-    for k in range(n_terms):
-        if term_friction[k]:
-            e = term_element[k]
-            out[e] += _call_limit(limit_address[k], x[e], p_base + k * P.strides[0], n_params[k])
+    for k in range(laws.count):
+        if laws.friction[k]:
+            e = laws.element[k]
+            out[e] += _call_limit(laws.limit_address[k], x[e], p_base + k * P.strides[0], laws.n_params[k])
 
 
 @njit(cache=True, _nrt=False, inline="always")
@@ -225,21 +295,19 @@ def _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res):
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _jacobian(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_probe,
-              k0, c0, D, r, mode, sigma, x, v, F, work, jac):
+def _jacobian(laws, S, S_probe, D, r, mode, sigma, x, v, F, work, jac):
     """Jacobian of the step-end residuals in g, by forward differences of the law forces."""
     x_probe, v_probe, F_probe, dfdx, dfdv = work[3], work[4], work[5], work[8], work[9]
+    k0, c0 = laws.k0, laws.c0
     for e in range(r):
         x_probe[e] = x[e] + (1e-7 * abs(x[e]) + 1e-13)
         v_probe[e] = v[e]
-    _element_forces(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_probe,
-                    x_probe, v_probe, mode, sigma, F_probe)
+    _element_forces(laws, S, S_probe, x_probe, v_probe, mode, sigma, F_probe)
     for e in range(r):
         dfdx[e] = (F_probe[e] - F[e]) / (x_probe[e] - x[e]) - k0[e]
         x_probe[e] = x[e]
         v_probe[e] = v[e] + (1e-7 * abs(v[e]) + 1e-12)
-    _element_forces(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_probe,
-                    x_probe, v_probe, mode, sigma, F_probe)
+    _element_forces(laws, S, S_probe, x_probe, v_probe, mode, sigma, F_probe)
     for e in range(r):
         dfdv[e] = (F_probe[e] - F[e]) / (v_probe[e] - v[e]) - c0[e]
     for e in range(r):
@@ -251,8 +319,7 @@ def _jacobian(force_address, n_terms, term_element, term_friction, P, n_params, 
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _newton(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_trial, S_probe,
-            k0, c0, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J):
+def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J):
     """Solve the step-end equations for the residual forces g with the element modes fixed.
 
     Modified Newton: the Jacobian in ``jac`` is reused across iterations and steps
@@ -262,17 +329,16 @@ def _newton(force_address, n_terms, term_element, term_friction, P, n_params, S,
     """
     res, res_trial, g_trial, x_probe, v_probe, F_probe, step, rhs = (work[0], work[1], work[2], work[3],
                                                                     work[4], work[5], work[6], work[7])
+    k0, c0 = laws.k0, laws.c0
     _element_motion(y_free, D, g, r, x, v)
-    _element_forces(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_trial,
-                    x, v, mode, sigma, F)
+    _element_forces(laws, S, S_trial, x, v, mode, sigma, F)
     worst = _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res)
     for it in range(_MAX_NEWTON):
         if worst <= 1.0:
             return it
         fresh = jac_valid[0] == 0
         if fresh:
-            _jacobian(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_probe,
-                      k0, c0, D, r, mode, sigma, x, v, F, work, jac)
+            _jacobian(laws, S, S_probe, D, r, mode, sigma, x, v, F, work, jac)
             jac_valid[0] = 1
         for e in range(r):
             for j in range(r):
@@ -290,8 +356,7 @@ def _newton(force_address, n_terms, term_element, term_friction, P, n_params, S,
             for e in range(r):
                 g_trial[e] = g[e] + lam * step[e]
             _element_motion(y_free, D, g_trial, r, x_probe, v_probe)
-            _element_forces(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state,
-                            S_probe, x_probe, v_probe, mode, sigma, F_probe)
+            _element_forces(laws, S, S_probe, x_probe, v_probe, mode, sigma, F_probe)
             trial = _residual(g_trial, x_probe, v_probe, F_probe, k0, c0, mode, y_free, D, r, res_trial)
             if trial < worst or trial <= 1.0:
                 accepted = True
@@ -313,16 +378,14 @@ def _newton(force_address, n_terms, term_element, term_friction, P, n_params, S,
             v[e] = v_probe[e]
             F[e] = F_probe[e]
             res[e] = res_trial[e]
-        for k in range(n_terms):
-            for j in range(n_state[k]):
+        for k in range(laws.count):
+            for j in range(laws.n_state[k]):
                 S_trial[k, j] = S_probe[k, j]
     return -1 if worst > 1.0 else _MAX_NEWTON
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _solve_step(force_address, limit_address, n_terms, term_element, term_friction, P, n_params, S, n_state,
-                S_trial, S_probe, k0, c0, has_friction, y_free, D, r, mode, sigma, g, x, v, F, work, jac,
-                jac_valid, J):
+def _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J):
     """Step-end element forces with stick/slip decided for every friction element.
 
     Active-set iteration: solve with the modes fixed, then let a stuck element slip
@@ -331,15 +394,15 @@ def _solve_step(force_address, limit_address, n_terms, term_element, term_fricti
     states. Returns False if the Newton iteration failed.
     """
     limit = work[10]
+    k0 = laws.k0
     ok = True
     for _ in range(2 + 4 * r):
-        if _newton(force_address, n_terms, term_element, term_friction, P, n_params, S, n_state, S_trial,
-                   S_probe, k0, c0, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J) < 0:
+        if _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J) < 0:
             ok = False
         changed = False
-        _stick_limits(limit_address, n_terms, term_element, term_friction, P, n_params, x, limit)
+        _stick_limits(laws, x, limit)
         for e in range(r):
-            if not has_friction[e]:
+            if not laws.has_friction[e]:
                 continue
             if mode[e] == STICK:
                 # friction force needed to hold the element: total force minus the other laws
@@ -354,23 +417,22 @@ def _solve_step(force_address, limit_address, n_terms, term_element, term_fricti
         if not changed:
             break
         jac_valid[0] = 0
-    for k in range(n_terms):
-        for j in range(n_state[k]):
+    for k in range(laws.count):
+        for j in range(laws.n_state[k]):
             S[k, j] = S_trial[k, j]
     return ok
 
 
 # --- the block loop ----------------------------------------------------------------
-def scratch_space(nz: int, r: int, law_states: np.ndarray) -> tuple:
+def scratch_space(nz: int, r: int, law_states: np.ndarray) -> Scratch:
     """Work arrays for :func:`integrate_block` (state size nz, r elements, law-state rows)."""
-    return (np.empty(nz), np.empty(2 * r), np.empty(r), np.empty(r), np.empty(r), np.empty(r),
-            np.empty((11, max(r, 1))), np.empty((r, r)), np.empty_like(law_states), np.empty_like(law_states))
+    return Scratch(np.empty(nz), np.empty(2 * r), np.empty(r), np.empty(r), np.empty(r), np.empty(r),
+                   np.empty((11, max(r, 1))), np.empty((r, r)), np.empty_like(law_states),
+                   np.empty_like(law_states))
 
 
 @njit(cache=True, _nrt=False)
-def integrate_block(n_steps, oversample, Phi, Qu, Pg0, Pg1, Cy, D, Co, Dou, Dog, u, z, g, g_prev,
-                    force_address, limit_address, n_terms, term_element, term_friction, P, n_params, S, n_state,
-                    k0, c0, has_friction, mode, sigma, jac, jac_valid, out, z_daq, f_daq, scratch):
+def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch):
     """Advance the rig by ``n_steps`` internal steps.
 
     Parameters
@@ -378,43 +440,21 @@ def integrate_block(n_steps, oversample, Phi, Qu, Pg0, Pg1, Cy, D, Co, Dou, Dog,
     n_steps : int
         Internal steps (a multiple of ``oversample``).
     oversample : int
-        Internal steps per DAQ sample; z and the element forces are recorded at the
-        first step of every group.
-    Phi : (nz, nz)
-        State transition over one step.
-    Qu : (nz, 3)
-        Drive input at the step start, middle and end (quadratic hold).
-    Pg0, Pg1 : (nz, r)
-        Residual element forces at the step start and end (first-order hold).
-    Cy : (2 r, nz)
-        Element displacements then velocities from the state.
-    D : (2 r, r)
-        ``Cy @ Pg1``: how the step-end element motion depends on the step-end forces.
-    Co, Dou, Dog : (nch, nz), (nch,), (nch, r)
-        Channel outputs (force, accelerations) from state, drive and residual forces.
+        Internal steps per DAQ sample; the state and the element forces are recorded at
+        the first step of every group.
+    system : StepMatrices
+        The discretised linear part.
+    laws : LawTable
+        The law terms and the elements' small-amplitude stiffness and damping.
+    state : SolverState
+        State, residual forces, committed law states, friction modes and Jacobian; updated.
     u : (2 n_steps + 1,)
         Drive at every half step, V (shaker) or drive units of an ideal source.
-    z, g, g_prev : state (nz,), residual forces now and one step earlier (r,); updated.
-    force_address, limit_address : (n_terms,) int64
-        Addresses of the law terms' C callbacks (:func:`law_callbacks`; 0 = no stick limit).
-    n_terms, term_element, term_friction, P, n_params, S, n_state :
-        The law terms: element of each, whether it is dry friction, parameters and
-        committed states (rows; S updated).
-    k0, c0 : (r,)
-        Small-amplitude stiffness and damping moved into the linear part.
-    has_friction : (r,) bool
-    mode, sigma : (r,) int64 and float64
-        Friction mode and slip direction per element; updated.
-    jac, jac_valid : (r, r) and (1,) int64
-        The Newton Jacobian kept across steps and whether it is usable; updated.
-    out : (n_steps, nch)
-        Channel values at every internal step (before the anti-alias filter).
-    z_daq : (n_steps // oversample, nz)
-    f_daq : (n_steps // oversample, r)
-        State and element law forces at the DAQ instants.
-    scratch : tuple of arrays
-        Work space from :func:`scratch_space` (the loop allocates nothing: it runs
-        without reference counting, which would otherwise dominate its cost).
+    record : Recording
+        Filled with the channels at every internal step and the state and element law
+        forces at the DAQ instants.
+    scratch : Scratch
+        Work space from :func:`scratch_space`.
 
     Returns
     -------
@@ -422,10 +462,14 @@ def integrate_block(n_steps, oversample, Phi, Qu, Pg0, Pg1, Cy, D, Co, Dou, Dog,
         Index of the step where the integration stopped (-1: all done) and whether it
         stopped because the implicit solve failed (1) rather than on a non-finite state (0).
     """
+    Phi, Qu, Pg0, Pg1, Cy, D, Co, Dou, Dog = system
+    z, g, g_prev, S, mode, sigma, jac, jac_valid = state
+    out, z_daq, f_daq = record
+    zf, y_free, x, v, F, g_new, work, J, S_trial, S_probe = scratch
+    k0, c0 = laws.k0, laws.c0
     nz = z.shape[0]
     r = k0.shape[0]
     nch = out.shape[1]
-    zf, y_free, x, v, F, g_new, work, J, S_trial, S_probe = scratch
     for m in range(n_steps):
         u0 = u[2 * m]
         um = u[2 * m + 1]
@@ -468,9 +512,8 @@ def integrate_block(n_steps, oversample, Phi, Qu, Pg0, Pg1, Cy, D, Co, Dou, Dog,
                 y_free[k] = acc
             for e in range(r):
                 g_new[e] = 2.0 * g[e] - g_prev[e]
-            if not _solve_step(force_address, limit_address, n_terms, term_element, term_friction, P, n_params,
-                               S, n_state, S_trial, S_probe, k0, c0, has_friction, y_free, D, r, mode, sigma,
-                               g_new, x, v, F, work, jac, jac_valid, J):
+            if not _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g_new, x, v, F, work, jac,
+                               jac_valid, J):
                 return m, 1
             for e in range(r):
                 g_prev[e] = g[e]

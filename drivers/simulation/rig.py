@@ -1,11 +1,11 @@
-"""Rig files: the truth a simulated test rig obeys (CONTRACTS.md §3).
+"""Rig files: the truth a simulated test rig obeys (docs/contracts.md §3).
 
 :func:`load_rig` reads a rig TOML file (or a built-in rig by name) into a
 :class:`Rig` and refuses, before any integration, everything that cannot be
 simulated faithfully: non-physical or unstable structures, unknown laws or
 parameters, sensors and excitation at impossible places, and a sample rate whose
 internal time step cannot resolve the highest mode the simulator keeps. The tables
-beyond CONTRACTS.md (``[shaker]``, ``[daq]``, ``[generator]``, ``[simulation]``) are
+beyond docs/contracts.md (``[shaker]``, ``[daq]``, ``[generator]``, ``[simulation]``) are
 documented in docs/rig-simulator.md.
 """
 from __future__ import annotations

@@ -519,11 +519,12 @@ class RigSimulator:
         f_daq = np.empty((n, len(self._g)))
         t = self._terms
         stop, solve_failed = kernels.integrate_block(
-            n_steps, self.oversample, system.Phi, system.Qu, system.Pg0, system.Pg1, system.Cy, system.D,
-            system.Co, system.Dou, system.Dog, u, self._z, self._g, self._g_prev, t.force_address,
-            t.limit_address, t.count, t.element, t.friction, t.P, t.n_params, t.S, t.n_state, self.model.k0,
-            self.model.c0, t.has_friction, self._mode, self._sigma, self._jacobian, self._jacobian_valid,
-            internal, z_daq, f_daq, self._scratch)
+            n_steps, self.oversample, kernels.StepMatrices(**vars(system)),
+            kernels.LawTable(t.force_address, t.limit_address, t.count, t.element, t.friction, t.P, t.n_params,
+                             t.n_state, self.model.k0, self.model.c0, t.has_friction),
+            kernels.SolverState(self._z, self._g, self._g_prev, t.S, self._mode, self._sigma, self._jacobian,
+                                self._jacobian_valid),
+            u, kernels.Recording(internal, z_daq, f_daq), self._scratch)
         if stop >= 0:
             cause = ("the element forces have no solution (a softening element may have lost its stability, "
                      "or a law force jumps)" if solve_failed else

@@ -1,0 +1,172 @@
+"""The house rules, read from the source with ``ast`` (docs/architecture.md): no import cycle anywhere in the
+project, dependencies one way (analysis <- drivers.simulation <- drivers.emulator <- app; drivers never import
+app), and every document a module or a doc cites exists in the repository."""
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("analysis", "drivers", "app")
+SCRIPTS = ("tests", "benchmarks")     # imported by bare module name (pytest and script sys.path)
+
+
+def _module_files() -> dict[str, Path]:
+    """Dotted module name -> file, for the packages (``pkg.sub``) and the script folders (bare names)."""
+    mods = {}
+    for top in PACKAGES:
+        for f in (ROOT / top).rglob("*.py"):
+            parts = f.relative_to(ROOT).with_suffix("").parts
+            mods[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = f
+    for top in SCRIPTS:
+        for f in (ROOT / top).glob("*.py"):
+            mods[f.stem] = f
+    return mods
+
+
+MODULES = _module_files()
+
+
+def _in_type_checking(tree: ast.AST) -> set[int]:
+    """ids of the nodes inside ``if TYPE_CHECKING:`` blocks (annotations only: never executed)."""
+    skip = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            skip |= {id(n) for sub in node.body for n in ast.walk(sub)}
+    return skip
+
+
+def _resolve(name: str) -> str | None:
+    """The project module an imported dotted name lands in (the longest known prefix), or None."""
+    while name and name not in MODULES:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def _imports(module: str, runtime_only: bool) -> set[str]:
+    """Project modules ``module`` imports anywhere in its file (top level or in functions).
+
+    ``from pkg import name`` depends on the module ``pkg.name`` when there is one, else on ``pkg``'s
+    ``__init__`` (which hands the name on)."""
+    path = MODULES[module]
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = _in_type_checking(tree) if runtime_only else set()
+    package = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
+    found = set()
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = ".".join(package[: len(package) - node.level + 1] if node.level else [])
+            prefix = ".".join(p for p in (base, node.module or "") if p)
+            targets = [f"{prefix}.{a.name}" if f"{prefix}.{a.name}" in MODULES else prefix for a in node.names]
+        else:
+            continue
+        found |= {m for m in map(_resolve, targets) if m and m != module}
+    return found
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _layer(module: str) -> str:
+    parts = module.split(".")
+    if parts[0] == "drivers" and len(parts) > 1 and parts[1] in ("simulation", "emulator"):
+        return f"drivers.{parts[1]}"
+    return parts[0] if parts[0] in PACKAGES else "scripts"
+
+
+# what each layer may import besides itself (docs/architecture.md)
+ALLOWED = {
+    "analysis": set(),
+    "drivers.simulation": {"analysis"},
+    "drivers.emulator": {"analysis", "drivers"},       # its physics is handed in: never drivers.simulation
+    "drivers": {"analysis", "drivers.emulator", "drivers.simulation"},
+    "app": {"analysis", "drivers", "drivers.emulator", "drivers.simulation"},
+}
+
+
+def test_no_import_cycle_anywhere():
+    graph = {m: _imports(m, runtime_only=True) for m in MODULES}
+    assert _cycles(graph) == []
+
+
+def test_imports_follow_the_layering():
+    wrong = [f"{m} imports {target}" for m in MODULES if _layer(m) in ALLOWED
+             for target in sorted(_imports(m, runtime_only=False))
+             if _layer(target) != _layer(m) and _layer(target) not in ALLOWED[_layer(m)]]
+    assert wrong == []
+
+
+def test_the_checks_see_the_imports():
+    # guards against a checker that finds nothing: known edges of each kind are seen
+    assert "analysis.laws" in _imports("analysis.elements", runtime_only=False)           # absolute
+    assert "drivers.simulation.kernels" in _imports("drivers.simulation.simulator", False)  # from . import x
+    assert "analysis" in _imports("app.cli", False)                                       # a name from __init__
+    assert "drivers.simulation.simulator" in _imports("app.cli", False)                   # inside a function
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _layer("drivers.emulator.core") == "drivers.emulator" and _layer("drivers.scpi") == "drivers"
+
+
+CITATION = re.compile(r"(?<![\w/.-])((?:[\w.-]+/)*[\w.-]+\.md)\b")
+URL = re.compile(r"\w+://\S+")
+
+
+def _cited(path: Path) -> list[str]:
+    return CITATION.findall(URL.sub("", path.read_text(encoding="utf-8")))
+
+
+def _citing_files() -> list[Path]:
+    files = [f for top in PACKAGES + SCRIPTS for f in (ROOT / top).rglob("*.py")]
+    return files + sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md"]
+
+
+def _exists(citation: str, where: Path) -> bool:
+    """A citation is a path from the repository root (``docs/laws.md``) or from the citing file's folder (a
+    relative Markdown link)."""
+    return (ROOT / citation).is_file() or (where.parent / citation).is_file()
+
+
+@pytest.mark.parametrize("path", _citing_files(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_cited_document_exists(path):
+    missing = [c for c in _cited(path) if not _exists(c, path)]
+    assert missing == [], f"{path.relative_to(ROOT)} cites documents that are not in the repository"
+
+
+def test_citations_are_found():
+    cited = _cited(ROOT / "app" / "session.py")
+    assert "docs/session-format.md" in cited
+    md = ".md"   # kept apart so that this file cites nothing itself
+    text = f"see SPEC{md} §3, (docs/x{md}) and https://example.org/y{md}"
+    assert CITATION.findall(URL.sub("", text)) == [f"SPEC{md}", f"docs/x{md}"]
