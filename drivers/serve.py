@@ -39,6 +39,8 @@ POLL = 0.05
 CHUNK = 1 << 16
 REFUSE_SECONDS = 3.0
 """How long a refused host is kept connected, so that it reads the refusal (s)."""
+HANDOVER_SECONDS = 1.0
+"""How long a new host waits for the previous one's connection to wind down before it is refused (s)."""
 BUSY = "busy: this {role} is in use by {peer} (connected at {since}); one host at a time\n"
 """The line a refused host receives."""
 
@@ -168,6 +170,8 @@ class TcpEndpoint:
                 continue
             connection, peer = self.server.accept()
             peer_text = f"{peer[0]}:{peer[1]}"
+            if self._serving is not None:
+                self._serving.join(HANDOVER_SECONDS)   # a host that just hung up is not refused its successor
             if self._serving is not None and self._serving.is_alive():
                 threading.Thread(target=self._refuse, args=(connection,), daemon=True,
                                  name=f"{self.role} tcp refusal").start()

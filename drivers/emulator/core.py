@@ -27,7 +27,8 @@ not starved by a rig running faster than real time (see :mod:`.shaker`).
 
 A physics failure (the simulation raising) switches the output off, ends the
 acquisition and queues -300 on both instruments; the next ``*RST``, ``OUTP ON``,
-``INIT``, ``READ?`` or new connection restarts the physics from rest.
+``INIT``, ``READ?`` or new connection restarts the physics from rest. In fast mode a
+rig that every host has left comes to rest too (:meth:`EmulatedRig._come_to_rest`).
 """
 from __future__ import annotations
 
@@ -309,6 +310,18 @@ class EmulatedRig:
                 del self._links[role]
                 link.firmware.injector = None
                 link.firmware.device_clear()   # nothing of this host's survives it
+            if not self._links and not self.paced:
+                self._come_to_rest()
+
+    def _come_to_rest(self) -> None:
+        """Fast mode, every host gone: no time passes until the next one, so give it what the minutes between
+        two sessions give a real rig -- output off and the structure at rest -- rather than a structure still
+        ringing from the last drive (lock held)."""
+        self.shaker.switch_off("no host")
+        restart = getattr(self.backend, "restart_from_rest", None)
+        if restart is not None and self.failure is None:
+            restart()
+            self.log("rig", "rest", "no host connected: structure at rest")
 
     def log(self, instrument: str, kind: str, detail: str) -> None:
         """Record an event at the current emulated time (lock held by the caller)."""
