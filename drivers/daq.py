@@ -350,6 +350,8 @@ class DaqStream:
         the change are all received or queued, however the threads were scheduled. Against an emulator that
         samples only as fast as it is read, this makes a run the same on any machine."""
         self._caught_up.clear()
+        if self._queue.finished:   # (the reader sets the event after it finishes)
+            return True
         return self._caught_up.wait(timeout)
 
     def stop(self, timeout: float = END_LIMIT + 5.0) -> StreamStats:
