@@ -20,6 +20,7 @@ from drivers.serve import EmulatorServer
 from drivers.shaker import SerialShaker
 from drivers.simulation.simulator import RigSimulator, SimulationError
 from rig_double import RigDouble
+from test_emulator import FailingRig
 from test_simulator import sdof_rig
 
 _names = itertools.count()
@@ -55,16 +56,12 @@ def readline(sock):
     return data[:-1].decode()
 
 
-def hang_up(sock):
-    sock.close()
-
-
 @pytest.mark.parametrize("paced", [True, False])
 def test_a_read_abandoned_by_its_host_does_not_block_the_next_one(paced):
     with served(paced) as (rig, where):
         first = connect(where["daq"])
         first.sendall(b"READ? 1048576\n")   # 17 minutes of samples at 1 kHz
-        hang_up(first)
+        first.close()
         second = connect(where["daq"])
         assert ask(second, "*IDN?").startswith("contactid,DAQ-1,")
         assert ask(second, "ABOR;*RST;*OPC?") == "1"
@@ -76,7 +73,7 @@ def test_half_a_command_does_not_survive_its_host():
     with served() as (rig, where):
         first = connect(where["shaker"])
         first.sendall(b"FREQ 1")
-        hang_up(first)
+        first.close()
         second = connect(where["shaker"])
         second.sendall(b"5\n")
         assert ask(second, "FREQ?") == "10"
@@ -91,8 +88,8 @@ def test_replies_and_streams_of_a_previous_host_are_not_delivered_to_the_next():
         daq = connect(where["daq"])
         daq.sendall(b"INIT\n")
         assert ask(first, "*OPC?").startswith("contactid,SC-1")   # the replies queued ahead of it
-        hang_up(first)
-        hang_up(daq)
+        first.close()
+        daq.close()
         second = connect(where["shaker"])
         assert ask(second, "FREQ?") == "10"
         daq = connect(where["daq"])
@@ -132,7 +129,7 @@ def test_a_second_host_is_refused_with_a_message_and_served_once_the_first_leave
         assert busy.startswith("busy: this shaker is in use by ") and local in busy and "one host at a time" in busy
         assert ask(other, "*IDN?") == busy   # every line it sends gets the same answer
         other.close()
-        hang_up(idle)
+        idle.close()
         third = connect(where["shaker"])
         assert ask(third, "*IDN?").startswith("contactid,SC-1,")
         third.close()
@@ -146,22 +143,13 @@ def test_the_driver_names_the_busy_instrument():
         holder.close()
 
 
-class FailingOnce(RigDouble):
-    """Diverges once, at sample ``limit``, as the simulator does when a softening element escapes; then
-    restarts from rest like :meth:`RigSimulator.restart_from_rest`."""
+class FailingOnce(FailingRig):
+    """Diverges once, then restarts from rest like :meth:`RigSimulator.restart_from_rest`."""
 
-    def __init__(self, limit):
-        super().__init__()
-        self.limit = limit
-        self.restarts = 0
-
-    def advance(self, n):
-        if self.limit is not None and self.samples + n > self.limit:
-            raise FloatingPointError("the response diverged")
-        return super().advance(n)
+    restarts = 0
 
     def restart_from_rest(self):
-        self.limit = None
+        self.limit = np.inf
         self.restarts += 1
 
 

@@ -223,3 +223,39 @@ def test_limits_from_a_plan_table_and_the_check_function():
         AbortLimits.from_table({"max_force": -1.0}, "plan.toml")
     with pytest.raises(Exception, match="unknown key"):
         AbortLimits.from_table({"max_speed": 1.0})
+
+
+class FrozenWallClock:
+    """Stands in for the ``time`` module of the emulated shaker: a wall clock that moves only when told."""
+
+    def __init__(self):
+        self.now = 1000.0
+
+    def monotonic(self):
+        return self.now
+
+
+def test_a_fast_rig_running_ahead_of_real_time_does_not_trip_a_host_that_feeds_in_real_time(monkeypatch):
+    """The watchdog needs the host silent by both clocks: 5 s of emulated time pass within no wall time (the
+    rig far faster than real time) and the output stays on; once the wall clock has run out too, it goes off
+    at the next frame."""
+    import drivers.emulator.shaker as shaker_firmware
+    wall = FrozenWallClock()
+    monkeypatch.setattr(shaker_firmware, "time", wall)
+    with EmulatedRig(RigDouble(), paced=False, name="ahead") as rig:
+        register(rig)
+        port = serial.serial_for_url("sim://ahead/shaker", timeout=1.0)
+        port.write(b"SYST:WDOG 1;:VOLT 0.5;:OUTP ON;*OPC?\n")
+        assert port.readline() == b"1\n"
+        daq = serial.serial_for_url("sim://ahead/daq", timeout=1.0)
+        daq.write(b"INIT\n")
+        frame = 20 + 4 * 20 * 3 + 4           # default frame: 20 samples of 3 channels
+        daq.read(frame * 250)                  # 5 s of emulated time
+        assert rig.time - rig.shaker.last_feed >= 5.0 and rig.shaker.output_on
+        wall.now += 1.01
+        daq.read(frame)
+        assert not rig.shaker.output_on
+        off = last_off(rig)
+        assert off.detail == "off: watchdog" and off.time - rig.shaker.last_feed <= 5.0 + LATENCY
+        port.close()
+        daq.close()
