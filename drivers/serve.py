@@ -39,7 +39,7 @@ POLL = 0.05
 CHUNK = 1 << 16
 REFUSE_SECONDS = 3.0
 """How long a refused host is kept connected, so that it reads the refusal (s)."""
-HANDOVER_SECONDS = 1.0
+HANDOVER_SECONDS = 3.0
 """How long a new host waits for the previous one's connection to wind down before it is refused (s)."""
 BUSY = "busy: this {role} is in use by {peer} (connected at {since}); one host at a time\n"
 """The line a refused host receives."""
