@@ -234,7 +234,7 @@ class EmulatedRig:
             while due > self.samples and not self._stop.is_set() and self.failure is None:
                 with self.lock:
                     self.advance(min(due - self.samples, self.shaker.chunk_limit()))
-            if self.failure is not None:   # time runs on while the physics is stopped
+            if self.failure is not None:   # a restarted physics goes on from now, not with a burst
                 start_wall, start_samples = time.monotonic(), self.samples
 
     def hold_for_commands(self) -> None:

@@ -11,10 +11,10 @@ time the controller switches its output off by itself and queues error 201.
 The host counts as silent when no message arrived for the watchdog time by the
 emulated clock *and* by the wall clock. In paced mode the two agree (the wall clock
 only keeps a starved emulator from tripping a host whose messages wait to be
-processed); in fast mode the emulated clock runs ahead of a host that feeds the
-watchdog in real time, and stands still while nobody reads the DAQ. Either way the
-output goes off at a chunk boundary of the physics, within one chunk of the moment
-the host had been silent for the watchdog time.
+processed). In fast mode the emulated clock runs ahead of a host that feeds the
+watchdog in real time, and stands still while nobody reads the DAQ; the wall clock
+there only tells a host that is gone (silent for FAST_HOST_SILENCE) from one that
+is slow. The output goes off at a chunk boundary of the physics.
 """
 from __future__ import annotations
 
@@ -39,6 +39,9 @@ RAMP_LIMITS = (0.001, 1000.0)
 """Ramp rates accepted (V peak per second)."""
 WATCHDOG_LIMITS = (0.01, 3600.0)
 """Watchdog times accepted (s); 0 disables the watchdog."""
+FAST_HOST_SILENCE = 10.0
+"""Fast mode: wall-clock silence (s) after which a host counts as gone. Far above a heartbeat interval: on a
+loaded machine a host starved of CPU for a second is slow, not gone, and a fast run must not depend on it."""
 DEFAULTS = {"function": "SIN", "frequency": 10.0, "peak": 0.05, "unit": "VPP", "ramp": 2.0,
             "watchdog": 10.0, "band_low": 1.0}
 """The *RST state (output OFF); the noise band is 1 Hz to the upper frequency limit."""
@@ -94,9 +97,11 @@ class ShakerFirmware(Firmware):
         self.last_feed_wall = time.monotonic()
 
     def _host_silent(self) -> bool:
-        """No message for the watchdog time, by the emulated and by the wall clock."""
+        """No message for the watchdog time by the emulated clock, and by the wall clock for the watchdog time
+        (paced) or for FAST_HOST_SILENCE at least (fast: only a sign that the host is gone)."""
+        wall = self.watchdog_time if self.rig.paced else max(self.watchdog_time, FAST_HOST_SILENCE)
         return (self.rig.time - self.last_feed > self.watchdog_time
-                and time.monotonic() - self.last_feed_wall > self.watchdog_time)
+                and time.monotonic() - self.last_feed_wall > wall)
 
     def check_watchdog(self) -> None:
         if self.output_on and self.watchdog_time > 0 and self._host_silent():
