@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 from ..faults import FaultInjector
 from .link import OutputFifo
-from .scpi_server import Interrupted, ScpiError, ScpiServer, action, reply_with
+from .scpi_server import ScpiError, ScpiServer, action, reply_with
 
 if TYPE_CHECKING:
     from .core import EmulatedRig
