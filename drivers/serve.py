@@ -40,7 +40,9 @@ CHUNK = 1 << 16
 REFUSE_SECONDS = 3.0
 """How long a refused host is kept connected, so that it reads the refusal (s)."""
 HANDOVER_SECONDS = 3.0
-"""How long a new host waits for the previous one's connection to wind down before it is refused (s)."""
+"""How long a new host waits for the connection of a host that has hung up to wind down (s)."""
+TCP_ESTABLISHED = 1
+"""Linux TCP state of an open connection (``tcpi_state`` in TCP_INFO)."""
 BUSY = "busy: this {role} is in use by {peer} (connected at {since}); one host at a time\n"
 """The line a refused host receives."""
 
@@ -159,6 +161,7 @@ class TcpEndpoint:
         self._stop = threading.Event()
         self._connection_over = threading.Event()
         self._holder: str | None = None          # the served host, as the refusal names it
+        self._connection: socket.socket | None = None
         self._serving: threading.Thread | None = None
         self._thread = threading.Thread(target=self._accept, daemon=True, name=f"{role} tcp")
         self._thread.start()
@@ -170,7 +173,7 @@ class TcpEndpoint:
                 continue
             connection, peer = self.server.accept()
             peer_text = f"{peer[0]}:{peer[1]}"
-            if self._serving is not None:
+            if self._serving is not None and self._previous_host_left():
                 self._serving.join(HANDOVER_SECONDS)   # a host that just hung up is not refused its successor
             if self._serving is not None and self._serving.is_alive():
                 threading.Thread(target=self._refuse, args=(connection,), daemon=True,
@@ -180,6 +183,19 @@ class TcpEndpoint:
             self._serving = threading.Thread(target=self._serve_connection, args=(connection,), daemon=True,
                                              name=f"{self.role} tcp host {peer_text}")
             self._serving.start()
+
+    def _previous_host_left(self) -> bool:
+        """Whether the served host has closed its end (its connection may still be winding down here)."""
+        connection = self._connection
+        if connection is None:
+            return True
+        try:
+            if hasattr(socket, "TCP_INFO"):   # Linux: no longer ESTABLISHED once the host's FIN (or RST) came
+                return connection.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 1)[0] != TCP_ESTABLISHED
+            ready, _, _ = select.select([connection], [], [], 0)
+            return bool(ready) and connection.recv(1, socket.MSG_PEEK) == b""
+        except OSError:
+            return True   # closed here already
 
     def _refuse(self, connection: socket.socket) -> None:
         """Tell a second host why it is not served (once, then once per line it sends), then hang up."""
@@ -200,6 +216,7 @@ class TcpEndpoint:
                 pass  # the refused host hung up first
 
     def _serve_connection(self, connection: socket.socket) -> None:
+        self._connection = connection
         with connection:
             self._serve(connection)
 
