@@ -115,6 +115,7 @@ class LineMeter:
     def _set_drive(self, frequency: float, drive: float, previous: float | None) -> None:
         """Change the generator amplitude, then drop the samples taken before it acted (the learnt latency of
         the command-to-data path) and those of its amplitude ramp."""
+        self.feed.stream.sync()    # the samples before the change all in: the change lands at a known sample
         self.shaker.set_sine(frequency, drive)
         self.feed.flush()
         ramp_s = abs(drive - (previous or 0.0)) / max(getattr(self.shaker, "ramp_rate", np.inf), 1e-12)
@@ -166,6 +167,7 @@ class LineMeter:
         force channel is the new one. The samples that took is the path's latency, kept (largest seen) for
         the amplitude changes of the force loop, where no frequency tells old data from new.
         """
+        self.feed.stream.sync()    # the samples before the change all in: the change lands at a known sample
         self.shaker.set_sine(frequency, drive)
         self.feed.flush()
         stale = 0

@@ -139,9 +139,10 @@ class _BlockQueue:
         self.finished = False
         self.error: BaseException | None = None
 
-    def put(self, block: Block, unbounded: threading.Event) -> None:
+    def put(self, block: Block, unbounded: threading.Event, caught_up: threading.Event) -> None:
         with self._ready:
             while len(self._blocks) >= self.capacity and not unbounded.is_set():
+                caught_up.set()
                 self._ready.wait(POLL)
             self._blocks.append(block)
             self._ready.notify_all()
@@ -198,6 +199,7 @@ class DaqStream:
         self._decoder = FrameDecoder(len(daq.channels), daq.frame_points)
         self._queue = _BlockQueue(max(1, buffered_blocks))
         self._stopping = threading.Event()
+        self._caught_up = threading.Event()
         self._request = daq._link.submit(self._run)
 
     # ----- owner thread --------------------------------------------------------------------
@@ -211,6 +213,8 @@ class DaqStream:
             last = time.monotonic()
             while not self._stopping.is_set():
                 data = io.read_some(chunk, POLL)
+                if len(data) < chunk:
+                    self._caught_up.set()   # the instrument had nothing more to send
                 if data:
                     self._deliver(data)
                     if self._decoder.ended:
@@ -226,6 +230,7 @@ class DaqStream:
         if error is not None and not isinstance(error, LinkLost):
             self._abandon(io)
         self._queue.finish(error)
+        self._caught_up.set()
         if isinstance(error, LinkLost):
             raise error  # marks the port dead for every later call
 
@@ -243,7 +248,7 @@ class DaqStream:
                 stats.end_frame_received = True
             stats.samples_received += frame.points
             for block in self._assembler.add(frame):
-                self._queue.put(block, self._stopping)
+                self._queue.put(block, self._stopping, self._caught_up)
 
     def _finish(self, io: PortIO, chunk: int) -> None:
         self.daq._scpi.send(io, "ABOR")
@@ -270,14 +275,14 @@ class DaqStream:
             self.stats.corrupt_frames = self._decoder.stats.corrupt_frames
         tail = self._assembler.flush()
         if tail is not None:
-            self._queue.put(tail, self._stopping)
+            self._queue.put(tail, self._stopping, self._caught_up)
 
     def _ended_by_instrument(self, io: PortIO) -> None:
         """The DAQ sent END unasked: keep the samples, then raise what its error queue says."""
         io.unread(self._decoder.remainder())
         tail = self._assembler.flush()
         if tail is not None:
-            self._queue.put(tail, self._stopping)
+            self._queue.put(tail, self._stopping, self._caught_up)
         errors = self.daq._scpi.drain_errors(io)
         if errors:
             raise DeviceError(self.url, errors, "INIT (the instrument ended the stream)")
@@ -337,12 +342,25 @@ class DaqStream:
         except EOFError:
             raise StopIteration from None
 
+    def sync(self, timeout: float = 5.0) -> bool:
+        """Wait until the driver has read what the instrument had to send, or its queue is full (it waits for
+        the consumer); whether that came within ``timeout`` s.
+
+        Call it before changing what the instrument measures (the generator): then the samples taken before
+        the change are all received or queued, however the threads were scheduled. Against an emulator that
+        samples only as fast as it is read, this makes a run the same on any machine."""
+        self._caught_up.clear()
+        if self._queue.finished:   # (the reader sets the event after it finishes)
+            return True
+        return self._caught_up.wait(timeout)
+
     def stop(self, timeout: float = END_LIMIT + 5.0) -> StreamStats:
         """End the acquisition and wait until the instrument confirmed it; the final stats.
 
         Blocks still queued stay readable; reading past them raises EOFError.
         A stream that failed raises its error here.
         """
+        self.sync()
         self._stopping.set()
         self._request.wait(self.url, timeout)
         if self._queue.error is not None:

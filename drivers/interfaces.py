@@ -152,6 +152,10 @@ class BlockStream(Protocol):
     def pending(self) -> int:
         """Blocks received and waiting to be read: they were sampled before this call."""
 
+    def sync(self, timeout: float = 5.0) -> bool:
+        """Wait until what the instrument sampled so far is received or queued (call it before a generator
+        change); whether that came within ``timeout`` s."""
+
     def stop(self) -> object:
         """End the acquisition and return its statistics; later reads return the blocks still queued."""
 

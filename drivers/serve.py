@@ -9,9 +9,12 @@
     daq: socket://127.0.0.1:5026
 
 and serves until interrupted (SIGINT or SIGTERM). A pseudo terminal keeps its
-path for the whole session; a TCP port accepts one host at a time and the next
-one after it disconnects. An injected disconnect closes the pseudo terminal (the
-port disappears) or the TCP connection.
+path for the whole session; a TCP port serves one host at a time and the next one
+after it disconnects. A host that connects while another is served is refused: it
+gets a one-line explanation (:data:`BUSY`), again for every line it sends, and is
+disconnected after :data:`REFUSE_SECONDS`. Every TCP connection starts and ends
+with a device clear of its instrument. An injected disconnect closes the pseudo
+terminal (the port disappears) or the TCP connection.
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ import select
 import signal
 import socket
 import threading
+import time
 import tty
 from typing import Any, Callable, Mapping
 
@@ -33,6 +37,14 @@ from .faults import ROLES
 POLL = 0.05
 """Longest a serving thread blocks before it re-checks for shutdown (s)."""
 CHUNK = 1 << 16
+REFUSE_SECONDS = 3.0
+"""How long a refused host is kept connected, so that it reads the refusal (s)."""
+HANDOVER_SECONDS = 3.0
+"""How long a new host waits for the connection of a host that has hung up to wind down (s)."""
+TCP_ESTABLISHED = 1
+"""Linux TCP state of an open connection (``tcpi_state`` in TCP_INFO)."""
+BUSY = "busy: this {role} is in use by {peer} (connected at {since}); one host at a time\n"
+"""The line a refused host receives."""
 
 
 def parse_tcp_address(text: str) -> tuple[str, int]:
@@ -148,16 +160,65 @@ class TcpEndpoint:
         self.url = f"socket://{host}:{bound[1]}"
         self._stop = threading.Event()
         self._connection_over = threading.Event()
+        self._holder: str | None = None          # the served host, as the refusal names it
+        self._connection: socket.socket | None = None
+        self._serving: threading.Thread | None = None
         self._thread = threading.Thread(target=self._accept, daemon=True, name=f"{role} tcp")
         self._thread.start()
 
     def _accept(self) -> None:
         while not self._stop.is_set():
             ready, _, _ = select.select([self.server], [], [], POLL)
-            if ready:
-                connection, _ = self.server.accept()
-                with connection:
-                    self._serve(connection)
+            if not ready:
+                continue
+            connection, peer = self.server.accept()
+            peer_text = f"{peer[0]}:{peer[1]}"
+            if self._serving is not None and self._previous_host_left():
+                self._serving.join(HANDOVER_SECONDS)   # a host that just hung up is not refused its successor
+            if self._serving is not None and self._serving.is_alive():
+                threading.Thread(target=self._refuse, args=(connection,), daemon=True,
+                                 name=f"{self.role} tcp refusal").start()
+                continue
+            self._holder = BUSY.format(role=self.role, peer=peer_text, since=time.strftime("%H:%M:%S"))
+            self._serving = threading.Thread(target=self._serve_connection, args=(connection,), daemon=True,
+                                             name=f"{self.role} tcp host {peer_text}")
+            self._serving.start()
+
+    def _previous_host_left(self) -> bool:
+        """Whether the served host has closed its end (its connection may still be winding down here)."""
+        connection = self._connection
+        if connection is None:
+            return True
+        try:
+            if hasattr(socket, "TCP_INFO"):   # Linux: no longer ESTABLISHED once the host's FIN (or RST) came
+                return connection.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 1)[0] != TCP_ESTABLISHED
+            ready, _, _ = select.select([connection], [], [], 0)
+            return bool(ready) and connection.recv(1, socket.MSG_PEEK) == b""
+        except OSError:
+            return True   # closed here already
+
+    def _refuse(self, connection: socket.socket) -> None:
+        """Tell a second host why it is not served (once, then once per line it sends), then hang up."""
+        message = (self._holder or BUSY).encode("ascii", "replace")
+        deadline = time.monotonic() + REFUSE_SECONDS
+        with connection:
+            try:
+                connection.sendall(message)
+                while (left := deadline - time.monotonic()) > 0 and not self._stop.is_set():
+                    ready, _, _ = select.select([connection], [], [], min(left, POLL))
+                    if ready:
+                        data = connection.recv(CHUNK)
+                        if not data:
+                            return
+                        connection.sendall(message * data.count(b"\n"))
+                connection.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass  # the refused host hung up first
+
+    def _serve_connection(self, connection: socket.socket) -> None:
+        self._connection = connection
+        with connection:
+            self._serve(connection)
 
     def _serve(self, connection: socket.socket) -> None:
         connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -213,6 +274,8 @@ class TcpEndpoint:
         self._stop.set()
         self._connection_over.set()
         self._thread.join(2.0)
+        if self._serving is not None:
+            self._serving.join(2.0)
         self.server.close()
 
 

@@ -140,18 +140,15 @@ def test_dropped_shaker_link_is_reported_and_the_watchdog_switches_off():
         shaker.close()
 
 
-@pytest.mark.parametrize("paced", [True, False])
-def test_a_silent_host_is_switched_off_by_the_instrument_watchdog(paced):
-    with EmulatedRig(RigDouble(), paced=paced, name=f"silent{int(paced)}") as rig:
+def test_a_silent_host_is_switched_off_by_the_instrument_watchdog():
+    with EmulatedRig(RigDouble(), paced=True, name="silent") as rig:
         register(rig)
         port = serial.serial_for_url(f"sim://{rig.name}/shaker", timeout=1.0)
         port.write(b"SYST:WDOG 0.05;:VOLT 0.5;:OUTP ON;*OPC?\n")
         assert port.readline() == b"1\n"
         wait_for(lambda: not rig.shaker.output_on)
         off = last_off(rig)
-        assert off.detail == "off: watchdog"
-        if paced:  # the watchdog counts emulated time only when that is real time
-            assert off.time - rig.shaker.last_feed <= LATENCY
+        assert off.detail == "off: watchdog" and 0.05 < off.time - rig.shaker.last_feed <= 0.05 + LATENCY
         port.write(b"SYST:ERR?\n")
         assert port.readline() == b'201,"Watchdog expired; output switched off"\n'
         port.close()
@@ -219,3 +216,44 @@ def test_limits_from_a_plan_table_and_the_check_function():
         AbortLimits.from_table({"max_force": -1.0}, "plan.toml")
     with pytest.raises(Exception, match="unknown key"):
         AbortLimits.from_table({"max_speed": 1.0})
+
+
+class FrozenWallClock:
+    """Stands in for the ``time`` module of the emulated shaker: a wall clock that moves only when told."""
+
+    def __init__(self):
+        self.now = 1000.0
+
+    def monotonic(self):
+        return self.now
+
+
+def test_a_fast_rig_running_ahead_of_real_time_does_not_trip_a_host_that_feeds_in_real_time(monkeypatch):
+    """The watchdog needs the host silent by both clocks: 5 s of emulated time pass within no wall time (the
+    rig far faster than real time) and the output stays on; once the wall clock says the host is gone, it goes
+    off at the next frame, with error 201."""
+    import drivers.emulator.shaker as shaker_firmware
+    wall = FrozenWallClock()
+    monkeypatch.setattr(shaker_firmware, "time", wall)
+    with EmulatedRig(RigDouble(), paced=False, name="ahead") as rig:
+        register(rig)
+        port = serial.serial_for_url("sim://ahead/shaker", timeout=1.0)
+        port.write(b"SYST:WDOG 1;:VOLT 0.5;:OUTP ON;*OPC?\n")
+        assert port.readline() == b"1\n"
+        daq = serial.serial_for_url("sim://ahead/daq", timeout=1.0)
+        daq.write(b"INIT\n")
+        frame = 20 + 4 * 20 * 3 + 4           # default frame: 20 samples of 3 channels
+        daq.read(frame * 250)                  # 5 s of emulated time
+        assert rig.time - rig.shaker.last_feed >= 5.0 and rig.shaker.output_on
+        wall.now += shaker_firmware.FAST_HOST_SILENCE - 0.01
+        daq.read(frame)
+        assert rig.shaker.output_on        # silent, but not yet for FAST_HOST_SILENCE: slow, not gone
+        wall.now += 0.02
+        daq.read(frame)
+        assert not rig.shaker.output_on
+        off = last_off(rig)
+        assert off.detail == "off: watchdog" and off.time - rig.shaker.last_feed <= 5.0 + 2 * LATENCY
+        port.write(b"SYST:ERR?\n")
+        assert port.readline() == b'201,"Watchdog expired; output switched off"\n'
+        port.close()
+        daq.close()

@@ -11,17 +11,24 @@ The backend is any object with the rig simulator's interface::
     backend.set_noise(rms_volts, band_hz)
     backend.set_output(on)
     backend.advance(n) -> ndarray (n, n_channels), physical units
+    backend.restart_from_rest()   optional: after a failure, the structure at rest again (time runs on)
 
 Time. In *paced* mode a clock thread advances the physics in step with the wall
 clock, whether or not anyone listens (the specimen keeps moving). In *fast* mode
 the physics advances only when the DAQ needs samples: as fast as the host reads
 the stream, and not at all while nothing is acquired or while a host command
-waits to be processed, so a fast run does not depend on the speed of the machine. The physics advances in chunks of at most
-10 ms (2 ms while the amplitude ramps); commands take effect between chunks.
+waits to be processed, so a fast run does not depend on the speed of the machine.
+The physics advances in chunks of at most 10 ms (2 ms while the amplitude ramps;
+in fast mode one DAQ frame); commands take effect between chunks.
 
-The shaker's watchdog counts emulated time in paced mode (where it is real time)
-and wall-clock time in fast mode, where emulated time can run far ahead of the
-host's heartbeats.
+Every emulated timer (the amplitude ramp, the watchdog) counts emulated time. The
+watchdog also asks the wall clock, so that a host that feeds it in real time is
+not starved by a rig running faster than real time (see :mod:`.shaker`).
+
+A physics failure (the simulation raising) switches the output off, ends the
+acquisition and queues -300 on both instruments; the next ``*RST``, ``OUTP ON``,
+``INIT``, ``READ?`` or new connection restarts the physics from rest. In fast mode a
+rig that every host has left comes to rest too (:meth:`EmulatedRig._come_to_rest`).
 """
 from __future__ import annotations
 
@@ -39,7 +46,9 @@ from .scpi_server import ScpiError
 from .shaker import ShakerFirmware
 
 CLOCK_TICK = 0.005
-"""Period of the paced clock and of the fast-mode watchdog check (s of wall time)."""
+"""Period of the paced clock (s of wall time)."""
+HOLD_POLL = 0.02
+"""Longest a fast-mode read waits before it re-checks the host commands that hold the physics (s)."""
 REQUIRED = ("sample_rate", "channels", "units", "lsb", "time", "set_sine", "set_noise", "set_output", "advance")
 
 
@@ -108,7 +117,8 @@ class EmulatedRig:
         self._links: dict[str, InstrumentLink] = {}
         self._close_hooks: list[Callable[["EmulatedRig"], None]] = []
         self._stop = threading.Event()
-        self._clock = threading.Thread(target=self._run_clock, name=f"{name} clock", daemon=True)
+        self._clock = threading.Thread(target=self._run_clock, name=f"{name} clock", daemon=True) \
+            if paced else None
 
     # ----- lifecycle ---------------------------------------------------------------------
     def start(self) -> "EmulatedRig":
@@ -116,10 +126,13 @@ class EmulatedRig:
         if self._stop.is_set():
             raise RuntimeError(f"emulated rig {self.name!r} was closed; build a new one")
         if not self.running:
+            # a first call compiles the physics: do it now, not while a host waits for a reply
+            self.backend.advance(0)
             self.running = True
             for firmware in self.instruments.values():
                 firmware.start()
-            self._clock.start()
+            if self._clock is not None:
+                self._clock.start()
         return self
 
     def close(self) -> None:
@@ -134,7 +147,7 @@ class EmulatedRig:
             link.close()
         for firmware in self.instruments.values():
             firmware.stop()
-        if threading.current_thread() is not self._clock:
+        if self._clock is not None and threading.current_thread() is not self._clock:
             self._clock.join(2.0)
         with self.lock:
             self.changed.notify_all()
@@ -155,9 +168,10 @@ class EmulatedRig:
         """Emulated time (s)."""
         return float(self.backend.time)
 
-    def watchdog_clock(self) -> float:
-        """The clock the shaker's watchdog counts (s): emulated time if paced, wall time if fast."""
-        return self.time if self.paced else time.monotonic()
+    def notify(self) -> None:
+        """Wake whoever waits for the rig (a command was processed, a setting changed)."""
+        with self.lock:
+            self.changed.notify_all()
 
     def commands_pending(self) -> bool:
         """Whether an instrument has host commands not yet processed."""
@@ -196,19 +210,38 @@ class EmulatedRig:
         for firmware in self.instruments.values():
             firmware.scpi.errors.push(ScpiError(-300, detail[:200]))
 
+    def recover(self) -> None:
+        """After a physics failure: restart the physics from rest (lock held).
+
+        ScpiError -300 if the backend cannot restart (it has no ``restart_from_rest``, or that fails)."""
+        if self.failure is None:
+            return
+        restart = getattr(self.backend, "restart_from_rest", None)
+        if restart is None:
+            raise ScpiError(-300, "physics stopped and this rig cannot restart it")
+        try:
+            restart()
+        except Exception as exc:  # reported like the failure itself
+            raise ScpiError(-300, f"physics restart failed: {type(exc).__name__}: {exc}"[:200]) from None
+        self.failure = None
+        self.log("rig", "recovered", "physics restarted from rest")
+
     def _run_clock(self) -> None:
-        if self.paced:
-            start_wall = time.monotonic()
-            start_samples = self.samples
-            while not self._stop.wait(CLOCK_TICK):
-                due = start_samples + int((time.monotonic() - start_wall) * self.sample_rate)
-                while due > self.samples and not self._stop.is_set() and self.failure is None:
-                    with self.lock:
-                        self.advance(min(due - self.samples, self.shaker.chunk_limit()))
-        else:
-            while not self._stop.wait(CLOCK_TICK):
+        start_wall = time.monotonic()
+        start_samples = self.samples
+        while not self._stop.wait(CLOCK_TICK):
+            due = start_samples + int((time.monotonic() - start_wall) * self.sample_rate)
+            while due > self.samples and not self._stop.is_set() and self.failure is None:
                 with self.lock:
-                    self.shaker.check_watchdog()
+                    self.advance(min(due - self.samples, self.shaker.chunk_limit()))
+            if self.failure is not None:   # a restarted physics goes on from now, not with a burst
+                start_wall, start_samples = time.monotonic(), self.samples
+
+    def hold_for_commands(self) -> None:
+        """Fast mode: wait until the host's commands are processed (lock held), so that they take effect at
+        the same point of the physics however the threads are scheduled."""
+        while self.commands_pending() and self.running:
+            self.changed.wait(HOLD_POLL)
 
     # ----- links ---------------------------------------------------------------------------
     def connect(self, role: str, faults: LinkFaults | None = None) -> InstrumentLink:
@@ -237,7 +270,11 @@ class EmulatedRig:
             injector = FaultInjector(faults or self.default_faults[role], ROLES.index(role))
             link = InstrumentLink(firmware, injector, None if self.paced else firmware.produce, self._closed)
             firmware.injector = injector
-            firmware.output.clear()
+            firmware.device_clear()
+            try:
+                self.recover()
+            except ScpiError as exc:    # still reported: the error stays queued
+                firmware.scpi.errors.push(exc)
             self._links[role] = link
             return link
 
@@ -272,6 +309,19 @@ class EmulatedRig:
             if self._links.get(role) is link:
                 del self._links[role]
                 link.firmware.injector = None
+                link.firmware.device_clear()   # nothing of this host's survives it
+            if not self._links and not self.paced:
+                self._come_to_rest()
+
+    def _come_to_rest(self) -> None:
+        """Fast mode, every host gone: no time passes until the next one, so give it what the minutes between
+        two sessions give a real rig -- output off and the structure at rest -- rather than a structure still
+        ringing from the last drive (lock held)."""
+        self.shaker.switch_off("no host")
+        restart = getattr(self.backend, "restart_from_rest", None)
+        if restart is not None and self.failure is None:
+            restart()
+            self.log("rig", "rest", "no host connected: structure at rest")
 
     def log(self, instrument: str, kind: str, detail: str) -> None:
         """Record an event at the current emulated time (lock held by the caller)."""

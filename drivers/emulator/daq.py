@@ -17,8 +17,8 @@ import numpy as np
 
 from ..stream import FLAG_OVERLOAD, FLAG_OVERRUN, MAX_POINTS, encode_end, encode_frame, frame_size
 from .firmware import Firmware
-from .scpi_server import (ScpiError, action, block_data, expect_none, expect_one, format_channel_list, format_number,
-                          limit_query, parse_channel_list, parse_number, reply_with)
+from .scpi_server import (Interrupted, ScpiError, action, block_data, expect_none, expect_one, format_channel_list,
+                          format_number, limit_query, parse_channel_list, parse_number, reply_with)
 
 if TYPE_CHECKING:
     from .core import EmulatedRig
@@ -31,6 +31,8 @@ SENSITIVITY_LIMITS = (1e-6, 100.0)
 RANGE_LIMITS = (0.001, 50.0)
 MAX_READ_POINTS = 1 << 20
 """Largest READ? block (samples per channel)."""
+READ_PIECE = 4096
+"""Fast mode: samples a READ? acquires between two checks for a device clear."""
 FRAME_SECONDS = 0.02
 """Default frame duration: STReam:POINts after *RST is about this many seconds of samples."""
 MIN_FIFO_BYTES = 1 << 16
@@ -73,10 +75,14 @@ class DaqFirmware(Firmware):
         self._unframed_over = np.zeros(0, dtype=bool)
         self._capture: BlockCapture | None = None
         self.fifo_bytes = MIN_FIFO_BYTES
-        self.reset()
+        self._defaults()
         self._add_commands()
 
     def reset(self) -> None:
+        self._defaults()
+        self.rig.recover()
+
+    def _defaults(self) -> None:
         if self.acquiring:
             self.stop_acquisition()
         self.scan = list(range(self.n_channels))
@@ -129,9 +135,8 @@ class DaqFirmware(Firmware):
         self.acquired += counts.shape[0]
 
     def produce(self) -> bool:
-        if self.rig.commands_pending():
-            return self.acquiring  # the host's commands come first, then more physics
         with self.rig.lock:
+            self.rig.hold_for_commands()   # the host's commands come first, then more physics
             if not self.acquiring:
                 return False
             if not len(self.output):
@@ -141,6 +146,7 @@ class DaqFirmware(Firmware):
     def start_acquisition(self) -> None:
         if self.acquiring:
             raise ScpiError(-213, "acquisition already running")
+        self.rig.recover()
         self.sequence = 0
         self.acquired = 0
         self.frames_overrun = 0
@@ -166,20 +172,30 @@ class DaqFirmware(Firmware):
         self.rig.log("daq", "stream", f"end after {self.acquired} samples")
 
     def read_block(self, points: int) -> bytes:
-        """Acquire ``points`` samples now (paced: wait for the clock; fast: advance) as block data."""
+        """Acquire ``points`` samples now (paced: wait for the clock; fast: advance) as block data.
+
+        A device clear (the host went away) abandons the read."""
+        self.rig.recover()
         capture = BlockCapture(points)
         self._capture = capture
+        generation = self.generation
         try:
-            if not self.rig.paced:
-                self.rig.advance(points)
             while not capture.done:
+                if self.cleared_since(generation):
+                    raise Interrupted
                 if not self.rig.running or self.rig.failure is not None:
                     raise ScpiError(-200, "acquisition stopped")
-                self.rig.changed.wait(0.1)
+                if self.rig.paced:
+                    self.rig.changed.wait(0.1)
+                else:   # in pieces, so that a device clear stops a long read
+                    self.rig.advance(min(points - capture.collected, READ_PIECE))
         finally:
             self._capture = None
         counts, _ = self.quantise(np.concatenate(capture.parts))
         return block_data(counts.astype("<i4").tobytes())
+
+    def clear_operations(self) -> None:
+        self.stop_acquisition()
 
     # ----- commands ------------------------------------------------------------------------
     def _channel(self, number: int) -> int:

@@ -3,6 +3,12 @@
 Each instrument processes the host's lines in its own thread, in order, holding
 the rig lock while a line executes, so a command takes effect between two chunks
 of physics and never in the middle of one.
+
+A *device clear* (:meth:`Firmware.device_clear`, done whenever a host connects or
+disconnects) forgets everything in flight between a host and the instrument: bytes
+received and not yet executed (a half-sent command), replies not yet read, an
+operation still running (a ``READ?`` waiting for its samples, a stream). Settings
+and the error queue stay, as after an IEEE 488.2 device clear.
 """
 from __future__ import annotations
 
@@ -43,10 +49,13 @@ class Firmware:
         self.output = OutputFifo()
         self.scpi = ScpiServer()
         self.injector: FaultInjector | None = None
-        self._input: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+        self._input: queue.SimpleQueue[tuple[int, bytes] | None] = queue.SimpleQueue()
         self._unprocessed = 0
         self._count_lock = threading.Lock()
+        self.generation = 0               # +1 per device clear: older input and replies are dropped
         self._line_buffer = bytearray()
+        self._buffer_generation = 0
+        self._overlong = False            # inside a message longer than MAX_LINE: dropped up to its LF
         self._thread = threading.Thread(target=self._run, name=f"{rig.name} {role} firmware", daemon=True)
         self._add_common_commands()
 
@@ -61,9 +70,24 @@ class Firmware:
 
     def receive(self, data: bytes) -> None:
         """Bytes from the host (called by the link, any thread)."""
+        if b"\n" in data:
+            self.message_received()
         with self._count_lock:
             self._unprocessed += 1
-        self._input.put(bytes(data))
+            self._input.put((self.generation, bytes(data)))
+
+    def device_clear(self) -> None:
+        """Forget the input, the replies and the operation in flight (see module docstring)."""
+        with self.rig.lock:
+            with self._count_lock:
+                self.generation += 1
+            self.clear_operations()
+            self.output.clear()
+            self.rig.changed.notify_all()
+
+    def cleared_since(self, generation: int) -> bool:
+        """Whether a device clear came after ``generation`` (an operation started then must stop)."""
+        return self.generation != generation
 
     @property
     def pending(self) -> bool:
@@ -72,32 +96,53 @@ class Firmware:
 
     def _run(self) -> None:
         while True:
-            data = self._input.get()
-            if data is None:
+            item = self._input.get()
+            if item is None:
                 return
             try:
-                self._process(data)
+                generation, data = item
+                if generation == self.generation:
+                    self._process(generation, data)
             finally:
                 with self._count_lock:
                     self._unprocessed -= 1
+                self.rig.notify()
 
-    def _process(self, data: bytes) -> None:
+    def _process(self, generation: int, data: bytes) -> None:
+        if generation != self._buffer_generation:   # a device clear since the last bytes: start afresh
+            self._line_buffer.clear()
+            self._overlong = False
+            self._buffer_generation = generation
         self._line_buffer += data
-        while True:
+        while not self.cleared_since(generation):
             end = self._line_buffer.find(b"\n")
             if end < 0:
                 break
             line = bytes(self._line_buffer[:end])
             del self._line_buffer[:end + 1]
-            self.handle_line(line.rstrip(b"\r"))
+            if self._overlong or end > MAX_LINE:
+                self._overrun()
+                self._overlong = False
+            else:
+                self.handle_line(line.rstrip(b"\r"), generation)
         if len(self._line_buffer) > MAX_LINE:
+            self._overrun()
+            self._overlong = True   # the rest of this message, up to its LF, is dropped too
             self._line_buffer.clear()
+
+    def _overrun(self) -> None:
+        """A program message longer than MAX_LINE is not executed: error -363, once per message."""
+        if not self._overlong:
             self.scpi.errors.push(ScpiError(-363))
 
-    def handle_line(self, line: bytes) -> None:
-        """Execute one program message under the rig lock and queue its reply."""
+    def handle_line(self, line: bytes, generation: int | None = None) -> None:
+        """Execute one program message under the rig lock and queue its reply.
+
+        The reply is dropped if a device clear came meanwhile (its host is gone)."""
+        generation = self.generation if generation is None else generation
         with self.rig.lock:
-            self.before_command()
+            if self.cleared_since(generation):
+                return
             try:
                 text = line.decode("ascii")
             except UnicodeDecodeError:
@@ -106,12 +151,13 @@ class Firmware:
             injector = self.injector
             reply = self.scpi.execute(text, busy=self.busy(),
                                       reject=injector.reject_command if injector is not None else None)
-            if reply is not None:
+            if reply is not None and not self.cleared_since(generation):
                 self.output.put(reply)
 
     # ----- hooks for the instruments ------------------------------------------------------
-    def before_command(self) -> None:
-        """Called with the rig lock held before each program message (the shaker feeds its watchdog)."""
+    def message_received(self) -> None:
+        """Called (any thread) when bytes holding the end of a program message arrive (the shaker feeds its
+        watchdog)."""
 
     def busy(self) -> bool:
         """Whether only ``while_busy`` commands are accepted now (the DAQ while streaming)."""
@@ -123,6 +169,9 @@ class Firmware:
 
     def reset(self) -> None:
         """``*RST``: the power-on state."""
+
+    def clear_operations(self) -> None:
+        """Device clear: end what runs for the host (rig lock held)."""
 
     # ----- common commands ----------------------------------------------------------------
     def identity(self) -> str:

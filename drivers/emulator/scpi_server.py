@@ -59,6 +59,10 @@ class ScpiError(Exception):
         return ScpiErrorEntry(self.code, f"{message};{self.detail}" if self.detail else message)
 
 
+class Interrupted(Exception):
+    """The program message was abandoned by a device clear: the rest of it is not executed, nothing queued."""
+
+
 class ErrorQueue:
     """The instrument's error queue: oldest first; when full the newest entry becomes -350."""
 
@@ -311,6 +315,8 @@ class ScpiServer:
                 continue
             try:
                 reply = self._execute_unit(unit, busy, reject)
+            except Interrupted:
+                return None
             except ScpiError as exc:
                 self.errors.push(exc)
                 continue

@@ -7,10 +7,19 @@ three times the rms: a crest factor of 3) and follows its set value at the ramp
 rate, so it never jumps; switching the output off is immediate. Every program
 message feeds the watchdog; when the host stays silent longer than the watchdog
 time the controller switches its output off by itself and queues error 201.
+
+The host counts as silent when no message arrived for the watchdog time by the
+emulated clock *and* by the wall clock. In paced mode the two agree (the wall clock
+only keeps a starved emulator from tripping a host whose messages wait to be
+processed). In fast mode the emulated clock runs ahead of a host that feeds the
+watchdog in real time, and stands still while nobody reads the DAQ; the wall clock
+there only tells a host that is gone (silent for FAST_HOST_SILENCE) from one that
+is slow. The output goes off at a chunk boundary of the physics.
 """
 from __future__ import annotations
 
 import math
+import time
 from typing import TYPE_CHECKING
 
 from .firmware import Firmware
@@ -30,6 +39,9 @@ RAMP_LIMITS = (0.001, 1000.0)
 """Ramp rates accepted (V peak per second)."""
 WATCHDOG_LIMITS = (0.01, 3600.0)
 """Watchdog times accepted (s); 0 disables the watchdog."""
+FAST_HOST_SILENCE = 10.0
+"""Fast mode: wall-clock silence (s) after which a host counts as gone. Far above a heartbeat interval: on a
+loaded machine a host starved of CPU for a second is slow, not gone, and a fast run must not depend on it."""
 DEFAULTS = {"function": "SIN", "frequency": 10.0, "peak": 0.05, "unit": "VPP", "ramp": 2.0,
             "watchdog": 10.0, "band_low": 1.0}
 """The *RST state (output OFF); the noise band is 1 Hz to the upper frequency limit."""
@@ -49,11 +61,16 @@ class ShakerFirmware(Firmware):
         self.max_frequency = min(20e3, 0.45 * rig.sample_rate)
         self.output_on = False
         self.level = 0.0
-        self.last_feed = 0.0
-        self.reset()
+        self.last_feed = 0.0                      # emulated time of the last message (s)
+        self.last_feed_wall = time.monotonic()    # and wall-clock time
+        self._defaults()
         self._add_commands()
 
     def reset(self) -> None:
+        self._defaults()
+        self.rig.recover()
+
+    def _defaults(self) -> None:
         if self.output_on:
             self.switch_off("*RST")
         self.function = DEFAULTS["function"]
@@ -75,12 +92,19 @@ class ShakerFirmware(Firmware):
         return peak / self._per_unit()
 
     # ----- physics side (rig lock held) -----------------------------------------------------
-    def before_command(self) -> None:
-        self.last_feed = self.rig.watchdog_clock()
+    def message_received(self) -> None:
+        self.last_feed = self.rig.time
+        self.last_feed_wall = time.monotonic()
+
+    def _host_silent(self) -> bool:
+        """No message for the watchdog time by the emulated clock, and by the wall clock for the watchdog time
+        (paced) or for FAST_HOST_SILENCE at least (fast: only a sign that the host is gone)."""
+        wall = self.watchdog_time if self.rig.paced else max(self.watchdog_time, FAST_HOST_SILENCE)
+        return (self.rig.time - self.last_feed > self.watchdog_time
+                and time.monotonic() - self.last_feed_wall > wall)
 
     def check_watchdog(self) -> None:
-        if (self.output_on and self.watchdog_time > 0
-                and self.rig.watchdog_clock() - self.last_feed > self.watchdog_time):
+        if self.output_on and self.watchdog_time > 0 and self._host_silent():
             self.switch_off("watchdog")
             self.scpi.errors.push(ScpiError(201))
 
@@ -91,9 +115,9 @@ class ShakerFirmware(Firmware):
     def chunk_limit(self) -> int:
         """Most samples the physics may advance before the next :meth:`before_chunk`.
 
-        Short while ramping; in paced mode also short otherwise, since the watchdog
-        then counts emulated time. In fast mode the watchdog counts wall time and a
-        steady output needs no limit.
+        Short while ramping; in paced mode also short otherwise (the watchdog's
+        resolution). In fast mode the DAQ asks for one frame at a time, which bounds
+        a steady chunk.
         """
         if not self.ramping and not self.rig.paced:
             return 1 << 30
@@ -196,6 +220,7 @@ class ShakerFirmware(Firmware):
 
     def _set_output(self, args: list[str]) -> None:
         if parse_bool(expect_one(args)):
+            self.rig.recover()
             self.switch_on()
         else:
             self.switch_off("command")

@@ -366,6 +366,7 @@ class RigSimulator:
         self._sine = _Ramp()
         self._noise_sources: list[_NoiseSource] = []
         self._output_on = False
+        self._rest = self.state_snapshot()
 
     # --- properties ---------------------------------------------------------------
     @property
@@ -530,7 +531,7 @@ class RigSimulator:
                      "or a law force jumps)" if solve_failed else
                      "the state is no longer finite (a softening element may have lost its stability)")
             raise SimulationError(f"the response diverged at t = {self.time + stop * self.step:.6g} s: {cause}; "
-                                  "the simulator must be rebuilt")
+                                  "restart_from_rest() starts it again")
         self._advance_generator(n_steps)
         clean = kernels.fir_decimate(internal, self._fir_history, self._taps, self.oversample)
         block = self._sensors(clean)
@@ -590,6 +591,17 @@ class RigSimulator:
                                self._fir_history.copy(), self._mean_square.copy(), generator, self._output_on,
                                self.clip_counts.copy(), self.time)
         return state
+
+    def restart_from_rest(self) -> None:
+        """After a divergence (:class:`SimulationError`): the structure at rest, the output off and the
+        generator silent, as when built; the clock, the random streams and the clip counts run on."""
+        samples, clips = self._samples, self.clip_counts.copy()
+        streams = (self._noise_rng.bit_generator.state, self._drive_rng.bit_generator.state)
+        self.restore_state(self._rest)
+        self._samples = samples
+        self.clip_counts[:] = clips
+        self._noise_rng.bit_generator.state, self._drive_rng.bit_generator.state = streams
+        self._jacobian_valid[0] = 0
 
     def restore_state(self, state: SimulatorState) -> None:
         """Return to a state taken with :meth:`state_snapshot` of this simulator."""
