@@ -149,6 +149,19 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+def cmd_recover(args) -> int:
+    """Make a session whose writer process was killed readable by any HDF5 tool."""
+    from .session import needs_recovery, recover_session
+
+    if not needs_recovery(args.session):
+        print(f"{args.session}: closed normally, nothing to recover")
+        return 0
+    marked = recover_session(args.session)
+    print(f"{args.session}: recovered; every HDF5 tool opens it now; run(s) marked aborted and incomplete: "
+          f"{', '.join(marked) or 'none'}")
+    return 0
+
+
 def cmd_demo(args) -> int:
     """The main job on the built-in paper-beam rig."""
     from .demo import main_demo
@@ -227,6 +240,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="FITTED.toml", help="write the fitted model")
     p.add_argument("--no-history", action="store_true", help="do not append the model history to the session")
     p.set_defaults(run=cmd_analyze)
+
+    p = sub.add_parser("recover", help="repair a session whose writer was killed so that any HDF5 tool opens it")
+    p.add_argument("session", help="session file (.h5)")
+    p.set_defaults(run=cmd_recover)
 
     p = sub.add_parser("export", help="export a session's FRFs (UFF58 or CSV)")
     p.add_argument("session", help="session file (.h5)")
