@@ -248,10 +248,15 @@ class Session:
     def __init__(self, path):
         self.path = Path(path)
         self._file = _open_for_reading(self.path)
-        if _text(self._file.attrs.get("format", "")) != FORMAT:
+        try:
+            with self._reading("/ (root attributes)"):
+                if _text(self._file.attrs.get("format", "")) != FORMAT:
+                    raise InputError(f"not a contactid session (root attribute format is not {FORMAT!r})",
+                                     str(self.path))
+                self.writer_alive = _writer_alive(self._file)
+        except InputError:
             self._file.close()
-            raise InputError(f"not a contactid session (root attribute format is not {FORMAT!r})", str(self.path))
-        self.writer_alive = _writer_alive(self._file)
+            raise
 
     def close(self) -> None:
         self._file.close()
@@ -285,7 +290,8 @@ class Session:
         """Reopen to see runs and lines added since opening (SWMR readers must reopen to see new objects)."""
         self._file.close()
         self._file = _open_for_reading(self.path)
-        self.writer_alive = _writer_alive(self._file)
+        with self._reading("/ (root attributes)"):
+            self.writer_alive = _writer_alive(self._file)
 
     @property
     def attrs(self) -> dict:
@@ -377,12 +383,44 @@ class Session:
         return [r for r in out if kind is None or r.kind == kind]
 
 
-def _open_for_reading(path: Path) -> h5py.File:
+# A SWMR reader retries a metadata read whose checksum fails (it may race the writer) with a doubling pause --
+# by default 100 times, hours in all, so a truncated or damaged file would hang the reader. 20 attempts wait
+# about a second in all: ample for a writer's flush, and a damaged file is reported at once.
+SWMR_READ_ATTEMPTS = 20
+
+
+def _hdf5_library():
+    """The HDF5 library h5py runs on (to reach a file-access setting h5py does not wrap), or None."""
+    import ctypes
+
     try:
-        return h5py.File(path, "r", libver="latest", swmr=True)
-    except FileNotFoundError:
-        raise InputError("file not found", str(path)) from None
-    except OSError as exc:
+        with open("/proc/self/maps") as maps:
+            paths = {line.split()[-1] for line in maps if "libhdf5" in line and "libhdf5_hl" not in line}
+        return ctypes.CDLL(sorted(paths)[0]) if paths else None
+    except (OSError, IndexError):
+        return None
+
+
+def _swmr_read_access() -> h5py.h5p.PropFAID:
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
+    library = _hdf5_library()
+    if library is not None and hasattr(library, "H5Pset_metadata_read_attempts"):
+        import ctypes
+
+        library.H5Pset_metadata_read_attempts(ctypes.c_int64(fapl.id), ctypes.c_uint(SWMR_READ_ATTEMPTS))
+    return fapl
+
+
+def _open_for_reading(path: Path) -> h5py.File:
+    """The file opened for reading in SWMR mode (safe while it is written, and after its writer crashed)."""
+    if not path.exists():
+        raise InputError("file not found", str(path))
+    try:
+        fid = h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ,
+                            fapl=_swmr_read_access())
+        return h5py.File(fid)
+    except (OSError, KeyError, RuntimeError, ValueError) as exc:
         raise InputError(f"not a readable HDF5 session ({exc})", str(path)) from None
 
 
