@@ -307,11 +307,11 @@ class Session:
 
     def run_names(self) -> list[str]:
         with self._reading("/runs"):
-            return list(self._object("runs", h5py.Group).keys())
+            return list(self._object("/runs", h5py.Group).keys())
 
     def events(self) -> list[dict]:
         with self._reading("/events"):
-            ev = self._object("events")
+            ev = self._object("/events")
             ev.refresh()
             return [{"time": float(r["time"]), "iso_time": _text(r["iso_time"]), "run": _text(r["run"]),
                      "kind": _text(r["kind"]), "message": _text(r["message"])} for r in ev[()]]
