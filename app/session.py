@@ -286,12 +286,20 @@ class Session:
             raise InputError(f"missing {what} (the session is incomplete or damaged)", str(self.path), where)
         return obj
 
-    def refresh(self) -> None:
-        """Reopen to see runs and lines added since opening (SWMR readers must reopen to see new objects)."""
+    def refresh(self) -> bool:
+        """Reopen to see runs and lines added since opening (SWMR readers must reopen to see new objects).
+
+        False (the view so far kept) when the file cannot be opened at this moment -- the writer holds it out
+        of SWMR mode for an instant while it creates or closes a run."""
+        try:
+            fresh = _open_for_reading(self.path)
+        except InputError:
+            return False
         self._file.close()
-        self._file = _open_for_reading(self.path)
+        self._file = fresh
         with self._reading("/ (root attributes)"):
             self.writer_alive = _writer_alive(self._file)
+        return True
 
     @property
     def attrs(self) -> dict:

@@ -88,12 +88,16 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     data = lines(args.lines, args.raw)
+    ratios = []
     with tempfile.TemporaryDirectory() as folder:
         for k in range(args.repeats):
             start_a, line_a = in_process(Path(folder) / f"a{k}.h5", data)
             start_b, line_b = writer_process(Path(folder) / f"b{k}.h5", data)
             print(f"run {k}: in process {1e3 * line_a:.2f} ms/line (start {1e3 * start_a:.0f} ms); writer process "
                   f"{1e3 * line_b:.2f} ms/line (start {1e3 * start_b:.0f} ms); ratio {line_b / line_a:.2f}")
+            ratios.append(line_b / line_a)
+    print(f"median ratio writer process / in process: {np.median(ratios):.2f} ({args.lines} lines, "
+          f"{args.raw} raw samples per line, {args.repeats} repeats)")
 
 
 if __name__ == "__main__":
