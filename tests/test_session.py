@@ -250,3 +250,19 @@ def test_writer_errors_come_back_to_the_acquiring_process(tmp_path, monkeypatch)
     w.close()
     with h5py.File(tmp_path / "s.h5", "r") as f:
         assert f["runs/sine_0.8N_up/frequency"].shape == (1,)
+
+
+def test_the_writer_ignores_ctrl_c_and_closes_the_file_cleanly_on_sigterm(tmp_path):
+    path = tmp_path / "s.h5"
+    w = SessionWriter(path)
+    w.begin_run(spec())
+    line(w, 0)
+    os.kill(w.writer_pid, signal.SIGINT)                  # the terminal's Ctrl-C is the acquiring process's
+    line(w, 1)
+    os.kill(w.writer_pid, signal.SIGTERM)
+    with plain_open(path) as f:                           # closed cleanly, without a recovery
+        g = f["runs/sine_0.8N_up"]
+        assert g["frequency"].shape == (2,) and g.attrs["status"] == "aborted" and g.attrs["incomplete"]
+    with pytest.raises(SessionWriteError, match="writer process stopped"):
+        line(w, 2)
+    w.close()
