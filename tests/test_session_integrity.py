@@ -154,6 +154,9 @@ def test_a_typo_in_acquire_leaves_the_complete_session_as_it_was(copies, capsys)
                  "--daq", "sim://paper-2dof/daq", "--excitation", "x2", "--sensors", "q"])
     assert code != 0 and "q" in capsys.readouterr().err
     assert session.read_bytes() == before
+    fresh = session.parent / "fresh.h5"                  # without --force: no empty file blocks the retry
+    assert main(["acquire", str(plan), "-o", str(fresh), "--shaker", "sim://paper-2dof/shaker", "--daq",
+                 "sim://paper-2dof/daq", "--excitation", "x2", "--sensors", "q"]) != 0
     assert sorted(p.name for p in session.parent.iterdir()) == ["model.toml", "p.toml", "s.h5"]
 
 
@@ -210,6 +213,7 @@ def test_analyze_of_a_read_only_session_works_and_says_the_history_was_not_store
     assert "FRF error of the model" in out and "model history NOT stored" in out and "read-only" in out
 
 
+@pytest.mark.slow
 @needs_private_mount
 def test_simulate_on_a_disk_that_fills_ends_the_run_cleanly(tmp_path):
     plan = tmp_path / "p.toml"
