@@ -176,8 +176,8 @@ class SessionFile:
         if self.in_place:
             return
         if self.path.exists() and not self.overwrite:
-            raise SessionWriteError(f"{self.path}: appeared while the session was starting; the session is kept "
-                                    f"as {self.temporary}")
+            raise SessionWriteError(f"{self.path}: another program created this file while the session was "
+                                    f"starting; it is left as it is")
         os.replace(self.temporary, self.path)
         self.in_place = True
 
