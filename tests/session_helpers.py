@@ -1,7 +1,4 @@
-"""Helpers of the session tests: opening a file as any HDF5 tool would, running the CLI in a subprocess."""
-import os
-import subprocess
-import sys
+"""Helpers of the session tests: opening a file as any HDF5 tool would."""
 import time
 from pathlib import Path
 
@@ -21,10 +18,3 @@ def plain_open(path, timeout=120.0) -> h5py.File:
             if time.monotonic() > deadline:
                 raise
             time.sleep(0.05)
-
-
-def cli(*args, cwd=None, prefix=()) -> subprocess.CompletedProcess:
-    """``python -m app.cli ARGS`` in a subprocess (``prefix`` wraps it, e.g. in ``unshare``)."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([*prefix, sys.executable, "-m", "app.cli", *map(str, args)], cwd=cwd or ROOT, env=env,
-                          capture_output=True, text=True)
