@@ -1,4 +1,4 @@
-"""Session files (docs/contracts.md §7, docs/session-format.md): writing one as a campaign runs, reading one
+"""Session files (docs/session-format.md): writing one as a campaign runs, reading one
 (also while it is written), repairing one whose writer was killed, storing model histories.
 
 :class:`SessionWriter` hands every write to a writer process of its own (:mod:`app.session_file`) that outlives
