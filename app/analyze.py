@@ -2,14 +2,17 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 from analysis.errors import InputError
 from analysis.model import load_model
 from analysis.tables import load_toml
 from analysis.workbench import Workbench
 
-from .session import append_model_history, open_session
+from .session import SessionWriteError, append_model_history, open_session, read_model_history
 from .session_data import measurements_from_session
+
+EARLIER_SHOWN = 3          # earlier analyses listed in the report
 
 
 def parse_add(text: str) -> tuple[str, str]:
@@ -20,7 +23,41 @@ def parse_add(text: str) -> tuple[str, str]:
     return element, law
 
 
-def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = True, store_history: bool = True):
+@dataclass
+class SessionNotes:
+    """What an analysis says about the session besides the fit: runs that ended incomplete, the model
+    histories earlier analyses stored in it, and whether this analysis's history was stored."""
+
+    incomplete_runs: list[str] = field(default_factory=list)
+    earlier: list[dict] = field(default_factory=list)          # app.session.read_model_history
+    stored_as: str | None = None
+    not_stored: str = ""                                       # why the history was not stored
+
+    def text(self) -> str:
+        out = []
+        if self.incomplete_runs:
+            out.append(f"note: run(s) {', '.join(self.incomplete_runs)} ended incomplete (the measurement stopped "
+                       f"mid-run); their lines up to the stop are used")
+        if self.earlier:
+            out.append(f"earlier analyses stored in this session ({len(self.earlier)}):")
+            for h in self.earlier[-EARLIER_SHOWN:]:
+                steps = " -> ".join(f"{s['action']} {s['error']:.3g}" for s in h["steps"])
+                out.append(f"  {h['name']} ({h['created']}, model {h['model_source'] or '?'}): {steps}")
+        if self.stored_as:
+            out.append(f"model history stored in the session as /models/{self.stored_as}")
+        elif self.not_stored:
+            out.append(f"model history NOT stored in the session: {self.not_stored}")
+        return "\n".join(out)
+
+    def to_json(self) -> dict:
+        return {"incomplete_runs": self.incomplete_runs,
+                "earlier_analyses": [{"name": h["name"], "created": h["created"], "model_source": h["model_source"],
+                                      "steps": [{"action": s["action"], "error": s["error"]} for s in h["steps"]]}
+                                     for h in self.earlier],
+                "history_stored_as": self.stored_as, "history_not_stored": self.not_stored}
+
+
+def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = True):
     """The workbench taken through start, the requested additions and (optionally) the candidate ranking.
 
     Returns (workbench, candidates)."""
@@ -32,9 +69,26 @@ def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = T
     for add in adds:
         wb.add(*parse_add(add))
     candidates = wb.candidates() if rank else []
-    if store_history:
-        append_model_history(session_path, [h.to_json() for h in wb.history], str(model_path))
     return wb, candidates
+
+
+def session_notes(session_path) -> SessionNotes:
+    """Incomplete runs and earlier model histories of a session."""
+    with open_session(session_path) as s:
+        return SessionNotes([r.name for r in s.runs() if r.incomplete], read_model_history(s))
+
+
+def store_history(session_path, wb: Workbench, model_path, notes: SessionNotes) -> None:
+    """Append the workbench's model history to the session; a failure (read-only medium, full disk, a live
+    writer) leaves the session untouched and is recorded in ``notes``."""
+    try:
+        stored = append_model_history(session_path, [h.to_json() for h in wb.history], str(model_path))
+    except SessionWriteError as exc:
+        notes.not_stored = str(exc)
+        return
+    notes.stored_as = stored.name
+    if stored.recovered_runs:
+        notes.incomplete_runs = sorted(set(notes.incomplete_runs) | set(stored.recovered_runs))
 
 
 def report_text(wb: Workbench, candidates, top: int = 5) -> str:

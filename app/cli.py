@@ -166,18 +166,44 @@ def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
 
-    from .analyze import report_text, run_workbench
+    from .analyze import report_text, run_workbench, session_notes, store_history
+    from .outputs import atomic_output, check_output, require_free_space
 
-    wb, candidates = run_workbench(args.session, args.model, args.add or [], store_history=not args.no_history)
-    if args.output:
-        with open(args.output, "w", encoding="utf-8") as fh:
-            fh.write(wb.model.to_toml())
+    inputs = [args.session, args.model]
+    if args.output:                       # refused before any work: never an input, never silently replaced
+        check_output(args.output, inputs=inputs, overwrite=args.force)
+    wb, candidates = run_workbench(args.session, args.model, args.add or [])
+    notes = session_notes(args.session)
+    if not args.no_history:
+        store_history(args.session, wb, args.model, notes)
     if args.json:
-        print(json.dumps(wb.to_json(candidates), indent=1, default=float))
+        print(json.dumps({**wb.to_json(candidates), **notes.to_json()}, indent=1, default=float))
     else:
         print(report_text(wb, candidates))
-        if args.output:
+        if notes.text():
+            print(notes.text())
+    if notes.not_stored:
+        print(f"contactid: warning: model history not stored: {notes.not_stored}", file=sys.stderr)
+    if args.output:                       # last: a failure here leaves the report printed and no partial file
+        text = wb.model.to_toml()
+        require_free_space(args.output, len(text.encode()) + 4096, "write the fitted model")
+        with atomic_output(args.output, inputs=inputs, overwrite=args.force) as temp:
+            temp.write_text(text, encoding="utf-8")
+        if not args.json:
             print(f"fitted model written to {args.output}")
+    return 0
+
+
+def cmd_recover(args) -> int:
+    """Make a session whose writer process was killed readable by any HDF5 tool."""
+    from .session import needs_recovery, recover_session
+
+    if not needs_recovery(args.session):
+        print(f"{args.session}: closed normally, nothing to recover")
+        return 0
+    marked = recover_session(args.session)
+    print(f"{args.session}: recovered; every HDF5 tool opens it now; run(s) marked aborted and incomplete: "
+          f"{', '.join(marked) or 'none'}")
     return 0
 
 
@@ -257,9 +283,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", help="model file (TOML)")
     p.add_argument("--add", action="append", metavar="ELEMENT:LAW", help="add a law before fitting (repeatable)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("-o", "--output", metavar="FITTED.toml", help="write the fitted model")
+    p.add_argument("-o", "--output", metavar="FITTED.toml", help="write the fitted model (never one of the inputs)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing FITTED.toml")
     p.add_argument("--no-history", action="store_true", help="do not append the model history to the session")
     p.set_defaults(run=cmd_analyze)
+
+    p = sub.add_parser("recover", help="repair a session whose writer was killed so that any HDF5 tool opens it")
+    p.add_argument("session", help="session file (.h5)")
+    p.set_defaults(run=cmd_recover)
 
     p = sub.add_parser("export", help="export a session's FRFs (UFF58 or CSV)")
     p.add_argument("session", help="session file (.h5)")

@@ -7,7 +7,9 @@ Every command that writes a file goes through here:
 * the file is written beside its destination under a temporary name and moved into place only when it is
   complete (:func:`atomic_output`): a full disk, a crash or an error leaves the old file (or no file), never a
   half-written one;
-* :func:`require_free_space` refuses to start a write that cannot fit.
+* :func:`require_free_space` refuses to start a write that cannot fit;
+* an existing file that must change (a session gaining its model history) is rewritten beside itself and
+  renamed over the old one (:func:`atomic_replace`), so a failure leaves it as it was.
 """
 from __future__ import annotations
 
@@ -74,7 +76,8 @@ def temporary_path(path) -> Path:
     return path.with_name(f"{TEMP_PREFIX}{path.name}.{os.getpid()}{TEMP_SUFFIX}")
 
 
-def _fsync(path: Path) -> None:
+def sync_file(path: Path) -> None:
+    """Flush a file's data to the disk (before it is renamed into place)."""
     fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -92,7 +95,28 @@ def atomic_output(path, *, inputs: Iterable = (), overwrite: bool = False, field
     temp = temporary_path(path)
     try:
         yield temp
-        _fsync(temp)
+        sync_file(temp)
+        os.replace(temp, path)
+    except BaseException:
+        temp.unlink(missing_ok=True)
+        raise
+
+
+@contextmanager
+def atomic_replace(path, extra_bytes: int = 0, what: str = "rewrite") -> Iterator[Path]:
+    """Change an existing file all at once: yields a temporary path beside it (empty) to write the new version
+    to; on success it gets the old file's permissions, is synced and renamed onto ``path``; on any exception it
+    is removed and ``path`` is untouched.
+
+    Refuses (OSError ENOSPC, nothing written) unless the new version -- ``path``'s size plus ``extra_bytes`` --
+    fits in the free space."""
+    path = Path(path)
+    require_free_space(path, path.stat().st_size + extra_bytes, what)
+    temp = temporary_path(path)
+    try:
+        yield temp
+        shutil.copymode(path, temp)
+        sync_file(temp)
         os.replace(temp, path)
     except BaseException:
         temp.unlink(missing_ok=True)

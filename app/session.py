@@ -1,23 +1,24 @@
-"""Session files: HDF5, written incrementally and crash-safe (docs/contracts.md §7, docs/session-format.md).
+"""Session files (docs/contracts.md §7, docs/session-format.md): writing one as a campaign runs, reading one
+(also while it is written), repairing one whose writer was killed, storing model histories.
 
-While a run is measured the file is in HDF5 single-writer/multiple-reader (SWMR) mode: each completed line is
-appended and flushed, readers (the GUI) follow along, and a crash or SIGKILL loses at most the line in
-progress -- SWMR orders its writes so the file on disk is always consistent. SWMR cannot create objects, so
-each run's datasets are made when the run begins (with the file briefly out of SWMR mode) and its status is
-written when it ends.
-
-A file whose writer died is still marked as open for writing; :func:`open_session` reads it anyway and
-reports such runs as incomplete, and :func:`recover_session` copies it into a clean file with those runs marked
-``status = "aborted"``, ``incomplete = True``.
+:class:`SessionWriter` hands every write to a writer process of its own (:mod:`app.session_file`) that outlives
+the acquiring process: after a SIGKILL of ``simulate`` or ``acquire`` or a crash of the GUI the writer closes
+the file cleanly, with every completed line, and any HDF5 reader opens it. Only if the writer process itself
+dies (SIGKILL of it, power cut) is the file left marked as open for writing; :func:`open_session` reads it
+anyway (SWMR) and reports such runs as incomplete, and :func:`recover_session` (``contactid recover``) makes it
+readable by any tool with those runs marked ``status = "aborted"``, ``incomplete = True``.
 """
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import os
 import socket
+import subprocess
+import sys
+import threading
 import time
-from dataclasses import dataclass, field
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Iterable
 
@@ -26,18 +27,20 @@ import numpy as np
 
 from analysis.errors import InputError
 
-FORMAT = "contactid-session"
-FORMAT_VERSION = 1
-EVENT_DTYPE = np.dtype([("time", "f8"), ("iso_time", "S32"), ("run", "S64"), ("kind", "S24"),
-                        ("message", "S400")])
+from .outputs import atomic_replace, check_output, require_free_space, temporary_path
+from .session_file import (FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError, append_event,
+                           mark_incomplete, now_iso)
+from .session_wire import receive_reply, send_call
 
+__all__ = ["FORMAT", "FORMAT_VERSION", "RunData", "RunSpec", "Session", "SessionWriteError", "SessionWriter",
+           "StoredHistory", "append_model_history", "needs_recovery", "open_session", "read_model_history",
+           "recover_session"]
 
-class SessionWriteError(RuntimeError):
-    """The session file could not be written (full disk, unwritable path, removed medium)."""
-
-
-def _now_iso() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).astimezone().isoformat(timespec="seconds")
+# Bytes that must stay free beyond each write, so that a run can still be closed (status, end time, event) and
+# the file closed cleanly when the disk is about to fill.
+FREE_SPACE_RESERVE = 1 << 20
+_WRITER_STOPPED = ("the session writer process stopped ({how}); the lines written before are kept (if other "
+                   "HDF5 tools refuse the file, `contactid recover {path}` repairs it)")
 
 
 def _text(value) -> str:
@@ -49,45 +52,20 @@ def _attrs(obj: h5py.HLObject) -> dict:
     return {k: _text(v) if isinstance(v, (bytes, str)) else v for k, v in obj.attrs.items()}
 
 
-def _append_event(events: h5py.Dataset, seconds: float, run: str, kind: str, message: str) -> None:
-    """Append one row to the event log (kind and message cut to their column widths)."""
-    row = np.array([(seconds, _now_iso().encode(), run.encode(), kind.encode()[:24], message.encode()[:400])],
-                   dtype=EVENT_DTYPE)
-    events.resize(events.shape[0] + 1, axis=0)
-    events[-1:] = row
-
-
-# --------------------------------------------------------------------------- run description
-@dataclass
-class RunSpec:
-    """What a run is, for creating its group.
-
-    ``extras`` names per-line quantities (name -> (units, shape of one line's value, dtype)); ``raw_channels``
-    and ``raw_units`` describe the raw time blocks.
-    """
-
-    name: str
-    kind: str                          # "random" | "stepped_sine"
-    force: float                       # N: rms for random, amplitude for stepped sine
-    direction: str                     # "up" | "down" | "none"
-    excitation_dof: str
-    sensor_dofs: list[str]
-    sample_rate: float
-    raw_channels: list[str]
-    raw_units: list[str]
-    extras: dict[str, tuple[str, tuple, str]] = field(default_factory=dict)
-    attrs: dict = field(default_factory=dict)
-
-
 # --------------------------------------------------------------------------- writer
 class SessionWriter:
-    """Create a session file and append to it as a campaign runs.
+    """Create a session file and append to it as a campaign runs (through the writer process).
+
+    Every method returns once the writer has the data flushed in the file; a line whose ``append_line`` returned
+    survives any later crash of this process. Before each write the free space is checked (the data plus
+    ``FREE_SPACE_RESERVE``): a disk about to fill raises SessionWriteError while the run can still be closed.
 
     Parameters
     ----------
     path : str or Path
     overwrite : bool
-        An existing file is refused unless this is set (``--force``).
+        An existing file is refused (InputError) unless this is set (``--force``); it is replaced only once the
+        first measured data is in.
     plan_text, rig_text : str
         The plan file text and, for simulated sessions only, the rig file text (``/provenance/rig``).
     software_version, command : str
@@ -98,141 +76,79 @@ class SessionWriter:
 
     def __init__(self, path, *, overwrite: bool = False, plan_text: str = "", rig_text: str | None = None,
                  software_version: str = "", command: str = "", instruments: dict | None = None):
-        self.path = Path(path)
-        if self.path.exists() and not overwrite:
-            raise InputError("exists already; choose another name or pass --force to overwrite it", str(self.path))
-        self.t0 = time.monotonic()
-        self._file: h5py.File | None = None
-        self._run: str | None = None
-        self._datasets: dict[str, h5py.Dataset] = {}     # the open run's datasets, by path in the run
+        self.path = check_output(path, overwrite=overwrite, field=None)
         try:
-            with h5py.File(self.path, "w", libver="latest") as f:
-                f.attrs["format"] = FORMAT
-                f.attrs["format_version"] = FORMAT_VERSION
-                f.attrs["created"] = _now_iso()
-                f.attrs["software_version"] = software_version
-                f.attrs["writer_host"] = socket.gethostname()
-                f.attrs["writer_pid"] = os.getpid()
-                prov = f.create_group("provenance")
-                prov.create_dataset("plan", data=plan_text)
-                prov.create_dataset("command", data=command)
-                if rig_text is not None:
-                    prov.create_dataset("rig", data=rig_text)
-                prov.attrs["instruments"] = json.dumps(instruments or {})
-                f.create_group("runs")
-                f.create_dataset("events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(256,))
+            require_free_space(self.path, FREE_SPACE_RESERVE, "start a session")
         except OSError as exc:
-            raise SessionWriteError(f"{self.path}: cannot create the session file ({exc})") from None
+            raise InputError(exc.strerror, str(self.path)) from None
+        self.t0 = time.monotonic()
+        self._lock = threading.Lock()
+        self._run: str | None = None
+        self._stopped = ""                                   # why the writer process stopped, if it did
+        self._proc = _start_writer_process()
+        header = SessionHeader(plan_text, rig_text, software_version, command, instruments or {})
+        try:
+            self._call("create", path=str(self.path), temporary=str(temporary_path(self.path)),
+                       overwrite=overwrite, header=asdict(header))
+        except BaseException:
+            self._stop_process()
+            raise
 
-    # -- file state -----------------------------------------------------------
-    def _open(self, swmr: bool) -> h5py.File:
-        if self._file is None:
+    @property
+    def writer_pid(self) -> int:
+        """The writer process (what ``writer_pid`` in the file names)."""
+        return self._proc.pid
+
+    def _seconds(self) -> float:
+        return time.monotonic() - self.t0
+
+    def _call(self, method: str, **kwargs) -> None:
+        with self._lock:
+            if self._proc is None:
+                raise SessionWriteError(self._stopped or f"{self.path}: the session is closed")
             try:
-                self._file = h5py.File(self.path, "r+", libver="latest")
-            except OSError as exc:
-                raise SessionWriteError(f"{self.path}: cannot reopen the session file ({exc})") from None
-            if swmr:
-                self._file.swmr_mode = True
-        return self._file
+                send_call(self._proc.stdin, method, kwargs)
+                error = receive_reply(self._proc.stdout)
+            except (OSError, EOFError, ValueError):
+                code = self._stop_process()
+                how = f"killed by signal {-code}" if code < 0 else f"exit status {code}"
+                self._stopped = f"{self.path}: " + _WRITER_STOPPED.format(how=how, path=self.path)
+                raise SessionWriteError(self._stopped) from None
+        if error is not None:
+            raise SessionWriteError(error)
 
-    def _dataset(self, name: str) -> h5py.Dataset:
-        ds = self._datasets.get(name)
-        if ds is None:
-            ds = self._datasets[name] = self._file["runs"][self._run][name]
-        return ds
-
-    def _close(self) -> None:
-        self._datasets = {}
-        if self._file is not None:
-            try:
-                self._file.close()
-            finally:
-                self._file = None
-
-    def _guard(self, what: str):
-        return _WriteGuard(self, what)
+    def _require_space(self, nbytes: int) -> None:
+        try:
+            require_free_space(self.path, nbytes + FREE_SPACE_RESERVE, "write the next data")
+        except OSError as exc:
+            raise SessionWriteError(f"{self.path}: {exc.strerror}; what was measured before is kept") from None
 
     # -- runs -----------------------------------------------------------------
     def begin_run(self, spec: RunSpec) -> None:
         """Create the run's group and datasets, then enter SWMR mode for appending lines."""
         if self._run is not None:
             raise RuntimeError(f"run {self._run!r} is still open")
-        self._close()
-        with self._guard(f"creating run {spec.name}"):
-            f = self._open(swmr=False)
-            g = f["runs"].create_group(spec.name)
-            g.attrs.update({"kind": spec.kind, "force": float(spec.force), "direction": spec.direction,
-                            "status": "running", "excitation_dof": spec.excitation_dof,
-                            "sensor_dofs": json.dumps(spec.sensor_dofs), "sample_rate": float(spec.sample_rate),
-                            "started": _now_iso()})
-            g.attrs["force_units"] = "N"
-            for key, value in spec.attrs.items():
-                g.attrs[key] = value
-            _grow(g, "frequency", (), "f8", "Hz")
-            frf = g.create_group("frf")
-            frf.attrs["units"] = "m/N"
-            frf.attrs["quantity"] = "receptance"
-            for dof in spec.sensor_dofs:
-                _grow(frf, dof, (), "c16", "m/N")
-            for name, (units, shape, dtype) in spec.extras.items():
-                parent = g
-                for part in name.split("/")[:-1]:
-                    parent = parent.require_group(part)
-                _grow(parent, name.split("/")[-1], tuple(shape), dtype, units)
-            raw = g.create_group("raw")
-            raw.attrs["channels"] = json.dumps(spec.raw_channels)
-            raw.attrs["units"] = json.dumps(spec.raw_units)
-            raw.attrs["sample_rate"] = float(spec.sample_rate)
-            raw.create_dataset("data", shape=(0, len(spec.raw_channels)), maxshape=(None, len(spec.raw_channels)),
-                               dtype="f4", chunks=(8192, len(spec.raw_channels)), compression="gzip",
-                               compression_opts=4, shuffle=True)
-            raw["data"].attrs["units"] = json.dumps(spec.raw_units)
-            _grow(raw, "line_start", (), "i8", "sample")
-            _grow(raw, "line_count", (), "i8", "sample")
-            f.flush()
-            self._close()
-            self._open(swmr=True)
+        self._require_space(0)
+        self._call("begin_run", spec=asdict(spec), seconds=self._seconds())
         self._run = spec.name
-        self.log("run", f"{spec.kind} run started: force {spec.force:g} N, direction {spec.direction}",
-                 run=spec.name)
 
     def append_line(self, frequency_hz: float, frf: dict[str, complex], extras: dict | None = None,
                     raw: np.ndarray | None = None) -> None:
         """Append one completed line (frequency, FRF per sensor DOF, extras, raw samples) and flush."""
-        with self._guard("appending a line"):
-            _append(self._dataset("frequency"), frequency_hz)
-            for dof, value in frf.items():
-                _append(self._dataset(f"frf/{dof}"), value)
-            for name, value in (extras or {}).items():
-                _append(self._dataset(name), value)
-            data = self._dataset("raw/data")
-            start = data.shape[0]
-            count = 0 if raw is None else len(raw)
-            if count:
-                data.resize(start + count, axis=0)
-                data[start:] = raw
-            _append(self._dataset("raw/line_start"), start)
-            _append(self._dataset("raw/line_count"), count)
-            self._file.flush()
+        self._require_space(0 if raw is None else np.asarray(raw).nbytes)
+        self._call("append_line", frequency_hz=float(frequency_hz), frf=frf, extras=extras or {}, raw=raw)
 
     def write_arrays(self, arrays: dict[str, np.ndarray]) -> None:
         """Write whole per-line arrays at once (a random run's FRFs): resize each dataset and fill it."""
-        with self._guard("writing the run's results"):
-            for name, value in arrays.items():
-                value = np.asarray(value)
-                ds = self._dataset(name)
-                ds.resize(value.shape[0], axis=0)
-                ds[...] = value.astype(ds.dtype)
-            self._file.flush()
+        arrays = {k: np.asarray(v) for k, v in arrays.items()}
+        self._require_space(sum(a.nbytes for a in arrays.values()))
+        self._call("write_arrays", arrays=arrays)
 
     def append_raw(self, samples: np.ndarray) -> None:
         """Append raw samples that belong to no single line (the random run's record)."""
-        with self._guard("appending raw samples"):
-            d = self._dataset("raw/data")
-            start = d.shape[0]
-            d.resize(start + len(samples), axis=0)
-            d[start:] = samples
-            self._file.flush()
+        samples = np.asarray(samples)
+        self._require_space(samples.nbytes)
+        self._call("append_raw", samples=samples)
 
     def end_run(self, status: str, reason: str = "") -> None:
         """Leave SWMR mode and record the run's status ("complete", "failed": ended but its data missed the
@@ -240,68 +156,52 @@ class SessionWriter:
         if status not in ("complete", "failed", "aborted"):
             raise ValueError(f"status must be 'complete', 'failed' or 'aborted', got {status!r}")
         run, self._run = self._run, None
-        if run is None:
-            return
-        self.log("run", f"run ended: {status}" + (f" ({reason})" if reason else ""), run=run)
-        self._close()
-        with self._guard(f"closing run {run}"):
-            f = self._open(swmr=False)
-            g = f["runs"][run]
-            g.attrs["status"] = status
-            g.attrs["ended"] = _now_iso()
-            if reason:
-                g.attrs["end_reason"] = reason
-            self._close()
+        if run is not None:
+            self._call("end_run", status=status, reason=reason, seconds=self._seconds())
 
     # -- events ---------------------------------------------------------------
     def log(self, kind: str, message: str, run: str | None = None) -> None:
         """Append an event (fault, operator action, note) with its time since the session started."""
-        seconds = time.monotonic() - self.t0
-        with self._guard("logging an event"):
-            opened_here = self._file is None
-            f = self._open(swmr=False)
-            _append_event(f["events"], seconds, run or self._run or "", kind, message)
-            f.flush()
-            if opened_here:
-                self._close()
+        self._call("log", seconds=self._seconds(), kind=kind, message=message, run=run)
 
     def close(self) -> None:
-        """End an open run as aborted (if any) and close the file."""
-        if self._run is not None:
-            self.end_run("aborted", "session closed while the run was open")
-        self._close()
+        """End an open run as aborted (if any) and close the file. A session in which nothing was measured is
+        not kept (an existing file it was to replace stays as it was). Nothing to do after the writer process
+        stopped (that was reported by the call that found it)."""
+        if self._proc is None:
+            return
+        self._run = None
+        try:
+            self._call("close", seconds=self._seconds())
+        finally:
+            self._stop_process()
+
+    def _stop_process(self) -> int | None:
+        """End the writer process (it closes the file at the end of its input); its exit status."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return None
+        for stream in (proc.stdin, proc.stdout):
+            try:
+                stream.close()
+            except OSError:
+                pass                                  # the writer is gone already
+        return proc.wait()
 
 
-class _WriteGuard:
-    """Turns any failure to write into SessionWriteError, leaving what was flushed intact."""
-
-    def __init__(self, writer: SessionWriter, what: str):
-        self.writer, self.what = writer, what
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is not None and issubclass(exc_type, (OSError, KeyError, ValueError, RuntimeError)) \
-                and not issubclass(exc_type, SessionWriteError):
-            raise SessionWriteError(f"{self.writer.path}: failed while {self.what}: {exc}") from exc
-        return False
-
-
-def _grow(parent: h5py.Group, name: str, shape: tuple, dtype: str, units: str) -> h5py.Dataset:
-    ds = parent.create_dataset(name, shape=(0,) + shape, maxshape=(None,) + shape, dtype=dtype,
-                               chunks=(64,) + shape)
-    ds.attrs["units"] = units
-    return ds
-
-
-def _append(ds: h5py.Dataset, value) -> None:
-    n = ds.shape[0]
-    ds.resize(n + 1, axis=0)
-    ds[n] = np.asarray(value, dtype=ds.dtype)   # h5py will not convert float -> complex itself
+def _start_writer_process() -> subprocess.Popen:
+    """``python -m app.session_file`` in a session of its own: Ctrl-C or a kill of the acquiring process's group
+    does not reach it, so it can close the file after the acquiring process is gone."""
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p))
+    return subprocess.Popen([sys.executable, "-m", "app.session_file"], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, env=env, start_new_session=True, close_fds=True)
 
 
 # --------------------------------------------------------------------------- reader
+REQUIRED_RUN_ATTRS = ("kind", "force", "direction", "status", "excitation_dof", "sensor_dofs")
+
+
 @dataclass
 class RunData:
     """One run as read back: attributes and per-line arrays (all in SI units, see ``units``)."""
@@ -342,21 +242,22 @@ class RunData:
 class Session:
     """A session opened for reading (also while another process is writing it).
 
-    Use :meth:`refresh` to see lines appended since opening.
+    Use :meth:`refresh` to see lines appended since opening. Anything the file lacks or cannot give (a missing
+    run attribute or dataset, a truncated or damaged file) is an InputError naming the file and the object.
     """
 
     def __init__(self, path):
         self.path = Path(path)
+        self._file = _open_for_reading(self.path)
         try:
-            self._file = h5py.File(self.path, "r", libver="latest", swmr=True)
-        except FileNotFoundError:
-            raise InputError("file not found", str(self.path)) from None
-        except OSError as exc:
-            raise InputError(f"not a readable HDF5 session ({exc})", str(self.path)) from None
-        if _text(self._file.attrs.get("format", "")) != FORMAT:
+            with self._reading("/ (root attributes)"):
+                if _text(self._file.attrs.get("format", "")) != FORMAT:
+                    raise InputError(f"not a contactid session (root attribute format is not {FORMAT!r})",
+                                     str(self.path))
+                self.writer_alive = _writer_alive(self._file)
+        except InputError:
             self._file.close()
-            raise InputError(f"not a contactid session (root attribute format is not {FORMAT!r})", str(self.path))
-        self.writer_alive = _writer_alive(self._file)
+            raise
 
     def close(self) -> None:
         self._file.close()
@@ -367,62 +268,169 @@ class Session:
     def __exit__(self, *exc):
         self.close()
 
-    def refresh(self) -> None:
-        """Reopen to see runs and lines added since opening (SWMR readers must reopen to see new objects)."""
+    @contextmanager
+    def _reading(self, what: str):
+        """Failures to read ``what`` as one InputError naming the file and the object."""
+        try:
+            yield
+        except InputError:
+            raise
+        except (OSError, RuntimeError, KeyError, ValueError, TypeError, AttributeError, IndexError) as exc:
+            raise InputError(f"cannot be read ({type(exc).__name__}: {exc}); the file is damaged or truncated",
+                             str(self.path), what) from None
+
+    def _object(self, where: str, kind=h5py.Dataset):
+        """The dataset (or group) at ``where``; InputError naming it when it is missing."""
+        obj = self._file.get(where)
+        if not isinstance(obj, kind):
+            what = "dataset" if kind is h5py.Dataset else "group"
+            raise InputError(f"missing {what} (the session is incomplete or damaged)", str(self.path), where)
+        return obj
+
+    def refresh(self) -> bool:
+        """Reopen to see runs and lines added since opening (SWMR readers must reopen to see new objects).
+
+        False (the view so far kept) when the file cannot be opened at this moment -- the writer holds it out
+        of SWMR mode for an instant while it creates or closes a run."""
+        try:
+            fresh = _open_for_reading(self.path)
+        except InputError:
+            return False
         self._file.close()
-        self._file = h5py.File(self.path, "r", libver="latest", swmr=True)
-        self.writer_alive = _writer_alive(self._file)
+        self._file = fresh
+        with self._reading("/ (root attributes)"):
+            self.writer_alive = _writer_alive(self._file)
+        return True
 
     @property
     def attrs(self) -> dict:
-        return _attrs(self._file)
+        with self._reading("/ (root attributes)"):
+            return _attrs(self._file)
 
     def provenance(self, key: str) -> str | None:
-        prov = self._file.get("provenance")
-        if prov is None or key not in prov:
-            return None
-        return _text(prov[key][()])
+        with self._reading(f"/provenance/{key}"):
+            prov = self._file.get("provenance")
+            if prov is None or key not in prov:
+                return None
+            return _text(prov[key][()])
 
     def run_names(self) -> list[str]:
-        return list(self._file["runs"].keys())
+        with self._reading("/runs"):
+            return list(self._object("/runs", h5py.Group).keys())
 
     def events(self) -> list[dict]:
-        ev = self._file["events"]
-        ev.refresh()
-        return [{"time": float(r["time"]), "iso_time": _text(r["iso_time"]), "run": _text(r["run"]),
-                 "kind": _text(r["kind"]), "message": _text(r["message"])} for r in ev[()]]
+        with self._reading("/events"):
+            ev = self._object("/events")
+            ev.refresh()
+            return [{"time": float(r["time"]), "iso_time": _text(r["iso_time"]), "run": _text(r["run"]),
+                     "kind": _text(r["kind"]), "message": _text(r["message"])} for r in ev[()]]
 
     def run(self, name: str) -> RunData:
-        g = self._file["runs"][name]
-        attrs = _attrs(g)
-        for ds in _datasets(g):
-            ds.refresh()
-        n = g["frequency"].shape[0]
-        arrays, units = {}, {}
-        for ds in _datasets(g):
-            rel = ds.name[len(g.name) + 1:]
-            units[rel] = _text(ds.attrs.get("units", ""))
-            if rel.startswith(("frf/", "raw/")) or rel == "frequency":
-                continue
-            arrays[rel] = ds[:n]
-        frf = {dof: g["frf"][dof][:n] for dof in g["frf"]}
+        where = f"/runs/{name}"
+        with self._reading(where):
+            g = self._object(where, h5py.Group)
+            attrs = _attrs(g)
+            dofs = self._run_attrs(where, attrs)
+            # refresh every dataset before any is read: a handle opened before another handle's refresh
+            # reads stale chunk addresses in SWMR mode
+            for ds in _datasets(g):
+                ds.refresh()
+            n = self._object(f"{where}/frequency").shape[0]
+            arrays, units = {}, {}
+            for ds in _datasets(g):
+                rel = ds.name[len(g.name) + 1:]
+                units[rel] = _text(ds.attrs.get("units", ""))
+                if rel.startswith(("frf/", "raw/")) or rel == "frequency":
+                    continue
+                with self._reading(ds.name):
+                    arrays[rel] = ds[:n]
+            frf = {dof: self._read(f"{where}/frf/{dof}", n) for dof in dofs}
+            frequency = self._read(f"{where}/frequency", n)
         incomplete = attrs["status"] == "running" and not self.writer_alive or bool(attrs.get("incomplete", False))
-        return RunData(name, attrs, g["frequency"][:n], frf, arrays, units, incomplete)
+        return RunData(name, attrs, frequency, frf, arrays, units, incomplete)
+
+    def _read(self, where: str, n: int) -> np.ndarray:
+        """The first ``n`` entries of the dataset at ``where``."""
+        ds = self._object(where)
+        with self._reading(where):
+            return ds[:n]
+
+    def _run_attrs(self, where: str, attrs: dict) -> list[str]:
+        """Check a run's attributes are there and readable; returns its sensor DOFs."""
+        for key in REQUIRED_RUN_ATTRS:
+            if key not in attrs:
+                raise InputError("missing attribute (the session is incomplete or damaged)", str(self.path),
+                                 f"{where}@{key}")
+        try:
+            dofs = json.loads(attrs["sensor_dofs"])
+            float(attrs["force"])
+        except (ValueError, TypeError) as exc:
+            raise InputError(f"unreadable attribute ({exc})", str(self.path), f"{where}@sensor_dofs/force") \
+                from None
+        if not isinstance(dofs, list) or not all(isinstance(d, str) for d in dofs):
+            raise InputError(f"must be a JSON list of DOF names, got {attrs['sensor_dofs']!r}", str(self.path),
+                             f"{where}@sensor_dofs")
+        return dofs
 
     def raw(self, name: str, line: int | None = None) -> tuple[np.ndarray, list[str], float]:
         """Raw samples of a run (or of one line), their channel names and the sample rate."""
-        raw = self._file["runs"][name]["raw"]
-        for key in ("data", "line_start", "line_count"):
-            raw[key].refresh()
-        channels = json.loads(_text(raw.attrs["channels"]))
-        if line is None:
-            return raw["data"][()], channels, float(raw.attrs["sample_rate"])
-        start, count = int(raw["line_start"][line]), int(raw["line_count"][line])
-        return raw["data"][start:start + count], channels, float(raw.attrs["sample_rate"])
+        where = f"/runs/{name}/raw"
+        with self._reading(where):
+            raw = self._object(where, h5py.Group)
+            for key in ("data", "line_start", "line_count"):
+                self._object(f"{where}/{key}").refresh()
+            data = self._object(f"{where}/data")
+            channels = json.loads(_text(raw.attrs["channels"]))
+            rate = float(raw.attrs["sample_rate"])
+            if line is None:
+                return data[()], channels, rate
+            start, count = int(raw["line_start"][line]), int(raw["line_count"][line])
+            return data[start:start + count], channels, rate
 
     def runs(self, kind: str | None = None) -> list[RunData]:
         out = [self.run(n) for n in self.run_names()]
         return [r for r in out if kind is None or r.kind == kind]
+
+
+# A SWMR reader retries a metadata read whose checksum fails (it may race the writer) with a doubling pause --
+# by default 100 times, hours in all, so a truncated or damaged file would hang the reader. 20 attempts wait
+# about a second in all: ample for a writer's flush, and a damaged file is reported at once.
+SWMR_READ_ATTEMPTS = 20
+
+
+def _hdf5_library():
+    """The HDF5 library h5py runs on (to reach a file-access setting h5py does not wrap), or None."""
+    import ctypes
+
+    try:
+        with open("/proc/self/maps") as maps:
+            paths = {line.split()[-1] for line in maps if "libhdf5" in line and "libhdf5_hl" not in line}
+        return ctypes.CDLL(sorted(paths)[0]) if paths else None
+    except (OSError, IndexError):
+        return None
+
+
+def _swmr_read_access() -> h5py.h5p.PropFAID:
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
+    library = _hdf5_library()
+    if library is not None and hasattr(library, "H5Pset_metadata_read_attempts"):
+        import ctypes
+
+        library.H5Pset_metadata_read_attempts(ctypes.c_int64(fapl.id), ctypes.c_uint(SWMR_READ_ATTEMPTS))
+    return fapl
+
+
+def _open_for_reading(path: Path) -> h5py.File:
+    """The file opened for reading in SWMR mode (safe while it is written, and after its writer crashed)."""
+    if not path.exists():
+        raise InputError("file not found", str(path))
+    try:
+        fid = h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ,
+                            fapl=_swmr_read_access())
+        return h5py.File(fid)
+    except (OSError, KeyError, RuntimeError, ValueError) as exc:
+        raise InputError(f"not a readable HDF5 session ({exc})", str(path)) from None
 
 
 def _datasets(group: h5py.Group) -> Iterable[h5py.Dataset]:
@@ -431,22 +439,29 @@ def _datasets(group: h5py.Group) -> Iterable[h5py.Dataset]:
     return found
 
 
-def _writer_alive(f: h5py.File) -> bool:
-    """Whether the process that wrote the file is still running (on this host)."""
-    if _text(f.attrs.get("writer_host", "")) != socket.gethostname():
-        return False
-    pid = int(f.attrs.get("writer_pid", -1))
-    if pid <= 0:
-        return False
-    if pid == os.getpid():
-        return True
+def _process_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie -- exited, not yet reaped -- does not)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
         return True
-    return True
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return True                                   # no /proc: trust the signal test
+    return stat.rsplit(")", 1)[-1].split()[0] != "Z"
+
+
+def _writer_alive(f: h5py.File) -> bool:
+    """Whether the process that writes the file is still running (on this host)."""
+    if _text(f.attrs.get("writer_host", "")) != socket.gethostname():
+        return False
+    pid = int(f.attrs.get("writer_pid", -1))
+    if pid <= 0:
+        return False
+    return pid == os.getpid() or _process_alive(pid)
 
 
 def open_session(path) -> Session:
@@ -454,55 +469,102 @@ def open_session(path) -> Session:
     return Session(path)
 
 
-def recover_session(path) -> list[str]:
-    """Make a session whose writer died readable and writable again.
+# --------------------------------------------------------------------------- repair and model history
+def needs_recovery(path) -> bool:
+    """Whether plain HDF5 readers refuse the session because its writer died with it open (SWMR).
 
-    Copies everything into a fresh file next to it, marks the runs still "running" as
-    ``status = "aborted"``, ``incomplete = True``, logs the recovery, and replaces the original atomically.
-    Returns the names of the runs that were marked. Does nothing to a file closed normally.
-    """
+    InputError when the file is missing, not a session, or being written by a live process."""
     path = Path(path)
-    try:
-        with h5py.File(path, "r+", libver="latest"):
-            return []                                   # closed normally: nothing to recover
-    except OSError:
-        pass
     with Session(path) as s:
-        if s.writer_alive:
-            raise InputError("is still being written by a running process; wait for it to finish", str(path))
-        src = s._file
-        tmp = path.with_name(path.name + ".recovering")
-        marked = []
-        with h5py.File(tmp, "w", libver="latest") as dst:
-            for key, value in src.attrs.items():
-                dst.attrs[key] = value
-            for key in src:
-                src.copy(src[key], dst, name=key)
-            for name, g in dst["runs"].items():
-                if _text(g.attrs.get("status", "")) == "running":
-                    g.attrs["status"] = "aborted"
-                    g.attrs["incomplete"] = True
-                    g.attrs["end_reason"] = "the writing process stopped without closing the run (crash or kill)"
-                    marked.append(name)
-            _append_event(dst["events"], 0.0, "", "recovery",
-                          f"recovered after the writer stopped; incomplete runs: {', '.join(marked)}")
-    os.replace(tmp, path)
+        alive = s.writer_alive
+    try:
+        with h5py.File(path, "r"):
+            closed = True
+    except OSError:
+        closed = False
+    if alive and not closed:
+        raise InputError("is still being written by a running process; wait for it to finish", str(path))
+    return not closed
+
+
+def _copy_objects(path: Path, target: Path) -> None:
+    """Everything of a session that plain readers refuse, copied (read in SWMR mode) into a new clean file."""
+    with h5py.File(path, "r", libver="latest", swmr=True) as src, h5py.File(target, "w", libver="latest") as dst:
+        for key, value in src.attrs.items():
+            dst.attrs[key] = value
+        for key in src:
+            src.copy(src[key], dst, name=key)
+
+
+def _mark_running_runs(f: h5py.File) -> list[str]:
+    """Runs a dead writer left "running": marked aborted and incomplete, with a recovery event."""
+    marked = []
+    for name, g in f["runs"].items():
+        if _text(g.attrs.get("status", "")) == "running":
+            mark_incomplete(g, "the writing process stopped without closing the run (crash or kill)")
+            marked.append(name)
+    append_event(f["events"], 0.0, "", "recovery",
+                 f"recovered after the writer stopped; incomplete runs: {', '.join(marked) or 'none'}")
     return marked
 
 
-def append_model_history(path, steps: list[dict], model_source: str = "") -> str:
+@contextmanager
+def _rewritten(path: Path, extra_bytes: int, what: str):
+    """The session opened for writing as a new version beside itself (repaired first if a dead writer left it
+    open), renamed over the old one when the ``with`` body succeeds: a failure, a full disk or a crash leaves
+    the old file as it was. Yields ``(file, runs marked incomplete by the repair)``."""
+    repair = needs_recovery(path)
+    with atomic_replace(path, extra_bytes + FREE_SPACE_RESERVE, what) as temp:
+        if repair:
+            _copy_objects(path, temp)
+        else:
+            with open(path, "rb") as src, open(temp, "wb") as dst:
+                os.sendfile(dst.fileno(), src.fileno(), 0, os.fstat(src.fileno()).st_size)
+        with h5py.File(temp, "r+", libver="latest") as f:
+            yield f, (_mark_running_runs(f) if repair else [])
+
+
+def recover_session(path) -> list[str]:
+    """Make a session whose writer died readable by any HDF5 tool.
+
+    Copies everything into a fresh file next to it, marks the runs still "running" as ``status = "aborted"``,
+    ``incomplete = True``, logs the recovery, and replaces the original atomically. Returns the names of the runs
+    that were marked. Does nothing to a file closed normally (returns [])."""
+    path = Path(path)
+    if not needs_recovery(path):
+        return []
+    try:
+        with _rewritten(path, 0, "recover the session") as (_, marked):
+            return marked
+    except OSError as exc:
+        raise SessionWriteError(f"{path}: cannot recover the session ({exc}); the file is unchanged") from None
+
+
+@dataclass
+class StoredHistory:
+    """Where an analysis's model history went: its group, and runs a repair of the file marked incomplete."""
+
+    name: str
+    recovered_runs: list[str]
+
+
+def append_model_history(path, steps: list[dict], model_source: str = "") -> StoredHistory:
     """Store one analysis's model history (the workbench's steps) under ``/models/analysis_<k>``.
 
     Each step keeps its action, error, error by level and the model as TOML text, so the error falling step by
-    step can be read back. A crashed session is recovered first. Returns the group's name.
-    """
-    recover_session(path)
+    step can be read back. The file is rewritten beside itself and renamed into place (a crashed session is
+    repaired on the way), so nothing already in it can be damaged. SessionWriteError says why the history was
+    not stored (read-only medium, full disk, a live writer) -- the session is then untouched."""
+    path = Path(path)
+    if not os.access(path, os.W_OK) or not os.access(path.parent, os.W_OK):
+        raise SessionWriteError(f"{path}: the session (or its folder) is read-only")
+    size = sum(len(step["model"].encode()) + 4096 for step in steps)
     try:
-        with h5py.File(path, "r+", libver="latest") as f:
+        with _rewritten(path, size, "store the model history") as (f, recovered):
             models = f.require_group("models")
             name = f"analysis_{len(models)}"
             g = models.create_group(name)
-            g.attrs["created"] = _now_iso()
+            g.attrs["created"] = now_iso()
             g.attrs["model_source"] = model_source
             for step in steps:
                 s = g.create_group(f"step_{step['step']:03d}")
@@ -512,21 +574,25 @@ def append_model_history(path, steps: list[dict], model_source: str = "") -> str
                 levels = np.array([[e["force"], e["error"]] for e in step["error_by_level"]], float)
                 d = s.create_dataset("error_by_level", data=levels.reshape(-1, 2))
                 d.attrs["columns"] = json.dumps(["force [N]", "error [1]"])
-            return name
+        return StoredHistory(name, recovered)
+    except InputError as exc:
+        raise SessionWriteError(str(exc)) from None
     except OSError as exc:
-        raise SessionWriteError(f"{path}: cannot store the model history ({exc})") from None
+        raise SessionWriteError(f"{path}: {exc.strerror or exc}; the session is unchanged") from None
 
 
 def read_model_history(session: Session) -> list[dict]:
-    """Every stored analysis: ``{"name", "created", "steps": [{"action", "error", "model", "error_by_level"}]}``,
-    ``error_by_level`` as ``[[force N, error], ...]``."""
+    """Every stored analysis: ``{"name", "created", "model_source", "steps": [{"action", "error", "model",
+    "error_by_level"}]}``, ``error_by_level`` as ``[[force N, error], ...]``."""
     f = session._file
-    if "models" not in f:
-        return []
-    out = []
-    for name, g in f["models"].items():
-        steps = [{"action": _text(s.attrs["action"]), "error": float(s.attrs["error"]),
-                  "model": _text(s["model"][()]), "error_by_level": s["error_by_level"][()].tolist()}
-                 for _, s in sorted(g.items())]
-        out.append({"name": name, "created": _text(g.attrs.get("created", "")), "steps": steps})
+    with session._reading("/models"):
+        if "models" not in f:
+            return []
+        out = []
+        for name, g in f["models"].items():
+            steps = [{"action": _text(s.attrs["action"]), "error": float(s.attrs["error"]),
+                      "model": _text(s["model"][()]), "error_by_level": s["error_by_level"][()].tolist()}
+                     for _, s in sorted(g.items())]
+            out.append({"name": name, "created": _text(g.attrs.get("created", "")),
+                        "model_source": _text(g.attrs.get("model_source", "")), "steps": steps})
     return out

@@ -1,4 +1,5 @@
-"""Writes a session line by line until killed (used by tests/test_session.py)."""
+"""Writes a session line by line until killed (used by tests/test_session.py): prints the writer process's pid,
+then the index of every line once append_line has returned."""
 import sys
 
 import numpy as np
@@ -10,6 +11,7 @@ w = SessionWriter(path, plan_text="[[stepped_sine]]\nforce = 0.8\n", software_ve
 w.begin_run(RunSpec("sine_0.8N_up", "stepped_sine", 0.8, "up", "x2", ["x1", "x2"], 100.0,
                     ["force", "acc:x1", "acc:x2"], ["N", "m/s^2", "m/s^2"],
                     extras={"force_amplitude": ("N", (), "f8")}))
+print(w.writer_pid, flush=True)
 i = 0
 while True:
     f = 1.0 + 0.01 * i

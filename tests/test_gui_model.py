@@ -79,7 +79,7 @@ def test_add_on_the_top_candidate_lowers_the_displayed_error_and_undo_restores_i
     assert after < before
     assert after == pytest.approx(top.error, rel=1e-3)                # the ranking predicted it
     # the same addition through the command-line path (a fresh workbench) gives the same error
-    wb, _ = run_workbench(session, model, [f"{top.element}:{top.law}"], rank=False, store_history=False)
+    wb, _ = run_workbench(session, model, [f"{top.element}:{top.law}"], rank=False)
     assert after == pytest.approx(wb.history[-1].error, rel=1e-3)
     laws = {el.name: [law.law for law in el.laws] for el in window.lab.analysis.elements}
     assert laws[top.element] == [top.law]

@@ -11,7 +11,10 @@ import numpy as np
 import pytest
 
 from analysis import InputError
+from app.outputs import temporary_path
 from app.session import RunSpec, SessionWriteError, SessionWriter, open_session, recover_session
+from app.session_file import SessionFile, SessionHeader
+from session_helpers import plain_open
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -66,18 +69,45 @@ def test_reader_follows_a_run_being_written(tmp_path):
     w.close()
 
 
+def line(w, i):
+    w.append_line(1.0 + i, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8, "harmonics/force": np.zeros(4)})
+
+
 def test_existing_file_is_not_overwritten_without_force(tmp_path):
     path = tmp_path / "s.h5"
     path.write_bytes(b"precious")
     with pytest.raises(InputError, match="exists already.*--force"):
         SessionWriter(path)
     assert path.read_bytes() == b"precious"
-    SessionWriter(path, overwrite=True).close()
+
+
+def test_a_forced_session_replaces_the_old_file_only_once_its_first_line_is_in(tmp_path):
+    path = tmp_path / "s.h5"
+    path.write_bytes(b"precious")
+    w = SessionWriter(path, overwrite=True)
+    w.begin_run(spec())
+    w.log("note", "armed")
+    assert path.read_bytes() == b"precious"              # nothing measured yet: the old file stands
+    line(w, 0)
     assert h5py.is_hdf5(path)
+    w.close()
+    assert [p.name for p in tmp_path.iterdir()] == ["s.h5"]
 
 
-def test_unwritable_path_is_a_write_error(tmp_path):
-    with pytest.raises(SessionWriteError, match="cannot create"):
+def test_a_start_that_fails_before_the_first_line_leaves_the_old_file_or_none(tmp_path):
+    kept, fresh = tmp_path / "kept.h5", tmp_path / "fresh.h5"
+    kept.write_bytes(b"precious")
+    for path in (kept, fresh):
+        w = SessionWriter(path, overwrite=True)
+        w.begin_run(spec())
+        w.end_run("aborted", "force limit on the first line")
+        w.close()
+    assert kept.read_bytes() == b"precious" and not fresh.exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["kept.h5"]
+
+
+def test_an_output_in_a_missing_folder_is_refused_before_anything_starts(tmp_path):
+    with pytest.raises(InputError, match="folder does not exist"):
         SessionWriter(tmp_path / "no" / "such" / "dir" / "s.h5")
 
 
@@ -92,47 +122,103 @@ def test_not_a_session_is_refused(tmp_path):
         open_session(tmp_path / "text.h5")
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_sigkill_at_a_random_moment_keeps_every_completed_line(tmp_path, seed):
-    rng = np.random.default_rng(seed)
-    path = tmp_path / "killed.h5"
+def start_child(path):
+    """tests/session_writer_child.py writing ``path``: prints the writer process's pid, then each line's index
+    once append_line has returned."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen([sys.executable, str(ROOT / "tests" / "session_writer_child.py"), str(path)],
                             stdout=subprocess.PIPE, text=True, env=env)
-    target = int(rng.integers(3, 40))
+    return proc, int(proc.stdout.readline())
+
+
+def kill_after(proc, target: int, pause: float) -> int:
+    """SIGKILL ``proc`` ``pause`` s after it reported line ``target`` done; returns the last line reported."""
     done = -1
     while done < target:
         line = proc.stdout.readline()
         assert line, "writer ended early"
         done = int(line)
-    time.sleep(float(rng.uniform(0, 0.02)))          # land anywhere inside the next line's write
+    time.sleep(pause)                                    # land anywhere inside the next line's write
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    with open_session(path) as s:
-        r = s.run("sine_0.8N_up")
-        n = len(r.frequency)
-        assert n >= done + 1                              # every line reported done is there
-        np.testing.assert_allclose(r.frequency, 1.0 + 0.01 * np.arange(n))
-        np.testing.assert_allclose(r.frf["x1"].real, np.arange(n))
-        for i in range(n):
-            raw, _, _ = s.raw("sine_0.8N_up", line=i)
-            assert raw.shape == (500, 3) and np.all(raw == i)
-        assert r.incomplete and r.status == "running"
-    assert recover_session(path) == ["sine_0.8N_up"]
-    with h5py.File(path, "r") as f:                        # a normal open works again
+    return done
+
+
+def check_lines(g, n_min):
+    """Every line 0..n-1 of the child's run is whole in group ``g`` (n >= n_min); returns n."""
+    n = g["frequency"].shape[0]
+    assert n >= n_min
+    np.testing.assert_allclose(g["frequency"][()], 1.0 + 0.01 * np.arange(n))
+    np.testing.assert_allclose(g["frf/x1"][()].real, np.arange(n))
+    assert g["force_amplitude"].shape[0] == g["raw/line_start"].shape[0] == n
+    starts, counts = g["raw/line_start"][()], g["raw/line_count"][()]
+    for i in range(n):
+        assert counts[i] == 500 and np.all(g["raw/data"][starts[i]:starts[i] + 500] == i)
+    return n
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_sigkill_of_the_acquiring_process_leaves_a_file_any_hdf5_reader_opens(tmp_path, seed):
+    rng = np.random.default_rng(seed)
+    path = tmp_path / "killed.h5"
+    proc, _ = start_child(path)
+    done = kill_after(proc, int(rng.integers(3, 40)), float(rng.uniform(0, 0.02)))
+    with plain_open(path) as f:                             # no recovery: plain h5py, as HDFView would
         g = f["runs/sine_0.8N_up"]
+        check_lines(g, done + 1)
         assert g.attrs["status"] == "aborted" and g.attrs["incomplete"]
-        assert g["frequency"].shape[0] == n
+        assert "crash or kill" in g.attrs["end_reason"]
     with open_session(path) as s:
         assert s.run("sine_0.8N_up").incomplete
         assert any(e["kind"] == "recovery" for e in s.events())
-    assert recover_session(path) == []
+    assert recover_session(path) == [] and list(tmp_path.iterdir()) == [path]
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_sigkill_of_the_writer_process_is_repaired_by_contactid_recover(tmp_path, capsys, seed):
+    from app.cli import main
+
+    rng = np.random.default_rng(10 + seed)
+    path = tmp_path / "killed.h5"
+    proc, writer = start_child(path)
+    target = int(rng.integers(3, 30))
+    done = -1
+    while done < target:
+        done = int(proc.stdout.readline())
+    time.sleep(float(rng.uniform(0, 0.02)))
+    os.kill(writer, signal.SIGKILL)
+    proc.wait()                                           # the child fails on its next line
+    with pytest.raises(OSError):
+        h5py.File(path, "r")                              # marked open for writing: plain readers refuse it
+    with open_session(path) as s:                         # contactid still reads it
+        r = s.run("sine_0.8N_up")
+        assert r.incomplete and len(r.frequency) >= done + 1
+    assert main(["recover", str(path)]) == 0
+    assert "sine_0.8N_up" in capsys.readouterr().out
+    with h5py.File(path, "r") as f:
+        g = f["runs/sine_0.8N_up"]
+        check_lines(g, done + 1)
+        assert g.attrs["status"] == "aborted" and g.attrs["incomplete"]
+    assert main(["recover", str(path)]) == 0
+    assert "nothing to recover" in capsys.readouterr().out
+
+
+def test_a_dead_writer_process_is_a_write_error_not_a_hang(tmp_path):
+    w = SessionWriter(tmp_path / "s.h5")
+    w.begin_run(spec())
+    line(w, 0)
+    os.kill(w.writer_pid, signal.SIGKILL)
+    with pytest.raises(SessionWriteError, match="writer process stopped .*killed by signal 9.*contactid recover"):
+        line(w, 1)
+    w.close()
 
 
 def test_write_failure_mid_run_keeps_the_lines_so_far(tmp_path, monkeypatch):
+    """The writing side (what the writer process runs): a failed flush is a SessionWriteError and the run can
+    still be closed with the lines before it."""
     path = tmp_path / "s.h5"
-    w = SessionWriter(path)
-    w.begin_run(spec())
+    w = SessionFile(path, temporary_path(path), False, SessionHeader())
+    w.begin_run(spec(), 0.0)
     w.append_line(1.0, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8, "harmonics/force": np.zeros(4)})
 
     def full_disk(*args, **kwargs):
@@ -142,9 +228,41 @@ def test_write_failure_mid_run_keeps_the_lines_so_far(tmp_path, monkeypatch):
     with pytest.raises(SessionWriteError, match="No space left"):
         w.append_line(2.0, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8, "harmonics/force": np.zeros(4)})
     monkeypatch.undo()
-    w.end_run("aborted", "disk full")
-    w.close()
+    w.end_run("aborted", "disk full", 1.0)
+    w.close(1.0)
     with open_session(path) as s:
         r = s.run("sine_0.8N_up")
         assert r.status == "aborted" and r.attrs["end_reason"] == "disk full"
         assert r.frequency[0] == 1.0
+
+
+def test_writer_errors_come_back_to_the_acquiring_process(tmp_path, monkeypatch):
+    w = SessionWriter(tmp_path / "s.h5")
+    w.begin_run(spec())
+    line(w, 0)
+    with pytest.raises(SessionWriteError, match="frf/x9"):      # the writer refuses a DOF the run lacks
+        w.append_line(2.0, {"x9": 1j})
+    monkeypatch.setattr("app.session.FREE_SPACE_RESERVE", 1 << 62)
+    with pytest.raises(SessionWriteError, match="not enough free space.*measured before is kept"):
+        line(w, 1)
+    monkeypatch.undo()
+    w.end_run("aborted", "disk full")
+    w.close()
+    with h5py.File(tmp_path / "s.h5", "r") as f:
+        assert f["runs/sine_0.8N_up/frequency"].shape == (1,)
+
+
+def test_the_writer_ignores_ctrl_c_and_closes_the_file_cleanly_on_sigterm(tmp_path):
+    path = tmp_path / "s.h5"
+    w = SessionWriter(path)
+    w.begin_run(spec())
+    line(w, 0)
+    os.kill(w.writer_pid, signal.SIGINT)                  # the terminal's Ctrl-C is the acquiring process's
+    line(w, 1)
+    os.kill(w.writer_pid, signal.SIGTERM)
+    with plain_open(path) as f:                           # closed cleanly, without a recovery
+        g = f["runs/sine_0.8N_up"]
+        assert g["frequency"].shape == (2,) and g.attrs["status"] == "aborted" and g.attrs["incomplete"]
+    with pytest.raises(SessionWriteError, match="writer process stopped"):
+        line(w, 2)
+    w.close()

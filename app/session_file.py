@@ -1,0 +1,426 @@
+"""Writing a session file (docs/session-format.md): the HDF5 side, and the writer process that runs it.
+
+:class:`SessionFile` does the HDF5 work. It is run by a writer process of its own (``python -m
+app.session_file``, started by :class:`app.session.SessionWriter`) that outlives the acquiring process: when
+the acquiring process dies (SIGKILL, a crash of the GUI), its end of the pipe closes, and the writer marks the
+open run as aborted and incomplete and closes the file cleanly, so any HDF5 reader opens it with every completed
+line. While a run is measured the file is in SWMR mode and every line is flushed whole, so readers (the GUI's
+Session tab) follow along, and even a kill of the writer process itself loses at most the line in progress
+(``contactid recover`` then makes the file readable by any tool).
+
+The file is first written under a temporary name beside its destination and moved into place once the first
+measured data is in: a start that fails leaves the old file (``--force``) or no file.
+
+This module imports only NumPy, h5py and the standard library so that the writer process starts quickly.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import signal
+import socket
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .session_wire import receive_call, send_reply
+
+FORMAT = "contactid-session"
+FORMAT_VERSION = 1
+EVENT_DTYPE = np.dtype([("time", "f8"), ("iso_time", "S32"), ("run", "S64"), ("kind", "S24"),
+                        ("message", "S400")])
+CRASH_REASON = "the acquiring process stopped without closing the run (crash or kill)"
+
+
+class SessionWriteError(RuntimeError):
+    """The session file could not be written (full disk, unwritable path, removed medium)."""
+
+
+def now_iso() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).astimezone().isoformat(timespec="seconds")
+
+
+def append_event(events: h5py.Dataset, seconds: float, run: str, kind: str, message: str) -> None:
+    """Append one row to the event log (kind and message cut to their column widths)."""
+    row = np.array([(seconds, now_iso().encode(), run.encode(), kind.encode()[:24], message.encode()[:400])],
+                   dtype=EVENT_DTYPE)
+    events.resize(events.shape[0] + 1, axis=0)
+    events[-1:] = row
+
+
+def mark_incomplete(run: h5py.Group, reason: str) -> None:
+    """Close a run whose writing stopped mid-way: aborted, incomplete, with the reason."""
+    run.attrs["status"] = "aborted"
+    run.attrs["incomplete"] = True
+    run.attrs["end_reason"] = reason
+    run.attrs["ended"] = now_iso()
+
+
+# --------------------------------------------------------------------------- run description
+@dataclass
+class RunSpec:
+    """What a run is, for creating its group.
+
+    ``extras`` names per-line quantities (name -> (units, shape of one line's value, dtype)); ``raw_channels``
+    and ``raw_units`` describe the raw time blocks.
+    """
+
+    name: str
+    kind: str                          # "random" | "stepped_sine"
+    force: float                       # N: rms for random, amplitude for stepped sine
+    direction: str                     # "up" | "down" | "none"
+    excitation_dof: str
+    sensor_dofs: list[str]
+    sample_rate: float
+    raw_channels: list[str]
+    raw_units: list[str]
+    extras: dict[str, tuple[str, tuple, str]] = field(default_factory=dict)
+    attrs: dict = field(default_factory=dict)
+
+
+@dataclass
+class SessionHeader:
+    """What a new session file records before its first run."""
+
+    plan_text: str = ""
+    rig_text: str | None = None
+    software_version: str = ""
+    command: str = ""
+    instruments: dict = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- the HDF5 side
+class SessionFile:
+    """A new session file, written in this process (see the module docstring for the writer process).
+
+    Parameters
+    ----------
+    path : Path
+        Where the session goes; it is written at ``temporary`` until the first measured data is in.
+    temporary : Path
+        A name beside ``path`` (same file system) for the file before it is moved into place.
+    overwrite : bool
+        Whether an existing ``path`` may be replaced then.
+    header : SessionHeader
+    """
+
+    def __init__(self, path, temporary, overwrite: bool, header: SessionHeader):
+        self.path, self.temporary = Path(path), Path(temporary)
+        self.overwrite = overwrite
+        self.in_place = False                          # moved to ``path`` yet?
+        self._file: h5py.File | None = None
+        self._run: str | None = None
+        self._datasets: dict[str, h5py.Dataset] = {}     # the open run's datasets, by path in the run
+        try:
+            with h5py.File(self.temporary, "w", libver="latest") as f:
+                f.attrs["format"] = FORMAT
+                f.attrs["format_version"] = FORMAT_VERSION
+                f.attrs["created"] = now_iso()
+                f.attrs["software_version"] = header.software_version
+                f.attrs["writer_host"] = socket.gethostname()
+                f.attrs["writer_pid"] = os.getpid()
+                prov = f.create_group("provenance")
+                prov.create_dataset("plan", data=header.plan_text)
+                prov.create_dataset("command", data=header.command)
+                if header.rig_text is not None:
+                    prov.create_dataset("rig", data=header.rig_text)
+                prov.attrs["instruments"] = json.dumps(header.instruments or {})
+                f.create_group("runs")
+                f.create_dataset("events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(256,))
+        except OSError as exc:
+            self.temporary.unlink(missing_ok=True)
+            raise SessionWriteError(f"{self.path}: cannot create the session file ({exc})") from None
+
+    @property
+    def where(self) -> Path:
+        """The file's current name."""
+        return self.path if self.in_place else self.temporary
+
+    # -- file state -----------------------------------------------------------
+    def _open(self, swmr: bool) -> h5py.File:
+        if self._file is None:
+            try:
+                self._file = h5py.File(self.where, "r+", libver="latest")
+            except OSError as exc:
+                raise SessionWriteError(f"{self.path}: cannot reopen the session file ({exc})") from None
+            if swmr:
+                self._file.swmr_mode = True
+        return self._file
+
+    def _dataset(self, name: str) -> h5py.Dataset:
+        ds = self._datasets.get(name)
+        if ds is None:
+            group = self._file["runs"][self._run]
+            if name not in group:
+                raise SessionWriteError(f"{self.path}: run {self._run} has no dataset {name!r}")
+            ds = self._datasets[name] = group[name]
+        return ds
+
+    def _close(self) -> None:
+        self._datasets = {}
+        if self._file is not None:
+            try:
+                self._file.close()
+            finally:
+                self._file = None
+
+    def _guard(self, what: str):
+        return _WriteGuard(self, what)
+
+    def _measured(self) -> None:
+        """Data is in: move the file into place (the first time)."""
+        if self.in_place:
+            return
+        if self.path.exists() and not self.overwrite:
+            raise SessionWriteError(f"{self.path}: another program created this file while the session was "
+                                    f"starting; it is left as it is")
+        os.replace(self.temporary, self.path)
+        self.in_place = True
+
+    # -- runs -----------------------------------------------------------------
+    def begin_run(self, spec: RunSpec, seconds: float) -> None:
+        """Create the run's group and datasets, then enter SWMR mode for appending lines."""
+        if self._run is not None:
+            raise SessionWriteError(f"{self.path}: run {self._run!r} is still open")
+        self._close()
+        with self._guard(f"creating run {spec.name}"):
+            f = self._open(swmr=False)
+            g = f["runs"].create_group(spec.name)
+            g.attrs.update({"kind": spec.kind, "force": float(spec.force), "direction": spec.direction,
+                            "status": "running", "excitation_dof": spec.excitation_dof,
+                            "sensor_dofs": json.dumps(spec.sensor_dofs), "sample_rate": float(spec.sample_rate),
+                            "started": now_iso()})
+            g.attrs["force_units"] = "N"
+            for key, value in spec.attrs.items():
+                g.attrs[key] = value
+            _grow(g, "frequency", (), "f8", "Hz")
+            frf = g.create_group("frf")
+            frf.attrs["units"] = "m/N"
+            frf.attrs["quantity"] = "receptance"
+            for dof in spec.sensor_dofs:
+                _grow(frf, dof, (), "c16", "m/N")
+            for name, (units, shape, dtype) in spec.extras.items():
+                parent = g
+                for part in name.split("/")[:-1]:
+                    parent = parent.require_group(part)
+                _grow(parent, name.split("/")[-1], tuple(shape), dtype, units)
+            raw = g.create_group("raw")
+            raw.attrs["channels"] = json.dumps(spec.raw_channels)
+            raw.attrs["units"] = json.dumps(spec.raw_units)
+            raw.attrs["sample_rate"] = float(spec.sample_rate)
+            raw.create_dataset("data", shape=(0, len(spec.raw_channels)), maxshape=(None, len(spec.raw_channels)),
+                               dtype="f4", chunks=(8192, len(spec.raw_channels)), compression="gzip",
+                               compression_opts=4, shuffle=True)
+            raw["data"].attrs["units"] = json.dumps(spec.raw_units)
+            _grow(raw, "line_start", (), "i8", "sample")
+            _grow(raw, "line_count", (), "i8", "sample")
+            append_event(f["events"], seconds, spec.name, "run",
+                         f"{spec.kind} run started: force {spec.force:g} N, direction {spec.direction}")
+            f.flush()
+            self._close()
+            self._open(swmr=True)
+        self._run = spec.name
+
+    def append_line(self, frequency_hz: float, frf: dict, extras: dict | None = None,
+                    raw: np.ndarray | None = None) -> None:
+        """Append one completed line (frequency, FRF per sensor DOF, extras, raw samples) and flush."""
+        with self._guard("appending a line"):
+            # every dataset looked up before any is written: a line is stored whole or not at all
+            values = [(self._dataset("frequency"), frequency_hz)]
+            values += [(self._dataset(f"frf/{dof}"), value) for dof, value in frf.items()]
+            values += [(self._dataset(name), value) for name, value in (extras or {}).items()]
+            data = self._dataset("raw/data")
+            for ds, value in values:
+                _append(ds, value)
+            start = data.shape[0]
+            count = 0 if raw is None else len(raw)
+            if count:
+                data.resize(start + count, axis=0)
+                data[start:] = raw
+            _append(self._dataset("raw/line_start"), start)
+            _append(self._dataset("raw/line_count"), count)
+            self._file.flush()
+            self._measured()
+
+    def write_arrays(self, arrays: dict) -> None:
+        """Write whole per-line arrays at once (a random run's FRFs): resize each dataset and fill it."""
+        with self._guard("writing the run's results"):
+            for name, value in arrays.items():
+                value = np.asarray(value)
+                ds = self._dataset(name)
+                ds.resize(value.shape[0], axis=0)
+                ds[...] = value.astype(ds.dtype)
+            self._file.flush()
+            self._measured()
+
+    def append_raw(self, samples: np.ndarray) -> None:
+        """Append raw samples that belong to no single line (the random run's record)."""
+        with self._guard("appending raw samples"):
+            d = self._dataset("raw/data")
+            start = d.shape[0]
+            d.resize(start + len(samples), axis=0)
+            d[start:] = samples
+            self._file.flush()
+            self._measured()
+
+    def end_run(self, status: str, reason: str, seconds: float) -> None:
+        """Leave SWMR mode and record the run's status ("complete", "failed" or "aborted")."""
+        run, self._run = self._run, None
+        if run is None:
+            return
+        self._close()
+        with self._guard(f"closing run {run}"):
+            f = self._open(swmr=False)
+            g = f["runs"][run]
+            g.attrs["status"] = status
+            g.attrs["ended"] = now_iso()
+            if reason:
+                g.attrs["end_reason"] = reason
+            append_event(f["events"], seconds, run, "run", f"run ended: {status}" + (f" ({reason})" if reason else ""))
+            self._close()
+
+    # -- events ---------------------------------------------------------------
+    def log(self, seconds: float, kind: str, message: str, run: str | None = None) -> None:
+        """Append an event (fault, operator action, note) with its time since the session started."""
+        with self._guard("logging an event"):
+            opened_here = self._file is None
+            f = self._open(swmr=False)
+            append_event(f["events"], seconds, run or self._run or "", kind, message)
+            f.flush()
+            if opened_here:
+                self._close()
+
+    def close(self, seconds: float) -> None:
+        """End an open run as aborted (if any) and close the file; a file with no measured data is removed."""
+        try:
+            if self._run is not None:
+                self.end_run("aborted", "session closed while the run was open", seconds)
+        finally:
+            self._close()
+            if not self.in_place:
+                self.temporary.unlink(missing_ok=True)
+
+    def abandon(self, seconds: float) -> None:
+        """The acquiring process is gone: mark the open run incomplete and close the file cleanly."""
+        run, self._run = self._run, None
+        try:
+            self._close()
+            if run is not None and self.in_place:
+                with self._guard("closing the session after the acquiring process stopped"):
+                    f = self._open(swmr=False)
+                    mark_incomplete(f["runs"][run], CRASH_REASON)
+                    append_event(f["events"], seconds, run, "recovery",
+                                 f"run {run} closed by the session writer: {CRASH_REASON}")
+        finally:
+            self._close()
+            if not self.in_place:
+                self.temporary.unlink(missing_ok=True)
+
+
+class _WriteGuard:
+    """Turns any failure to write into SessionWriteError, leaving what was flushed intact."""
+
+    def __init__(self, writer: SessionFile, what: str):
+        self.writer, self.what = writer, what
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is not None and issubclass(exc_type, (OSError, KeyError, ValueError, RuntimeError)) \
+                and not issubclass(exc_type, SessionWriteError):
+            raise SessionWriteError(f"{self.writer.path}: failed while {self.what}: {exc}") from exc
+        return False
+
+
+def _grow(parent: h5py.Group, name: str, shape: tuple, dtype: str, units: str) -> h5py.Dataset:
+    ds = parent.create_dataset(name, shape=(0,) + shape, maxshape=(None,) + shape, dtype=dtype,
+                               chunks=(64,) + shape)
+    ds.attrs["units"] = units
+    return ds
+
+
+def _append(ds: h5py.Dataset, value) -> None:
+    n = ds.shape[0]
+    ds.resize(n + 1, axis=0)
+    ds[n] = np.asarray(value, dtype=ds.dtype)   # h5py will not convert float -> complex itself
+
+
+# --------------------------------------------------------------------------- the writer process
+class _Stop(Exception):
+    """SIGTERM while waiting for the next call."""
+
+
+def _calls(file: SessionFile | None, method: str, kwargs: dict) -> SessionFile | None:
+    """Execute one call; returns the session file (created by the first call)."""
+    if method == "create":
+        return SessionFile(kwargs["path"], kwargs["temporary"], kwargs["overwrite"],
+                           SessionHeader(**kwargs["header"]))
+    if method == "begin_run":
+        spec = dict(kwargs["spec"])
+        spec["extras"] = {k: (u, tuple(s), d) for k, (u, s, d) in spec["extras"].items()}
+        file.begin_run(RunSpec(**spec), kwargs["seconds"])
+    elif method in ("append_line", "write_arrays", "append_raw", "end_run", "log", "close"):
+        getattr(file, method)(**kwargs)
+    else:
+        raise SessionWriteError(f"unknown call {method!r}")
+    return file
+
+
+def serve(calls, replies) -> int:
+    """Execute calls from ``calls`` until ``close`` (exit 0) or the end of the stream (the sender died: the
+    file is closed on its behalf, exit 0). SIGINT and SIGHUP are the terminal's and are ignored; SIGTERM closes
+    the file as if the sender had died."""
+    waiting = {"now": False, "stop": False}
+
+    def terminate(*_):
+        waiting["stop"] = True
+        if waiting["now"]:
+            raise _Stop
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, terminate)
+    file: SessionFile | None = None
+    seconds = 0.0
+    while not waiting["stop"]:
+        waiting["now"] = True
+        try:
+            call = receive_call(calls)
+        except _Stop:
+            call = None
+        waiting["now"] = False
+        if call is None:
+            break
+        method, kwargs = call
+        seconds = kwargs.get("seconds", seconds)
+        error = None
+        try:
+            file = _calls(file, method, kwargs)
+        except SessionWriteError as exc:
+            error = str(exc)
+        except Exception as exc:  # reported to the acquiring process, which ends the campaign safely
+            error = f"session writer failed in {method}: {type(exc).__name__}: {exc}"
+        try:
+            send_reply(replies, error)
+        except OSError:
+            break                                   # the sender died waiting for this reply
+        if method == "close" and error is None:
+            return 0
+    if file is not None:
+        file.abandon(seconds)
+    return 0
+
+
+def main() -> int:
+    replies = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
+    sys.stdout = sys.stderr                       # nothing but replies on the reply pipe
+    return serve(sys.stdin.buffer, replies)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,20 @@
+"""Helpers of the session tests: opening a file as any HDF5 tool would."""
+import time
+from pathlib import Path
+
+import h5py
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def plain_open(path, timeout=120.0) -> h5py.File:
+    """The file opened with plain h5py (no SWMR, no recovery), as HDFView would, once the writer process has
+    let go of it (it closes the file after the acquiring process died)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return h5py.File(path, "r")
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)

@@ -1,0 +1,234 @@
+"""Nothing measured is lost or overwritten by a later command, a typo, a damaged file, a full disk or a
+read-only medium; every such case is one line naming the file and the object, exit status 2 for bad input."""
+import os
+import shutil
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from app.cli import main
+from app.session import RunSpec, SessionWriter, open_session
+from session_helpers import ROOT, plain_open
+
+MODEL = """[structure]
+type = "lumped"
+dofs = ["x1", "x2"]
+mass = [[1.0, 0.0], [0.0, 2.0]]
+stiffness = [[200.0, -100.0], [-100.0, 200.0]]
+
+[[element]]
+name = "left"
+dof = "x1"
+laws = ["cubic"]
+
+[[element]]
+name = "right"
+dof = "x2"
+laws = ["cubic"]
+"""
+RUN = "sine_0.8N_up"
+
+
+def write_session(path, forces=(0.4, 0.8)):
+    """A small session of the paper's linear 2-DOF structure (25 lines per force level, no raw data)."""
+    M, K = np.diag([1.0, 2.0]), np.array([[200.0, -100.0], [-100.0, 200.0]])
+    w = SessionWriter(path, software_version="test", plan_text="synthetic")
+    for force in forces:
+        w.begin_run(RunSpec(f"sine_{force}N_up", "stepped_sine", force, "up", "x2", ["x1", "x2"], 100.0, ["force"],
+                            ["N"], {"force_amplitude": ("N", (), "f8")}))
+        for f in np.linspace(0.8, 3.2, 25):
+            om = 2 * np.pi * f
+            H = np.linalg.inv(K - om ** 2 * M + 0.02j * om * K)[:, 1]
+            w.append_line(f, {"x1": H[0], "x2": H[1]}, {"force_amplitude": force})
+        w.end_run("complete")
+    w.close()
+
+
+@pytest.fixture(scope="module")
+def session_files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("integrity")
+    write_session(folder / "s.h5")
+    (folder / "model.toml").write_text(MODEL)
+    return folder / "s.h5", folder / "model.toml"
+
+
+@pytest.fixture
+def copies(session_files, tmp_path):
+    session, model = session_files
+    shutil.copy(session, tmp_path / "s.h5")
+    shutil.copy(model, tmp_path / "model.toml")
+    return tmp_path / "s.h5", tmp_path / "model.toml"
+
+
+def one_line_error(capsys, *names) -> str:
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("contactid: error: ")
+    for name in names:
+        assert str(name) in err
+    return err
+
+
+# ----------------------------------------------------------------------------- analyze -o
+@pytest.mark.parametrize("which", ["session", "model"])
+def test_analyze_never_writes_over_one_of_its_inputs(copies, capsys, which):
+    session, model = copies
+    target = session if which == "session" else model
+    before = target.read_bytes()
+    assert main(["analyze", str(session), str(model), "-o", str(target), "--force"]) == 2
+    assert "also an input" in one_line_error(capsys, target)
+    assert target.read_bytes() == before
+
+
+def test_analyze_output_refuses_an_existing_toml_without_force_and_shows_earlier_analyses(copies, capsys):
+    session, model = copies
+    fitted = session.parent / "fitted.toml"
+    fitted.write_text("# keep me\n")
+    assert main(["analyze", str(session), str(model), "-o", str(fitted)]) == 2
+    assert "exists already" in one_line_error(capsys, fitted)
+    assert fitted.read_text() == "# keep me\n"
+    assert main(["analyze", str(session), str(model)]) == 0          # stores analysis_0
+    assert "stored in the session as /models/analysis_0" in capsys.readouterr().out
+    assert main(["analyze", str(session), str(model), "-o", str(fitted), "--force"]) == 0
+    out = capsys.readouterr().out
+    assert "earlier analyses stored in this session (1):" in out and "analysis_0" in out
+    assert "stored in the session as /models/analysis_1" in out
+    assert "[structure]" in fitted.read_text()
+    assert sorted(p.name for p in session.parent.iterdir()) == ["fitted.toml", "model.toml", "s.h5"]
+    with h5py.File(session, "r") as f:                                # still whole, runs untouched
+        assert sorted(f["models"]) == ["analysis_0", "analysis_1"]
+        assert f[f"runs/{RUN}/frequency"].shape == (25,)
+
+
+# ----------------------------------------------------------------------------- damaged sessions
+@pytest.mark.parametrize("percent", [10, 50, 90])
+def test_a_truncated_session_is_one_line_naming_the_file(copies, capsys, percent):
+    session, model = copies
+    os.truncate(session, session.stat().st_size * percent // 100)
+    assert main(["analyze", str(session), str(model), "--no-history"]) == 2
+    assert "damaged or truncated" in one_line_error(capsys, session)
+
+
+def drop_dataset(f):
+    del f[f"runs/{RUN}/frf/x1"]
+
+
+def drop_attribute(f):
+    del f[f"runs/{RUN}"].attrs["sensor_dofs"]
+
+
+def garble_attribute(f):
+    f[f"runs/{RUN}"].attrs["sensor_dofs"] = "[x1, x2"
+
+
+def drop_runs(f):
+    del f["runs"]
+
+
+@pytest.mark.parametrize("damage,where", [
+    (drop_dataset, f"/runs/{RUN}/frf/x1"),
+    (drop_attribute, f"/runs/{RUN}@sensor_dofs"),
+    (garble_attribute, f"/runs/{RUN}@sensor_dofs"),
+    (drop_runs, "/runs"),
+])
+def test_a_session_missing_a_dataset_or_attribute_is_one_line_naming_it(copies, capsys, damage, where):
+    session, model = copies
+    with h5py.File(session, "r+") as f:
+        damage(f)
+    assert main(["analyze", str(session), str(model), "--no-history"]) == 2
+    one_line_error(capsys, session, where)
+    assert main(["export", str(session), "--csv", str(session.parent / "csv")]) == 2
+    one_line_error(capsys, session, where)
+
+
+# ----------------------------------------------------------------------------- a typo in acquire
+def test_a_typo_in_acquire_leaves_the_complete_session_as_it_was(copies, capsys):
+    session, _ = copies
+    before = session.read_bytes()
+    plan = session.parent / "p.toml"
+    plan.write_text("[[stepped_sine]]\nforce = 0.8\nstart = 1.0\nstop = 1.2\nstep = 0.1\n[limits]\n"
+                    "max_force = 5.0\nmax_acceleration = 50.0\n")
+    code = main(["acquire", str(plan), "-o", str(session), "--force", "--shaker", "sim://paper-2dof/shaker",
+                 "--daq", "sim://paper-2dof/daq", "--excitation", "x2", "--sensors", "q"])
+    assert code != 0 and "q" in capsys.readouterr().err
+    assert session.read_bytes() == before
+    fresh = session.parent / "fresh.h5"                  # without --force: no empty file blocks the retry
+    assert main(["acquire", str(plan), "-o", str(fresh), "--shaker", "sim://paper-2dof/shaker", "--daq",
+                 "sim://paper-2dof/daq", "--excitation", "x2", "--sensors", "q"]) != 0
+    assert sorted(p.name for p in session.parent.iterdir()) == ["model.toml", "p.toml", "s.h5"]
+
+
+# ----------------------------------------------------------------------------- full disk, read-only medium
+def _unshare_works() -> bool:
+    try:
+        return subprocess.run(["unshare", "-m", "sh", "-c", "mount -t tmpfs -o size=64k tmpfs /mnt"],
+                              capture_output=True).returncode == 0
+    except OSError:
+        return False
+
+
+needs_private_mount = pytest.mark.skipif(
+    not _unshare_works(), reason="a private tmpfs needs `unshare -m` and mount rights (root); not permitted here")
+
+
+def on_small_disk(tmp_path, size: str, commands: str) -> subprocess.CompletedProcess:
+    """Run shell ``commands`` with a private tmpfs of ``size`` mounted at $DISK (gone afterwards: copy what
+    is to be checked to $OUT); $PY runs Python with contactid on its path."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    env = dict(os.environ, PYTHONPATH=str(ROOT), DISK=str(disk), OUT=str(tmp_path), PY=sys.executable)
+    return subprocess.run(["unshare", "-m", "sh", "-c", f'mount -t tmpfs -o size={size} tmpfs "$DISK" && {commands}'],
+                          env=env, cwd=ROOT, capture_output=True, text=True)
+
+
+FILL = 'dd if=/dev/zero of="$DISK/fill" bs=4k 2>/dev/null; '
+AFTER = 'echo $? > "$OUT/rc"; cp "$DISK/s.h5" "$OUT/after.h5"; ls -A "$DISK" > "$OUT/listing"'
+
+
+@needs_private_mount
+def test_analyze_on_a_full_disk_reports_and_leaves_the_session_whole(copies, tmp_path):
+    session, model = copies
+    before = session.read_bytes()
+    done = on_small_disk(tmp_path, "1m", 'cp "$OUT/s.h5" "$OUT/model.toml" "$DISK"/ && ' + FILL +
+                         '$PY -m app.cli analyze "$DISK/s.h5" "$DISK/model.toml" -o "$DISK/fitted.toml" '
+                         '> "$OUT/stdout" 2> "$OUT/stderr"; ' + AFTER)
+    assert done.returncode == 0, done.stderr
+    out, err = (tmp_path / "stdout").read_text(), (tmp_path / "stderr").read_text()
+    assert "FRF error of the model" in out                                  # the analysis is there
+    assert "model history NOT stored" in out and "free space" in out
+    assert "not enough free space to write the fitted model" in err
+    assert (tmp_path / "rc").read_text().strip() == "1"
+    assert (tmp_path / "after.h5").read_bytes() == before                   # not a byte changed
+    assert (tmp_path / "listing").read_text().split() == ["fill", "model.toml", "s.h5"]   # no 0-byte output
+
+
+@needs_private_mount
+def test_analyze_of_a_read_only_session_works_and_says_the_history_was_not_stored(copies, tmp_path):
+    on_small_disk(tmp_path, "2m", 'cp "$OUT/s.h5" "$OUT/model.toml" "$DISK"/ && mount -o remount,ro "$DISK" && '
+                  '$PY -m app.cli analyze "$DISK/s.h5" "$DISK/model.toml" > "$OUT/stdout" 2> "$OUT/stderr"; ' + AFTER)
+    out = (tmp_path / "stdout").read_text()
+    assert (tmp_path / "rc").read_text().strip() == "0", (tmp_path / "stderr").read_text()
+    assert "FRF error of the model" in out and "model history NOT stored" in out and "read-only" in out
+
+
+@pytest.mark.slow
+@needs_private_mount
+def test_simulate_on_a_disk_that_fills_ends_the_run_cleanly(tmp_path):
+    plan = tmp_path / "p.toml"
+    plan.write_text("[[stepped_sine]]\nforce = 0.8\nstart = 0.8\nstop = 3.2\nstep = 0.05\n[limits]\n"
+                    "max_force = 5.0\nmax_acceleration = 50.0\n")
+    on_small_disk(tmp_path, "1300k", '$PY -m app.cli simulate paper-2dof "$OUT/p.toml" -o "$DISK/s.h5" --quiet '
+                  '> "$OUT/stdout" 2> "$OUT/stderr"; ' + AFTER)
+    out, err = (tmp_path / "stdout").read_text(), (tmp_path / "stderr").read_text()
+    assert (tmp_path / "rc").read_text().strip() == "3", err              # aborted, not a crash
+    assert "not enough free space" in err and "output off" in err
+    lines = int(out.split(" lines;")[0].split()[-1])
+    with plain_open(tmp_path / "after.h5", timeout=0) as f:               # any HDF5 reader opens it
+        g = f[f"runs/{RUN}"]
+        assert g.attrs["status"] == "aborted" and "free space" in g.attrs["end_reason"]
+        assert g["frequency"].shape[0] == g["frf/x1"].shape[0] == g["raw/line_count"].shape[0] == lines > 0
+    with open_session(tmp_path / "after.h5") as s:
+        assert not s.run(RUN).incomplete
+    assert (tmp_path / "listing").read_text().split() == ["s.h5"]
