@@ -21,6 +21,7 @@ import os
 import signal
 import socket
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,8 +34,15 @@ FORMAT = "contactid-session"
 FORMAT_VERSION = 1
 EVENT_DTYPE = np.dtype([("time", "f8"), ("iso_time", "S32"), ("run", "S64"), ("kind", "S24"),
                         ("message", "S400")])
+REOPEN_WAIT = 30.0
+"""How long the writer waits for a reader that holds the file's lock before it reports a write failure (s)."""
 CRASH_REASON = "the acquiring process stopped without closing the run (crash or kill)"
 
+
+
+def _locked(exc: OSError) -> bool:
+    """Whether opening failed only because another process holds the file's HDF5 lock."""
+    return "unable to lock file" in str(exc)
 
 class SessionWriteError(RuntimeError):
     """The session file could not be written (full disk, unwritable path, removed medium)."""
@@ -143,10 +151,16 @@ class SessionFile:
     # -- file state -----------------------------------------------------------
     def _open(self, swmr: bool) -> h5py.File:
         if self._file is None:
-            try:
-                self._file = h5py.File(self.where, "r+", libver="latest")
-            except OSError as exc:
-                raise SessionWriteError(f"{self.path}: cannot reopen the session file ({exc})") from None
+            deadline = time.monotonic() + REOPEN_WAIT
+            while True:
+                try:
+                    self._file = h5py.File(self.where, "r+", libver="latest")
+                    break
+                except OSError as exc:
+                    # a reader (HDFView, h5py) that opened the file between two writes holds its lock for a while
+                    if not _locked(exc) or time.monotonic() > deadline:
+                        raise SessionWriteError(f"{self.path}: cannot reopen the session file ({exc})") from None
+                    time.sleep(0.05)
             if swmr:
                 self._file.swmr_mode = True
         return self._file

@@ -4,6 +4,8 @@ from pathlib import Path
 
 import h5py
 
+from app.session import _process_alive
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -13,8 +15,14 @@ def plain_open(path, timeout=120.0) -> h5py.File:
     deadline = time.monotonic() + timeout
     while True:
         try:
-            return h5py.File(path, "r")
+            f = h5py.File(path, "r")
         except OSError:
             if time.monotonic() > deadline:
                 raise
             time.sleep(0.05)
+            continue
+        # the file can also be opened in the moment between the writer's last two writes: wait for it to exit
+        if not _process_alive(int(f.attrs.get("writer_pid", -1))) or time.monotonic() > deadline:
+            return f
+        f.close()
+        time.sleep(0.05)
