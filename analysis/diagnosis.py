@@ -1,7 +1,8 @@
 """Which physical effect is missing: candidate laws ranked by what they do to the FRF error, explained by
 the signature of the complex stiffness (docs/method.md §3).
 
-For every element and every law of the library not yet on it, the element's laws plus the candidate are
+For every element and every law of the library not yet on it (laws not ``visible_in_kbar`` -- bilinear, whose
+kbar is a constant the linear law already reproduces -- are never proposed), the element's laws plus the candidate are
 fitted to the element's kbar samples, the FRFs of every stepped-sine run are predicted by harmonic balance,
 and the error is computed.
 
@@ -19,26 +20,31 @@ Two numbers judge a candidate:
 - *FRF criterion* ``BIC = chi2_FRF + k ln N_FRF`` (or ``N ln(error^2) + k ln N`` without noise estimates).
 A candidate whose parameters the fit cannot separate from those of the laws already on the element (a
 linear spring beside an Iwan element that stays in micro-slip) is not proposed: it could only slide along a
-flat direction of the fit. Where the element's verdict is linear, only laws whose kbar does not depend on the amplitude (``linear``,
-``velocity_stiffness``) are supported: the verdict found nothing else to explain. Supported candidates come
-first. Elements are ordered by the FRF criterion of their best supported candidate. Within an element the
-candidates whose FRF errors lie within ``frf_tie`` (5 %) of the best are tied and come first, the simplest law
-first (fewest parameters, then no amplitude dependence), then the larger kbar evidence (coulomb before jenkins and iwan, which reduce to it; ``linear`` before a
-softening law that is linear over the amplitudes seen); the others follow by the FRF criterion. A candidate is *significant* only if
-it is supported, cuts the FRF error by at least ``min_gain`` (x1.3) *and* by more than the noise
-explains (chi-square drop above its 1e-3 quantile). The ``linear`` law is the linear correction: a constant
+flat direction of the fit. Where the element's verdict is linear, only laws whose kbar does not depend on the
+amplitude (``linear``, ``velocity_stiffness``) are supported: the verdict found nothing else to explain.
+Supported candidates come first. Elements are ordered by the FRF criterion of their best supported candidate.
+Within an element the candidates whose FRF errors lie within ``frf_tie`` (5 %) of the best are tied and come
+first, the simplest law first (fewest parameters, then no amplitude dependence), then the larger kbar evidence
+(coulomb before jenkins and iwan, which reduce to it; ``linear`` before a softening law that is linear over the
+amplitudes seen); the others follow by the FRF criterion. A candidate is *significant* only if it is supported,
+cuts the FRF error by at least ``min_gain`` (x1.3) *and* by more than the noise explains (chi-square drop above
+its 1e-3 quantile). The ``linear`` law is the linear correction: a constant
 offset in kbar means the reference stiffness or damping at that element is wrong (the paper's k_w). The gain
 threshold guards against laws that only fit what the single-harmonic model itself cannot represent: on the
 simulated beam such laws gained up to x1.26 once the true effects were in, while every true effect that was
 missing alone gained x1.5 or more.
 
+The thresholds are the fields of :class:`RankingRules`; each decision is one function (``_supported``,
+``_significant``, ``_rank_key``), so a retune changes one function.
+
 The explanation of a candidate is built from the signature measured in the data -- log-slopes of Im kbar
 against X and w, the change of Re kbar over the amplitude range in standard deviations -- the element name, and
-the physics of the law.
+the physics of the law (its ``explanation`` template, filled with :class:`SignatureWords`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 import scipy.stats
@@ -48,10 +54,7 @@ from .elements import LawTerm
 from .errors import InputError
 from .fit import LawFit, fit_laws
 from .laws import LAWS
-
-# Laws whose kbar carries no amplitude information beyond a constant (only harmonics reveal them): they cannot
-# be told from the linear correction on kbar alone and are not proposed.
-NOT_FROM_KBAR = ("bilinear",)
+from .laws.base import SignatureWords
 
 
 @dataclass
@@ -72,6 +75,15 @@ class ElementSamples:
     @property
     def units(self) -> tuple[str, str]:
         return ("N·m/rad", "rad") if self.rotational else ("N/m", "m")
+
+    @classmethod
+    def joined(cls, parts: list["ElementSamples"]) -> "ElementSamples":
+        """The samples of several runs of one element as one set (``kbar_std`` None unless every part has it)."""
+        stds = [p.kbar_std for p in parts]
+        return cls(parts[0].name, np.concatenate([p.X for p in parts]), np.concatenate([p.w for p in parts]),
+                   np.concatenate([p.kbar for p in parts]),
+                   None if any(s is None for s in stds) else np.concatenate(stds),
+                   np.concatenate([p.level for p in parts]), parts[0].rotational)
 
 
 @dataclass
@@ -102,10 +114,11 @@ class Candidate:
     error: float
     error_before: float
     bic: float
-    significant: bool
+    above_noise: bool               # the FRF chi-square drops by more than the noise explains
     explanation: str
     evidence: float = 0.0
-    supported: bool = True
+    supported: bool = False         # decided by _supported, once all candidates of the element are scored
+    significant: bool = False       # decided by _significant
     fit: LawFit | None = field(default=None, repr=False)
     comparison: Comparison | None = field(default=None, repr=False)
 
@@ -166,7 +179,17 @@ def _slope(value: float | None) -> str:
 
 def explain(element: str, law: str, sig: Signature, fit: LawFit | None, units: tuple[str, str]) -> str:
     """One sentence: what the data show for ``element`` and why ``law`` is the physics behind it."""
-    k_u, x_u = units
+    params = ""
+    if fit is not None:
+        params = ", ".join(f"{k} = {v:.4g}" for k, v in fit.terms[-1].params.items())
+    X0, X1 = sig.X_range
+    head = f"'{element}' over X = {X0:.3g}..{X1:.3g} {units[1]}: "
+    return head + LAWS[law].explain(signature_words(sig, units[0])) + (f"; fitted {params}" if params else "")
+
+
+def signature_words(sig: Signature, stiffness_unit: str) -> SignatureWords:
+    """The signature in the words a law's explanation is written with."""
+    k_u = stiffness_unit
     re_flat = abs(sig.re_change_sigma) < 3
     im_flat = abs(sig.im_change_sigma) < 3
     re_text = ("Re kbar stays flat" if re_flat else
@@ -176,40 +199,9 @@ def explain(element: str, law: str, sig: Signature, fit: LawFit | None, units: t
                f"Im kbar {'rises' if sig.im_change_sigma > 0 else 'falls'} from {sig.im_small:.3g} to "
                f"{sig.im_large:.3g} {k_u} (log-slope {_slope(sig.im_slope_X)} in X"
                + (f", {_slope(sig.im_slope_w)} in w)" if sig.im_slope_w is not None else ")"))
-    params = ""
-    if fit is not None:
-        term = fit.terms[-1]
-        params = ", ".join(f"{k} = {v:.4g}" for k, v in term.params.items())
-    X0, X1 = sig.X_range
-    head = f"'{element}' over X = {X0:.3g}..{X1:.3g} {x_u}: "
-    physics = {
-        "linear": (f"kbar is a constant offset (Re {sig.mean_re:+.3g} {k_u}, Im {sig.mean_im:+.3g} {k_u}) that does "
-                   "not change with amplitude: the element is linear but the reference stiffness or damping there "
-                   "is wrong -- a linear correction"),
-        "cubic": f"{re_text} while Im stays flat: a {'hardening' if sig.re_large > sig.re_small else 'softening'} "
-                 "spring whose force grows as x^3",
-        "quintic": f"{re_text} steeply (log-slope {_slope(sig.re_slope_X)}) while Im stays flat: a spring whose "
-                   "force grows as x^5",
-        "quadratic_damping": f"{im_text} while Re stays flat: damping that grows with velocity amplitude -- "
-                             "quadratic (drag-like) damping",
-        "cubic_damping": f"{im_text} while Re stays flat: damping that grows as the square of the velocity "
-                         "amplitude -- cubic damping",
-        "coulomb": f"{im_text} while Re stays flat: energy lost per cycle does not grow with amplitude -- dry "
-                   "friction",
-        "tanh_softening": f"{re_text} and Im stays flat: a spring that saturates -- tanh softening",
-        "arctan_softening": f"{re_text} and Im stays flat: a spring that saturates -- arctan softening",
-        "velocity_stiffness": f"Re kbar changes with frequency, not amplitude ({re_text}): "
-                              "velocity-dependent stiffness",
-        "anderson_ferri": f"{im_text}: friction whose normal load follows the motion (Anderson-Ferri)",
-        "jenkins": f"{re_text} and {im_text}: the contact sticks at small amplitude and slips beyond a "
-                   "threshold -- macro-slip friction (Jenkins)",
-        "iwan": f"{re_text} and {im_text}: slip spreads over the contact from the smallest amplitudes -- "
-                "micro-slip friction (Iwan)",
-        "gap": f"{re_text} with Im flat, little below a threshold amplitude: a clearance that closes -- gap",
-        "unilateral": f"{re_text} with Im flat: contact on one side only -- unilateral spring",
-        "bilinear": "kbar is constant: a bilinear stiffness shows only in the mean and even harmonics",
-    }[law]
-    return head + physics + (f"; fitted {params}" if params else "")
+    return SignatureWords(re=re_text, im=im_text, re_slope=_slope(sig.re_slope_X),
+                          mean_re=f"{sig.mean_re:+.3g} {k_u}", mean_im=f"{sig.mean_im:+.3g} {k_u}",
+                          spring="hardening" if sig.re_large > sig.re_small else "softening")
 
 
 def _kbar_chi_square(samples: ElementSamples, fit: LawFit | None) -> float:
@@ -233,10 +225,111 @@ def _duplicates_present_laws(fit: LawFit) -> bool:
     return False
 
 
+@dataclass(frozen=True)
+class RankingRules:
+    """The thresholds of the ranking (module docstring)."""
+
+    min_gain: float = 1.3       # error_before / error needed, with a chi-square drop above the noise, to be significant
+    tie: float = 1e-3           # fraction of the element's best kbar evidence within which a candidate is supported
+    false_alarm: float = 1e-3   # of the chi-square tests (kbar evidence slack, FRF drop above the noise)
+    frf_tie: float = 0.05       # candidates of one element whose FRF errors lie this close to the best are tied
+
+
+@dataclass
+class _Scene:
+    """What every candidate is scored against: the model's predictor, its current kbar functions (element index ->
+    kbar(X, w)) and the comparison of the current model."""
+
+    predictor: Predictor
+    current_fns: dict[int, Callable]
+    base: Comparison
+
+
+@dataclass
+class _Element:
+    """One element as the ranking sees it: its samples, its current laws and how well they explain its kbar."""
+
+    index: int
+    name: str
+    samples: ElementSamples
+    terms: list[LawTerm]
+    signature: Signature
+    chi2_now: float
+
+
+@dataclass
+class _Leader:
+    """The best supported candidate of an element: its FRF criterion (orders the elements) and FRF error."""
+
+    bic: float
+    error: float
+
+
+def _frf_criterion(base: Comparison, comp: Comparison, k_added: int, false_alarm: float) -> tuple[float, bool]:
+    """(BIC of the FRFs, whether the FRF chi-square drops by more than the noise explains)."""
+    n_obs = base.n_observations
+    if base.chi_square is not None and comp.chi_square is not None:
+        bic = comp.chi_square + k_added * np.log(n_obs)
+        above_noise = base.chi_square - comp.chi_square > scipy.stats.chi2.ppf(1 - false_alarm, k_added)
+    else:
+        bic = n_obs * np.log(comp.error ** 2) + k_added * np.log(n_obs)
+        above_noise = True
+    return float(bic), bool(above_noise)
+
+
+def _score(scene: _Scene, el: _Element, law: str, false_alarm: float) -> Candidate | None:
+    """The element's laws plus ``law`` fitted to its kbar, every run predicted; None where ``law`` cannot be a
+    candidate (too few samples for its parameters, no direction of its own, no prediction)."""
+    s = el.samples
+    try:
+        fit = fit_laws(el.terms + [LawTerm(LAWS[law], {})], s.X, s.w, s.kbar, s.kbar_std)
+    except InputError:
+        return None                           # too few samples for this many parameters
+    if _duplicates_present_laws(fit):
+        return None                           # adds nothing the element's laws cannot already express
+    k_added = len(LAWS[law].params)
+    evidence = el.chi2_now - fit.chi_square - k_added * np.log(2 * len(s.X))
+    fns = kbar_functions_with(scene.predictor.model.elements, {**scene.current_fns, el.index: fit.describing_function})
+    comp = scene.predictor.compare(fns)
+    if not np.isfinite(comp.error):
+        return None
+    bic, above_noise = _frf_criterion(scene.base, comp, k_added, false_alarm)
+    return Candidate(el.name, law, comp.error, scene.base.error, bic, above_noise,
+                     explain(el.name, law, el.signature, fit, s.units), float(evidence), fit=fit, comparison=comp)
+
+
+def _supported(c: Candidate, best_evidence: float, best_frf: float, linear_verdict: bool,
+               rules: RankingRules) -> bool:
+    """Near the element's best kbar evidence, or as good as the best in the FRFs -- what the ranking is about --
+    with positive evidence; where the verdict is linear, only laws without amplitude dependence."""
+    if linear_verdict and LAWS[c.law].amplitude_dependent:
+        return False                          # the verdict found no amplitude dependence to explain
+    slack = max(scipy.stats.chi2.ppf(1 - rules.false_alarm, len(LAWS[c.law].params)), rules.tie * best_evidence)
+    return bool(c.evidence > 0 and (best_evidence - c.evidence <= slack or
+                                    (c.error <= (1 + rules.frf_tie) * best_frf and c.evidence >= 0.5 * best_evidence)))
+
+
+def _significant(c: Candidate, rules: RankingRules) -> bool:
+    """Supported, above the noise in the FRFs, and cutting the error by at least ``min_gain``."""
+    return bool(c.above_noise and c.supported and c.gain >= rules.min_gain)
+
+
+def _rank_key(c: Candidate, leader: _Leader | None, frf_tie: float) -> tuple[float, ...]:
+    """Sort key, all numbers: supported candidates first, their elements by the FRF criterion of the element's
+    best; within an element the candidates tied in FRF error first, simplest law first (fewest parameters, then
+    no amplitude dependence), then the larger kbar evidence; the others by the FRF criterion. Unsupported
+    candidates follow by the FRF criterion."""
+    if not c.supported:
+        return (1, c.bic, 0, 0, 0, 0)
+    law = LAWS[c.law]
+    if c.error <= (1 + frf_tie) * leader.error:
+        return (0, leader.bic, 0, len(law.params), int(law.amplitude_dependent), -c.evidence)
+    return (0, leader.bic, 1, c.bic, 1, -c.evidence)
+
+
 def rank_candidates(predictor: Predictor, samples: dict[str, ElementSamples], fits: dict[str, LawFit | None],
-                    base: Comparison, laws=None, min_gain: float = 1.3, tie: float = 1e-3,
-                    false_alarm: float = 1e-3, linear_elements: frozenset = frozenset(),
-                    frf_tie: float = 0.05) -> list[Candidate]:
+                    base: Comparison, laws=None, linear_elements: frozenset = frozenset(),
+                    rules: RankingRules = RankingRules()) -> list[Candidate]:
     """Rank every (element, law) candidate, best first (module docstring).
 
     Parameters
@@ -245,79 +338,38 @@ def rank_candidates(predictor: Predictor, samples: dict[str, ElementSamples], fi
     samples : element name -> its identified kbar samples.
     fits : element name -> the current fit of its laws (None: no laws yet).
     base : the current model's comparison.
-    laws : law names to try (default: the whole library but ``NOT_FROM_KBAR``).
-    min_gain : error_before / error needed, with a chi-square drop above the noise, to call it significant.
-    tie : fraction of the element's best kbar evidence within which a candidate still counts as supported.
+    laws : law names to try (default: the whole library); laws not ``visible_in_kbar`` are never tried.
     linear_elements : elements whose verdict is linear: only laws whose kbar does not depend on the amplitude
         are supported there.
-    frf_tie : supported candidates of one element whose FRF errors lie within this fraction of the best are
-        tied; ties go to the simpler law, then to the larger kbar evidence.
+    rules : the thresholds of support, significance and ties.
     """
     elements = predictor.model.elements
-    names = [n for n in (laws or LAWS) if n not in NOT_FROM_KBAR]
-    current_fns = {i: (fits[el.name].describing_function if fits.get(el.name) else el.describing_function)
-                   for i, el in enumerate(elements)}
-    n_obs = base.n_observations
+    names = [n for n in (laws or LAWS) if LAWS[n].visible_in_kbar]
+    scene = _Scene(predictor, {i: (fits[el.name].describing_function if fits.get(el.name) else el.describing_function)
+                               for i, el in enumerate(elements)}, base)
     out: list[Candidate] = []
     for i, el in enumerate(elements):
         s = samples.get(el.name)
         if s is None or len(s.X) < 3:
             continue
         current = fits.get(el.name)
-        present = {t.law.name for t in el.laws}
         terms = [LawTerm(t.law, dict(current.terms[j].params) if current else dict(t.values))
                  for j, t in enumerate(el.laws)]
-        model_kbar = current.describing_function(s.X, s.w) if current else None
-        sig = signature(s, model_kbar)
-        chi2_now = _kbar_chi_square(s, current)
-        mine: list[Candidate] = []
-        for law in names:
-            if law in present:
-                continue
-            try:
-                fit = fit_laws(terms + [LawTerm(LAWS[law], {})], s.X, s.w, s.kbar, s.kbar_std)
-            except InputError:
-                continue                          # too few samples for this many parameters
-            if _duplicates_present_laws(fit):
-                continue                          # adds nothing the element's laws cannot already express
-            k_added = len(LAWS[law].params)
-            evidence = chi2_now - fit.chi_square - k_added * np.log(2 * len(s.X))
-            fns = kbar_functions_with(elements, {**current_fns, i: fit.describing_function})
-            comp = predictor.compare(fns)
-            if not np.isfinite(comp.error):
-                continue
-            if base.chi_square is not None and comp.chi_square is not None:
-                bic = comp.chi_square + k_added * np.log(n_obs)
-                noise_ok = base.chi_square - comp.chi_square > scipy.stats.chi2.ppf(1 - false_alarm, k_added)
-            else:
-                bic = n_obs * np.log(comp.error ** 2) + k_added * np.log(n_obs)
-                noise_ok = True
-            mine.append(Candidate(el.name, law, comp.error, base.error, float(bic), bool(noise_ok),
-                                  explain(el.name, law, sig, fit, s.units), float(evidence), True, fit, comp))
-        best = max((c.evidence for c in mine), default=0.0)
+        sig = signature(s, current.describing_function(s.X, s.w) if current else None)
+        element = _Element(i, el.name, s, terms, sig, _kbar_chi_square(s, current))
+        present = {t.law.name for t in el.laws}
+        mine = [c for c in (_score(scene, element, law, rules.false_alarm) for law in names if law not in present)
+                if c is not None]
+        best_evidence = max((c.evidence for c in mine), default=0.0)
         best_frf = min((c.error for c in mine if c.evidence > 0), default=np.inf)
         for c in mine:
-            slack = max(scipy.stats.chi2.ppf(1 - false_alarm, len(LAWS[c.law].params)), tie * best)
-            # near the best kbar evidence, or as good as the best in the FRFs -- what the ranking is about
-            c.supported = c.evidence > 0 and (best - c.evidence <= slack or
-                                              (c.error <= (1 + frf_tie) * best_frf and c.evidence >= 0.5 * best))
-            if el.name in linear_elements and LAWS[c.law].amplitude_dependent:
-                c.supported = False               # the verdict found no amplitude dependence to explain
-            c.significant = bool(c.significant and c.supported and c.gain >= min_gain)
+            c.supported = _supported(c, best_evidence, best_frf, el.name in linear_elements, rules)
+            c.significant = _significant(c, rules)
         out += mine
-    element_key, best_error = {}, {}
+    leaders: dict[str, _Leader] = {}
     for c in out:
         if c.supported:
-            element_key[c.element] = min(element_key.get(c.element, np.inf), c.bic)
-            best_error[c.element] = min(best_error.get(c.element, np.inf), c.error)
-
-    def order(c: Candidate):
-        if not c.supported:
-            return (1, c.bic, 0, 0, 0.0)
-        tied = c.error <= (1 + frf_tie) * best_error[c.element]
-        law = LAWS[c.law]
-        return (0, element_key[c.element], 0 if tied else 1,
-                (len(law.params), law.amplitude_dependent) if tied else (c.bic, True), -c.evidence)
-
-    out.sort(key=order)
+            best = leaders.setdefault(c.element, _Leader(np.inf, np.inf))
+            best.bic, best.error = min(best.bic, c.bic), min(best.error, c.error)
+    out.sort(key=lambda c: _rank_key(c, leaders.get(c.element), rules.frf_tie))
     return out

@@ -501,14 +501,3 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
         converged[line] = sol.success and np.linalg.norm(residual(sol.x)) < 1e-8
         previous = Yk
     return MultiharmonicResponse(w, out, converged)
-
-
-# --------------------------------------------------------------------------- explicit single-element relation
-def single_element_force(h_aa, h_aq, kbar) -> np.ndarray:
-    """Force amplitude per unit element amplitude, ``F / X``, for ONE grounded element at DOF a.
-
-    From ``y (1 + h_aa kbar) = h_aq F``: ``F = X |1 + h_aa kbar(X, w)| / |h_aq|``. Given ``kbar`` already
-    evaluated at (X, w), returns ``F / X``; multiply by X. Every branch of the response is explicit in X,
-    which makes this the exact check of the Newton and continuation solvers.
-    """
-    return np.abs(1.0 + np.asarray(h_aa) * np.asarray(kbar)) / np.abs(h_aq)

@@ -158,7 +158,7 @@ class Workbench:
         els = self.model.elements
         if not els:
             raise InputError("the model has no [[element]] to identify", self.model.source)
-        per: dict[str, list] = {e.name: [] for e in els}
+        per: dict[str, list[ElementSamples]] = {e.name: [] for e in els}
         flagged = {e.name: 0 for e in els}
         for run in self.measurements.sine:
             if len(run.sensor_dofs) < len(els):
@@ -174,17 +174,13 @@ class Workbench:
             for i, el in enumerate(els):
                 flagged[el.name] += int((~good).sum())
                 kstd = None if ident.kbar_std is None else ident.kbar_std[good, i]
-                per[el.name].append((ident.amplitude[good, i], run.w[good], ident.kbar[good, i], kstd,
-                                     np.full(good.sum(), run.force)))
+                per[el.name].append(ElementSamples(el.name, ident.amplitude[good, i], run.w[good],
+                                                   ident.kbar[good, i], kstd, np.full(good.sum(), run.force),
+                                                   el.rotational(self.model.structure)))
         self.reports = {}
         for el in els:
-            parts = per[el.name]
-            X = np.concatenate([p[0] for p in parts])
-            stds = [p[3] for p in parts]
-            samples = ElementSamples(el.name, X, np.concatenate([p[1] for p in parts]),
-                                     np.concatenate([p[2] for p in parts]),
-                                     None if any(s is None for s in stds) else np.concatenate(stds),
-                                     np.concatenate([p[4] for p in parts]), el.rotational(self.model.structure))
+            samples = ElementSamples.joined(per[el.name])
+            X = samples.X
             verdict = None
             if len(X) >= 4:
                 k_u, x_u = samples.units
@@ -252,9 +248,9 @@ class Workbench:
     def add(self, element: str, law: str) -> HistoryStep:
         """Add ``law`` to ``element``, refit that element and record the new error."""
         el = self.model.element(element)
-        new = get_law(law, self.model.source, "--add")
+        new = get_law(law)
         if any(t.law.name == new.name for t in el.laws):
-            raise InputError(f"element {element!r} already has law {law!r}", self.model.source, "--add")
+            raise InputError(f"element {element!r} already has law {law!r}", self.model.source)
         el.laws.append(LawTerm(new, {}))
         self.fit([element])
         return self.record(f"add {element}:{law}")

@@ -67,7 +67,11 @@ def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = T
     wb = Workbench(model, measurements)
     wb.start()
     for add in adds:
-        wb.add(*parse_add(add))
+        element, law = parse_add(add)
+        try:
+            wb.add(element, law)
+        except InputError as err:               # the workbench knows nothing of the command line: say where
+            raise err.located(field_prefix=f"--add {add}") from None
     candidates = wb.candidates() if rank else []
     return wb, candidates
 

@@ -108,3 +108,14 @@ def test_a_model_that_does_not_fit_the_session_is_a_message(qtbot, hidden_effect
     assert "not in the model's structure" in failed.args[0]
     assert window.error_bar.isVisibleTo(window) and failed.args[0] in window.error_bar.label.text()
     assert window.lab.analysis is None and window.model.error_label.text().startswith("FRF error: —")
+
+
+def test_analyze_names_a_bad_add_by_the_option_that_gave_it(hidden_effect_session, capsys):
+    from app.cli import main
+
+    session, model = hidden_effect_session
+    assert main(["analyze", str(session), str(model), "--add", "left:cubicc", "--no-history"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("contactid: error: --add left:cubicc: unknown law 'cubicc'") and "\n" not in err
+    assert main(["analyze", str(session), str(model), "--add", "middle:cubic", "--no-history"]) == 2
+    assert f"{model}: --add middle:cubic: no element named 'middle'" in capsys.readouterr().err

@@ -1,4 +1,5 @@
-"""Law metadata: the contract vocabulary, parameter validation, fit parametrisation, shapes, passivity."""
+"""Law metadata: each law's whole description (and the docs generated from it), parameter validation, fit
+parametrisation, shapes, passivity."""
 from __future__ import annotations
 
 import math
@@ -8,31 +9,77 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from analysis import InputError
-from analysis.laws import LAWS, describing_function, get_law
+from analysis.laws import LAWS, Law, Param, describing_function, get_law
+from analysis.laws import docs_table
+from analysis.laws.base import SignatureWords
 
-CONTRACT = [  # docs/contracts.md §2, in order
-    ("linear", ("k", "c")),
-    ("cubic", ("k3",)),
-    ("quintic", ("k5",)),
-    ("quadratic_damping", ("c2",)),
-    ("cubic_damping", ("c3",)),
-    ("coulomb", ("fs",)),
-    ("tanh_softening", ("alpha", "beta")),
-    ("arctan_softening", ("alpha", "beta")),
-    ("velocity_stiffness", ("gamma",)),
-    ("anderson_ferri", ("a", "b", "c")),
-    ("jenkins", ("kt", "fs")),
-    ("iwan", ("kt", "fs", "chi", "beta")),
-    ("gap", ("k", "gap")),
-    ("unilateral", ("k", "gap")),
-    ("bilinear", ("k_pos", "k_neg")),
-]
 DISSIPATIVE = ["linear", "quadratic_damping", "cubic_damping", "coulomb", "anderson_ferri", "jenkins", "iwan"]
 CONSERVATIVE = [n for n in LAWS if n not in DISSIPATIVE]
 
 
-def test_registry_is_the_contract_vocabulary_in_order():
-    assert [(name, law.param_names) for name, law in LAWS.items()] == CONTRACT
+# --------------------------------------------------------------------------- a law carries everything about itself
+WORDS = SignatureWords(re="<re>", im="<im>", re_slope="<slope>", mean_re="<mean re>", mean_im="<mean im>",
+                       spring="<spring>")
+
+
+@pytest.mark.parametrize("name", list(LAWS))
+def test_every_law_carries_its_whole_description(name):
+    law = LAWS[name]
+    assert law.name == name and law.summary
+    assert law.params and all(isinstance(p, Param) and p.description for p in law.params)
+    assert set(law.linear) <= set(law.param_names) | {p.name for p in law.shape}
+    assert law.kernel is not None and law.force_text and law.kbar_text
+    assert isinstance(law.visible_in_kbar, bool)
+    sentence = law.explain(WORDS)
+    assert sentence and "{" not in sentence and "}" not in sentence
+    row = law.docs_row()
+    assert row.startswith(f"| {name} | ") and row.count(" | ") == 5       # six cells, escaped pipes excepted
+    assert all(p.name in row for p in law.params)
+
+
+@pytest.mark.parametrize("name", list(LAWS))
+def test_visible_in_kbar_means_kbar_is_not_one_constant(name):
+    """A law kbar cannot reveal has the same kbar at every amplitude and frequency (the linear law reproduces
+    it); every other law's kbar changes over its example amplitudes or over frequency."""
+    law = LAWS[name]
+    X = np.geomspace(*law.example_amplitude, 9)[:, None]
+    kbar = law.describing_function(X, np.array([[10.0, 300.0, 2000.0]]), **law.example)
+    assert law.visible_in_kbar == (np.ptp(kbar.real) > 0 or np.ptp(kbar.imag) > 0)
+
+
+def test_a_law_lacking_part_of_its_description_fails_when_defined():
+    linear = LAWS["linear"]
+    body = {"name": "spring2", "summary": "s", "params": linear.params, "linear": linear.linear,
+            "example": linear.example, "kernel": linear.kernel, "force_text": "k x", "kbar_text": "k",
+            "basis": type(linear).basis}
+    with pytest.raises(TypeError, match="lacks explanation"):
+        type("Spring2", (Law,), dict(body))
+    with pytest.raises(TypeError, match=r"unknown field\(s\) slope"):
+        type("Spring2", (Law,), dict(body, explanation="{re} with {slope}"))
+    law = type("Spring2", (Law,), dict(body, explanation="{re}: a spring"))()
+    assert law.explain(WORDS) == "<re>: a spring"
+
+
+def test_docs_law_tables_are_what_the_classes_say():
+    """docs/laws.md's generated tables (law vocabulary, parameters, formulas, examples, explanations) are up to
+    date: after a change to a law class, ``python -m analysis.laws.docs_table`` rewrites them."""
+    text = docs_table.DOCS.read_text(encoding="utf-8")
+    assert docs_table.updated(text) == text
+    table = text[text.index("<!-- table 'laws'"):text.index("<!-- end of table 'laws'")]
+    assert [line.split(" | ")[0][2:] for line in table.splitlines()[3:]] == list(LAWS)
+    assert docs_table.main(["--check"]) == 0
+
+
+def test_docs_table_generator_finds_an_out_of_date_page(tmp_path, monkeypatch, capsys):
+    page = tmp_path / "laws.md"
+    current = docs_table.DOCS.read_text(encoding="utf-8")
+    page.write_text(current.replace("| cubic | k3 ", "| cubic | k4 "), encoding="utf-8")
+    monkeypatch.setattr(docs_table, "DOCS", page)
+    assert docs_table.main(["--check"]) == 1 and "out of date" in capsys.readouterr().out
+    assert docs_table.main([]) == 0
+    assert page.read_text(encoding="utf-8") == current
+    with pytest.raises(ValueError, match="markers of table 'laws'"):
+        docs_table.updated("no tables here")
 
 
 @pytest.mark.parametrize("name", list(LAWS))

@@ -65,6 +65,8 @@ def test_first_candidate_explains_dry_friction_with_the_measured_slope():
     assert (top.element, top.law) == ("right", "coulomb") and top.significant
     assert "Im kbar falls" in top.explanation and "log-slope -1.0" in top.explanation
     assert "dry friction" in top.explanation and top.gain > 5
+    # a law kbar cannot reveal is never proposed, even when asked for
+    assert {c.law for c in wb.candidates(["bilinear", "coulomb"])} == {"coulomb"}
 
 
 def test_nothing_missing_means_no_significant_candidate():
@@ -121,3 +123,17 @@ def test_bad_workbench_input():
     other = {"structure": dict(STRUCTURE, dofs=["a", "b"]), "element": []}
     with pytest.raises(InputError, match="x1, x2 are not in the model"):
         Workbench(load_model(other), meas)
+
+
+def test_add_errors_name_the_law_and_the_model_not_the_command_line():
+    wb = Workbench(load_model(model_doc({"left": [], "right": [{"law": "cubic"}]}), "model.toml"),
+                   synthesise({"left": [], "right": []}, lines=5))
+    with pytest.raises(InputError, match="unknown law 'cubicc'") as err:
+        wb.add("right", "cubicc")
+    assert err.value.field is None
+    with pytest.raises(InputError, match="element 'right' already has law 'cubic'") as err:
+        wb.add("right", "cubic")
+    assert (err.value.source, err.value.field) == ("model.toml", None)
+    with pytest.raises(InputError, match="no element named 'middle'"):
+        wb.add("middle", "cubic")
+    assert not wb.history and not wb.model.element("left").laws

@@ -36,6 +36,9 @@ def anderson_ferri_stick_limit(x, p):
 class AndersonFerri(Law):
     name = "anderson_ferri"
     summary = "Anderson-Ferri generalised friction (paper eq. 33)"
+    force_text = "((pi/4) a + (pi/2) b |x| + c |x'|) sgn(x'); stick limit max(0, (pi/4) a + (pi/2) b |x|)"
+    kbar_text = "j (a/X + b + c w)"
+    explanation = "{im}: friction whose normal load follows the motion (Anderson-Ferri)"
     params = (Param("a", "{F}", "Coulomb part (describing-function units)"),
               Param("b", "{F}/{L}", "displacement-dependent part"),
               Param("c", "{F}·s/{L}", "viscous part"))

@@ -33,6 +33,9 @@ def arctan_softening_force(x, v, p, s):
 class ArctanSoftening(Law):
     name = "arctan_softening"
     summary = "arctan saturating spring"
+    force_text = "alpha arctan(beta x)"
+    kbar_text = "2 alpha beta / (1 + sqrt(1 + beta^2 X^2))"
+    explanation = "{re} and Im stays flat: a spring that saturates -- arctan softening"
     params = (Param("alpha", "{F}", "force scale (the force saturates at (pi/2) alpha)"), _BETA)
     linear = ("alpha",)
     shape = (_BETA,)

@@ -22,12 +22,20 @@ a marched force is exact at the sample points. Laws with a jump in the velocity
 sign (dry friction) also provide ``stick_limit(x, p)``: the largest force the
 mechanism can hold at zero velocity, which a time integrator needs to model true
 stick.
+
+A law class also carries what the rest of the product says about it, so that adding a
+law is adding one module: ``force_text`` and ``kbar_text`` (the formulas of the
+docs/laws.md table, which is generated from the classes), ``explanation`` (the physics
+sentence of a missing-effect candidate, a template over :class:`SignatureWords`) and
+``visible_in_kbar`` (whether kbar alone can reveal the law; one whose kbar is a constant
+the linear law already reproduces is not proposed by the diagnosis).
 """
 from __future__ import annotations
 
 import math
+import string
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import Any, ClassVar, Mapping
 
 import numpy as np
@@ -62,9 +70,36 @@ class Param:
     def range_text(self) -> str:
         return f"{'(' if self.lower_open else '['}{self.lower}, {self.upper}]"
 
+    @property
+    def bounds_text(self) -> str:
+        """The bounds as an inequality, e.g. ``-1 < chi <= 1``; empty when the value is free."""
+        low, high = math.isfinite(self.lower), math.isfinite(self.upper)
+        if low and high:
+            return f"{self.lower:g} {'<' if self.lower_open else '<='} {self.name} <= {self.upper:g}"
+        if low:
+            return f"{self.name} {'>' if self.lower_open else '>='} {self.lower:g}"
+        return f"{self.name} <= {self.upper:g}" if high else ""
+
     def render_unit(self, rotational: bool = False) -> str:
         force, length = ("N·m", "rad") if rotational else ("N", "m")
         return self.unit.replace("{F}", force).replace("{L}", length)
+
+
+@dataclass(frozen=True)
+class SignatureWords:
+    """The signature of an element's kbar in words: the fields a law's ``explanation`` template may use."""
+
+    re: str         # how Re kbar changes over the amplitudes, e.g. "Re kbar rises from 1e+04 to 2e+04 N/m (12 sigma)"
+    im: str         # the same for Im kbar, with its log-slopes in X and w
+    re_slope: str   # log-slope of the change of Re kbar against X, e.g. "+2.00" (or "n/a")
+    mean_re: str    # mean Re kbar with its unit, e.g. "+1.2e+03 N/m"
+    mean_im: str
+    spring: str     # "hardening" where Re kbar rises with the amplitude, else "softening"
+
+
+EXPLANATION_FIELDS = frozenset(f.name for f in fields(SignatureWords))
+# What every concrete law class must define (the rest has defaults in Law).
+REQUIRED = ("name", "summary", "params", "linear", "example", "kernel", "force_text", "kbar_text", "explanation")
 
 
 # Not disk-cached: the cache key of a function taking another jitted function includes its address, so a
@@ -97,6 +132,13 @@ class Law(ABC):
     # and the amplitude range over which the law's effect is visible.
     example: ClassVar[dict[str, float]]
     example_amplitude: ClassVar[tuple[float, float]] = (1e-4, 1e-1)
+    # The formulas of the docs/laws.md table, plain text (docs_row escapes the pipes for markdown)
+    force_text: ClassVar[str]
+    kbar_text: ClassVar[str]
+    # The physics sentence of a missing-effect candidate: a str.format template over SignatureWords' fields
+    explanation: ClassVar[str]
+    # False where kbar is a constant the linear law already reproduces (only harmonics reveal the law)
+    visible_in_kbar: ClassVar[bool] = True
 
     def __init_subclass__(cls, **kwargs):
         # A jitted function stored on a class binds like a method; keep the numba
@@ -107,6 +149,16 @@ class Law(ABC):
             value = cls.__dict__.get(attr)
             if value is not None and not isinstance(value, staticmethod):
                 setattr(cls, attr, staticmethod(value))
+        # A law that lacks part of its description fails when it is defined, not in the middle of a ranking.
+        if getattr(cls.basis, "__isabstractmethod__", False):
+            return
+        missing = [a for a in REQUIRED if not hasattr(cls, a)]
+        if missing:
+            raise TypeError(f"law class {cls.__name__} lacks {', '.join(missing)}")
+        unknown = {f for _, f, _, _ in string.Formatter().parse(cls.explanation) if f is not None} - EXPLANATION_FIELDS
+        if unknown:
+            raise TypeError(f"law {cls.name!r}: explanation uses unknown field(s) {', '.join(sorted(unknown))} "
+                            f"(known: {', '.join(sorted(EXPLANATION_FIELDS))})")
 
     # --- describing function -------------------------------------------------
     @abstractmethod
@@ -138,6 +190,29 @@ class Law(ABC):
             return out
 
         return kbar
+
+    # --- what the product says about the law -------------------------------
+    def explain(self, words: SignatureWords) -> str:
+        """The physics behind a kbar signature, as this law explains it."""
+        return self.explanation.format(**asdict(words))
+
+    def parameter_text(self) -> str:
+        """The parameters for the docs table: name, unit translational (rotational), bounds."""
+        out = []
+        for p in self.params:
+            unit, rot = p.render_unit(), p.render_unit(rotational=True)
+            text = p.name + (" (dimensionless)" if unit == "1" else f" {unit}" if unit == rot else f" {unit} ({rot})")
+            out.append(text + (f", {p.bounds_text}" if p.bounds_text else ""))
+        return "; ".join(out)
+
+    def docs_row(self) -> str:
+        """This law's row of the docs/laws.md law table."""
+        # a shape parameter outside the contract says what it is (jenkins' xs = fs / kt)
+        shape = [p.name if p.name in self.param_names else f"{p.name} ({p.description})" for p in self.shape]
+        fit = ", ".join(self.linear) + " / " + (", ".join(shape) or "–")
+        cells = (self.name, self.parameter_text(), self.force_text, self.kbar_text, fit,
+                 "yes" if self.visible_in_kbar else "no (only harmonics)")
+        return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
 
     # --- parametrisation -----------------------------------------------------
     def to_fit(self, values: Mapping[str, float]) -> tuple[dict, dict]:

@@ -23,6 +23,10 @@ def bilinear_force(x, v, p, s):
 class Bilinear(Law):
     name = "bilinear"
     summary = "bilinear spring (different tension and compression stiffness)"
+    force_text = "k_pos x (x > 0), k_neg x (x <= 0)"
+    kbar_text = "(k_pos + k_neg)/2"
+    explanation = "kbar is constant: a bilinear stiffness shows only in the mean and even harmonics"
+    visible_in_kbar = False
     params = (Param("k_pos", "{F}/{L}", "stiffness for x > 0"),
               Param("k_neg", "{F}/{L}", "stiffness for x <= 0"))
     linear = ("k_pos", "k_neg")

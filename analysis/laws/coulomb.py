@@ -32,6 +32,9 @@ def coulomb_stick_limit(x, p):
 class Coulomb(Law):
     name = "coulomb"
     summary = "Coulomb dry friction"
+    force_text = "fs sgn(x'); stick limit fs"
+    kbar_text = "j 4 fs / (pi X) (pure sliding)"
+    explanation = "{im} while Re stays flat: energy lost per cycle does not grow with amplitude -- dry friction"
     params = (Param("fs", "{F}", "slip force", lower=0.0),)
     linear = ("fs",)
     example = {"fs": 1.0}

@@ -13,6 +13,9 @@ def cubic_force(x, v, p, s):
 class Cubic(Law):
     name = "cubic"
     summary = "cubic spring"
+    force_text = "k3 x^3"
+    kbar_text = "(3/4) k3 X^2"
+    explanation = "{re} while Im stays flat: a {spring} spring whose force grows as x^3"
     params = (Param("k3", "{F}/{L}^3", "cubic stiffness"),)
     linear = ("k3",)
     example = {"k3": 1.0e6}

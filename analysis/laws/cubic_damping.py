@@ -16,6 +16,10 @@ def cubic_damping_force(x, v, p, s):
 class CubicDamping(Law):
     name = "cubic_damping"
     summary = "cubic viscous damper"
+    force_text = "c3 x'^3"
+    kbar_text = "j (3/4) c3 w^3 X^2"
+    explanation = ("{im} while Re stays flat: damping that grows as the square of the velocity amplitude -- cubic "
+                   "damping")
     params = (Param("c3", "{F}·s^3/{L}^3", "cubic damping coefficient"),)
     linear = ("c3",)
     example = {"c3": 10.0}

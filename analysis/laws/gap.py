@@ -32,6 +32,9 @@ def gap_force(x, v, p, s):
 class Gap(Law):
     name = "gap"
     summary = "dead-zone spring (clearance)"
+    force_text = "k (x - gap sgn x) for |x| > gap, else 0"
+    kbar_text = "X <= gap: 0; else k [1 - (2/pi)(asin u + u sqrt(1 - u^2))], u = gap/X"
+    explanation = "{re} with Im flat, little below a threshold amplitude: a clearance that closes -- gap"
     params = (Param("k", "{F}/{L}", "contact stiffness beyond the clearance"), _GAP)
     linear = ("k",)
     shape = (_GAP,)

@@ -230,7 +230,7 @@ def iwan_unit(X, xs, chi, beta) -> np.ndarray:
     return out
 
 
-_XS = Param("xs", "{L}", "fs / kt", lower=0.0)
+_XS = Param("xs", "{L}", "slip displacement fs / kt", lower=0.0)
 _CHI = Param("chi", "1", "exponent of the slip-displacement density", lower=-1.0, upper=1.0, lower_open=True)
 _BETA = Param("beta", "1", "spike ratio: stiffness of the macro-slip spike over that of the continuum", lower=0.0)
 
@@ -238,6 +238,10 @@ _BETA = Param("beta", "1", "spike ratio: stiffness of the macro-slip spike over 
 class Iwan(Law):
     name = "iwan"
     summary = "four-parameter (Segalman) Iwan joint"
+    force_text = "parallel Jenkins continuum, Masing branches with Madelung memory (below)"
+    kbar_text = "closed form below"
+    explanation = ("{re} and {im}: slip spreads over the contact from the smallest amplitudes -- micro-slip friction"
+                   " (Iwan)")
     params = (Param("kt", "{F}/{L}", "stiffness while fully stuck", lower=0.0, lower_open=True),
               Param("fs", "{F}", "macro-slip force", lower=0.0),
               _CHI, _BETA)

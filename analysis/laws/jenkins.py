@@ -44,6 +44,10 @@ def jenkins_unit(X, xs) -> np.ndarray:
 class Jenkins(Law):
     name = "jenkins"
     summary = "Jenkins element (spring in series with a Coulomb slider)"
+    force_text = "kt (x - z), slider z moves so that |f| <= fs"
+    kbar_text = "X <= Xs: kt; X > Xs: kt ReJ(Xs/X) + j (4 fs/(pi X))(1 - Xs/X), Xs = fs/kt"
+    explanation = ("{re} and {im}: the contact sticks at small amplitude and slips beyond a threshold -- macro-slip "
+                   "friction (Jenkins)")
     params = (Param("kt", "{F}/{L}", "stiffness while stuck", lower=0.0, lower_open=True),
               Param("fs", "{F}", "slip force", lower=0.0))
     linear = ("kt",)

@@ -13,6 +13,10 @@ def linear_force(x, v, p, s):
 class Linear(Law):
     name = "linear"
     summary = "linear spring and viscous damper"
+    force_text = "k x + c x'"
+    kbar_text = "k + j c w"
+    explanation = ("kbar is a constant offset (Re {mean_re}, Im {mean_im}) that does not change with amplitude: the "
+                   "element is linear but the reference stiffness or damping there is wrong -- a linear correction")
     params = (Param("k", "{F}/{L}", "stiffness"),
               Param("c", "{F}·s/{L}", "viscous damping coefficient"))
     linear = ("k", "c")

@@ -18,6 +18,10 @@ def quadratic_damping_force(x, v, p, s):
 class QuadraticDamping(Law):
     name = "quadratic_damping"
     summary = "quadratic (velocity-squared) damper"
+    force_text = "c2 |x'| x'"
+    kbar_text = "j (8/(3 pi)) c2 w^2 X"
+    explanation = ("{im} while Re stays flat: damping that grows with velocity amplitude -- quadratic (drag-like) "
+                   "damping")
     params = (Param("c2", "{F}·s^2/{L}^2", "quadratic damping coefficient"),)
     linear = ("c2",)
     example = {"c2": 10.0}

@@ -17,6 +17,9 @@ def quintic_force(x, v, p, s):
 class Quintic(Law):
     name = "quintic"
     summary = "quintic spring"
+    force_text = "k5 x^5"
+    kbar_text = "(5/8) k5 X^4"
+    explanation = "{re} steeply (log-slope {re_slope}) while Im stays flat: a spring whose force grows as x^5"
     params = (Param("k5", "{F}/{L}^5", "quintic stiffness"),)
     linear = ("k5",)
     example = {"k5": 1.0e8}

@@ -79,6 +79,9 @@ def tanh_fundamental(z) -> np.ndarray:
 class TanhSoftening(Law):
     name = "tanh_softening"
     summary = "tanh saturating spring (paper eq. 32)"
+    force_text = "alpha tanh(beta x)"
+    kbar_text = "alpha beta G(beta X), G below"
+    explanation = "{re} and Im stays flat: a spring that saturates -- tanh softening"
     params = (Param("alpha", "{F}", "saturation force"), _BETA)
     linear = ("alpha",)
     shape = (_BETA,)

@@ -32,6 +32,9 @@ def unilateral_force(x, v, p, s):
 class Unilateral(Law):
     name = "unilateral"
     summary = "one-sided contact spring (clearance or preload)"
+    force_text = "k (x - gap) for x > gap, else 0"
+    kbar_text = "u >= 1: 0; u <= -1: k; else (k/2)[1 - (2/pi)(asin u + u sqrt(1 - u^2))], u = gap/X"
+    explanation = "{re} with Im flat: contact on one side only -- unilateral spring"
     params = (Param("k", "{F}/{L}", "contact stiffness"), _GAP)
     linear = ("k",)
     shape = (_GAP,)

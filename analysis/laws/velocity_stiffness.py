@@ -24,6 +24,9 @@ def velocity_stiffness_force(x, v, p, s):
 class VelocityStiffness(Law):
     name = "velocity_stiffness"
     summary = "frequency-proportional stiffness (paper eq. 32)"
+    force_text = "(pi/2) gamma |x'| sgn(x)"
+    kbar_text = "gamma w (real)"
+    explanation = "Re kbar changes with frequency, not amplitude ({re}): velocity-dependent stiffness"
     params = (Param("gamma", "{F}·s/{L}", "stiffness per unit angular frequency"),)
     linear = ("gamma",)
     example = {"gamma": 10.0}

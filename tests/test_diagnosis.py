@@ -1,0 +1,84 @@
+"""The named decisions of the missing-effect ranking (support, significance, order) on hand-made candidates,
+and the per-run samples joined into one set."""
+import numpy as np
+import pytest
+import scipy.stats
+
+from analysis.diagnosis import (Candidate, ElementSamples, RankingRules, _Leader, _rank_key, _significant,
+                                _supported)
+
+RULES = RankingRules()
+
+
+def candidate(law, error=0.1, bic=100.0, evidence=50.0, supported=True, above_noise=True, element="e"):
+    c = Candidate(element, law, error, 0.5, bic, above_noise, "", evidence)
+    c.supported = supported
+    return c
+
+
+def test_support_near_the_best_evidence_or_as_good_in_the_frfs():
+    slack = scipy.stats.chi2.ppf(1 - RULES.false_alarm, 1)          # one parameter (cubic)
+    assert _supported(candidate("cubic", evidence=100.0 - 0.99 * slack), 100.0, 0.1, False, RULES)
+    assert not _supported(candidate("cubic", evidence=100.0 - slack - 0.1, error=0.2), 100.0, 0.1, False, RULES)
+    # far from the best evidence, but at least half of it and within frf_tie of the best FRF error
+    assert _supported(candidate("cubic", evidence=50.0, error=0.104), 100.0, 0.1, False, RULES)
+    assert not _supported(candidate("cubic", evidence=49.0, error=0.1), 100.0, 0.1, False, RULES)
+    assert not _supported(candidate("cubic", evidence=0.0), 0.0, 0.1, False, RULES)
+    # a linear verdict supports only laws without amplitude dependence
+    assert not _supported(candidate("cubic", evidence=100.0), 100.0, 0.1, True, RULES)
+    assert _supported(candidate("linear", evidence=100.0), 100.0, 0.1, True, RULES)
+    # the tie is a rule: a retune is one field
+    loose = RankingRules(frf_tie=0.1)
+    assert _supported(candidate("cubic", evidence=50.0, error=0.109), 100.0, 0.1, False, loose)
+    assert not _supported(candidate("cubic", evidence=50.0, error=0.109), 100.0, 0.1, False, RULES)
+
+
+def test_significant_needs_support_the_noise_and_the_gain():
+    assert _significant(candidate("cubic", error=0.5 / 1.31), RULES)
+    assert not _significant(candidate("cubic", error=0.5 / 1.29), RULES)
+    assert not _significant(candidate("cubic", error=0.1, supported=False), RULES)
+    assert not _significant(candidate("cubic", error=0.1, above_noise=False), RULES)
+
+
+def test_rank_key_orders_elements_ties_simplicity_evidence_then_the_unsupported():
+    leaders = {"a": _Leader(bic=10.0, error=0.1), "b": _Leader(bic=20.0, error=0.1)}
+    ranked = [
+        candidate("iwan", error=0.101, bic=12.0, element="a"),                  # tied, 4 parameters
+        candidate("coulomb", error=0.104, bic=11.0, evidence=5.0, element="a"),  # tied, 1 parameter, less evidence
+        candidate("cubic", error=0.104, bic=11.0, evidence=9.0, element="a"),   # tied, 1 parameter
+        candidate("linear", error=0.102, bic=13.0, element="a"),                 # tied, 2, amplitude independent
+        candidate("jenkins", error=0.102, bic=14.0, element="a"),                # tied, 2, amplitude dependent
+        candidate("gap", error=0.2, bic=30.0, element="a"),                      # not tied: by its own BIC
+        candidate("quintic", error=0.3, bic=15.0, element="a"),
+        candidate("coulomb", error=0.1, bic=20.0, element="b"),                  # the next element
+        candidate("cubic", error=0.05, bic=1.0, supported=False, element="b"),  # unsupported: last, by BIC
+        candidate("quintic", error=0.05, bic=0.5, supported=False, element="a"),
+    ]
+    shuffled = [ranked[i] for i in np.random.default_rng(1).permutation(len(ranked))]
+    keys = [_rank_key(c, leaders.get(c.element), RULES.frf_tie) for c in shuffled]
+    assert all(isinstance(v, (int, float)) for key in keys for v in key)
+    order = sorted(shuffled, key=lambda c: _rank_key(c, leaders.get(c.element), RULES.frf_tie))
+    expected = [ranked[i] for i in (2, 1, 3, 4, 0, 6, 5, 7, 9, 8)]
+    assert [(c.element, c.law) for c in order] == [(c.element, c.law) for c in expected]
+
+
+def test_samples_of_several_runs_join_into_one_set():
+    a = ElementSamples("e", np.array([1.0, 2.0]), np.array([3.0, 3.0]), np.array([1 + 1j, 2 + 0j]),
+                       np.array([0.1, 0.2]), np.array([0.5, 0.5]), rotational=True)
+    b = ElementSamples("e", np.array([4.0]), np.array([5.0]), np.array([3j]), np.array([0.3]), np.array([2.0]),
+                       rotational=True)
+    joined = ElementSamples.joined([a, b])
+    assert joined.name == "e" and joined.rotational and joined.units == ("N·m/rad", "rad")
+    np.testing.assert_array_equal(joined.X, [1.0, 2.0, 4.0])
+    np.testing.assert_array_equal(joined.w, [3.0, 3.0, 5.0])
+    np.testing.assert_array_equal(joined.kbar, [1 + 1j, 2, 3j])
+    np.testing.assert_array_equal(joined.kbar_std, [0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(joined.level, [0.5, 0.5, 2.0])
+    b.kbar_std = None
+    assert ElementSamples.joined([a, b]).kbar_std is None           # a std for only part of the set is none
+
+
+def test_rules_default_to_the_documented_thresholds():
+    assert RULES == RankingRules(min_gain=1.3, tie=1e-3, false_alarm=1e-3, frf_tie=0.05)
+    with pytest.raises(AttributeError):
+        RULES.min_gain = 2.0                                         # frozen: a retune is a new record
