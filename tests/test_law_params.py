@@ -71,7 +71,7 @@ def test_docs_law_tables_are_what_the_classes_say():
 
 
 def test_docs_table_generator_finds_an_out_of_date_page(tmp_path, monkeypatch, capsys):
-    page = tmp_path / "laws.md"
+    page = tmp_path / "stale-page.txt"
     current = docs_table.DOCS.read_text(encoding="utf-8")
     page.write_text(current.replace("| cubic | k3 ", "| cubic | k4 "), encoding="utf-8")
     monkeypatch.setattr(docs_table, "DOCS", page)

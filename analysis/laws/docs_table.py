@@ -13,7 +13,7 @@ from pathlib import Path
 from . import LAWS
 from .base import SignatureWords
 
-DOCS = Path(__file__).resolve().parents[2] / "docs" / "laws.md"
+DOCS = Path(__file__).resolve().parents[2] / "docs/laws.md"
 
 # What the placeholders of an explanation stand for, shown in the docs
 PLACEHOLDERS = SignatureWords(re="[how Re kbar changes]", im="[how Im kbar changes, log-slopes]",
