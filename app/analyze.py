@@ -39,7 +39,9 @@ def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = T
 
 def report_text(wb: Workbench, candidates, top: int = 5) -> str:
     """The analysis as a test engineer reads it."""
-    out = []
+    out = [f"note: {note.text()}" for note in wb.measurements.unfinished]
+    if out:
+        out.append("")
     if wb.reference is not None and wb.reference.text():
         out += [wb.reference.text(), ""]
     out.append("elements:")

@@ -303,7 +303,10 @@ def _append(ds: h5py.Dataset, value) -> None:
 # --------------------------------------------------------------------------- reader
 @dataclass
 class RunData:
-    """One run as read back: attributes and per-line arrays (all in SI units, see ``units``)."""
+    """One run as read back: attributes and per-line arrays (all in SI units, see ``units``).
+
+    ``lines`` holds the number of lines stored in each per-line dataset (``frequency``, ``frf/<dof>`` and the
+    others outside ``raw/``), before the arrays are cut to the length of ``frequency``."""
 
     name: str
     attrs: dict
@@ -312,6 +315,7 @@ class RunData:
     arrays: dict[str, np.ndarray]
     units: dict[str, str]
     incomplete: bool
+    lines: dict[str, int] = field(default_factory=dict)
 
     @property
     def kind(self) -> str:
@@ -397,16 +401,18 @@ class Session:
         for ds in _datasets(g):
             ds.refresh()
         n = g["frequency"].shape[0]
-        arrays, units = {}, {}
+        arrays, units, lines = {}, {}, {}
         for ds in _datasets(g):
             rel = ds.name[len(g.name) + 1:]
             units[rel] = _text(ds.attrs.get("units", ""))
+            if not rel.startswith("raw/"):
+                lines[rel] = ds.shape[0] if ds.shape else 0
             if rel.startswith(("frf/", "raw/")) or rel == "frequency":
                 continue
             arrays[rel] = ds[:n]
         frf = {dof: g["frf"][dof][:n] for dof in g["frf"]}
         incomplete = attrs["status"] == "running" and not self.writer_alive or bool(attrs.get("incomplete", False))
-        return RunData(name, attrs, g["frequency"][:n], frf, arrays, units, incomplete)
+        return RunData(name, attrs, g["frequency"][:n], frf, arrays, units, incomplete, lines)
 
     def raw(self, name: str, line: int | None = None) -> tuple[np.ndarray, list[str], float]:
         """Raw samples of a run (or of one line), their channel names and the sample rate."""
