@@ -121,7 +121,7 @@ def _whole_lines(run: RunData, sensors: list[str], unfinished: bool, error) -> i
     lines = min(stored.values())
     if not unfinished:
         n = stored["frequency"]
-        for name, count in sorted(stored.items()):
+        for name, count in sorted(stored.items(), key=lambda item: (not item[0].startswith("frf/"), item[0])):
             if count != n:
                 raise error(f"dataset {name}", f"has {count} lines but dataset frequency has {n}: a finished run "
                                                "stores every quantity on every line")

@@ -11,18 +11,9 @@ from app.session import RunSpec, SessionWriter
 
 STRUCTURE = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
              "stiffness": [[200.0, -100.0], [-100.0, 200.0]]}
-MODEL = """
-[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-
-[[element]]
-name = "right"
-dof = "x2"
-laws = ["linear"]
-"""
+# the same structure as a model file (JSON lists and strings are TOML), with a linear joint on x2 to identify
+MODEL = "[structure]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in STRUCTURE.items()) \
+    + '\n[[element]]\nname = "right"\ndof = "x2"\nlaws = ["linear"]\n'
 K_TRUE, C_TRUE = 50.0, 0.5          # the joint on x2 that made the data
 RUN = "sine_0.8N_up"
 
@@ -105,7 +96,7 @@ def zero_force(f):
 @pytest.mark.parametrize("damage, where, message", [
     (unknown_version, "root attribute format_version", "format version 99 is not one this contactid reads"),
     (real_frf, f"run {RUN}, dataset frf/x1", "holds real numbers"),
-    (shorter_frequency, f"run {RUN}, dataset force_amplitude", "has 12 lines but dataset frequency has 3"),
+    (shorter_frequency, f"run {RUN}, dataset frf/x1", "has 12 lines but dataset frequency has 3"),
     (negative_frequency, f"run {RUN}, dataset frequency", "line 2 is -1.5 Hz"),
     (nan_frf, f"run {RUN}, dataset frf/x2", "line 4 is"),
     (missing_frf, f"run {RUN}, dataset frf/x1", "is missing"),
