@@ -6,7 +6,7 @@ resonance, default true) and ``min_step`` (Hz, default step / 4); ``[settle]`` t
 measured anyway, default 600; ``block_periods``, default 5; ``fixed_periods`` replaces the detection by the
 fixed-count practice, waiting that many periods after every change) and ``[control]`` the force loop (``tolerance``,
 default 0.01 = 1 %). ``[limits] max_lines`` caps the planned stepped-sine lines (default 10 000; a typo such
-as ``step = 1e-9`` would plan 1e8). ``[excitation] dof`` and ``[sensors] dofs`` say where the force gauge and
+as ``step = 1e-9`` would plan billions). ``[excitation] dof`` and ``[sensors] dofs`` say where the force gauge and
 the accelerometers sit, for real instruments. docs/campaigns.md describes them.
 """
 from __future__ import annotations
