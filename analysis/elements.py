@@ -117,6 +117,10 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
                 raise InputError("each law is a name or a table with a 'law' key", source, where)
             law = get_law(entry["law"], source, f"{where}.law")
             values = {k: v for k, v in entry.items() if k != "law"}
+            numbers = Fields(values, source, where)
+            for key, value in values.items():
+                if key in law.param_names:      # TOML numbers only: "-750" or true is not a stiffness
+                    numbers.check_number(key, value)
             terms.append(LawTerm(law, law.check_params(values, complete, source, where)))
         elements.append(Element(name, dofs, terms))
     return elements

@@ -74,11 +74,50 @@ class RandomRun:
 
 
 @dataclass
+class RunNote:
+    """A run that did not finish as planned, whose lines are used all the same (each line was measured whole).
+
+    Attributes
+    ----------
+    run : str
+    status : str
+        "running" (still being measured) or "aborted".
+    incomplete : bool
+        The process writing the run stopped without closing it (crash, kill, power cut).
+    lines : int
+        Lines used.
+    reason : str
+        Why the run ended, as recorded (may be empty).
+    """
+
+    run: str
+    status: str
+    incomplete: bool
+    lines: int
+    reason: str = ""
+
+    def text(self) -> str:
+        if self.incomplete:
+            what = "is incomplete: the process writing it stopped during the run (crash or kill)"
+        elif self.status == "running":
+            what = "is still being measured"
+        else:
+            what = "was aborted" + (f" ({self.reason})" if self.reason else "")
+        return f"run {self.run} {what}; its {self.lines} line{'s' * (self.lines != 1)} measured before are used"
+
+    def to_json(self) -> dict:
+        return {"run": self.run, "status": self.status, "incomplete": self.incomplete, "lines": self.lines,
+                "reason": self.reason, "note": self.text()}
+
+
+@dataclass
 class Measurements:
-    """Everything measured in a session, ready for the workbench."""
+    """Everything measured in a session, ready for the workbench; ``unfinished`` lists the runs that did not
+    finish as planned."""
 
     sine: list[SineRun] = field(default_factory=list)
     random: RandomRun | None = None
+    unfinished: list[RunNote] = field(default_factory=list)
 
     @property
     def levels(self) -> list[float]:

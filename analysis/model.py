@@ -20,6 +20,12 @@ from .errors import InputError
 from .structures import Structure, load_structure
 from .tables import Fields
 
+# The top-level keys of a rig file (CONTRACTS.md §3, docs/rig-simulator.md). A rig file is also a valid model
+# file -- its laws' values are read as starting values -- so a model file may carry them; they are not read.
+RIG_TABLES = frozenset({"name", "structure", "element", "excitation", "sensors", "noise", "shaker", "daq",
+                        "generator", "simulation", "faults"})
+MODEL_TABLES = frozenset({"structure", "element", "updating"})
+
 
 @dataclass
 class Model:
@@ -101,6 +107,7 @@ def _toml_value(v) -> str:
 def load_model(document: dict, source: str | None = None) -> Model:
     """Build a Model from a parsed model (or rig) file."""
     root = Fields(document, source, "")
+    root.unknown_keys(set(MODEL_TABLES | RIG_TABLES))
     structure_table = root.require("structure")
     structure = load_structure(structure_table, source)
     elements = load_elements(document, structure, source, complete=False)

@@ -305,7 +305,8 @@ class Workbench:
         out = {"elements": [self.reports[el.name].to_json(el) for el in self.model.elements],
                **comp.to_json(),
                "candidates": [c.to_json() for c in (candidates or [])],
-               "history": [h.to_json() for h in self.history]}
+               "history": [h.to_json() for h in self.history],
+               "unfinished_runs": [note.to_json() for note in self.measurements.unfinished]}
         if self.reference is not None:
             out["reference"] = self.reference.to_json()
         return out

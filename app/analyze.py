@@ -97,7 +97,9 @@ def store_history(session_path, wb: Workbench, model_path, notes: SessionNotes) 
 
 def report_text(wb: Workbench, candidates, top: int = 5) -> str:
     """The analysis as a test engineer reads it."""
-    out = []
+    out = [f"note: {note.text()}" for note in wb.measurements.unfinished]
+    if out:
+        out.append("")
     if wb.reference is not None and wb.reference.text():
         out += [wb.reference.text(), ""]
     out.append("elements:")

@@ -19,7 +19,7 @@ import argparse
 import sys
 from importlib.metadata import PackageNotFoundError, version
 
-from analysis import LAWS, InputError, load_structure
+from analysis import LAWS, InputError
 from analysis.tables import load_toml
 
 EXIT_OK = 0
@@ -40,12 +40,24 @@ def software_version() -> str:
 
 
 def cmd_modes(args) -> int:
-    """Print the DOFs and natural frequencies of the [structure] of a rig or model file."""
-    doc = load_toml(args.file)
-    if "structure" not in doc:
-        raise InputError("has no [structure] table", args.file)
-    s = load_structure(doc["structure"], args.file)
-    print(f"{args.file}: {s.description}, {s.n} DOFs")
+    """Print the DOFs and natural frequencies of the [structure] of a rig or model file, or of a built-in rig."""
+    import tomllib
+    from pathlib import Path
+
+    from analysis.model import load_model
+    from drivers.simulation.rig import builtin_rig_path, builtin_rigs
+
+    if not Path(args.file).exists():
+        if args.file not in builtin_rigs():
+            raise InputError(f"no such file, and no built-in rig of that name (built-in rigs: "
+                             f"{', '.join(builtin_rigs())})", args.file)
+        source = f"builtin:{args.file}"
+        doc = tomllib.loads(builtin_rig_path(args.file).read_text(encoding="utf-8"))
+    else:
+        source = args.file
+        doc = load_toml(args.file)
+    s = load_model(doc, source).structure     # the whole file is checked, as analyze and simulate check it
+    print(f"{source}: {s.description}, {s.n} DOFs")
     shown = s.dofs if args.all_dofs or s.n <= 12 else s.dofs[:12] + ["..."]
     print("DOFs: " + ", ".join(shown))
     freqs = s.natural_frequencies()
@@ -139,7 +151,8 @@ def cmd_acquire(args) -> int:
     from .plan import load_plan
 
     plan = load_plan(args.plan)
-    with real_instruments(args.shaker, args.daq, args.excitation, args.sensors) as inst:
+    placement = plan.placement.overridden(args.excitation, args.sensors)
+    with real_instruments(args.shaker, args.daq, placement=placement) as inst:
         summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
                            software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
     return _finish(summary, args.output)
@@ -235,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("modes", help="natural frequencies of a rig or model file's structure")
-    p.add_argument("file", help="rig or model TOML file")
+    p.add_argument("file", help="rig or model TOML file, or a built-in rig name (see simulate --list)")
     p.add_argument("-n", "--count", type=int, default=6, help="how many modes to print (default 6)")
     p.add_argument("--all-dofs", action="store_true", help="list every DOF name")
     p.set_defaults(run=cmd_modes)
@@ -262,9 +275,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="SESSION.h5")
     p.add_argument("--shaker", required=True, metavar="URL", help="shaker controller: port name or pyserial URL")
     p.add_argument("--daq", required=True, metavar="URL", help="DAQ: port name or pyserial URL")
-    p.add_argument("--excitation", required=True, metavar="DOF", help="DOF of the force gauge, e.g. A.w")
+    p.add_argument("--excitation", metavar="DOF",
+                   help="DOF of the force gauge, e.g. A.w (overrides the plan's [excitation] dof)")
     p.add_argument("--sensors", nargs="+", metavar="DOF",
-                   help="accelerometer DOFs (default: the DAQ's acc:<dof> channels)")
+                   help="accelerometer DOFs (overrides the plan's [sensors] dofs; default: the DAQ's acc:<dof> "
+                        "channels)")
     p.add_argument("--force", action="store_true", help="overwrite an existing session file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=cmd_acquire)

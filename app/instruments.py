@@ -18,6 +18,8 @@ from drivers.emulator import EmulatedRig, register, set_backend_factory
 from drivers.simulation.rig import Rig, builtin_rigs, load_rig
 from drivers.simulation.simulator import RigSimulator
 
+from .plan import Placement
+
 _names = itertools.count()
 
 
@@ -72,17 +74,55 @@ def emulated_instruments(rig: Rig, seed: int = 0, paced: bool = False, faults: d
 
 
 @contextmanager
-def real_instruments(shaker_url: str, daq_url: str, excitation_dof: str, sensor_dofs: list[str] | None = None):
+def real_instruments(shaker_url: str, daq_url: str, excitation_dof: str | None = None,
+                     sensor_dofs: list[str] | None = None, placement: Placement | None = None):
     """Instruments at ``shaker_url`` and ``daq_url`` (port names or pyserial URLs).
 
-    The accelerometer DOFs default to the DAQ's ``acc:<dof>`` channel names."""
+    The DOFs come from ``placement`` (a plan's, with flags applied) or else from ``excitation_dof`` and
+    ``sensor_dofs``; the accelerometer DOFs default to the DAQ's ``acc:<dof>`` channel names. They are checked
+    against the DAQ's channels before anything is measured (:func:`check_placement`)."""
+    if placement is None:
+        placement = Placement(excitation_dof, sensor_dofs, excitation_field="excitation DOF",
+                              sensors_field="sensor DOFs")
     shaker = daq = None
     try:
         shaker = drivers.open_shaker(shaker_url)
         daq = drivers.open_daq(daq_url)
-        dofs = sensor_dofs or [c.split(":", 1)[1] for c in daq.channels if c.startswith("acc:")]
-        yield Instruments(shaker, daq, excitation_dof, dofs)
+        excitation, sensors = check_placement(daq.channels, daq.url, placement)
+        yield Instruments(shaker, daq, excitation, sensors)
     finally:
         for instrument in (shaker, daq):
             if instrument is not None:
                 instrument.close()
+
+
+def check_placement(channels, daq_url: str, place: Placement) -> tuple[str, list[str]]:
+    """The excitation and sensor DOFs of a campaign on real instruments, checked against the DAQ's channels.
+
+    Every sensor DOF needs an ``acc:<dof>`` channel and the force gauge a ``force`` channel; the excitation DOF
+    must carry an accelerometer too (the driving-point FRF every modal test measures) unless
+    ``place.driving_point`` is false -- that is what catches a misspelt excitation DOF before the first line
+    rather than at analysis. Sensors default to the DAQ's accelerometers.
+    """
+    channels = list(channels)
+    accelerometers = [c.split(":", 1)[1] for c in channels if c.startswith("acc:")]
+    have = f"the DAQ at {daq_url} has channels {', '.join(channels)}"
+    if "force" not in channels:
+        raise InputError(f"{have}: none is the force gauge (a channel named force)")
+    sensors = list(place.sensor_dofs) if place.sensor_dofs else accelerometers
+    if not sensors:
+        raise InputError(f"{have}: no accelerometer (acc:<dof>)")
+    missing = [d for d in sensors if d not in accelerometers]
+    if missing:
+        raise InputError(f"sensor DOF {missing[0]!r} has no accelerometer channel acc:{missing[0]} ({have})",
+                         place.origin(place.sensors_field), place.sensors_field)
+    excitation = place.excitation_dof
+    if not excitation:
+        raise InputError("no excitation DOF: say where the force gauge sits with [excitation] dof = \"...\" in "
+                         "the plan or --excitation DOF", place.source)
+    if place.driving_point and excitation not in sensors:
+        raise InputError(f"excitation DOF {excitation!r} carries no accelerometer (sensors: {', '.join(sensors)}): "
+                         "a misspelt DOF? If the force gauge really sits where nothing is measured, set "
+                         "[excitation] driving_point = false in the plan",
+                         place.origin(place.excitation_field), place.excitation_field)
+    return excitation, sensors

@@ -5,11 +5,13 @@ resonance, default true) and ``min_step`` (Hz, default step / 4); ``[settle]`` t
 (``tolerance`` relative change between successive blocks, default 2e-3; ``max_periods`` before a line is
 measured anyway, default 600; ``block_periods``, default 5; ``fixed_periods`` replaces the detection by the
 fixed-count practice, waiting that many periods after every change) and ``[control]`` the force loop (``tolerance``,
-default 0.01 = 1 %). docs/campaigns.md describes them.
+default 0.01 = 1 %). ``[limits] max_lines`` caps the planned stepped-sine lines (default 10 000; a typo such
+as ``step = 1e-9`` would plan billions). ``[excitation] dof`` and ``[sensors] dofs`` say where the force gauge and
+the accelerometers sit, for real instruments. docs/campaigns.md describes them.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -40,10 +42,19 @@ class SineSpec:
     def directions(self) -> list[str]:
         return ["up", "down"] if self.direction == "both" else [self.direction]
 
+    @property
+    def steps(self) -> int:
+        """Whole steps from start toward stop."""
+        return int(np.floor((self.stop - self.start) / self.step + 1e-9))
+
+    @property
+    def line_count(self) -> int:
+        """Planned lines of one sweep (before refinement), without building them."""
+        return len(self.lines("up")) if self.steps < LARGEST_MAX_LINES else self.steps + 1
+
     def lines(self, direction: str) -> np.ndarray:
         """The planned lines of one sweep, in the order measured (refinement may add more)."""
-        n = int(np.floor((self.stop - self.start) / self.step + 1e-9)) + 1
-        f = self.start + self.step * np.arange(n)
+        f = self.start + self.step * np.arange(self.steps + 1)
         if f[-1] < self.stop - 1e-9 * self.stop:
             f = np.append(f, self.stop)
         return f if direction == "up" else f[::-1]
@@ -52,10 +63,15 @@ class SineSpec:
         return f"sine_{self.force:g}N_{direction}"
 
 
+DEFAULT_MAX_LINES = 10_000       # planned stepped-sine lines, all runs together, unless [limits] max_lines says
+LARGEST_MAX_LINES = 1_000_000    # what max_lines may be raised to (each line is a record of its own)
+
+
 @dataclass
 class Limits:
     max_force: float                 # N
     max_acceleration: float          # m/s^2
+    max_lines: int = DEFAULT_MAX_LINES
 
 
 @dataclass
@@ -68,6 +84,34 @@ class SettleSpec:
 
 
 @dataclass
+class Placement:
+    """Where the force gauge and the accelerometers sit: the plan's ``[excitation]`` and ``[sensors]`` (None
+    where it does not say), possibly overridden by command-line flags. ``driving_point = false`` allows a force
+    gauge at a DOF without an accelerometer. ``source`` and the ``*_field`` names say where each value came
+    from, for error messages (a flag's value is reported under the flag's name, without the plan file)."""
+
+    excitation_dof: str | None = None
+    sensor_dofs: list[str] | None = None
+    driving_point: bool = True
+    source: str | None = None
+    excitation_field: str = "[excitation].dof"
+    sensors_field: str = "[sensors].dofs"
+
+    def overridden(self, excitation_dof: str | None, sensor_dofs: list[str] | None) -> "Placement":
+        """This placement with ``--excitation`` / ``--sensors`` taking precedence where given."""
+        out = replace(self)
+        if excitation_dof:
+            out.excitation_dof, out.excitation_field = excitation_dof, "--excitation"
+        if sensor_dofs:
+            out.sensor_dofs, out.sensors_field = list(sensor_dofs), "--sensors"
+        return out
+
+    def origin(self, field_name: str) -> str | None:
+        """The file a field's value came from (None for a flag)."""
+        return None if field_name.startswith("--") else self.source
+
+
+@dataclass
 class Plan:
     random: RandomSpec | None
     sine: list[SineSpec]
@@ -76,6 +120,7 @@ class Plan:
     control_tolerance: float = 0.01
     text: str = ""
     source: str | None = None
+    placement: Placement = field(default_factory=Placement)
 
     @property
     def runs(self) -> list[tuple[SineSpec, str]]:
@@ -91,7 +136,7 @@ def load_plan(path) -> Plan:
 
 def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
     root = Fields(doc, source, "")
-    root.unknown_keys({"random", "stepped_sine", "limits", "settle", "control"})
+    root.unknown_keys({"random", "stepped_sine", "limits", "settle", "control", "excitation", "sensors"})
     random = None
     if root.has("random"):
         f = root.sub("random")
@@ -132,8 +177,10 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
                          source, "[[stepped_sine]]")
     lim = root.sub("limits")
     lim.where = "[limits]"
-    lim.unknown_keys({"max_force", "max_acceleration"})
-    limits = Limits(lim.number("max_force", positive=True), lim.number("max_acceleration", positive=True))
+    lim.unknown_keys({"max_force", "max_acceleration", "max_lines"})
+    limits = Limits(lim.number("max_force", positive=True), lim.number("max_acceleration", positive=True),
+                    _max_lines(lim))
+    _check_line_count(sines, limits.max_lines, source)
     for i, spec in enumerate(sines):
         if spec.force >= limits.max_force:
             raise InputError(f"force {spec.force} N is not below the abort limit max_force = {limits.max_force} N",
@@ -157,7 +204,52 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         c.where = "[control]"
         c.unknown_keys({"tolerance"})
         control = c.number("tolerance", 0.01, positive=True)
-    return Plan(random, sines, limits, settle, control, text, source)
+    return Plan(random, sines, limits, settle, control, text, source, _placement(root))
+
+
+def _max_lines(lim: Fields) -> int:
+    value = lim.table.get("max_lines", DEFAULT_MAX_LINES)
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= LARGEST_MAX_LINES:
+        raise lim.error("max_lines", f"must be a whole number from 1 to {LARGEST_MAX_LINES}, got {value!r}")
+    return value
+
+
+def _check_line_count(sines: list[SineSpec], max_lines: int, source: str | None) -> None:
+    """Refuse a plan of more stepped-sine lines than ``max_lines``, naming the table that plans the most."""
+    counts = [spec.line_count * len(spec.directions) for spec in sines]
+    if sum(counts) <= max_lines:
+        return
+    i = int(np.argmax(counts))
+    raise InputError(f"the plan has {sum(counts):,} stepped-sine lines ({counts[i]:,} from this table's step "
+                     f"{sines[i].step:g} Hz), more than max_lines = {max_lines:,}; if that many is meant, "
+                     f"raise [limits] max_lines (at most {LARGEST_MAX_LINES:,})", source,
+                     f"[[stepped_sine]][{i}].step")
+
+
+def _placement(root: Fields) -> Placement:
+    place = Placement(source=root.source)
+    if root.has("excitation"):
+        f = root.sub("excitation")
+        f.where = "[excitation]"
+        f.unknown_keys({"dof", "driving_point"})
+        place.excitation_dof = _dof_name(f, f.string("dof"), "dof")
+        place.driving_point = f.table.get("driving_point", True)
+        if not isinstance(place.driving_point, bool):
+            raise f.error("driving_point", "must be true or false")
+    if root.has("sensors"):
+        f = root.sub("sensors")
+        f.where = "[sensors]"
+        f.unknown_keys({"dofs"})
+        place.sensor_dofs = [_dof_name(f, d, "dofs") for d in f.strings("dofs")]
+        if not place.sensor_dofs or len(set(place.sensor_dofs)) != len(place.sensor_dofs):
+            raise f.error("dofs", "must name one or more distinct DOFs")
+    return place
+
+
+def _dof_name(f: Fields, name: str, key: str) -> str:
+    if not name or name != name.strip() or ":" in name:
+        raise f.error(key, f"{name!r} is not a DOF name (such as x1 or A.w)")
+    return name
 
 
 def check_against_instruments(plan: Plan, sample_rate: float, frequency_range: tuple[float, float],

@@ -204,7 +204,10 @@ REQUIRED_RUN_ATTRS = ("kind", "force", "direction", "status", "excitation_dof", 
 
 @dataclass
 class RunData:
-    """One run as read back: attributes and per-line arrays (all in SI units, see ``units``)."""
+    """One run as read back: attributes and per-line arrays (all in SI units, see ``units``).
+
+    ``lines`` holds the number of lines stored in each per-line dataset (``frequency``, ``frf/<dof>`` and the
+    others outside ``raw/``), before the arrays are cut to the length of ``frequency``."""
 
     name: str
     attrs: dict
@@ -213,6 +216,7 @@ class RunData:
     arrays: dict[str, np.ndarray]
     units: dict[str, str]
     incomplete: bool
+    lines: dict[str, int] = field(default_factory=dict)
 
     @property
     def kind(self) -> str:
@@ -336,10 +340,12 @@ class Session:
             for ds in _datasets(g):
                 ds.refresh()
             n = self._object(f"{where}/frequency").shape[0]
-            arrays, units = {}, {}
+            arrays, units, lines = {}, {}, {}
             for ds in _datasets(g):
                 rel = ds.name[len(g.name) + 1:]
                 units[rel] = _text(ds.attrs.get("units", ""))
+                if not rel.startswith("raw/"):
+                    lines[rel] = ds.shape[0] if ds.shape else 0
                 if rel.startswith(("frf/", "raw/")) or rel == "frequency":
                     continue
                 with self._reading(ds.name):
@@ -347,7 +353,7 @@ class Session:
             frf = {dof: self._read(f"{where}/frf/{dof}", n) for dof in dofs}
             frequency = self._read(f"{where}/frequency", n)
         incomplete = attrs["status"] == "running" and not self.writer_alive or bool(attrs.get("incomplete", False))
-        return RunData(name, attrs, frequency, frf, arrays, units, incomplete)
+        return RunData(name, attrs, frequency, frf, arrays, units, incomplete, lines)
 
     def _read(self, where: str, n: int) -> np.ndarray:
         """The first ``n`` entries of the dataset at ``where``."""

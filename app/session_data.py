@@ -5,38 +5,50 @@ import numpy as np
 
 from analysis.measurements import Measurements, RandomRun, SineRun
 
-from .session import Session
+from .session import RunData, Session
+from .session_checks import check_format, check_run
 
 NOISE_FLOOR = 1e-9     # relative to the largest FRF value of the run
 
 
 def measurements_from_session(session: Session, include_incomplete: bool = True) -> Measurements:
-    """Collect the stepped-sine and random runs of a session.
+    """Collect the stepped-sine and random runs of a session, after checking what they hold
+    (:mod:`app.session_checks`: InputError naming file, run and dataset for impossible contents).
 
-    Aborted or incomplete stepped-sine runs are used up to their last complete line (each line was measured
-    whole); ``include_incomplete=False`` leaves them out. Nothing of ``/provenance`` is read.
+    Aborted or incomplete stepped-sine runs are used up to their last whole line (each line was measured
+    whole) and listed in ``Measurements.unfinished``; ``include_incomplete=False`` leaves them out. Nothing of
+    ``/provenance`` is read. ``session`` may also be anything with ``runs()`` (the GUI's live lines).
     """
-    sine, random = [], None
-    for run in session.runs():
-        if not len(run.frequency) or (run.incomplete and not include_incomplete):
+    source = None
+    if isinstance(session, Session):
+        source = str(session.path)
+        check_format(session.attrs, source)
+    sine, random, unfinished = [], None, []
+    for checked in (check_run(run, source) for run in session.runs()):
+        if not checked.lines or (checked.run.incomplete and not include_incomplete):
             continue
-        dofs = run.sensor_dofs
-        H = np.stack([run.frf[d] for d in dofs], axis=1)
+        if checked.unfinished:
+            unfinished.append(checked.note())
+        run, dofs, n = checked.run, checked.sensor_dofs, checked.lines
+        arrays = {k: v[:n] for k, v in run.arrays.items()}
+        H = np.stack([run.frf[d][:n] for d in dofs], axis=1)
         if run.kind == "random":
-            random = RandomRun(run.excitation_dof, dofs, run.frequency, H,
-                               _stack(run.arrays, "coherence", dofs), _stack(run.arrays, "random_error", dofs),
+            random = RandomRun(run.excitation_dof, dofs, run.frequency[:n], H,
+                               _stack(arrays, "coherence", dofs), _stack(arrays, "random_error", dofs),
                                run.force)
             continue
-        thd = [displacement_distortion(run.arrays[f"harmonics/acc:{d}"]) for d in dofs
-               if f"harmonics/acc:{d}" in run.arrays]
-        std = _stack(run.arrays, "frf_std", dofs)
-        if std is not None:
-            # a noise-free (simulated) record has zero residual: floor at the round-off of the data
-            std = np.maximum(std, NOISE_FLOOR * np.abs(H).max())
-        sine.append(SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, run.frequency, H,
-                            std, run.arrays.get("force_amplitude"),
-                            np.max(np.stack(thd), axis=0) if thd else None))
-    return Measurements(sine, random)
+        sine.append(_sine_run(run, dofs, run.frequency[:n], H, arrays))
+    return Measurements(sine, random, unfinished)
+
+
+def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarray, arrays: dict) -> SineRun:
+    thd = [displacement_distortion(arrays[f"harmonics/acc:{d}"]) for d in dofs if f"harmonics/acc:{d}" in arrays]
+    std = _stack(arrays, "frf_std", dofs)
+    if std is not None:
+        # a noise-free (simulated) record has zero residual: floor at the round-off of the data
+        std = np.maximum(std, NOISE_FLOOR * np.abs(H).max())
+    return SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, frequency, H, std,
+                   arrays.get("force_amplitude"), np.max(np.stack(thd), axis=0) if thd else None)
 
 
 def _stack(arrays: dict, prefix: str, dofs: list[str]):

@@ -97,7 +97,9 @@ drop_link_after = 10.0
     (('law = "cubic", k3 = 1000.0', 'law = "jenkins", kt = 1000.0'), "[[element]][0].laws[0]", "needs parameter"),
     (('law = "cubic", k3 = 1000.0', 'law = "linear", k = -250.0, c = 0.0'), "[[element]][0].laws",
      "unstable at rest"),
-    (('law = "cubic", k3 = 1000.0', 'law = "linear", k = 0.0, c = -1.0'), "[[element]][0].laws", "add energy"),
+    (('law = "cubic", k3 = 1000.0', 'law = "linear", k = 0.0, c = -1.0'), "[[element]][0].laws",
+     "the rig would add energy: its damping, with the elements' small-amplitude damping, is negative: negative "
+     "small-amplitude damping of element 'joint' (c0 = -1)"),
     (('dofs = ["x1", "x2"]\n\n[daq]', 'dofs = ["x1", "x3"]\n\n[daq]'), "[sensors].dofs", "not in the structure"),
     (('[excitation]\ndof = "x2"', '[excitation]\ndof = "x2"\ngain = -1.0'), "[excitation].gain", "> 0"),
     (("sample_rate = 128.0", "sample_rate = 128.0\npassband = 0.6"), "[daq].passband", "below 0.5"),
@@ -116,6 +118,18 @@ def test_bad_rig_files_are_refused_naming_file_and_field(tmp_path, edit, field, 
     assert info.value.source == str(path)
     assert info.value.field == field
     assert message in info.value.message
+
+
+def test_unstable_rig_blames_the_element_with_negative_stiffness_not_a_cubic_at_rest():
+    # a softening cubic on x1 has a tangent of k3 dx^2 ~ -1e-15 at rest (round-off); the culprit is 'right'
+    text = SMALL.replace('laws = [ { law = "cubic", k3 = 1000.0 } ]', 'laws = [ { law = "cubic", k3 = -500.0 } ]') \
+        + '[[element]]\nname = "right"\ndof = "x2"\nlaws = [ { law = "linear", k = -500.0, c = 0.0 } ]\n'
+    with pytest.raises(InputError) as info:
+        parse_rig(text, "neg.toml")
+    assert info.value.field == "[[element]][1].laws"
+    assert info.value.message == ("the rig is unstable at rest: its stiffness, with the elements' small-amplitude "
+                                  "stiffness, is not positive definite: negative small-amplitude stiffness of "
+                                  "element 'right' (k0 = -500)")
 
 
 def test_sample_rate_too_low_for_the_highest_mode_names_mode_and_rate():

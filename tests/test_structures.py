@@ -157,3 +157,48 @@ def test_malformed_toml_names_the_file(tmp_path):
         load_toml(p)
     with pytest.raises(InputError, match="file not found"):
         load_toml(tmp_path / "missing.toml")
+
+
+# --- definiteness: a property of the structure, not of its units or mesh ------------------------------------
+def test_fine_clamped_beam_is_accepted_and_still_a_cantilever():
+    # its stiffness eigenvalues span 4e-14 of each other: a fixed ratio of 1e-12 of them called it singular;
+    # it is not (its diagonally scaled reciprocal condition number is 2.5e-13, a rigid-body mode's 1e-17)
+    s = beam(elements=800, points={"O": L})
+    # still a cantilever: the static tip flexibility L^3 / 3EI is exact for Hermite elements at any mesh
+    h0 = s.frf([0.0], columns=["O.w"])[0, s.index("O.w"), 0]
+    assert h0.real == pytest.approx(L**3 / (3 * EI), rel=1e-4)     # round-off grows with the mesh: 3e-5 here
+
+
+@pytest.mark.parametrize("left, right", [("free", "free"), ("pinned", "free")])
+def test_fine_beam_that_can_move_as_a_rigid_body_is_still_refused(left, right):
+    with pytest.raises(InputError, match=r"stiffness: stiffness matrix is not positive definite.*rigid body"):
+        beam(elements=800, left=left, right=right)
+
+
+def test_beam_beyond_the_element_limit_is_refused_naming_the_field_before_allocating():
+    from analysis.structures import MAX_BEAM_ELEMENTS
+    for n in (2000, 100_000):
+        with pytest.raises(InputError) as err:
+            beam(elements=n)
+        assert err.value.source == "beam.toml" and err.value.field == "[structure].elements"
+        assert f"{n} elements is more than the {MAX_BEAM_ELEMENTS} a beam may have" in err.value.message
+    beam(elements=3, left="clamped", right="clamped")
+    with pytest.raises(InputError, match=r"elements: the clamped-clamped boundaries leave no DOF free"):
+        beam(elements=1, left="clamped", right="clamped")
+
+
+def test_definiteness_does_not_depend_on_units():
+    # the same 2-DOF system with x2 in micrometres: mass and stiffness entries 1e-12 apart
+    u = np.diag([1.0, 1e-6])
+    s = load_structure({**PAPER_2DOF, "mass": (u @ np.array(PAPER_2DOF["mass"]) @ u).tolist(),
+                        "stiffness": (u @ np.array(PAPER_2DOF["stiffness"]) @ u).tolist()}, "um.toml")
+    np.testing.assert_allclose(s.natural_frequencies(), load_structure(PAPER_2DOF).natural_frequencies(),
+                               rtol=1e-9)
+
+
+def test_damping_may_leave_a_dof_undamped_but_not_add_energy():
+    load_structure({**PAPER_2DOF, "damping": [[0.5, 0.0], [0.0, 0.0]]})
+    with pytest.raises(InputError, match=r"damping: damping matrix must not be negative .*add energy"):
+        load_structure({**PAPER_2DOF, "damping": [[1.0, 2.0], [2.0, 1.0]]}, "model.toml")
+    with pytest.raises(InputError, match=r"DOF 'x2'"):
+        load_structure({**PAPER_2DOF, "damping": [[1.0, 0.0], [0.0, -0.1]]}, "model.toml")

@@ -14,7 +14,7 @@ import scipy.linalg
 
 from analysis.elements import Element
 from analysis.errors import InputError
-from analysis.structures import Structure
+from analysis.structures import Structure, definiteness
 
 if TYPE_CHECKING:
     from .rig import Rig
@@ -26,6 +26,8 @@ RESOLUTION_FACTOR = 2.5
 # Displacement and velocity steps for the elements' small-amplitude stiffness and damping
 _TANGENT_DX = 1e-9
 _TANGENT_DV = 1e-9
+# Below this fraction of the diagonal at its DOFs an element's negative tangent is round-off, not a cause
+NEGLIGIBLE_TANGENT = 1e-9
 
 
 # --- linear model -----------------------------------------------------------------
@@ -145,10 +147,8 @@ def build_linear_model(rig: Rig) -> LinearModel:
     E = np.array([el.vector(s) for el in rig.elements], float).reshape(r, s.n)
     K += E.T @ (k0[:, None] * E)
     C += E.T @ (c0[:, None] * E)
-    _check_definite(rig, K, k0, "stiffness", "unstable at rest: its stiffness with the elements' "
-                                             "small-amplitude stiffness is not positive definite")
-    _check_definite(rig, C, c0, "damping", "would add energy: its damping with the elements' "
-                                           "small-amplitude damping is negative", semidefinite=True)
+    _check_definite(rig, K, E, k0, "stiffness")
+    _check_definite(rig, C, E, c0, "damping")
 
     if rig.simulation.reduction == "craig-bampton":
         cutoff = rig.simulation.mode_cutoff or rig.daq.passband * rig.daq.sample_rate
@@ -166,19 +166,29 @@ def build_linear_model(rig: Rig) -> LinearModel:
     return model
 
 
-def _check_definite(rig: Rig, A, tangent, key, message, semidefinite=False) -> None:
-    """InputError naming the first element with a negative tangent (else the structure)
-    when A is not positive (semi)definite."""
-    lam = np.linalg.eigvalsh(A)
-    scale = max(np.abs(lam).max(initial=0.0), 1e-300)
-    bad = lam.min() < -1e-12 * scale if semidefinite else lam.min() <= 1e-12 * scale
-    if not bad:
+def _check_definite(rig: Rig, A: np.ndarray, E: np.ndarray, tangent: np.ndarray, key: str) -> None:
+    """InputError when the rig's stiffness is not positive definite (or its damping is negative), naming
+    every element whose small-amplitude value is negative beyond round-off (else the structure).
+
+    A tangent counts as negative when it exceeds ``NEGLIGIBLE_TANGENT`` of the largest diagonal entry at the
+    element's own DOFs: the central difference of a cubic law at rest gives ``k3 dx^2`` (about 1e-16), which
+    is no cause of anything."""
+    stiffness = key == "stiffness"
+    ok, _ = definiteness(A, semidefinite=not stiffness)
+    if ok:
         return
-    culprits = [i for i, value in enumerate(tangent) if value < 0]
-    field_name = f"[[element]][{culprits[0]}].laws" if culprits else f"[structure].{key}"
-    who = f" (element {rig.elements[culprits[0]].name!r} has {'k0' if key == 'stiffness' else 'c0'} = " \
-          f"{tangent[culprits[0]]:.4g})" if culprits else ""
-    raise InputError(f"the rig is {message}{who}", rig.source, field_name)
+    diagonal = np.abs(np.diag(A))
+    culprits = [i for i, value in enumerate(tangent)
+                if value < -NEGLIGIBLE_TANGENT * diagonal[E[i] != 0].max(initial=0.0)]
+    problem = ("is unstable at rest: its stiffness, with the elements' small-amplitude stiffness, is not "
+               "positive definite" if stiffness else
+               "would add energy: its damping, with the elements' small-amplitude damping, is negative")
+    if not culprits:
+        raise InputError(f"the rig {problem}", rig.source, f"[structure].{key}")
+    symbol = "k0" if stiffness else "c0"
+    names = ", ".join(f"{rig.elements[i].name!r} ({symbol} = {tangent[i]:.4g})" for i in culprits)
+    raise InputError(f"the rig {problem}: negative small-amplitude {key} of element{'s' * (len(culprits) > 1)} "
+                     f"{names}", rig.source, f"[[element]][{culprits[0]}].laws")
 
 
 def _craig_bampton(s: Structure, M, K, boundary: list[int], cutoff_hz: float):

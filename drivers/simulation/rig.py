@@ -18,13 +18,12 @@ from pathlib import Path
 
 from analysis.elements import Element, load_elements
 from analysis.errors import InputError
+from analysis.model import RIG_TABLES
 from analysis.structures import Structure, load_structure
 from analysis.tables import Fields
 
 from .linear_model import LinearModel, build_linear_model
 
-RIG_TABLES = {"name", "structure", "element", "excitation", "sensors", "noise", "shaker", "daq",
-              "generator", "simulation", "faults"}
 REDUCTIONS = ("craig-bampton", "none")
 DEFAULT_SAMPLE_RATE = 1024.0  # Hz, when a rig has no [daq].sample_rate
 
@@ -249,7 +248,7 @@ def parse_rig(text: str, source: str = "<rig>") -> Rig:
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"not valid TOML: {exc}", source) from None
     root = Fields(document, source, "")
-    root.unknown_keys(RIG_TABLES)
+    root.unknown_keys(set(RIG_TABLES))
     name = root.string("name")
     structure = load_structure(root.require("structure"), source)
     elements = load_elements(document, structure, source, complete=True)

@@ -1,0 +1,128 @@
+"""What a session must hold before its measurements are used (docs/session-format.md, "Checks on reading").
+
+A file can be a well-formed HDF5 session and still hold impossible contents: a format version this program
+does not know, real numbers where receptances are complex, datasets of different lengths, negative or
+non-finite frequencies. Each is refused with one line naming the file, the run and the dataset or attribute;
+nothing is repaired or guessed.
+
+A run still being written, or one whose writer died (``incomplete``), may end with a line that reached some of
+its datasets but not all: only the lines present in every per-line dataset are used. A run that ended
+("complete", or "aborted" by the campaign) must have the same number of lines in every per-line dataset.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from analysis.errors import InputError
+from analysis.measurements import RunNote
+
+from .session import FORMAT_VERSION, RunData
+
+KINDS = ("random", "stepped_sine")
+STATUSES = ("running", "complete", "aborted")
+DIRECTIONS = {"stepped_sine": ("up", "down"), "random": ("none",)}
+
+
+def check_format(attrs: dict, source: str | None) -> None:
+    """Refuse a session whose ``format_version`` is missing or not one this program reads."""
+    version = attrs.get("format_version")
+    if isinstance(version, np.integer):
+        version = int(version)
+    if not isinstance(version, int) or isinstance(version, bool):
+        raise InputError(f"must be a whole number, got {version!r}", source, "root attribute format_version")
+    if version != FORMAT_VERSION:
+        raise InputError(f"format version {version} is not one this contactid reads (it reads {FORMAT_VERSION}); "
+                         "a newer contactid wrote it", source, "root attribute format_version")
+
+
+@dataclass
+class CheckedRun:
+    """A run whose contents passed the checks, and how many of its lines are whole."""
+
+    run: RunData
+    lines: int
+    sensor_dofs: list[str]
+
+    @property
+    def unfinished(self) -> bool:
+        return self.run.status != "complete" or self.run.incomplete
+
+    def note(self) -> RunNote:
+        return RunNote(self.run.name, self.run.status, self.run.incomplete, self.lines,
+                       str(self.run.attrs.get("end_reason", "")))
+
+
+def check_run(run: RunData, source: str | None) -> CheckedRun:
+    """Check one run's attributes and per-line datasets; InputError naming file, run and dataset/attribute."""
+    def error(what: str, message: str) -> InputError:
+        return InputError(message, source, f"run {run.name}, {what}")
+
+    attrs = run.attrs
+    kind = _choice(attrs, "kind", KINDS, error)
+    status = _choice(attrs, "status", STATUSES, error)
+    _choice(attrs, "direction", DIRECTIONS[kind], error)
+    force = attrs.get("force")
+    if isinstance(force, bool) or not isinstance(force, (int, float, np.number)) or not math.isfinite(force) \
+            or force <= 0:
+        raise error("attribute force", f"must be a finite force > 0 N, got {force!r}")
+    excitation = attrs.get("excitation_dof")
+    if not isinstance(excitation, str) or not excitation:
+        raise error("attribute excitation_dof", f"must name a DOF, got {excitation!r}")
+    sensors = _sensor_dofs(attrs.get("sensor_dofs"), error)
+
+    frequency = np.asarray(run.frequency)
+    if frequency.ndim != 1 or frequency.dtype.kind not in "fi":
+        raise error("dataset frequency", f"must be a list of real frequencies in Hz, got {frequency.dtype} "
+                                         f"of shape {frequency.shape}")
+    for d in sensors:
+        if d not in run.frf:
+            raise error(f"dataset frf/{d}", "is missing (attribute sensor_dofs names this DOF)")
+        if not np.iscomplexobj(run.frf[d]):
+            raise error(f"dataset frf/{d}", f"holds real numbers ({run.frf[d].dtype}); receptances are complex")
+    lines = _whole_lines(run, sensors, status == "running" or run.incomplete, error)
+    bad = np.flatnonzero(~np.isfinite(frequency[:lines]) | (frequency[:lines] <= 0))
+    if len(bad):
+        raise error("dataset frequency", f"line {bad[0]} is {float(frequency[bad[0]]):g} Hz; frequencies must be "
+                                         "finite and > 0")
+    for d in sensors:
+        bad = np.flatnonzero(~np.isfinite(run.frf[d][:lines]))
+        if len(bad):
+            raise error(f"dataset frf/{d}", f"line {bad[0]} is {complex(run.frf[d][bad[0]])}; FRFs must be finite")
+    return CheckedRun(run, lines, sensors)
+
+
+def _choice(attrs: dict, key: str, choices: tuple[str, ...], error) -> str:
+    value = attrs.get(key)
+    if value not in choices:
+        raise error(f"attribute {key}", f"must be one of {', '.join(choices)}; got {value!r}")
+    return value
+
+
+def _sensor_dofs(raw, error) -> list[str]:
+    try:
+        dofs = json.loads(raw) if isinstance(raw, str) else None
+    except json.JSONDecodeError:
+        dofs = None
+    if not isinstance(dofs, list) or not dofs or not all(isinstance(d, str) and d for d in dofs) \
+            or len(set(dofs)) != len(dofs):
+        raise error("attribute sensor_dofs", f"must be a JSON list of distinct DOF names, got {raw!r}")
+    return dofs
+
+
+def _whole_lines(run: RunData, sensors: list[str], unfinished: bool, error) -> int:
+    """Lines present in every per-line dataset: all of them must agree unless the run is unfinished."""
+    stored = dict(run.lines) or {"frequency": len(run.frequency), **{f"frf/{d}": len(h) for d, h in run.frf.items()},
+                                 **{k: len(np.atleast_1d(v)) for k, v in run.arrays.items()}}
+    stored.setdefault("frequency", len(run.frequency))
+    lines = min(stored.values())
+    if not unfinished:
+        n = stored["frequency"]
+        for name, count in sorted(stored.items(), key=lambda item: (not item[0].startswith("frf/"), item[0])):
+            if count != n:
+                raise error(f"dataset {name}", f"has {count} lines but dataset frequency has {n}: a finished run "
+                                               "stores every quantity on every line")
+    return lines
