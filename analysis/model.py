@@ -20,7 +20,7 @@ from .errors import InputError
 from .structures import Structure, load_structure
 from .tables import Fields
 
-# The top-level keys of a rig file (CONTRACTS.md §3, docs/rig-simulator.md). A rig file is also a valid model
+# The top-level keys of a rig file (docs/contracts.md §3, docs/rig-simulator.md). A rig file is also a valid model
 # file -- its laws' values are read as starting values -- so a model file may carry them; they are not read.
 RIG_TABLES = frozenset({"name", "structure", "element", "excitation", "sensors", "noise", "shaker", "daq",
                         "generator", "simulation", "faults"})
