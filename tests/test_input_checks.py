@@ -12,7 +12,7 @@ from analysis.model import load_model
 from analysis.tables import load_toml
 from app.cli import main
 from app.instruments import check_placement
-from app.plan import LARGEST_MAX_LINES, Placement, load_plan, parse_plan
+from app.plan import LARGEST_MAX_LINES, load_plan, parse_plan
 from drivers.simulation.rig import builtin_rig_path, load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
