@@ -127,6 +127,14 @@ def compare_predictions(runs: Sequence[SineRun], predicted: dict, converged: dic
                       residual_map, predicted, converged, chi2 if have_std else None, n_obs)
 
 
+def gain_phrase(gain: float) -> str:
+    """An error ratio ``before / after`` as a test engineer reads it: "x3.20 better" or, below 1, "x1.02 worse"
+    (the factor by which the error grew)."""
+    if gain >= 1.0 or gain <= 0.0 or not np.isfinite(gain):
+        return f"x{gain:.2f} better"
+    return f"x{1.0 / gain:.2f} worse"
+
+
 def kbar_functions_with(elements, replace: dict[int, Callable]) -> list[KbarFunction]:
     """The elements' describing functions with some replaced (index -> function)."""
     return [replace.get(i, el.describing_function) for i, el in enumerate(elements)]

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 
+from analysis.comparison import gain_phrase
 from analysis.errors import InputError
 from analysis.model import load_model
 from analysis.tables import load_toml
@@ -72,6 +73,6 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
         out += ["", "what is missing (best first):"]
         for c in candidates[:top]:
             mark = "significant" if c.significant else "not significant"
-            out.append(f"  {c.element}:{c.law}  error {c.error:.4g} (x{c.gain:.2f} better, {mark})")
+            out.append(f"  {c.element}:{c.law}  error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
             out.append(f"    {c.explanation}")
     return "\n".join(out)

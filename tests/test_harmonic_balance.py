@@ -138,3 +138,100 @@ def test_bad_direction_is_refused():
     s, els = sdof([{"law": "cubic", "k3": 1e4}])
     with pytest.raises(ValueError, match="direction"):
         predict_sweep(s, els, "x", [10.0], 1.0, "sideways")
+
+
+# --------------------------------------------------------------------------- the paper's 2-DOF model at 0.8 N
+PAPER = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
+         "stiffness": [[200.0, -100.0], [-100.0, 200.0]]}
+PAPER_ELEMENTS = {"element": [
+    {"name": "left", "dof": "x1", "laws": [{"law": "cubic", "k3": -500.0}, {"law": "quadratic_damping", "c2": 1.0}]},
+    {"name": "right", "dof": "x2", "laws": [{"law": "cubic", "k3": -750.0}, {"law": "coulomb", "fs": 0.1}]}]}
+HZ = 2 * np.pi
+
+
+def paper():
+    s = load_structure(PAPER)
+    return s, load_elements(PAPER_ELEMENTS, s, None, True)
+
+
+@pytest.fixture(scope="module")
+def paper_curve():
+    s, els = paper()
+    return continue_response(s, els, "x2", 0.8, HZ * 0.8, HZ * 3.2)
+
+
+def test_continuation_of_the_paper_model_passes_both_folds_and_reaches_the_end(paper_curve):
+    curve = paper_curve
+    assert curve.complete and curve.w[-1] == pytest.approx(HZ * 3.2, rel=1e-12)
+    assert curve.w.min() >= HZ * 0.8 * (1 - 1e-12)                         # never runs off the span
+    upper, lower = curve.fold_frequencies / HZ
+    assert upper == pytest.approx(1.21185, abs=2e-5) and lower == pytest.approx(1.15363, abs=2e-5)
+    # the folds against an independent solver: a sweep with 1e-5 Hz lines keeps the branch up to the fold
+    # and has lost it one line past it
+    s, els = paper()
+    for k, (fold, direction, approach) in enumerate(((upper, "up", 1.0), (lower, "down", 1.4))):
+        side = np.sign(fold - approach)
+        w = HZ * np.r_[np.arange(approach, fold - side * 5e-4, side * 1e-3), fold - side * 1e-5, fold + side * 1e-5]
+        near = np.abs(predict_sweep(s, els, "x2", w, 0.8, direction).y[-2:, 0, 0])
+        at_fold = np.abs(curve.y[curve.folds[k], 0])
+        assert near[0] == pytest.approx(at_fold, rel=0.02) and abs(near[1] - at_fold) > 0.2 * at_fold
+    # the resonant branch peaks where the swept-down prediction does (the upper branch of the softening pair)
+    down = predict_sweep(s, els, "x2", HZ * np.arange(1.4, 1.0, -0.001), 0.8, "down")
+    assert np.abs(curve.y[:, 0]).max() == pytest.approx(np.abs(down.y[:, 0, 0]).max(), rel=5e-3)
+    assert np.abs(curve.y[:, 0]).max() > 0.14
+    # unstable exactly between the folds
+    middle = np.arange(curve.folds[0] + 1, curve.folds[1])
+    assert not curve.stable[middle].any() and curve.stable[: curve.folds[0] + 1].all()
+    assert curve.stable[curve.folds[1]:].all()
+
+
+def test_continuation_downwards_and_with_a_small_step_stays_in_the_span():
+    s, els = paper()
+    down = continue_response(s, els, "x2", 0.8, HZ * 1.4, HZ * 1.0)
+    assert down.complete and len(down.w) < 1000
+    np.testing.assert_allclose(np.sort(down.fold_frequencies / HZ), [1.15363, 1.21185], atol=2e-5)
+    unstable = down.w[~down.stable] / HZ
+    assert unstable.min() > 1.1536 and unstable.max() < 1.2119
+    fine = continue_response(s, els, "x2", 0.8, HZ * 1.1, HZ * 1.3, step=0.002)
+    assert fine.complete and fine.w.min() >= HZ * 1.1 * (1 - 1e-12) and len(fine.folds) == 2
+
+
+def _rk4(rhs, z0, dt, steps):
+    z = np.array(z0, float)
+    for i in range(steps):
+        t = i * dt
+        k1 = rhs(t, z)
+        k2 = rhs(t + dt / 2, z + dt / 2 * k1)
+        k3 = rhs(t + dt / 2, z + dt / 2 * k2)
+        k4 = rhs(t + dt, z + dt * k3)
+        z = z + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return z
+
+
+def test_stability_of_each_branch_at_1_18_hz_against_time_integration(paper_curve):
+    # three solutions at 1.18 Hz: the outer two are held by the time-domain system started on them, the middle
+    # one (marked unstable) is left for another
+    curve, w = paper_curve, HZ * 1.18
+    cross = np.flatnonzero(np.diff(np.sign(curve.w - w)) != 0)
+    assert len(cross) == 3
+    y, stable = [], []
+    for i in cross:
+        f = (w - curve.w[i]) / (curve.w[i + 1] - curve.w[i])
+        y.append(curve.y[i] + f * (curve.y[i + 1] - curve.y[i]))
+        stable.append(curve.stable[i] and curve.stable[i + 1])
+    y = np.array(y)                                       # (3, 2): x1, x2 phasors (grounded elements)
+
+    def rhs(t, z):                                        # the three starts at once; Coulomb as 0.1 tanh(v/1e-4)
+        x1, x2, v1, v2 = z.reshape(4, -1)
+        f1 = 200 * x1 - 100 * x2 - 500 * x1 ** 3 + v1 * np.abs(v1)
+        f2 = -100 * x1 + 200 * x2 - 750 * x2 ** 3 + 0.1 * np.tanh(v2 / 1e-4)
+        return np.concatenate([v1, v2, -f1, (0.8 * np.sin(w * t) - f2) / 2.0])
+
+    periods, per_period = 40, 400
+    T = 2 * np.pi / w
+    z0 = np.concatenate([y[:, 0].imag, y[:, 1].imag, w * y[:, 0].real, w * y[:, 1].real])
+    end = _rk4(rhs, z0, T / per_period, periods * per_period).reshape(4, -1)
+    start = z0.reshape(4, -1)
+    moved = np.hypot(end[0] - start[0], end[2] / w - start[2] / w) / np.abs(y[:, 0])   # x1 state after whole periods
+    assert stable == [True, False, True]
+    assert moved[0] < 0.05 and moved[2] < 0.05 and moved[1] > 0.5, moved

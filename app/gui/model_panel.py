@@ -12,6 +12,8 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxL
                                QPushButton, QSplitter, QTableWidget, QTableWidgetItem, QTextBrowser, QTreeWidget,
                                QTreeWidgetItem, QVBoxLayout, QWidget)
 
+from analysis.comparison import gain_phrase
+
 from .lab import Lab
 from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol
 from .results import AnalysisView
@@ -172,7 +174,7 @@ class ModelPanel(QWidget):
         if self.view is None or not rows:
             return
         c = self.view.candidates[min(rows)]
-        self.explanation.setPlainText(f"{c.element}:{c.law} — error {c.error:.4g} (×{c.gain:.2f} better, "
+        self.explanation.setPlainText(f"{c.element}:{c.law} — error {c.error:.4g} ({gain_phrase(c.gain).replace('x', '×', 1)}, "
                                       f"{'significant' if c.significant else 'not significant'})\n\n{c.explanation}")
 
     def _draw(self) -> None:
@@ -203,7 +205,7 @@ class ModelPanel(QWidget):
         table = self.candidates
         table.setRowCount(len(view.candidates))
         for row, c in enumerate(view.candidates):
-            cells = (c.element, c.law, f"{c.error:.4g}", f"×{c.gain:.2f}", "yes" if c.significant else "no")
+            cells = (c.element, c.law, f"{c.error:.4g}", gain_phrase(c.gain).replace("x", "×", 1), "yes" if c.significant else "no")
             for col, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 item.setToolTip(c.explanation)
