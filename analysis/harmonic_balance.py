@@ -188,6 +188,9 @@ class SweepPrediction:
     receptance : ndarray, shape (L, B, n)
         ``x_p / F`` at every DOF of the structure, m/N.
     converged : ndarray of bool, shape (L, B)
+    stable : ndarray of bool, shape (L, B)
+        The balance Jacobian at the solution has a positive determinant (not on the saddle branch between two
+        folds; :class:`ResponseCurve`).
     """
 
     w: np.ndarray
@@ -195,6 +198,7 @@ class SweepPrediction:
     y: np.ndarray
     receptance: np.ndarray
     converged: np.ndarray
+    stable: np.ndarray
 
     @property
     def amplitude(self) -> np.ndarray:
@@ -222,22 +226,55 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
     kbar_fns : optional, one ``f(X, w) -> kbar`` per element (default: the elements' laws).
     system : optional precomputed :func:`condense` result for the same lines.
     """
-    if direction not in ("up", "down"):
-        raise ValueError(f"direction must be 'up' or 'down', got {direction!r}")
+    return predict_sweeps(structure, elements, excitation_dof, w, force, [direction], kbar_fns, system)[0]
+
+
+def predict_sweeps(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, force,
+                   directions: Sequence[str] = ("up", "down"), kbar_fns: Sequence[KbarFunction] | None = None,
+                   system: CondensedSystem | None = None) -> list[SweepPrediction]:
+    """:func:`predict_sweep` for several sweep directions over the same lines, solved in one batch (every
+    direction and force level advances one line per step): one prediction per direction.
+
+    Where the response is multivalued the two directions follow different stable branches, so the up and
+    down sweeps together give every stable solution a stepped sine can measure there.
+    """
+    for direction in directions:
+        if direction not in ("up", "down"):
+            raise ValueError(f"direction must be 'up' or 'down', got {direction!r}")
     w = np.atleast_1d(np.asarray(w, float))
-    F = np.atleast_1d(np.asarray(force, float))
+    F1 = np.atleast_1d(np.asarray(force, float))
     sys_ = system if system is not None else condense(structure, elements, excitation_dof, w)
     fns = list(kbar_fns) if kbar_fns is not None else element_kbar_functions(elements)
+    D = len(directions)
+    F = np.tile(F1, D)
+    orders = np.repeat(np.stack([np.argsort(w) if d == "up" else np.argsort(-w) for d in directions]),
+                       len(F1), axis=0)                                              # (D B, L)
+    y, converged = _sweep(sys_, fns, F, orders)
     L, B, r = len(w), len(F), len(fns)
-    order = np.argsort(w) if direction == "up" else np.argsort(-w)
+    floor = 1e-9 * np.abs(sys_.g[:, None, :] * F[None, :, None]).max(axis=2).reshape(-1)
+    kb = _kbar(fns, y.reshape(L * B, r), np.repeat(w, B), floor).reshape(L, B, r)
+    x = (sys_.Hq[:, None, :] * F[None, :, None] - np.einsum("lnr,lbr->lbn", sys_.HE, kb * y)) / F[None, :, None]
+    J = _residual_jacobian(y.reshape(L * B, r), np.repeat(w, B), np.repeat(sys_.G, B, axis=0), fns, floor)
+    stable = (np.linalg.det(J) > 0).reshape(L, B) if r else np.ones((L, B), bool)
+    n = len(F1)
+    part = [slice(k * n, (k + 1) * n) for k in range(D)]
+    return [SweepPrediction(w, F1, y[:, p], x[:, p], converged[:, p], stable[:, p]) for p in part]
+
+
+def _sweep(sys_: CondensedSystem, fns, F, orders) -> tuple[np.ndarray, np.ndarray]:
+    """Newton along each batch item's own line order ``orders[b]`` (B, L): the element phasors (L, B, r) and
+    convergence flags (L, B)."""
+    B, L = orders.shape
+    r = len(fns)
+    items = np.arange(B)
     y = np.zeros((L, B, r), complex)
     converged = np.zeros((L, B), bool)
-    prev_line = None
-    for line in order:
-        gF = sys_.g[line][None, :] * F[:, None]                                     # (B, r)
+    for step in range(L):
+        line = orders[:, step]                                                      # (B,)
+        gF = sys_.g[line] * F[:, None]                                              # (B, r)
         scale = np.maximum(np.abs(gF).max(axis=1), 1e-300)                          # (B,)
-        G = np.broadcast_to(sys_.G[line], (B, r, r))
-        wl = np.full(B, w[line])
+        G = sys_.G[line]
+        wl = sys_.w[line]
 
         def fun(z, G=G, gF=gF, wl=wl, scale=scale):
             yy = _to_complex(z) * scale[:, None]
@@ -248,9 +285,10 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
 
         # where the previous line had no solution either (e.g. friction holding), one more attempt from the
         # linear response is all that is worth trying
-        starts = [gF] if prev_line is None else _restarts(y[prev_line], gF)
+        prev = None if step == 0 else orders[:, step - 1]
+        starts = [gF] if prev is None else _restarts(y[prev, items], gF)
         ok = np.zeros(B, bool)
-        hopeless = np.zeros(B, bool) if prev_line is None else ~converged[prev_line]
+        hopeless = np.zeros(B, bool) if prev is None else ~converged[prev, items]
         for attempt, start in enumerate(starts):
             todo = np.flatnonzero(~ok & ~(hopeless & (attempt > 1)))
             if not len(todo):
@@ -259,15 +297,11 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
                               jac=lambda zz, t=todo: jac(_pad(zz, t, B))[t])
             sol = _to_complex(z) * scale[todo, None]
             if attempt == 0:
-                y[line, todo] = sol  # kept, flagged, if no start converges
-            y[line, todo[conv]] = sol[conv]
+                y[line[todo], todo] = sol  # kept, flagged, if no start converges
+            y[line[todo[conv]], todo[conv]] = sol[conv]
             ok[todo[conv]] = True
-        converged[line] = ok
-        prev_line = line
-    floor = 1e-9 * np.abs(sys_.g[:, None, :] * F[None, :, None]).max(axis=2).reshape(-1)
-    kb = _kbar(fns, y.reshape(L * B, r), np.repeat(w, B), floor).reshape(L, B, r)
-    x = sys_.Hq[:, None, :] * F[None, :, None] - np.einsum("lnr,lbr->lbn", sys_.HE, kb * y)
-    return SweepPrediction(w, F, y, x / F[None, :, None], converged)
+        converged[line, items] = ok
+    return y, converged
 
 
 def _restarts(previous, linear):

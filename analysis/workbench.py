@@ -229,7 +229,7 @@ class Workbench:
                 for t in el.laws:
                     if not t.complete:
                         raise InputError(f"element {el.name!r}: law {t.law.name} has no values; fit it first")
-            self._comparison = self.predictor.compare()
+            self._comparison = self.predictor.compare(locate_folds=True)
         return self._comparison
 
     def candidates(self, laws=None) -> list[Candidate]:
@@ -307,7 +307,7 @@ class Workbench:
     def to_json(self, candidates: list[Candidate] | None = None) -> dict:
         comp = self.compare()
         out = {"elements": [self.reports[el.name].to_json(el) for el in self.model.elements],
-               **comp.to_json(),
+               **comp.to_json(), "other_branch_hz": comp.other_branch_hz(self.measurements.sine),
                "candidates": [c.to_json() for c in (candidates or [])],
                "history": [h.to_json() for h in self.history]}
         if self.reference is not None:

@@ -67,6 +67,7 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
     run = next(r for r in wb.measurements.sine if r.name == worst)
     out.append(f"largest misfit: run {worst} at {run.frequency_hz[i]:.4g} Hz (relative error "
                f"{comp.residual_map[worst][i]:.3g})")
+    out += _jump_lines(comp, wb.measurements.sine)
     if len(wb.history) > 1:
         out.append("history: " + " -> ".join(f"{h.action} {h.error:.3g}" for h in wb.history))
     if candidates:
@@ -76,3 +77,15 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
             out.append(f"  {c.element}:{c.law}  error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
             out.append(f"    {c.explanation}")
     return "\n".join(out)
+
+
+def _jump_lines(comp, runs) -> list[str]:
+    """The jumps, predicted (fold) against measured, and the lines compared with another branch."""
+    out = []
+    if comp.jumps:
+        out.append("jumps (predicted fold against measured):")
+        out += [f"  {j.text()}" for j in comp.jumps]
+    for name, freqs in comp.other_branch_hz(runs).items():
+        out.append(f"  run {name}: {len(freqs)} line(s) measured on the other branch ("
+                   + ", ".join(f"{f:.5g}" for f in freqs) + " Hz), compared with it")
+    return out
