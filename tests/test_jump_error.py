@@ -90,3 +90,15 @@ def test_the_jump_is_reported_in_the_text_and_the_json(analysed):
 def test_gain_phrases():
     assert gain_phrase(3.2) == "x3.20 better"
     assert gain_phrase(1 / 1.25) == "x1.25 worse"
+
+
+def test_the_model_tab_shows_the_jump_and_marks_the_line(qtbot, analysed):
+    from app.gui.main_window import MainWindow
+    from app.gui.results import analysis_view
+    wb, _, _ = analysed
+    window = MainWindow("test")
+    qtbot.addWidget(window)
+    window.model._update(analysis_view(wb, []))
+    assert "measured between 6.2 and 6.28 Hz (1 line early)" in window.model.jump_label.text()
+    crosses = [c for c in window.model.residual.listDataItems() if c.opts.get("symbol") == "x"]
+    assert len(crosses) == 1 and crosses[0].getData()[0] == pytest.approx([6.28])

@@ -60,6 +60,12 @@ class ModelPanel(QWidget):
         row.addWidget(self.error_label, 1)
         row.addWidget(self.busy_label)
         layout.addLayout(row)
+        self.jump_label = QLabel("")
+        self.jump_label.setToolTip("Where the predicted response is multivalued, each measured line is compared with "
+                                   "the nearer stable branch (docs/workbench.md §3); ✕ marks lines measured on "
+                                   "another branch than the swept prediction")
+        self.jump_label.setWordWrap(True)
+        layout.addWidget(self.jump_label)
 
         splitter = QSplitter(Qt.Orientation.Horizontal)
         layout.addWidget(splitter, 1)
@@ -134,6 +140,7 @@ class ModelPanel(QWidget):
         self.view = None
         self.model_label.setText(self.lab.model_label or "no model: open one, or make a starter model from the rig")
         self.error_label.setText("FRF error: — (press Analyze)")
+        self.jump_label.setText("")
         self.laws.clear()
         self.candidates.setRowCount(0)
         self.explanation.clear()
@@ -183,6 +190,8 @@ class ModelPanel(QWidget):
             return
         by_level = ", ".join(f"{f:g} N: {e:.3g}" for f, e in view.error_by_level)
         self.error_label.setText(f"FRF error {view.error:.4g}   ({by_level})")
+        self.jump_label.setText("<br>".join(["<b>Jumps</b> (predicted fold against measured):", *view.jumps])
+                                if view.jumps else "")
         self._draw_laws(view)
         self._draw_candidates(view)
         self._draw_frf(view)
@@ -237,6 +246,21 @@ class ModelPanel(QWidget):
                 self.frf.plot(f, finite_log(np.abs(predicted[:, p])), pen=pg.mkPen(color, width=1.5))
             self.residual.plot(f, finite_log(view.residual_map[run.name][order]), pen=pg.mkPen(color, width=1),
                                symbol="o", symbolSize=4, symbolBrush=pg.mkBrush(color), symbolPen=None)
+            self._draw_other_branch(view, run, order, color)
+
+    def _draw_other_branch(self, view: AnalysisView, run, order, color) -> None:
+        """Lines measured on another branch than the swept prediction: a cross on the residual map and the
+        branch they were compared with on the FRF plot."""
+        other = view.other_branch.get(run.name)
+        if other is None or not other.any():
+            return
+        lines = order[other[order]]
+        f = run.frequency_hz[lines]
+        self.residual.plot(f, finite_log(view.residual_map[run.name][lines]), pen=None, symbol="x", symbolSize=14,
+                           symbolBrush=pg.mkBrush(color), symbolPen=pg.mkPen(color, width=2))
+        for p in range(len(run.sensor_dofs)):
+            self.frf.plot(f, finite_log(np.abs(view.compared[run.name][lines, p])), pen=None, symbol="x",
+                          symbolSize=12, symbolPen=pg.mkPen(color, width=2), symbolBrush=None)
 
     def _draw_history(self, view: AnalysisView) -> None:
         self.history.clear()
