@@ -23,9 +23,26 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .harmonic_balance import CondensedSystem, KbarFunction, condense, continue_response, predict_sweeps
+from .harmonic_balance import (CondensedSystem, KbarFunction, condense, continue_response, predict_multiharmonic,
+                               predict_sweeps, single_harmonic_distortion)
 from .measurements import Measurements, SineRun
 from .model import Model
+
+
+@dataclass(frozen=True)
+class HarmonicCriterion:
+    """Which lines the single-harmonic balance cannot represent well enough (docs/workbench.md §3): those whose
+    displacement THD -- measured at the sensors, or implied by the single-harmonic solution itself
+    (:func:`analysis.harmonic_balance.single_harmonic_distortion`) -- exceeds ``limit``. They are predicted
+    with ``n_harmonics`` harmonics and the mean."""
+
+    limit: float = 0.01
+    n_harmonics: int = 7
+    n_time: int = 128
+
+    def selects(self, measured: np.ndarray | None, implied: np.ndarray) -> np.ndarray:
+        thd = implied if measured is None else np.maximum(np.asarray(measured, float), implied)
+        return thd > self.limit
 
 
 @dataclass
@@ -38,8 +55,9 @@ class RunPrediction:
         Predicted receptance at the sensors, m/N.
     swept_ok, opposite_ok : ndarray (L,) bool
         Converged and stable (:class:`analysis.harmonic_balance.SweepPrediction`).
-    y : ndarray (L, r) complex
-        Element phasors of the swept prediction (to continue from, for the fold of a jump).
+    y, opposite_y : ndarray (L, r) complex
+        Element phasors of the two sweeps (to continue from, for the fold of a jump; to start the
+        multi-harmonic balance on the compared branch).
     """
 
     swept: np.ndarray
@@ -47,6 +65,7 @@ class RunPrediction:
     swept_ok: np.ndarray
     opposite_ok: np.ndarray
     y: np.ndarray
+    opposite_y: np.ndarray
 
     def multivalued(self) -> np.ndarray:
         """Lines where both sweeps found stable solutions that differ (relative 1e-6): coexisting branches."""
@@ -126,6 +145,8 @@ class Comparison:
     other_branch : dict run name -> ndarray (L,) bool
         Lines where the measurement sits on another branch than the swept prediction.
     jumps : list of Jump
+    multiharmonic : dict run name -> ndarray (L,) bool
+        Lines predicted by multi-harmonic balance (:class:`HarmonicCriterion`).
     """
 
     error: float
@@ -138,6 +159,7 @@ class Comparison:
     compared: dict[str, np.ndarray] = field(default_factory=dict)
     other_branch: dict[str, np.ndarray] = field(default_factory=dict)
     jumps: list[Jump] = field(default_factory=list)
+    multiharmonic: dict[str, np.ndarray] = field(default_factory=dict)
 
     def other_branch_hz(self, runs: Sequence[SineRun]) -> dict[str, list[float]]:
         """Frequencies of the lines measured on another branch, per run that has any."""
@@ -147,7 +169,8 @@ class Comparison:
     def to_json(self) -> dict:
         return {"error": self.error,
                 "error_by_level": [{"force": f, "error": e} for f, e in self.error_by_level],
-                "jumps": [j.to_json() for j in self.jumps]}
+                "jumps": [j.to_json() for j in self.jumps],
+                "multiharmonic_lines": int(sum(m.sum() for m in self.multiharmonic.values()))}
 
 
 class Predictor:
@@ -193,17 +216,45 @@ class Predictor:
                 rows = self._rows[run.name]
                 out[run.name] = RunPrediction(swept.receptance[:, b, rows], opposite.receptance[:, b, rows],
                                               swept.converged[:, b] & swept.stable[:, b],
-                                              opposite.converged[:, b] & opposite.stable[:, b], swept.y[:, b])
+                                              opposite.converged[:, b] & opposite.stable[:, b], swept.y[:, b],
+                                              opposite.y[:, b])
         return out
 
-    def compare(self, kbar_fns: Sequence[KbarFunction] | None = None, locate_folds: bool = False) -> Comparison:
-        """The error for the given describing functions; ``locate_folds`` also finds the fold of every jump by
-        continuation (for the report; the ranking does without)."""
+    def compare(self, kbar_fns: Sequence[KbarFunction] | None = None, locate_folds: bool = False,
+                harmonics: HarmonicCriterion | None = None) -> Comparison:
+        """The error for the given describing functions. ``locate_folds`` also finds the fold of every jump by
+        continuation; ``harmonics`` predicts the lines it selects by multi-harmonic balance (both for the report;
+        the ranking does without, and ``harmonics`` needs the model's own laws: ``kbar_fns`` None)."""
         predictions = self.predict(kbar_fns)
         comp = compare_predictions(self.runs, predictions)
         if locate_folds:
             self._locate_folds(comp, predictions, kbar_fns)
+        if harmonics is not None:
+            comp = self._with_harmonics(comp, predictions, harmonics)
         return comp
+
+    def _with_harmonics(self, comp: Comparison, predictions: dict[str, RunPrediction],
+                        criterion: HarmonicCriterion) -> Comparison:
+        """``comp`` with the lines the criterion selects predicted by multi-harmonic balance (the fundamental),
+        each started from the single-harmonic solution of the branch it was compared with."""
+        structure, elements = self.model.structure, self.model.elements
+        compared, selected = dict(comp.compared), {}
+        for run in self.runs:
+            pred, rows = predictions[run.name], self._rows[run.name]
+            y = np.where(comp.other_branch[run.name][:, None], pred.opposite_y, pred.y)
+            implied = single_harmonic_distortion(structure, elements, run.excitation_dof, run.w, run.force, y,
+                                                 criterion.n_harmonics)[:, rows].max(axis=1)
+            lines = np.flatnonzero(criterion.selects(run.distortion, implied))
+            mask = np.zeros(len(run.w), bool)
+            if len(lines):
+                mh = predict_multiharmonic(structure, elements, run.excitation_dof, run.w[lines], run.force,
+                                           criterion.n_harmonics, criterion.n_time, y_start=y[lines])
+                lines = lines[mh.converged]
+                compared[run.name] = compared[run.name].copy()
+                compared[run.name][lines] = mh.receptance(run.force)[mh.converged][:, rows]
+                mask[lines] = True
+            selected[run.name] = mask
+        return _scored(self.runs, comp.predicted, comp.converged, compared, comp.other_branch, comp.jumps, selected)
 
     def _locate_folds(self, comp: Comparison, predictions: dict[str, RunPrediction], kbar_fns) -> None:
         """Set ``fold_hz`` of each jump: continuation from the swept solution at the last line before the jump
@@ -223,24 +274,32 @@ class Predictor:
 
 def compare_predictions(runs: Sequence[SineRun], predictions: dict[str, RunPrediction]) -> Comparison:
     """The error metric, per level and per line, from the predictions of every run (module docstring)."""
+    compared, other_branch, jumps = {}, {}, []
+    for run in runs:
+        pred = predictions[run.name]
+        swept_num = np.sum(np.abs(pred.swept - run.receptance) ** 2, axis=1)
+        other_num = np.sum(np.abs(pred.opposite - run.receptance) ** 2, axis=1)
+        other = pred.multivalued() & (other_num < swept_num)
+        compared[run.name] = np.where(other[:, None], pred.opposite, pred.swept)
+        other_branch[run.name] = other
+        jumps += _jumps(run, pred, other)
+    return _scored(runs, {n: p.swept for n, p in predictions.items()},
+                   {n: p.swept_ok for n, p in predictions.items()}, compared, other_branch, jumps)
+
+
+def _scored(runs, predicted, converged, compared, other_branch, jumps, multiharmonic=None) -> Comparison:
+    """A comparison whose line-by-line predictions are ``compared``: the error, per level and per line."""
     num = den = 0.0
     chi2 = 0.0
     have_std = all(r.receptance_std is not None for r in runs)
     by_level: dict[float, list[float]] = {}
-    residual_map, compared, other_branch, jumps = {}, {}, {}, []
+    residual_map = {}
     n_obs = 0
     for run in runs:
-        pred = predictions[run.name]
-        line_num = np.sum(np.abs(pred.swept - run.receptance) ** 2, axis=1)
-        other_num = np.sum(np.abs(pred.opposite - run.receptance) ** 2, axis=1)
-        other = pred.multivalued() & (other_num < line_num)
-        line_num = np.where(other, other_num, line_num)
-        chosen = np.where(other[:, None], pred.opposite, pred.swept)
-        diff = chosen - run.receptance
+        diff = compared[run.name] - run.receptance
+        line_num = np.sum(np.abs(diff) ** 2, axis=1)
         line_den = np.sum(np.abs(run.receptance) ** 2, axis=1)
         residual_map[run.name] = np.sqrt(line_num / line_den)
-        compared[run.name], other_branch[run.name] = chosen, other
-        jumps += _jumps(run, pred, other)
         rn, rd = float(line_num.sum()), float(line_den.sum())
         num, den = num + rn, den + rd
         acc = by_level.setdefault(round(run.force, 12), [0.0, 0.0])
@@ -251,9 +310,8 @@ def compare_predictions(runs: Sequence[SineRun], predictions: dict[str, RunPredi
             chi2 += float(np.sum(np.abs(diff) ** 2 / np.asarray(run.receptance_std) ** 2))
     return Comparison(float(np.sqrt(num / den)) if den else float("nan"),
                       [(f, float(np.sqrt(a / b))) for f, (a, b) in sorted(by_level.items())],
-                      residual_map, {n: p.swept for n, p in predictions.items()},
-                      {n: p.swept_ok for n, p in predictions.items()}, chi2 if have_std else None, n_obs,
-                      compared, other_branch, jumps)
+                      residual_map, predicted, converged, chi2 if have_std else None, n_obs,
+                      compared, other_branch, jumps, multiharmonic or {})
 
 
 def _jumps(run: SineRun, pred: RunPrediction, other: np.ndarray) -> list[Jump]:

@@ -564,13 +564,60 @@ def element_force_history(element: Element, y: np.ndarray, v: np.ndarray) -> np.
     return total
 
 
-def predict_multiharmonic(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, force: float,
-                          n_harmonics: int = 5, n_time: int = 256, direction: str = "up") -> MultiharmonicResponse:
-    """Harmonic balance with ``n_harmonics`` harmonics and the mean, forces by AFT.
+class _AFT:
+    """Alternating frequency-time evaluation of the elements' forces for harmonics 0..H: the laws' time-domain
+    kernels are marched over two periods of the trial motion (so hysteretic laws start their second cycle on
+    the closed loop) and the second period is transformed."""
 
-    The laws' time-domain kernels are marched over two periods of the trial motion (so hysteretic laws start
-    their second cycle on the closed loop) and the second period is transformed. Newton (scipy ``hybr``) runs
-    at each line from the previous line's solution, starting from the single-harmonic solution.
+    def __init__(self, elements: Sequence[Element], n_harmonics: int, n_time: int):
+        self.elements, self.n_time = elements, n_time
+        theta = 2 * np.pi * np.arange(n_time) / n_time
+        self.k = np.arange(n_harmonics + 1)
+        self.S, self.C = np.sin(np.outer(theta, self.k)), np.cos(np.outer(theta, self.k))
+
+    def forces(self, Yk: np.ndarray, w: float) -> np.ndarray:
+        """Element force phasors (H+1, r) of the motion with element phasors ``Yk`` (H+1, r) at w."""
+        S, C, k, n = self.S, self.C, self.k, self.n_time
+        y_t = Yk[0].real[None, :] + S[:, 1:] @ Yk[1:].real + C[:, 1:] @ Yk[1:].imag
+        v_t = w * ((C[:, 1:] * k[1:]) @ Yk[1:].real - (S[:, 1:] * k[1:]) @ Yk[1:].imag)
+        f = np.empty_like(y_t)
+        for i, el in enumerate(self.elements):
+            f[:, i] = element_force_history(el, np.tile(y_t[:, i], 2), np.tile(v_t[:, i], 2))[n:]
+        Fk = 2.0 / n * (S.T @ f + 1j * (C.T @ f))
+        Fk[0] = f.mean(axis=0)
+        return Fk
+
+
+def single_harmonic_distortion(structure: Structure, elements: Sequence[Element], excitation_dof: str, w,
+                               force: float, y, n_harmonics: int = 5, n_time: int = 64) -> np.ndarray:
+    """The harmonics a single-harmonic solution implies: the elements' forces along the harmonic motion ``y``
+    (L, r) at lines ``w`` (L,) put through the structure at 0 and 2..H times w. Returns the total harmonic
+    distortion of every DOF's displacement, shape (L, n): ``sqrt(sum_{k != 1} |X_k|^2) / |X_1|``."""
+    w = np.atleast_1d(np.asarray(w, float))
+    y = np.atleast_2d(np.asarray(y, complex))
+    aft = _AFT(elements, n_harmonics, n_time)
+    E, loads = _element_loads(structure, elements, excitation_dof)
+    out = np.zeros((len(w), structure.n))
+    for line, wl in enumerate(w):
+        Yk = np.zeros((n_harmonics + 1, len(elements)), complex)
+        Yk[1] = y[line]
+        Fk = aft.forces(Yk, wl)
+        HE = structure.response(aft.k * wl, loads)[:, :, :-1]                  # (H+1, n, r)
+        Xk = -np.einsum("knr,kr->kn", HE, Fk)
+        X1 = structure.response([wl], loads)[0, :, -1] * force + Xk[1]
+        Xk[1] = 0.0
+        out[line] = np.sqrt(np.sum(np.abs(Xk) ** 2, axis=0)) / np.maximum(np.abs(X1), 1e-300)
+    return out
+
+
+def predict_multiharmonic(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, force: float,
+                          n_harmonics: int = 5, n_time: int = 256, direction: str = "up",
+                          y_start=None) -> MultiharmonicResponse:
+    """Harmonic balance with ``n_harmonics`` harmonics and the mean, forces by AFT (:class:`_AFT`).
+
+    Newton (scipy ``hybr``) runs at each line from the previous line's solution, starting from the
+    single-harmonic solution; with ``y_start`` (single-harmonic element phasors, (L, r)) every line starts from
+    its own, which picks the branch where the response is multivalued.
     """
     w = np.atleast_1d(np.asarray(w, float))
     H = int(n_harmonics)
@@ -578,12 +625,12 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
         raise ValueError("need n_harmonics >= 1 and n_time >= 4 n_harmonics + 2")
     r = len(elements)
     E, loads = _element_loads(structure, elements, excitation_dof)
-    theta = 2 * np.pi * np.arange(n_time) / n_time
-    k = np.arange(H + 1)
-    S, C = np.sin(np.outer(theta, k)), np.cos(np.outer(theta, k))
+    aft = _AFT(elements, H, n_time)
+    k = aft.k
     order = np.argsort(w) if direction == "up" else np.argsort(-w)
     # the single-harmonic solution starts the first line; later lines start from the previous one
-    single = predict_sweep(structure, elements, excitation_dof, w[order[:1]], force, direction).y[0, 0]
+    if y_start is None:
+        single = predict_sweep(structure, elements, excitation_dof, w[order[:1]], force, direction).y[0, 0]
     out = np.zeros((len(w), H + 1, structure.n), complex)
     converged = np.zeros(len(w), bool)
     previous = None
@@ -595,18 +642,6 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
         G = np.einsum("ni,knj->kij", E, HE)
         g1 = E.T @ Hq[1]
         scale = max(np.abs(g1).max() * force, 1e-300)
-
-        def forces(Yk):                                      # Yk (H+1, r) complex phasors -> force phasors
-            y_t = Yk[0].real[None, :] + S[:, 1:] @ Yk[1:].real + C[:, 1:] @ Yk[1:].imag
-            v_t = wl * ((C[:, 1:] * k[1:]) @ Yk[1:].real - (S[:, 1:] * k[1:]) @ Yk[1:].imag)
-            f = np.empty_like(y_t)
-            for i, el in enumerate(elements):
-                f[:, i] = element_force_history(el, np.tile(y_t[:, i], 2), np.tile(v_t[:, i], 2))[n_time:]
-            a = 2.0 / n_time * S.T @ f
-            b = 2.0 / n_time * C.T @ f
-            Fk = a + 1j * b
-            Fk[0] = f.mean(axis=0)
-            return Fk
 
         def unpack(z):
             Yk = np.zeros((H + 1, r), complex)
@@ -620,18 +655,18 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
 
         def residual(z):
             Yk = unpack(z)
-            R = Yk + np.einsum("kij,kj->ki", G, forces(Yk))
+            R = Yk + np.einsum("kij,kj->ki", G, aft.forces(Yk, wl))
             R[1] -= g1 * force
             return pack(R)
 
-        if previous is None:
+        if previous is None or y_start is not None:
             start = np.zeros((H + 1, r), complex)
-            start[1] = single
+            start[1] = single if y_start is None else y_start[line]
         else:
             start = previous
         sol = scipy.optimize.root(residual, pack(start), method="hybr", options={"xtol": 1e-12})
         Yk = unpack(sol.x)
-        Fk = forces(Yk)
+        Fk = aft.forces(Yk, wl)
         out[line] = np.einsum("kn,k->kn", Hq, np.r_[0.0, force, np.zeros(H - 1)]) - np.einsum("knr,kr->kn", HE, Fk)
         converged[line] = sol.success and np.linalg.norm(residual(sol.x)) < 1e-8
         previous = Yk
