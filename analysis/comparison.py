@@ -33,16 +33,18 @@ from .model import Model
 class HarmonicCriterion:
     """Which lines the single-harmonic balance cannot represent well enough (docs/workbench.md §3): those whose
     displacement THD -- measured at the sensors, or implied by the single-harmonic solution itself
-    (:func:`analysis.harmonic_balance.single_harmonic_distortion`) -- exceeds ``limit``. They are predicted
-    with ``n_harmonics`` harmonics and the mean."""
+    (:func:`analysis.harmonic_balance.single_harmonic_distortion`) -- exceeds ``limit``, and the multivalued
+    lines (near a fold the fundamental is so sensitive that harmonics of 0.2 % move it by 2 %). They are
+    predicted with ``n_harmonics`` harmonics and the mean, forces sampled at ``n_time`` points per period (a
+    friction force's sign change is placed to 1/n_time of the period)."""
 
     limit: float = 0.01
     n_harmonics: int = 7
-    n_time: int = 128
+    n_time: int = 512
 
-    def selects(self, measured: np.ndarray | None, implied: np.ndarray) -> np.ndarray:
-        thd = implied if measured is None else np.maximum(np.asarray(measured, float), implied)
-        return thd > self.limit
+    def selects(self, measured: np.ndarray | None, implied: np.ndarray, multivalued: np.ndarray) -> np.ndarray:
+        thd = implied if measured is None else np.maximum(np.nan_to_num(np.asarray(measured, float)), implied)
+        return (thd > self.limit) | multivalued
 
 
 @dataclass
@@ -244,7 +246,7 @@ class Predictor:
             y = np.where(comp.other_branch[run.name][:, None], pred.opposite_y, pred.y)
             implied = single_harmonic_distortion(structure, elements, run.excitation_dof, run.w, run.force, y,
                                                  criterion.n_harmonics)[:, rows].max(axis=1)
-            lines = np.flatnonzero(criterion.selects(run.distortion, implied))
+            lines = np.flatnonzero(criterion.selects(run.distortion, implied, pred.multivalued()))
             mask = np.zeros(len(run.w), bool)
             if len(lines):
                 mh = predict_multiharmonic(structure, elements, run.excitation_dof, run.w[lines], run.force,

@@ -592,22 +592,29 @@ def single_harmonic_distortion(structure: Structure, elements: Sequence[Element]
                                force: float, y, n_harmonics: int = 5, n_time: int = 64) -> np.ndarray:
     """The harmonics a single-harmonic solution implies: the elements' forces along the harmonic motion ``y``
     (L, r) at lines ``w`` (L,) put through the structure at 0 and 2..H times w. Returns the total harmonic
-    distortion of every DOF's displacement, shape (L, n): ``sqrt(sum_{k != 1} |X_k|^2) / |X_1|``."""
+    distortion of every DOF's displacement, shape (L, n): ``sqrt(sum_{k != 1} |X_k|^2) / |X_1|``.
+
+    All lines at once: their two-period motions are marched one after another in one call per element (the
+    first period of each line re-seats hysteretic laws)."""
     w = np.atleast_1d(np.asarray(w, float))
     y = np.atleast_2d(np.asarray(y, complex))
-    aft = _AFT(elements, n_harmonics, n_time)
+    L, H = len(w), n_harmonics
+    aft = _AFT(elements, H, n_time)
+    S1, C1 = aft.S[:, 1], aft.C[:, 1]
     E, loads = _element_loads(structure, elements, excitation_dof)
-    out = np.zeros((len(w), structure.n))
-    for line, wl in enumerate(w):
-        Yk = np.zeros((n_harmonics + 1, len(elements)), complex)
-        Yk[1] = y[line]
-        Fk = aft.forces(Yk, wl)
-        HE = structure.response(aft.k * wl, loads)[:, :, :-1]                  # (H+1, n, r)
-        Xk = -np.einsum("knr,kr->kn", HE, Fk)
-        X1 = structure.response([wl], loads)[0, :, -1] * force + Xk[1]
-        Xk[1] = 0.0
-        out[line] = np.sqrt(np.sum(np.abs(Xk) ** 2, axis=0)) / np.maximum(np.abs(X1), 1e-300)
-    return out
+    y_t = S1[None, :, None] * y.real[:, None, :] + C1[None, :, None] * y.imag[:, None, :]        # (L, N, r)
+    v_t = w[:, None, None] * (C1[None, :, None] * y.real[:, None, :] - S1[None, :, None] * y.imag[:, None, :])
+    f = np.empty((L, n_time, len(elements)))
+    for i, el in enumerate(elements):
+        twice = element_force_history(el, np.tile(y_t[:, :, i], 2).ravel(), np.tile(v_t[:, :, i], 2).ravel())
+        f[:, :, i] = twice.reshape(L, 2 * n_time)[:, n_time:]
+    Fk = 2.0 / n_time * (np.einsum("nk,lnr->lkr", aft.S, f) + 1j * np.einsum("nk,lnr->lkr", aft.C, f))
+    Fk[:, 0] = f.mean(axis=1)
+    resp = structure.response((aft.k[None, :] * w[:, None]).ravel(), loads).reshape(L, H + 1, structure.n, -1)
+    Xk = -np.einsum("lknr,lkr->lkn", resp[..., :-1], Fk)
+    X1 = resp[:, 1, :, -1] * force + Xk[:, 1]
+    Xk[:, 1] = 0.0
+    return np.sqrt(np.sum(np.abs(Xk) ** 2, axis=1)) / np.maximum(np.abs(X1), 1e-300)
 
 
 def predict_multiharmonic(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, force: float,
