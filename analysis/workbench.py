@@ -117,7 +117,8 @@ class ReferenceReport:
 class Workbench:
     """Carry one model through identification, fitting, comparison and the missing-effect loop."""
 
-    def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.05):
+    def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.05,
+                 harmonics: HarmonicCriterion | None = HarmonicCriterion()):
         if not measurements.sine:
             raise InputError("the session has no stepped-sine run to identify from")
         missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
@@ -126,7 +127,7 @@ class Workbench:
         self.model = model.copy()
         self.measurements = measurements
         self.distortion_limit = distortion_limit   # lines whose displacement THD is larger: left out
-        self.harmonics: HarmonicCriterion | None = HarmonicCriterion()   # lines predicted multi-harmonically
+        self.harmonics = harmonics                 # which lines are predicted multi-harmonically (None: none)
         self.reference: ReferenceReport | None = None
         self.reports: dict[str, ElementReport] = {}
         self.history: list[HistoryStep] = []
