@@ -80,7 +80,8 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
 
 
 def _jump_lines(comp, runs) -> list[str]:
-    """The jumps, predicted (fold) against measured, and the lines compared with another branch."""
+    """The jumps, predicted (fold) against measured, the lines compared with another branch and those predicted
+    multi-harmonically."""
     out = []
     if comp.jumps:
         out.append("jumps (predicted fold against measured):")
@@ -88,4 +89,7 @@ def _jump_lines(comp, runs) -> list[str]:
     for name, freqs in comp.other_branch_hz(runs).items():
         out.append(f"  run {name}: {len(freqs)} line(s) measured on the other branch ("
                    + ", ".join(f"{f:.5g}" for f in freqs) + " Hz), compared with it")
+    n_multi = int(sum(m.sum() for m in comp.multiharmonic.values()))
+    if n_multi:
+        out.append(f"{n_multi} line(s) predicted with harmonics (displacement THD above 1 % or near a fold)")
     return out
