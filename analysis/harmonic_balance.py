@@ -16,6 +16,8 @@ Three solvers work on the condensed system:
 - :func:`predict_sweep` -- what a stepped-sine sweep measures: Newton at each line starting from the previous
   line's solution, for all force levels at once. Past a fold the old branch ends and the solver lands on the
   remaining one, as the structure jumps.
+- :func:`predict_sweeps` -- the same in several directions over the same lines in one batch: where the
+  response is multivalued the up and down sweeps give its two stable branches (the jump-robust error).
 - :func:`continue_response` -- pseudo-arclength continuation in (y, w) that passes folds and returns the
   whole response curve, unstable parts marked.
 - :func:`predict_multiharmonic` -- several harmonics (and the mean) by alternating frequency-time (AFT)
