@@ -1,4 +1,4 @@
-"""Model against measurement: predicted stepped-sine FRFs and the error metric (docs/workbench.md).
+"""Model against measurement: predicted stepped-sine FRFs and the error metric (docs/workbench.md §3).
 
 The error of a model is the relative FRF error over every measured stepped-sine line and sensor:
 
@@ -9,17 +9,118 @@ one force level (both sweep directions), and the residual map gives the same rat
 sensors only), so where the model fails is visible, not only how much. When the measured receptances carry a
 standard deviation, the chi-square ``sum |h_pred - h_meas|^2 / std^2`` is returned too; it decides whether an
 improvement is larger than the noise explains.
+
+Jumps do not dominate it: every run is predicted by a sweep in its own direction and one the other way over the
+same lines. Where both give stable solutions that differ, the response is multivalued there, and
+``h_pred`` is the one of the two nearer the measured point (summed over sensors): a measurement that jumped a
+line or two early is compared with the branch it sits on. Those lines are marked in ``other_branch``, and the
+jumps are reported separately (:class:`Jump`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
 
-from .harmonic_balance import CondensedSystem, KbarFunction, condense, predict_sweep
+from .harmonic_balance import (CondensedSystem, KbarFunction, condense, continue_response, predict_multiharmonic,
+                               predict_sweeps, single_harmonic_distortion)
 from .measurements import Measurements, SineRun
 from .model import Model
+
+
+@dataclass(frozen=True)
+class HarmonicCriterion:
+    """Which lines the single-harmonic balance cannot represent well enough (docs/workbench.md §3): those whose
+    displacement THD -- measured at the sensors, or implied by the single-harmonic solution itself
+    (:func:`analysis.harmonic_balance.single_harmonic_distortion`) -- exceeds ``limit``, and the multivalued
+    lines (near a fold the fundamental is so sensitive that harmonics of 0.2 % move it by 2 %). They are
+    predicted with ``n_harmonics`` harmonics and the mean, forces sampled at ``n_time`` points per period (a
+    friction force's sign change is placed to 1/n_time of the period)."""
+
+    limit: float = 0.01
+    n_harmonics: int = 7
+    n_time: int = 512
+
+    def selects(self, measured: np.ndarray | None, implied: np.ndarray, multivalued: np.ndarray) -> np.ndarray:
+        thd = implied if measured is None else np.maximum(np.nan_to_num(np.asarray(measured, float)), implied)
+        return (thd > self.limit) | multivalued
+
+
+@dataclass
+class RunPrediction:
+    """The predictions of one run: the sweep in the run's direction and the sweep the other way.
+
+    Attributes
+    ----------
+    swept, opposite : ndarray (L, P) complex
+        Predicted receptance at the sensors, m/N.
+    swept_ok, opposite_ok : ndarray (L,) bool
+        Converged and stable (:class:`analysis.harmonic_balance.SweepPrediction`).
+    y, opposite_y : ndarray (L, r) complex
+        Element phasors of the two sweeps (to continue from, for the fold of a jump; to start the
+        multi-harmonic balance on the compared branch).
+    """
+
+    swept: np.ndarray
+    opposite: np.ndarray
+    swept_ok: np.ndarray
+    opposite_ok: np.ndarray
+    y: np.ndarray
+    opposite_y: np.ndarray
+
+    def multivalued(self) -> np.ndarray:
+        """Lines where both sweeps found stable solutions that differ (relative 1e-6): coexisting branches."""
+        gap = np.linalg.norm(self.swept - self.opposite, axis=1)
+        return self.swept_ok & self.opposite_ok & (gap > 1e-6 * np.linalg.norm(self.swept, axis=1))
+
+
+@dataclass
+class Jump:
+    """A jump of one run: where the swept prediction leaves its branch and where the measurement did.
+
+    Attributes
+    ----------
+    run, direction : str
+    predicted_between : (Hz, Hz)
+        The two lines (in sweep order) between which the swept prediction jumps.
+    fold_hz : float or None
+        The predicted jump frequency: the fold where the swept branch ends (continuation); None until located.
+    measured_between : (Hz, Hz)
+        The last line measured on the swept branch and the first on the other one.
+    lines_early : int
+        How many measured lines sit on the other branch before the prediction jumps (0: the measurement
+        jumped between the same two lines as the prediction).
+    """
+
+    run: str
+    direction: str
+    predicted_between: tuple[float, float]
+    fold_hz: float | None
+    measured_between: tuple[float, float]
+    lines_early: int
+
+    @property
+    def measured_hz(self) -> float:
+        """The measured jump frequency: the middle of the two lines it happened between."""
+        return 0.5 * (self.measured_between[0] + self.measured_between[1])
+
+    @property
+    def predicted_hz(self) -> float:
+        """The fold when located, else the middle of the two lines the prediction jumps between."""
+        return self.fold_hz if self.fold_hz is not None else 0.5 * sum(self.predicted_between)
+
+    def text(self) -> str:
+        early = ("at the same lines" if self.lines_early == 0 else
+                 f"{self.lines_early} line{'s' if self.lines_early > 1 else ''} early")
+        return (f"run {self.run} ({self.direction}): predicted jump at {self.predicted_hz:.5g} Hz, measured "
+                f"between {self.measured_between[0]:.5g} and {self.measured_between[1]:.5g} Hz ({early})")
+
+    def to_json(self) -> dict:
+        return {"run": self.run, "direction": self.direction, "predicted_hz": self.predicted_hz,
+                "fold_hz": self.fold_hz, "predicted_between_hz": list(self.predicted_between),
+                "measured_hz": self.measured_hz, "measured_between_hz": list(self.measured_between),
+                "lines_early": self.lines_early}
 
 
 @dataclass
@@ -34,13 +135,20 @@ class Comparison:
     residual_map : dict run name -> ndarray (L,)
         Relative error per line.
     predicted : dict run name -> ndarray (L, P) complex
-        Predicted receptance at the sensors, m/N.
+        Swept prediction (the run's direction) at the sensors, m/N.
     converged : dict run name -> ndarray (L,) bool
         Whether the harmonic balance converged at each line.
     chi_square : float or None
         ``sum |residual|^2 / std^2`` when the measurement has standard deviations.
     n_observations : int
         Real numbers compared (2 per complex FRF value).
+    compared : dict run name -> ndarray (L, P) complex
+        The prediction each measured line was compared with (the swept one, or the nearer coexisting branch).
+    other_branch : dict run name -> ndarray (L,) bool
+        Lines where the measurement sits on another branch than the swept prediction.
+    jumps : list of Jump
+    multiharmonic : dict run name -> ndarray (L,) bool
+        Lines predicted by multi-harmonic balance (:class:`HarmonicCriterion`).
     """
 
     error: float
@@ -50,10 +158,21 @@ class Comparison:
     converged: dict[str, np.ndarray]
     chi_square: float | None
     n_observations: int
+    compared: dict[str, np.ndarray] = field(default_factory=dict)
+    other_branch: dict[str, np.ndarray] = field(default_factory=dict)
+    jumps: list[Jump] = field(default_factory=list)
+    multiharmonic: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def other_branch_hz(self, runs: Sequence[SineRun]) -> dict[str, list[float]]:
+        """Frequencies of the lines measured on another branch, per run that has any."""
+        return {r.name: [float(f) for f in np.asarray(r.frequency_hz)[self.other_branch[r.name]]]
+                for r in runs if r.name in self.other_branch and self.other_branch[r.name].any()}
 
     def to_json(self) -> dict:
         return {"error": self.error,
-                "error_by_level": [{"force": f, "error": e} for f, e in self.error_by_level]}
+                "error_by_level": [{"force": f, "error": e} for f, e in self.error_by_level],
+                "jumps": [j.to_json() for j in self.jumps],
+                "multiharmonic_lines": int(sum(m.sum() for m in self.multiharmonic.values()))}
 
 
 class Predictor:
@@ -61,7 +180,8 @@ class Predictor:
 
     The condensation (the expensive part for a beam) depends only on the structure and where the elements sit,
     so it is done once and reused for every set of laws tried -- the candidate ranking tries many.
-    Runs sharing lines, excitation and direction are predicted together (force levels batched).
+    Runs sharing lines, excitation and direction are predicted together (force levels and both sweep
+    directions batched).
     """
 
     def __init__(self, model: Model, measurements: Measurements):
@@ -80,29 +200,97 @@ class Predictor:
             self._systems[key] = condense(self.model.structure, self.model.elements, exc, 2 * np.pi * np.array(freqs))
         return self._systems[key]
 
-    def predict(self, kbar_fns: Sequence[KbarFunction] | None = None) -> tuple[dict, dict]:
-        """Predicted sensor receptances and convergence flags per run, for the given element describing
-        functions (default: the model elements' laws)."""
-        fns = list(kbar_fns) if kbar_fns is not None else [e.describing_function for e in self.model.elements]
-        predicted, converged = {}, {}
+    def _functions(self, kbar_fns):
+        return list(kbar_fns) if kbar_fns is not None else [e.describing_function for e in self.model.elements]
+
+    def predict(self, kbar_fns: Sequence[KbarFunction] | None = None) -> dict[str, RunPrediction]:
+        """Both sweeps of every run at the sensors, for the given element describing functions (default: the
+        model elements' laws)."""
+        fns = self._functions(kbar_fns)
+        out = {}
         for key, runs in self._groups.items():
             exc, direction, freqs = key
             system = self._system(key)
-            forces = [r.force for r in runs]
-            pred = predict_sweep(self.model.structure, self.model.elements, exc, system.w, forces,
-                                 direction, kbar_fns=fns, system=system)
+            other = "down" if direction == "up" else "up"
+            swept, opposite = predict_sweeps(self.model.structure, self.model.elements, exc, system.w,
+                                             [r.force for r in runs], (direction, other), fns, system)
             for b, run in enumerate(runs):
-                predicted[run.name] = pred.receptance[:, b, self._rows[run.name]]
-                converged[run.name] = pred.converged[:, b]
-        return predicted, converged
+                rows = self._rows[run.name]
+                out[run.name] = RunPrediction(swept.receptance[:, b, rows], opposite.receptance[:, b, rows],
+                                              swept.converged[:, b] & swept.stable[:, b],
+                                              opposite.converged[:, b] & opposite.stable[:, b], swept.y[:, b],
+                                              opposite.y[:, b])
+        return out
 
-    def compare(self, kbar_fns: Sequence[KbarFunction] | None = None) -> Comparison:
-        predicted, converged = self.predict(kbar_fns)
-        return compare_predictions(self.runs, predicted, converged)
+    def compare(self, kbar_fns: Sequence[KbarFunction] | None = None, locate_folds: bool = False,
+                harmonics: HarmonicCriterion | None = None) -> Comparison:
+        """The error for the given describing functions. ``locate_folds`` also finds the fold of every jump by
+        continuation; ``harmonics`` predicts the lines it selects by multi-harmonic balance (both for the report;
+        the ranking does without, and ``harmonics`` needs the model's own laws: ``kbar_fns`` None)."""
+        predictions = self.predict(kbar_fns)
+        comp = compare_predictions(self.runs, predictions)
+        if locate_folds:
+            self._locate_folds(comp, predictions, kbar_fns)
+        if harmonics is not None:
+            comp = self._with_harmonics(comp, predictions, harmonics)
+        return comp
+
+    def _with_harmonics(self, comp: Comparison, predictions: dict[str, RunPrediction],
+                        criterion: HarmonicCriterion) -> Comparison:
+        """``comp`` with the lines the criterion selects predicted by multi-harmonic balance (the fundamental),
+        each started from the single-harmonic solution of the branch it was compared with."""
+        structure, elements = self.model.structure, self.model.elements
+        compared, selected = dict(comp.compared), {}
+        for run in self.runs:
+            pred, rows = predictions[run.name], self._rows[run.name]
+            y = np.where(comp.other_branch[run.name][:, None], pred.opposite_y, pred.y)
+            implied = single_harmonic_distortion(structure, elements, run.excitation_dof, run.w, run.force, y,
+                                                 criterion.n_harmonics)[:, rows].max(axis=1)
+            lines = np.flatnonzero(criterion.selects(run.distortion, implied, pred.multivalued()))
+            mask = np.zeros(len(run.w), bool)
+            if len(lines):
+                mh = predict_multiharmonic(structure, elements, run.excitation_dof, run.w[lines], run.force,
+                                           criterion.n_harmonics, criterion.n_time, y_start=y[lines])
+                lines = lines[mh.converged]
+                compared[run.name] = compared[run.name].copy()
+                compared[run.name][lines] = mh.receptance(run.force)[mh.converged][:, rows]
+                mask[lines] = True
+            selected[run.name] = mask
+        return _scored(self.runs, comp.predicted, comp.converged, compared, comp.other_branch, comp.jumps, selected)
+
+    def _locate_folds(self, comp: Comparison, predictions: dict[str, RunPrediction], kbar_fns) -> None:
+        """Set ``fold_hz`` of each jump: continuation from the swept solution at the last line before the jump
+        to the next line; the first fold on the way is where the swept branch ends."""
+        fns = self._functions(kbar_fns)
+        runs = {r.name: r for r in self.runs}
+        for jump in comp.jumps:
+            run = runs[jump.run]
+            f_a, f_b = jump.predicted_between
+            a = int(np.argmin(np.abs(np.asarray(run.frequency_hz, float) - f_a)))
+            curve = continue_response(self.model.structure, self.model.elements, run.excitation_dof, run.force,
+                                      2 * np.pi * f_a, 2 * np.pi * f_b, kbar_fns=fns,
+                                      y_start=predictions[run.name].y[a])
+            if len(curve.folds):
+                jump.fold_hz = float(curve.fold_frequencies[0] / (2 * np.pi))
 
 
-def compare_predictions(runs: Sequence[SineRun], predicted: dict, converged: dict) -> Comparison:
-    """The error metric, per level and per line, from predicted receptances."""
+def compare_predictions(runs: Sequence[SineRun], predictions: dict[str, RunPrediction]) -> Comparison:
+    """The error metric, per level and per line, from the predictions of every run (module docstring)."""
+    compared, other_branch, jumps = {}, {}, []
+    for run in runs:
+        pred = predictions[run.name]
+        swept_num = np.sum(np.abs(pred.swept - run.receptance) ** 2, axis=1)
+        other_num = np.sum(np.abs(pred.opposite - run.receptance) ** 2, axis=1)
+        other = pred.multivalued() & (other_num < swept_num)
+        compared[run.name] = np.where(other[:, None], pred.opposite, pred.swept)
+        other_branch[run.name] = other
+        jumps += _jumps(run, pred, other)
+    return _scored(runs, {n: p.swept for n, p in predictions.items()},
+                   {n: p.swept_ok for n, p in predictions.items()}, compared, other_branch, jumps)
+
+
+def _scored(runs, predicted, converged, compared, other_branch, jumps, multiharmonic=None) -> Comparison:
+    """A comparison whose line-by-line predictions are ``compared``: the error, per level and per line."""
     num = den = 0.0
     chi2 = 0.0
     have_std = all(r.receptance_std is not None for r in runs)
@@ -110,7 +298,7 @@ def compare_predictions(runs: Sequence[SineRun], predicted: dict, converged: dic
     residual_map = {}
     n_obs = 0
     for run in runs:
-        diff = predicted[run.name] - run.receptance
+        diff = compared[run.name] - run.receptance
         line_num = np.sum(np.abs(diff) ** 2, axis=1)
         line_den = np.sum(np.abs(run.receptance) ** 2, axis=1)
         residual_map[run.name] = np.sqrt(line_num / line_den)
@@ -124,7 +312,43 @@ def compare_predictions(runs: Sequence[SineRun], predicted: dict, converged: dic
             chi2 += float(np.sum(np.abs(diff) ** 2 / np.asarray(run.receptance_std) ** 2))
     return Comparison(float(np.sqrt(num / den)) if den else float("nan"),
                       [(f, float(np.sqrt(a / b))) for f, (a, b) in sorted(by_level.items())],
-                      residual_map, predicted, converged, chi2 if have_std else None, n_obs)
+                      residual_map, predicted, converged, chi2 if have_std else None, n_obs,
+                      compared, other_branch, jumps, multiharmonic or {})
+
+
+def _jumps(run: SineRun, pred: RunPrediction, other: np.ndarray) -> list[Jump]:
+    """The jumps of one run, in sweep order: each stretch of multivalued lines that ends before the last line
+    is where the swept prediction leaves its branch (between its last line and the next); the measurement left
+    it where the trailing lines of the stretch measured on the other branch begin."""
+    f = np.asarray(run.frequency_hz, float)
+    order = np.argsort(f) if run.direction == "up" else np.argsort(-f)
+    multi, on_other = pred.multivalued()[order], other[order]
+    out = []
+    i = 0
+    while i < len(order):
+        if not multi[i]:
+            i += 1
+            continue
+        end = i
+        while end + 1 < len(order) and multi[end + 1]:
+            end += 1
+        if end + 1 < len(order):
+            first_other = end + 1
+            while first_other > i and on_other[first_other - 1]:
+                first_other -= 1
+            before = max(first_other - 1, 0)
+            out.append(Jump(run.name, run.direction, (float(f[order[end]]), float(f[order[end + 1]])), None,
+                            (float(f[order[before]]), float(f[order[first_other]])), end + 1 - first_other))
+        i = end + 1
+    return out
+
+
+def gain_phrase(gain: float) -> str:
+    """An error ratio ``before / after`` as a test engineer reads it: "x3.20 better" or, below 1, "x1.02 worse"
+    (the factor by which the error grew)."""
+    if gain >= 1.0 or gain <= 0.0 or not np.isfinite(gain):
+        return f"x{gain:.2f} better"
+    return f"x{1.0 / gain:.2f} worse"
 
 
 def kbar_functions_with(elements, replace: dict[int, Callable]) -> list[KbarFunction]:

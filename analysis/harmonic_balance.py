@@ -16,6 +16,8 @@ Three solvers work on the condensed system:
 - :func:`predict_sweep` -- what a stepped-sine sweep measures: Newton at each line starting from the previous
   line's solution, for all force levels at once. Past a fold the old branch ends and the solver lands on the
   remaining one, as the structure jumps.
+- :func:`predict_sweeps` -- the same in several directions over the same lines in one batch: where the
+  response is multivalued the up and down sweeps give its two stable branches (the jump-robust error).
 - :func:`continue_response` -- pseudo-arclength continuation in (y, w) that passes folds and returns the
   whole response curve, unstable parts marked.
 - :func:`predict_multiharmonic` -- several harmonics (and the mean) by alternating frequency-time (AFT)
@@ -188,6 +190,9 @@ class SweepPrediction:
     receptance : ndarray, shape (L, B, n)
         ``x_p / F`` at every DOF of the structure, m/N.
     converged : ndarray of bool, shape (L, B)
+    stable : ndarray of bool, shape (L, B)
+        The balance Jacobian at the solution has a positive determinant (not on the saddle branch between two
+        folds; :class:`ResponseCurve`).
     """
 
     w: np.ndarray
@@ -195,6 +200,7 @@ class SweepPrediction:
     y: np.ndarray
     receptance: np.ndarray
     converged: np.ndarray
+    stable: np.ndarray
 
     @property
     def amplitude(self) -> np.ndarray:
@@ -222,22 +228,55 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
     kbar_fns : optional, one ``f(X, w) -> kbar`` per element (default: the elements' laws).
     system : optional precomputed :func:`condense` result for the same lines.
     """
-    if direction not in ("up", "down"):
-        raise ValueError(f"direction must be 'up' or 'down', got {direction!r}")
+    return predict_sweeps(structure, elements, excitation_dof, w, force, [direction], kbar_fns, system)[0]
+
+
+def predict_sweeps(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, force,
+                   directions: Sequence[str] = ("up", "down"), kbar_fns: Sequence[KbarFunction] | None = None,
+                   system: CondensedSystem | None = None) -> list[SweepPrediction]:
+    """:func:`predict_sweep` for several sweep directions over the same lines, solved in one batch (every
+    direction and force level advances one line per step): one prediction per direction.
+
+    Where the response is multivalued the two directions follow different stable branches, so the up and
+    down sweeps together give every stable solution a stepped sine can measure there.
+    """
+    for direction in directions:
+        if direction not in ("up", "down"):
+            raise ValueError(f"direction must be 'up' or 'down', got {direction!r}")
     w = np.atleast_1d(np.asarray(w, float))
-    F = np.atleast_1d(np.asarray(force, float))
+    F1 = np.atleast_1d(np.asarray(force, float))
     sys_ = system if system is not None else condense(structure, elements, excitation_dof, w)
     fns = list(kbar_fns) if kbar_fns is not None else element_kbar_functions(elements)
+    D = len(directions)
+    F = np.tile(F1, D)
+    orders = np.repeat(np.stack([np.argsort(w) if d == "up" else np.argsort(-w) for d in directions]),
+                       len(F1), axis=0)                                              # (D B, L)
+    y, converged = _sweep(sys_, fns, F, orders)
     L, B, r = len(w), len(F), len(fns)
-    order = np.argsort(w) if direction == "up" else np.argsort(-w)
+    floor = 1e-9 * np.abs(sys_.g[:, None, :] * F[None, :, None]).max(axis=2).reshape(-1)
+    kb = _kbar(fns, y.reshape(L * B, r), np.repeat(w, B), floor).reshape(L, B, r)
+    x = (sys_.Hq[:, None, :] * F[None, :, None] - np.einsum("lnr,lbr->lbn", sys_.HE, kb * y)) / F[None, :, None]
+    J = _residual_jacobian(y.reshape(L * B, r), np.repeat(w, B), np.repeat(sys_.G, B, axis=0), fns, floor)
+    stable = (np.linalg.det(J) > 0).reshape(L, B) if r else np.ones((L, B), bool)
+    n = len(F1)
+    part = [slice(k * n, (k + 1) * n) for k in range(D)]
+    return [SweepPrediction(w, F1, y[:, p], x[:, p], converged[:, p], stable[:, p]) for p in part]
+
+
+def _sweep(sys_: CondensedSystem, fns, F, orders) -> tuple[np.ndarray, np.ndarray]:
+    """Newton along each batch item's own line order ``orders[b]`` (B, L): the element phasors (L, B, r) and
+    convergence flags (L, B)."""
+    B, L = orders.shape
+    r = len(fns)
+    items = np.arange(B)
     y = np.zeros((L, B, r), complex)
     converged = np.zeros((L, B), bool)
-    prev_line = None
-    for line in order:
-        gF = sys_.g[line][None, :] * F[:, None]                                     # (B, r)
+    for step in range(L):
+        line = orders[:, step]                                                      # (B,)
+        gF = sys_.g[line] * F[:, None]                                              # (B, r)
         scale = np.maximum(np.abs(gF).max(axis=1), 1e-300)                          # (B,)
-        G = np.broadcast_to(sys_.G[line], (B, r, r))
-        wl = np.full(B, w[line])
+        G = sys_.G[line]
+        wl = sys_.w[line]
 
         def fun(z, G=G, gF=gF, wl=wl, scale=scale):
             yy = _to_complex(z) * scale[:, None]
@@ -248,9 +287,10 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
 
         # where the previous line had no solution either (e.g. friction holding), one more attempt from the
         # linear response is all that is worth trying
-        starts = [gF] if prev_line is None else _restarts(y[prev_line], gF)
+        prev = None if step == 0 else orders[:, step - 1]
+        starts = [gF] if prev is None else _restarts(y[prev, items], gF)
         ok = np.zeros(B, bool)
-        hopeless = np.zeros(B, bool) if prev_line is None else ~converged[prev_line]
+        hopeless = np.zeros(B, bool) if prev is None else ~converged[prev, items]
         for attempt, start in enumerate(starts):
             todo = np.flatnonzero(~ok & ~(hopeless & (attempt > 1)))
             if not len(todo):
@@ -259,15 +299,11 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
                               jac=lambda zz, t=todo: jac(_pad(zz, t, B))[t])
             sol = _to_complex(z) * scale[todo, None]
             if attempt == 0:
-                y[line, todo] = sol  # kept, flagged, if no start converges
-            y[line, todo[conv]] = sol[conv]
+                y[line[todo], todo] = sol  # kept, flagged, if no start converges
+            y[line[todo[conv]], todo[conv]] = sol[conv]
             ok[todo[conv]] = True
-        converged[line] = ok
-        prev_line = line
-    floor = 1e-9 * np.abs(sys_.g[:, None, :] * F[None, :, None]).max(axis=2).reshape(-1)
-    kb = _kbar(fns, y.reshape(L * B, r), np.repeat(w, B), floor).reshape(L, B, r)
-    x = sys_.Hq[:, None, :] * F[None, :, None] - np.einsum("lnr,lbr->lbn", sys_.HE, kb * y)
-    return SweepPrediction(w, F, y, x / F[None, :, None], converged)
+        converged[line, items] = ok
+    return y, converged
 
 
 def _restarts(previous, linear):
@@ -297,12 +333,15 @@ class ResponseCurve:
     y : ndarray, shape (S, r)
         Element displacement phasors.
     stable : ndarray of bool, shape (S,)
-        False on the parts between two folds (saddle-node turning points), where ``w`` runs backwards
-        relative to the start of the curve. This is the single-harmonic fold criterion; other
+        False where the Jacobian of the balance at fixed w has a negative determinant: an odd number of real
+        eigenvalues of the slow flow have crossed zero, the saddle-node instability of the middle branch
+        between two folds. The fold points themselves count as stable (a sweep reaches them). Other
         instabilities (Hopf, quasi-periodic) are not detected.
     folds : ndarray of int
-        Indices of the points where ``w`` turns.
+        Indices of the fold (turning) points, located to 1e-9 of the arclength.
     force : float
+    complete : bool
+        Whether the curve reached ``w_stop`` (not stopped by ``max_points`` or by turning back out of the span).
     """
 
     w: np.ndarray
@@ -310,92 +349,190 @@ class ResponseCurve:
     stable: np.ndarray
     folds: np.ndarray
     force: float
+    complete: bool = True
+
+    @property
+    def fold_frequencies(self) -> np.ndarray:
+        """w at the folds, rad/s."""
+        return self.w[self.folds]
+
+
+class _Balance:
+    """The condensed single-harmonic balance at one force level as a function of scaled unknowns
+    ``v = [Re y / ys, Im y / ys, w / ws]``, for continuation."""
+
+    def __init__(self, structure, elements, excitation_dof, force, kbar_fns, y_scale, w_scale):
+        self.structure, self.force, self.fns = structure, float(force), kbar_fns
+        self.E, self.loads = _element_loads(structure, elements, excitation_dof)
+        self.ys, self.ws = y_scale, w_scale
+        self.r = len(kbar_fns)
+        self.floor = np.array([1e-9 * y_scale.max()])
+
+    def _system(self, w):
+        resp = self.structure.response([w], self.loads)[0]
+        return self.E.T @ resp[:, :-1], self.E.T @ resp[:, -1] * self.force
+
+    def unknowns(self, y, w) -> np.ndarray:
+        return np.r_[y.real / self.ys, y.imag / self.ys, w / self.ws]
+
+    def phasors(self, v) -> np.ndarray:
+        return (v[: self.r] + 1j * v[self.r: 2 * self.r]) * self.ys
+
+    def residual(self, v) -> np.ndarray:
+        G, gF = self._system(v[-1] * self.ws)
+        R = _residual(self.phasors(v)[None], np.array([v[-1] * self.ws]), G[None], gF[None], self.fns, self.floor)
+        return _to_real(R[0] / self.ys)
+
+    def jacobian(self, v) -> tuple[np.ndarray, np.ndarray]:
+        """Residual and its Jacobian (2r, 2r + 1): analytic in y, one difference in w."""
+        w = v[-1] * self.ws
+        G, gF = self._system(w)
+        y = self.phasors(v)
+        R = _to_real(_residual(y[None], np.array([w]), G[None], gF[None], self.fns, self.floor)[0] / self.ys)
+        Jy = _residual_jacobian(y[None], np.array([w]), G[None], self.fns, self.floor)[0]
+        Jy = Jy * np.r_[self.ys, self.ys][None, :] / np.r_[self.ys, self.ys][:, None]
+        h = 1e-7 * max(abs(v[-1]), 1e-3)
+        vp = v.copy()
+        vp[-1] += h
+        return R, np.column_stack([Jy, (self.residual(vp) - R) / h])
+
+    def solve_at(self, y0, w, tol=1e-11) -> tuple[np.ndarray, bool]:
+        """Newton at fixed w from ``y0``."""
+        v = self.unknowns(y0, w)
+        for _ in range(30):
+            R, J = self.jacobian(v)
+            if np.linalg.norm(R) < tol:
+                return self.phasors(v), True
+            v[:-1] -= np.linalg.lstsq(J[:, :-1], R, rcond=None)[0]
+        return self.phasors(v), bool(np.linalg.norm(self.residual(v)) < 1e3 * tol)
+
+
+def _tangent(J, previous) -> np.ndarray:
+    """Unit tangent of the solution curve: the null vector of J, oriented along ``previous`` (Keller's
+    bordered system ``[J; t_prev] t = [0; 1]``), which keeps the direction of travel through folds."""
+    t = np.linalg.solve(np.vstack([J, previous]), np.r_[np.zeros(J.shape[0]), 1.0])
+    return t / np.linalg.norm(t)
+
+
+def _arclength_correct(balance, v_prev, t, ds, tol=1e-10, max_iter=8):
+    """Newton on the residual plus the arclength condition ``t . (v - v_prev) = ds`` from the tangent
+    prediction; returns (v, converged, iterations)."""
+    v = v_prev + ds * t
+    for it in range(1, max_iter + 1):
+        R, J = balance.jacobian(v)
+        full_R = np.r_[R, t @ (v - v_prev) - ds]
+        if np.linalg.norm(full_R) < tol:
+            return v, True, it
+        try:
+            v = v - np.linalg.solve(np.vstack([J, t]), full_R)
+        except np.linalg.LinAlgError:
+            return v, False, it
+        if not np.isfinite(v).all():
+            return v, False, it
+    return v, bool(np.linalg.norm(np.r_[balance.residual(v), t @ (v - v_prev) - ds]) < tol), max_iter
+
+
+def _amplitude_scale(structure, elements, excitation_dof, force, w_start, w_stop, fns) -> np.ndarray:
+    """Per-element amplitude scale of the continuation: the largest amplitude either sweep direction reaches
+    over the span, so the amplitude and the frequency parts of the arclength are both O(1). (The linear
+    response is no scale: undamped, its peak is unbounded.)"""
+    grid = np.linspace(min(w_start, w_stop), max(w_start, w_stop), 80)
+    system = condense(structure, elements, excitation_dof, grid)
+    amp = np.zeros(len(fns))
+    for direction in ("up", "down"):
+        pred = predict_sweep(structure, elements, excitation_dof, grid, force, direction, fns, system)
+        amp = np.maximum(amp, np.abs(pred.y[:, 0, :]).max(axis=0))
+    return np.maximum(amp, 1e-6 * max(amp.max(), 1e-300))
 
 
 def continue_response(structure: Structure, elements: Sequence[Element], excitation_dof: str, force: float,
                       w_start: float, w_stop: float, step: float | None = None, max_points: int = 5000,
-                      kbar_fns: Sequence[KbarFunction] | None = None) -> ResponseCurve:
-    """Trace the single-harmonic response from ``w_start`` to ``w_stop`` (rad/s) through folds.
+                      kbar_fns: Sequence[KbarFunction] | None = None, y_start=None) -> ResponseCurve:
+    """Trace the single-harmonic response from ``w_start`` to ``w_stop`` (rad/s, either order) through folds.
 
-    Unknowns are the scaled element phasors and w; each step predicts along the tangent of the solution curve
-    and corrects with Newton on the residual plus the arclength condition; the step adapts to the number of
-    Newton iterations.
+    The unknowns are the element phasors scaled by the largest amplitude either sweep reaches in the span and
+    w scaled by the span. Each step predicts along the tangent and corrects with Newton on the residual plus
+    the arclength condition. A step is taken back and halved when Newton does not converge in 8 iterations or
+    the tangent turns by more than 0.2 rad; it grows by 1.5 after easy steps, up to ``step`` (default 0.02 of
+    the scaled curve). Folds are located where the tangent's w component changes sign (secant on the arclength
+    to 1e-9), and the curve ends exactly at ``w_stop``. It also ends, ``complete`` False, after ``max_points``
+    or if it turns back out of the span. ``y_start`` (element phasors at ``w_start``) picks the branch to
+    start on; default: a sweep's solution at ``w_start``.
     """
     fns = list(kbar_fns) if kbar_fns is not None else element_kbar_functions(elements)
-    r = len(fns)
-    E, loads = _element_loads(structure, elements, excitation_dof)
-    w_scale = abs(w_stop - w_start)
-    # unknowns scaled by the largest linear element response over the span, so a resonance peak is O(1)
-    grid = np.linspace(w_start, w_stop, 400)
-    y_scale = np.abs(condense(structure, elements, excitation_dof, grid).g).max() * force
-    sgn = np.sign(w_stop - w_start)
-
-    def residual(v):
-        w = v[-1] * w_scale
-        resp = structure.response([w], loads)[0]
-        G, g = E.T @ resp[:, :-1], E.T @ resp[:, -1]
-        yy = _to_complex(v[:-1]) * y_scale
-        R = _residual(yy[None], np.array([w]), G[None], (g * force)[None], fns, np.array([1e-9 * y_scale]))[0]
-        return _to_real(R) / y_scale
-
-    def jacobian(v):
-        R0 = residual(v)
-        J = np.empty((2 * r, 2 * r + 1))
-        for j in range(2 * r + 1):
-            h = 1e-7 * max(abs(v[j]), 1e-3)
-            vp = v.copy()
-            vp[j] += h
-            J[:, j] = (residual(vp) - R0) / h
-        return R0, J
-
-    def tangent(J, previous):
-        t = np.linalg.svd(J)[2][-1]
-        ref = previous if previous is not None else np.r_[np.zeros(2 * r), sgn]
-        return t if t @ ref >= 0 else -t
-
-    # first point: Newton at fixed w_start
-    first = predict_sweep(structure, elements, excitation_dof, [w_start], force,
-                          "up" if sgn > 0 else "down", kbar_fns=fns)
-    v = np.r_[_to_real(first.y[0, 0] / y_scale), w_start / w_scale]
-    ds = step if step is not None else 0.01
-    points, t_prev = [v.copy()], None
-    for _ in range(max_points):
-        R0, J = jacobian(v)
-        t = tangent(J, t_prev)
-        for _attempt in range(20):
-            v_new, ok, iters = _arclength_correct(residual, jacobian, v + ds * t, t, v, ds)
-            if ok:
-                break
+    sgn = 1.0 if w_stop > w_start else -1.0
+    span = abs(w_stop - w_start)
+    ys = _amplitude_scale(structure, elements, excitation_dof, force, w_start, w_stop, fns)
+    bal = _Balance(structure, elements, excitation_dof, force, fns, ys, span)
+    if y_start is None:
+        y_start = predict_sweep(structure, elements, excitation_dof, [w_start], force,
+                                "up" if sgn > 0 else "down", kbar_fns=fns).y[0, 0]
+    y0, _ = bal.solve_at(np.asarray(y_start, complex), w_start)
+    v = bal.unknowns(y0, w_start)
+    ds_max = step if step is not None else 0.02
+    ds = ds_max / 4
+    J = bal.jacobian(v)[1]
+    t = _tangent(J, np.r_[np.zeros(2 * bal.r), sgn])
+    points, dets, folds, complete = [v.copy()], [np.linalg.det(J[:, :-1])], [], False
+    lo, hi = min(w_start, w_stop) - span, max(w_start, w_stop) + span
+    while len(points) <= max_points:
+        v_new, ok, iters = _arclength_correct(bal, v, t, ds)
+        if ok:
+            J_new = bal.jacobian(v_new)[1]
+            t_new = _tangent(J_new, t)
+        if not ok or t_new @ t < np.cos(0.2):
             ds *= 0.5
-        else:
+            if ds < 1e-9:
+                break
+            continue
+        if np.sign(t_new[-1]) != np.sign(t[-1]) and t[-1] != 0:
+            folds.append(len(points))
+            points.append(_locate_fold(bal, v, t, ds))
+            dets.append(0.0)
+        w_new = v_new[-1] * span
+        if sgn * (w_new - w_stop) >= 0:                        # past the end: the last point exactly at w_stop
+            frac = (w_stop / span - v[-1]) / (v_new[-1] - v[-1])
+            y_end, _ = bal.solve_at(bal.phasors(v + frac * (v_new - v)), w_stop)
+            points.append(bal.unknowns(y_end, w_stop))
+            dets.append(np.linalg.det(bal.jacobian(points[-1])[1][:, :-1]))
+            complete = True
             break
-        v, t_prev = v_new, t
+        v, t = v_new, t_new
         points.append(v.copy())
-        ds = min(ds * (1.5 if iters <= 3 else 1.0), 0.05)
-        if sgn * (v[-1] * w_scale - w_stop) >= 0:
+        dets.append(np.linalg.det(J_new[:, :-1]))
+        if not lo < w_new < hi or w_new <= 0:
             break
+        ds = min(ds * (1.5 if iters <= 3 else 1.0), ds_max)
     P = np.array(points)
-    w_path = P[:, -1] * w_scale
-    dw = np.diff(w_path) * sgn
-    forward = np.r_[True, dw >= 0]
-    folds = np.flatnonzero(np.diff(forward.astype(int)) != 0)
-    return ResponseCurve(w_path, _to_complex(P[:, :-1]) * y_scale, forward, folds, float(force))
+    y = (P[:, : bal.r] + 1j * P[:, bal.r: 2 * bal.r]) * ys[None, :]
+    stable = np.array(dets) >= 0                               # the folds (0) count as stable
+    return ResponseCurve(P[:, -1] * span, y, stable, np.array(folds, int), float(force), complete)
 
 
-def _arclength_correct(residual, jacobian, v, t, v_prev, ds, tol=1e-10, max_iter=12):
-    for it in range(1, max_iter + 1):
-        R, J = jacobian(v)
-        constraint = t @ (v - v_prev) - ds
-        full_R = np.r_[R, constraint]
-        if np.linalg.norm(full_R) < tol:
-            return v, True, it
-        full_J = np.vstack([J, t])
-        try:
-            v = v - np.linalg.solve(full_J, full_R)
-        except np.linalg.LinAlgError:
-            return v, False, it
-    R = residual(v)
-    return v, np.linalg.norm(np.r_[R, t @ (v - v_prev) - ds]) < tol * 100, max_iter
+def _locate_fold(balance, v, t, ds, tol=1e-9):
+    """The point between ``v`` (tangent ``t``) and the arclength ``ds`` further where the tangent's w
+    component is zero: bracketed secant (Illinois) on the arclength."""
+    def tw(s):
+        p, ok, _ = _arclength_correct(balance, v, t, s)
+        return p, _tangent(balance.jacobian(p)[1], t)[-1]
+
+    a, fa = 0.0, t[-1]
+    b = ds
+    p_b, fb = tw(b)
+    p = p_b
+    for _ in range(60):
+        s = b - fb * (b - a) / (fb - fa) if fb != fa else 0.5 * (a + b)
+        if not min(a, b) < s < max(a, b):
+            s = 0.5 * (a + b)
+        p, fs = tw(s)
+        if abs(fs) < tol or abs(b - a) < tol:
+            break
+        if np.sign(fs) == np.sign(fb):
+            fa *= 0.5                      # Illinois: the end kept twice is halved, so both ends move
+        else:
+            a, fa = b, fb
+        b, fb = s, fs
+    return p
 
 
 # --------------------------------------------------------------------------- multi-harmonic (AFT)
@@ -429,13 +566,67 @@ def element_force_history(element: Element, y: np.ndarray, v: np.ndarray) -> np.
     return total
 
 
-def predict_multiharmonic(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, force: float,
-                          n_harmonics: int = 5, n_time: int = 256, direction: str = "up") -> MultiharmonicResponse:
-    """Harmonic balance with ``n_harmonics`` harmonics and the mean, forces by AFT.
+class _AFT:
+    """Alternating frequency-time evaluation of the elements' forces for harmonics 0..H: the laws' time-domain
+    kernels are marched over two periods of the trial motion (so hysteretic laws start their second cycle on
+    the closed loop) and the second period is transformed."""
 
-    The laws' time-domain kernels are marched over two periods of the trial motion (so hysteretic laws start
-    their second cycle on the closed loop) and the second period is transformed. Newton (scipy ``hybr``) runs
-    at each line from the previous line's solution, starting from the single-harmonic solution.
+    def __init__(self, elements: Sequence[Element], n_harmonics: int, n_time: int):
+        self.elements, self.n_time = elements, n_time
+        theta = 2 * np.pi * np.arange(n_time) / n_time
+        self.k = np.arange(n_harmonics + 1)
+        self.S, self.C = np.sin(np.outer(theta, self.k)), np.cos(np.outer(theta, self.k))
+
+    def forces(self, Yk: np.ndarray, w: float) -> np.ndarray:
+        """Element force phasors (H+1, r) of the motion with element phasors ``Yk`` (H+1, r) at w."""
+        S, C, k, n = self.S, self.C, self.k, self.n_time
+        y_t = Yk[0].real[None, :] + S[:, 1:] @ Yk[1:].real + C[:, 1:] @ Yk[1:].imag
+        v_t = w * ((C[:, 1:] * k[1:]) @ Yk[1:].real - (S[:, 1:] * k[1:]) @ Yk[1:].imag)
+        f = np.empty_like(y_t)
+        for i, el in enumerate(self.elements):
+            f[:, i] = element_force_history(el, np.tile(y_t[:, i], 2), np.tile(v_t[:, i], 2))[n:]
+        Fk = 2.0 / n * (S.T @ f + 1j * (C.T @ f))
+        Fk[0] = f.mean(axis=0)
+        return Fk
+
+
+def single_harmonic_distortion(structure: Structure, elements: Sequence[Element], excitation_dof: str, w,
+                               force: float, y, n_harmonics: int = 5, n_time: int = 64) -> np.ndarray:
+    """The harmonics a single-harmonic solution implies: the elements' forces along the harmonic motion ``y``
+    (L, r) at lines ``w`` (L,) put through the structure at 0 and 2..H times w. Returns the total harmonic
+    distortion of every DOF's displacement, shape (L, n): ``sqrt(sum_{k != 1} |X_k|^2) / |X_1|``.
+
+    All lines at once: their two-period motions are marched one after another in one call per element (the
+    first period of each line re-seats hysteretic laws)."""
+    w = np.atleast_1d(np.asarray(w, float))
+    y = np.atleast_2d(np.asarray(y, complex))
+    L, H = len(w), n_harmonics
+    aft = _AFT(elements, H, n_time)
+    S1, C1 = aft.S[:, 1], aft.C[:, 1]
+    E, loads = _element_loads(structure, elements, excitation_dof)
+    y_t = S1[None, :, None] * y.real[:, None, :] + C1[None, :, None] * y.imag[:, None, :]        # (L, N, r)
+    v_t = w[:, None, None] * (C1[None, :, None] * y.real[:, None, :] - S1[None, :, None] * y.imag[:, None, :])
+    f = np.empty((L, n_time, len(elements)))
+    for i, el in enumerate(elements):
+        twice = element_force_history(el, np.tile(y_t[:, :, i], 2).ravel(), np.tile(v_t[:, :, i], 2).ravel())
+        f[:, :, i] = twice.reshape(L, 2 * n_time)[:, n_time:]
+    Fk = 2.0 / n_time * (np.einsum("nk,lnr->lkr", aft.S, f) + 1j * np.einsum("nk,lnr->lkr", aft.C, f))
+    Fk[:, 0] = f.mean(axis=1)
+    resp = structure.response((aft.k[None, :] * w[:, None]).ravel(), loads).reshape(L, H + 1, structure.n, -1)
+    Xk = -np.einsum("lknr,lkr->lkn", resp[..., :-1], Fk)
+    X1 = resp[:, 1, :, -1] * force + Xk[:, 1]
+    Xk[:, 1] = 0.0
+    return np.sqrt(np.sum(np.abs(Xk) ** 2, axis=1)) / np.maximum(np.abs(X1), 1e-300)
+
+
+def predict_multiharmonic(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, force: float,
+                          n_harmonics: int = 5, n_time: int = 256, direction: str = "up",
+                          y_start=None) -> MultiharmonicResponse:
+    """Harmonic balance with ``n_harmonics`` harmonics and the mean, forces by AFT (:class:`_AFT`).
+
+    Newton (scipy ``hybr``) runs at each line from the previous line's solution, starting from the
+    single-harmonic solution; with ``y_start`` (single-harmonic element phasors, (L, r)) every line starts from
+    its own, which picks the branch where the response is multivalued.
     """
     w = np.atleast_1d(np.asarray(w, float))
     H = int(n_harmonics)
@@ -443,12 +634,12 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
         raise ValueError("need n_harmonics >= 1 and n_time >= 4 n_harmonics + 2")
     r = len(elements)
     E, loads = _element_loads(structure, elements, excitation_dof)
-    theta = 2 * np.pi * np.arange(n_time) / n_time
-    k = np.arange(H + 1)
-    S, C = np.sin(np.outer(theta, k)), np.cos(np.outer(theta, k))
+    aft = _AFT(elements, H, n_time)
+    k = aft.k
     order = np.argsort(w) if direction == "up" else np.argsort(-w)
     # the single-harmonic solution starts the first line; later lines start from the previous one
-    single = predict_sweep(structure, elements, excitation_dof, w[order[:1]], force, direction).y[0, 0]
+    if y_start is None:
+        single = predict_sweep(structure, elements, excitation_dof, w[order[:1]], force, direction).y[0, 0]
     out = np.zeros((len(w), H + 1, structure.n), complex)
     converged = np.zeros(len(w), bool)
     previous = None
@@ -460,18 +651,6 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
         G = np.einsum("ni,knj->kij", E, HE)
         g1 = E.T @ Hq[1]
         scale = max(np.abs(g1).max() * force, 1e-300)
-
-        def forces(Yk):                                      # Yk (H+1, r) complex phasors -> force phasors
-            y_t = Yk[0].real[None, :] + S[:, 1:] @ Yk[1:].real + C[:, 1:] @ Yk[1:].imag
-            v_t = wl * ((C[:, 1:] * k[1:]) @ Yk[1:].real - (S[:, 1:] * k[1:]) @ Yk[1:].imag)
-            f = np.empty_like(y_t)
-            for i, el in enumerate(elements):
-                f[:, i] = element_force_history(el, np.tile(y_t[:, i], 2), np.tile(v_t[:, i], 2))[n_time:]
-            a = 2.0 / n_time * S.T @ f
-            b = 2.0 / n_time * C.T @ f
-            Fk = a + 1j * b
-            Fk[0] = f.mean(axis=0)
-            return Fk
 
         def unpack(z):
             Yk = np.zeros((H + 1, r), complex)
@@ -485,18 +664,18 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
 
         def residual(z):
             Yk = unpack(z)
-            R = Yk + np.einsum("kij,kj->ki", G, forces(Yk))
+            R = Yk + np.einsum("kij,kj->ki", G, aft.forces(Yk, wl))
             R[1] -= g1 * force
             return pack(R)
 
-        if previous is None:
+        if previous is None or y_start is not None:
             start = np.zeros((H + 1, r), complex)
-            start[1] = single
+            start[1] = single if y_start is None else y_start[line]
         else:
             start = previous
         sol = scipy.optimize.root(residual, pack(start), method="hybr", options={"xtol": 1e-12})
         Yk = unpack(sol.x)
-        Fk = forces(Yk)
+        Fk = aft.forces(Yk, wl)
         out[line] = np.einsum("kn,k->kn", Hq, np.r_[0.0, force, np.zeros(H - 1)]) - np.einsum("knr,kr->kn", HE, Fk)
         converged[line] = sol.success and np.linalg.norm(residual(sol.x)) < 1e-8
         previous = Yk

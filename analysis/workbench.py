@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .comparison import Comparison, Predictor
+from .comparison import Comparison, HarmonicCriterion, Predictor
 from .diagnosis import Candidate, ElementSamples, rank_candidates
 from .elements import LawTerm
 from .errors import InputError
@@ -117,7 +117,8 @@ class ReferenceReport:
 class Workbench:
     """Carry one model through identification, fitting, comparison and the missing-effect loop."""
 
-    def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.05):
+    def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.05,
+                 harmonics: HarmonicCriterion | None = HarmonicCriterion()):
         if not measurements.sine:
             raise InputError("the session has no stepped-sine run to identify from")
         missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
@@ -126,10 +127,12 @@ class Workbench:
         self.model = model.copy()
         self.measurements = measurements
         self.distortion_limit = distortion_limit   # lines whose displacement THD is larger: left out
+        self.harmonics = harmonics                 # which lines are predicted multi-harmonically (None: none)
         self.reference: ReferenceReport | None = None
         self.reports: dict[str, ElementReport] = {}
         self.history: list[HistoryStep] = []
         self._comparison: Comparison | None = None
+        self._single: Comparison | None = None
         self._predictor: Predictor | None = None
 
     # ------------------------------------------------------------------ reference
@@ -210,7 +213,7 @@ class Workbench:
                 raise InputError(f"element {el.name!r} has no well-conditioned line to fit its laws to")
             report.fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std)
             el.laws = [LawTerm(t.law, dict(report.fit.terms[j].params)) for j, t in enumerate(el.laws)]
-        self._comparison = None
+        self._comparison = self._single = None
 
     @property
     def predictor(self) -> Predictor:
@@ -225,12 +228,21 @@ class Workbench:
                 for t in el.laws:
                     if not t.complete:
                         raise InputError(f"element {el.name!r}: law {t.law.name} has no values; fit it first")
-            self._comparison = self.predictor.compare()
+            self._comparison = self.predictor.compare(locate_folds=True, harmonics=self.harmonics)
         return self._comparison
+
+    def single_harmonic_comparison(self) -> Comparison:
+        """The error with every line predicted single-harmonically, as the candidates are (their gains are
+        measured against it)."""
+        if self.harmonics is None:
+            return self.compare()
+        if self._single is None:
+            self._single = self.predictor.compare()
+        return self._single
 
     def candidates(self, laws=None) -> list[Candidate]:
         """Ranked missing-effect candidates for the current model (best first)."""
-        base = self.compare()
+        base = self.single_harmonic_comparison()
         samples = {n: r.samples for n, r in self.reports.items() if r.samples is not None}
         fits = {n: r.fit for n, r in self.reports.items()}
         linear = frozenset(n for n, r in self.reports.items() if r.verdict is not None and r.verdict.linear)
@@ -303,7 +315,7 @@ class Workbench:
     def to_json(self, candidates: list[Candidate] | None = None) -> dict:
         comp = self.compare()
         out = {"elements": [self.reports[el.name].to_json(el) for el in self.model.elements],
-               **comp.to_json(),
+               **comp.to_json(), "other_branch_hz": comp.other_branch_hz(self.measurements.sine),
                "candidates": [c.to_json() for c in (candidates or [])],
                "history": [h.to_json() for h in self.history],
                "unfinished_runs": [note.to_json() for note in self.measurements.unfinished]}

@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from analysis.comparison import gain_phrase
 from analysis.errors import InputError
 from analysis.model import load_model
 from analysis.tables import load_toml
@@ -126,12 +127,29 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
     run = next(r for r in wb.measurements.sine if r.name == worst)
     out.append(f"largest misfit: run {worst} at {run.frequency_hz[i]:.4g} Hz (relative error "
                f"{comp.residual_map[worst][i]:.3g})")
+    out += _jump_lines(comp, wb.measurements.sine)
     if len(wb.history) > 1:
         out.append("history: " + " -> ".join(f"{h.action} {h.error:.3g}" for h in wb.history))
     if candidates:
         out += ["", "what is missing (best first):"]
         for c in candidates[:top]:
             mark = "significant" if c.significant else "not significant"
-            out.append(f"  {c.element}:{c.law}  error {c.error:.4g} (x{c.gain:.2f} better, {mark})")
+            out.append(f"  {c.element}:{c.law}  error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
             out.append(f"    {c.explanation}")
     return "\n".join(out)
+
+
+def _jump_lines(comp, runs) -> list[str]:
+    """The jumps, predicted (fold) against measured, the lines compared with another branch and those predicted
+    multi-harmonically."""
+    out = []
+    if comp.jumps:
+        out.append("jumps (predicted fold against measured):")
+        out += [f"  {j.text()}" for j in comp.jumps]
+    for name, freqs in comp.other_branch_hz(runs).items():
+        out.append(f"  run {name}: {len(freqs)} line(s) measured on the other branch ("
+                   + ", ".join(f"{f:.5g}" for f in freqs) + " Hz), compared with it")
+    n_multi = int(sum(m.sum() for m in comp.multiharmonic.values()))
+    if n_multi:
+        out.append(f"{n_multi} line(s) predicted with harmonics (displacement THD above 1 % or near a fold)")
+    return out

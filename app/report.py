@@ -226,6 +226,10 @@ def plot_residuals(wb: Workbench, path: Path) -> Path:
         order = np.argsort(run.frequency_hz)
         p.plot(run.frequency_hz[order], np.maximum(comp.residual_map[run.name][order], 1e-6),
                pen={"color": _colour(levels, run.force), "width": 2}, name=f"{run.force:g} N {run.direction}")
+        other = comp.other_branch.get(run.name, np.zeros(len(order), bool))
+        if other.any():                    # measured on another branch than the swept prediction (a jump)
+            p.plot(run.frequency_hz[other], np.maximum(comp.residual_map[run.name][other], 1e-6), pen=None,
+                   symbol="x", symbolSize=14, symbolPen={"color": _colour(levels, run.force), "width": 2})
     return _export(lay, path, height=600)
 
 

@@ -5,7 +5,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from analysis import load_elements, load_structure
-from analysis.harmonic_balance import continue_response, predict_multiharmonic, predict_sweep
+from analysis.comparison import HarmonicCriterion
+from analysis.harmonic_balance import (continue_response, predict_multiharmonic, predict_sweep, predict_sweeps,
+                                       single_harmonic_distortion)
 
 SDOF = {"type": "lumped", "dofs": ["x"], "mass": [[1.0]], "stiffness": [[100.0]], "damping": [[0.2]]}
 
@@ -138,3 +140,185 @@ def test_bad_direction_is_refused():
     s, els = sdof([{"law": "cubic", "k3": 1e4}])
     with pytest.raises(ValueError, match="direction"):
         predict_sweep(s, els, "x", [10.0], 1.0, "sideways")
+
+
+# --------------------------------------------------------------------------- the paper's 2-DOF model at 0.8 N
+PAPER = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
+         "stiffness": [[200.0, -100.0], [-100.0, 200.0]]}
+PAPER_ELEMENTS = {"element": [
+    {"name": "left", "dof": "x1", "laws": [{"law": "cubic", "k3": -500.0}, {"law": "quadratic_damping", "c2": 1.0}]},
+    {"name": "right", "dof": "x2", "laws": [{"law": "cubic", "k3": -750.0}, {"law": "coulomb", "fs": 0.1}]}]}
+HZ = 2 * np.pi
+
+
+def paper():
+    s = load_structure(PAPER)
+    return s, load_elements(PAPER_ELEMENTS, s, None, True)
+
+
+@pytest.fixture(scope="module")
+def paper_curve():
+    s, els = paper()
+    return continue_response(s, els, "x2", 0.8, HZ * 0.8, HZ * 3.2)
+
+
+def test_continuation_of_the_paper_model_passes_both_folds_and_reaches_the_end(paper_curve):
+    curve = paper_curve
+    assert curve.complete and curve.w[-1] == pytest.approx(HZ * 3.2, rel=1e-12)
+    assert curve.w.min() >= HZ * 0.8 * (1 - 1e-12)                         # never runs off the span
+    upper, lower = curve.fold_frequencies / HZ
+    assert upper == pytest.approx(1.21185, abs=2e-5) and lower == pytest.approx(1.15363, abs=2e-5)
+    # the folds against an independent solver: a sweep with 1e-5 Hz lines keeps the branch up to the fold
+    # and has lost it one line past it
+    s, els = paper()
+    for k, (fold, direction, approach) in enumerate(((upper, "up", 1.0), (lower, "down", 1.4))):
+        side = np.sign(fold - approach)
+        w = HZ * np.r_[np.arange(approach, fold - side * 5e-4, side * 1e-3), fold - side * 1e-5, fold + side * 1e-5]
+        near = np.abs(predict_sweep(s, els, "x2", w, 0.8, direction).y[-2:, 0, 0])
+        at_fold = np.abs(curve.y[curve.folds[k], 0])
+        assert near[0] == pytest.approx(at_fold, rel=0.02) and abs(near[1] - at_fold) > 0.2 * at_fold
+    # the resonant branch peaks where the swept-down prediction does (the upper branch of the softening pair)
+    down = predict_sweep(s, els, "x2", HZ * np.arange(1.4, 1.0, -0.001), 0.8, "down")
+    assert np.abs(curve.y[:, 0]).max() == pytest.approx(np.abs(down.y[:, 0, 0]).max(), rel=5e-3)
+    assert np.abs(curve.y[:, 0]).max() > 0.14
+    # unstable exactly between the folds
+    middle = np.arange(curve.folds[0] + 1, curve.folds[1])
+    assert not curve.stable[middle].any() and curve.stable[: curve.folds[0] + 1].all()
+    assert curve.stable[curve.folds[1]:].all()
+
+
+def test_continuation_downwards_and_with_a_small_step_stays_in_the_span():
+    s, els = paper()
+    down = continue_response(s, els, "x2", 0.8, HZ * 1.4, HZ * 1.0)
+    assert down.complete and len(down.w) < 1000
+    np.testing.assert_allclose(np.sort(down.fold_frequencies / HZ), [1.15363, 1.21185], atol=2e-5)
+    unstable = down.w[~down.stable] / HZ
+    assert unstable.min() > 1.1536 and unstable.max() < 1.2119
+    fine = continue_response(s, els, "x2", 0.8, HZ * 1.1, HZ * 1.3, step=0.002)
+    assert fine.complete and fine.w.min() >= HZ * 1.1 * (1 - 1e-12) and len(fine.folds) == 2
+
+
+def _rk4(rhs, z0, dt, steps):
+    z = np.array(z0, float)
+    for i in range(steps):
+        t = i * dt
+        k1 = rhs(t, z)
+        k2 = rhs(t + dt / 2, z + dt / 2 * k1)
+        k3 = rhs(t + dt / 2, z + dt / 2 * k2)
+        k4 = rhs(t + dt, z + dt * k3)
+        z = z + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return z
+
+
+def test_stability_of_each_branch_at_1_18_hz_against_time_integration(paper_curve):
+    # three solutions at 1.18 Hz: the outer two are held by the time-domain system started on them, the middle
+    # one (marked unstable) is left for another
+    curve, w = paper_curve, HZ * 1.18
+    cross = np.flatnonzero(np.diff(np.sign(curve.w - w)) != 0)
+    assert len(cross) == 3
+    y, stable = [], []
+    for i in cross:
+        f = (w - curve.w[i]) / (curve.w[i + 1] - curve.w[i])
+        y.append(curve.y[i] + f * (curve.y[i + 1] - curve.y[i]))
+        stable.append(curve.stable[i] and curve.stable[i + 1])
+    y = np.array(y)                                       # (3, 2): x1, x2 phasors (grounded elements)
+
+    def rhs(t, z):                                        # the three starts at once; Coulomb as 0.1 tanh(v/1e-4)
+        x1, x2, v1, v2 = z.reshape(4, -1)
+        f1 = 200 * x1 - 100 * x2 - 500 * x1 ** 3 + v1 * np.abs(v1)
+        f2 = -100 * x1 + 200 * x2 - 750 * x2 ** 3 + 0.1 * np.tanh(v2 / 1e-4)
+        return np.concatenate([v1, v2, -f1, (0.8 * np.sin(w * t) - f2) / 2.0])
+
+    periods, per_period = 40, 400
+    T = 2 * np.pi / w
+    z0 = np.concatenate([y[:, 0].imag, y[:, 1].imag, w * y[:, 0].real, w * y[:, 1].real])
+    end = _rk4(rhs, z0, T / per_period, periods * per_period).reshape(4, -1)
+    start = z0.reshape(4, -1)
+    moved = np.hypot(end[0] - start[0], end[2] / w - start[2] / w) / np.abs(y[:, 0])   # x1 state after whole periods
+    assert stable == [True, False, True]
+    assert moved[0] < 0.05 and moved[2] < 0.05 and moved[1] > 0.5, moved
+
+
+def _paper_period(z0, w):
+    """One period of the paper's 2-DOF system at 0.8 N with Coulomb friction exact: the sliding direction
+    flips where v2 crosses zero (the integrator's event search); returns the end state and the segments."""
+    T = 2 * np.pi / w
+    t, z, sgn, segments = 0.0, np.array(z0, float), np.sign(z0[3]), []
+    while t < T:
+        def rhs(t, z, sgn=sgn):
+            x1, x2, v1, v2 = z
+            f1 = 200 * x1 - 100 * x2 - 500 * x1 ** 3 + v1 * abs(v1)
+            f2 = -100 * x1 + 200 * x2 - 750 * x2 ** 3 + 0.1 * sgn
+            return [v1, v2, -f1, (0.8 * np.sin(w * t) - f2) / 2.0]
+
+        def reversal(t, z):
+            return z[3]
+
+        reversal.terminal, reversal.direction = True, -sgn
+        sol = solve_ivp(rhs, (t, T), z, method="DOP853", rtol=1e-12, atol=1e-14, events=reversal,
+                        dense_output=True)
+        segments.append(sol)
+        t, z = sol.t[-1], sol.y[:, -1]
+        if sol.status == 1:
+            held = 0.8 * np.sin(w * t) + 100 * z[0] - 200 * z[1] + 750 * z[1] ** 3
+            assert abs(held) > 0.1                    # the contact slides on: no stick to model
+            sgn = -sgn
+    return z, segments
+
+
+def _paper_orbit_fundamental(w, X):
+    """Fundamental phasors of x1, x2 on the periodic orbit: shooting (Newton on one period) from ``X``."""
+    z0 = np.array([X[0].imag, X[1].imag, w * X[0].real, w * X[1].real])
+    for _ in range(10):
+        zT, _ = _paper_period(z0, w)
+        if np.linalg.norm(zT - z0) < 1e-12 * np.linalg.norm(z0):
+            break
+        J = np.empty((4, 4))
+        for j in range(4):
+            dz = np.zeros(4)
+            dz[j] = 1e-7 * max(abs(z0[j]), 1e-3)
+            J[:, j] = (_paper_period(z0 + dz, w)[0] - zT) / dz[j]
+        z0 = z0 - np.linalg.solve(J - np.eye(4), zT - z0)
+    _, segments = _paper_period(z0, w)
+    n = 4096
+    t = np.arange(n) * 2 * np.pi / w / n
+    x = np.concatenate([seg.sol(t[(t >= seg.t[0]) & ((t < seg.t[-1]) | (k == len(segments) - 1))])[:2]
+                        for k, seg in enumerate(segments)], axis=1)
+    return 2 / n * (x * (np.sin(w * t) + 1j * np.cos(w * t))).sum(axis=1)
+
+
+@pytest.mark.parametrize("f_hz, direction, single_off, limits", [
+    (0.8, "up", (0.014, 0.018), {3: 7.5e-3, 5: 5.2e-3, 7: 4.2e-3}),      # 3rd harmonic on mode 2 (2.45 Hz)
+    (1.18, "down", (0.016, 0.020), {3: 3e-4, 7: 3e-5}),                 # resonant branch near its fold
+])
+def test_multiharmonic_on_the_paper_model_against_its_periodic_orbit(f_hz, direction, single_off, limits):
+    s, els = paper()
+    w = HZ * f_hz
+    lines = HZ * (np.arange(0.8, f_hz + 1e-9, 0.01) if direction == "up" else np.arange(1.4, f_hz - 1e-9, -0.01))
+    single = predict_sweep(s, els, "x2", lines, 0.8, direction)
+    y1, x1 = single.y[-1:, 0], single.receptance[-1, 0] * 0.8
+    ref = _paper_orbit_fundamental(w, predict_multiharmonic(s, els, "x2", [w], 0.8, 7, 1024, y_start=y1).harmonics[0, 1])
+    off = {H: np.linalg.norm(predict_multiharmonic(s, els, "x2", [w], 0.8, H, 1024, y_start=y1).harmonics[0, 1] - ref)
+           / np.linalg.norm(ref) for H in limits}
+    single_err = np.linalg.norm(x1 - ref) / np.linalg.norm(ref)
+    assert single_off[0] < single_err < single_off[1]
+    assert all(off[H] < limit for H, limit in limits.items()), off
+    assert list(off.values()) == sorted(off.values(), reverse=True)
+    # what the comparison uses (7 harmonics, 512 points per period) is as close
+    used = predict_multiharmonic(s, els, "x2", [w], 0.8, HarmonicCriterion().n_harmonics, HarmonicCriterion().n_time,
+                                 y_start=y1).harmonics[0, 1]
+    assert np.linalg.norm(used - ref) / np.linalg.norm(ref) < max(limits.values()) * 1.5
+
+
+def test_the_harmonic_criterion_selects_the_third_harmonic_on_mode_2_and_the_fold():
+    s, els = paper()
+    w = HZ * np.array([0.8, 1.18, 1.6])
+    up, down = predict_sweeps(s, els, "x2", HZ * np.r_[np.arange(0.8, 1.6, 0.01), 1.6], 0.8)
+    rows = [0, 38, 80]
+    implied = single_harmonic_distortion(s, els, "x2", w, 0.8, up.y[rows, 0]).max(axis=1)
+    multivalued = np.abs(up.y[rows, 0] - down.y[rows, 0]).max(axis=1) > 1e-9
+    assert implied[0] > 0.1 and implied[1] < 0.01 and implied[2] < 0.01       # the fold shows no harmonics
+    assert multivalued.tolist() == [False, True, False]
+    assert HarmonicCriterion().selects(None, implied, multivalued).tolist() == [True, True, False]
+    # measured distortion counts too
+    assert HarmonicCriterion().selects(np.array([0.0, 0.0, 0.02]), implied, multivalued).tolist() == [True] * 3

@@ -1,7 +1,6 @@
 """The element laws of docs/contracts.md §2, one module per law, and their registry."""
 from __future__ import annotations
 
-
 import numpy as np
 
 from ..errors import InputError

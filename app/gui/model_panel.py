@@ -12,6 +12,8 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxL
                                QPushButton, QSplitter, QTableWidget, QTableWidgetItem, QTextBrowser, QTreeWidget,
                                QTreeWidgetItem, QVBoxLayout, QWidget)
 
+from analysis.comparison import gain_phrase
+
 from .lab import Lab
 from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol
 from .results import AnalysisView
@@ -58,6 +60,12 @@ class ModelPanel(QWidget):
         row.addWidget(self.error_label, 1)
         row.addWidget(self.busy_label)
         layout.addLayout(row)
+        self.jump_label = QLabel("")
+        self.jump_label.setToolTip("Where the predicted response is multivalued, each measured line is compared with "
+                                   "the nearer stable branch (docs/workbench.md §3); ✕ marks lines measured on "
+                                   "another branch than the swept prediction")
+        self.jump_label.setWordWrap(True)
+        layout.addWidget(self.jump_label)
 
         splitter = QSplitter(Qt.Orientation.Horizontal)
         layout.addWidget(splitter, 1)
@@ -132,6 +140,7 @@ class ModelPanel(QWidget):
         self.view = None
         self.model_label.setText(self.lab.model_label or "no model: open one, or make a starter model from the rig")
         self.error_label.setText("FRF error: — (press Analyze)")
+        self.jump_label.setText("")
         self.laws.clear()
         self.candidates.setRowCount(0)
         self.explanation.clear()
@@ -172,7 +181,7 @@ class ModelPanel(QWidget):
         if self.view is None or not rows:
             return
         c = self.view.candidates[min(rows)]
-        self.explanation.setPlainText(f"{c.element}:{c.law} — error {c.error:.4g} (×{c.gain:.2f} better, "
+        self.explanation.setPlainText(f"{c.element}:{c.law} — error {c.error:.4g} ({gain_phrase(c.gain).replace('x', '×', 1)}, "
                                       f"{'significant' if c.significant else 'not significant'})\n\n{c.explanation}")
 
     def _draw(self) -> None:
@@ -181,6 +190,8 @@ class ModelPanel(QWidget):
             return
         by_level = ", ".join(f"{f:g} N: {e:.3g}" for f, e in view.error_by_level)
         self.error_label.setText(f"FRF error {view.error:.4g}   ({by_level})")
+        self.jump_label.setText("<br>".join(["<b>Jumps</b> (predicted fold against measured):", *view.jumps])
+                                if view.jumps else "")
         self._draw_laws(view)
         self._draw_candidates(view)
         self._draw_frf(view)
@@ -203,7 +214,7 @@ class ModelPanel(QWidget):
         table = self.candidates
         table.setRowCount(len(view.candidates))
         for row, c in enumerate(view.candidates):
-            cells = (c.element, c.law, f"{c.error:.4g}", f"×{c.gain:.2f}", "yes" if c.significant else "no")
+            cells = (c.element, c.law, f"{c.error:.4g}", gain_phrase(c.gain).replace("x", "×", 1), "yes" if c.significant else "no")
             for col, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 item.setToolTip(c.explanation)
@@ -235,6 +246,21 @@ class ModelPanel(QWidget):
                 self.frf.plot(f, finite_log(np.abs(predicted[:, p])), pen=pg.mkPen(color, width=1.5))
             self.residual.plot(f, finite_log(view.residual_map[run.name][order]), pen=pg.mkPen(color, width=1),
                                symbol="o", symbolSize=4, symbolBrush=pg.mkBrush(color), symbolPen=None)
+            self._draw_other_branch(view, run, order, color)
+
+    def _draw_other_branch(self, view: AnalysisView, run, order, color) -> None:
+        """Lines measured on another branch than the swept prediction: a cross on the residual map and the
+        branch they were compared with on the FRF plot."""
+        other = view.other_branch.get(run.name)
+        if other is None or not other.any():
+            return
+        lines = order[other[order]]
+        f = run.frequency_hz[lines]
+        self.residual.plot(f, finite_log(view.residual_map[run.name][lines]), pen=None, symbol="x", symbolSize=14,
+                           symbolBrush=pg.mkBrush(color), symbolPen=pg.mkPen(color, width=2))
+        for p in range(len(run.sensor_dofs)):
+            self.frf.plot(f, finite_log(np.abs(view.compared[run.name][lines, p])), pen=None, symbol="x",
+                          symbolSize=12, symbolPen=pg.mkPen(color, width=2), symbolBrush=None)
 
     def _draw_history(self, view: AnalysisView) -> None:
         self.history.clear()

@@ -88,6 +88,9 @@ class AnalysisView:
     history: list[HistoryView]
     model_toml: str
     reference_text: str = ""
+    other_branch: dict[str, np.ndarray] = field(default_factory=dict)   # lines measured on another branch
+    compared: dict[str, np.ndarray] = field(default_factory=dict)       # the prediction each line was compared with
+    jumps: list[str] = field(default_factory=list)                       # predicted against measured, one per jump
 
     @property
     def can_undo(self) -> bool:
@@ -147,4 +150,5 @@ def analysis_view(wb: Workbench, candidates: list[Candidate]) -> AnalysisView:
         dict(comp.predicted), dict(comp.residual_map),
         [CandidateView(c.element, c.law, c.error, c.gain, c.significant, c.explanation) for c in candidates],
         [HistoryView(h.step, h.action, h.error) for h in wb.history], wb.model.to_toml(),
-        wb.reference.text() if wb.reference is not None else "")
+        wb.reference.text() if wb.reference is not None else "", dict(comp.other_branch), dict(comp.compared),
+        [j.text() for j in comp.jumps])
