@@ -361,18 +361,21 @@ class Session:
         with self._reading(where):
             return ds[:n]
 
+    def _parsed(self, where: str, attrs: dict, key: str, parse):
+        """``parse(attrs[key])``, or InputError naming the attribute."""
+        try:
+            return parse(attrs[key])
+        except (ValueError, TypeError) as exc:
+            raise InputError(f"unreadable attribute ({exc})", str(self.path), f"{where}@{key}") from None
+
     def _run_attrs(self, where: str, attrs: dict) -> list[str]:
         """Check a run's attributes are there and readable; returns its sensor DOFs."""
         for key in REQUIRED_RUN_ATTRS:
             if key not in attrs:
                 raise InputError("missing attribute (the session is incomplete or damaged)", str(self.path),
                                  f"{where}@{key}")
-        try:
-            dofs = json.loads(attrs["sensor_dofs"])
-            float(attrs["force"])
-        except (ValueError, TypeError) as exc:
-            raise InputError(f"unreadable attribute ({exc})", str(self.path), f"{where}@sensor_dofs/force") \
-                from None
+        dofs = self._parsed(where, attrs, "sensor_dofs", json.loads)
+        self._parsed(where, attrs, "force", float)
         if not isinstance(dofs, list) or not all(isinstance(d, str) for d in dofs):
             raise InputError(f"must be a JSON list of DOF names, got {attrs['sensor_dofs']!r}", str(self.path),
                              f"{where}@sensor_dofs")

@@ -99,8 +99,9 @@ def zero_force(f):
     (shorter_frequency, f"run {RUN}, dataset frf/x1", "has 12 lines but dataset frequency has 3"),
     (negative_frequency, f"run {RUN}, dataset frequency", "line 2 is -1.5 Hz"),
     (nan_frf, f"run {RUN}, dataset frf/x2", "line 4 is"),
-    (missing_frf, f"run {RUN}, dataset frf/x1", "is missing"),
-    (bad_sensor_list, f"run {RUN}, attribute sensor_dofs", "JSON list"),
+    # the reader finds these two first, naming the HDF5 path of the object
+    (missing_frf, f"/runs/{RUN}/frf/x1", "missing dataset"),
+    (bad_sensor_list, f"/runs/{RUN}@sensor_dofs", "unreadable attribute"),
     (unknown_kind, f"run {RUN}, attribute kind", "must be one of random, stepped_sine"),
     (zero_force, f"run {RUN}, attribute force", "must be a finite force > 0 N"),
 ])
