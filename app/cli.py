@@ -48,8 +48,9 @@ def cmd_export(args) -> int:
     from .export import export_csv, export_uff
 
     if args.uff:
-        n = export_uff(args.session, args.uff, overwrite=args.force)
-        print(f"wrote {n} FRF records to {args.uff}")
+        done = export_uff(args.session, args.uff, overwrite=args.force, single_file=args.single_file,
+                          binary=args.binary, frf_only=args.frf_only)
+        print(f"wrote {done.records} records to {', '.join(str(p) for p in done.files)}")
     else:
         paths = export_csv(args.session, args.csv, overwrite=args.force)
         print(f"wrote {len(paths)} CSV files to {args.csv}")
@@ -231,8 +232,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="export a session's FRFs (UFF58 or CSV)")
     p.add_argument("session", help="session file (.h5)")
     target = p.add_mutually_exclusive_group(required=True)
-    target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records to FILE")
+    target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records: one file per run, "
+                                                       "FILE's stem + _<run> (see --single-file)")
     target.add_argument("--csv", metavar="DIR", help="write one CSV per run into DIR")
+    p.add_argument("--single-file", action="store_true", help="UFF: every run in FILE itself")
+    p.add_argument("--binary", action="store_true", help="UFF: binary records (58b; abscissae kept exact)")
+    p.add_argument("--frf-only", action="store_true",
+                   help="UFF: only the FRF records, without contactid's per-line quantities")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(run=cmd_export)
 

@@ -400,15 +400,16 @@ class Lab(QObject):
         return True
 
     def export(self, kind: str, target: str, on_done) -> None:
-        """Write the open session's FRFs as UFF58 (``kind="uff"``, a file the save dialog let the operator
-        overwrite) or CSV (one file per run into a folder; existing files are refused), in the background;
+        """Write the open session's FRFs as UFF58 (``kind="uff"``: one file per run named after the save
+        dialog's file, which let the operator overwrite) or CSV (one file per run into a folder; existing files are refused), in the background;
         ``on_done(message)``."""
         if self.session_path is None:
             raise InputError("open a session first")
         path = self.session_path
         if kind == "uff":
             def task():
-                return f"wrote {export_uff(path, target, overwrite=True)} FRF records to {target}"
+                done = export_uff(path, target, overwrite=True)
+                return f"wrote {done.records} records to {', '.join(p.name for p in done.files)}"
         else:
             def task():
                 return f"wrote {len(export_csv(path, target))} CSV files to {target}"
