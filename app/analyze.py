@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 
 from analysis.errors import InputError
+from analysis.frf_noise import METHOD as NOISE_METHOD
 from analysis.model import load_model
 from analysis.tables import load_toml
 from analysis.workbench import Workbench
@@ -37,11 +38,25 @@ def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = T
     return wb, candidates
 
 
+def _data_notes(wb: Workbench) -> list[str]:
+    """What the analysis had to do without (imported FRFs carry no noise and no harmonics)."""
+    out = []
+    estimated = [r.name for r in wb.measurements.sine if r.noise_estimated]
+    if estimated:
+        out.append(f"noise: not measured for {', '.join(estimated)}; estimated {NOISE_METHOD}")
+    blind = [r.name for r in wb.measurements.sine if r.distortion is None]
+    if blind:
+        out.append(f"distortion: no harmonics for {', '.join(blind)}, so no line is left out as far from "
+                   "harmonic; lines that do not follow the fitted laws show in the misfit and the missing effects")
+    return out + ([""] if out else [])
+
+
 def report_text(wb: Workbench, candidates, top: int = 5) -> str:
     """The analysis as a test engineer reads it."""
     out = []
     if wb.reference is not None and wb.reference.text():
         out += [wb.reference.text(), ""]
+    out += _data_notes(wb)
     out.append("elements:")
     for el in wb.model.elements:
         r = wb.reports[el.name]

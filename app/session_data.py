@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from analysis.frf_noise import smoothness_noise
 from analysis.measurements import Measurements, RandomRun, SineRun
 
 from .session import Session
@@ -33,9 +34,10 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
         if std is not None:
             # a noise-free (simulated) record has zero residual: floor at the round-off of the data
             std = np.maximum(std, NOISE_FLOOR * np.abs(H).max())
+        distortion = np.max(np.stack(thd), axis=0) if thd else run.arrays.get("distortion")   # imported: as stored
         sine.append(SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, run.frequency, H,
-                            std, run.arrays.get("force_amplitude"),
-                            np.max(np.stack(thd), axis=0) if thd else None))
+                            std if std is not None else smoothness_noise(run.frequency, H),
+                            run.arrays.get("force_amplitude"), distortion, noise_estimated=std is None))
     return Measurements(sine, random)
 
 
