@@ -1,46 +1,73 @@
-"""The noise of FRFs that came without it: estimated from their smoothness over neighbouring lines.
+"""The noise of FRFs that came without it: estimated from how far each line lies from a smooth curve.
 
 An imported FRF (another system's UFF58 or CSV) carries no standard deviation, but the analysis weighs every
-line by one. A receptance is a smooth function of frequency between its lines, so what a line departs from the
-smooth curve through its neighbours is noise: the second divided difference over three neighbouring lines
-``c0 H[i-1] + c1 H[i] + c2 H[i+1]`` (``c = (h2, -(h1 + h2), h1)`` for spacings h1, h2; it removes any straight
-line) has ``E|.|^2 = sigma^2 sum c^2`` for circular complex noise of ``E|n|^2 = sigma^2``. Each line takes the
-running median of ``|.|^2 / sum c^2`` over ``WINDOW`` neighbouring triples, divided by ln 2 (the median of an
-exponential variable over its mean) so a few lines of real curvature -- a resonance peak -- do not count as
-noise. Where the curvature dominates, the estimate is larger than the noise: the line counts less, never
-more. A noise-free record is floored at ``FLOOR`` of the largest FRF value (its round-off).
+line by one. Between its lines a receptance is a smooth rational function of frequency (a few modes, and a
+weak nonlinearity only bends it slowly), so what the lines scatter about a local rational fit is noise:
+
+* around each line, a window of ``WINDOW`` neighbouring lines (fewer in a short run) is fitted by
+  ``N(x) / D(x)``, numerator of degree ``DEGREE - 1``, denominator of degree ``DEGREE`` (two modes in the
+  window), complex coefficients, ``x`` the frequency scaled to [-1, 1] over the window -- by Levy's linearised
+  least squares refined by Sanathanan-Koerner iterations;
+* the noise is taken as relative, a constant fraction of ``|H|`` within the window (as a force-controlled
+  measurement with a steady signal-to-noise ratio gives), so residuals are weighed by ``1 / |H|`` and
+  ``sigma_rel^2 = sum |e / H|^2 / (n - p)`` with ``p`` the complex coefficients fitted;
+* each line gets ``sigma_rel |H|`` of the window centred on it.
+
+Where the curve is not smooth enough for the fit, the estimate is larger than the noise: the line counts
+less, never more. A noise-free record is floored at ``FLOOR`` of the largest FRF value (its round-off).
+Fewer than ``MIN_LINES`` lines: no estimate.
 """
 from __future__ import annotations
 
 import numpy as np
 
-WINDOW = 11
+WINDOW = 15
+DEGREE = 4
+ITERATIONS = 4
+MIN_LINES = 5
 FLOOR = 1e-9
-METHOD = (f"from the scatter of each FRF about a smooth curve: running median over {WINDOW} lines of the "
-          "second differences between neighbouring lines")
+METHOD = (f"from each FRF's scatter about a local rational fit over {WINDOW} neighbouring lines "
+          "(noise taken as a constant fraction of |H| within the window)")
+
+
+def _degree(n: int) -> int:
+    """Denominator degree for a window of n lines: DEGREE, less where n leaves under 3 degrees of freedom."""
+    return max(1, min(DEGREE, (n - 3) // 2))
+
+
+def _relative_variance(f: np.ndarray, H: np.ndarray) -> float:
+    """``E|n / H|^2`` of one window from the residual of a rational fit."""
+    x = (f - f.mean()) / max(np.ptp(f) / 2, 1e-300)
+    nd = _degree(len(f))
+    scale = 1 / np.maximum(np.abs(H), 1e-300)
+    weight = scale
+    powers = np.vander(x, nd + 1, increasing=True)                  # x^0 .. x^nd
+    for _ in range(ITERATIONS):
+        A = np.hstack([powers[:, :nd], -H[:, None] * powers[:, 1:]]) * weight[:, None]
+        coef = np.linalg.lstsq(A.astype(complex), H * weight, rcond=None)[0]
+        D = 1 + powers[:, 1:] @ coef[nd:]
+        weight = scale / np.maximum(np.abs(D), 1e-300)
+    e = (H - (powers[:, :nd] @ coef[:nd]) / D) * scale
+    return float(np.sum(np.abs(e) ** 2) / (len(f) - 2 * nd))
 
 
 def smoothness_noise(frequency_hz, receptance) -> np.ndarray | None:
-    """Estimated ``sqrt(E|n|^2)`` per line and sensor, shape (L, P), m/N; None with fewer than 3 lines.
+    """Estimated ``sqrt(E|n|^2)`` per line and sensor, shape (L, P), m/N; None with fewer than MIN_LINES lines.
 
-    Lines may come in any order (a down sweep); they are taken in order of frequency."""
+    Lines may come in any order (a down sweep); windows are taken in order of frequency."""
     f = np.asarray(frequency_hz, float)
     H = np.asarray(receptance, complex).reshape(len(f), -1)
-    if len(f) < 3:
+    L = len(f)
+    if L < MIN_LINES:
         return None
     order = np.argsort(f, kind="stable")
     fs, Hs = f[order], H[order]
-    h1, h2 = np.diff(fs)[:-1], np.diff(fs)[1:]
-    c = np.stack([h2, -(h1 + h2), h1], axis=1)
-    norm = np.sum(c ** 2, axis=1)[:, None]
-    norm = np.where(norm > 0, norm, np.inf)
-    second = c[:, :1] * Hs[:-2] + c[:, 1:2] * Hs[1:-1] + c[:, 2:] * Hs[2:]
-    variance = np.abs(second) ** 2 / norm                       # (L - 2, P), one per inner line
-    half = WINDOW // 2
-    padded = np.pad(variance, ((half, half), (0, 0)), mode="edge")
-    windows = np.lib.stride_tricks.sliding_window_view(padded, WINDOW, axis=0)
-    local = np.median(windows, axis=-1) / np.log(2.0)
-    local = np.concatenate([local[:1], local, local[-1:]])       # the end lines take their neighbour's
-    std = np.empty_like(local)
-    std[order] = np.sqrt(local)
+    width = min(WINDOW, L)
+    starts = np.clip(np.arange(L) - width // 2, 0, L - width)
+    rel = np.empty((L, H.shape[1]))
+    for p in range(H.shape[1]):
+        by_start = {s: _relative_variance(fs[s:s + width], Hs[s:s + width, p]) for s in set(starts.tolist())}
+        rel[:, p] = [by_start[s] for s in starts]
+    std = np.empty_like(rel)
+    std[order] = np.sqrt(rel) * np.abs(Hs)
     return np.maximum(std, FLOOR * np.abs(H).max())

@@ -259,7 +259,7 @@ def _write_uff_files(files: dict[Path, list[dict]], session_path: Path, software
             temp = stack.enter_context(atomic_output(target, inputs=[session_path], overwrite=overwrite,
                                                      field="--uff"))
             try:
-                pyuff.UFF(str(temp)).write_sets([_header(session_path, software)] + records, mode="overwrite")
+                pyuff.UFF(str(temp)).write_sets([_header(session_path, software)] + records, mode="add")  # a fresh file
             except Exception as exc:        # pyuff reports every write failure as a bare Exception
                 raise OSError(f"{target}: writing the UFF file failed ({exc}); no export file was left") from exc
 
