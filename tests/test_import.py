@@ -265,7 +265,7 @@ BAD_UFF = {
     "NaN": ([_frf(data=np.array([1, 2, 777, 4]) * (1 - 1j))], DOFS,          # 777 becomes NaN in the file
             r"b.uff: record 1: data: line 2 is .*nan.*not a finite number"),
     "level missing": ([_frf()], ["--dof", "1=x1", "--excitation", "x2"],
-                      r"b.uff: record 1: force: the file does not say the force level .*give --force"),
+                      r"b.uff: record 1: force: the file does not say the force level .*--force N"),
     "unknown unit": ([_frf(ordinate_axis_units_lab="furlong")], DOFS,
                      r"b.uff: record 1: ordinate_axis_units_lab: unit 'furlong' not known"),
     "not a force over": ([_frf(orddenom_spec_data_type=12)], DOFS,
