@@ -1,7 +1,10 @@
 """export then import needs no flags and gives the analysis the same numbers as the session it came from."""
+import tomllib
+
 import numpy as np
 import pytest
 
+from analysis.model import load_model
 from app.analyze import run_workbench
 from app.cli import main
 from app.export import export_uff
@@ -13,23 +16,10 @@ from app.models import asset
 from app.plan import load_plan
 from app.session import RunSpec, SessionWriter, open_session
 from app.session_data import measurements_from_session
-from drivers.simulation.rig import load_rig
+from drivers.simulation.rig import builtin_rig_path, load_rig
 
-PAPER_2DOF_MODEL = """
-[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-[[element]]
-name = "left"
-dof = "x1"
-laws = ["cubic", "quadratic_damping"]
-[[element]]
-name = "right"
-dof = "x2"
-laws = ["cubic", "coulomb"]
-"""
+PAPER_2DOF_LAWS = {"left": ["cubic", "quadratic_damping"], "right": ["cubic", "coulomb"]}
+
 PLANS = {
     "paper-2dof": """
 [random]
@@ -83,9 +73,11 @@ def test_simulate_export_import_analyze_gives_the_same_laws_and_error(rig, tmp_p
     session = tmp_path / "s.h5"
     with emulated_instruments(load_rig(rig), seed=2) as inst:
         assert not run_plan(load_plan(tmp_path / "plan.toml"), inst, session).aborted
-    if rig == "paper-2dof":
+    if rig == "paper-2dof":                     # the rig's structure, the paper's laws to fit
+        structure = tomllib.loads(builtin_rig_path(rig).read_text())["structure"]
+        elements = [{"name": n, "dof": d, "laws": PAPER_2DOF_LAWS[n]} for n, d in (("left", "x1"), ("right", "x2"))]
         model = tmp_path / "model.toml"
-        model.write_text(PAPER_2DOF_MODEL)
+        model.write_text(load_model({"structure": structure, "element": elements}).to_toml())
     else:
         model = asset("paper-beam.model.toml")
     files = export_uff(session, tmp_path / "e.uff", binary=True).files
