@@ -193,6 +193,23 @@ def test_velocity_and_displacement_ordinates_and_a_reversed_sign(tmp_path):
     np.testing.assert_allclose(run.frf["b"], 2 * h, rtol=1e-9)
 
 
+def test_units_dataset_164_applies_where_the_labels_are_empty(tmp_path):
+    """Displacement in mm per N, said only by dataset 164 (SI = value / factor) and the unit exponents."""
+    w = 2 * np.pi * FREQS
+    h = 1 / (100 - w ** 2 + 1j * w)
+    sets = [pyuff.prepare_164(units_code=5, units_description="mm", temp_mode=2, length=1000.0, force=1.0,
+                              temp=1.0, temp_offset=273.15),
+            pyuff.prepare_58(binary=0, func_type=4, rsp_node=1, rsp_dir=3, ref_node=1, ref_dir=3,
+                             ordinate_spec_data_type=8, ordinate_len_unit_exp=1, orddenom_spec_data_type=13,
+                             orddenom_force_unit_exp=1, abscissa_spec_data_type=18, x=FREQS, data=1e3 * h,
+                             id1="d", id2="", id3="", id4="", id5="")]
+    pyuff.UFF(str(tmp_path / "mm.uff")).write_sets(sets, mode="add")
+    options = SourceOptions(force=0.5, dofs=[parse_dof_map("1=a")])
+    import_files(ImportRequest([(str(tmp_path / "mm.uff"), options)], str(tmp_path / "s.h5")))
+    with open_session(tmp_path / "s.h5") as s:
+        np.testing.assert_allclose(s.run("sine_0.5N_up").frf["a"], h, rtol=1e-9)
+
+
 def test_time_histories_become_a_random_run_through_the_projects_estimator(tmp_path):
     """Force and accelerations of a multisine through the linear 2-DOF system (its exact steady state)."""
     rng = np.random.default_rng(0)

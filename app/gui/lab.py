@@ -402,14 +402,14 @@ class Lab(QObject):
 
     def export(self, kind: str, target: str, on_done) -> None:
         """Write the open session's FRFs as UFF58 (``kind="uff"``: one file per run named after the save
-        dialog's file, which let the operator overwrite) or CSV (one file per run into a folder; existing files
-        are refused), in the background; ``on_done(message)``."""
+        dialog's file) or CSV (one file per run into a folder), in the background; ``on_done(message)``.
+        Existing files are refused."""
         if self.session_path is None:
             raise InputError("open a session first")
         path = self.session_path
         if kind == "uff":
             def task():
-                done = export_uff(path, target, overwrite=True)
+                done = export_uff(path, target)
                 return f"wrote {done.records} records to {', '.join(p.name for p in done.files)}"
         else:
             def task():

@@ -15,7 +15,7 @@ from analysis.frf_estimation import FRFEstimator
 
 from ..campaign import RANDOM_SEGMENT_SECONDS
 from .runs import ImportedRun, RawRecord, SourceOptions
-from .units import FORCES, PREFIX, RESPONSES, SI_UNITS, to_receptance, unit_factor
+from .units import FORCES, PREFIX, RESPONSES, SI_UNITS, FileUnits, file_default, to_receptance, unit_factor
 
 MIN_AVERAGES = 8
 BAND_FRACTION = 1e-2
@@ -26,7 +26,7 @@ def _where(number: int, name: str) -> str:
     return f"record {number}: {name}"
 
 
-def _channel(path: str, number: int, fields: dict) -> tuple[int, np.ndarray, float]:
+def _channel(path: str, number: int, fields: dict, units: FileUnits | None) -> tuple[int, np.ndarray, float]:
     """(specific data type, samples in SI, sample interval) of one time-history record."""
     kind = int(fields.get("ordinate_spec_data_type", 0))
     if kind not in RESPONSES and kind not in FORCES:
@@ -45,7 +45,7 @@ def _channel(path: str, number: int, fields: dict) -> tuple[int, np.ndarray, flo
     if not dt > 0 or not np.allclose(np.diff(x), dt, rtol=1e-6):
         raise InputError("time samples must be evenly spaced and rising", path, _where(number, "x"))
     factor = unit_factor(kind, fields.get("ordinate_axis_units_lab", ""), path,
-                         _where(number, "ordinate_axis_units_lab")).factor
+                         _where(number, "ordinate_axis_units_lab"), file_default(units, fields, "ordinate")).factor
     return kind, data * factor, dt
 
 
@@ -57,8 +57,8 @@ def segment_length(fs: float, samples: int) -> int:
 
 
 def random_run_from_time_histories(path: str, records: list[tuple[int, dict]], options: SourceOptions,
-                                   notes: list[str]) -> ImportedRun:
-    channels = [(number, fields, *_channel(path, number, fields)) for number, fields in records]
+                                   units: FileUnits | None, notes: list[str]) -> ImportedRun:
+    channels = [(number, fields, *_channel(path, number, fields, units)) for number, fields in records]
     forces = [c for c in channels if c[2] in FORCES]
     if not forces:
         raise InputError("no force channel among the time histories (ordinate specific data type 13 or 9)", path,

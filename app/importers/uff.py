@@ -18,9 +18,10 @@ from .idlines import RecordTag, decode
 from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, check_values, in_sweep_order, sine_run_name,
                    sweep_direction)
 from .time_history import random_run_from_time_histories
-from .units import FORCES, RESPONSES, to_receptance, unit_factor
+from .units import FORCES, RESPONSES, FileUnits, file_default, to_receptance, unit_factor
 
 FUNC_TIME, FUNC_FRF = 1, 4
+UNITS = 164
 FREQUENCY_TYPES = (0, 18)          # unknown or frequency
 LINE_QUANTITIES = {"frf_std": ("frf_std/{dof}", "m/N"), "coherence": ("coherence/{dof}", "1"),
                    "random_error": ("random_error/{dof}", "1"), "force_amplitude": ("force_amplitude", "N"),
@@ -51,8 +52,8 @@ class FrfEntry:
     receptance: np.ndarray
 
 
-def read_records(path: str) -> tuple[list[Record], list[str]]:
-    """Every dataset 58 record of a file and notes on the other datasets."""
+def read_records(path: str) -> tuple[list[Record], FileUnits | None, list[str]]:
+    """Every dataset 58 record of a file, its units (dataset 164, if any) and notes on the other datasets."""
     try:
         uff = pyuff.UFF(path)
         types = [int(t) for t in uff.get_set_types()] if uff.get_n_sets() else []
@@ -60,8 +61,10 @@ def read_records(path: str) -> tuple[list[Record], list[str]]:
         raise InputError(f"not a readable universal file ({exc})", path) from None
     if not types:
         raise InputError("holds no universal-file dataset (not a UFF file?)", path)
-    records, others = [], []
+    records, others, units = [], [], None
     for i, kind in enumerate(types):
+        if kind == UNITS:
+            units = _units(uff, i, path)
         if kind != 58:
             others.append(i + 1)
             continue
@@ -74,12 +77,23 @@ def read_records(path: str) -> tuple[list[Record], list[str]]:
         records.append(Record(i + 1, fields, decode(ids, f"{path}: record {i + 1}")))
     notes = [f"skipped datasets {', '.join(str(n) for n in others)} (types "
              f"{', '.join(sorted({str(types[n - 1]) for n in others}))}: not function records)"] if others else []
-    return records, notes
+    return records, units, notes
+
+
+def _units(uff, index: int, path: str) -> FileUnits:
+    try:
+        fields = uff.read_sets(index)
+        units = FileUnits(float(fields["length"]), float(fields["force"]))
+    except Exception as exc:           # pyuff: a bare Exception
+        raise InputError(f"cannot be read as units dataset 164 ({exc})", path, f"record {index + 1}") from None
+    if not (units.length > 0 and units.force > 0):
+        raise InputError("unit factors must be > 0", path, f"record {index + 1}: length, force")
+    return units
 
 
 def read_uff(path: str, options: SourceOptions) -> tuple[list[ImportedRun], list[Record], list[str]]:
     """The runs of one UFF58 file, its dataset 58 records and notes (skipped records, assumed units)."""
-    records, notes = read_records(path)
+    records, units, notes = read_records(path)
     frf = [r for r in records if r.fields.get("func_type") == FUNC_FRF and (r.tag is None or r.tag.quantity == "frf")]
     time = [r for r in records if r.fields.get("func_type") == FUNC_TIME and r.tag is None]
     extra = [r for r in records if r.tag is not None and r.tag.quantity != "frf"]
@@ -94,9 +108,10 @@ def read_uff(path: str, options: SourceOptions) -> tuple[list[ImportedRun], list
         notes.append(f"skipped records {', '.join(str(r.number) for r in skipped)} (function types "
                      f"{', '.join(sorted({str(r.fields.get('func_type')) for r in skipped}))}: "
                      "neither FRF nor time history)")
-    runs = _frf_runs(path, frf, options, notes)
+    runs = _frf_runs(path, frf, options, units, notes)
     if time:
-        runs.append(random_run_from_time_histories(path, [(r.number, r.fields) for r in time], options, notes))
+        runs.append(random_run_from_time_histories(path, [(r.number, r.fields) for r in time], options, units,
+                                                   notes))
     _attach_line_quantities(path, runs, extra)
     return [in_sweep_order(r) for r in runs], records, notes
 
@@ -115,7 +130,8 @@ def _dof(path: str, record: Record, node_field: str, dir_field: str, options: So
                      (" or --excitation NAME)" if node_field == "ref_node" else ")"), path, record.where(node_field))
 
 
-def _frf_entry(path: str, record: Record, options: SourceOptions, notes: list[str]) -> FrfEntry:
+def _frf_entry(path: str, record: Record, options: SourceOptions, units: FileUnits | None,
+               notes: list[str]) -> FrfEntry:
     f = record.fields
     x = np.asarray(f["x"], float)
     data = np.asarray(f["data"])
@@ -136,11 +152,12 @@ def _frf_entry(path: str, record: Record, options: SourceOptions, notes: list[st
         if denominator not in FORCES:
             raise InputError(f"ordinate denominator specific data type {denominator} is not a force (13 or 9)",
                              path, record.where("orddenom_spec_data_type"))
-        num = unit_factor(kind, f.get("ordinate_axis_units_lab", ""), path, record.where("ordinate_axis_units_lab"))
+        num = unit_factor(kind, f.get("ordinate_axis_units_lab", ""), path, record.where("ordinate_axis_units_lab"),
+                          file_default(units, f, "ordinate"))
         den = unit_factor(denominator, f.get("orddenom_axis_units_lab", ""), path,
-                          record.where("orddenom_axis_units_lab"))
+                          record.where("orddenom_axis_units_lab"), file_default(units, f, "orddenom"))
         if num.assumed or den.assumed:
-            notes.append(f"record {record.number}: no unit label; SI assumed")
+            notes.append(f"record {record.number}: no unit label and no units dataset 164; SI assumed")
         response, s1 = _dof(path, record, "rsp_node", "rsp_dir", options, None)
         excitation, s2 = _dof(path, record, "ref_node", "ref_dir", options, options.excitation)
         sign, scale = s1 * s2, num.factor / den.factor
@@ -156,10 +173,11 @@ def _run_key(record: Record) -> tuple:
     return ("tag", record.tag.run) if record.tag is not None else ("load case", record.fields.get("load_case_id", 0))
 
 
-def _frf_runs(path: str, frf: list[Record], options: SourceOptions, notes: list[str]) -> list[ImportedRun]:
+def _frf_runs(path: str, frf: list[Record], options: SourceOptions, units: FileUnits | None,
+              notes: list[str]) -> list[ImportedRun]:
     groups: dict[tuple, list[FrfEntry]] = {}
     for record in frf:
-        groups.setdefault(_run_key(record), []).append(_frf_entry(path, record, options, notes))
+        groups.setdefault(_run_key(record), []).append(_frf_entry(path, record, options, units, notes))
     return [_run_from_entries(path, entries, options) for entries in groups.values()]
 
 

@@ -1,8 +1,9 @@
 """UFF58 ordinates to receptance: specific data types, unit labels and the exp(+jwt) convention.
 
 A response over force is converted to receptance X/F (m/N) by the unit labels' factors to SI and, for velocity
-and acceleration, by ``V = jw X`` and ``A = -w^2 X``. A label the file leaves empty ("NONE") is taken as SI
-(and the import says so); a label not in the tables is refused.
+and acceleration, by ``V = jw X`` and ``A = -w^2 X``. A label the file leaves empty ("NONE") takes the file's
+units dataset 164 with the record's length and force exponents, or SI without one (the import says which); a
+label not in the tables is refused.
 """
 from __future__ import annotations
 
@@ -34,6 +35,25 @@ _SCALE = {
 
 
 @dataclass
+class FileUnits:
+    """A file's units (dataset 164): SI = value / factor for length and force."""
+
+    length: float
+    force: float
+
+    def to_si(self, length_exp: int, force_exp: int) -> float:
+        return float(self.length) ** -int(length_exp) * float(self.force) ** -int(force_exp)
+
+
+def file_default(units: FileUnits | None, fields: dict, axis: str) -> float | None:
+    """SI factor of a record's axis (``ordinate``, ``orddenom``) whose unit label is empty: the file's dataset
+    164 with the axis's length and force exponents; None without a dataset 164."""
+    if units is None:
+        return None
+    return units.to_si(fields.get(f"{axis}_len_unit_exp", 0), fields.get(f"{axis}_force_unit_exp", 0))
+
+
+@dataclass
 class Scaled:
     """A unit label read: its factor to SI and whether it was assumed."""
 
@@ -41,11 +61,11 @@ class Scaled:
     assumed: bool
 
 
-def unit_factor(data_type: int, label: str, where: str, field_name: str) -> Scaled:
-    """Factor from the file's unit to SI for a specific data type (an empty label is SI)."""
+def unit_factor(data_type: int, label: str, where: str, field_name: str, default: float | None = None) -> Scaled:
+    """Factor from the file's unit to SI for a specific data type (an empty label: ``default``, else SI)."""
     text = (label or "").strip()
     if text.upper() in ("", "NONE"):
-        return Scaled(1.0, True)
+        return Scaled(1.0 if default is None else default, default is None)
     table = _SCALE[data_type]
     key = text if text in table else text.lower()
     if key not in table:
