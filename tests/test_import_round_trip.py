@@ -20,46 +20,16 @@ from drivers.simulation.rig import builtin_rig_path, load_rig
 
 PAPER_2DOF_LAWS = {"left": ["cubic", "quadratic_damping"], "right": ["cubic", "coulomb"]}
 
-PLANS = {
-    "paper-2dof": """
-[random]
-force_rms = 0.05
-band = [0.5, 5.0]
-duration = 24.0
-[[stepped_sine]]
-force = 0.4
-start = 1.0
-stop = 2.8
-step = 0.2
-[[stepped_sine]]
-force = 0.8
-start = 1.0
-stop = 2.8
-step = 0.2
-[limits]
-max_force = 5.0
-max_acceleration = 50.0
-""",
-    "paper-beam": """
-[random]
-force_rms = 0.01
-band = [20.0, 200.0]
-duration = 24.0
-[[stepped_sine]]
-force = 0.3
-start = 51.5
-stop = 54.5
-step = 0.3
-[[stepped_sine]]
-force = 1.2
-start = 51.5
-stop = 54.5
-step = 0.3
-[limits]
-max_force = 5.0
-max_acceleration = 400.0
-""",
-}
+def _plan(force_rms, band, levels, sweep, max_acceleration):
+    """A short plan: a random run, then one sweep (start, stop, step) per force level."""
+    sines = "".join(f"[[stepped_sine]]\nforce = {f}\nstart = {sweep[0]}\nstop = {sweep[1]}\nstep = {sweep[2]}\n"
+                    for f in levels)
+    return (f"[random]\nforce_rms = {force_rms}\nband = {list(band)}\nduration = 24.0\n{sines}"
+            f"[limits]\nmax_force = 5.0\nmax_acceleration = {max_acceleration}\n")
+
+
+PLANS = {"paper-2dof": _plan(0.05, (0.5, 5.0), (0.4, 0.8), (1.0, 2.8, 0.2), 50.0),
+         "paper-beam": _plan(0.01, (20.0, 200.0), (0.3, 1.2), (51.5, 54.5, 0.3), 400.0)}
 
 
 def _laws(wb):
