@@ -35,7 +35,9 @@ class SineRun:
     distortion : ndarray, shape (L,), optional
         Largest total harmonic distortion of the measured displacements at each line: a describing function
         describes a harmonic motion, so lines far from harmonic (stick-slip with stops, impacts) are left out
-        of the identification.
+        of the identification. None when the harmonics were not measured (imported FRFs).
+    noise_estimated : bool
+        ``receptance_std`` was not measured but estimated from the FRFs themselves (:mod:`analysis.frf_noise`).
     """
 
     name: str
@@ -48,6 +50,7 @@ class SineRun:
     receptance_std: np.ndarray | None = None
     force_achieved: np.ndarray | None = None
     distortion: np.ndarray | None = None
+    noise_estimated: bool = False
 
     @property
     def w(self) -> np.ndarray:

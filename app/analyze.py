@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from analysis.comparison import gain_phrase
 from analysis.errors import InputError
+from analysis.frf_noise import METHOD as NOISE_METHOD
 from analysis.model import load_model
 from analysis.tables import load_toml
 from analysis.workbench import Workbench
@@ -96,6 +97,19 @@ def store_history(session_path, wb: Workbench, model_path, notes: SessionNotes) 
         notes.incomplete_runs = sorted(set(notes.incomplete_runs) | set(stored.recovered_runs))
 
 
+def _data_notes(wb: Workbench) -> list[str]:
+    """What the analysis had to do without (imported FRFs carry no noise and no harmonics)."""
+    out = []
+    estimated = [r.name for r in wb.measurements.sine if r.noise_estimated]
+    if estimated:
+        out.append(f"noise: not measured for {', '.join(estimated)}; estimated {NOISE_METHOD}")
+    blind = [r.name for r in wb.measurements.sine if r.distortion is None]
+    if blind:
+        out.append(f"distortion: no harmonics for {', '.join(blind)}, so no line is left out as far from "
+                   "harmonic; lines that do not follow the fitted laws show in the misfit and the missing effects")
+    return out + ([""] if out else [])
+
+
 def report_text(wb: Workbench, candidates, top: int = 5) -> str:
     """The analysis as a test engineer reads it."""
     out = [f"note: {note.text()}" for note in wb.measurements.unfinished]
@@ -103,6 +117,7 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
         out.append("")
     if wb.reference is not None and wb.reference.text():
         out += [wb.reference.text(), ""]
+    out += _data_notes(wb)
     out.append("elements:")
     for el in wb.model.elements:
         r = wb.reports[el.name]

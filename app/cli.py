@@ -79,11 +79,31 @@ def cmd_export(args) -> int:
     from .export import export_csv, export_uff
 
     if args.uff:
-        n = export_uff(args.session, args.uff, overwrite=args.force)
-        print(f"wrote {n} FRF records to {args.uff}")
+        done = export_uff(args.session, args.uff, overwrite=args.force, single_file=args.single_file,
+                          binary=args.binary, frf_only=args.frf_only)
+        print(f"wrote {done.records} records to {', '.join(str(p) for p in done.files)}")
     else:
         paths = export_csv(args.session, args.csv, overwrite=args.force)
         print(f"wrote {len(paths)} CSV files to {args.csv}")
+    return 0
+
+
+def cmd_import(args) -> int:
+    """Read FRFs or time histories of other systems (UFF58, CSV) into a session."""
+    from .importers.runs import SourceOptions, parse_dof_map
+    from .importers.store import ImportRequest, import_files
+
+    if args.force is not None and not args.force > 0:
+        raise InputError(f"--force must be a force amplitude > 0 N, got {args.force:g}", field="--force")
+    options = SourceOptions(args.kind, args.force, args.direction, [parse_dof_map(t) for t in args.dof or []],
+                            args.excitation)
+    result = import_files(ImportRequest([(f, options) for f in args.files], args.output, args.append,
+                                        args.overwrite, " ".join(sys.argv), software_version()))
+    for note in result.notes:
+        print(f"note: {note}")
+    for run, source in result.runs:
+        print(f"run {run} from {source}")
+    print(f"session: {args.output}")
     return 0
 
 
@@ -310,10 +330,31 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="export a session's FRFs (UFF58 or CSV)")
     p.add_argument("session", help="session file (.h5)")
     target = p.add_mutually_exclusive_group(required=True)
-    target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records to FILE")
+    target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records: one file per run, "
+                                                       "FILE's stem + _<run> (see --single-file)")
     target.add_argument("--csv", metavar="DIR", help="write one CSV per run into DIR")
+    p.add_argument("--single-file", action="store_true", help="UFF: every run in FILE itself")
+    p.add_argument("--binary", action="store_true", help="UFF: binary records (58b; abscissae kept exact)")
+    p.add_argument("--frf-only", action="store_true",
+                   help="UFF: only the FRF records, without contactid's per-line quantities")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(run=cmd_export)
+
+    p = sub.add_parser("import", help="import FRFs or time histories of other systems (UFF58, CSV) into a "
+                                      "session")
+    p.add_argument("files", nargs="+", metavar="FILE", help="UFF58 files (ASCII or binary) or CSV files (.csv)")
+    p.add_argument("-o", "--output", required=True, metavar="SESSION.h5", help="session file to write")
+    p.add_argument("--append", action="store_true", help="add the runs to an existing session")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing session file")
+    p.add_argument("--kind", choices=["sine", "random"], help="what the FRF records are (default: the file's "
+                                                              "contactid tags, else sine)")
+    p.add_argument("--force", type=float, metavar="N", help="force amplitude of the stepped-sine records, N "
+                                                            "(where the file does not say it)")
+    p.add_argument("--direction", choices=["up", "down"], help="sweep direction (default: from the line order)")
+    p.add_argument("--dof", action="append", metavar="NODE[+DIR]=NAME",
+                   help="map a UFF node (and direction) to a model DOF, e.g. 3+Z=A.w (repeatable)")
+    p.add_argument("--excitation", metavar="NAME", help="DOF of the force (reference) where no --dof maps it")
+    p.set_defaults(run=cmd_import)
 
     p = sub.add_parser("gui", help="the lab window: rig, acquisition, identification, model, session")
     p.add_argument("session", nargs="?", help="session file to open")

@@ -1,14 +1,32 @@
 """Interchange formats: UFF dataset 58 (via pyuff) and CSV, from a session file.
 
-UFF 58 records one FRF each: the run's receptance at one sensor DOF (function type 4, FRF; ordinate
-displacement over force, units m/N), on the run's (generally uneven) frequency axis. Node numbers are
-1-based positions of the DOF's station in the session's DOF list; the direction code is 3 (+Z) for a
-lateral displacement, 5 (+Y rotation) for a rotation ``*.theta`` and 1 (+X) for a lumped DOF. The ID lines
-carry the run name, the DOF names, the force level and the sweep direction, so nothing is lost.
+UFF58 (docs/import.md has the full description):
+
+* one file per run, ``<stem>_<run><suffix>`` beside the named file (``single_file`` puts every run in the
+  named file), each opened by a dataset 151 header that states the quantity and the phase convention;
+* one FRF record (function type 4) per sensor DOF: receptance, ordinate displacement (specific data type 8,
+  length exponent 1, "m"; "rad" with exponent 0 on a rotation) over excitation force (type 13, force exponent 1,
+  "N"), abscissa in Hz; evenly spaced lines (a random run) are written as even, others as x/y pairs;
+* contactid's per-line quantities after the FRFs as tagged records -- ``frf_std`` and ``random_error`` and the
+  held ``force_amplitude`` and displacement ``distortion`` as general functions (type 0), ``coherence`` as
+  type 6 -- so an import gives the analysis the same numbers (``frf_only`` leaves them out);
+* node numbers: the session's stations (a DOF name up to its dot: ``A`` of ``A.w``, ``x1``) in natural sort
+  order, numbered from 1; direction 3 (+Z) for ``*.w``, 5 (+Y rotation) for ``*.theta``, 1 (+X) otherwise;
+  the DOF names themselves, the run name, force level and sweep direction are in the id lines
+  (:mod:`app.importers.idlines`);
+* the phase convention is exp(+jwt): a driving-point receptance has Im < 0.
+
+An ASCII record writes uneven abscissae with 6 significant digits (E13.5) and even spacing's start and step
+likewise: a frequency that does not survive that format is refused (binary UFF keeps uneven abscissae exact).
+NaN or infinite frequencies or FRFs are refused, naming run and line. Every output is written under a
+temporary name and moved into place only when complete (app/outputs.py).
 """
 from __future__ import annotations
 
 import csv
+import re
+from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,66 +34,251 @@ import pyuff
 
 from analysis.errors import InputError
 
-from .session import RunData, open_session
+from .importers.idlines import RecordTag, encode
+from .outputs import atomic_output, check_output, require_free_space
+from .session import RunData, Session, open_session
+from .session_data import displacement_distortion
 
-FUNC_FRF = 4
-DATA_DISPLACEMENT, DATA_FORCE = 8, 13
+FUNC_GENERAL, FUNC_FRF, FUNC_COHERENCE = 0, 4, 6
+DATA_UNKNOWN, DATA_DISPLACEMENT, DATA_FORCE, DATA_FREQUENCY = 0, 8, 13, 18
+ASCII_DIGITS = "%.5e"                 # the E13.5 of a UFF58 ASCII abscissa
+FORMAT_TOLERANCE = 1e-12              # relative: a frequency "survives" the format within this
+BYTES_PER_POINT, BYTES_PER_HEADER = 64, 1500     # generous size estimate for the free-space check
 
 
-def _node_and_direction(dof: str, nodes: dict[str, int]) -> tuple[int, int]:
-    station, _, kind = dof.partition(".")
-    node = nodes.setdefault(station, len(nodes) + 1)
-    return node, {"w": 3, "theta": 5}.get(kind, 1)
+@dataclass
+class UffExport:
+    """What :func:`export_uff` wrote."""
+
+    files: list[Path]
+    records: int
 
 
-def export_uff(session_path, uff_path, overwrite: bool = False) -> int:
-    """Write every FRF of the session's runs to a UFF58 file; returns the number of records."""
-    uff_path = Path(uff_path)
-    if uff_path.exists() and not overwrite:
-        raise InputError("exists already; pass --force to overwrite it", str(uff_path))
-    records = []
-    nodes: dict[str, int] = {}
+@dataclass
+class _Axis:
+    """How a record's abscissa is written."""
+
+    quantity: str          # ordinate label and units
+    units: str
+    length_exp: int
+    force_exp: int
+    data_type: int
+
+
+def _natural_key(text: str):
+    return [int(p) if p.isdigit() else p for p in re.split(r"(\d+)", text)]
+
+
+def _station(dof: str) -> str:
+    return dof.partition(".")[0]
+
+
+def node_numbers(dofs) -> dict[str, int]:
+    """Station -> UFF node: the stations of all DOFs in natural sort order, from 1."""
+    return {st: i for i, st in enumerate(sorted({_station(d) for d in dofs}, key=_natural_key), start=1)}
+
+
+def direction_code(dof: str) -> int:
+    """UFF direction of a DOF: 3 (+Z) for ``*.w``, 5 (+Y rotation) for ``*.theta``, 1 (+X) otherwise."""
+    return {"w": 3, "theta": 5}.get(dof.partition(".")[2], 1)
+
+
+def _response_axis(dof: str) -> _Axis:
+    if direction_code(dof) == 5:
+        return _Axis("Rotation", "rad", 0, 0, DATA_DISPLACEMENT)
+    return _Axis("Displacement", "m", 1, 0, DATA_DISPLACEMENT)
+
+
+FORCE_AXIS = _Axis("Force", "N", 0, 1, DATA_FORCE)
+NO_AXIS = _Axis("NONE", "NONE", 0, 0, DATA_UNKNOWN)
+ONE_AXIS = _Axis("Ratio", "1", 0, 0, DATA_UNKNOWN)
+
+
+def _survives(x: np.ndarray) -> np.ndarray:
+    written = np.array([float(ASCII_DIGITS % v) for v in x])
+    return np.abs(written - x) <= FORMAT_TOLERANCE * np.abs(x)
+
+
+def _abscissa(freq: np.ndarray, run: str, binary: bool, even_allowed: bool) -> dict:
+    """pyuff fields of the abscissa: even where the lines are evenly spaced and start and step survive the
+    header's E13.5, else x/y pairs (refused in ASCII where a frequency would be rounded)."""
+    if even_allowed and len(freq) > 1:
+        start, step = float(ASCII_DIGITS % freq[0]), float(ASCII_DIGITS % (freq[1] - freq[0]))
+        if np.allclose(start + step * np.arange(len(freq)), freq, rtol=FORMAT_TOLERANCE, atol=0):
+            return {"abscissa_spacing": 1, "x": start + step * np.arange(len(freq))}
+    if not binary:
+        bad = np.flatnonzero(~_survives(freq))
+        if bad.size:
+            i = int(bad[0])
+            raise InputError(f"line {i} at {float(freq[i])!r} Hz does not survive the 6 significant digits of an ASCII "
+                             f"UFF58 abscissa ({ASCII_DIGITS % freq[i]}); export binary UFF (--binary)",
+                             f"run {run}", "frequency")
+    return {"abscissa_spacing": 0, "x": freq}
+
+
+def _check_finite(run: RunData) -> None:
+    """Refuse a run whose frequencies or FRFs are not finite numbers (naming the line)."""
+    f = np.asarray(run.frequency, float)
+    bad = np.flatnonzero(~np.isfinite(f) | (f <= 0))
+    if bad.size:
+        raise InputError(f"line {int(bad[0])}: frequency {float(f[bad[0]])!r} Hz is not a finite positive number; "
+                         "nothing exported", f"run {run.name}", "frequency")
+    for dof, frf in run.frf.items():
+        bad = np.flatnonzero(~np.isfinite(np.asarray(frf, complex)))
+        if bad.size:
+            raise InputError(f"line {int(bad[0])}: FRF {complex(frf[bad[0]])!r} is not finite; nothing exported",
+                             f"run {run.name}", f"frf/{dof}")
+
+
+def _line_quantities(run: RunData) -> list[tuple[str, str, np.ndarray, _Axis, _Axis, int]]:
+    """(quantity, response DOF, values, ordinate, denominator, function type) of the run's per-line records."""
+    out = []
+    dofs = run.sensor_dofs
+    for d in dofs:
+        if f"frf_std/{d}" in run.arrays:
+            out.append(("frf_std", d, run.arrays[f"frf_std/{d}"], _response_axis(d), FORCE_AXIS, FUNC_GENERAL))
+        if f"coherence/{d}" in run.arrays:
+            out.append(("coherence", d, run.arrays[f"coherence/{d}"], ONE_AXIS, NO_AXIS, FUNC_COHERENCE))
+        if f"random_error/{d}" in run.arrays:
+            out.append(("random_error", d, run.arrays[f"random_error/{d}"], ONE_AXIS, NO_AXIS, FUNC_GENERAL))
+    if "force_amplitude" in run.arrays:
+        out.append(("force_amplitude", run.excitation_dof, run.arrays["force_amplitude"], FORCE_AXIS, NO_AXIS,
+                    FUNC_GENERAL))
+    distortion = _distortion(run)
+    if distortion is not None:
+        out.append(("distortion", run.excitation_dof, distortion, ONE_AXIS, NO_AXIS, FUNC_GENERAL))
+    return out
+
+
+def _distortion(run: RunData) -> np.ndarray | None:
+    """The per-line displacement THD the analysis uses (from the harmonics, or as imported)."""
+    if "distortion" in run.arrays:
+        return run.arrays["distortion"]
+    thd = [displacement_distortion(run.arrays[f"harmonics/acc:{d}"]) for d in run.sensor_dofs
+           if f"harmonics/acc:{d}" in run.arrays]
+    return np.max(np.stack(thd), axis=0) if thd else None
+
+
+@dataclass
+class _RecordContext:
+    """What every record of one run shares."""
+
+    run: RunData
+    load_case: int
+    nodes: dict[str, int]
+    created: str
+    software: str
+    binary: bool
+
+
+def _record(ctx: _RecordContext, quantity: str, dof: str, values, ordinate: _Axis, denominator: _Axis,
+            func_type: int) -> dict:
+    run = ctx.run
+    tag = RecordTag(run.name, quantity, dof, run.excitation_dof, run.kind, run.force, run.direction, run.status)
+    freq = np.asarray(run.frequency, float)
+    values = np.asarray(values)
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise InputError(f"line {int(bad[0])}: {quantity} is not finite; nothing exported", f"run {run.name}",
+                         f"{quantity}/{dof}")
+    axis = _abscissa(freq, run.name, ctx.binary, even_allowed=run.kind == "random")
+    record = pyuff.prepare_58(
+        binary=int(ctx.binary), **encode(tag, ctx.created, ctx.software, f"run {run.name}"),
+        func_type=func_type, load_case_id=ctx.load_case,
+        rsp_ent_name=dof[:10], rsp_node=ctx.nodes[_station(dof)], rsp_dir=direction_code(dof),
+        ref_ent_name=run.excitation_dof[:10], ref_node=ctx.nodes[_station(run.excitation_dof)],
+        ref_dir=direction_code(run.excitation_dof),
+        abscissa_spacing=axis["abscissa_spacing"], abscissa_spec_data_type=DATA_FREQUENCY,
+        abscissa_axis_units_lab="Hz",
+        ordinate_spec_data_type=ordinate.data_type, ordinate_len_unit_exp=ordinate.length_exp,
+        ordinate_force_unit_exp=ordinate.force_exp, ordinate_axis_units_lab=ordinate.units,
+        orddenom_spec_data_type=denominator.data_type, orddenom_len_unit_exp=denominator.length_exp,
+        orddenom_force_unit_exp=denominator.force_exp, orddenom_axis_units_lab=denominator.units,
+        data=values.astype(complex if func_type == FUNC_FRF else float), x=axis["x"])
+    # the axis labels are written by pyuff but not taken by prepare_58
+    record.update(abscissa_axis_lab="Frequency", ordinate_axis_lab=ordinate.quantity,
+                  orddenom_axis_lab=denominator.quantity)
+    return record
+
+
+def _run_records(ctx: _RecordContext, frf_only: bool) -> list[dict]:
+    run = ctx.run
+    records = [_record(ctx, "frf", d, run.frf[d], _response_axis(d), FORCE_AXIS, FUNC_FRF) for d in run.sensor_dofs]
+    if not frf_only:
+        records += [_record(ctx, *q) for q in _line_quantities(run)]
+    return records
+
+
+def _header(session_path: Path, software: str) -> dict:
+    return pyuff.prepare_151(
+        model_name=f"contactid session {session_path.name}"[:80],
+        description="receptance X/F in m/N (rad/N); phase exp(+jwt): Im < 0 at a driving point",
+        db_app="contactid", program=f"contactid {software}"[:80])
+
+
+def _runs_to_export(s: Session) -> list[RunData]:
+    runs = [r for r in s.runs() if len(r.frequency)]
+    for run in runs:
+        _check_finite(run)
+    return runs
+
+
+def run_file(uff_path: Path, run: str) -> Path:
+    """Where the per-run export of ``run`` goes: ``<stem>_<run><suffix>`` beside ``uff_path``."""
+    return uff_path.with_name(f"{uff_path.stem}_{run}{uff_path.suffix or '.uff'}")
+
+
+def export_uff(session_path, uff_path, overwrite: bool = False, *, single_file: bool = False,
+               binary: bool = False, frf_only: bool = False) -> UffExport:
+    """Write the session's runs as UFF58: one file per run (see :func:`run_file`) or, with ``single_file``,
+    all in ``uff_path``. Nothing is written unless every record could be prepared."""
+    session_path, uff_path = Path(session_path), Path(uff_path)
+    files: dict[Path, list[dict]] = {}
     with open_session(session_path) as s:
-        for load_case, run in enumerate(s.runs(), start=1):
-            ref_node, ref_dir = _node_and_direction(run.excitation_dof, nodes)
-            for dof, frf in run.frf.items():
-                if not len(frf):
-                    continue
-                node, direction = _node_and_direction(dof, nodes)
-                records.append(pyuff.prepare_58(
-                    binary=0, id1=f"contactid run {run.name}",
-                    id2=f"receptance {dof} / {run.excitation_dof} (m/N)",
-                    id3=s.attrs.get("created", ""),
-                    id4=f"{run.kind} force {run.force:g} N direction {run.direction} status {run.status}",
-                    id5=f"software {s.attrs.get('software_version', '')}",
-                    func_type=FUNC_FRF, load_case_id=load_case, rsp_ent_name=dof[:10], rsp_node=node,
-                    rsp_dir=direction, ref_ent_name=run.excitation_dof[:10], ref_node=ref_node, ref_dir=ref_dir,
-                    abscissa_spec_data_type=18, abscissa_axis_units_lab="Hz",
-                    ordinate_spec_data_type=DATA_DISPLACEMENT, ordinate_axis_units_lab="m",
-                    orddenom_spec_data_type=DATA_FORCE, orddenom_axis_units_lab="N",
-                    data=np.asarray(frf, complex), x=np.asarray(run.frequency, float)))
-    if not records:
-        raise InputError("has no measured FRF to export", str(session_path))
-    if uff_path.exists():
-        uff_path.unlink()
-    uff = pyuff.UFF(str(uff_path))
-    uff.write_sets(records, mode="add")
-    return len(records)
+        software, created = s.attrs.get("software_version", ""), s.attrs.get("created", "")
+        runs = _runs_to_export(s)
+        if not runs:
+            raise InputError("has no measured FRF to export", str(session_path))
+        nodes = node_numbers({d for r in runs for d in (r.excitation_dof, *r.sensor_dofs)})
+        for load_case, run in enumerate(runs, start=1):
+            target = uff_path if single_file else run_file(uff_path, run.name)
+            ctx = _RecordContext(run, load_case, nodes, created, software, binary)
+            files.setdefault(target, []).extend(_run_records(ctx, frf_only))
+    for target in files:
+        check_output(target, inputs=[session_path], overwrite=overwrite, field="--uff")
+    _write_uff_files(files, session_path, software, overwrite)
+    return UffExport(list(files), sum(len(r) for r in files.values()))
+
+
+def _write_uff_files(files: dict[Path, list[dict]], session_path: Path, software: str, overwrite: bool) -> None:
+    """Write every file under a temporary name; all are moved into place only when all were written."""
+    needed = sum(BYTES_PER_HEADER + BYTES_PER_POINT * len(r["data"]) for recs in files.values() for r in recs)
+    require_free_space(next(iter(files)), needed, "export UFF58")
+    with ExitStack() as stack:
+        for target, records in files.items():
+            temp = stack.enter_context(atomic_output(target, inputs=[session_path], overwrite=overwrite,
+                                                     field="--uff"))
+            try:
+                pyuff.UFF(str(temp)).write_sets([_header(session_path, software)] + records, mode="add")  # a fresh file
+            except Exception as exc:        # pyuff reports every write failure as a bare Exception
+                raise OSError(f"{target}: writing the UFF file failed ({exc}); no export file was left") from exc
 
 
 def export_csv(session_path, directory, overwrite: bool = False) -> list[Path]:
     """One CSV per run: frequency, Re/Im of each FRF, and every per-line scalar quantity with its unit."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    written = []
+    session_path, directory = Path(session_path), Path(directory)
     with open_session(session_path) as s:
-        for run in s.runs():
-            path = directory / f"{run.name}.csv"
-            if path.exists() and not overwrite:
-                raise InputError("exists already; pass --force to overwrite it", str(path))
-            _write_run_csv(path, run)
-            written.append(path)
-    return written
+        runs = _runs_to_export(s)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = [directory / f"{run.name}.csv" for run in runs]
+    for path in paths:
+        check_output(path, inputs=[session_path], overwrite=overwrite, field="--csv")
+    with ExitStack() as stack:
+        for path, run in zip(paths, runs):
+            temp = stack.enter_context(atomic_output(path, inputs=[session_path], overwrite=overwrite,
+                                                     field="--csv"))
+            _write_run_csv(temp, run)
+    return paths
 
 
 def _write_run_csv(path: Path, run: RunData) -> None:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from analysis.frf_noise import smoothness_noise
 from analysis.measurements import Measurements, RandomRun, SineRun
 
 from .session import RunData, Session
@@ -47,8 +48,10 @@ def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarra
     if std is not None:
         # a noise-free (simulated) record has zero residual: floor at the round-off of the data
         std = np.maximum(std, NOISE_FLOOR * np.abs(H).max())
-    return SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, frequency, H, std,
-                   arrays.get("force_amplitude"), np.max(np.stack(thd), axis=0) if thd else None)
+    distortion = np.max(np.stack(thd), axis=0) if thd else arrays.get("distortion")   # imported: as stored
+    return SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, frequency, H,
+                   std if std is not None else smoothness_noise(frequency, H),
+                   arrays.get("force_amplitude"), distortion, noise_estimated=std is None)
 
 
 def _stack(arrays: dict, prefix: str, dofs: list[str]):

@@ -27,6 +27,7 @@ from drivers.simulation.rig import Rig, load_rig
 
 from ..campaign import CampaignSummary
 from ..export import export_csv, export_uff
+from ..importers.store import ImportRequest, ImportResult, import_files
 from ..instruments import Instruments, emulated_instruments, real_instruments
 from ..plan import Plan, check_against_instruments, parse_plan
 from ..session import Session, open_session
@@ -400,19 +401,31 @@ class Lab(QObject):
         return True
 
     def export(self, kind: str, target: str, on_done) -> None:
-        """Write the open session's FRFs as UFF58 (``kind="uff"``, a file the save dialog let the operator
-        overwrite) or CSV (one file per run into a folder; existing files are refused), in the background;
-        ``on_done(message)``."""
+        """Write the open session's FRFs as UFF58 (``kind="uff"``: one file per run named after the save
+        dialog's file) or CSV (one file per run into a folder), in the background; ``on_done(message)``.
+        Existing files are refused."""
         if self.session_path is None:
             raise InputError("open a session first")
         path = self.session_path
         if kind == "uff":
             def task():
-                return f"wrote {export_uff(path, target, overwrite=True)} FRF records to {target}"
+                done = export_uff(path, target)
+                return f"wrote {done.records} records to {', '.join(p.name for p in done.files)}"
         else:
             def task():
                 return f"wrote {len(export_csv(path, target))} CSV files to {target}"
         self.file_tasks.submit(task, on_done)
+
+    def import_measurements(self, request: ImportRequest, on_done) -> None:
+        """Import other systems' files into a session in the background, then open it; ``on_done(message)``."""
+        def task():
+            return import_files(request)
+
+        def done(result: ImportResult):
+            if self.act(self.open_session, request.output):
+                on_done(f"imported {len(result.runs)} run(s) into {Path(request.output).name}" +
+                        "".join(f"\nnote: {n}" for n in result.notes))
+        self.file_tasks.submit(task, done)
 
     def _contents(self) -> list[tuple[str, str, int]]:
         return [(n, run.status, len(run.frequency))

@@ -13,6 +13,7 @@ from PySide6.QtWidgets import (QFileDialog, QFrame, QHBoxLayout, QLabel, QMainWi
 
 from .acquire_panel import AcquirePanel
 from .identify_panel import IdentifyPanel
+from .import_dialog import ImportDialog
 from .lab import Lab
 from .model_panel import ModelPanel
 from .plots import FrameClock, LevelPalette
@@ -90,6 +91,7 @@ class MainWindow(QMainWindow):
     def _menus(self) -> None:
         menu = self.menuBar().addMenu("&File")
         for text, slot, key in (("Open session…", self._open_session, QKeySequence.StandardKey.Open),
+                                ("Import…", self.import_dialog, None),
                                 ("Open model…", self.model.open_model_dialog, None),
                                 ("Quit", self.close, QKeySequence.StandardKey.Quit)):
             action = QAction(text, self)
@@ -103,6 +105,19 @@ class MainWindow(QMainWindow):
         if path:
             self.lab.act(self.lab.open_session, path)
             self.tabs.setCurrentWidget(self.session)
+
+    def import_dialog(self) -> ImportDialog:
+        """File > Import…: other systems' files into a session, then the Identify tab on it."""
+        dialog = ImportDialog(self.lab.software_version, self)
+        dialog.accepted.connect(lambda: self.start_import(dialog))
+        dialog.open()
+        return dialog
+
+    def start_import(self, dialog: ImportDialog) -> None:
+        def done(message: str) -> None:
+            self.statusBar().showMessage(message.splitlines()[0])
+            self.tabs.setCurrentWidget(self.identify)
+        self.lab.act(lambda: self.lab.import_measurements(dialog.request(), done))
 
     def all_plots(self) -> dict[str, pg.PlotItem]:
         """Every plot of every tab, named ``<tab>_<plot>``."""

@@ -1,0 +1,90 @@
+"""contactid's machine-readable UFF58 id lines: what a record is, in five 80-character lines.
+
+Every record contactid exports carries, as ``key=value`` words (values without spaces)::
+
+    id1  contactid run=<run name> quantity=<frf | frf_std | force_amplitude | distortion | coherence | random_error>
+    id2  rsp=<response DOF name> ref=<excitation DOF name>
+    id3  <ISO 8601 time the session was created>
+    id4  kind=<stepped_sine | random> force=<N, exact decimal> direction=<up | down | none> status=<status>
+    id5  software=contactid-<version> convention=exp(+jwt)
+
+so ``contactid import`` needs no flags for contactid's own files. Records of other systems have free-text id
+lines; they are kept in the session's provenance but not interpreted.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from analysis.errors import InputError
+
+MARK = "contactid"
+CONVENTION = "exp(+jwt)"
+ID_WIDTH = 80
+QUANTITIES = ("frf", "frf_std", "force_amplitude", "distortion", "coherence", "random_error")
+
+
+@dataclass
+class RecordTag:
+    """What one contactid record holds."""
+
+    run: str
+    quantity: str
+    response: str
+    reference: str
+    kind: str
+    force: float
+    direction: str
+    status: str
+
+
+def _word(key: str, value: str, where: str) -> str:
+    if not value or any(c.isspace() for c in value) or "=" in value:
+        raise InputError(f"{key} {value!r} cannot be written as one word (no spaces or '=')", where, key)
+    return f"{key}={value}"
+
+
+def _line(words: list[str], where: str, name: str) -> str:
+    text = " ".join(words)
+    if len(text) > ID_WIDTH:
+        raise InputError(f"is {len(text)} characters, more than the {ID_WIDTH} of a UFF id line: {text!r}",
+                         where, name)
+    return text
+
+
+def encode(tag: RecordTag, created: str, software: str, where: str) -> dict[str, str]:
+    """The five id lines of a record (``where`` names the run for errors)."""
+    return {
+        "id1": _line([MARK, _word("run", tag.run, where), _word("quantity", tag.quantity, where)], where, "id1"),
+        "id2": _line([_word("rsp", tag.response, where), _word("ref", tag.reference, where)], where, "id2"),
+        "id3": created[:ID_WIDTH],
+        "id4": _line([_word("kind", tag.kind, where), f"force={float(tag.force)!r}",
+                      _word("direction", tag.direction, where), _word("status", tag.status, where)], where, "id4"),
+        "id5": _line([_word("software", f"contactid-{software or 'unknown'}", where),
+                      f"convention={CONVENTION}"], where, "id5"),
+    }
+
+
+def _words(line: str) -> dict[str, str]:
+    return dict(w.split("=", 1) for w in line.split() if "=" in w)
+
+
+def decode(ids: dict[str, str], where: str) -> RecordTag | None:
+    """The tag of a contactid record, or None for another system's record.
+
+    A record that claims to be contactid's but lacks a key is refused (``where`` names file and record)."""
+    first = _words(ids.get("id1", ""))
+    if not ids.get("id1", "").startswith(MARK + " ") or "run" not in first:
+        return None
+    values = {**first, **_words(ids.get("id2", "")), **_words(ids.get("id4", ""))}
+    for key, line in (("quantity", "id1"), ("rsp", "id2"), ("ref", "id2"), ("kind", "id4"), ("force", "id4"),
+                      ("direction", "id4"), ("status", "id4")):
+        if key not in values:
+            raise InputError(f"contactid record without {key}=", where, line)
+    if values["quantity"] not in QUANTITIES:
+        raise InputError(f"unknown quantity {values['quantity']!r} (known: {', '.join(QUANTITIES)})", where, "id1")
+    try:
+        force = float(values["force"])
+    except ValueError:
+        raise InputError(f"force={values['force']!r} is not a number", where, "id4") from None
+    return RecordTag(values["run"], values["quantity"], values["rsp"], values["ref"], values["kind"], force,
+                     values["direction"], values["status"])

@@ -1,0 +1,190 @@
+"""Imported runs into a session: read every file first, then write the session in one piece.
+
+The runs go through :class:`app.session.SessionWriter`, so an imported session has the schema of an acquired one.
+Each run is marked (attributes ``imported = true``, ``source_file``, ``source_format``, ``source_records``) and
+``/provenance/import/source_<k>`` keeps each file's name, size, sha256, format, id lines and the import's notes.
+A new session is written under a temporary name and moved into place when complete; ``append`` writes a copy of
+the existing session with the new runs and replaces the original only when that copy is complete.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from analysis.errors import InputError
+
+from ..outputs import atomic_output, check_output, require_free_space
+from ..session import RunSpec, SessionWriter, open_session
+from .csv_long import read_csv_long
+from .runs import ImportedRun, SourceFile, SourceOptions
+from .uff import ID_KEYS, read_uff
+
+SIZE_MARGIN = 3          # free space wanted: this many times the data read, plus the session appended to
+
+
+@dataclass
+class ImportRequest:
+    """Files (each with its own options), the session to write and how."""
+
+    sources: list[tuple[str, SourceOptions]]
+    output: str
+    append: bool = False
+    overwrite: bool = False
+    command: str = ""
+    software_version: str = ""
+
+
+@dataclass
+class ImportResult:
+    """Runs stored (name, source file) and what the import noticed."""
+
+    runs: list[tuple[str, str]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def _digest(path: Path) -> tuple[int, str]:
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return path.stat().st_size, h.hexdigest()
+
+
+def read_source(path: str, options: SourceOptions) -> SourceFile:
+    """One file read completely (UFF58 unless its name ends in .csv)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("file not found", path)
+    size, sha = _digest(p)
+    if p.suffix.lower() == ".csv":
+        runs, header, notes = read_csv_long(path, options)
+        return SourceFile(path, "csv-long", size, sha, [header], runs, notes)
+    runs, records, notes = read_uff(path, options)
+    binary = any(r.fields.get("binary") for r in records)
+    id_lines = [[str(r.fields.get(k, "")).strip() for k in ID_KEYS] for r in records]
+    return SourceFile(path, "uff58b" if binary else "uff58", size, sha, id_lines, runs, notes)
+
+
+def _existing_runs(path: str) -> list[str]:
+    with open_session(path) as s:
+        if s.writer_alive and any(s.run(n).status == "running" for n in s.run_names()):
+            raise InputError("is still being written by a running process; wait for it to finish", path, "-o")
+        return s.run_names()
+
+
+def _unique_names(files: list[SourceFile], taken: list[str], notes: list[str]) -> None:
+    used = set(taken)
+    for source in files:
+        for run in source.runs:
+            name, k = run.name, 2
+            while name in used:
+                name, k = f"{run.name}_{k}", k + 1
+            if name != run.name:
+                notes.append(f"{source.path}: run {run.name} stored as {name} (the name is taken)")
+                run.name = name
+            used.add(name)
+
+
+def import_files(request: ImportRequest) -> ImportResult:
+    """Read every file, then write (or append to) the session; nothing is written if any file is bad."""
+    inputs = [p for p, _ in request.sources]
+    if not inputs:
+        raise InputError("give at least one file to import")
+    files = [read_source(p, o) for p, o in request.sources]
+    if not any(f.runs for f in files):
+        raise InputError("no run in the files", ", ".join(inputs))
+    result = ImportResult()
+    if request.append:
+        if not Path(request.output).exists():
+            raise InputError("does not exist: --append adds runs to an existing session", request.output, "-o")
+        check_output(request.output, inputs=inputs, overwrite=True)
+        taken = _existing_runs(request.output)
+    else:
+        check_output(request.output, inputs=inputs, overwrite=request.overwrite)
+        taken = []
+    _unique_names(files, taken, result.notes)
+    needed = SIZE_MARGIN * sum(f.size for f in files) + (os.path.getsize(request.output) if request.append else 0)
+    require_free_space(request.output, needed, "write the session")
+    with atomic_output(request.output, inputs=inputs, overwrite=request.append or request.overwrite) as temp:
+        if request.append:
+            _append(request, files, Path(request.output), temp)
+        else:
+            _write_runs(request, files, temp)
+            _store_provenance(temp, files, first_index=0)
+    for f in files:
+        result.runs += [(r.name, f.path) for r in f.runs]
+        result.notes += [f"{f.path}: {n}" for n in f.notes]
+    return result
+
+
+def _append(request: ImportRequest, files: list[SourceFile], original: Path, temp: Path) -> None:
+    """Copy the session, write the new runs beside it with the writer, and move them into the copy."""
+    shutil.copyfile(original, temp)
+    scratch = temp.with_name(temp.name + ".runs")
+    try:
+        _write_runs(request, files, scratch)
+        with h5py.File(scratch, "r") as src, h5py.File(temp, "r+", libver="latest") as dst:
+            for name in src["runs"]:
+                src.copy(src["runs"][name], dst["runs"], name=name)
+            events, new = dst["events"], src["events"][()]
+            events.resize(events.shape[0] + len(new), axis=0)
+            events[-len(new):] = new
+            index = len(dst["provenance"]["import"]) if "import" in dst["provenance"] else 0
+        _store_provenance(temp, files, first_index=index)
+    finally:
+        scratch.unlink(missing_ok=True)
+
+
+def _write_runs(request: ImportRequest, files: list[SourceFile], path: Path) -> None:
+    writer = SessionWriter(path, software_version=request.software_version, command=request.command)
+    try:
+        for source in files:
+            for run in source.runs:
+                _write_run(writer, run, source)
+    finally:
+        writer.close()
+
+
+def _write_run(writer: SessionWriter, run: ImportedRun, source: SourceFile) -> None:
+    extras = {name: (units, (), "c16" if np.iscomplexobj(values) else "f8")
+              for name, (units, values) in run.arrays.items()}
+    raw = run.raw
+    writer.begin_run(RunSpec(run.name, run.kind, run.force, run.direction, run.excitation_dof, list(run.frf),
+                             run.sample_rate, raw.channels if raw else ["force"], raw.units if raw else ["N"],
+                             extras, {"imported": True, "source_file": Path(source.path).name,
+                                      "source_format": source.format, "source_records": json.dumps(run.records)}))
+    arrays = {"frequency": run.frequency, **{f"frf/{d}": v for d, v in run.frf.items()},
+              **{name: values for name, (_, values) in run.arrays.items()}}
+    if run.kind == "stepped_sine":                     # no raw samples for any line
+        arrays["raw/line_start"] = arrays["raw/line_count"] = np.zeros(len(run.frequency), int)
+    writer.write_arrays(arrays)
+    if raw is not None:
+        writer.append_raw(raw.data.astype(np.float32))
+    writer.log("import", f"imported from {Path(source.path).name} ({source.format}), records "
+                         f"{', '.join(str(r) for r in run.records)}", run=run.name)
+    complete = run.status in ("complete", "aborted")
+    writer.end_run(run.status if complete else "aborted",
+                   "" if complete else f"the source says status {run.status}")
+
+
+def _store_provenance(path: Path, files: list[SourceFile], first_index: int) -> None:
+    """``/provenance/import/source_<k>``: one group per file read."""
+    now = _dt.datetime.now(_dt.timezone.utc).astimezone().isoformat(timespec="seconds")
+    with h5py.File(path, "r+", libver="latest") as f:
+        group = f["provenance"].require_group("import")
+        for k, source in enumerate(files, start=first_index):
+            g = group.create_group(f"source_{k}")
+            g.attrs.update({"name": Path(source.path).name, "path": str(Path(source.path).resolve()),
+                            "size": source.size, "sha256": source.sha256, "format": source.format,
+                            "imported": now, "runs": json.dumps([r.name for r in source.runs]),
+                            "notes": json.dumps(source.notes)})
+            lines = np.array(source.id_lines, dtype=object) if source.id_lines else np.empty((0, 0), object)
+            g.create_dataset("id_lines", data=lines, dtype=h5py.string_dtype())

@@ -1,0 +1,98 @@
+"""export then import needs no flags and gives the analysis the same numbers as the session it came from."""
+import tomllib
+
+import numpy as np
+import pytest
+
+from analysis.model import load_model
+from app.analyze import run_workbench
+from app.cli import main
+from app.export import export_uff
+from app.importers.runs import SourceOptions
+from app.importers.store import ImportRequest, import_files
+from app.instruments import emulated_instruments
+from app.measure import run_plan
+from app.models import asset
+from app.plan import load_plan
+from app.session import RunSpec, SessionWriter, open_session
+from app.session_data import measurements_from_session
+from drivers.simulation.rig import builtin_rig_path, load_rig
+
+PAPER_2DOF_LAWS = {"left": ["cubic", "quadratic_damping"], "right": ["cubic", "coulomb"]}
+
+def _plan(force_rms, band, levels, sweep, max_acceleration):
+    """A short plan: a random run, then one sweep (start, stop, step) per force level."""
+    sines = "".join(f"[[stepped_sine]]\nforce = {f}\nstart = {sweep[0]}\nstop = {sweep[1]}\nstep = {sweep[2]}\n"
+                    for f in levels)
+    return (f"[random]\nforce_rms = {force_rms}\nband = {list(band)}\nduration = 24.0\n{sines}"
+            f"[limits]\nmax_force = 5.0\nmax_acceleration = {max_acceleration}\n")
+
+
+PLANS = {"paper-2dof": _plan(0.05, (0.5, 5.0), (0.4, 0.8), (1.0, 2.8, 0.2), 50.0),
+         "paper-beam": _plan(0.01, (20.0, 200.0), (0.3, 1.2), (51.5, 54.5, 0.3), 400.0)}
+
+
+def _laws(wb):
+    return {el.name: [(t.law.name, t.values) for t in el.laws] for el in wb.model.elements}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rig", sorted(PLANS))
+def test_simulate_export_import_analyze_gives_the_same_laws_and_error(rig, tmp_path):
+    (tmp_path / "plan.toml").write_text(PLANS[rig])
+    session = tmp_path / "s.h5"
+    with emulated_instruments(load_rig(rig), seed=2) as inst:
+        assert not run_plan(load_plan(tmp_path / "plan.toml"), inst, session).aborted
+    if rig == "paper-2dof":                     # the rig's structure, the paper's laws to fit
+        structure = tomllib.loads(builtin_rig_path(rig).read_text())["structure"]
+        elements = [{"name": n, "dof": d, "laws": PAPER_2DOF_LAWS[n]} for n, d in (("left", "x1"), ("right", "x2"))]
+        model = tmp_path / "model.toml"
+        model.write_text(load_model({"structure": structure, "element": elements}).to_toml())
+    else:
+        model = asset("paper-beam.model.toml")
+    files = export_uff(session, tmp_path / "e.uff", binary=True).files
+    imported = tmp_path / "imported.h5"
+    assert main(["import", *map(str, files), "-o", str(imported)]) == 0      # no flags
+    original, again = (run_workbench(p, model, store_history=False) for p in (session, imported))
+    (wb0, ranked0), (wb1, ranked1) = original, again
+    assert wb1.compare().error == pytest.approx(wb0.compare().error, rel=1e-6)
+    for (name, terms0), terms1 in zip(_laws(wb0).items(), _laws(wb1).values()):
+        assert [t for t, _ in terms0] == [t for t, _ in terms1]
+        for (_, v0), (_, v1) in zip(terms0, terms1):
+            assert v1 == pytest.approx(v0, rel=1e-6), name
+        assert wb1.reports[name].verdict.linear == wb0.reports[name].verdict.linear
+    assert [(c.element, c.law) for c in ranked1] == [(c.element, c.law) for c in ranked0]
+    for c0, c1 in zip(ranked0, ranked1):
+        assert c1.error == pytest.approx(c0.error, rel=1e-6)
+
+
+def test_what_the_analysis_reads_survives_export_and_import(tmp_path):
+    """A short session with everything the analysis uses: FRFs, their noise, the force held, harmonics."""
+    session = tmp_path / "s.h5"
+    w = SessionWriter(session, software_version="t")
+    extras = {"force_amplitude": ("N", (), "f8"), "frf_std/A.w": ("m/N", (), "f8"),
+              "frf_std/B.theta": ("rad/N", (), "f8"), "harmonics/acc:A.w": ("m/s^2", (4,), "c16"),
+              "harmonics/acc:B.theta": ("rad/s^2", (4,), "c16")}
+    rng = np.random.default_rng(1)
+    for direction, freqs in (("up", [50.0, 50.0125, 50.5, 51.0]), ("down", [51.0, 50.25, 50.0])):
+        w.begin_run(RunSpec(f"sine_0.5N_{direction}", "stepped_sine", 0.5, direction, "A.w", ["A.w", "B.theta"],
+                            1e3, ["force"], ["N"], extras))
+        for f in freqs:
+            frf = {"A.w": complex(*rng.normal(size=2)) * 1e-5, "B.theta": complex(*rng.normal(size=2)) * 1e-4}
+            w.append_line(f, frf, {"force_amplitude": 0.5 + rng.normal() * 1e-3,
+                                   "frf_std/A.w": 1e-8 * (1 + rng.random()), "frf_std/B.theta": 1e-7,
+                                   "harmonics/acc:A.w": rng.normal(size=4) + 1j * rng.normal(size=4),
+                                   "harmonics/acc:B.theta": rng.normal(size=4) + 0j})
+        w.end_run("complete")
+    w.close()
+    files = export_uff(session, tmp_path / "e.uff", binary=True).files
+    import_files(ImportRequest([(str(p), SourceOptions()) for p in files], str(tmp_path / "i.h5")))
+    with open_session(session) as a, open_session(tmp_path / "i.h5") as b:
+        before, after = measurements_from_session(a), measurements_from_session(b)
+        assert b.run("sine_0.5N_down").attrs["imported"]
+    for r0, r1 in zip(before.sine, after.sine):
+        assert (r1.name, r1.force, r1.direction, r1.excitation_dof, r1.sensor_dofs) == \
+            (r0.name, r0.force, r0.direction, r0.excitation_dof, r0.sensor_dofs)
+        assert not r1.noise_estimated
+        for field in ("frequency_hz", "receptance", "receptance_std", "force_achieved", "distortion"):
+            np.testing.assert_array_equal(getattr(r1, field), getattr(r0, field), err_msg=field)
