@@ -79,7 +79,7 @@ def cmd_export(args) -> int:
     from .export import export_csv, export_uff
 
     if args.uff:
-        done = export_uff(args.session, args.uff, overwrite=args.force, single_file=args.single_file,
+        done = export_uff(args.session, args.uff, overwrite=args.force, per_run=args.per_run,
                           binary=args.binary, frf_only=args.frf_only)
         print(f"wrote {done.records} records to {', '.join(str(p) for p in done.files)}")
     else:
@@ -330,10 +330,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="export a session's FRFs (UFF58 or CSV)")
     p.add_argument("session", help="session file (.h5)")
     target = p.add_mutually_exclusive_group(required=True)
-    target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records: one file per run, "
-                                                       "FILE's stem + _<run> (see --single-file)")
+    target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records into FILE (see --per-run)")
     target.add_argument("--csv", metavar="DIR", help="write one CSV per run into DIR")
-    p.add_argument("--single-file", action="store_true", help="UFF: every run in FILE itself")
+    p.add_argument("--per-run", action="store_true",
+                   help="UFF: one file per run, FILE's stem + _<run> (for tools that need one frequency axis a file)")
     p.add_argument("--binary", action="store_true", help="UFF: binary records (58b; abscissae kept exact)")
     p.add_argument("--frf-only", action="store_true",
                    help="UFF: only the FRF records, without contactid's per-line quantities")

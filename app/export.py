@@ -2,8 +2,9 @@
 
 UFF58 (docs/import.md has the full description):
 
-* one file per run, ``<stem>_<run><suffix>`` beside the named file (``single_file`` puts every run in the
-  named file), each opened by a dataset 151 header that states the quantity and the phase convention;
+* every run in the named file, or (``per_run``, ``--per-run``) one file per run, ``<stem>_<run><suffix>``
+  beside it -- what modal software that stacks a file's records into one array needs when runs differ in
+  length; each file is opened by a dataset 151 header that states the quantity and the phase convention;
 * one FRF record (function type 4) per sensor DOF: receptance, ordinate displacement (specific data type 8,
   length exponent 1, "m"; "rad" with exponent 0 on a rotation) over excitation force (type 13, force exponent 1,
   "N"), abscissa in Hz; evenly spaced lines (a random run) are written as even, others as x/y pairs;
@@ -228,10 +229,10 @@ def run_file(uff_path: Path, run: str) -> Path:
     return uff_path.with_name(f"{uff_path.stem}_{run}{uff_path.suffix or '.uff'}")
 
 
-def export_uff(session_path, uff_path, overwrite: bool = False, *, single_file: bool = False,
+def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool = False,
                binary: bool = False, frf_only: bool = False) -> UffExport:
-    """Write the session's runs as UFF58: one file per run (see :func:`run_file`) or, with ``single_file``,
-    all in ``uff_path``. Nothing is written unless every record could be prepared."""
+    """Write the session's runs as UFF58: all in ``uff_path`` or, with ``per_run``, one file per run (see
+    :func:`run_file`). Nothing is written unless every record could be prepared."""
     session_path, uff_path = Path(session_path), Path(uff_path)
     files: dict[Path, list[dict]] = {}
     with open_session(session_path) as s:
@@ -241,7 +242,7 @@ def export_uff(session_path, uff_path, overwrite: bool = False, *, single_file: 
             raise InputError("has no measured FRF to export", str(session_path))
         nodes = node_numbers({d for r in runs for d in (r.excitation_dof, *r.sensor_dofs)})
         for load_case, run in enumerate(runs, start=1):
-            target = uff_path if single_file else run_file(uff_path, run.name)
+            target = run_file(uff_path, run.name) if per_run else uff_path
             ctx = _RecordContext(run, load_case, nodes, created, software, binary)
             files.setdefault(target, []).extend(_run_records(ctx, frf_only))
     for target in files:

@@ -49,7 +49,7 @@ def _records(path):
 
 def test_one_file_per_run_with_documented_nodes_units_and_tags(session, tmp_path):
     path, freqs = session
-    done = export_uff(path, tmp_path / "out.uff")
+    done = export_uff(path, tmp_path / "out.uff", per_run=True)
     assert sorted(done.files) == [run_file(tmp_path / "out.uff", "random"), run_file(tmp_path / "out.uff", RUN)]
     assert run_file(tmp_path / "out.uff", RUN).name == f"out_{RUN}.uff"
     sets = _records(run_file(tmp_path / "out.uff", RUN))
@@ -72,15 +72,15 @@ def test_one_file_per_run_with_documented_nodes_units_and_tags(session, tmp_path
     np.testing.assert_allclose(held["data"], 0.5 + 1e-3 * np.arange(5))
 
 
-def test_random_run_is_evenly_spaced_and_single_file_holds_every_run(session, tmp_path):
+def test_random_run_is_evenly_spaced_and_the_default_file_holds_every_run(session, tmp_path):
     path, _ = session
-    export_uff(path, tmp_path / "o.uff")
+    export_uff(path, tmp_path / "o.uff", per_run=True)
     rnd = next(s for s in _records(run_file(tmp_path / "o.uff", "random")) if s.get("func_type") == 4)
     assert rnd["abscissa_spacing"] == 1 and rnd["abscissa_inc"] == 0.25
     np.testing.assert_allclose(rnd["x"], 0.25 * np.arange(1, 9), rtol=1e-14)
     coherence = [s for s in _records(run_file(tmp_path / "o.uff", "random")) if s.get("func_type") == 6]
     assert len(coherence) == 2
-    one = export_uff(path, tmp_path / "all.uff", single_file=True, frf_only=True)
+    one = export_uff(path, tmp_path / "all.uff", frf_only=True)
     assert one.files == [tmp_path / "all.uff"] and one.records == 4
     runs = {s["id1"].split()[1] for s in _records(tmp_path / "all.uff")[1:]}
     assert runs == {f"run={RUN}", "run=random"}
@@ -123,7 +123,7 @@ def test_existing_output_and_the_input_are_refused(session, tmp_path):
     with pytest.raises(InputError, match="exists already"):
         export_uff(path, tmp_path / "o.uff")
     with pytest.raises(InputError, match="also an input"):
-        export_uff(path, path, single_file=True, overwrite=True)
+        export_uff(path, path, overwrite=True)
 
 
 def test_a_failed_write_leaves_no_file(session, tmp_path, monkeypatch):

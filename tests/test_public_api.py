@@ -115,7 +115,7 @@ def test_every_pinned_command_and_option_parses():
 
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 SPAN = re.compile(r"`contactid ([^`]*)`")
-FENCED = re.compile(r"\bcontactid ([a-z][^#&|`\n]*)")
+FENCED = re.compile(r"\bcontactid ([a-z][a-z-]*(?![\w=])[^#&|`\n]*)")  # a subcommand, not an id line (`contactid run=...`)
 OPTION = re.compile(r"(?<![\w-])(--?[a-z][\w-]*)")
 
 
