@@ -11,6 +11,7 @@ from PySide6.QtGui import QAction, QCloseEvent, QKeySequence
 from PySide6.QtWidgets import (QFileDialog, QFrame, QHBoxLayout, QLabel, QMainWindow, QPushButton, QTabWidget,
                                QVBoxLayout, QWidget)
 
+from . import gc_guard
 from .acquire_panel import AcquirePanel
 from .identify_panel import IdentifyPanel
 from .import_dialog import ImportDialog
@@ -58,6 +59,8 @@ class MainWindow(QMainWindow):
 
     def __init__(self, software_version: str = ""):
         super().__init__()
+        gc_guard.acquire()
+        self._collecting = True
         self.setWindowTitle("contactid — lab")
         self.lab = Lab(software_version, self)
         self.clock = FrameClock(parent=self)
@@ -155,4 +158,7 @@ class MainWindow(QMainWindow):
         self.statusBar().showMessage("closing: switching the output off …")
         self.clock.stop()
         self.lab.shutdown()
+        if self._collecting:
+            self._collecting = False
+            gc_guard.release()
         event.accept()
