@@ -18,6 +18,7 @@ from drivers.emulator.scpi_server import (ScpiError, ScpiServer, block_data, com
                                           parse_number, split_outside)
 from drivers.errors import DeviceError, LinkTimeout, ProtocolError, WrongDevice
 from drivers.shaker import SerialShaker
+from firmware_host import firmware_binary, serve_firmware  # noqa: F401  (a fixture)
 from rig_double import RigDouble, signature
 
 _names = itertools.count()
@@ -153,6 +154,16 @@ def rig():
         yield emulated
 
 
+@pytest.fixture(params=["emulator", "firmware"])
+def daq_url(request):
+    """The DAQ's URL: the emulated DAQ-1, or the firmware core built for the host on a pty."""
+    if request.param == "emulator":
+        yield f"sim://{request.getfixturevalue('rig').url_name}/daq"
+    else:
+        with serve_firmware(request.getfixturevalue("firmware_binary")) as url:
+            yield url
+
+
 def replay(url, pairs):
     """Send each command over a raw port; the replies in order (None where none came)."""
     port = serial.serial_for_url(url, timeout=0.2)
@@ -208,7 +219,10 @@ def test_daq_driver_sends_the_documented_commands():
 def test_the_emulator_answers_the_driver_transcripts(rig):
     base = f"sim://{rig.url_name}"
     assert replay(f"{base}/shaker", SHAKER_CONNECT + SHAKER_SESSION) == [r for _, r in SHAKER_CONNECT + SHAKER_SESSION]
-    assert replay(f"{base}/daq", DAQ_CONNECT) == [r for _, r in DAQ_CONNECT]
+
+
+def test_the_daq_answers_the_driver_transcript(daq_url):
+    assert replay(daq_url, DAQ_CONNECT) == [r for _, r in DAQ_CONNECT]
 
 
 def test_a_rejected_setting_raises_device_error_with_the_whole_queue():
@@ -256,9 +270,9 @@ def test_shaker_command_reply_pairs(rig):
     assert replay(f"sim://{rig.url_name}/shaker", pairs) == [r for _, r in pairs]
 
 
-def test_daq_command_reply_pairs(rig):
+def test_daq_command_reply_pairs(daq_url):
     pairs = DAQ_PAIRS
-    assert replay(f"sim://{rig.url_name}/daq", pairs) == [r for _, r in pairs]
+    assert replay(daq_url, pairs) == [r for _, r in pairs]
 
 
 def test_daq_block_read_returns_definite_length_block_of_exact_counts(rig):
@@ -274,8 +288,8 @@ def test_daq_block_read_returns_definite_length_block_of_exact_counts(rig):
     port.close()
 
 
-def test_daq_rejects_commands_while_streaming_and_reports_them_after_abort(rig):
-    port = serial.serial_for_url(f"sim://{rig.url_name}/daq", timeout=0.2)
+def test_daq_rejects_commands_while_streaming_and_reports_them_after_abort(daq_url):
+    port = serial.serial_for_url(daq_url, timeout=0.2)
     port.write(b"INIT\nINIT\nROUT:SCAN?\nSTR:POIN 8\n")
     port.read(2000)
     port.write(b"ABOR\n")

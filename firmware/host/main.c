@@ -1,0 +1,114 @@
+/* The DAQ-1 firmware core on the host, served on a pseudo terminal (for the tests).
+ *
+ *   daq1-host [--serial S] [--rates R1[,R2...]]
+ *
+ * prints "daq: /dev/pts/N" and serves until SIGINT/SIGTERM. */
+#define _XOPEN_SOURCE 700
+#define _DEFAULT_SOURCE   /* cfmakeraw, usleep */
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include "../core/daq1.h"
+#include "host_hal.h"
+
+#define MAX_RATES 16
+
+static daq1 instrument;
+static volatile sig_atomic_t stop;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    stop = 1;
+}
+
+static int usage(const char *why)
+{
+    fprintf(stderr, "daq1-host: %s\nusage: daq1-host [--serial S] [--rates R1[,R2...]]\n", why);
+    return 2;
+}
+
+static int parse_rates(char *text, double *rates)
+{
+    int n = 0;
+    for (char *item = strtok(text, ","); item; item = strtok(NULL, ",")) {
+        char *end;
+        double rate = strtod(item, &end);
+        if (*end || !(rate > 0) || n == MAX_RATES)
+            return 0;
+        rates[n++] = rate;
+    }
+    return n;
+}
+
+/* A raw pty; the slave stays open here too, so the master never sees a hang-up between hosts. */
+static int open_pty(int *slave)
+{
+    struct termios raw;
+    int master = posix_openpt(O_RDWR | O_NOCTTY);
+    if (master < 0 || grantpt(master) || unlockpt(master))
+        return -1;
+    *slave = open(ptsname(master), O_RDWR | O_NOCTTY);
+    if (*slave < 0 || tcgetattr(*slave, &raw))
+        return -1;
+    cfmakeraw(&raw);
+    if (tcsetattr(*slave, TCSANOW, &raw))
+        return -1;
+    fcntl(master, F_SETFL, fcntl(master, F_GETFL) | O_NONBLOCK);
+    return master;
+}
+
+int main(int argc, char **argv)
+{
+    static double rates[MAX_RATES] = {1000.0};
+    int n_rates = 1, slave;
+    const char *serial = "host";
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--serial") && i + 1 < argc)
+            serial = argv[++i];
+        else if (!strcmp(argv[i], "--rates") && i + 1 < argc) {
+            if (!(n_rates = parse_rates(argv[++i], rates)))
+                return usage("--rates: a comma-separated list of positive numbers (at most 16)");
+        } else
+            return usage(argv[i]);
+    }
+    int master = open_pty(&slave);
+    if (master < 0) {
+        fprintf(stderr, "daq1-host: cannot open a pseudo terminal: %s\n", strerror(errno));
+        return 1;
+    }
+    host_hal_setup(serial, rates, n_rates, master);
+    daq1_init(&instrument, hal_board_info());
+    signal(SIGINT, on_signal);
+    signal(SIGTERM, on_signal);
+    printf("daq: %s\n", ptsname(master));
+    fflush(stdout);
+
+    uint8_t input[512];
+    size_t have = 0, used = 0;
+    while (!stop) {
+        if (used == have && daq1_accepts_input(&instrument)) {
+            struct pollfd p = {master, POLLIN, 0};
+            have = used = 0;
+            if (poll(&p, 1, instrument.streaming || instrument.out.count ? 0 : 1) > 0 && (p.revents & POLLIN)) {
+                ssize_t got = read(master, input, sizeof input);
+                have = got > 0 ? (size_t)got : 0;
+            }
+        }
+        if (used < have)
+            used += daq1_receive(&instrument, input + used, have - used);
+        daq1_poll(&instrument);
+        if (instrument.streaming || instrument.read_left)
+            usleep(200);   /* the ADC's pace: no need to spin */
+    }
+    close(master);
+    close(slave);
+    return 0;
+}
