@@ -165,11 +165,6 @@ static int start_acquisition(daq1 *d, scpi_status *status)
 {
     if (d->streaming)
         return scpi_fail(status, SCPI_INIT_IGNORED, "acquisition already running");
-    if ((long)d->points * d->n_scan > DAQ1_FRAME_SAMPLES) {
-        char detail[80];
-        snprintf(detail, sizeof detail, "STR:POIN x scanned channels exceeds %d", DAQ1_FRAME_SAMPLES);
-        return scpi_fail(status, SCPI_SETTINGS_CONFLICT, detail);
-    }
     d->sequence = 0;
     d->acquired = 0;
     d->overrun_pending = d->overload = 0;

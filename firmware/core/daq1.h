@@ -10,13 +10,12 @@
 
 #define DAQ1_VERSION "1.0"
 #define DAQ1_MAX_LINE 4096            /* bytes of a program message before its LF */
-#define DAQ1_MAX_CHANNELS 8
+#define DAQ1_MAX_CHANNELS 4          /* a board has at most this many (ADS131M04: 4) */
 #define DAQ1_MAX_POINTS 4096          /* STReam:POINts limit (u16 field) */
 #define DAQ1_MAX_READ (1L << 20)      /* READ? limit, samples per channel */
 #ifndef DAQ1_FIFO_BYTES
 #define DAQ1_FIFO_BYTES (96u * 1024u) /* output FIFO; RP2040: 264 KiB of RAM */
 #endif
-#define DAQ1_FRAME_SAMPLES 16384      /* frame assembly buffer: STR:POIN x scanned channels at most */
 #define DAQ1_FRAME_HEADER 20
 #define DAQ1_END_FRAME 24
 
@@ -48,7 +47,7 @@ typedef struct {
     uint64_t acquired;
     int overrun_pending, overload;
     int frame_rows;
-    uint8_t frame[DAQ1_FRAME_HEADER + 4 * DAQ1_FRAME_SAMPLES + 4];
+    uint8_t frame[DAQ1_FRAME_HEADER + 4 * DAQ1_MAX_POINTS * DAQ1_MAX_CHANNELS + 4];
     /* block read */
     long read_left, read_owed, read_lost;
     /* scaling of the scanned channels: counts = rint(code * scale), clipped at +-limit */

@@ -8,6 +8,8 @@
 #define _POSIX_C_SOURCE 200809L
 #include "host_hal.h"
 
+#include "../core/daq1.h"
+
 #include <errno.h>
 #include <time.h>
 #include <unistd.h>
@@ -21,6 +23,8 @@ static const hal_channel HOST_CHANNELS[CHANNELS] = {
     {"acc:x1", "m/s^2", 1e-3, 0.01 * 1e-3, (1 << 23) - 1},
     {"acc:x2", "m/s^2", 1e-3, 0.01 * 1e-3, (1 << 23) - 1},
 };
+
+typedef char channels_fit_the_core[CHANNELS <= DAQ1_MAX_CHANNELS ? 1 : -1];
 
 static hal_board board = {"host", HOST_CHANNELS, CHANNELS, 0, 0};
 static int link_fd = -1;
