@@ -101,6 +101,31 @@ DAQ_PAIRS = [
     ("READ? 0;:SYST:ERR?", '-222,"Data out of range;valid range 1 to 1048576"'),
 ]
 
+DAQ_BAD_INPUT = [
+    ("NOPE;:SYST:ERR?", '-113,"Undefined header;NOPE"'),
+    ("SENS:CHAN1:SENSI?;:SYST:ERR?", '-113,"Undefined header;SENS:CHAN1:SENSI"'),
+    ("SENS:CHAN1:NAME;:SYST:ERR?", '-113,"Undefined header;SENS:CHAN1:NAME is query only"'),
+    ("*RST?;:SYST:ERR?", '-113,"Undefined header;*RST? is not a query"'),
+    ("READ?;:SYST:ERR?", '-109,"Missing parameter"'),
+    ("READ? 1 s;:SYST:ERR?", '-131,"Invalid suffix;values are in SI base units without suffix"'),
+    ("SENS:CHAN1:SENS 1e3;:SYST:ERR?", '-222,"Data out of range;valid range 1e-06 to 100"'),
+    ("SENS:CHAN0:SENS?;:SYST:ERR?", '-114,"Header suffix out of range;channels are 1 to 3"'),
+    ("SENS:CHAN99999999999:NAME?;:SYST:ERR?", '-114,"Header suffix out of range;channels are 1 to 3"'),
+    ("SENS:CHAN1:RANG? MAX;:SENS:CHAN1:RANG? MIN;:SENS:CHAN1:SENS? MAX", "50;0.001;100"),
+    ("SENS:CHAN1:RANG 2;:SENS:CHAN1:RANG DEF;:SENS:CHAN1:RANG?", "10"),
+    ("ROUT:SCAN @1;:SYST:ERR?", '-104,"Data type error;expected a channel list such as (@1,2:4)"'),
+    ("ROUT:SCAN (@2:1);:SYST:ERR?", '-222,"Data out of range;channels are 1 to 3"'),
+    ("SYST:ERR:COUN? 1;:SYST:ERR?", '-108,"Parameter not allowed"'),
+    ("SRAT? MAX;:SYST:ERR?", '-108,"Parameter not allowed"'),
+    ("STR:POIN? MAX;:STR:POIN MIN;:STR:POIN?", "4096;1"),
+    ("sens:chan3:lsb?;:SENSE:CHANNEL3:UNIT?", "0.001;m/s^2"),
+    ("  ;; STR:COUN? ;*TST?;:SYSTEM:ERROR:NEXT?;:SYST:VERS?;*OPC?", '0;0;0,"No error";1999.0;1'),
+    ("SYST:ERR:COUN?;SENS:CHAN1:RANG 0.0001;SENS:CHAN1:RANG 1e-3;SYST:ERR?",
+     '0;-222,"Data out of range;valid range 0.001 to 50"'),
+    ("SENS:CHAN1:NAME?\xb5;:SYST:ERR?;:SYST:ERR?", None),      # not executed: non-ASCII
+    ("SYST:ERR?;:SYST:ERR?", '-102,"Syntax error;non-ASCII byte";0,"No error"'),
+]
+
 
 class ScriptedPort(serial.SerialBase):
     """A port that checks every line the driver writes against a script and answers it.
@@ -273,6 +298,29 @@ def test_shaker_command_reply_pairs(rig):
 def test_daq_command_reply_pairs(daq_url):
     pairs = DAQ_PAIRS
     assert replay(daq_url, pairs) == [r for _, r in pairs]
+
+
+def test_daq_bad_input_pairs(daq_url):
+    pairs = DAQ_BAD_INPUT
+    assert replay(daq_url, pairs) == [r for _, r in pairs]
+
+
+def test_daq_refuses_a_message_over_4096_bytes_whole_even_in_pieces(daq_url):
+    message = b"STR:POIN 30" + b";" * 5000 + b";STR:POIN 40\n"
+    longest = b"STR:POIN 50" + b";" * (4096 - 11) + b"\n"   # the limit itself is accepted
+    port = serial.serial_for_url(daq_url, timeout=2.0)
+    for piece in (message[:3000], message[3000:4500], message[4500:]):
+        port.write(piece)
+    port.write(b"STR:POIN?;:SYST:ERR?;:SYST:ERR?\n")
+    assert port.readline() == b'20;-363,"Input buffer overrun";0,"No error"\n'
+    port.write(longest + b"STR:POIN?;:SYST:ERR?\n")
+    assert port.readline() == b'50;0,"No error"\n'
+    port.write(b"NOPE;" * 25 + b"SYST:ERR:COUN?\n")
+    assert port.readline() == b"20\n"
+    port.write(b"SYST:ERR?;" * 20 + b"SYST:ERR?\n")
+    assert port.readline() == b";".join([b'-113,"Undefined header;NOPE"'] * 19
+                                        + [b'-350,"Queue overflow"', b'0,"No error"']) + b"\n"
+    port.close()
 
 
 def test_daq_block_read_returns_definite_length_block_of_exact_counts(rig):
