@@ -10,6 +10,7 @@ import pytest
 import serial
 
 from drivers.daq import SerialDaq
+from drivers.errors import DeviceError
 from firmware_host import firmware_binary, host_signal, serve_firmware  # noqa: F401  (a fixture)
 
 LOST_MARK = -(1 << 31)
@@ -110,7 +111,7 @@ def test_a_block_read_the_host_does_not_take_marks_its_lost_samples_and_queues_2
     lost = np.all(rows == LOST_MARK, axis=1)
     assert 0 < lost.sum() < 40000
     np.testing.assert_array_equal(rows[~lost], truth(0, 40000, [0, 1, 2])[~lost])
-    assert reply == (f'-200,"Execution error;READ? overran the output FIFO; {lost.sum()} samples lost, '
+    assert reply == (f'-200,"Execution error;READ? lost {lost.sum()} samples (FIFO or ADC overrun), '
                      f'marked {LOST_MARK}";0,"No error"\n')
 
 
@@ -134,3 +135,34 @@ def test_the_host_build_refuses_a_bad_command_line(firmware_binary):
 
     run = subprocess.run([str(firmware_binary), "--rates", "fast"], capture_output=True, text=True)
     assert run.returncode == 2 and "--rates" in run.stderr
+
+
+def test_conversions_the_adc_lost_end_a_stream_with_the_reason(firmware_binary):
+    with serve_firmware(firmware_binary, "--lose-row", "100") as url:
+        daq = SerialDaq(url, timeout=2.0)
+        stream = daq.stream(20)
+        blocks = []
+        with pytest.raises(DeviceError) as info:
+            while True:
+                blocks.append(stream.read())
+        assert info.value.codes == [-300] and "ADC conversions lost" in str(info.value)
+        received = np.concatenate([counts_of(b, daq) for b in blocks])
+        np.testing.assert_array_equal(received, truth(0, 100, [0, 1, 2]))   # nothing past the loss
+        with pytest.raises(DeviceError):
+            stream.stop()           # the stream's failure, again
+        assert stream.stats.samples_received == 100 and stream.stats.samples_sent == 100
+        assert daq._scpi.query("STR:COUN?") == "100"
+        daq.close()
+
+
+def test_conversions_the_adc_lost_mark_the_rest_of_a_block_read(firmware_binary):
+    with serve_firmware(firmware_binary, "--lose-row", "100") as url:
+        port = serial.serial_for_url(url, timeout=2.0)
+        port.write(b"READ? 150;:SYST:ERR?\n")
+        assert port.read(6) == b"#41800"
+        rows = np.frombuffer(port.read(1800), dtype="<i4").reshape(150, 3)
+        assert port.readline() == (f';-200,"Execution error;READ? lost 50 samples (FIFO or ADC overrun), '
+                                   f'marked {LOST_MARK}"\n').encode()
+        port.close()
+    np.testing.assert_array_equal(rows[:100], truth(0, 100, [0, 1, 2]))
+    assert np.all(rows[100:] == LOST_MARK)

@@ -350,6 +350,25 @@ def test_daq_rejects_commands_while_streaming_and_reports_them_after_abort(daq_u
     port.close()
 
 
+def test_a_message_that_stops_the_stream_runs_as_sent_while_streaming(daq_url):
+    from drivers.stream import FrameDecoder
+
+    port = serial.serial_for_url(daq_url, timeout=0.3)
+    port.write(b"INIT\n")
+    data = port.read(3000)
+    port.write(b"ABOR;*IDN?\n")
+    data += port.read(1000000)
+    decoder = FrameDecoder(3, 20)
+    frames = decoder.feed(data)
+    assert decoder.ended and frames[-1].is_end
+    assert sum(f.points for f in frames) == frames[-1].first_sample > 0
+    assert [f.gap for f in frames] == [None] * len(frames)
+    assert bytes(decoder.remainder()) == b""
+    port.write(b"SYST:ERR?;:SYST:ERR?\n")
+    assert port.readline() == b'-221,"Settings conflict;acquisition running; send ABORt first";0,"No error"\n'
+    port.close()
+
+
 def test_error_queue_overflow_keeps_the_oldest_and_marks_the_newest():
     server = ScpiServer()
     for _ in range(25):

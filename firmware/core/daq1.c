@@ -215,12 +215,20 @@ static void pay_owed_rows(daq1 *d)
 
 static int reading(const daq1 *d) { return d->read_left > 0 || d->read_owed > 0; }
 
+/* The ADC lost conversions during a READ?: the rest of the block cannot be the next samples. */
+static void read_broken(daq1 *d)
+{
+    d->read_owed += d->read_left;
+    d->read_lost += d->read_left;
+    d->read_left = 0;
+}
+
 static void finish_read(daq1 *d)
 {
     hal_adc_stop();
     if (d->read_lost) {
         char detail[SCPI_DETAIL_MAX];
-        snprintf(detail, sizeof detail, "READ? overran the output FIFO; %ld samples lost, marked %ld",
+        snprintf(detail, sizeof detail, "READ? lost %ld samples (FIFO or ADC overrun), marked %ld",
                  d->read_lost, (long)READ_LOST_MARK);
         scpi_queue_push(&d->errors, SCPI_EXECUTION, detail);
     }
@@ -561,7 +569,7 @@ static int execute_unit(daq1 *d, char *text, scpi_status *status)
                  unit.query ? "not a query" : "query only");
         return scpi_fail(status, SCPI_UNDEFINED_HEADER, detail);
     }
-    if (d->streaming && !cmd->while_busy)
+    if (d->busy && !cmd->while_busy)
         return scpi_fail(status, SCPI_SETTINGS_CONFLICT, "acquisition running; send ABORt first");
     if (unit.nargs > SCPI_MAX_ARGS)
         return scpi_fail(status, SCPI_PARAM_NOT_ALLOWED, "");
@@ -619,6 +627,7 @@ static void start_message(daq1 *d)
     d->line_len = 0;
     d->cursor = d->message;
     d->replies = 0;
+    d->busy = d->streaming;
     d->executing = 1;
     run_message(d);
 }
@@ -660,22 +669,30 @@ size_t daq1_receive(daq1 *d, const uint8_t *data, size_t n)
     return i;
 }
 
+/* The stream cannot go on with samples missing that no frame accounts for: it ends, saying why. */
+static void stream_broken(daq1 *d)
+{
+    scpi_queue_push(&d->errors, SCPI_DEVICE, "ADC conversions lost; acquisition stopped");
+    stop_acquisition(d);
+}
+
 void daq1_poll(daq1 *d)
 {
     int32_t codes[DAQ1_MAX_CHANNELS];
+    int got;
     start_message(d);
     if (d->streaming) {
-        while (d->streaming && hal_adc_read(codes))
-            frame_row(d, codes);
+        while (d->streaming && (got = hal_adc_read(codes)) != HAL_ADC_NONE)
+            got == HAL_ADC_ROW ? frame_row(d, codes) : stream_broken(d);
     } else if (reading(d)) {
         pay_owed_rows(d);
-        while (d->read_left > 0 && hal_adc_read(codes))
-            read_row(d, codes);
+        while (d->read_left > 0 && (got = hal_adc_read(codes)) != HAL_ADC_NONE)
+            got == HAL_ADC_ROW ? read_row(d, codes) : read_broken(d);
         pay_owed_rows(d);
-        if (!reading(d)) {
+        if (!reading(d))
             finish_read(d);
-            run_message(d);
-        }
     }
+    if (d->executing)
+        run_message(d);
     fifo_drain(&d->out);
 }

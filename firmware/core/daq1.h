@@ -41,6 +41,7 @@ typedef struct {
     char message[DAQ1_MAX_LINE + 1];
     char *cursor;
     int executing, replies;
+    int busy;             /* streaming when the message started: its units run as while streaming */
     /* acquisition */
     int streaming;
     uint32_t sequence;

@@ -25,7 +25,9 @@ const hal_board *hal_board_info(void);
 /* Start converting at `rate` (one of the board's rates); the next row read is sample 0. */
 void hal_adc_start(double rate);
 void hal_adc_stop(void);
-/* One row of ADC codes (all channels, in board order); 0 when none is ready. */
+/* One row of ADC codes (all channels, in board order): HAL_ADC_ROW; HAL_ADC_NONE when none is ready;
+ * HAL_ADC_LOST when conversions were lost since the last row (the board could not keep up). */
+enum { HAL_ADC_LOST = -1, HAL_ADC_NONE = 0, HAL_ADC_ROW = 1 };
 int hal_adc_read(int32_t *codes);
 /* Send what the link takes now (never blocks); the number of bytes accepted. */
 size_t hal_tx_write(const uint8_t *data, size_t n);

@@ -28,16 +28,18 @@ typedef char channels_fit_the_core[CHANNELS <= DAQ1_MAX_CHANNELS ? 1 : -1];
 
 static hal_board board = {"host", HOST_CHANNELS, CHANNELS, 0, 0};
 static int link_fd = -1;
+static long lose_row = -1;
 static double adc_rate;
 static int adc_running;
 static int64_t adc_rows;
 static struct timespec adc_start;
 
-void host_hal_setup(const char *serial, const double *rates, int n_rates, int fd)
+void host_hal_setup(const host_options *options, int fd)
 {
-    board.serial = serial;
-    board.rates = rates;
-    board.n_rates = n_rates;
+    board.serial = options->serial;
+    board.rates = options->rates;
+    board.n_rates = options->n_rates;
+    lose_row = options->lose_row;
     link_fd = fd;
 }
 
@@ -67,15 +69,19 @@ int hal_adc_read(int32_t *codes)
 {
     struct timespec now;
     if (!adc_running)
-        return 0;
+        return HAL_ADC_NONE;
     clock_gettime(CLOCK_MONOTONIC, &now);
     double elapsed = (double)(now.tv_sec - adc_start.tv_sec) + 1e-9 * (double)(now.tv_nsec - adc_start.tv_nsec);
     if ((double)adc_rows >= elapsed * adc_rate)
-        return 0;   /* the next conversion is not done yet */
+        return HAL_ADC_NONE;   /* the next conversion is not done yet */
+    if (adc_rows == lose_row) {
+        adc_rows++;   /* its conversion is gone */
+        return HAL_ADC_LOST;
+    }
     for (int c = 0; c < CHANNELS; c++)
         codes[c] = host_signal(adc_rows, c);
     adc_rows++;
-    return 1;
+    return HAL_ADC_ROW;
 }
 
 size_t hal_tx_write(const uint8_t *data, size_t n)

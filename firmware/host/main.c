@@ -1,7 +1,9 @@
 /* The DAQ-1 firmware core on the host, served on a pseudo terminal (for the tests).
  *
- *   daq1-host [--serial S] [--rates R1[,R2...]]
+ *   daq1-host [--serial S] [--rates R1[,R2...]] [--lose-row N]
  *
+ * --rates: the board's sample rates (the first is the *RST rate; default 1000);
+ * --lose-row: the ADC loses conversion N after every start (to test what the core does then).
  * prints "daq: /dev/pts/N" and serves until SIGINT/SIGTERM. */
 #define _XOPEN_SOURCE 700
 #define _DEFAULT_SOURCE   /* cfmakeraw, usleep */
@@ -68,23 +70,29 @@ static int open_pty(int *slave)
 int main(int argc, char **argv)
 {
     static double rates[MAX_RATES] = {1000.0};
-    int n_rates = 1, slave;
-    const char *serial = "host";
+    host_options options = {"host", rates, 1, -1};
+    int slave;
     for (int i = 1; i < argc; i++) {
-        if (!strcmp(argv[i], "--serial") && i + 1 < argc)
-            serial = argv[++i];
-        else if (!strcmp(argv[i], "--rates") && i + 1 < argc) {
-            if (!(n_rates = parse_rates(argv[++i], rates)))
+        char *end;
+        if (!strcmp(argv[i], "--serial") && i + 1 < argc) {
+            options.serial = argv[++i];
+        } else if (!strcmp(argv[i], "--rates") && i + 1 < argc) {
+            if (!(options.n_rates = parse_rates(argv[++i], rates)))
                 return usage("--rates: a comma-separated list of positive numbers (at most 16)");
-        } else
+        } else if (!strcmp(argv[i], "--lose-row") && i + 1 < argc) {
+            options.lose_row = strtol(argv[++i], &end, 10);
+            if (*end || options.lose_row < 0)
+                return usage("--lose-row: a row number >= 0");
+        } else {
             return usage(argv[i]);
+        }
     }
     int master = open_pty(&slave);
     if (master < 0) {
         fprintf(stderr, "daq1-host: cannot open a pseudo terminal: %s\n", strerror(errno));
         return 1;
     }
-    host_hal_setup(serial, rates, n_rates, master);
+    host_hal_setup(&options, master);
     daq1_init(&instrument, hal_board_info());
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);
