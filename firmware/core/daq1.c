@@ -642,6 +642,10 @@ void daq1_init(daq1 *d, const hal_board *board)
 
 int daq1_accepts_input(const daq1 *d) { return !d->line_ready; }
 
+int daq1_acquiring(const daq1 *d) { return d->streaming || reading(d); }
+
+size_t daq1_output_pending(const daq1 *d) { return d->out.count; }
+
 size_t daq1_receive(daq1 *d, const uint8_t *data, size_t n)
 {
     size_t i;

@@ -62,6 +62,10 @@ void daq1_init(daq1 *d, const hal_board *board);
 int daq1_accepts_input(const daq1 *d);
 /* Take input bytes; the number consumed (stops after a complete message). */
 size_t daq1_receive(daq1 *d, const uint8_t *data, size_t n);
+/* Whether the ADC runs for a stream or a READ? (then the board polls at the ADC's pace). */
+int daq1_acquiring(const daq1 *d);
+/* Bytes waiting for the link. */
+size_t daq1_output_pending(const daq1 *d);
 /* Execute what can be executed, acquire the ADC rows that are ready, send what the link takes. */
 void daq1_poll(daq1 *d);
 

@@ -6,7 +6,7 @@
  * --lose-row: the ADC loses conversion N after every start (to test what the core does then).
  * prints "daq: /dev/pts/N" and serves until SIGINT/SIGTERM. */
 #define _XOPEN_SOURCE 700
-#define _DEFAULT_SOURCE   /* cfmakeraw, usleep */
+#define _DEFAULT_SOURCE   /* cfmakeraw */
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
@@ -102,19 +102,20 @@ int main(int argc, char **argv)
     uint8_t input[512];
     size_t have = 0, used = 0;
     while (!stop) {
-        if (used == have && daq1_accepts_input(&instrument)) {
-            struct pollfd p = {master, POLLIN, 0};
-            have = used = 0;
-            if (poll(&p, 1, instrument.streaming || instrument.out.count ? 0 : 1) > 0 && (p.revents & POLLIN)) {
-                ssize_t got = read(master, input, sizeof input);
-                have = got > 0 ? (size_t)got : 0;
-            }
+        /* wait for input the core takes, room for its output, or the next conversions (1 ms) */
+        struct pollfd p = {master, 0, 0};
+        if (used == have && daq1_accepts_input(&instrument))
+            p.events |= POLLIN;
+        if (daq1_output_pending(&instrument))
+            p.events |= POLLOUT;
+        if (poll(&p, 1, daq1_acquiring(&instrument) ? 1 : 100) > 0 && (p.revents & POLLIN)) {
+            ssize_t got = read(master, input, sizeof input);
+            have = got > 0 ? (size_t)got : 0;
+            used = 0;
         }
         if (used < have)
             used += daq1_receive(&instrument, input + used, have - used);
         daq1_poll(&instrument);
-        if (instrument.streaming || instrument.read_left)
-            usleep(200);   /* the ADC's pace: no need to spin */
     }
     close(master);
     close(slave);
