@@ -115,6 +115,14 @@ def test_a_block_read_the_host_does_not_take_marks_its_lost_samples_and_queues_2
                      f'marked {LOST_MARK}";0,"No error"\n')
 
 
+def test_a_message_with_a_nul_byte_is_not_executed(firmware_binary):
+    with serve_firmware(firmware_binary) as url:
+        port = serial.serial_for_url(url, timeout=2.0)
+        port.write(b"STR:POIN 30;\x00;:STR:POIN 40\nSTR:POIN?;:SYST:ERR?;:SYST:ERR?\n")
+        assert port.readline() == b'20;-102,"Syntax error;NUL byte";0,"No error"\n'
+        port.close()
+
+
 RATE_PAIRS = [
     ("SRAT?;:SRAT:LIST?;:STR:POIN?", "1000;1000,2000;20"),
     ("SRAT 2000;:SRAT?", "2000"),

@@ -622,6 +622,11 @@ static void start_message(daq1 *d)
         d->line_len = 0;
         return;
     }
+    if (memchr(d->line, '\0', d->line_len)) {   /* C text ends there: the message is not executed */
+        scpi_queue_push(&d->errors, SCPI_SYNTAX, "NUL byte");
+        d->line_len = 0;
+        return;
+    }
     memcpy(d->message, d->line, d->line_len);
     d->message[d->line_len] = '\0';
     d->line_len = 0;

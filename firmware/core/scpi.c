@@ -318,27 +318,23 @@ static int all_digits(const char *t, size_t n)
     return 1;
 }
 
-/* One item `a` or `a:b` of a channel list (blanks around the numbers allowed). */
-static int channel_item(const char *item, size_t len, long *first, long *last)
+/* One item `a` or `a:b` of a channel list (blanks around the numbers allowed), stripped in place. */
+static int channel_item(char *item, long *first, long *last)
 {
-    char buf[24];
     char *bounds[2];
     int n = 0;
-    if (len >= sizeof buf)
-        return 0;
-    memcpy(buf, item, len);
-    buf[len] = '\0';
-    char *cursor = buf, *piece;
+    char *cursor = item, *piece;
     while ((piece = scpi_next_piece(&cursor, ':')) != NULL) {
         if (n == 2)
             return 0;
         bounds[n++] = scpi_strip(piece);
     }
     for (int i = 0; i < n; i++)
-        if (!all_digits(bounds[i], strlen(bounds[i])) || strlen(bounds[i]) > 6)
+        if (!all_digits(bounds[i], strlen(bounds[i])))
             return 0;
-    *first = strtol(bounds[0], NULL, 10);
-    *last = strtol(bounds[n - 1], NULL, 10);
+    /* more than 6 digits is out of any channel range */
+    *first = strlen(bounds[0]) > 6 ? 1000000 : strtol(bounds[0], NULL, 10);
+    *last = strlen(bounds[n - 1]) > 6 ? 1000000 : strtol(bounds[n - 1], NULL, 10);
     return 1;
 }
 
@@ -362,15 +358,22 @@ int scpi_parse_channel_list(const char *text, int count, uint8_t *indices, int *
     for (const char *q = p; q < end; q++)
         if (!(isdigit((unsigned char)*q) || *q == ':' || *q == ',' || *q == ' ' || *q == '\t'))
             return scpi_fail(status, SCPI_DATA_TYPE, "expected a channel list such as (@1,2:4)");
+    if (p == end)
+        return scpi_fail(status, SCPI_DATA_TYPE, "expected a channel list such as (@1,2:4)");
     uint32_t seen = 0;
     int total = 0, repeated = 0;
     while (p <= end) {
         const char *comma = memchr(p, ',', (size_t)(end - p));
         const char *stop = comma ? comma : end;
+        char item[24];
         long first, last;
-        if (!channel_item(p, (size_t)(stop - p), &first, &last)) {
+        size_t len = (size_t)(stop - p) < sizeof item - 1 ? (size_t)(stop - p) : sizeof item - 1;
+        memcpy(item, p, len);
+        item[len] = '\0';
+        if (!channel_item(item, &first, &last)) {   /* (a longer item is judged by its first 23 bytes) */
             char detail[48];
-            snprintf(detail, sizeof detail, "bad channel range '%.*s'", (int)(stop - p > 20 ? 20 : stop - p), p);
+            memcpy(item, p, len);   /* channel_item cut it up */
+            snprintf(detail, sizeof detail, "bad channel range '%.20s'", scpi_strip(item));
             return scpi_fail(status, SCPI_DATA_TYPE, detail);
         }
         if (!(1 <= first && first <= last && last <= count)) {
