@@ -111,6 +111,7 @@ void hal_adc_start(double rate)
     ring_head = ring_tail = 0;
     lost = false;
     acquiring = true;
+    gpio_acknowledge_irq(PIN_DRDY, GPIO_IRQ_EDGE_FALL);   /* an edge from before the SYNC is not sample 0 */
     gpio_set_irq_enabled(PIN_DRDY, GPIO_IRQ_EDGE_FALL, true);
 }
 
@@ -142,7 +143,7 @@ size_t hal_tx_write(const uint8_t *data, size_t n)
     return n;
 }
 
-void board_init(void)
+void daq1_board_init(void)
 {
     pico_get_unique_board_id_string(serial_text, sizeof serial_text);
     spi_init(ADC_SPI, SPI_HZ);

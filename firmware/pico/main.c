@@ -3,7 +3,7 @@
 #include "pico/stdlib.h"
 #include "tusb.h"
 
-void board_init(void);   /* board.c */
+void daq1_board_init(void);   /* board.c */
 
 static daq1 instrument;   /* about 170 KiB: FIFO, frame and message buffers */
 
@@ -11,7 +11,7 @@ int main(void)
 {
     uint8_t input[64];
     uint32_t have = 0, used = 0;
-    board_init();
+    daq1_board_init();
     tusb_init();
     daq1_init(&instrument, hal_board_info());
     for (;;) {
