@@ -99,7 +99,7 @@ def test_a_block_read_returns_the_next_samples_exactly(firmware_binary):
 
 def test_a_block_read_the_host_does_not_take_marks_its_lost_samples_and_queues_200(firmware_binary):
     with serve_firmware(firmware_binary, "--rates", "20000") as url:
-        port = serial.serial_for_url(url, timeout=3.0)
+        port = serial.serial_for_url(url, timeout=10.0)
         port.write(b"READ? 40000;*OPC?\n")
         time.sleep(2.5)     # the FIFO and the pty fill up
         assert port.read(8) == b"#6480000"
