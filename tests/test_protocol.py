@@ -18,6 +18,7 @@ from drivers.emulator.scpi_server import (ScpiError, ScpiServer, block_data, com
                                           parse_number, split_outside)
 from drivers.errors import DeviceError, LinkTimeout, ProtocolError, WrongDevice
 from drivers.shaker import SerialShaker
+from firmware_host import firmware_binary, serve_firmware  # noqa: F401  (a fixture)
 from rig_double import RigDouble, signature
 
 _names = itertools.count()
@@ -100,6 +101,36 @@ DAQ_PAIRS = [
     ("READ? 0;:SYST:ERR?", '-222,"Data out of range;valid range 1 to 1048576"'),
 ]
 
+DAQ_BAD_INPUT = [
+    ("NOPE;:SYST:ERR?", '-113,"Undefined header;NOPE"'),
+    ("SENS:CHAN1:SENSI?;:SYST:ERR?", '-113,"Undefined header;SENS:CHAN1:SENSI"'),
+    ("SENS:CHAN1:NAME;:SYST:ERR?", '-113,"Undefined header;SENS:CHAN1:NAME is query only"'),
+    ("*RST?;:SYST:ERR?", '-113,"Undefined header;*RST? is not a query"'),
+    ("READ?;:SYST:ERR?", '-109,"Missing parameter"'),
+    ("READ? 1 s;:SYST:ERR?", '-131,"Invalid suffix;values are in SI base units without suffix"'),
+    ("SENS:CHAN1:SENS 1e3;:SYST:ERR?", '-222,"Data out of range;valid range 1e-06 to 100"'),
+    ("SENS:CHAN0:SENS?;:SYST:ERR?", '-114,"Header suffix out of range;channels are 1 to 3"'),
+    ("SENS:CHAN99999999999:NAME?;:SYST:ERR?", '-114,"Header suffix out of range;channels are 1 to 3"'),
+    ("SENS:CHAN1:RANG? MAX;:SENS:CHAN1:RANG? MIN;:SENS:CHAN1:SENS? MAX", "50;0.001;100"),
+    ("SENS:CHAN1:RANG 2;:SENS:CHAN1:RANG DEF;:SENS:CHAN1:RANG?", "10"),
+    ("ROUT:SCAN @1;:SYST:ERR?", '-104,"Data type error;expected a channel list such as (@1,2:4)"'),
+    ("ROUT:SCAN (@2:1);:SYST:ERR?", '-222,"Data out of range;channels are 1 to 3"'),
+    ("ROUT:SCAN (@1234567);:SYST:ERR?", '-222,"Data out of range;channels are 1 to 3"'),
+    ("ROUT:SCAN (@);:SYST:ERR?", '-104,"Data type error;expected a channel list such as (@1,2:4)"'),
+    ("ROUT:SCAN (@1:2:3);:SYST:ERR?", "-104,\"Data type error;bad channel range '1:2:3'\""),
+    ("ROUT:SCAN (@1,,2);:SYST:ERR?", "-104,\"Data type error;bad channel range ''\""),
+    ("ROUT:SCAN (@ 2 : 3 ,1) ;:ROUT:SCAN?;:ROUT:SCAN (@1:3)", "(@2,3,1)"),
+    ("SYST:ERR:COUN? 1;:SYST:ERR?", '-108,"Parameter not allowed"'),
+    ("SRAT? MAX;:SYST:ERR?", '-108,"Parameter not allowed"'),
+    ("STR:POIN? MAX;:STR:POIN MIN;:STR:POIN?", "4096;1"),
+    ("sens:chan3:lsb?;:SENSE:CHANNEL3:UNIT?", "0.001;m/s^2"),
+    ("  ;; STR:COUN? ;*TST?;:SYSTEM:ERROR:NEXT?;:SYST:VERS?;*OPC?", '0;0;0,"No error";1999.0;1'),
+    ("SYST:ERR:COUN?;SENS:CHAN1:RANG 0.0001;SENS:CHAN1:RANG 1e-3;SYST:ERR?",
+     '0;-222,"Data out of range;valid range 0.001 to 50"'),
+    ("SENS:CHAN1:NAME?\xb5;:SYST:ERR?;:SYST:ERR?", None),      # not executed: non-ASCII
+    ("SYST:ERR?;:SYST:ERR?", '-102,"Syntax error;non-ASCII byte";0,"No error"'),
+]
+
 
 class ScriptedPort(serial.SerialBase):
     """A port that checks every line the driver writes against a script and answers it.
@@ -151,6 +182,16 @@ def rig():
         register(emulated, name)
         emulated.url_name = name
         yield emulated
+
+
+@pytest.fixture(params=["emulator", "firmware"])
+def daq_url(request):
+    """The DAQ's URL: the emulated DAQ-1, or the firmware core built for the host on a pty."""
+    if request.param == "emulator":
+        yield f"sim://{request.getfixturevalue('rig').url_name}/daq"
+    else:
+        with serve_firmware(request.getfixturevalue("firmware_binary")) as url:
+            yield url
 
 
 def replay(url, pairs):
@@ -208,7 +249,10 @@ def test_daq_driver_sends_the_documented_commands():
 def test_the_emulator_answers_the_driver_transcripts(rig):
     base = f"sim://{rig.url_name}"
     assert replay(f"{base}/shaker", SHAKER_CONNECT + SHAKER_SESSION) == [r for _, r in SHAKER_CONNECT + SHAKER_SESSION]
-    assert replay(f"{base}/daq", DAQ_CONNECT) == [r for _, r in DAQ_CONNECT]
+
+
+def test_the_daq_answers_the_driver_transcript(daq_url):
+    assert replay(daq_url, DAQ_CONNECT) == [r for _, r in DAQ_CONNECT]
 
 
 def test_a_rejected_setting_raises_device_error_with_the_whole_queue():
@@ -256,9 +300,32 @@ def test_shaker_command_reply_pairs(rig):
     assert replay(f"sim://{rig.url_name}/shaker", pairs) == [r for _, r in pairs]
 
 
-def test_daq_command_reply_pairs(rig):
+def test_daq_command_reply_pairs(daq_url):
     pairs = DAQ_PAIRS
-    assert replay(f"sim://{rig.url_name}/daq", pairs) == [r for _, r in pairs]
+    assert replay(daq_url, pairs) == [r for _, r in pairs]
+
+
+def test_daq_bad_input_pairs(daq_url):
+    pairs = DAQ_BAD_INPUT
+    assert replay(daq_url, pairs) == [r for _, r in pairs]
+
+
+def test_daq_refuses_a_message_over_4096_bytes_whole_even_in_pieces(daq_url):
+    message = b"STR:POIN 30" + b";" * 5000 + b";STR:POIN 40\n"
+    longest = b"STR:POIN 50" + b";" * (4096 - 11) + b"\n"   # the limit itself is accepted
+    port = serial.serial_for_url(daq_url, timeout=2.0)
+    for piece in (message[:3000], message[3000:4500], message[4500:]):
+        port.write(piece)
+    port.write(b"STR:POIN?;:SYST:ERR?;:SYST:ERR?\n")
+    assert port.readline() == b'20;-363,"Input buffer overrun";0,"No error"\n'
+    port.write(longest + b"STR:POIN?;:SYST:ERR?\n")
+    assert port.readline() == b'50;0,"No error"\n'
+    port.write(b"NOPE;" * 25 + b"SYST:ERR:COUN?\n")
+    assert port.readline() == b"20\n"
+    port.write(b"SYST:ERR?;" * 20 + b"SYST:ERR?\n")
+    assert port.readline() == b";".join([b'-113,"Undefined header;NOPE"'] * 19
+                                        + [b'-350,"Queue overflow"', b'0,"No error"']) + b"\n"
+    port.close()
 
 
 def test_daq_block_read_returns_definite_length_block_of_exact_counts(rig):
@@ -274,8 +341,8 @@ def test_daq_block_read_returns_definite_length_block_of_exact_counts(rig):
     port.close()
 
 
-def test_daq_rejects_commands_while_streaming_and_reports_them_after_abort(rig):
-    port = serial.serial_for_url(f"sim://{rig.url_name}/daq", timeout=0.2)
+def test_daq_rejects_commands_while_streaming_and_reports_them_after_abort(daq_url):
+    port = serial.serial_for_url(daq_url, timeout=0.2)
     port.write(b"INIT\nINIT\nROUT:SCAN?\nSTR:POIN 8\n")
     port.read(2000)
     port.write(b"ABOR\n")
@@ -285,6 +352,25 @@ def test_daq_rejects_commands_while_streaming_and_reports_them_after_abort(rig):
                                b'-221,"Settings conflict;acquisition running; send ABORt first";'
                                b'-221,"Settings conflict;acquisition running; send ABORt first";'
                                b'0,"No error"\n')
+    port.close()
+
+
+def test_a_message_that_stops_the_stream_runs_as_sent_while_streaming(daq_url):
+    from drivers.stream import FrameDecoder
+
+    port = serial.serial_for_url(daq_url, timeout=0.3)
+    port.write(b"INIT\n")
+    data = port.read(3000)
+    port.write(b"ABOR;*IDN?\n")
+    data += port.read(1000000)
+    decoder = FrameDecoder(3, 20)
+    frames = decoder.feed(data)
+    assert decoder.ended and frames[-1].is_end
+    assert sum(f.points for f in frames) == frames[-1].first_sample > 0
+    assert [f.gap for f in frames] == [None] * len(frames)
+    assert bytes(decoder.remainder()) == b""
+    port.write(b"SYST:ERR?;:SYST:ERR?\n")
+    assert port.readline() == b'-221,"Settings conflict;acquisition running; send ABORt first";0,"No error"\n'
     port.close()
 
 
