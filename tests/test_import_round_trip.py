@@ -53,7 +53,7 @@ def test_simulate_export_import_analyze_gives_the_same_laws_and_error(rig, tmp_p
     files = export_uff(session, tmp_path / "e.uff", binary=True).files
     imported = tmp_path / "imported.h5"
     assert main(["import", *map(str, files), "-o", str(imported)]) == 0      # no flags
-    original, again = (run_workbench(p, model, store_history=False) for p in (session, imported))
+    original, again = (run_workbench(p, model) for p in (session, imported))
     (wb0, ranked0), (wb1, ranked1) = original, again
     assert wb1.compare().error == pytest.approx(wb0.compare().error, rel=1e-6)
     for (name, terms0), terms1 in zip(_laws(wb0).items(), _laws(wb1).values()):
