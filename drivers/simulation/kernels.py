@@ -534,6 +534,38 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
 
 
 @njit(cache=True)
+def adc(y, lsb, ranges, half_codes, clip_counts):
+    """ADC of every channel: codes of ``lsb`` (round half to even), saturating at
+    ``-half_codes .. half_codes - 1``; samples beyond ``ranges`` count in ``clip_counts``.
+
+    Parameters
+    ----------
+    y : (n, nch)
+        Input in physical units.
+    lsb, ranges : (nch,)
+    half_codes : float
+        2^(bits - 1).
+    clip_counts : (nch,) int64
+        Updated.
+
+    Returns
+    -------
+    (n, nch)
+        The quantised samples in physical units.
+    """
+    n, nch = y.shape
+    out = np.empty((n, nch))
+    for i in range(n):
+        for c in range(nch):
+            value = y[i, c]
+            if abs(value) > ranges[c]:
+                clip_counts[c] += 1
+            code = min(max(np.rint(value / lsb[c]), -half_codes), half_codes - 1.0)
+            out[i, c] = code * lsb[c]
+    return out
+
+
+@njit(cache=True)
 def fir_decimate(samples, history, taps, factor):
     """Low-pass FIR filter and keep every ``factor``-th output (polyphase: only kept outputs).
 
