@@ -363,6 +363,7 @@ class RigSimulator:
         self._jacobian = np.zeros((r, r))
         self._jacobian_valid = np.zeros(1, np.int64)
         self._scratch = kernels.scratch_space(self._nz, r, self._terms.S)
+        self._integrate = None
         self._fir_history = np.zeros((len(self._taps) - 1, 1 + n_s))
         self._mean_square = np.zeros(1 + n_s)
         self._samples = 0
@@ -523,11 +524,14 @@ class RigSimulator:
         internal = np.empty((n_steps, len(self.channels)))
         z_daq = np.empty((n, self._nz))
         f_daq = np.empty((n, len(self._g)))
-        stop, solve_failed = kernels.integrate_block(
-            n_steps, self.oversample, self._steps_on if self._output_on else self._steps_off, self._laws,
-            kernels.SolverState(self._z, self._g, self._g_prev, self._terms.S, self._mode, self._sigma,
-                                self._jacobian, self._jacobian_valid),
-            u, kernels.Recording(internal, z_daq, f_daq), self._scratch)
+        args = (n_steps, self.oversample, self._steps_on if self._output_on else self._steps_off, self._laws,
+                kernels.SolverState(self._z, self._g, self._g_prev, self._terms.S, self._mode, self._sigma,
+                                    self._jacobian, self._jacobian_valid),
+                u, kernels.Recording(internal, z_daq, f_daq), self._scratch)
+        if self._integrate is None:
+            # every call passes arrays of the same dtypes and layouts: resolve the types once
+            self._integrate = kernels.typed_entry(kernels.integrate_block, args)
+        stop, solve_failed = self._integrate(*args)
         if stop >= 0:
             cause = ("the element forces have no solution (a softening element may have lost its stability, "
                      "or a law force jumps)" if solve_failed else
