@@ -357,7 +357,7 @@ class RigSimulator:
         r = len(rig.elements)
         self._z = np.zeros(self._nz)
         self._g = np.zeros(r)
-        self._g_prev = np.zeros(r)
+        self._g_prev = np.zeros((2, r))  # residual forces one and two steps earlier
         self._mode = np.where(self._terms.has_friction, kernels.STICK, kernels.FREE).astype(np.int64)
         self._sigma = np.zeros(r)
         self._jacobian = np.zeros((r, r))
