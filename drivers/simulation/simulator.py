@@ -363,7 +363,7 @@ class RigSimulator:
         self._jacobian = np.zeros((r, r))
         self._jacobian_valid = np.zeros(1, np.int64)
         self._scratch = kernels.scratch_space(self._nz, r, self._terms.S)
-        self._integrate = None
+        self._integrate = self._integrate_layout = None
         self._fir_history = np.zeros((len(self._taps) - 1, 1 + n_s))
         self._mean_square = np.zeros(1 + n_s)
         self._samples = 0
@@ -528,9 +528,12 @@ class RigSimulator:
                 kernels.SolverState(self._z, self._g, self._g_prev, self._terms.S, self._mode, self._sigma,
                                     self._jacobian, self._jacobian_valid),
                 u, kernels.Recording(internal, z_daq, f_daq), self._scratch)
-        if self._integrate is None:
-            # every call passes arrays of the same dtypes and layouts: resolve the types once
+        layout = _layout(args[4])
+        if layout != self._integrate_layout:
+            # the other records keep their arrays' dtypes and layouts by construction: resolve the types once
+            # (again only if a state array was replaced by one of another kind)
             self._integrate = kernels.typed_entry(kernels.integrate_block, args)
+            self._integrate_layout = layout
         stop, solve_failed = self._integrate(*args)
         if stop >= 0:
             cause = ("the element forces have no solution (a softening element may have lost its stability, "
@@ -609,6 +612,11 @@ class RigSimulator:
         self._noise_rng.bit_generator.state, self._drive_rng.bit_generator.state = gen["rng"]
         self._output_on = state.output_on
         self.clip_counts[:] = state.clip_counts
+
+
+def _layout(arrays) -> tuple:
+    """Dtype, dimensions and contiguity of each array: what a compiled numba function was typed for."""
+    return tuple((a.dtype.char, a.ndim, a.flags.c_contiguous) for a in arrays)
 
 
 def _anti_alias_taps(sample_rate: float, oversample: int, passband: float) -> np.ndarray:
