@@ -1,17 +1,20 @@
-"""Rig simulator speed: simulated seconds per wall-clock second on the built-in rigs.
+"""Rig simulator speed: simulated seconds per wall-clock second on the built-in rigs and a stiff one.
 
-For each built-in rig: the first-call cost (rig load, law callbacks, compile or cache
-load of the integration kernels, first block) measured in a fresh interpreter, then
-the steady speed of ``RigSimulator.advance`` under a sine drive near the first mode,
-and the ratio to a plain vectorised-numpy RK4 of the same (reduced) rig at the same
-internal step, whose element forces come from the same law kernels. Prints one line
-per rig; the figures go to docs/performance.md ("## Rig simulator").
+For each case (a rig and a sine drive): the first-call cost (rig load, law callbacks,
+compile or cache load of the integration kernels, first block) measured in a fresh
+interpreter, then the steady speed of ``RigSimulator.advance`` read in one-second
+blocks and in 10 ms chunks (as the instrument emulator advances while it paces or
+ramps), and the ratio to a plain vectorised-numpy RK4 of the same (reduced) rig at the
+same internal step, whose element forces come from the same law kernels. The speeds
+are process CPU time (the machine is shared); the load average is printed. Prints one
+line per case; the figures go to docs/performance.md ("## Rig simulator").
 
 Usage: python benchmarks/simulator_speed.py [--seconds S]
 """
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 import time
@@ -25,13 +28,22 @@ sys.path.insert(0, str(ROOT))
 from drivers.simulation.rig import load_rig  # noqa: E402
 from drivers.simulation.simulator import RigSimulator  # noqa: E402
 
-DRIVE = {"paper-2dof": (1.27, 0.8), "paper-beam": (53.0, 1.0)}
+STIFF = str(ROOT / "tests" / "rigs" / "stiff-friction.toml")
+# case: (rig, sine frequency Hz, amplitude)
+CASES = {
+    "paper-2dof": ("paper-2dof", 1.27, 0.8),
+    "paper-beam": ("paper-beam", 53.0, 1.0),
+    # hardening cubic stiffened about 6 x, friction sliding most of the cycle
+    "stiff 3 N": (STIFF, 2.0, 3.0),
+    # the same rig at 0.3 N: friction sticks for part of every cycle
+    "stiff 0.3 N": (STIFF, 2.0, 0.3),
+}
 
 FIRST_CALL = """
 import time
 t0 = time.perf_counter()
 from drivers.simulation.simulator import RigSimulator
-sim = RigSimulator({name!r})
+sim = RigSimulator({rig!r})
 sim.set_sine({f}, {a})
 sim.set_output(True)
 sim.advance(int(sim.sample_rate))
@@ -39,32 +51,33 @@ print(time.perf_counter() - t0)
 """
 
 
-def first_call_seconds(name: str) -> float:
+def first_call_seconds(case: str) -> float:
     """Import, load, compile-or-cache-load and one simulated second, in a fresh interpreter."""
-    f, a = DRIVE[name]
-    out = subprocess.run([sys.executable, "-c", FIRST_CALL.format(name=name, f=f, a=a)], cwd=ROOT,
+    rig, f, a = CASES[case]
+    out = subprocess.run([sys.executable, "-c", FIRST_CALL.format(rig=rig, f=f, a=a)], cwd=ROOT,
                          capture_output=True, text=True, check=True)
     return float(out.stdout.strip().splitlines()[-1])
 
 
-def simulator_speed(name: str, seconds: float) -> float:
-    """Simulated seconds per wall-clock second, after a warm-up."""
-    f, a = DRIVE[name]
-    sim = RigSimulator(name)
+def simulator_speed(case: str, seconds: float, chunk_seconds: float) -> float:
+    """Simulated seconds per CPU second, read in chunks of ``chunk_seconds``, after a warm-up."""
+    rig, f, a = CASES[case]
+    sim = RigSimulator(rig)
     sim.set_sine(f, a)
     sim.set_output(True)
-    block = int(sim.sample_rate)  # one second per call, as a campaign reads a settled line
-    sim.advance(block * 2)
-    start = time.perf_counter()
-    for _ in range(int(seconds)):
-        sim.advance(block)
-    return seconds / (time.perf_counter() - start)
+    sim.advance(int(sim.sample_rate) * 2)
+    chunk = max(1, round(chunk_seconds * sim.sample_rate))
+    calls = max(1, round(seconds * sim.sample_rate / chunk))
+    start = time.process_time()
+    for _ in range(calls):
+        sim.advance(chunk)
+    return calls * chunk / sim.sample_rate / (time.process_time() - start)
 
 
-def rk4_speed(name: str, seconds: float) -> float:
+def rk4_speed(case: str, seconds: float) -> float:
     """A plain RK4 of the same reduced rig in numpy, law forces from the law kernels (with states)."""
-    f, a = DRIVE[name]
-    rig = load_rig(name)
+    rig, f, a = CASES[case]
+    rig = load_rig(rig)
     sim = RigSimulator(rig)
     model = rig.linear
     from drivers.simulation.simulator import _state_space
@@ -87,7 +100,7 @@ def rk4_speed(name: str, seconds: float) -> float:
         return A @ zz + b_u * (a * np.sin(2 * np.pi * f * t)) + B_g @ element_force(zz, False)
 
     n = int(seconds / h)
-    start = time.perf_counter()
+    start = time.process_time()
     t = 0.0
     for _ in range(n):
         k1 = rate(z, t)
@@ -97,19 +110,24 @@ def rk4_speed(name: str, seconds: float) -> float:
         z = z + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         element_force(z, True)
         t += h
-    return n * h / (time.perf_counter() - start)
+    return n * h / (time.process_time() - start)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="simulated seconds per timing")
     args = parser.parse_args()
-    print(f"{'rig':12s} {'first call s':>12s} {'x real time':>12s} {'RK4 x real time':>16s} {'ratio':>8s}")
-    for name in ("paper-2dof", "paper-beam"):
-        first = first_call_seconds(name)
-        fast = simulator_speed(name, args.seconds)
-        baseline = rk4_speed(name, min(args.seconds, 2.0))
-        print(f"{name:12s} {first:12.2f} {fast:12.0f} {baseline:16.2f} {fast / baseline:8.0f}")
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(f"{'case':12s} {'first call s':>12s} {'x real time':>12s} {'10 ms chunks':>13s} {'RK4 x real time':>16s} "
+          f"{'ratio':>6s} {'ratio 10 ms':>12s}")
+    for case in CASES:
+        first = first_call_seconds(case)
+        fast = simulator_speed(case, args.seconds, 1.0)  # one second per call, as a campaign reads a settled line
+        short = simulator_speed(case, args.seconds / 4, 0.01)
+        baseline = rk4_speed(case, min(args.seconds, 2.0))
+        print(f"{case:12s} {first:12.2f} {fast:12.0f} {short:13.0f} {baseline:16.2f} {fast / baseline:6.0f} "
+              f"{short / baseline:12.0f}")
+    print(f"load average {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

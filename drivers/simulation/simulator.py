@@ -207,7 +207,10 @@ class _Ramp:
         return np.maximum(self.level - self.rate * tau, self.target)
 
     def advance(self, dt: float) -> None:
-        self.level = float(self.values(np.array([dt]))[0])
+        if self.target > self.level:
+            self.level = min(self.level + self.rate * dt, self.target)
+        elif self.target < self.level:
+            self.level = max(self.level - self.rate * dt, self.target)
 
 
 @dataclass
@@ -334,14 +337,19 @@ class RigSimulator:
         self.ranges = np.array([daq.force_range] + [daq.acceleration_range] * n_s)
         self.lsb = 2.0 * self.ranges / 2.0**daq.resolution
         self._relative_noise = np.array([rig.noise.force] + [rig.noise.acceleration] * n_s)
+        self._noisy = bool(np.any(self._relative_noise > 0))
         noise_seq, drive_seq = np.random.SeedSequence(rig.noise.seed if seed is None else seed).spawn(2)
         self._noise_rng = np.random.default_rng(noise_seq)
         self._drive_rng = np.random.default_rng(drive_seq)
 
         self._terms = _law_terms(rig.elements)
-        systems = _state_space(rig, self.model, True)
-        self._on = _discretise(*systems, self.step)
+        t = self._terms
+        self._laws = kernels.LawTable(t.force_address, t.limit_address, t.count, t.element, t.friction, t.P,
+                                      t.n_params, t.n_state, self.model.k0, self.model.c0, t.has_friction)
+        self._on = _discretise(*_state_space(rig, self.model, True), self.step)
         self._off = _discretise(*_state_space(rig, self.model, False), self.step) if rig.shaker else self._on
+        self._steps_on = kernels.StepMatrices(**vars(self._on))
+        self._steps_off = kernels.StepMatrices(**vars(self._off))
         self._nz = self._on.Phi.shape[0]
         self._taps = _anti_alias_taps(daq.sample_rate, daq.oversample, daq.passband)
         self.filter_delay = (len(self._taps) - 1) // (2 * daq.oversample)
@@ -349,12 +357,13 @@ class RigSimulator:
         r = len(rig.elements)
         self._z = np.zeros(self._nz)
         self._g = np.zeros(r)
-        self._g_prev = np.zeros(r)
+        self._g_prev = np.zeros((2, r))  # residual forces one and two steps earlier
         self._mode = np.where(self._terms.has_friction, kernels.STICK, kernels.FREE).astype(np.int64)
         self._sigma = np.zeros(r)
         self._jacobian = np.zeros((r, r))
         self._jacobian_valid = np.zeros(1, np.int64)
         self._scratch = kernels.scratch_space(self._nz, r, self._terms.S)
+        self._integrate = self._integrate_layout = None
         self._fir_history = np.zeros((len(self._taps) - 1, 1 + n_s))
         self._mean_square = np.zeros(1 + n_s)
         self._samples = 0
@@ -511,21 +520,22 @@ class RigSimulator:
 
     def _advance_chunk(self, n: int) -> tuple[np.ndarray, BlockTruth]:
         n_steps = n * self.oversample
-        system = self._on if self._output_on else self._off
         self._jacobian_valid[0] = 0  # the step matrices may have changed (amplifier on/off)
         u = self._drive(n_steps)
-        nch = len(self.channels)
-        internal = np.empty((n_steps, nch))
+        internal = np.empty((n_steps, len(self.channels)))
         z_daq = np.empty((n, self._nz))
         f_daq = np.empty((n, len(self._g)))
-        t = self._terms
-        stop, solve_failed = kernels.integrate_block(
-            n_steps, self.oversample, kernels.StepMatrices(**vars(system)),
-            kernels.LawTable(t.force_address, t.limit_address, t.count, t.element, t.friction, t.P, t.n_params,
-                             t.n_state, self.model.k0, self.model.c0, t.has_friction),
-            kernels.SolverState(self._z, self._g, self._g_prev, t.S, self._mode, self._sigma, self._jacobian,
-                                self._jacobian_valid),
-            u, kernels.Recording(internal, z_daq, f_daq), self._scratch)
+        args = (n_steps, self.oversample, self._steps_on if self._output_on else self._steps_off, self._laws,
+                kernels.SolverState(self._z, self._g, self._g_prev, self._terms.S, self._mode, self._sigma,
+                                    self._jacobian, self._jacobian_valid),
+                u, kernels.Recording(internal, z_daq, f_daq), self._scratch)
+        layout = _layout(args[4])
+        if layout != self._integrate_layout:
+            # the other records keep their arrays' dtypes and layouts by construction: resolve the types once
+            # (again only if a state array was replaced by one of another kind)
+            self._integrate = kernels.typed_entry(kernels.integrate_block, args)
+            self._integrate_layout = layout
+        stop, solve_failed = self._integrate(*args)
         if stop >= 0:
             cause = ("the element forces have no solution (a softening element may have lost its stability, "
                      "or a law force jumps)" if solve_failed else
@@ -537,12 +547,9 @@ class RigSimulator:
         block = self._sensors(clean)
         nq = self.model.n
         time = (self._samples + np.arange(n)) / self.sample_rate
-        u_daq = u[: 2 * n_steps: 2 * self.oversample]
-        x = z_daq[:, :nq] @ self.model.element_vectors.T
-        v = z_daq[:, nq:2 * nq] @ self.model.element_vectors.T
-        g_daq = f_daq - x * self.model.k0 - v * self.model.c0
-        channels = z_daq @ system.Co.T + np.outer(u_daq, system.Dou) + g_daq @ system.Dog.T
-        truth = BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), f_daq, channels, u_daq,
+        # the DAQ instants are the first internal step of every group: their channels are already computed
+        truth = BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), f_daq,
+                           internal[::self.oversample].copy(), u[: 2 * n_steps: 2 * self.oversample],
                            self.model, self.rig.structure.dofs)
         self._samples += n
         return block, truth
@@ -550,18 +557,14 @@ class RigSimulator:
     def _sensors(self, clean: np.ndarray) -> np.ndarray:
         """Noise relative to each channel's running rms, then the ADC (range, resolution)."""
         y = clean
-        if np.any(self._relative_noise > 0) and len(y):
+        if self._noisy and len(y):
             alpha = 1.0 - math.exp(-1.0 / (self.rig.noise.averaging_time * self.sample_rate))
             mean_square, zf = scipy.signal.lfilter([alpha], [1.0, alpha - 1.0], clean**2, axis=0,
                                                    zi=((1.0 - alpha) * self._mean_square)[None, :])
             self._mean_square = zf[0] / (1.0 - alpha)
             noise = self._noise_rng.standard_normal(clean.shape)
             y = clean + noise * np.sqrt(mean_square) * self._relative_noise
-        over = np.abs(y) > self.ranges
-        self.clip_counts += over.sum(axis=0)
-        codes = np.clip(np.round(y / self.lsb), -(2.0 ** (self.rig.daq.resolution - 1)),
-                        2.0 ** (self.rig.daq.resolution - 1) - 1)
-        return codes * self.lsb
+        return kernels.adc(y, self.lsb, self.ranges, 2.0 ** (self.rig.daq.resolution - 1), self.clip_counts)
 
     def reset_clip_counts(self) -> None:
         self.clip_counts[:] = 0
@@ -621,6 +624,11 @@ class RigSimulator:
         self._noise_rng.bit_generator.state, self._drive_rng.bit_generator.state = gen["rng"]
         self._output_on = state.output_on
         self.clip_counts[:] = state.clip_counts
+
+
+def _layout(arrays) -> tuple:
+    """Dtype, dimensions and contiguity of each array: what a compiled numba function was typed for."""
+    return tuple((a.dtype.char, a.ndim, a.flags.c_contiguous) for a in arrays)
 
 
 def _anti_alias_taps(sample_rate: float, oversample: int, passband: float) -> np.ndarray:
