@@ -158,7 +158,7 @@ def cmd_emulate(args) -> int:
     else:
         transport = {"transport": "pty"}
     serve_emulator(RigSimulator(rig, seed=args.seed), fast=args.fast, faults=rig.faults, name=rig.name,
-                   **transport)
+                   shaker_model=args.shaker_model, **transport)
     return 0
 
 
@@ -227,6 +227,8 @@ def cmd_gui(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from drivers.emulator.core import SHAKER_MODELS
+
     parser = argparse.ArgumentParser(prog="contactid", description=(
         "Identify how a joint or contact interface behaves: stepped-sine tests, equivalent complex "
         "stiffness per element, nonlinear law fitting."), epilog=EXIT_CODES_HELP)
@@ -276,6 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
     way.add_argument("--tcp", metavar="HOST:PORT", help="TCP: PORT for the shaker, PORT+1 for the DAQ")
     p.add_argument("--fast", action="store_true", help="as fast as the host reads instead of real time")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--shaker-model", choices=tuple(SHAKER_MODELS), default="SC-1",
+                   help="the shaker controller: SC-1, or 33500B (a bench function generator: no ramp, no watchdog)")
     p.set_defaults(run=cmd_emulate)
 
     p = sub.add_parser("analyze", help="identify, fit, predict, compare and rank missing effects")

@@ -50,15 +50,17 @@ class Instruments:
 
 
 @contextmanager
-def emulated_instruments(rig: Rig, seed: int = 0, paced: bool = False, faults: dict | None = None):
-    """The rig's emulated shaker controller and DAQ, opened through ``sim://`` URLs."""
+def emulated_instruments(rig: Rig, seed: int = 0, paced: bool = False, faults: dict | None = None,
+                         shaker_model: str = "SC-1"):
+    """The rig's emulated shaker controller (``shaker_model``: SC-1 or a 33500B generator) and DAQ, opened
+    through ``sim://`` URLs."""
     name = f"{rig.name}-{os.getpid()}-{next(_names)}"
     simulator = RigSimulator(rig, seed=seed)
     # compile (or load) the physics kernels now, at rest with the output off: a first compile inside the
     # running emulator would stall its replies for seconds
     simulator.advance(1)
     with EmulatedRig(simulator, paced=paced, name=name,
-                     faults=rig.faults if faults is None else faults) as emulator:
+                     faults=rig.faults if faults is None else faults, shaker_model=shaker_model) as emulator:
         register(emulator)
         shaker = daq = None
         try:

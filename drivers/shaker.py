@@ -42,6 +42,17 @@ def _close_to(reply: str, value: float) -> bool:
         return False
 
 
+def output_state(url: str, reply: str) -> bool:
+    """An ``OUTP?`` reply as on (True) or off: ``0``/``1`` (SC-1, Keysight, sign allowed) or ``OFF``/``ON``
+    (Rigol); ProtocolError otherwise."""
+    text = reply.strip().lstrip("+").upper()
+    if text in ("1", "ON"):
+        return True
+    if text in ("0", "OFF"):
+        return False
+    raise ProtocolError(url, f"OUTP? answered {reply!r}")
+
+
 class SerialShaker:
     """A :class:`~drivers.interfaces.ShakerController` on a serial link.
 
@@ -61,6 +72,8 @@ class SerialShaker:
         ``*IDN?`` model fields accepted.
     port : serial.SerialBase, optional
         An open port to use instead of opening ``url`` (scripted-port tests).
+    link : SerialLink, optional
+        An open link to own instead (``drivers.open_shaker`` identified the instrument on it).
 
     Raises
     ------
@@ -70,10 +83,11 @@ class SerialShaker:
     """
 
     def __init__(self, url: str, *, baudrate: int = 115200, timeout: float = 1.0, watchdog: float = 1.0,
-                 models: tuple[str, ...] = SHAKER_MODELS, port: serial.SerialBase | None = None):
+                 models: tuple[str, ...] = SHAKER_MODELS, port: serial.SerialBase | None = None,
+                 link: SerialLink | None = None):
         self.url = url
         self.watchdog = float(watchdog)
-        self._link = SerialLink(url, name="shaker", baudrate=baudrate, port=port)
+        self._link = link if link is not None else SerialLink(url, name="shaker", baudrate=baudrate, port=port)
         self._scpi = ScpiInstrument(self._link, timeout)
         self._armed = False
         self._function = "SIN"
@@ -85,7 +99,11 @@ class SerialShaker:
         except BaseException:
             self._link.close()
             raise
-        self._link.set_idle_hook(self._heartbeat, self.watchdog / 4 if self.watchdog > 0 else 1.0)
+        self._link.set_idle_hook(self._heartbeat, self.heartbeat_interval())
+
+    def heartbeat_interval(self) -> float:
+        """Seconds of silence after which the owner thread asks ``OUTP?``: a quarter of the watchdog time."""
+        return self.watchdog / 4 if self.watchdog > 0 else 1.0
 
     def _connect(self, io: PortIO, models: tuple[str, ...]) -> Identity:
         scpi = self._scpi
@@ -150,7 +168,7 @@ class SerialShaker:
             self._scpi.execute(io, "OUTP OFF")
             return self._scpi.ask(io, "OUTP?")
 
-        if self._link.call(off, self._scpi.timeout * 2 + 1).strip() != "0":
+        if output_state(self.url, self._link.call(off, self._scpi.timeout * 2 + 1)):
             raise InstrumentError(self.url, "output still on after OUTP OFF")
 
     @property
@@ -159,10 +177,7 @@ class SerialShaker:
         return self._armed
 
     def output_enabled(self) -> bool:
-        reply = self._scpi.query("OUTP?").strip()
-        if reply not in ("0", "1"):
-            raise ProtocolError(self.url, f"OUTP? answered {reply!r}")
-        return reply == "1"
+        return output_state(self.url, self._scpi.query("OUTP?"))
 
     def output_level(self) -> float:
         """The amplitude being output now: V peak (sine) or V rms (noise); 0 when off."""
@@ -201,8 +216,8 @@ class SerialShaker:
 
     def _heartbeat(self, io: PortIO) -> None:
         try:
-            reply = self._scpi.ask(io, "OUTP?").strip()
-            if self._armed and reply == "0":
+            on = output_state(self.url, self._scpi.ask(io, "OUTP?"))
+            if self._armed and not on:
                 self._armed = False
                 errors = self._scpi.drain_errors(io)
                 reason = "; ".join(str(e) for e in errors) or "no error reported"
