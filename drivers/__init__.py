@@ -21,24 +21,27 @@ from .errors import (ArmingRefused, DeviceError, InstrumentError, LinkError, Lin
                      OutputTripped, ProtocolError, WrongDevice)
 from .interfaces import Block, Daq, Identity, ShakerController
 from .safety import AbortLimits, LimitExceeded, OutputGuard, check_limits
-from .generator import GeneratorShaker, generator_family, read_identity
+from .generator import GeneratorShaker, generator_family, open_generator, read_identity
 from .scpi import SerialLink
 from .shaker import SerialShaker
 
 
-def open_shaker(url: str, *, baudrate: int = 115200, timeout: float = 1.0, port=None,
-                **options) -> SerialShaker:
+def open_shaker(url: str, *, baudrate: int = 115200, timeout: float = 1.0, port=None, guardian: bool = True,
+                unguarded: bool = False, **options) -> SerialShaker:
     """Open the shaker controller at ``url`` (port name or pyserial URL).
 
     The ``*IDN?`` reply chooses the driver: a supported bench function generator gets a
-    :class:`GeneratorShaker` (options as it), anything else a :class:`SerialShaker`
-    (options as it; another instrument is refused there with WrongDevice).
+    :class:`GeneratorShaker` behind a guardian process (options as it; :func:`drivers.generator.open_generator`),
+    anything else a :class:`SerialShaker` (options as it; another instrument is refused there with WrongDevice).
+    ``guardian=False`` opens a generator without its guardian and ``unguarded=True`` lets it arm all the same
+    (both mean nothing to an SC-1, whose own watchdog switches it off).
     """
     link = SerialLink(url, name="shaker", baudrate=baudrate, port=port)
     try:
-        identity = read_identity(link, timeout)
-        kind = GeneratorShaker if generator_family(identity) is not None else SerialShaker
-        return kind(url, timeout=timeout, link=link, **options)
+        if generator_family(read_identity(link, timeout)) is not None:
+            return open_generator(url, link, baudrate=baudrate, timeout=timeout, guardian=guardian,
+                                  unguarded=unguarded, **options)
+        return SerialShaker(url, timeout=timeout, link=link, **options)
     except BaseException:
         link.close()
         raise

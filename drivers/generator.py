@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from urllib.parse import urlsplit
 
 from .errors import ArmingRefused, InstrumentError, ProtocolError, WrongDevice
+from .guardian import Guardian
 from .interfaces import Identity
 from .scpi import PortIO, ScpiInstrument, SerialLink
 from .settings import GENERATOR
@@ -84,23 +85,27 @@ class Protection:
         The instrument ramps amplitude changes itself / switches off a silent host.
     dies_with_host : bool
         The instrument lives in the host process (``sim://``): killing the process ends the output.
+    guardian : bool
+        A guardian process (:mod:`drivers.guardian`) owns the connection and switches off when the host dies.
     """
 
     instrument_ramp: bool
     instrument_watchdog: bool
     dies_with_host: bool
+    guardian: bool = False
 
     @property
     def survives_kill(self) -> bool:
-        """Whether the output goes off when the host process is killed (SIGKILL, a crash, power loss)."""
-        return self.instrument_watchdog or self.dies_with_host
+        """Whether the output goes off when the host process is killed (SIGKILL, a crash)."""
+        return self.instrument_watchdog or self.dies_with_host or self.guardian
 
     def lines(self) -> list[tuple[str, bool]]:
         """``(what, protected)`` pairs, as the Rig tab shows them."""
         return [("errors, abort, SIGTERM/SIGINT, exit: output off (OutputGuard)", True),
                 ("amplitude ramp", True),
                 ("ramp by the instrument (not the host)", self.instrument_ramp),
-                ("host killed or hung: output off", self.survives_kill)]
+                ("host hung: output off (instrument watchdog)", self.instrument_watchdog),
+                ("host killed: output off" + (" (guardian process)" if self.guardian else ""), self.survives_kill)]
 
 
 def read_identity(link: SerialLink, timeout: float) -> Identity:
@@ -131,6 +136,8 @@ class GeneratorShaker(SerialShaker):
         V peak per second of the driver's ramp.
     unguarded : bool
         Arm although nothing would switch the output off if this process were killed.
+    guardian : Guardian, optional
+        The guardian process ``link`` goes through (:func:`open_generator` starts it); waited for on close.
 
     Raises
     ------
@@ -141,8 +148,9 @@ class GeneratorShaker(SerialShaker):
 
     def __init__(self, url: str, *, baudrate: int = 115200, timeout: float = 1.0,
                  ramp_rate: float = DEFAULT_RAMP_RATE, unguarded: bool = False, port=None,
-                 link: SerialLink | None = None):
+                 link: SerialLink | None = None, guardian: Guardian | None = None):
         self.unguarded = bool(unguarded)
+        self.guardian = guardian
         self.family: Family | None = None
         self._sent = 0.0          # amplitude last sent, in the function's unit (V peak sine, V rms noise)
         self._target = 0.0        # amplitude asked for, same unit
@@ -150,7 +158,7 @@ class GeneratorShaker(SerialShaker):
         super().__init__(url, baudrate=baudrate, timeout=timeout, watchdog=0.0, port=port, link=link)
         self.set_ramp_rate(ramp_rate)
         self.protection = Protection(instrument_ramp=False, instrument_watchdog=False,
-                                     dies_with_host=urlsplit(url).scheme.lower() == "sim")
+                                     dies_with_host=in_process(url), guardian=guardian is not None)
 
     def heartbeat_interval(self) -> float:
         return HEARTBEAT
@@ -285,4 +293,36 @@ class GeneratorShaker(SerialShaker):
         if not output_state(self.url, state):
             return 0.0
         return value / 2 if self._function == "SIN" else value
+
+    def close(self) -> None:
+        """Switch the output off and release the port; the guardian then switches off once more and exits."""
+        try:
+            super().close()
+        finally:
+            if self.guardian is not None:
+                self.guardian.wait()
+
+
+def in_process(url: str) -> bool:
+    """Whether the instrument at ``url`` lives in this process (``sim://``) and dies with it."""
+    return urlsplit(url).scheme.lower() == "sim"
+
+
+def open_generator(url: str, link: SerialLink, *, baudrate: int, timeout: float, guardian: bool = True,
+                   **options) -> GeneratorShaker:
+    """The generator identified on ``link``: through a guardian process unless it lives in this process (or
+    ``guardian`` is False: it then arms only if opened ``unguarded``).
+
+    ``link`` is handed over (closed here before the guardian opens the instrument: many generators serve one
+    connection only)."""
+    if in_process(url) or not guardian:
+        return GeneratorShaker(url, timeout=timeout, link=link, **options)
+    link.close()
+    guardian = Guardian.start(url, baudrate)
+    try:
+        return GeneratorShaker(url, timeout=timeout, link=SerialLink(guardian.url, name="shaker"),
+                               guardian=guardian, **options)
+    except BaseException:
+        guardian.wait()
+        raise
 

@@ -82,16 +82,16 @@ def test_open_shaker_chooses_the_driver_by_the_identity_and_the_driver_ramps_in_
             shaker.close()
 
 
-def test_a_generator_reached_over_tcp_is_not_armed_unless_unguarded():
+def test_a_generator_without_its_guardian_is_not_armed_unless_unguarded():
     with EmulatedRig(RigDouble(), paced=False, name="gen-tcp", shaker_model="33500B") as rig, \
             EmulatorServer(rig, "tcp") as server:
         url = server.urls["shaker"]
-        with drivers.open_shaker(url) as shaker:
+        with drivers.open_shaker(url, guardian=False) as shaker:
             assert not shaker.protection.survives_kill
             with OutputGuard(shaker) as guard, pytest.raises(ArmingRefused, match="--unguarded"):
                 guard.arm()
             assert not rig.shaker.output_on
-        with drivers.open_shaker(url, unguarded=True) as shaker:
+        with drivers.open_shaker(url, guardian=False, unguarded=True) as shaker:
             shaker.set_sine(10.0, 0.05)
             with OutputGuard(shaker) as guard:
                 guard.arm()
