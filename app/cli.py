@@ -139,7 +139,7 @@ def cmd_acquire(args) -> int:
     from .plan import load_plan
 
     plan = load_plan(args.plan)
-    with real_instruments(args.shaker, args.daq, args.excitation, args.sensors) as inst:
+    with real_instruments(args.shaker, args.daq, args.excitation, args.sensors, unguarded=args.unguarded) as inst:
         summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
                            software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
     return _finish(summary, args.output)
@@ -269,6 +269,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="accelerometer DOFs (default: the DAQ's acc:<dof> channels)")
     p.add_argument("--force", action="store_true", help="overwrite an existing session file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--unguarded", action="store_true",
+                   help="let a function generator arm although nothing would switch it off if contactid were "
+                        "killed (its guardian process cannot run)")
     p.set_defaults(run=cmd_acquire)
 
     p = sub.add_parser("emulate", help="serve a rig's emulated shaker controller and DAQ")

@@ -74,13 +74,15 @@ def emulated_instruments(rig: Rig, seed: int = 0, paced: bool = False, faults: d
 
 
 @contextmanager
-def real_instruments(shaker_url: str, daq_url: str, excitation_dof: str, sensor_dofs: list[str] | None = None):
+def real_instruments(shaker_url: str, daq_url: str, excitation_dof: str, sensor_dofs: list[str] | None = None,
+                     unguarded: bool = False):
     """Instruments at ``shaker_url`` and ``daq_url`` (port names or pyserial URLs).
 
-    The accelerometer DOFs default to the DAQ's ``acc:<dof>`` channel names."""
+    The accelerometer DOFs default to the DAQ's ``acc:<dof>`` channel names. ``unguarded`` lets a bench
+    generator arm although nothing would switch it off if this process were killed (docs/protocol.md, 9)."""
     shaker = daq = None
     try:
-        shaker = drivers.open_shaker(shaker_url)
+        shaker = drivers.open_shaker(shaker_url, unguarded=unguarded)
         daq = drivers.open_daq(daq_url)
         dofs = sensor_dofs or [c.split(":", 1)[1] for c in daq.channels if c.startswith("acc:")]
         yield Instruments(shaker, daq, excitation_dof, dofs)

@@ -309,20 +309,26 @@ def in_process(url: str) -> bool:
 
 
 def open_generator(url: str, link: SerialLink, *, baudrate: int, timeout: float, guardian: bool = True,
-                   **options) -> GeneratorShaker:
+                   unguarded: bool = False, **options) -> GeneratorShaker:
     """The generator identified on ``link``: through a guardian process unless it lives in this process (or
-    ``guardian`` is False: it then arms only if opened ``unguarded``).
+    ``guardian`` is False: it then arms only if ``unguarded``).
 
     ``link`` is handed over (closed here before the guardian opens the instrument: many generators serve one
-    connection only)."""
+    connection only). A guardian that does not start is an InstrumentError, unless ``unguarded``: the generator
+    is then opened directly."""
     if in_process(url) or not guardian:
-        return GeneratorShaker(url, timeout=timeout, link=link, **options)
+        return GeneratorShaker(url, timeout=timeout, link=link, unguarded=unguarded, **options)
     link.close()
-    guardian = Guardian.start(url, baudrate)
     try:
-        return GeneratorShaker(url, timeout=timeout, link=SerialLink(guardian.url, name="shaker"),
-                               guardian=guardian, **options)
+        process = Guardian.start(url, baudrate)
+    except OSError as exc:
+        if not unguarded:
+            raise InstrumentError(url, f"{exc}; without it nothing switches the output off if this process is "
+                                       "killed (--unguarded runs without it)") from None
+        return GeneratorShaker(url, timeout=timeout, baudrate=baudrate, unguarded=True, **options)
+    try:
+        return GeneratorShaker(url, timeout=timeout, link=SerialLink(process.url, name="shaker"),
+                               guardian=process, unguarded=unguarded, **options)
     except BaseException:
-        guardian.wait()
+        process.wait()
         raise
-

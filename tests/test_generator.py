@@ -151,3 +151,24 @@ def test_a_stepped_sine_campaign_on_the_generator_matches_the_analytic_receptanc
         H = rig.structure.frf(2 * np.pi * f, columns=["x1"])[:, :, 0]
         for p, dof in enumerate(["x1", "x2"]):
             np.testing.assert_allclose(run.frf[dof], H[:, p], rtol=5e-3)
+
+
+def test_a_guardian_that_cannot_start_stops_the_open_unless_unguarded(monkeypatch):
+    import drivers.generator as generator
+
+    def no_guardian(url, baudrate=115200):
+        raise OSError(f"the guardian of {url} did not start: no processes left")
+
+    monkeypatch.setattr(generator.Guardian, "start", staticmethod(no_guardian))
+    with EmulatedRig(RigDouble(), paced=False, name="gen-noguard", shaker_model="33500B") as rig, \
+            EmulatorServer(rig, "tcp") as server:
+        url = server.urls["shaker"]
+        with pytest.raises(InstrumentError, match="no processes left.*--unguarded"):
+            drivers.open_shaker(url)
+        with drivers.open_shaker(url, unguarded=True) as shaker:
+            assert shaker.guardian is None and not shaker.protection.survives_kill
+            shaker.set_sine(10.0, 0.05)
+            with OutputGuard(shaker) as guard:
+                guard.arm()
+                assert rig.shaker.output_on
+        assert not rig.shaker.output_on
