@@ -5,7 +5,8 @@ only. So the driver does not connect to it itself: it starts a guardian
 (``python -m drivers.guardian URL``) in its own session (a Ctrl-C or a signal to the
 host's process group does not reach it), which opens the instrument, listens on a
 loopback port it prints as ``port N`` and relays bytes both ways for the one host that
-connects. When that connection ends -- the host closed it, or the host died and the
+connects. A host silent for HOST_SILENCE (hung: its heartbeat stopped) gets its output switched off, as
+an SC-1's watchdog would. When that connection ends -- the host closed it, or the host died and the
 kernel closed it (SIGKILL, a crash) -- or the host process is no longer its parent, the
 guardian sends a line end (ending any half-written command) and ``OUTP OFF``, reads
 ``OUTP?`` back, says so on stderr and exits.
@@ -30,6 +31,9 @@ import serial
 
 POLL = 0.05
 """Longest the relay blocks before it checks that its host still lives (s)."""
+HOST_SILENCE = 1.0
+"""Seconds without a byte from the host after which the guardian switches the output off (the driver's heartbeat
+comes every 0.25 s of silence): the watchdog the generator lacks."""
 START_TIMEOUT = 20.0
 """Longest the driver waits for a starting guardian to announce its port (s)."""
 OFF_LINE = b"\nOUTP OFF\n"
@@ -83,11 +87,16 @@ def _relay_instrument(port: serial.SerialBase, host: socket.socket, over: thread
 
 
 def _relay_host(port: serial.SerialBase, host: socket.socket, parent: int, over: threading.Event) -> None:
-    """Host bytes to the instrument until the host hangs up or is gone."""
+    """Host bytes to the instrument until the host hangs up or is gone; output off when it is silent."""
+    heard = time.monotonic()
     while not over.is_set() and os.getppid() == parent:
         ready, _, _ = select.select([host], [], [], POLL)
         if not ready:
+            if heard is not None and time.monotonic() - heard > HOST_SILENCE:
+                port.write(b"OUTP OFF\n")   # once per silence; the host's heartbeat then finds the output off
+                heard = None
             continue
+        heard = time.monotonic()
         try:
             data = host.recv(1 << 16)
         except OSError:

@@ -172,3 +172,30 @@ def test_a_guardian_that_cannot_start_stops_the_open_unless_unguarded(monkeypatc
                 guard.arm()
                 assert rig.shaker.output_on
         assert not rig.shaker.output_on
+
+
+def test_the_guardian_switches_off_a_hung_host_and_the_driver_reports_it():
+    from drivers import OutputTripped
+    from drivers.guardian import HOST_SILENCE
+    with EmulatedRig(RigDouble(), paced=True, name="gen-hung", shaker_model="33500B") as rig, \
+            EmulatorServer(rig, "tcp") as server, drivers.open_shaker(server.urls["shaker"]) as shaker:
+        assert shaker.protection.guardian and shaker.protection.survives_kill
+        shaker.set_sine(10.0, 0.05)
+        with OutputGuard(shaker) as guard:
+            guard.arm()
+            hook = shaker._link._idle_hook
+            shaker._link.set_idle_hook(None, 1.0)          # the heartbeat stops: a hung host
+            silent_since = rig.time
+            deadline = silent_since + 20 * HOST_SILENCE
+            while rig.shaker.output_on and rig.time < deadline:
+                with rig.changed:
+                    rig.changed.wait(0.05)
+            assert not rig.shaker.output_on
+            off = rig.output_events()[-1]
+            assert off.detail == "off: command" and HOST_SILENCE <= off.time - silent_since <= HOST_SILENCE + 1.0
+            shaker._link.set_idle_hook(hook, 0.25)         # the host wakes up and hears of it
+            while shaker.fault is None and rig.time < deadline:
+                with rig.changed:
+                    rig.changed.wait(0.05)
+            with pytest.raises(OutputTripped):
+                guard.check()
