@@ -8,7 +8,7 @@ output switches on at the generator's minimum amplitude, then ramps. While the o
 off the amplitude is held at that minimum, so an ``OUTP ON`` by anyone never jumps.
 
 Nothing on the instrument switches the output off when this process dies. What does is
-described by :class:`Protection`; arming is refused where nothing does unless the driver
+described by :class:`~drivers.interfaces.Protection`; arming is refused where nothing does unless the driver
 was opened with ``unguarded=True`` (docs/protocol.md, section 9).
 """
 from __future__ import annotations
@@ -16,11 +16,10 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from urllib.parse import urlsplit
 
 from .errors import ArmingRefused, InstrumentError, ProtocolError, WrongDevice
 from .guardian import Guardian
-from .interfaces import Identity
+from .interfaces import Identity, Protection, in_process
 from .scpi import PortIO, ScpiInstrument, SerialLink
 from .settings import GENERATOR
 from .shaker import SerialShaker, output_state
@@ -73,39 +72,6 @@ FAMILIES = (
 def generator_family(identity: Identity) -> Family | None:
     """The family of a generator identity, or None (not a supported generator)."""
     return next((family for family in FAMILIES if family.matches(identity)), None)
-
-
-@dataclass(frozen=True)
-class Protection:
-    """What switches the output off, on this connection, when something goes wrong.
-
-    Attributes
-    ----------
-    instrument_ramp, instrument_watchdog : bool
-        The instrument ramps amplitude changes itself / switches off a silent host.
-    dies_with_host : bool
-        The instrument lives in the host process (``sim://``): killing the process ends the output.
-    guardian : bool
-        A guardian process (:mod:`drivers.guardian`) owns the connection and switches off when the host dies.
-    """
-
-    instrument_ramp: bool
-    instrument_watchdog: bool
-    dies_with_host: bool
-    guardian: bool = False
-
-    @property
-    def survives_kill(self) -> bool:
-        """Whether the output goes off when the host process is killed (SIGKILL, a crash)."""
-        return self.instrument_watchdog or self.dies_with_host or self.guardian
-
-    def lines(self) -> list[tuple[str, bool]]:
-        """``(what, protected)`` pairs, as the Rig tab shows them."""
-        return [("errors, abort, SIGTERM/SIGINT, exit: output off (OutputGuard)", True),
-                ("amplitude ramp", True),
-                ("ramp by the instrument (not the host)", self.instrument_ramp),
-                ("host hung: output off (instrument watchdog)", self.instrument_watchdog),
-                ("host killed: output off" + (" (guardian process)" if self.guardian else ""), self.survives_kill)]
 
 
 def read_identity(link: SerialLink, timeout: float) -> Identity:
@@ -301,11 +267,6 @@ class GeneratorShaker(SerialShaker):
         finally:
             if self.guardian is not None:
                 self.guardian.wait()
-
-
-def in_process(url: str) -> bool:
-    """Whether the instrument at ``url`` lives in this process (``sim://``) and dies with it."""
-    return urlsplit(url).scheme.lower() == "sim"
 
 
 def open_generator(url: str, link: SerialLink, *, baudrate: int, timeout: float, guardian: bool = True,

@@ -19,7 +19,7 @@ from typing import Callable
 import serial
 
 from .errors import ArmingRefused, InstrumentError, LinkLost, OutputTripped, ProtocolError
-from .interfaces import Identity
+from .interfaces import Identity, Protection, in_process
 from .scpi import PortIO, ScpiInstrument, SerialLink
 
 MANUFACTURER = "contactid"
@@ -100,6 +100,8 @@ class SerialShaker:
             self._link.close()
             raise
         self._link.set_idle_hook(self._heartbeat, self.heartbeat_interval())
+        self.protection = Protection(instrument_ramp=True, instrument_watchdog=self.watchdog > 0,
+                                     dies_with_host=in_process(url))
 
     def heartbeat_interval(self) -> float:
         """Seconds of silence after which the owner thread asks ``OUTP?``: a quarter of the watchdog time."""
