@@ -22,7 +22,7 @@ from .guardian import Guardian
 from .interfaces import Identity, Protection, in_process
 from .scpi import PortIO, ScpiInstrument, SerialLink
 from .settings import GENERATOR
-from .shaker import SerialShaker, output_state
+from .shaker import SerialShaker, ask_numbers, output_state
 
 RAMP_STEP = 0.02
 """Seconds between two amplitude steps of the driver's ramp."""
@@ -141,11 +141,7 @@ class GeneratorShaker(SerialShaker):
         scpi.execute(io, "*RST;*CLS")
         scpi.execute(io, "OUTP OFF;:FUNC SIN;:VOLT:UNIT VPP;:VOLT MIN")
         scpi.expect(io, {"OUTP?": lambda r: output_state(self.url, r) is False}, "*RST")
-        reply = scpi.ask(io, "FREQ? MIN;:FREQ? MAX;:VOLT? MIN;:VOLT? MAX")
-        try:
-            f_min, f_max, vpp_min, vpp_max = (float(x) for x in reply.split(";"))
-        except ValueError:
-            raise ProtocolError(self.url, f"range queries answered {reply!r}") from None
+        f_min, f_max, vpp_min, vpp_max = ask_numbers(scpi, io, "FREQ? MIN;:FREQ? MAX;:VOLT? MIN;:VOLT? MAX")
         self.frequency_range = (f_min, f_max)
         self.amplitude_range = (0.0, vpp_max / 2)
         self._floor = self._sent = vpp_min / 2

@@ -9,8 +9,10 @@ silent the owner thread sends a heartbeat (``OUTP?``) every quarter of the
 watchdog time: it feeds the watchdog, detects a dead link and notices an output
 the instrument switched off by itself (reported as :class:`OutputTripped`).
 Sine amplitudes are given in volts peak (sent as VPP), noise in volts rms (sent as
-VRMS); every setting is confirmed by reading the error queue in the same round
-trip, so a rejected setting raises :class:`DeviceError` at once.
+VRMS). Commands come from the settings table :data:`drivers.settings.SC1`, which refuses
+(ValueError) a value outside the limits it declares before anything is sent; every
+setting is confirmed by reading the error queue in the same round trip, so a rejected
+setting raises :class:`DeviceError` at once.
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ import serial
 from .errors import ArmingRefused, InstrumentError, LinkLost, OutputTripped, ProtocolError
 from .interfaces import Identity, Protection, in_process
 from .scpi import PortIO, ScpiInstrument, SerialLink
+from .settings import SC1
 
 MANUFACTURER = "contactid"
 SHAKER_MODELS = ("SC-1",)
@@ -51,6 +54,15 @@ def output_state(url: str, reply: str) -> bool:
     if text in ("0", "OFF"):
         return False
     raise ProtocolError(url, f"OUTP? answered {reply!r}")
+
+
+def ask_numbers(scpi: ScpiInstrument, io: PortIO, queries: str) -> list[float]:
+    """The replies to a message of numeric queries (``FREQ? MIN;:FREQ? MAX``); ProtocolError if one is not."""
+    reply = scpi.ask(io, queries)
+    try:
+        return [float(x) for x in reply.split(";")]
+    except ValueError:
+        raise ProtocolError(scpi.url, f"range queries answered {reply!r}") from None
 
 
 class SerialShaker:
@@ -111,14 +123,11 @@ class SerialShaker:
         scpi = self._scpi
         scpi.clear(io)
         identity = scpi.identify(io, MANUFACTURER, models, "contactid shaker controller", 2 * scpi.timeout)
-        scpi.execute(io, f"*RST;*CLS;:SYST:WDOG {_number(self.watchdog)}")
+        scpi.execute(io, f"*RST;*CLS;:{SC1.watchdog.command(self.watchdog)}")
         scpi.expect(io, {"OUTP?": lambda r: r == "0", "VOLT:ACT?": _is_zero, "SYST:ERR:COUN?": lambda r: r == "0",
                          "SYST:WDOG?": lambda r: _close_to(r, self.watchdog)}, "*RST")
-        reply = scpi.ask(io, "FREQ? MIN;:FREQ? MAX;:VOLT:UNIT VPP;:VOLT? MAX;:VOLT:RAMP?")
-        try:
-            f_min, f_max, vpp_max, ramp = (float(x) for x in reply.split(";"))
-        except ValueError:
-            raise ProtocolError(self.url, f"range queries answered {reply!r}") from None
+        f_min, f_max, vpp_max, ramp = ask_numbers(scpi, io,
+                                                  "FREQ? MIN;:FREQ? MAX;:VOLT:UNIT VPP;:VOLT? MAX;:VOLT:RAMP?")
         self.frequency_range = (f_min, f_max)
         self.amplitude_range = (0.0, vpp_max / 2)
         self.ramp_rate = ramp
@@ -128,7 +137,8 @@ class SerialShaker:
     def set_sine(self, frequency: float, amplitude: float) -> None:
         """Sine of ``frequency`` Hz and ``amplitude`` V peak; the instrument ramps to it."""
         self._require_function("SIN")
-        self._scpi.command(f"FUNC SIN;:VOLT:UNIT VPP;:FREQ {_number(frequency)};:VOLT {_number(2.0 * amplitude)}")
+        self._scpi.command(f"{SC1.function.command('SIN')};:{SC1.unit.command('VPP')};"
+                           f":{SC1.frequency.command(frequency)};:{SC1.voltage.command(2.0 * amplitude)}")
         self._function = "SIN"
 
     def set_noise(self, rms: float, band: tuple[float, float]) -> None:
@@ -145,7 +155,7 @@ class SerialShaker:
 
     def set_ramp_rate(self, volts_per_second: float) -> None:
         """Largest rate of change of the peak amplitude (V/s)."""
-        self._scpi.command(f"VOLT:RAMP {_number(volts_per_second)}")
+        self._scpi.command(SC1.ramp.command(volts_per_second))
         self.ramp_rate = float(volts_per_second)
 
     # ----- output --------------------------------------------------------------------------

@@ -82,6 +82,14 @@ def test_open_shaker_chooses_the_driver_by_the_identity_and_the_driver_ramps_in_
             shaker.close()
 
 
+def arms_and_disarms(rig, shaker):
+    shaker.set_sine(10.0, 0.05)
+    with OutputGuard(shaker) as guard:
+        guard.arm()
+        assert rig.shaker.output_on
+    assert not rig.shaker.output_on
+
+
 def test_a_generator_without_its_guardian_is_not_armed_unless_unguarded():
     with EmulatedRig(RigDouble(), paced=False, name="gen-tcp", shaker_model="33500B") as rig, \
             EmulatorServer(rig, "tcp") as server:
@@ -92,11 +100,7 @@ def test_a_generator_without_its_guardian_is_not_armed_unless_unguarded():
                 guard.arm()
             assert not rig.shaker.output_on
         with drivers.open_shaker(url, guardian=False, unguarded=True) as shaker:
-            shaker.set_sine(10.0, 0.05)
-            with OutputGuard(shaker) as guard:
-                guard.arm()
-                assert rig.shaker.output_on
-            assert not rig.shaker.output_on
+            arms_and_disarms(rig, shaker)
 
 
 def test_families_by_identity_and_the_settings_table():
@@ -167,11 +171,7 @@ def test_a_guardian_that_cannot_start_stops_the_open_unless_unguarded(monkeypatc
             drivers.open_shaker(url)
         with drivers.open_shaker(url, unguarded=True) as shaker:
             assert shaker.guardian is None and not shaker.protection.survives_kill
-            shaker.set_sine(10.0, 0.05)
-            with OutputGuard(shaker) as guard:
-                guard.arm()
-                assert rig.shaker.output_on
-        assert not rig.shaker.output_on
+            arms_and_disarms(rig, shaker)
 
 
 def test_the_guardian_switches_off_a_hung_host_and_the_driver_reports_it():

@@ -184,9 +184,9 @@ class RigPanel(QWidget):
         box = QGroupBox("Safety")
         text = QLabel("The output starts OFF and is switched on only by a Start after an explicit Arm. Abort, a "
                       "limit breach, a lost link, an instrument fault, closing this window, Ctrl+C or SIGTERM "
-                      "switch it off at once; when the host falls silent or dies, the SC-1's own watchdog, or a function "
-                      "generator's guardian process, switches it off (Protections, left). Every fault is logged in "
-                      "the session with its time.")
+                      "switch it off at once; when the host falls silent or dies, the SC-1's own watchdog, or a "
+                      "function generator's guardian process, switches it off (Protections, left). Every fault is "
+                      "logged in the session with its time.")
         text.setWordWrap(True)
         QVBoxLayout(box).addWidget(text)
         return box
