@@ -199,3 +199,34 @@ def test_the_guardian_switches_off_a_hung_host_and_the_driver_reports_it():
                     rig.changed.wait(0.05)
             with pytest.raises(OutputTripped):
                 guard.check()
+
+
+@pytest.mark.slow
+def test_contactid_acquire_runs_a_campaign_on_a_served_generator_through_its_guardian(tmp_path):
+    """The whole path a lab takes: `emulate --shaker-model 33500B --tcp` (paced: real time, as a bench) in one
+    process, `acquire` in another, the generator behind its guardian."""
+    import subprocess
+    import sys
+    root = Path(__file__).resolve().parents[1]
+    server = subprocess.Popen([sys.executable, "-m", "app.cli", "emulate", str(RIGS / "linear-shaker.toml"), "--tcp",
+                               "127.0.0.1:0", "--shaker-model", "33500B"], cwd=root, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        urls = dict(server.stdout.readline().strip().split(": ", 1) for _ in range(2))
+        (tmp_path / "plan.toml").write_text("[[stepped_sine]]\nforce = 0.5\nstart = 5.0\nstop = 6.0\nstep = 0.5\n"
+                                            "refine = false\n[limits]\nmax_force = 5.0\nmax_acceleration = 150.0\n")
+        done = subprocess.run([sys.executable, "-m", "app.cli", "acquire", str(tmp_path / "plan.toml"), "-o",
+                               str(tmp_path / "g.h5"), "--shaker", urls["shaker"], "--daq", urls["daq"],
+                               "--excitation", "x1", "--quiet"], cwd=root, capture_output=True, text=True,
+                              timeout=600)
+    finally:
+        server.terminate()
+        server.wait(10)
+    assert done.returncode == 0, done.stderr
+    rig = load_rig(RIGS / "linear-shaker.toml")
+    with open_session(tmp_path / "g.h5") as s:
+        run = s.run("sine_0.5N_up")
+        f = run.arrays["measured_frequency"]
+        H = rig.structure.frf(2 * np.pi * f, columns=["x1"])[:, :, 0]
+        assert len(f) == 3
+        np.testing.assert_allclose(run.frf["x1"], H[:, 0], rtol=1e-2)
