@@ -18,7 +18,7 @@ from drivers.settings import GENERATOR, SC1
 from drivers.simulation.rig import load_rig
 
 from rig_double import RigDouble
-from test_campaign import plan
+from test_campaign import assert_matches_receptance, plan
 
 RIGS = Path(__file__).parent / "rigs"
 
@@ -150,11 +150,7 @@ def test_a_stepped_sine_campaign_on_the_generator_matches_the_analytic_receptanc
     assert not summary.aborted and summary.runs == {"sine_0.5N_up": "complete"}
     assert events[-1].detail == "off: command"
     with open_session(path) as s:
-        run = s.run("sine_0.5N_up")
-        f = run.arrays["measured_frequency"]
-        H = rig.structure.frf(2 * np.pi * f, columns=["x1"])[:, :, 0]
-        for p, dof in enumerate(["x1", "x2"]):
-            np.testing.assert_allclose(run.frf[dof], H[:, p], rtol=5e-3)
+        assert_matches_receptance(rig, s.run("sine_0.5N_up"))
 
 
 def test_a_guardian_that_cannot_start_stops_the_open_unless_unguarded(monkeypatch):
@@ -192,7 +188,9 @@ def test_the_guardian_switches_off_a_hung_host_and_the_driver_reports_it():
                     rig.changed.wait(0.05)
             assert not rig.shaker.output_on
             off = rig.output_events()[-1]
-            assert off.detail == "off: command" and HOST_SILENCE <= off.time - silent_since <= HOST_SILENCE + 1.0
+            # not before a whole HOST_SILENCE; the upper bound is loose for a loaded machine (paced: rig time is
+            # wall time, and the guardian process may wait for a CPU)
+            assert off.detail == "off: command" and HOST_SILENCE <= off.time - silent_since <= HOST_SILENCE + 3.0
             shaker._link.set_idle_hook(hook, 0.25)         # the host wakes up and hears of it
             while shaker.fault is None and rig.time < deadline:
                 with rig.changed:
@@ -223,10 +221,7 @@ def test_contactid_acquire_runs_a_campaign_on_a_served_generator_through_its_gua
         server.terminate()
         server.wait(10)
     assert done.returncode == 0, done.stderr
-    rig = load_rig(RIGS / "linear-shaker.toml")
     with open_session(tmp_path / "g.h5") as s:
         run = s.run("sine_0.5N_up")
-        f = run.arrays["measured_frequency"]
-        H = rig.structure.frf(2 * np.pi * f, columns=["x1"])[:, :, 0]
-        assert len(f) == 3
-        np.testing.assert_allclose(run.frf["x1"], H[:, 0], rtol=1e-2)
+        assert len(run.frequency) == 3
+        assert_matches_receptance(load_rig(RIGS / "linear-shaker.toml"), run, rtol=1e-2, dofs=("x1",))
