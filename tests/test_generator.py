@@ -227,3 +227,12 @@ def test_contactid_acquire_runs_a_campaign_on_a_served_generator_through_its_gua
         run = s.run("sine_0.5N_up")
         assert len(run.frequency) == 3
         assert_matches_receptance(load_rig(RIGS / "linear-shaker.toml"), run, rtol=1e-2, dofs=("x1",))
+
+
+def test_discovery_finds_a_generator_as_the_shaker_controller():
+    from drivers.discovery import find_instruments
+    with EmulatedRig(RigDouble(), paced=False, name="gen-find", shaker_model="33500B") as rig:
+        register(rig)
+        found, probes = find_instruments(["sim://gen-find/daq", "sim://gen-find/shaker"], timeout=0.5)
+        assert found == {"shaker": "sim://gen-find/shaker", "daq": "sim://gen-find/daq"}
+        assert probes[1].identity.model == "33521B"
