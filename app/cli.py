@@ -172,7 +172,7 @@ def cmd_acquire(args) -> int:
 
     plan = load_plan(args.plan)
     placement = plan.placement.overridden(args.excitation, args.sensors)
-    with real_instruments(args.shaker, args.daq, placement=placement) as inst:
+    with real_instruments(args.shaker, args.daq, placement=placement, unguarded=args.unguarded) as inst:
         summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
                            software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
     return _finish(summary, args.output)
@@ -191,7 +191,7 @@ def cmd_emulate(args) -> int:
     else:
         transport = {"transport": "pty"}
     serve_emulator(RigSimulator(rig, seed=args.seed), fast=args.fast, faults=rig.faults, name=rig.name,
-                   **transport)
+                   shaker_model=args.shaker_model, **transport)
     return 0
 
 
@@ -260,6 +260,8 @@ def cmd_gui(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from drivers.emulator.core import SHAKER_MODELS
+
     parser = argparse.ArgumentParser(prog="contactid", description=(
         "Identify how a joint or contact interface behaves: stepped-sine tests, equivalent complex "
         "stiffness per element, nonlinear law fitting."), epilog=EXIT_CODES_HELP)
@@ -302,6 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "channels)")
     p.add_argument("--force", action="store_true", help="overwrite an existing session file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--unguarded", action="store_true",
+                   help="let a function generator arm although nothing would switch it off if contactid were "
+                        "killed (its guardian process cannot run)")
     p.set_defaults(run=cmd_acquire)
 
     p = sub.add_parser("emulate", help="serve a rig's emulated shaker controller and DAQ")
@@ -311,6 +316,8 @@ def build_parser() -> argparse.ArgumentParser:
     way.add_argument("--tcp", metavar="HOST:PORT", help="TCP: PORT for the shaker, PORT+1 for the DAQ")
     p.add_argument("--fast", action="store_true", help="as fast as the host reads instead of real time")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--shaker-model", choices=tuple(SHAKER_MODELS), default="SC-1",
+                   help="the shaker controller: SC-1, or 33500B (a bench function generator: no ramp, no watchdog)")
     p.set_defaults(run=cmd_emulate)
 
     p = sub.add_parser("analyze", help="identify, fit, predict, compare and rank missing effects")

@@ -52,15 +52,17 @@ class Instruments:
 
 
 @contextmanager
-def emulated_instruments(rig: Rig, seed: int = 0, paced: bool = False, faults: dict | None = None):
-    """The rig's emulated shaker controller and DAQ, opened through ``sim://`` URLs."""
+def emulated_instruments(rig: Rig, seed: int = 0, paced: bool = False, faults: dict | None = None,
+                         shaker_model: str = "SC-1"):
+    """The rig's emulated shaker controller (``shaker_model``: SC-1 or a 33500B generator) and DAQ, opened
+    through ``sim://`` URLs."""
     name = f"{rig.name}-{os.getpid()}-{next(_names)}"
     simulator = RigSimulator(rig, seed=seed)
     # compile (or load) the physics kernels now, at rest with the output off: a first compile inside the
     # running emulator would stall its replies for seconds
     simulator.advance(1)
     with EmulatedRig(simulator, paced=paced, name=name,
-                     faults=rig.faults if faults is None else faults) as emulator:
+                     faults=rig.faults if faults is None else faults, shaker_model=shaker_model) as emulator:
         register(emulator)
         shaker = daq = None
         try:
@@ -75,18 +77,20 @@ def emulated_instruments(rig: Rig, seed: int = 0, paced: bool = False, faults: d
 
 @contextmanager
 def real_instruments(shaker_url: str, daq_url: str, excitation_dof: str | None = None,
-                     sensor_dofs: list[str] | None = None, placement: Placement | None = None):
+                     sensor_dofs: list[str] | None = None, placement: Placement | None = None,
+                     unguarded: bool = False):
     """Instruments at ``shaker_url`` and ``daq_url`` (port names or pyserial URLs).
 
     The DOFs come from ``placement`` (a plan's, with flags applied) or else from ``excitation_dof`` and
     ``sensor_dofs``; the accelerometer DOFs default to the DAQ's ``acc:<dof>`` channel names. They are checked
-    against the DAQ's channels before anything is measured (:func:`check_placement`)."""
+    against the DAQ's channels before anything is measured (:func:`check_placement`). ``unguarded`` lets a bench
+    generator arm although nothing would switch it off if this process were killed (docs/protocol.md, 9)."""
     if placement is None:
         placement = Placement(excitation_dof, sensor_dofs, excitation_field="excitation DOF",
                               sensors_field="sensor DOFs")
     shaker = daq = None
     try:
-        shaker = drivers.open_shaker(shaker_url)
+        shaker = drivers.open_shaker(shaker_url, unguarded=unguarded)
         daq = drivers.open_daq(daq_url)
         excitation, sensors = check_placement(daq.channels, daq.url, placement)
         yield Instruments(shaker, daq, excitation, sensors)

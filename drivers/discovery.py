@@ -14,6 +14,7 @@ from serial.tools import list_ports
 from .daq import DAQ_MODELS
 from .daq import MANUFACTURER as DAQ_MANUFACTURER
 from .errors import InstrumentError
+from .generator import generator_family
 from .interfaces import Identity
 from .scpi import ScpiInstrument, SerialLink
 from .shaker import MANUFACTURER as SHAKER_MANUFACTURER
@@ -48,8 +49,10 @@ def serial_ports() -> list[tuple[str, str]]:
 
 
 def role_of(identity: Identity) -> str | None:
-    """``"shaker"`` or ``"daq"`` for a contactid instrument's identity, else None."""
-    if identity.manufacturer.lower() == SHAKER_MANUFACTURER and identity.model in SHAKER_MODELS:
+    """``"shaker"`` or ``"daq"`` for a contactid instrument's identity (a supported bench function generator is a
+    shaker controller), else None."""
+    if identity.manufacturer.lower() == SHAKER_MANUFACTURER and identity.model in SHAKER_MODELS \
+            or generator_family(identity) is not None:
         return "shaker"
     if identity.manufacturer.lower() == DAQ_MANUFACTURER and identity.model in DAQ_MODELS:
         return "daq"
@@ -73,7 +76,8 @@ def probe(url: str, *, baudrate: int = 115200, timeout: float = 0.5, description
     if identity is None:
         return Probe(url, None, None, f"answered {reply[:60]!r}, not an IEEE 488.2 identity")
     role = role_of(identity)
-    return Probe(url, role, identity, description if role else f"{identity} is not a contactid instrument")
+    return Probe(url, role, identity, description if role else f"{identity} is not a shaker controller or DAQ "
+                                                                 "contactid drives")
 
 
 def find_instruments(urls: Iterable[str] | None = None, *, baudrate: int = 115200,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Callable, Iterator, Protocol, Sequence, runtime_checkable
+from urllib.parse import urlsplit
 
 import numpy as np
 
@@ -37,6 +38,45 @@ class Identity:
 
     def __str__(self) -> str:
         return f"{self.manufacturer},{self.model},{self.serial},{self.firmware}"
+
+
+@dataclass(frozen=True)
+class Protection:
+    """What switches the output off, on this connection, when something goes wrong.
+
+    Attributes
+    ----------
+    instrument_ramp, instrument_watchdog : bool
+        The instrument ramps amplitude changes itself / switches off a silent host.
+    dies_with_host : bool
+        The instrument lives in the host process (``sim://``): killing the process ends the output.
+    guardian : bool
+        A guardian process (:mod:`drivers.guardian`) owns the connection and switches off when the host dies.
+    """
+
+    instrument_ramp: bool
+    instrument_watchdog: bool
+    dies_with_host: bool
+    guardian: bool = False
+
+    @property
+    def survives_kill(self) -> bool:
+        """Whether the output goes off when the host process is killed (SIGKILL, a crash)."""
+        return self.instrument_watchdog or self.dies_with_host or self.guardian
+
+    def lines(self) -> list[tuple[str, str | None]]:
+        """``(event, what switches the output off or ramps; None: nothing)`` pairs, as the Rig tab shows them."""
+        hung = "instrument watchdog" if self.instrument_watchdog else "guardian process" if self.guardian else None
+        killed = hung or ("the instrument dies with the process" if self.dies_with_host else None)
+        return [("error, abort, limit, SIGTERM/SIGINT, exit", "OutputGuard"),
+                ("amplitude changes ramped", "instrument" if self.instrument_ramp else "driver (host)"),
+                ("host hung", hung),
+                ("host killed", killed)]
+
+
+def in_process(url: str) -> bool:
+    """Whether the instrument at ``url`` lives in this process (``sim://``) and dies with it."""
+    return urlsplit(url).scheme.lower() == "sim"
 
 
 @dataclass(frozen=True)
@@ -102,6 +142,7 @@ class ShakerController(Protocol):
     frequency_range: tuple[float, float]
     amplitude_range: tuple[float, float]
     armed: bool
+    protection: Protection
 
     def set_sine(self, frequency: float, amplitude: float) -> None:
         """Sine of ``frequency`` Hz and ``amplitude`` V peak (phase-continuous, ramped)."""

@@ -326,7 +326,8 @@ class EmulatorServer:
 
 def serve_emulator(backend: Any, *, transport: str = "pty", host: str = "127.0.0.1", port: int = 0,
                    fast: bool = False, faults: Mapping[str, Any] | None = None, name: str = "emulator",
-                   announce: Callable[[str], None] | None = None, stop: threading.Event | None = None) -> None:
+                   announce: Callable[[str], None] | None = None, stop: threading.Event | None = None,
+                   shaker_model: str = "SC-1") -> None:
     """Run the emulated instruments of ``backend`` until interrupted.
 
     Parameters
@@ -345,6 +346,8 @@ def serve_emulator(backend: Any, *, transport: str = "pty", host: str = "127.0.0
         Receives the ``shaker: URL`` and ``daq: URL`` lines (default: print and flush).
     stop : threading.Event, optional
         Serving ends when it is set (also on SIGINT / SIGTERM).
+    shaker_model : str
+        ``"SC-1"`` or ``"33500B"`` (the shaker controller as a bench generator, :mod:`drivers.emulator.generator`).
     """
     if announce is None:
         def announce(line: str) -> None:
@@ -355,7 +358,8 @@ def serve_emulator(backend: Any, *, transport: str = "pty", host: str = "127.0.0
         for signum in (signal.SIGINT, signal.SIGTERM):
             restore[signum] = signal.signal(signum, lambda *_: stop.set())
     try:
-        with EmulatedRig(backend, paced=not fast, name=name, faults=faults) as rig, \
+        with EmulatedRig(backend, paced=not fast, name=name, faults=faults,
+                         shaker_model=shaker_model) as rig, \
                 EmulatorServer(rig, transport, host, port) as server:
             for role, url in server.urls.items():
                 announce(f"{role}: {url}")

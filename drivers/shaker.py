@@ -9,8 +9,10 @@ silent the owner thread sends a heartbeat (``OUTP?``) every quarter of the
 watchdog time: it feeds the watchdog, detects a dead link and notices an output
 the instrument switched off by itself (reported as :class:`OutputTripped`).
 Sine amplitudes are given in volts peak (sent as VPP), noise in volts rms (sent as
-VRMS); every setting is confirmed by reading the error queue in the same round
-trip, so a rejected setting raises :class:`DeviceError` at once.
+VRMS). Commands come from the settings table :data:`drivers.settings.SC1`, which refuses
+(ValueError) a value outside the limits it declares before anything is sent; every
+setting is confirmed by reading the error queue in the same round trip, so a rejected
+setting raises :class:`DeviceError` at once.
 """
 from __future__ import annotations
 
@@ -19,8 +21,9 @@ from typing import Callable
 import serial
 
 from .errors import ArmingRefused, InstrumentError, LinkLost, OutputTripped, ProtocolError
-from .interfaces import Identity
+from .interfaces import Identity, Protection, in_process
 from .scpi import PortIO, ScpiInstrument, SerialLink
+from .settings import SC1
 
 MANUFACTURER = "contactid"
 SHAKER_MODELS = ("SC-1",)
@@ -42,6 +45,26 @@ def _close_to(reply: str, value: float) -> bool:
         return False
 
 
+def output_state(url: str, reply: str) -> bool:
+    """An ``OUTP?`` reply as on (True) or off: ``0``/``1`` (SC-1, Keysight, sign allowed) or ``OFF``/``ON``
+    (Rigol); ProtocolError otherwise."""
+    text = reply.strip().lstrip("+").upper()
+    if text in ("1", "ON"):
+        return True
+    if text in ("0", "OFF"):
+        return False
+    raise ProtocolError(url, f"OUTP? answered {reply!r}")
+
+
+def ask_numbers(scpi: ScpiInstrument, io: PortIO, queries: str) -> list[float]:
+    """The replies to a message of numeric queries (``FREQ? MIN;:FREQ? MAX``); ProtocolError if one is not."""
+    reply = scpi.ask(io, queries)
+    try:
+        return [float(x) for x in reply.split(";")]
+    except ValueError:
+        raise ProtocolError(scpi.url, f"range queries answered {reply!r}") from None
+
+
 class SerialShaker:
     """A :class:`~drivers.interfaces.ShakerController` on a serial link.
 
@@ -61,6 +84,8 @@ class SerialShaker:
         ``*IDN?`` model fields accepted.
     port : serial.SerialBase, optional
         An open port to use instead of opening ``url`` (scripted-port tests).
+    link : SerialLink, optional
+        An open link to own instead (``drivers.open_shaker`` identified the instrument on it).
 
     Raises
     ------
@@ -70,10 +95,11 @@ class SerialShaker:
     """
 
     def __init__(self, url: str, *, baudrate: int = 115200, timeout: float = 1.0, watchdog: float = 1.0,
-                 models: tuple[str, ...] = SHAKER_MODELS, port: serial.SerialBase | None = None):
+                 models: tuple[str, ...] = SHAKER_MODELS, port: serial.SerialBase | None = None,
+                 link: SerialLink | None = None):
         self.url = url
         self.watchdog = float(watchdog)
-        self._link = SerialLink(url, name="shaker", baudrate=baudrate, port=port)
+        self._link = link if link is not None else SerialLink(url, name="shaker", baudrate=baudrate, port=port)
         self._scpi = ScpiInstrument(self._link, timeout)
         self._armed = False
         self._function = "SIN"
@@ -85,20 +111,23 @@ class SerialShaker:
         except BaseException:
             self._link.close()
             raise
-        self._link.set_idle_hook(self._heartbeat, self.watchdog / 4 if self.watchdog > 0 else 1.0)
+        self._link.set_idle_hook(self._heartbeat, self.heartbeat_interval())
+        self.protection = Protection(instrument_ramp=True, instrument_watchdog=self.watchdog > 0,
+                                     dies_with_host=in_process(url))
+
+    def heartbeat_interval(self) -> float:
+        """Seconds of silence after which the owner thread asks ``OUTP?``: a quarter of the watchdog time."""
+        return self.watchdog / 4 if self.watchdog > 0 else 1.0
 
     def _connect(self, io: PortIO, models: tuple[str, ...]) -> Identity:
         scpi = self._scpi
         scpi.clear(io)
         identity = scpi.identify(io, MANUFACTURER, models, "contactid shaker controller", 2 * scpi.timeout)
-        scpi.execute(io, f"*RST;*CLS;:SYST:WDOG {_number(self.watchdog)}")
+        scpi.execute(io, f"*RST;*CLS;:{SC1.watchdog.command(self.watchdog)}")
         scpi.expect(io, {"OUTP?": lambda r: r == "0", "VOLT:ACT?": _is_zero, "SYST:ERR:COUN?": lambda r: r == "0",
                          "SYST:WDOG?": lambda r: _close_to(r, self.watchdog)}, "*RST")
-        reply = scpi.ask(io, "FREQ? MIN;:FREQ? MAX;:VOLT:UNIT VPP;:VOLT? MAX;:VOLT:RAMP?")
-        try:
-            f_min, f_max, vpp_max, ramp = (float(x) for x in reply.split(";"))
-        except ValueError:
-            raise ProtocolError(self.url, f"range queries answered {reply!r}") from None
+        f_min, f_max, vpp_max, ramp = ask_numbers(scpi, io,
+                                                  "FREQ? MIN;:FREQ? MAX;:VOLT:UNIT VPP;:VOLT? MAX;:VOLT:RAMP?")
         self.frequency_range = (f_min, f_max)
         self.amplitude_range = (0.0, vpp_max / 2)
         self.ramp_rate = ramp
@@ -108,7 +137,8 @@ class SerialShaker:
     def set_sine(self, frequency: float, amplitude: float) -> None:
         """Sine of ``frequency`` Hz and ``amplitude`` V peak; the instrument ramps to it."""
         self._require_function("SIN")
-        self._scpi.command(f"FUNC SIN;:VOLT:UNIT VPP;:FREQ {_number(frequency)};:VOLT {_number(2.0 * amplitude)}")
+        self._scpi.command(f"{SC1.function.command('SIN')};:{SC1.unit.command('VPP')};"
+                           f":{SC1.frequency.command(frequency)};:{SC1.voltage.command(2.0 * amplitude)}")
         self._function = "SIN"
 
     def set_noise(self, rms: float, band: tuple[float, float]) -> None:
@@ -125,7 +155,7 @@ class SerialShaker:
 
     def set_ramp_rate(self, volts_per_second: float) -> None:
         """Largest rate of change of the peak amplitude (V/s)."""
-        self._scpi.command(f"VOLT:RAMP {_number(volts_per_second)}")
+        self._scpi.command(SC1.ramp.command(volts_per_second))
         self.ramp_rate = float(volts_per_second)
 
     # ----- output --------------------------------------------------------------------------
@@ -150,7 +180,7 @@ class SerialShaker:
             self._scpi.execute(io, "OUTP OFF")
             return self._scpi.ask(io, "OUTP?")
 
-        if self._link.call(off, self._scpi.timeout * 2 + 1).strip() != "0":
+        if output_state(self.url, self._link.call(off, self._scpi.timeout * 2 + 1)):
             raise InstrumentError(self.url, "output still on after OUTP OFF")
 
     @property
@@ -159,10 +189,7 @@ class SerialShaker:
         return self._armed
 
     def output_enabled(self) -> bool:
-        reply = self._scpi.query("OUTP?").strip()
-        if reply not in ("0", "1"):
-            raise ProtocolError(self.url, f"OUTP? answered {reply!r}")
-        return reply == "1"
+        return output_state(self.url, self._scpi.query("OUTP?"))
 
     def output_level(self) -> float:
         """The amplitude being output now: V peak (sine) or V rms (noise); 0 when off."""
@@ -201,8 +228,8 @@ class SerialShaker:
 
     def _heartbeat(self, io: PortIO) -> None:
         try:
-            reply = self._scpi.ask(io, "OUTP?").strip()
-            if self._armed and reply == "0":
+            on = output_state(self.url, self._scpi.ask(io, "OUTP?"))
+            if self._armed and not on:
                 self._armed = False
                 errors = self._scpi.drain_errors(io)
                 reason = "; ".join(str(e) for e in errors) or "no error reported"

@@ -11,13 +11,16 @@ from app.gui.main_window import MainWindow
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture
-def served_instruments():
-    """URLs of paper-2dof's instruments served by ``contactid emulate`` in another process."""
+@pytest.fixture(params=["SC-1", "33500B"])
+def served_instruments(request):
+    """URLs of paper-2dof's instruments served by ``contactid emulate`` in another process (shaker controller:
+    the SC-1, or a bench function generator), and the shaker model."""
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "emulate", "paper-2dof", "--tcp", "127.0.0.1:0",
-                             "--fast"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--fast", "--shaker-model", request.param], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     try:
         urls = dict(proc.stdout.readline().strip().split(": ", 1) for _ in range(2))
+        urls["model"] = request.param
         yield urls
     finally:
         proc.terminate()
@@ -32,7 +35,12 @@ def test_real_instruments_over_socket_urls(qtbot, served_instruments):
     assert rig.use_real.isChecked()
     rig.connect_button.click()
     qtbot.waitUntil(lambda: window.lab.connected, timeout=30000)
-    assert rig.shaker_idn.text().startswith("contactid,SC-1,") and served_instruments["shaker"] in rig.shaker_idn.text()
+    idn = "contactid,SC-1," if served_instruments["model"] == "SC-1" else "Keysight Technologies,33521B,"
+    assert rig.shaker_idn.text().startswith(idn) and served_instruments["shaker"] in rig.shaker_idn.text()
+    # what protects the output: the SC-1's own ramp and watchdog, or the driver's ramp and the guardian
+    protects = ("instrument watchdog", "ramped: instrument") if served_instruments["model"] == "SC-1" \
+        else ("host killed: guardian process", "ramped: driver (host)")
+    assert all(text in rig.protections.text() for text in protects) and "nothing" not in rig.protections.text()
     assert rig.daq_idn.text().startswith("contactid,DAQ-1,")
     assert "force at x2, accelerometers at x1, x2" in rig.daq_setup.text()
     assert window.lab.rig is None and window.lab.model is None          # nothing is known of a real structure

@@ -3,12 +3,15 @@ and ``socket://`` URLs), see who answered ``*IDN?``, the link health and the out
 and arm."""
 from __future__ import annotations
 
+import html
+
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import (QButtonGroup, QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout,
                                QGridLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit, QListWidget, QPushButton,
                                QRadioButton, QSpinBox, QVBoxLayout, QWidget)
 
 from drivers.discovery import serial_ports
+from drivers.interfaces import Protection
 from drivers.simulation.rig import builtin_rigs
 
 from .lab import InstrumentStatus, Lab
@@ -23,6 +26,16 @@ def _value_label() -> QLabel:
     label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
     label.setWordWrap(True)
     return label
+
+
+def protection_text(protection: Protection) -> str:
+    """One line per event: a green tick and what protects, or a red cross and "nothing"."""
+    rows = []
+    for event, by in protection.lines():
+        mark = ('<span style="color:#2ca02c">&#10003;</span>' if by
+                else '<span style="color:#d62728; font-weight:bold">&#10007;</span>')
+        rows.append(f"{mark} {html.escape(event)}: {html.escape(by or 'nothing')}")
+    return "<br>".join(rows)
 
 
 class RigPanel(QWidget):
@@ -132,9 +145,14 @@ class RigPanel(QWidget):
         box = QGroupBox("Identity (*IDN?) and ranges")
         form = QFormLayout(box)
         self.shaker_idn, self.shaker_ranges = _value_label(), _value_label()
+        self.protections = _value_label()
+        self.protections.setTextFormat(Qt.TextFormat.RichText)
+        self.protections.setToolTip("What switches the shaker output off, or ramps it, on this instrument "
+                                    "(docs/protocol.md, section 9)")
         self.daq_idn, self.daq_setup = _value_label(), _value_label()
         form.addRow("Shaker controller", self.shaker_idn)
         form.addRow("Generator ranges", self.shaker_ranges)
+        form.addRow("Protections", self.protections)
         form.addRow("DAQ", self.daq_idn)
         form.addRow("Acquisition", self.daq_setup)
         return box
@@ -166,8 +184,9 @@ class RigPanel(QWidget):
         box = QGroupBox("Safety")
         text = QLabel("The output starts OFF and is switched on only by a Start after an explicit Arm. Abort, a "
                       "limit breach, a lost link, an instrument fault, closing this window, Ctrl+C or SIGTERM "
-                      "switch it off at once; the instrument's own watchdog switches it off when the host falls "
-                      "silent. Every fault is logged in the session with its time.")
+                      "switch it off at once; when the host falls silent or dies, the SC-1's own watchdog, or a "
+                      "function generator's guardian process, switches it off (Protections, left). Every fault is "
+                      "logged in the session with its time.")
         text.setWordWrap(True)
         QVBoxLayout(box).addWidget(text)
         return box
@@ -278,7 +297,7 @@ class RigPanel(QWidget):
         inst = self.lab.instruments
         if inst is None:
             self.connection.setText("not connected")
-            for label in (self.shaker_idn, self.shaker_ranges, self.daq_idn, self.daq_setup):
+            for label in (self.shaker_idn, self.shaker_ranges, self.protections, self.daq_idn, self.daq_setup):
                 label.setText("—")
         else:
             self.connection.setText(f"connected: {self.lab.connection_label}")
@@ -286,6 +305,7 @@ class RigPanel(QWidget):
             self.shaker_idn.setText(f"{s.identity}\n{s.url}")
             self.shaker_ranges.setText(f"{s.frequency_range[0]:g}–{s.frequency_range[1]:g} Hz, "
                                        f"up to {s.amplitude_range[1]:g} V peak")
+            self.protections.setText(protection_text(s.protection))
             self.daq_idn.setText(f"{d.identity}\n{d.url}")
             self.daq_setup.setText(f"{d.sample_rate:g} Hz; channels {', '.join(d.channels)}; "
                                    f"force at {inst.excitation_dof}, accelerometers at {', '.join(inst.sensor_dofs)}")

@@ -43,7 +43,11 @@ from ..faults import ROLES, FaultInjector, LinkFaults, parse_faults
 from .daq import DaqFirmware
 from .link import InstrumentLink
 from .scpi_server import ScpiError
+from .generator import GeneratorFirmware
 from .shaker import ShakerFirmware
+
+SHAKER_MODELS = {"SC-1": ShakerFirmware, "33500B": GeneratorFirmware}
+"""The shaker controllers the emulator can be: the SC-1, or a 33500B-series bench generator."""
 
 CLOCK_TICK = 0.005
 """Period of the paced clock (s of wall time)."""
@@ -82,6 +86,8 @@ class EmulatedRig:
         unless a link is opened with its own faults.
     fifo_seconds : float
         Capacity of the DAQ's output FIFO in seconds of stream.
+    shaker_model : str
+        A key of :data:`SHAKER_MODELS`: ``"SC-1"`` or ``"33500B"`` (a bench generator: no ramp, no watchdog).
 
     Notes
     -----
@@ -89,7 +95,9 @@ class EmulatedRig:
     """
 
     def __init__(self, backend: Any, *, paced: bool = True, name: str = "emulator",
-                 faults: Mapping[str, Any] | None = None, fifo_seconds: float = 1.0):
+                 faults: Mapping[str, Any] | None = None, fifo_seconds: float = 1.0, shaker_model: str = "SC-1"):
+        if shaker_model not in SHAKER_MODELS:
+            raise ValueError(f"shaker model must be one of {', '.join(SHAKER_MODELS)}, got {shaker_model!r}")
         missing = [attr for attr in REQUIRED if not hasattr(backend, attr)]
         if missing:
             raise TypeError(f"rig backend lacks {', '.join(missing)}")
@@ -111,7 +119,7 @@ class EmulatedRig:
         self.samples = 0
         self.running = False
         self.failure: Exception | None = None
-        self.shaker = ShakerFirmware(self)
+        self.shaker = SHAKER_MODELS[shaker_model](self)
         self.daq = DaqFirmware(self, fifo_seconds)
         self.instruments = {"shaker": self.shaker, "daq": self.daq}
         self._links: dict[str, InstrumentLink] = {}

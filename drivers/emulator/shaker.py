@@ -22,6 +22,7 @@ import math
 import time
 from typing import TYPE_CHECKING
 
+from ..settings import SC1, Dialect
 from .firmware import Firmware
 from .scpi_server import (ScpiError, action, expect_one, format_number, limit_query, parse_bool, parse_choice,
                           parse_number, reply_with)
@@ -29,15 +30,15 @@ from .scpi_server import (ScpiError, action, expect_one, format_number, limit_qu
 if TYPE_CHECKING:
     from .core import EmulatedRig
 
-MAX_PEAK = 10.0
+MAX_PEAK = SC1.voltage.high / 2
 """Largest drive amplitude (V peak; 20 Vpp)."""
 NOISE_CREST = 3.0
 """Peak-to-rms ratio used for noise amplitudes (VPP of noise = 6 x rms)."""
-MIN_FREQUENCY = 0.01
+MIN_FREQUENCY = SC1.frequency.low
 """Hz; the upper limit is min(20 kHz, 0.45 x the rig's sample rate)."""
-RAMP_LIMITS = (0.001, 1000.0)
+RAMP_LIMITS = (SC1.ramp.low, SC1.ramp.high)
 """Ramp rates accepted (V peak per second)."""
-WATCHDOG_LIMITS = (0.01, 3600.0)
+WATCHDOG_LIMITS = (0.01, SC1.watchdog.high)
 """Watchdog times accepted (s); 0 disables the watchdog."""
 FAST_HOST_SILENCE = 10.0
 """Fast mode: wall-clock silence (s) after which a host counts as gone. Far above a heartbeat interval: on a
@@ -55,6 +56,10 @@ class ShakerFirmware(Firmware):
     """The shaker controller: source settings, output switch, ramp, watchdog."""
 
     model = "SC-1"
+    min_frequency = MIN_FREQUENCY
+    min_peak = 0.0
+    max_peak = MAX_PEAK
+    dialect: Dialect = SC1
 
     def __init__(self, rig: "EmulatedRig"):
         super().__init__(rig, "shaker")
@@ -151,12 +156,16 @@ class ShakerFirmware(Firmware):
     def switch_on(self) -> None:
         if self.output_on:
             return
-        self.level = 0.0
+        self.level = self.start_level()
         self._silence_other()
         self._apply()
         self.rig.backend.set_output(True)
         self.output_on = True
         self.rig.log("shaker", "output", "on")
+
+    def start_level(self) -> float:
+        """Peak amplitude at the moment the output switches on: 0, then the ramp."""
+        return 0.0
 
     def switch_off(self, reason: str) -> None:
         if not self.output_on:
@@ -168,22 +177,27 @@ class ShakerFirmware(Firmware):
 
     # ----- commands ------------------------------------------------------------------------
     def _add_commands(self) -> None:
-        add = self.scpi.add
-        add("[SOURce:]FUNCtion", write=self._set_function, query=reply_with(lambda: self.function))
-        add("[SOURce:]FREQuency", write=self._set_frequency,
-            query=lambda a: format_number(limit_query(a, MIN_FREQUENCY, self.max_frequency, self.frequency)))
-        add("[SOURce:]VOLTage[:AMPLitude]", write=self._set_voltage,
-            query=lambda a: format_number(self.to_unit(limit_query(a, 0.0, MAX_PEAK, self.peak))))
-        add("[SOURce:]VOLTage:UNIT", write=self._set_unit, query=reply_with(lambda: self.unit))
-        add("[SOURce:]VOLTage:RAMP", write=self._set_ramp,
+        self._add_source_commands()
+        add, d = self.scpi.add, self.dialect
+        add(d.ramp.header, write=self._set_ramp,
             query=lambda a: format_number(limit_query(a, *RAMP_LIMITS, self.ramp_rate)))
         add("[SOURce:]VOLTage:ACTual", query=reply_with(lambda: format_number(self.to_unit(self.level))))
-        add("[SOURce:]FUNCtion:NOISe:BANDwidth", write=self._set_band,
+        add(d.noise_band.header, write=self._set_band,
             query=reply_with(lambda: ",".join(format_number(f) for f in self.band)))
-        add("OUTPut[:STATe]", write=self._set_output, query=reply_with(lambda: "1" if self.output_on else "0"))
-        add("SYSTem:WDOG[:TIME]", write=self._set_watchdog,
+        add(d.watchdog.header, write=self._set_watchdog,
             query=lambda a: format_number(limit_query(a, 0.0, WATCHDOG_LIMITS[1], self.watchdog_time)))
         add("SYSTem:WDOG:FEED", write=action(lambda: None))
+
+    def _add_source_commands(self) -> None:
+        """What both dialects share: function, frequency, amplitude and its unit, output switch."""
+        add, d = self.scpi.add, self.dialect
+        add(d.function.header, write=self._set_function, query=reply_with(lambda: self.function))
+        add(d.frequency.header, write=self._set_frequency,
+            query=lambda a: format_number(limit_query(a, self.min_frequency, self.max_frequency, self.frequency)))
+        add(d.voltage.header, write=self._set_voltage,
+            query=lambda a: format_number(self.to_unit(limit_query(a, self.min_peak, self.max_peak, self.peak))))
+        add(d.unit.header, write=self._set_unit, query=reply_with(lambda: self.unit))
+        add(d.output.header, write=self._set_output, query=reply_with(lambda: "1" if self.output_on else "0"))
 
     def _set_function(self, args: list[str]) -> None:
         function = parse_choice(expect_one(args), {"SINusoid": "SIN", "NOISe": "NOIS"})
@@ -192,15 +206,16 @@ class ShakerFirmware(Firmware):
         self.function = function
 
     def _set_frequency(self, args: list[str]) -> None:
-        self.frequency = parse_number(expect_one(args), MIN_FREQUENCY, self.max_frequency,
+        self.frequency = parse_number(expect_one(args), self.min_frequency, self.max_frequency,
                                       DEFAULTS["frequency"])
         if self.output_on:
             self._apply()
 
     def _set_voltage(self, args: list[str]) -> None:
         per_unit = self._per_unit()
-        value = parse_number(expect_one(args), 0.0, MAX_PEAK / per_unit, DEFAULTS["peak"] / per_unit)
-        self.peak = min(MAX_PEAK, value * per_unit)
+        value = parse_number(expect_one(args), self.min_peak / per_unit, self.max_peak / per_unit,
+                             DEFAULTS["peak"] / per_unit)
+        self.peak = min(self.max_peak, value * per_unit)
 
     def _set_unit(self, args: list[str]) -> None:
         self.unit = parse_choice(expect_one(args), {"VPP": "VPP", "VRMS": "VRMS"})
