@@ -4,7 +4,7 @@ import pytest
 
 from analysis import InputError
 from analysis.identify import identify_complex_stiffness
-from analysis.linearity import linearity_verdict, scatter_std
+from analysis.linearity import SCATTER_WINDOW, linearity_verdict, scatter_std
 
 LINES = np.linspace(10.0, 30.0, 40)          # rad/s
 LEVELS = np.array([0.2, 0.5, 1.0])            # N
@@ -155,3 +155,14 @@ def test_too_few_samples_for_the_model_is_an_error():
         linearity_verdict(X, w, k, std)
     with pytest.raises(InputError, match="per_line model"):
         linearity_verdict(X, w, k, std, model="per_line")
+
+
+def test_scatter_noise_on_a_level_shorter_than_its_window():
+    """A force level with fewer lines than the averaging window still gets one estimate per line."""
+    rng = np.random.default_rng(3)
+    n = SCATTER_WINDOW + 2                      # fewer combinations than the 2 * SCATTER_WINDOW + 1 window
+    w = np.linspace(10.0, 12.0, n)
+    kbar = 1e4 + 0.0j + 50.0 * (rng.normal(size=n) + 1j * rng.normal(size=n))
+    std = scatter_std(w, kbar)
+    assert std.shape == (n,) and np.all(np.isfinite(std)) and np.all(std > 0)
+    assert np.allclose(std, std[0])             # every combination lies in every line's window
