@@ -117,6 +117,7 @@ ALLOWED = {
 }
 
 
+@pytest.mark.slow
 def test_no_import_cycle_anywhere():
     graph = {m: _imports(m, runtime_only=True) for m in MODULES}
     assert _cycles(graph) == []

@@ -60,6 +60,7 @@ def assert_matches_receptance(rig, run, rtol=5e-3, dofs=("x1", "x2")):
         np.testing.assert_allclose(run.frf[dof], H[:, p], rtol=rtol)
 
 
+@pytest.mark.slow
 def test_stepped_sine_matches_the_analytic_receptance(linear_session):
     rig, path, summary = linear_session
     assert not summary.aborted and summary.runs == {"random": "complete", "sine_0.5N_up": "complete"}
@@ -101,6 +102,7 @@ def test_random_run_h1_is_within_its_random_error(linear_session):
         assert f.min() >= 2.0 and f.max() <= 40.0
 
 
+@pytest.mark.slow
 def test_hardening_rig_jumps_at_different_lines_up_and_down(tmp_path):
     rig = load_rig(RIGS / "hardening.toml")
     text = """
@@ -129,6 +131,7 @@ max_acceleration = 400.0
     assert jumps["up"] > jumps["down"] + 0.3
 
 
+@pytest.mark.slow
 def test_abort_from_another_thread_switches_off_and_keeps_the_lines(tmp_path):
     rig = load_rig("paper-2dof")
     text = "[[stepped_sine]]\nforce = 0.8\nstart = 0.8\nstop = 3.2\nstep = 0.025\n[limits]\nmax_force = 5.0\n" \
@@ -153,6 +156,7 @@ def test_abort_from_another_thread_switches_off_and_keeps_the_lines(tmp_path):
         assert any(e["kind"] == "safety" and "trip" in e["message"] for e in s.events())
 
 
+@pytest.mark.slow
 def test_limit_breach_aborts_with_output_off(tmp_path):
     rig = load_rig(RIGS / "linear-shaker.toml")
     text = LINEAR_PLAN.replace("max_acceleration = 150.0", "max_acceleration = 3.0").split("[[stepped_sine]]")[1]
@@ -165,6 +169,7 @@ def test_limit_breach_aborts_with_output_off(tmp_path):
         assert s.run("sine_0.5N_up").status == "aborted"
 
 
+@pytest.mark.slow
 def test_disk_failure_mid_run_aborts_safely_and_keeps_the_data(tmp_path, monkeypatch):
     rig = load_rig("paper-2dof")
     text = "[[stepped_sine]]\nforce = 0.8\nstart = 2.8\nstop = 3.2\nstep = 0.05\n[limits]\nmax_force = 5.0\n" \
@@ -198,6 +203,7 @@ def test_disk_failure_mid_run_aborts_safely_and_keeps_the_data(tmp_path, monkeyp
     ("[random]\nforce_rms = 0.1\nband = [1.0, 500.0]\nduration = 10\n[limits]\nmax_force = 5.0\n"
      "max_acceleration = 50.0\n", r"band reaches 500.0 Hz"),
 ])
+@pytest.mark.slow
 def test_impossible_plans_are_refused_before_arming(tmp_path, text, match):
     rig = load_rig("paper-2dof")
     with emulated_instruments(rig) as inst:
@@ -207,6 +213,7 @@ def test_impossible_plans_are_refused_before_arming(tmp_path, text, match):
     assert not (tmp_path / "x.h5").exists()
 
 
+@pytest.mark.slow
 def test_dropped_frames_are_logged_and_lines_stay_right(tmp_path):
     rig = load_rig(RIGS / "linear-shaker.toml")
     text = LINEAR_PLAN.split("[[stepped_sine]]")[1].replace("step = 0.5", "step = 2.0")
@@ -222,6 +229,7 @@ def test_dropped_frames_are_logged_and_lines_stay_right(tmp_path):
         assert sum("lost" in e["message"] for e in s.events() if e["kind"] == "fault") > 0
 
 
+@pytest.mark.slow
 def test_paper_2dof_campaign_reproduces_table_1(tmp_path):
     """The paper's numerical example through drivers, emulator, campaign, session, identification and fit:
     kn1, cn, kn2, mu within 1.5 % of 500, 1.0, 750, 0.1 (the paper reached 3 %)."""

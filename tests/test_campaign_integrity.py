@@ -76,6 +76,7 @@ def tcp_emulator():
     thread.join(10)
 
 
+@pytest.mark.slow
 def test_a_repeated_acquisition_holds_its_force_like_the_first(tmp_path, tcp_emulator):
     """issue 13 §1: the second of two identical acquisitions on one emulator held 0.05 N instead of 0.8 N,
     stored FRF x2 = 0 and still said "complete" with exit 0. Both must now be complete at 0.8 N."""
@@ -107,6 +108,7 @@ def test_a_reconnection_starts_from_the_reset_state(tcp_emulator):
         assert shaker.errors() == []
 
 
+@pytest.mark.slow
 def test_a_run_that_cannot_reach_its_force_fails_and_exits_3(tmp_path):
     (tmp_path / "weak.toml").write_text(WEAK_SOURCE)
     (tmp_path / "plan.toml").write_text("[[stepped_sine]]\nforce = 2.0\nstart = 8.0\nstop = 9.0\nstep = 0.5\nrefine = false\n"
@@ -146,6 +148,7 @@ class ForcePeaks(CampaignListener):
         self.peak[self.run] = max(self.peak.get(self.run, 0.0), float(np.abs(block.data[:, 0]).max()))
 
 
+@pytest.mark.slow
 def test_the_first_line_approaches_its_force_from_below(tmp_path):
     """A gain learnt at the structure's resonance (an electrodynamic shaker gives little force there) would
     drive the next run, at the drive point's anti-resonance (more than twice the N/V), far over its abort limit; the
@@ -181,6 +184,7 @@ def test_a_sensor_that_saw_nothing_is_stored_as_nan_not_zero(tmp_path):
     assert sum("no signal on acc:x2" in m for m in messages) == 2
 
 
+@pytest.mark.slow
 def test_exit_codes_name_the_failing_instrument(tmp_path):
     (tmp_path / "plan.toml").write_text(FIVE_LINES)
     with socket.socket() as probe, socket.socket() as other:      # ports nobody listens on

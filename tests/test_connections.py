@@ -135,6 +135,7 @@ def test_a_second_host_is_refused_with_a_message_and_served_once_the_first_leave
         third.close()
 
 
+@pytest.mark.slow
 def test_the_driver_names_the_busy_instrument():
     with served() as (rig, where):
         holder = connect(where["shaker"])
@@ -154,6 +155,7 @@ class FailingOnce(FailingRig):
 
 
 @pytest.mark.parametrize("how", ["OUTP ON", "*RST", "connection"])
+@pytest.mark.slow
 def test_after_a_physics_failure_the_instrument_recovers(how):
     with EmulatedRig(FailingOnce(3000), paced=False, name=f"recover{next(_names)}") as rig:
         register(rig)

@@ -38,6 +38,7 @@ def single_bin(x, cycles):
 
 
 @pytest.mark.parametrize("transport", ["sim", "pty", "tcp"])
+@pytest.mark.slow
 def test_sine_reaches_the_daq_with_the_right_amplitude(transport):
     with bench(transport) as (rig, shaker, daq):
         shaker.set_sine(12.5, 0.5)
@@ -127,6 +128,7 @@ def test_channel_selection_and_range_saturation():
     ({"drop": 5e-4, "flip": 5e-4, "overrun": 0.02, "seed": 4}, "corrupt"),
     ({"stall": 2e-4, "stall_time": 0.02, "seed": 5}, None),
 ])
+@pytest.mark.slow
 def test_injected_stream_faults_are_reported_and_every_sample_accounted_for(faults, reported):
     with bench() as (rig, shaker, daq):
         injector = rig.inject("daq", faults)
@@ -159,6 +161,7 @@ def test_a_long_stall_is_a_timeout():
 
 
 @pytest.mark.parametrize("transport", ["sim", "pty", "tcp"])
+@pytest.mark.slow
 def test_a_dropped_link_is_link_lost(transport):
     with bench(transport, faults={"daq": {"disconnect": 20000}}) as (rig, shaker, daq):
         with pytest.raises(LinkLost):
@@ -208,6 +211,7 @@ def test_an_instrument_that_goes_away_is_link_lost():
     ("sim://{name}/daq?drop=2", "probability"),
     ("sim://{name}/shaker", "already open"),
 ])
+@pytest.mark.slow
 def test_bad_sim_urls_are_explained(url, message):
     with bench() as (rig, shaker, daq):
         with pytest.raises(LinkLost, match=message):

@@ -141,6 +141,7 @@ def test_a_failed_write_leaves_no_file(session, tmp_path, monkeypatch):
 
 
 @pytest.mark.skipif(os.geteuid() != 0 or shutil.which("unshare") is None, reason="needs root for a private tmpfs")
+@pytest.mark.slow
 def test_full_disk_gives_an_error_and_no_file(session, tmp_path):
     path, _ = session
     disk = tmp_path / "disk"

@@ -33,6 +33,7 @@ def collect(stream, blocks_before_stop):
     return blocks + list(stream), stats
 
 
+@pytest.mark.slow
 def test_a_stream_delivers_every_sample_in_scan_order_with_a_balanced_end(firmware_binary):
     with serve_firmware(firmware_binary) as url:
         daq = SerialDaq(url, timeout=2.0)
@@ -50,6 +51,7 @@ def test_a_stream_delivers_every_sample_in_scan_order_with_a_balanced_end(firmwa
         daq.close()
 
 
+@pytest.mark.slow
 def test_a_host_too_slow_for_the_fifo_sees_gaps_overrun_flags_and_error_301_once_per_episode(firmware_binary):
     with serve_firmware(firmware_binary, "--rates", "20000") as url:
         daq = SerialDaq(url, timeout=2.0)
@@ -97,6 +99,7 @@ def test_a_block_read_returns_the_next_samples_exactly(firmware_binary):
         daq.close()
 
 
+@pytest.mark.slow
 def test_a_block_read_the_host_does_not_take_marks_its_lost_samples_and_queues_200(firmware_binary):
     with serve_firmware(firmware_binary, "--rates", "20000") as url:
         port = serial.serial_for_url(url, timeout=10.0)

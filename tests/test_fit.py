@@ -194,6 +194,7 @@ def test_standard_errors_match_weighted_least_squares_formula():
     np.testing.assert_allclose(plain.residuals.real, model_plain, rtol=1e-10, atol=0)
 
 
+@pytest.mark.slow
 def test_standard_errors_of_a_shape_law_match_monte_carlo_scatter():
     """jenkins: kt linear, xs = fs/kt searched, fs carried through fit_jacobian. The scatter of
     repeated noisy fits must match the reported standard errors (150 fits: ~6 % sampling error),

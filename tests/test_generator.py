@@ -139,6 +139,7 @@ max_acceleration = 150.0
 """
 
 
+@pytest.mark.slow
 def test_a_stepped_sine_campaign_on_the_generator_matches_the_analytic_receptance(tmp_path):
     rig = load_rig(RIGS / "linear-shaker.toml")
     path = tmp_path / "gen.h5"
@@ -153,6 +154,7 @@ def test_a_stepped_sine_campaign_on_the_generator_matches_the_analytic_receptanc
         assert_matches_receptance(rig, s.run("sine_0.5N_up"))
 
 
+@pytest.mark.slow
 def test_a_guardian_that_cannot_start_stops_the_open_unless_unguarded(monkeypatch):
     import drivers.generator as generator
 
@@ -170,6 +172,7 @@ def test_a_guardian_that_cannot_start_stops_the_open_unless_unguarded(monkeypatc
             arms_and_disarms(rig, shaker)
 
 
+@pytest.mark.slow
 def test_the_guardian_switches_off_a_hung_host_and_the_driver_reports_it():
     from drivers import OutputTripped
     from drivers.generator import HEARTBEAT

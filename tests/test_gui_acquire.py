@@ -40,6 +40,7 @@ def connect_and_arm(window, qtbot, level, output):
     window.acquire.output.setText(str(output))
 
 
+@pytest.mark.slow
 def test_campaign_through_the_widgets_grows_the_live_plots_and_writes_the_session(window, qtbot, tmp_path):
     output = tmp_path / "gui.h5"
     connect_and_arm(window, qtbot, LEVEL, output)
@@ -90,6 +91,7 @@ def test_campaign_through_the_widgets_grows_the_live_plots_and_writes_the_sessio
     assert rows[RUN] == ("complete", "17") and rows["random"][0] == "complete"
 
 
+@pytest.mark.slow
 def test_abort_mid_run_switches_the_output_off_and_keeps_the_lines(window, qtbot, tmp_path):
     output = tmp_path / "aborted.h5"
     connect_and_arm(window, qtbot, LONG_LEVEL, output)
@@ -111,6 +113,7 @@ def test_abort_mid_run_switches_the_output_off_and_keeps_the_lines(window, qtbot
     assert "ABORTED" in window.acquire.run_label.text()
 
 
+@pytest.mark.slow
 def test_closing_the_window_mid_run_switches_the_output_off_first(window, qtbot, tmp_path):
     output = tmp_path / "closed.h5"
     connect_and_arm(window, qtbot, LONG_LEVEL, output)

@@ -54,6 +54,7 @@ def shown_error(window) -> float:
     return float(re.match(r"FRF error (\S+)", window.model.error_label.text()).group(1))
 
 
+@pytest.mark.slow
 def test_add_on_the_top_candidate_lowers_the_displayed_error_and_undo_restores_it(qtbot, hidden_effect_session):
     session, model = hidden_effect_session
     window = MainWindow("test")

@@ -27,6 +27,7 @@ def served_instruments(request):
         proc.wait(10)
 
 
+@pytest.mark.slow
 def test_real_instruments_over_socket_urls(qtbot, served_instruments):
     window = MainWindow("test")
     qtbot.addWidget(window)

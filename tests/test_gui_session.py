@@ -44,6 +44,7 @@ def shown_lines(window) -> int:
     return int(table.item(0, 5).text()) if table.rowCount() else 0
 
 
+@pytest.mark.slow
 def test_a_session_being_written_by_another_process_is_followed(window, qtbot, tmp_path):
     path = tmp_path / "growing.h5"
     writer = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], cwd=ROOT, stdout=subprocess.PIPE, text=True)

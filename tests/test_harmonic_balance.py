@@ -35,6 +35,7 @@ def test_continuation_points_satisfy_the_explicit_relation_and_find_both_folds()
     assert upper == pytest.approx(np.sqrt(100 + 0.75 * 1e4 * Xf**2), rel=0.01)
 
 
+@pytest.mark.slow
 def test_sweeps_jump_at_the_folds_up_and_down():
     s, els = sdof([{"law": "cubic", "k3": 1e4}])
     curve = continue_response(s, els, "x", 1.0, 5.0, 25.0)
@@ -107,6 +108,7 @@ def test_multiharmonic_duffing_matches_time_integration():
     assert abs(single - ref[1]) > 5 * abs(got[1] - ref[1])   # one harmonic is visibly worse here
 
 
+@pytest.mark.slow
 def test_multiharmonic_bilinear_predicts_mean_and_even_harmonics():
     kp, kn, c, w, F = 300.0, 0.0, 3.0, 9.0, 1.0
     s, els = sdof([{"law": "bilinear", "k_pos": kp, "k_neg": kn}], damping=c)
@@ -162,6 +164,7 @@ def paper_curve():
     return continue_response(s, els, "x2", 0.8, HZ * 0.8, HZ * 3.2)
 
 
+@pytest.mark.slow
 def test_continuation_of_the_paper_model_passes_both_folds_and_reaches_the_end(paper_curve):
     curve = paper_curve
     assert curve.complete and curve.w[-1] == pytest.approx(HZ * 3.2, rel=1e-12)
@@ -187,6 +190,7 @@ def test_continuation_of_the_paper_model_passes_both_folds_and_reaches_the_end(p
     assert curve.stable[curve.folds[1]:].all()
 
 
+@pytest.mark.slow
 def test_continuation_downwards_and_with_a_small_step_stays_in_the_span():
     s, els = paper()
     down = continue_response(s, els, "x2", 0.8, HZ * 1.4, HZ * 1.0)
@@ -210,6 +214,7 @@ def _rk4(rhs, z0, dt, steps):
     return z
 
 
+@pytest.mark.slow
 def test_stability_of_each_branch_at_1_18_hz_against_time_integration(paper_curve):
     # three solutions at 1.18 Hz: the outer two are held by the time-domain system started on them, the middle
     # one (marked unstable) is left for another
@@ -291,6 +296,7 @@ def _paper_orbit_fundamental(w, X):
     (0.8, "up", (0.014, 0.018), {3: 7.5e-3, 5: 5.2e-3, 7: 4.2e-3}),      # 3rd harmonic on mode 2 (2.45 Hz)
     (1.18, "down", (0.016, 0.020), {3: 3e-4, 7: 3e-5}),                 # resonant branch near its fold
 ])
+@pytest.mark.slow
 def test_multiharmonic_on_the_paper_model_against_its_periodic_orbit(f_hz, direction, single_off, limits):
     s, els = paper()
     w = HZ * f_hz

@@ -131,6 +131,7 @@ SCENARIOS = {
 
 
 @pytest.mark.parametrize("name", list(SCENARIOS))
+@pytest.mark.slow
 def test_hidden_effect_in_a_lumped_rig_is_named_and_fixed(name, tmp_path):
     rig_elements, kinds = SCENARIOS[name]
     wb = analyse(LUMPED, LUMPED_IO, LUMPED_PLAN, rig_elements, UNKNOWN_LUMPED, tmp_path)
@@ -141,6 +142,7 @@ def test_hidden_effect_in_a_lumped_rig_is_named_and_fixed(name, tmp_path):
     assert after <= before / 5, (before, after)
 
 
+@pytest.mark.slow
 def test_jenkins_micro_slip_on_the_beam_contact_is_named_and_fixed(tmp_path):
     rig_elements = element("tangential", "O.theta", '{ law = "jenkins", kt = 152.0, fs = 0.4 }')
     model_elements = element("normal", "O.w", "") + element("tangential", "O.theta", "")
@@ -153,6 +155,7 @@ def test_jenkins_micro_slip_on_the_beam_contact_is_named_and_fixed(tmp_path):
     assert wb.add(top.element, top.law).error <= before / 5
 
 
+@pytest.mark.slow
 def test_nothing_missing_claims_no_significant_improvement(tmp_path):
     # moderately nonlinear (displacement THD <= 2 %): where describing functions describe the motion; a
     # strongly distorted response would make extra terms fit the single-harmonic approximation itself

@@ -134,6 +134,7 @@ def imported_session(fmt, measured, tmp_path):
 
 
 @pytest.mark.parametrize("fmt", ["csv", "uff-ascii", "uff-binary"])
+@pytest.mark.slow
 def test_the_workbench_finds_a_hidden_cubic_spring_in_imported_data(fmt, measured, tmp_path):
     wb = analyse(imported_session(fmt, measured, tmp_path))
     assert not wb.reports["joint"].verdict.linear

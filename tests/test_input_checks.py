@@ -174,6 +174,7 @@ def acquire(capsys, served, plan, output, *flags):
     (PLACED, ["--sensors", "q"], "--sensors: sensor DOF 'q' has no accelerometer channel acc:q"),
     (PLAN, [], "p.toml: no excitation DOF"),
 ])
+@pytest.mark.slow
 def test_acquire_checks_dofs_before_measuring_or_writing(capsys, tmp_path, served, plan, flags, message):
     path, output = write(tmp_path, "p.toml", plan), tmp_path / "s.h5"
     rc, err = acquire(capsys, served, path, output, *flags)
@@ -181,6 +182,7 @@ def test_acquire_checks_dofs_before_measuring_or_writing(capsys, tmp_path, serve
     assert not output.exists()
 
 
+@pytest.mark.slow
 def test_acquire_runs_the_documented_command_with_dofs_from_the_plan(capsys, tmp_path, served):
     output = tmp_path / "s.h5"
     rc, err = acquire(capsys, served, write(tmp_path, "p.toml", PLACED), output)

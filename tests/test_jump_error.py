@@ -56,6 +56,7 @@ def true_upper_fold():
     return curve.fold_frequencies[0] / (2 * np.pi)
 
 
+@pytest.mark.slow
 def test_an_early_jump_does_not_dominate_the_error_of_the_right_model(analysed):
     wb, before, after = analysed
     assert wb.model.element("b").laws[0].values["fs"] == pytest.approx(0.1, rel=0.01)

@@ -36,6 +36,7 @@ def coulomb(X, w):
     return 1j * 4 * 0.02 / (np.pi * X) + 0 * w
 
 
+@pytest.mark.slow
 def test_linear_element_passes_and_false_alarm_rate_is_as_stated():
     verdicts = [linearity_verdict(*campaign(viscous, seed)[:4]) for seed in range(20)]
     assert all(v.linear for v in verdicts)

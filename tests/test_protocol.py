@@ -274,6 +274,7 @@ def test_a_rejected_setting_raises_device_error_with_the_whole_queue():
     ("contactid,DAQ-1,bench,1.0", WrongDevice),
     (None, LinkTimeout),
 ])
+@pytest.mark.slow
 def test_wrong_or_silent_device_is_a_clear_error(reply, error):
     port = ScriptedPort([("", None), ("*IDN?", reply)])
     with pytest.raises(error) as info:

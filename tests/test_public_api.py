@@ -220,6 +220,7 @@ def analyzed(tmp_path_factory):
     return session, model, fitted
 
 
+@pytest.mark.slow
 def test_analyze_json_has_every_documented_key(analyzed, capsys):
     session, model, fitted = analyzed
     assert main(["analyze", str(session), str(model), "--add", "right:coulomb", "--json", "-o", str(fitted),

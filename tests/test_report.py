@@ -31,6 +31,7 @@ def test_log_axis_labels_decades_and_leaves_minor_ticks_blank():
     assert len(minor) == 4 + 8 + 8 + 1 and set(axis.tickStrings(minor, 1.0, minor_spacing)) == {""}
 
 
+@pytest.mark.slow
 def test_write_report_draws_every_plot(tmp_path):
     wb = Workbench(load_model(model_doc({"left": PAPER_LAWS["left"], "right": [{"law": "cubic"}]})),
                    synthesise(PAPER_LAWS, lines=17))

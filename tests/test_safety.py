@@ -185,6 +185,7 @@ def test_sigterm_in_process_switches_off_and_chains_to_the_previous_handler():
     ("33500B", "kill", signal.SIGKILL, "off: command", {-signal.SIGKILL}),
     ("33500B", "exit", None, "off: command", {0}),
 ])
+@pytest.mark.slow
 def test_a_guarded_session_in_another_process_always_ends_with_the_output_off(model, mode, action, detail,
                                                                               returncodes):
     with EmulatedRig(RigDouble(), paced=True, name=f"child-{mode}", shaker_model=model) as rig, \

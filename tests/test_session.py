@@ -158,6 +158,7 @@ def check_lines(g, n_min):
 
 
 @pytest.mark.parametrize("seed", range(4))
+@pytest.mark.slow
 def test_sigkill_of_the_acquiring_process_leaves_a_file_any_hdf5_reader_opens(tmp_path, seed):
     rng = np.random.default_rng(seed)
     path = tmp_path / "killed.h5"
@@ -175,6 +176,7 @@ def test_sigkill_of_the_acquiring_process_leaves_a_file_any_hdf5_reader_opens(tm
 
 
 @pytest.mark.parametrize("seed", range(2))
+@pytest.mark.slow
 def test_sigkill_of_the_writer_process_is_repaired_by_contactid_recover(tmp_path, capsys, seed):
     from app.cli import main
 

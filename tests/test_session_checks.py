@@ -105,6 +105,7 @@ def zero_force(f):
     (unknown_kind, f"run {RUN}, attribute kind", "must be one of random, stepped_sine"),
     (zero_force, f"run {RUN}, attribute force", "must be a finite force > 0 N"),
 ])
+@pytest.mark.slow
 def test_impossible_contents_are_refused_naming_file_run_and_dataset(capsys, files, damage, where, message):
     session, model = files
     with h5py.File(session, "r+") as f:

@@ -82,6 +82,7 @@ def test_analyze_never_writes_over_one_of_its_inputs(copies, capsys, which):
     assert target.read_bytes() == before
 
 
+@pytest.mark.slow
 def test_analyze_output_refuses_an_existing_toml_without_force_and_shows_earlier_analyses(copies, capsys):
     session, model = copies
     fitted = session.parent / "fitted.toml"
@@ -188,6 +189,7 @@ AFTER = 'echo $? > "$OUT/rc"; cp "$DISK/s.h5" "$OUT/after.h5"; ls -A "$DISK" > "
 
 
 @needs_private_mount
+@pytest.mark.slow
 def test_analyze_on_a_full_disk_reports_and_leaves_the_session_whole(copies, tmp_path):
     session, model = copies
     before = session.read_bytes()
@@ -205,6 +207,7 @@ def test_analyze_on_a_full_disk_reports_and_leaves_the_session_whole(copies, tmp
 
 
 @needs_private_mount
+@pytest.mark.slow
 def test_analyze_of_a_read_only_session_works_and_says_the_history_was_not_stored(copies, tmp_path):
     on_small_disk(tmp_path, "2m", 'cp "$OUT/s.h5" "$OUT/model.toml" "$DISK"/ && mount -o remount,ro "$DISK" && '
                   '$PY -m app.cli analyze "$DISK/s.h5" "$DISK/model.toml" > "$OUT/stdout" 2> "$OUT/stderr"; ' + AFTER)

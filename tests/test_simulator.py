@@ -339,6 +339,7 @@ def test_shaker_force_drops_at_resonance_as_the_frequency_domain_model_says():
     assert resonance < 0.25 * min(low, high)
 
 
+@pytest.mark.slow
 def test_paper_beam_softens_and_gains_damping_over_the_plan_force_range():
     rig = load_rig("paper-beam")
     peaks = []
@@ -532,6 +533,7 @@ def test_divergence_is_reported():
 
 
 # --- the paper's numerical example end to end --------------------------------------
+@pytest.mark.slow
 def test_paper_example_end_to_end():
     """Paper eqs. 22-24: stepped sine up at 0.8 N on paper-2dof, fundamental per line, closed-form
     identification, law fits: kn1, kn2, cn, mu within 1.5 %."""

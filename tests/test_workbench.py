@@ -40,6 +40,7 @@ def synthesise(truth_laws, forces=(0.4, 0.8), seed=0, lines=49, structure=STRUCT
     return Measurements(runs)
 
 
+@pytest.mark.slow
 def test_missing_effect_loop_recovers_the_paper_laws_and_the_error_falls():
     # the two dissipative effects missing, one at each element
     wb = workbench(load_model(model_doc({"left": [{"law": "cubic"}], "right": [{"law": "cubic"}]})),
@@ -62,6 +63,7 @@ def test_missing_effect_loop_recovers_the_paper_laws_and_the_error_falls():
     assert laws["right"]["cubic"]["k3"] == pytest.approx(-750, rel=1e-2)
 
 
+@pytest.mark.slow
 def test_first_candidate_explains_dry_friction_with_the_measured_slope():
     wb = workbench(load_model(model_doc({"left": PAPER_LAWS["left"], "right": [{"law": "cubic"}]})),
                    synthesise(PAPER_LAWS))
@@ -74,6 +76,7 @@ def test_first_candidate_explains_dry_friction_with_the_measured_slope():
     assert {c.law for c in wb.candidates(["bilinear", "coulomb"])} == {"coulomb"}
 
 
+@pytest.mark.slow
 def test_nothing_missing_means_no_significant_candidate():
     wb = workbench(load_model(model_doc(PAPER_LAWS)), synthesise(PAPER_LAWS, seed=1))
     wb.start()
@@ -82,6 +85,7 @@ def test_nothing_missing_means_no_significant_candidate():
     assert ranked and not any(c.significant for c in ranked)
 
 
+@pytest.mark.slow
 def test_wrong_reference_stiffness_is_named_a_linear_correction():
     truth = {"left": [{"law": "linear", "k": -40.0, "c": 0.0}, {"law": "cubic", "k3": -500.0}], "right": []}
     wb = workbench(load_model(model_doc({"left": [{"law": "cubic"}], "right": []})), synthesise(truth))
