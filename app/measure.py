@@ -19,10 +19,10 @@ class ProgressBar(CampaignListener):
     lines is done -- never carriage-return frames.
     """
 
-    def __init__(self, stream=sys.stderr, quiet: bool = False):
-        self.stream = stream
+    def __init__(self, stream=None, quiet: bool = False):
+        self.stream = sys.stderr if stream is None else stream   # the stderr of now, not of import time
         self.quiet = quiet
-        self.live = bool(getattr(stream, "isatty", lambda: False)())
+        self.live = bool(getattr(self.stream, "isatty", lambda: False)())
         self._last = 0.0
         self._tenth = 0
         self._force = {}

@@ -25,9 +25,6 @@ stop = 2.2
 step = 0.1
 refine = false
 
-[settle]
-fixed_periods = 10
-
 [limits]
 max_force = 5.0
 max_acceleration = 50.0
