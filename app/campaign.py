@@ -29,6 +29,7 @@ from .acquisition import RecordFeed
 from .plan import Plan, RandomSpec, SineSpec
 from .session import RunSpec, SessionWriteError, SessionWriter
 from .stepped_sine import N_HARMONICS, LineMeasurement, LineMeter, frf_change, next_step
+from .transient_line import TransientLines
 
 BLOCK_SECONDS = 0.5           # longest DAQ frame/block: the abort limits are checked at least this often
 BLOCK_POINTS = (64, 256)      # ...within these sizes (small frames cost throughput, large ones latency)
@@ -143,6 +144,7 @@ class Campaign:
         self._events: queue.SimpleQueue = queue.SimpleQueue()
         self._guard: OutputGuard | None = None
         self._gain = None              # N per V, learnt as the campaign runs
+        self._transient = self._transient_lines()   # poles carry over from run to run
         self._run_lines = _RunLines()
         self._total_lines = sum(len(spec.lines(d)) for spec, d in plan.runs) + (1 if plan.random else 0)
         self._done_lines = 0
@@ -356,7 +358,8 @@ class Campaign:
                   "force_phasor": ("N", (), "c16"), "measured_frequency": ("Hz", (), "f8"),
                   "drive": ("V", (), "f8"), "settle_time": ("s", (), "f8"), "settle_periods": ("1", (), "f8"),
                   "steady": ("bool", (), "?"), "control_steps": ("1", (), "i4"),
-                  "force_on_target": ("bool", (), "?")}
+                  "force_on_target": ("bool", (), "?"), "transient": ("bool", (), "?"),
+                  "transient_std": ("1", (), "f8")}
         for d in self.sensor_dofs:
             extras[f"frf_std/{d}"] = ("m/N", (), "f8")
         for c, u in zip(self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs)):
@@ -383,7 +386,8 @@ class Campaign:
             with self.daq.stream(self.block) as stream:
                 feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
                 meter = LineMeter(self.shaker, feed, list(self.daq.channels), self.sensor_dofs, fs,
-                                  self.plan.settle, self.plan.control_tolerance, lambda: self._interrupt(guard))
+                                  self.plan.settle, self.plan.control_tolerance, lambda: self._interrupt(guard),
+                                  self._transient)
                 while True:
                     m = self._measure(meter, f, spec.force, drive)
                     drive = self._carry_drive(m)
@@ -401,6 +405,14 @@ class Campaign:
                 meter.ramp_out(f, m.drive, RAMP_OUT_PERIODS)
             self.shaker.disarm()
             self._judge(name, spec.force)
+
+    def _transient_lines(self) -> TransientLines | None:
+        """The transient-aware path's state for the whole campaign (``[settle] method = "transient"``)."""
+        if self.plan.settle.method != "transient":
+            return None
+        channels = list(self.daq.channels)
+        return TransientLines(self.daq.sample_rate, N_HARMONICS, self.plan.settle.tolerance,
+                              channels.index("force"), [channels.index(f"acc:{d}") for d in self.sensor_dofs])
 
     def _start_drive(self, force: float) -> float:
         """The drive of a run's first line: low. A gain learnt at another frequency or level says little
@@ -451,6 +463,8 @@ class Campaign:
         if not m.steady:
             self._log("settle", f"{name}: {m.frequency:.4f} Hz measured at the settling limit "
                                 f"({m.settle_periods:.0f} periods)")
+        if m.transient_reason:
+            self._log("settle", f"{name}: {m.frequency:.4f} Hz waited for the transient: {m.transient_reason}")
         if not m.on_target:
             self._log("control", f"{name}: {m.frequency:.4f} Hz: force {abs(m.force):.4g} N, target {target:g} N "
                                  f"({100 * (abs(m.force) / target - 1):+.2f} %, tolerance "
@@ -496,7 +510,7 @@ def line_extras(m: LineMeasurement, target: float, daq_channels: list[str], chan
     extras = {"force_amplitude": abs(m.force), "force_target": target, "force_phasor": m.force,
               "measured_frequency": m.measured_frequency, "drive": m.drive, "settle_time": m.settle_time,
               "settle_periods": m.settle_periods, "steady": m.steady, "control_steps": m.control_steps,
-              "force_on_target": m.on_target}
+              "force_on_target": m.on_target, "transient": m.transient, "transient_std": m.transient_std}
     for d in sensor_dofs:
         extras[f"frf_std/{d}"] = m.frf_std[d] if m.frf[d] != 0 else np.nan
     for i, c in enumerate(daq_channels):

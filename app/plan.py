@@ -4,7 +4,9 @@ Beyond the contract's keys, each ``[[stepped_sine]]`` table may set ``refine`` (
 resonance, default true) and ``min_step`` (Hz, default step / 4); ``[settle]`` tunes steady-state detection
 (``tolerance`` relative change between successive blocks, default 2e-3; ``max_periods`` before a line is
 measured anyway, default 600; ``block_periods``, default 5; ``fixed_periods`` replaces the detection by the
-fixed-count practice, waiting that many periods after every change) and ``[control]`` the force loop (``tolerance``,
+fixed-count practice, waiting that many periods after every change; ``method`` = ``"steady"`` waits for the
+transient to die, ``"transient"`` estimates the steady state from records that still hold it, app/transient_line.py)
+and ``[control]`` the force loop (``tolerance``,
 default 0.01 = 1 %). ``[limits] max_lines`` caps the planned stepped-sine lines (default 10 000; a typo such
 as ``step = 1e-9`` would plan billions). ``[excitation] dof`` and ``[sensors] dofs`` say where the force gauge and
 the accelerometers sit, for real instruments. docs/campaigns.md describes them.
@@ -63,6 +65,7 @@ class SineSpec:
         return f"sine_{self.force:g}N_{direction}"
 
 
+SETTLE_METHODS = ("steady", "transient")
 DEFAULT_MAX_LINES = 10_000       # planned stepped-sine lines, all runs together, unless [limits] max_lines says
 LARGEST_MAX_LINES = 1_000_000    # what max_lines may be raised to (each line is a record of its own)
 
@@ -81,6 +84,7 @@ class SettleSpec:
     block_periods: int = 5
     min_blocks: int = 2
     fixed_periods: int = 0       # > 0: the fixed-count practice, wait this many periods after every change
+    method: str = "steady"       # "steady": wait for the transient to die; "transient": fit it (transient_line.py)
 
 
 @dataclass
@@ -192,12 +196,16 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
     if root.has("settle"):
         s = root.sub("settle")
         s.where = "[settle]"
-        s.unknown_keys({"tolerance", "max_periods", "block_periods", "min_blocks", "fixed_periods"})
+        s.unknown_keys({"tolerance", "max_periods", "block_periods", "min_blocks", "fixed_periods", "method"})
         settle = SettleSpec(s.number("tolerance", settle.tolerance, positive=True),
                             int(s.number("max_periods", settle.max_periods, positive=True)),
                             int(s.number("block_periods", settle.block_periods, positive=True)),
                             int(s.number("min_blocks", settle.min_blocks, positive=True)),
-                            int(s.number("fixed_periods", 0, nonnegative=True)))
+                            int(s.number("fixed_periods", 0, nonnegative=True)),
+                            s.string("method", settle.method, SETTLE_METHODS))
+        if settle.method == "transient" and settle.fixed_periods:
+            raise s.error("method", "\"transient\" estimates the steady state early; it cannot be combined with "
+                                    "fixed_periods (the fixed-count practice)")
     control = 0.01
     if root.has("control"):
         c = root.sub("control")

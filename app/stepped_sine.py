@@ -33,6 +33,7 @@ from analysis.harmonics import HarmonicProjector, harmonics_at, sine_fit, total_
 
 from .acquisition import RecordFeed
 from .plan import SettleSpec
+from .transient_line import TransientEstimate, TransientLines
 
 N_HARMONICS = 5
 MAX_LATENCY_S = 10.0     # a generator change not seen in the data after this long is a fault of the set-up
@@ -74,6 +75,12 @@ class LineMeasurement:
         N, what the line was to hold.
     on_target : bool
         Whether the force is within the control tolerance of its target.
+    transient : bool
+        Measured by the transient-aware estimate (``[settle] method = "transient"``), not by waiting.
+    transient_std : float
+        Largest relative standard deviation of the FRFs by the line's last transient fit (NaN: none made).
+    transient_reason : str
+        Why a line of the transient-aware method waited ("" where it did not, or the method is "steady").
     """
 
     frequency: float
@@ -91,13 +98,17 @@ class LineMeasurement:
     raw: np.ndarray
     target_force: float
     on_target: bool
+    transient: bool = False
+    transient_std: float = float("nan")
+    transient_reason: str = ""
 
 
 class LineMeter:
     """Measures lines one after another on a running stream (the structure's state carries over)."""
 
     def __init__(self, shaker, feed: RecordFeed, channels: list[str], sensor_dofs: list[str], sample_rate: float,
-                 settle: SettleSpec, control_tolerance: float, should_stop=lambda: None):
+                 settle: SettleSpec, control_tolerance: float, should_stop=lambda: None,
+                 transient: TransientLines | None = None):
         self.shaker = shaker
         self.feed = feed
         self.force_index = channels.index("force")
@@ -111,6 +122,7 @@ class LineMeter:
         self.latency = 0                       # samples from a generator command to data that show it
         self._frequency: float | None = None   # generator frequency of the last line
         self._projector = None                 # ((frequency, n), HarmonicProjector) of the current line
+        self.transient = transient             # the transient-aware path's state, None: wait (method "steady")
 
     def _set_drive(self, frequency: float, drive: float, previous: float | None) -> None:
         """Change the generator amplitude, then drop the samples taken before it acted (the learnt latency of
@@ -208,12 +220,16 @@ class LineMeter:
         self._new_line(frequency, drive, n_rec)
         wait = LineWait(periods_per_record=n_rec * frequency / fs, drive=drive)
         history: list[RecordAnalysis] = []     # records since the drive last changed
+        self._restart_transient()
         while True:
             self.should_stop()
             rec = self.feed.record(n_rec)
             wait.add_record(rec.first_sample)
             history.append(self._analyse(rec.data, frequency, fit_frequency=False))
-            steady = self._steady(history)
+            early = self._early(frequency, rec)
+            if early is not None:
+                history[-1] = early            # the force loop acts on the estimated steady force
+            steady = early is not None or self._steady(history)
             at_limit = wait.at_limit(self.settle.max_periods)
             ratio = self._correction(frequency, history, steady, at_limit, target_force, wait)
             if ratio is not None:
@@ -223,17 +239,22 @@ class LineMeter:
                     self._await_level(frequency, n_rec, history[-1].force, new_drive / wait.drive)
                     wait.drive_changed(new_drive, limit_retry=at_limit)
                     history = []
+                    self._restart_transient()
                     continue
             if not steady and not at_limit:
                 continue
             before = history[-2].raw if len(history) > 1 else rec.data[:0]
+            if early is not None:
+                wait.steady = True
+                return self._transient_line(self._line(frequency, target_force, early, wait, rec, before))
             out = self._analyse(rec.data, frequency, fit_frequency=True)
+            self._learn_poles(out)
             # what is left of the transient is uncertain by about the last change: part of the FRF's std
             settling = self._change(history[-1], history[-2]) if len(history) > 1 else 1.0
             for d in self.sensor_dofs:
                 out.frf_std[d] = float(np.hypot(out.frf_std[d], abs(out.frf[d]) * min(settling, 1.0)))
             wait.steady = steady
-            return self._line(frequency, target_force, out, wait, rec, before)
+            return self._transient_line(self._line(frequency, target_force, out, wait, rec, before))
 
     # ----- force control: the decisions, one function each ---------------------------------------
     def _on_target(self, force: complex, target: float) -> bool:
@@ -324,11 +345,16 @@ class LineMeter:
             if self._projector is None or self._projector[0] != key:
                 self._projector = (key, HarmonicProjector(frequency, fs, data.shape[0], N_HARMONICS))
             H = self._projector[1](data)
-        Y1 = H.amplitudes[1]
+        amp_std = 2 * H.residual_rms / np.sqrt(data.shape[0])     # std of each complex amplitude
+        return self._analysis(H.amplitudes, amp_std, f_meas, data)
+
+    def _analysis(self, amplitudes: np.ndarray, amp_std: np.ndarray, f_meas: float,
+                  data: np.ndarray) -> "RecordAnalysis":
+        """FRFs, their noise and the THD from harmonic ``amplitudes`` (n_harmonics + 1, channels) whose
+        fundamentals have the standard deviations ``amp_std``."""
+        Y1 = amplitudes[1]
         F = Y1[self.force_index]
         w2 = (2 * np.pi * f_meas) ** 2
-        n = data.shape[0]
-        amp_std = 2 * H.residual_rms / np.sqrt(n)                  # std of each complex amplitude
         frf, frf_std = {}, {}
         for d, i in zip(self.sensor_dofs, self.sensor_index):
             h = Y1[i] / (-w2 * F)
@@ -336,8 +362,35 @@ class LineMeter:
             rel = np.hypot(amp_std[i] / max(abs(Y1[i]), 1e-300), amp_std[self.force_index] / max(abs(F), 1e-300))
             frf_std[d] = abs(h) * rel
         noise = max(frf_std[d] / max(abs(frf[d]), 1e-300) for d in self.sensor_dofs)
-        return RecordAnalysis(F, frf, frf_std, H.amplitudes, noise, total_harmonic_distortion(H.amplitudes),
+        return RecordAnalysis(F, frf, frf_std, amplitudes, noise, total_harmonic_distortion(amplitudes),
                               f_meas, data)
+
+    # ----- transient-aware path ([settle] method = "transient"): app/transient_line.py decides -----
+    def _restart_transient(self) -> None:
+        if self.transient is not None:
+            self.transient.restart()
+
+    def _early(self, frequency: float, rec) -> "RecordAnalysis | None":
+        """The line's steady state estimated from its records while they still hold the transient, where
+        the fit says its model holds; None: wait."""
+        estimate: TransientEstimate | None = self.transient.add(rec, frequency) if self.transient else None
+        if estimate is None or not estimate.accepted:
+            return None
+        return self._analysis(estimate.phasors, estimate.std[1], frequency, rec.data)
+
+    def _learn_poles(self, out: "RecordAnalysis") -> None:
+        """A line that waited: its free response gives the poles for the lines after it."""
+        if self.transient is not None:
+            self.transient.learn(out.frequency, out.harmonics)
+
+    def _transient_line(self, m: LineMeasurement) -> LineMeasurement:
+        """The line with the path it took: by the transient fit, or by waiting (and why)."""
+        if self.transient is not None:
+            last = self.transient.last
+            m.transient = last is not None and last.accepted
+            m.transient_std = last.frf_std if last is not None else float("nan")
+            m.transient_reason = "" if m.transient else self.transient.reason
+        return m
 
     def _line(self, frequency: float, target: float, out: "RecordAnalysis", wait: "LineWait", rec,
               before: np.ndarray) -> LineMeasurement:

@@ -1,0 +1,183 @@
+"""The transient-aware path of a stepped-sine line (``[settle] method = "transient"``, docs/campaigns.md).
+
+Instead of waiting for the free response to die, each new record refits the line's records so far -- since the
+line began or the drive last changed -- as forced harmonics plus decaying modes (analysis/transient_fit.py) and
+takes the forced part as the steady state when the fit says its model holds:
+
+- **precise**: three standard deviations of every FRF and of the force magnitude within the settle tolerance;
+- **consistent**: the same fit without the first record (where the transient is strongest) agrees within the
+  tolerance -- the steady-state check's own criterion, applied to the estimate;
+- **linear**: no acceleration channel shows harmonics above THD_LIMIT (a nonlinear element changes the decay
+  with the amplitude, and near a jump the response heads for an attractor no sum of modes describes);
+- **explained**: what the fit leaves in the first record, relative to that record, is within WHITENESS times
+  what it leaves in the last one (noise is alike everywhere; a wrong model of the transient is not) -- or below
+  a tenth of the tolerance, where no misfit can move the estimate.
+
+Otherwise the line waits as the steady path does, and the reason is kept for the line's record. The poles come
+from the measurement itself: a line that ended by waiting hands its free response (its records minus the settled
+forced response) to a matrix pencil; an accepted line hands on its refined poles. So the first line of a
+campaign waits, and the lines after it are measured from their transients. (A random run's modal fit is not used:
+with a voltage-driven shaker the free response has the poles of structure and shaker together, back-EMF damping
+included, which the force-to-acceleration FRF does not show.)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from analysis.harmonics import total_harmonic_distortion
+from analysis.transient_fit import fit_transient, free_response_poles
+
+MIN_RECORDS = 2          # records a transient fit needs: one to drop for the consistency check
+MAX_FIT_RECORDS = 8      # a line not accepted within this many records waits as the steady path does
+THD_LIMIT = 0.01         # harmonics above this (relative) say the structure is not linear at this line
+WHITENESS = 2.0          # misfit in the first record / in the last, both relative to their record's rms
+
+
+@dataclass
+class TransientEstimate:
+    """One fit of a line's records: the forced response and whether it stands for the steady state.
+
+    ``phasors`` and ``std`` (n_harmonics + 1, channels) are at the first sample of the line's last record (the
+    origin of the steady path's harmonics); ``frf_std`` is the largest relative standard deviation of the
+    FRFs; ``reason`` says why the estimate was not taken ("" when it was)."""
+
+    phasors: np.ndarray
+    std: np.ndarray
+    frf_std: float
+    accepted: bool
+    reason: str
+
+
+class TransientLines:
+    """The poles known so far and the records of the line in progress.
+
+    Parameters
+    ----------
+    sample_rate : float
+    n_harmonics : int
+    tolerance : float
+        The settle tolerance (relative).
+    force_index : int
+    sensor_index : list of int
+        DAQ channel indices of the force and the accelerometers.
+    """
+
+    def __init__(self, sample_rate: float, n_harmonics: int, tolerance: float, force_index: int,
+                 sensor_index: list[int]):
+        self.sample_rate = sample_rate
+        self.n_harmonics = n_harmonics
+        self.tolerance = tolerance
+        self.force_index = force_index
+        self.sensor_index = list(sensor_index)
+        self.poles = np.empty(0, complex)
+        self.last: TransientEstimate | None = None     # the latest fit of this line (None: none made)
+        self.reason = ""                                # why the line in progress is waiting
+        self._records: list = []
+
+    def restart(self) -> None:
+        """A new line, or the drive changed: the records so far hold another forcing."""
+        self._records = []
+        self.last = None
+        self.reason = "no poles known yet" if not len(self.poles) else ""
+
+    def add(self, rec, frequency: float) -> TransientEstimate | None:
+        """Add a record; the estimate of the line's steady state if the records allow one (else None)."""
+        self._records.append(rec)
+        if not len(self.poles):
+            self.reason = "no poles known yet"
+            return None
+        if not MIN_RECORDS <= len(self._records) <= MAX_FIT_RECORDS:
+            return None
+        estimate = self._estimate(frequency)
+        self.last = estimate
+        self.reason = estimate.reason
+        return estimate
+
+    def learn(self, frequency: float, harmonics: np.ndarray) -> None:
+        """A line ended by waiting, its steady harmonics ``harmonics`` (at the first sample of its last record):
+        the poles of what its records held beyond them."""
+        if not self._records:
+            return
+        run = self._contiguous()
+        t, y = self._window(run)
+        h = np.arange(harmonics.shape[0])
+        forced = np.real(harmonics[0]) + np.imag(np.exp(1j * 2 * np.pi * frequency * np.outer(t, h[1:]))
+                                                 @ harmonics[1:])
+        poles = free_response_poles(y - forced, self.sample_rate)
+        if len(poles):
+            self.poles = poles
+
+    # ----- the decisions, one function each --------------------------------------------------------
+    def _estimate(self, frequency: float) -> TransientEstimate:
+        t, y = self._window(self._records)
+        full = fit_transient(t, y, frequency, self.poles, self.n_harmonics)
+        first = len(self._records[0].data)
+        later = fit_transient(t[first:], y[first:], frequency, full.poles, self.n_harmonics, refine=False)
+        frf_std = self._relative_std(full.phasors[1], full.std[1])
+        reason = (self._imprecise(frf_std) or self._inconsistent(full.phasors[1], later.phasors[1])
+                  or self._distorted(full.phasors) or self._unexplained(full.residual, y, first))
+        if not reason:
+            self.poles = full.poles
+        return TransientEstimate(full.phasors, full.std, frf_std, not reason, reason)
+
+    def _imprecise(self, relative_std: float) -> str:
+        if 3 * relative_std > self.tolerance:
+            return f"transient fit too uncertain (3 std = {3 * relative_std:.1e})"
+        return ""
+
+    def _inconsistent(self, a: np.ndarray, b: np.ndarray) -> str:
+        change = _change(a, b, self.force_index, self.sensor_index)
+        if not change <= self.tolerance:
+            return f"transient fit changes by {change:.1e} without its first record"
+        return ""
+
+    def _distorted(self, phasors: np.ndarray) -> str:
+        thd = float(np.max(total_harmonic_distortion(phasors[:, self.sensor_index])))
+        if not thd <= THD_LIMIT:
+            return f"harmonics (THD {thd:.1e}): not linear here"
+        return ""
+
+    def _unexplained(self, residual: np.ndarray, y: np.ndarray, first: int) -> str:
+        last = len(self._records[-1].data)
+        early = _relative_rms(residual[:first], y[:first])
+        late = _relative_rms(residual[-last:], y[-last:])
+        if early <= self.tolerance / 10 or early <= WHITENESS * late:
+            return ""
+        return f"transient fit leaves {early:.1e} early against {late:.1e} late: the modes do not describe it"
+
+    def _relative_std(self, Y1: np.ndarray, std1: np.ndarray) -> float:
+        F, sF = abs(Y1[self.force_index]), std1[self.force_index]
+        rel = [np.hypot(std1[i] / max(abs(Y1[i]), 1e-300), sF / max(F, 1e-300)) for i in self.sensor_index]
+        return float(max(rel + [sF / max(F, 1e-300)]))
+
+    # ----- the records -----------------------------------------------------------------------------
+    def _window(self, records: list) -> tuple[np.ndarray, np.ndarray]:
+        """Samples and their times from the first sample of the last record (records may have gaps between)."""
+        origin = records[-1].first_sample
+        t = np.concatenate([(r.first_sample - origin + np.arange(len(r.data))) / self.sample_rate
+                            for r in records])
+        return t, np.concatenate([r.data for r in records])
+
+    def _contiguous(self) -> list:
+        """The last records of the line that follow one another without a gap (the pencil needs uniform time)."""
+        run = [self._records[-1]]
+        for r in reversed(self._records[:-1]):
+            if r.first_sample + len(r.data) != run[0].first_sample:
+                break
+            run.insert(0, r)
+        return run
+
+
+def _change(a: np.ndarray, b: np.ndarray, force_index: int, sensor_index: list[int]) -> float:
+    """Largest relative change of the force magnitude and of the FRFs (sensor over force) between two fits."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        changes = [abs(abs(a[force_index]) / abs(b[force_index]) - 1)]
+        changes += [abs((a[i] / a[force_index]) / (b[i] / b[force_index]) - 1) for i in sensor_index]
+    return float(np.max(np.nan_to_num(changes, nan=np.inf)))
+
+
+def _relative_rms(residual: np.ndarray, y: np.ndarray) -> float:
+    rms = np.sqrt(np.mean(y**2, axis=0))
+    return float(np.max(np.sqrt(np.mean(residual**2, axis=0)) / np.where(rms > 0, rms, np.inf)))
