@@ -45,6 +45,8 @@ class TransientFit:
         RMS of what the model does not explain, channel units.
     residual : ndarray, shape (n, channels)
         What the model does not explain, sample by sample.
+    free : ndarray, shape (n, channels)
+        The fitted free response (the decaying modes), sample by sample.
     """
 
     phasors: np.ndarray
@@ -52,6 +54,7 @@ class TransientFit:
     poles: np.ndarray
     residual_rms: np.ndarray
     residual: np.ndarray
+    free: np.ndarray
 
 
 def fit_transient(t, y, frequency: float, poles, n_harmonics: int = 5, refine: bool = True) -> TransientFit:
@@ -86,8 +89,9 @@ def fit_transient(t, y, frequency: float, poles, n_harmonics: int = 5, refine: b
     coef, *_ = np.linalg.lstsq(A, ys, rcond=None)
     residual = ys - A @ coef
     phasors, std = _phasors_and_std(A, coef, residual, x, tau, n_harmonics)
+    free = A[:, forced.shape[1]:] @ coef[forced.shape[1]:]
     return TransientFit(phasors * scale, std * scale, _poles(x), np.sqrt(np.mean(residual**2, axis=0)) * scale,
-                        residual * scale)
+                        residual * scale, free * scale)
 
 
 def free_response_poles(y, sample_rate: float, max_modes: int = MAX_MODES) -> np.ndarray:

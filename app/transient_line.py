@@ -9,9 +9,9 @@ takes the forced part as the steady state when the fit says its model holds:
   tolerance -- the steady-state check's own criterion, applied to the estimate;
 - **linear**: no acceleration channel shows harmonics above THD_LIMIT (a nonlinear element changes the decay
   with the amplitude, and near a jump the response heads for an attractor no sum of modes describes);
-- **explained**: what the fit leaves in the first record, relative to that record, is within WHITENESS times
-  what it leaves in the last one (noise is alike everywhere; a wrong model of the transient is not) -- or below
-  a tenth of the tolerance, where no misfit can move the estimate.
+- **explained**: what the fit leaves in the first record is within MODEL_SHARE of the free response it explains
+  there, or within WHITENESS times what it leaves in the last record (both relative to their record: noise is
+  alike everywhere, a wrong model of the transient is not).
 
 Otherwise the line waits as the steady path does, and the reason is kept for the line's record. The poles come
 from the measurement itself: a line that ended by waiting hands its free response (its records minus the settled
@@ -33,6 +33,7 @@ MIN_RECORDS = 2          # records a transient fit needs: one to drop for the co
 MAX_FIT_RECORDS = 8      # a line not accepted within this many records waits as the steady path does
 THD_LIMIT = 0.01         # harmonics above this (relative) say the structure is not linear at this line
 WHITENESS = 2.0          # misfit in the first record / in the last, both relative to their record's rms
+MODEL_SHARE = 0.05       # misfit in the first record / the free response fitted there
 
 
 @dataclass
@@ -117,7 +118,7 @@ class TransientLines:
         later = fit_transient(t[first:], y[first:], frequency, full.poles, self.n_harmonics, refine=False)
         frf_std = self._relative_std(full.phasors[1], full.std[1])
         reason = (self._imprecise(frf_std) or self._inconsistent(full.phasors[1], later.phasors[1])
-                  or self._distorted(full.phasors) or self._unexplained(full.residual, y, first))
+                  or self._distorted(full.phasors) or self._unexplained(full, y, first))
         if not reason:
             self.poles = full.poles
         return TransientEstimate(full.phasors, full.std, frf_std, not reason, reason)
@@ -139,13 +140,15 @@ class TransientLines:
             return f"harmonics (THD {thd:.1e}): not linear here"
         return ""
 
-    def _unexplained(self, residual: np.ndarray, y: np.ndarray, first: int) -> str:
+    def _unexplained(self, fit, y: np.ndarray, first: int) -> str:
         last = len(self._records[-1].data)
-        early = _relative_rms(residual[:first], y[:first])
-        late = _relative_rms(residual[-last:], y[-last:])
-        if early <= self.tolerance / 10 or early <= WHITENESS * late:
+        share = _relative_rms(fit.residual[:first], fit.free[:first])
+        early = _relative_rms(fit.residual[:first], y[:first])
+        late = _relative_rms(fit.residual[-last:], y[-last:])
+        if share <= MODEL_SHARE or early <= WHITENESS * late:
             return ""
-        return f"transient fit leaves {early:.1e} early against {late:.1e} late: the modes do not describe it"
+        return (f"transient fit leaves {share:.1e} of the free response unexplained, {early:.1e} of the first "
+                f"record against {late:.1e} of the last: the modes do not describe it")
 
     def _relative_std(self, Y1: np.ndarray, std1: np.ndarray) -> float:
         F, sF = abs(Y1[self.force_index]), std1[self.force_index]

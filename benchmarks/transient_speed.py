@@ -1,0 +1,120 @@
+"""Shaker time of transient-aware line measurement against today's steady-state detection and the fixed
+300-period practice, at equal FRF accuracy.
+
+    python benchmarks/transient_speed.py [--rigs linear,hardening,friction]
+
+Three rigs through the full in-process stack (drivers + emulated instruments):
+
+- **linear**: tests/rigs/linear-shaker.toml (modes 7.1 and 14.2 Hz, about 1 % damping, a voltage-driven
+  shaker), 5-17 Hz in 0.25 Hz steps at 0.5 N. Accuracy: largest relative error of the receptance against the
+  analytic one.
+- **hardening**: tests/rigs/hardening.toml (a Duffing oscillator that jumps), 8-13 Hz in 0.2 Hz steps at 0.5 N,
+  up and down. Accuracy: largest relative difference from the settled value, the fixed 300-period run's line.
+- **friction**: tests/rigs/stiff-friction.toml (hardening cubic and Coulomb friction, modes 1.59 and 2.76 Hz,
+  zeta 0.3-0.5 %), 1-3.5 Hz in 0.125 Hz steps at 1 N, up and down. Accuracy as for hardening.
+
+A line is on a wrong branch when its FRF magnitude differs from the settled one by more than BRANCH (25 %: the
+jumps of these rigs change it 2-5 x). Shaker time is the DAQ time the sweeps spend at their lines (the
+campaign summary's figure). The machine's load average is printed with the figures.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from app.instruments import emulated_instruments  # noqa: E402
+from app.measure import run_plan  # noqa: E402
+from app.plan import parse_plan  # noqa: E402
+from app.session import open_session  # noqa: E402
+from drivers.simulation.rig import load_rig  # noqa: E402
+
+BRANCH = 0.25
+LIMITS = "[limits]\nmax_force = 5.0\nmax_acceleration = 400.0\n"
+CASES = {
+    "linear": ("linear-shaker.toml", 0.5, 5.0, 17.0, 0.25, "up"),
+    "hardening": ("hardening.toml", 0.5, 8.0, 13.0, 0.2, "both"),
+    "friction": ("stiff-friction.toml", 1.0, 1.0, 3.5, 0.125, "both"),
+}
+METHODS = [("fixed 300 periods (practice)", "fixed_periods = 300"),
+           ("steady-state detection (today)", 'method = "steady"'),
+           ("transient-aware", 'method = "transient"')]
+
+
+def sweep(rig, case, settle: str, out: Path):
+    """Run one sweep; shaker seconds, wall seconds and per run (frequency, FRFs, transient flags)."""
+    _, force, start, stop, step, direction = case
+    text = (f"[settle]\n{settle}\n[[stepped_sine]]\nforce = {force}\nstart = {start}\nstop = {stop}\n"
+            f"step = {step}\ndirection = \"{direction}\"\nrefine = false\n" + LIMITS)
+    plan = parse_plan(tomllib.loads(text), text)
+    t = time.perf_counter()
+    with emulated_instruments(rig) as inst:
+        summary = run_plan(plan, inst, out, overwrite=True)
+    wall = time.perf_counter() - t
+    runs = {}
+    with open_session(out) as s:
+        for name in s.run_names():
+            run = s.run(name)
+            runs[name] = (run.arrays["measured_frequency"], np.stack([run.frf[d] for d in rig.sensor_dofs], 1),
+                          run.arrays["transient"])
+    return summary.shaker_seconds, wall, runs
+
+
+def accuracy(rig, runs, reference) -> tuple[float, int]:
+    """Largest relative FRF error (against the analytic receptance of a linear rig, else the reference run's
+    line) and the lines on a wrong branch."""
+    worst, wrong = 0.0, 0
+    for name, (f, H, _) in runs.items():
+        if reference is None:
+            truth = rig.structure.frf(2 * np.pi * f, columns=[rig.excitation_dof])[:, :, 0]
+        else:
+            truth = reference[name][1]
+        with np.errstate(invalid="ignore"):
+            err = np.abs(H / truth - 1)
+            worst = max(worst, float(np.nanmax(err)))
+            wrong += int(np.sum(np.nanmax(np.abs(np.abs(H) / np.abs(truth) - 1), axis=1) > BRANCH))
+    return worst, wrong
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rigs", default="linear,hardening,friction")
+    args = ap.parse_args()
+    tmp = Path(tempfile.mkdtemp())
+    print(f"load average at start: {os.getloadavg()[0]:.1f}")
+    for key in args.rigs.split(","):
+        case = CASES[key]
+        rig = load_rig(ROOT / "tests" / "rigs" / case[0])
+        results = {}
+        for name, settle in METHODS:
+            results[name] = sweep(rig, case, settle, tmp / f"{key}.h5")
+        linear = key == "linear"
+        reference = None if linear else results[METHODS[0][0]][2]
+        fixed = results[METHODS[0][0]][0]
+        today = results[METHODS[1][0]][0]
+        print(f"\n{key} ({case[0]}, {case[2]:g}-{case[3]:g} Hz step {case[4]:g}, {case[1]:g} N, {case[5]}); "
+              f"accuracy against {'the analytic receptance' if linear else 'the fixed 300-period lines'}")
+        print(f"{'method':32s} {'shaker s':>9s} {'vs fixed':>9s} {'vs today':>9s} {'max FRF err':>12s} "
+              f"{'wrong br.':>9s} {'transient':>10s} {'wall s':>7s}")
+        for name, _ in METHODS:
+            shaker, wall, runs = results[name]
+            err, wrong = accuracy(rig, runs, reference)
+            n = sum(len(r[0]) for r in runs.values())
+            via = sum(int(np.sum(r[2])) for r in runs.values())
+            shown = "--" if (not linear and name == METHODS[0][0]) else f"{err:.1e}"
+            print(f"{name:32s} {shaker:9.1f} {fixed / shaker:8.1f}x {today / shaker:8.1f}x {shown:>12s} "
+                  f"{wrong:9d} {via:4d}/{n:<5d} {wall:7.1f}")
+    print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    main()
