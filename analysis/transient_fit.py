@@ -25,6 +25,7 @@ import scipy.optimize
 
 MAX_MODES = 6              # free-response modes a window is fitted with at most
 PENCIL_SAMPLES = 800       # samples of a free response the pencil looks at (its first, where it is strongest)
+PENCIL_COLUMNS = 100       # pencil width: enough for MAX_MODES modes well above the noise, and a small SVD
 PENCIL_FLOOR = 1e-2        # singular values below this fraction of the largest are noise
 MIN_DAMPING_RATIO = 1e-4   # a pole with less damping is a left-over tone, not a mode
 
@@ -107,7 +108,7 @@ def free_response_poles(y, sample_rate: float, max_modes: int = MAX_MODES) -> np
     n = y.shape[0]
     if n < 12 or y.shape[1] == 0:
         return np.empty(0, complex)
-    L = n // 3
+    L = min(n // 3, PENCIL_COLUMNS)
     H = np.vstack([np.lib.stride_tricks.sliding_window_view(y[:, c], L + 1) for c in range(y.shape[1])])
     _, s, Vh = np.linalg.svd(H, full_matrices=False)
     order = int(np.sum(s > PENCIL_FLOOR * s[0]))
@@ -212,6 +213,7 @@ def _phasors_and_std(A, coef, residual, x, tau, n_harmonics):
         J[rows, p * channels:] = D[:, c, :] * w
     cov = np.linalg.pinv(J.T @ J)
     var = np.diag(cov)[:p * channels].reshape(channels, p).T
+    var = np.where(var >= 0, var, np.inf)          # round-off of a singular problem: precision unknown
     std = np.empty((n_harmonics + 1, channels))
     std[0] = np.sqrt(var[0])
     std[1:] = np.sqrt(var[1:n_forced:2] + var[2:n_forced:2])
