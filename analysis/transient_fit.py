@@ -167,17 +167,16 @@ def _refine(x0, forced, tau, ys, w):
     """Variable projection: the poles that leave the least residual once the amplitudes are solved for (Kaufman's
     Jacobian: the derivative of the model, projected off the design's columns)."""
     def solve(x):
-        A = np.hstack([forced, _free_design(x, tau)])
-        Q, _ = np.linalg.qr(A)
-        coef, *_ = np.linalg.lstsq(A, ys, rcond=None)
-        return A, Q, coef
+        Q, R = np.linalg.qr(np.hstack([forced, _free_design(x, tau)]))
+        Qy = Q.T @ ys
+        return Q, Qy, np.linalg.lstsq(R, Qy, rcond=None)[0]
 
     def residual(x):
-        A, _, coef = solve(x)
-        return (ys - A @ coef).ravel()
+        Q, Qy, _ = solve(x)
+        return (ys - Q @ Qy).ravel()
 
     def jacobian(x):
-        A, Q, coef = solve(x)
+        Q, _, coef = solve(x)
         D = _free_derivatives(x, tau, coef[forced.shape[1]:])          # (n, channels, params)
         D = D - np.einsum("ni,icp->ncp", Q, np.einsum("ni,ncp->icp", Q, D))
         return -D.reshape(-1, len(x))
@@ -187,7 +186,7 @@ def _refine(x0, forced, tau, ys, w):
     hi = np.concatenate([[x0[2 * k] + 5.0, 2.0 * x0[2 * k + 1]] for k in range(len(x0) // 2)])
     try:
         sol = scipy.optimize.least_squares(residual, x0, jac=jacobian, bounds=(lo, hi), x_scale="jac",
-                                           xtol=1e-10, ftol=1e-12, max_nfev=20 * (len(x0) + 1))
+                                           xtol=1e-10, ftol=1e-10, max_nfev=20 * (len(x0) + 1))
     except (ValueError, np.linalg.LinAlgError):     # a singular design at the start: keep what was known
         return x0
     return sol.x if np.all(np.isfinite(sol.x)) else x0

@@ -76,10 +76,12 @@ class TransientLines:
         self.last: TransientEstimate | None = None     # the latest fit of this line (None: none made)
         self.reason = ""                                # why the line in progress is waiting
         self._records: list = []
+        self._nonlinear = False                         # the line in progress showed harmonics
 
     def restart(self) -> None:
         """A new line, or the drive changed: the records so far hold another forcing."""
         self._records = []
+        self._nonlinear = False
         self.last = None
         self.reason = "no poles known yet" if not len(self.poles) else ""
 
@@ -89,7 +91,7 @@ class TransientLines:
         if not len(self.poles):
             self.reason = "no poles known yet"
             return None
-        if not MIN_RECORDS <= len(self._records) <= MAX_FIT_RECORDS:
+        if self._nonlinear or not MIN_RECORDS <= len(self._records) <= MAX_FIT_RECORDS:
             return None
         estimate = self._estimate(frequency)
         self.last = estimate
@@ -113,8 +115,13 @@ class TransientLines:
     # ----- the decisions, one function each --------------------------------------------------------
     def _estimate(self, frequency: float) -> TransientEstimate:
         t, y = self._window(self._records)
-        full = fit_transient(t, y, frequency, self.poles, self.n_harmonics)
         first = len(self._records[0].data)
+        quick = fit_transient(t, y, frequency, self.poles, self.n_harmonics, refine=False)
+        distorted = self._distorted(quick.phasors)
+        if distorted:                    # a nonlinear line stays nonlinear: it waits without more fits
+            self._nonlinear = True
+            return TransientEstimate(quick.phasors, quick.std, np.nan, False, distorted)
+        full = fit_transient(t, y, frequency, self.poles, self.n_harmonics)
         later = fit_transient(t[first:], y[first:], frequency, full.poles, self.n_harmonics, refine=False)
         frf_std = self._relative_std(full.phasors[1], full.std[1])
         reason = (self._imprecise(frf_std) or self._inconsistent(full.phasors[1], later.phasors[1])

@@ -27,7 +27,10 @@ import time
 import tomllib
 from pathlib import Path
 
-import numpy as np
+# the fits are small least-squares problems: BLAS threads only fight over a loaded machine's cores
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
