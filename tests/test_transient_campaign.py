@@ -1,0 +1,94 @@
+"""Transient-aware stepped sine (``[settle] method = "transient"``) through the real drivers and the emulated
+instruments: the same FRFs as waiting, in less shaker time, and waiting where the model of the transient fails."""
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.instruments import emulated_instruments
+from app.measure import run_plan
+from app.plan import parse_plan
+from app.session import open_session
+from drivers.simulation.rig import load_rig
+
+RIGS = Path(__file__).parent / "rigs"
+LIMITS = "[limits]\nmax_force = 5.0\nmax_acceleration = 400.0\n"
+
+
+def sweep(tmp_path, rig, method, force, start, stop, step, direction):
+    text = (f"[settle]\nmethod = \"{method}\"\n[[stepped_sine]]\nforce = {force}\nstart = {start}\nstop = {stop}\n"
+            f"step = {step}\ndirection = \"{direction}\"\nrefine = false\n" + LIMITS)
+    path = tmp_path / f"{method}.h5"
+    with emulated_instruments(rig) as inst:
+        summary = run_plan(parse_plan(tomllib.loads(text), text, "plan.toml"), inst, path)
+    assert summary.complete, summary.text()
+    runs, events = {}, []
+    with open_session(path) as s:
+        for name in s.run_names():
+            run = s.run(name)
+            runs[name] = {"f": run.arrays["measured_frequency"], "transient": run.arrays["transient"],
+                          "transient_std": run.arrays["transient_std"],
+                          "frf": np.stack([run.frf[d] for d in rig.sensor_dofs], axis=1),
+                          "frf_std": np.stack([run.arrays[f"frf_std/{d}"] for d in rig.sensor_dofs], axis=1)}
+        events = [str(e["message"]) for e in s.events()]
+    return summary, runs, events
+
+
+def receptance(rig, f):
+    """(K - w^2 M + j w C)^-1 of the rig's structure driven at its excitation DOF, at the sensor DOFs."""
+    s = rig.structure
+    e = np.zeros(s.n)
+    e[s.index(rig.excitation_dof)] = 1.0
+    rows = [s.index(d) for d in rig.sensor_dofs]
+    return np.array([np.linalg.solve(s.K - (2 * np.pi * fi) ** 2 * s.M + 2j * np.pi * fi * s.C, e)[rows]
+                     for fi in f])
+
+
+@pytest.mark.slow
+def test_linear_rig_same_accuracy_as_waiting_in_less_shaker_time(tmp_path):
+    rig = load_rig(RIGS / "linear-shaker.toml")
+    steady_summary, steady, _ = sweep(tmp_path, rig, "steady", 0.5, 5.0, 17.0, 1.0, "up")
+    summary, transient, events = sweep(tmp_path, rig, "transient", 0.5, 5.0, 17.0, 1.0, "up")
+    a, b = steady["sine_0.5N_up"], transient["sine_0.5N_up"]
+    err_steady = np.abs(a["frf"] / receptance(rig, a["f"]) - 1).max()
+    err = np.abs(b["frf"] / receptance(rig, b["f"]) - 1)
+    assert err.max() <= max(err_steady, 1e-3)
+    # the first line waits (no poles yet), and says so; the rest are measured from their transients
+    assert not b["transient"][0] and np.isnan(b["transient_std"][0])
+    assert any("5.0000 Hz waited for the transient: no poles known yet" in e for e in events)
+    assert b["transient"][1:].mean() >= 0.75
+    # the stored uncertainty covers the error of the lines measured from their transients
+    sel = b["transient"]
+    assert np.all(err[sel] <= 5 * b["frf_std"][sel] / np.abs(b["frf"][sel]) + 1e-6)
+    assert np.all(b["transient_std"][sel] <= 2e-3 / 3)
+    assert summary.shaker_seconds < steady_summary.shaker_seconds
+
+
+@pytest.mark.slow
+def test_hardening_rig_waits_where_harmonics_show_and_stays_on_the_branch(tmp_path):
+    """Up and down through the jump of a Duffing oscillator: every line on the branch the waiting path finds."""
+    rig = load_rig(RIGS / "hardening.toml")
+    _, steady, _ = sweep(tmp_path, rig, "steady", 0.5, 8.0, 13.0, 0.25, "both")
+    _, transient, events = sweep(tmp_path, rig, "transient", 0.5, 8.0, 13.0, 0.25, "both")
+    for name in ("sine_0.5N_up", "sine_0.5N_down"):
+        a, b = steady[name], transient[name]
+        np.testing.assert_allclose(b["f"], a["f"], rtol=1e-4)
+        ratio = np.abs(b["frf"][:, 0]) / np.abs(a["frf"][:, 0])
+        assert np.all(np.abs(ratio - 1) < 0.02), (name, ratio)       # a jump changes it several times over
+        # lines with harmonics waited
+        thd_waits = [e for e in events if name in e and "harmonics" in e]
+        assert thd_waits
+        assert not b["transient"][[i for i, f in enumerate(b["f"])
+                                   if any(f"{f:.4f} Hz waited" in e for e in thd_waits)]].any()
+
+
+@pytest.mark.slow
+def test_friction_rig_no_line_off_the_settled_value(tmp_path):
+    rig = load_rig(RIGS / "stiff-friction.toml")
+    _, steady, _ = sweep(tmp_path, rig, "steady", 1.0, 2.0, 3.2, 0.2, "up")
+    _, transient, _ = sweep(tmp_path, rig, "transient", 1.0, 2.0, 3.2, 0.2, "up")
+    a, b = steady["sine_1N_up"], transient["sine_1N_up"]
+    with np.errstate(invalid="ignore"):
+        change = np.nanmax(np.abs(b["frf"] / a["frf"] - 1), axis=1)
+    assert np.all(change < 0.02), change
