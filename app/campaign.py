@@ -382,6 +382,7 @@ class Campaign:
             guard.arm()
             self._log("operator", f"armed: {name}")
             step, previous, index = spec.step, None, 0
+            gains: list[tuple[float, float]] = []     # (Hz, N/V) of this run's lines
             added_before = self._added_lines
             with self.daq.stream(self.block) as stream:
                 feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
@@ -392,6 +393,7 @@ class Campaign:
                     m = self._measure(meter, f, spec.force, drive)
                     drive = self._carry_drive(m)
                     self._gain = abs(m.force) / m.drive
+                    gains.append((m.frequency, self._gain))
                     self._store_line(name, index, m, spec.force)
                     index += 1
                     self._progress(name, added_before + _added(planned, f, sign, index))
@@ -402,6 +404,7 @@ class Campaign:
                     previous = m
                     f_next = f + sign * step
                     f = stop if sign * (f_next - stop) > 0 else f_next
+                    drive = self._predicted_drive(gains, f, spec.force, drive)
                 meter.ramp_out(f, m.drive, RAMP_OUT_PERIODS)
             self.shaker.disarm()
             self._judge(name, spec.force)
@@ -429,6 +432,19 @@ class Campaign:
             return m.drive
         ratio = float(np.clip(m.target_force / abs(m.force), 0.5, 2.0))
         return min(m.drive * ratio, self.shaker.amplitude_range[1])
+
+    def _predicted_drive(self, gains: list[tuple[float, float]], f: float, force: float, carried: float) -> float:
+        """The transient-aware path's start drive: the gain (N/V) at ``f`` extrapolated from the run's last two
+        lines (within x0.8..1.25 of the last). A line measured from its transient takes a record or two once
+        its force is on target, while a drive correction costs the latency of the command-to-data path and a
+        new transient; the waiting paths keep the carried drive."""
+        if self._transient is None or len(gains) < 2:
+            return carried
+        (f0, g0), (f1, g1) = gains[-2:]
+        if min(g0, g1) <= 0 or f1 == f0:
+            return carried
+        change = np.clip(np.log(g1 / g0) / (f1 - f0) * (f - f1), np.log(0.8), np.log(1.25))
+        return float(min(force / (g1 * np.exp(change)), self.shaker.amplitude_range[1]))
 
     def _judge(self, name: str, force: float) -> None:
         """Fail a run whose data missed the plan (docs/campaigns.md, "Complete or failed")."""

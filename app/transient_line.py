@@ -5,13 +5,15 @@ line began or the drive last changed -- as forced harmonics plus decaying modes 
 takes the forced part as the steady state when the fit says its model holds:
 
 - **precise**: three standard deviations of every FRF and of the force magnitude within the settle tolerance;
-- **consistent**: the same fit without the first record (where the transient is strongest) agrees within the
-  tolerance -- the steady-state check's own criterion, applied to the estimate;
+- **consistent**: the same fit without the window's head -- its first record, or the first half of the only
+  one: where the transient is strongest -- agrees within the tolerance (the steady-state check's own
+  criterion, applied to the estimate);
 - **linear**: no acceleration channel shows harmonics above THD_LIMIT (a nonlinear element changes the decay
   with the amplitude, and near a jump the response heads for an attractor no sum of modes describes);
-- **explained**: what the fit leaves in the first record is within MODEL_SHARE of the free response it explains
-  there, or within WHITENESS times what it leaves in the last record (both relative to their record: noise is
-  alike everywhere, a wrong model of the transient is not).
+- **explained**: what the fit leaves in the head is within MODEL_SHARE of the free response it explains
+  there, or within WHITENESS times what it leaves in the tail (the last record, or the second half of the only
+  one), both relative to their part of the record: noise is alike everywhere, a wrong model of the transient
+  is not.
 
 Otherwise the line waits as the steady path does, and the reason is kept for the line's record. The poles come
 from the measurement itself: a line that ended by waiting hands its free response (its records minus the settled
@@ -29,11 +31,11 @@ import numpy as np
 from analysis.harmonics import total_harmonic_distortion
 from analysis.transient_fit import fit_transient, free_response_poles
 
-MIN_RECORDS = 2          # records a transient fit needs: one to drop for the consistency check
+MIN_RECORDS = 1          # records a transient fit needs (the consistency check drops the first half of one)
 MAX_FIT_RECORDS = 8      # a line not accepted within this many records waits as the steady path does
 THD_LIMIT = 0.01         # harmonics above this (relative) say the structure is not linear at this line
-WHITENESS = 2.0          # misfit in the first record / in the last, both relative to their record's rms
-MODEL_SHARE = 0.05       # misfit in the first record / the free response fitted there
+WHITENESS = 2.0          # misfit in the head of the window / in its tail, both relative to their part's rms
+MODEL_SHARE = 0.05       # misfit in the head / the free response fitted there
 
 
 @dataclass
@@ -115,7 +117,7 @@ class TransientLines:
     # ----- the decisions, one function each --------------------------------------------------------
     def _estimate(self, frequency: float) -> TransientEstimate:
         t, y = self._window(self._records)
-        first = len(self._records[0].data)
+        first = self._head()
         quick = fit_transient(t, y, frequency, self.poles, self.n_harmonics, refine=False)
         distorted = self._distorted(quick.phasors)
         if distorted:                    # a nonlinear line stays nonlinear: it waits without more fits
@@ -138,7 +140,7 @@ class TransientLines:
     def _inconsistent(self, a: np.ndarray, b: np.ndarray) -> str:
         change = _change(a, b, self.force_index, self.sensor_index)
         if not change <= self.tolerance:
-            return f"transient fit changes by {change:.1e} without its first record"
+            return f"transient fit changes by {change:.1e} without its head"
         return ""
 
     def _distorted(self, phasors: np.ndarray) -> str:
@@ -148,7 +150,7 @@ class TransientLines:
         return ""
 
     def _unexplained(self, fit, y: np.ndarray, first: int) -> str:
-        last = len(self._records[-1].data)
+        last = min(len(self._records[-1].data), len(y) - first)
         share = _relative_rms(fit.residual[:first], fit.free[:first])
         early = _relative_rms(fit.residual[:first], y[:first])
         late = _relative_rms(fit.residual[-last:], y[-last:])
@@ -169,6 +171,12 @@ class TransientLines:
         t = np.concatenate([(r.first_sample - origin + np.arange(len(r.data))) / self.sample_rate
                             for r in records])
         return t, np.concatenate([r.data for r in records])
+
+    def _head(self) -> int:
+        """Samples at the start of the window where the transient is strongest: the first record, or the first
+        half of the only one."""
+        first = len(self._records[0].data)
+        return first if len(self._records) > 1 else first // 2
 
     def _contiguous(self) -> list:
         """The last records of the line that follow one another without a gap (the pencil needs uniform time)."""
