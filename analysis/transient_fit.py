@@ -95,15 +95,18 @@ def fit_transient(t, y, frequency: float, poles, n_harmonics: int = 5, refine: b
                         residual * scale, free * scale)
 
 
-def free_response_poles(y, sample_rate: float, max_modes: int = MAX_MODES) -> np.ndarray:
+def free_response_poles(y, sample_rate: float, max_modes: int = MAX_MODES, scale=None) -> np.ndarray:
     """Poles of a free response (uniformly sampled, the forced response removed), by a matrix pencil.
 
+    ``scale`` (per channel, channel units; default the free response's own rms) weighs the channels: pass the
+    rms of the records the free response came from, so that a channel with almost none of it (the force of an
+    ideal source) adds its noise at its true, small weight rather than at that of the others.
     Returns the damped oscillatory poles ``-sigma + j w_d`` (rad/s, imaginary part > 0), ascending in frequency;
     empty when the response holds nothing above the noise.
     """
     y = np.asarray(y, float)
     y = (y[:, None] if y.ndim == 1 else y)[:PENCIL_SAMPLES]
-    rms = np.sqrt(np.mean(y**2, axis=0))
+    rms = np.sqrt(np.mean(y**2, axis=0)) if scale is None else np.asarray(scale, float)
     y = y[:, rms > 0] / rms[rms > 0]
     n = y.shape[0]
     if n < 12 or y.shape[1] == 0:

@@ -30,6 +30,7 @@ def sweep(tmp_path, rig, method, force, start, stop, step, direction):
             runs[name] = {"f": run.arrays["measured_frequency"], "transient": run.arrays["transient"],
                           "transient_std": run.arrays["transient_std"],
                           "frf": np.stack([run.frf[d] for d in rig.sensor_dofs], axis=1),
+                          "thd": run.arrays[f"thd/acc:{rig.sensor_dofs[0]}"],
                           "frf_std": np.stack([run.arrays[f"frf_std/{d}"] for d in rig.sensor_dofs], axis=1)}
         events = [str(e["message"]) for e in s.events()]
     return summary, runs, events
@@ -67,20 +68,22 @@ def test_linear_rig_same_accuracy_as_waiting_in_less_shaker_time(tmp_path):
 
 @pytest.mark.slow
 def test_hardening_rig_waits_where_harmonics_show_and_stays_on_the_branch(tmp_path):
-    """Up and down through the jump of a Duffing oscillator: every line on the branch the waiting path finds."""
+    """Up and down through the jumps of a Duffing oscillator: every line on the branch the waiting path finds,
+    the lines with harmonics (the jump among them) measured by waiting, the others as accurately as waiting."""
     rig = load_rig(RIGS / "hardening.toml")
     _, steady, _ = sweep(tmp_path, rig, "steady", 0.5, 8.0, 13.0, 0.25, "both")
     _, transient, events = sweep(tmp_path, rig, "transient", 0.5, 8.0, 13.0, 0.25, "both")
     for name in ("sine_0.5N_up", "sine_0.5N_down"):
         a, b = steady[name], transient[name]
         np.testing.assert_allclose(b["f"], a["f"], rtol=1e-4)
-        ratio = np.abs(b["frf"][:, 0]) / np.abs(a["frf"][:, 0])
-        assert np.all(np.abs(ratio - 1) < 0.02), (name, ratio)       # a jump changes it several times over
-        # lines with harmonics waited
-        thd_waits = [e for e in events if name in e and "harmonics" in e]
-        assert thd_waits
-        assert not b["transient"][[i for i, f in enumerate(b["f"])
-                                   if any(f"{f:.4f} Hz waited" in e for e in thd_waits)]].any()
+        ratio = np.abs(b["frf"][:, 0] / a["frf"][:, 0] - 1)
+        assert np.all(ratio[b["transient"]] < 3e-3), (name, ratio)     # both within the 2e-3 tolerance
+        assert np.all(ratio < 0.02), (name, ratio)                      # a jump changes it several times over
+        assert np.all(~b["transient"][a["thd"] > 2e-3])                 # twice the harmonics the fit accepts
+        jump = np.argmax(np.abs(np.diff(np.log(np.abs(a["frf"][:, 0])))))
+        assert not b["transient"][jump:jump + 2].any()
+        assert any(f"{name}: {b['f'][jump + 1]:.4f} Hz waited for the transient: harmonics" in e for e in events)
+        assert b["transient"].sum() >= 5
 
 
 @pytest.mark.slow
