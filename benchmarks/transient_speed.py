@@ -5,6 +5,9 @@
 
 Three rigs through the full in-process stack (drivers + emulated instruments):
 
+- **light**: tests/rigs/light-linear.toml (the structure of the friction rig below without its elements: modes
+  1.59 and 2.76 Hz, zeta 0.5 and 0.29 %, an ideal force source), 1-3.5 Hz in 0.05 Hz steps at 0.5 N.
+  Accuracy: largest relative error of the receptance against the analytic one.
 - **linear**: tests/rigs/linear-shaker.toml (modes 7.1 and 14.2 Hz, about 1 % damping, a voltage-driven
   shaker), 5-17 Hz in 0.25 Hz steps at 0.5 N. Accuracy: largest relative error of the receptance against the
   analytic one.
@@ -15,7 +18,9 @@ Three rigs through the full in-process stack (drivers + emulated instruments):
 
 A line is on a wrong branch when its FRF magnitude differs from the settled one by more than BRANCH (25 %: the
 jumps of these rigs change it 2-5 x). Shaker time is the DAQ time the sweeps spend at their lines (the
-campaign summary's figure). The machine's load average is printed with the figures.
+campaign summary's figure: from a line's first record to its last, drive corrections and their latency
+included); "at records" is the part spent in the records a line used (periods / frequency). The machine's load
+average is printed with the figures.
 """
 from __future__ import annotations
 
@@ -44,6 +49,7 @@ from drivers.simulation.rig import load_rig  # noqa: E402
 BRANCH = 0.25
 LIMITS = "[limits]\nmax_force = 5.0\nmax_acceleration = 400.0\n"
 CASES = {
+    "light": ("light-linear.toml", 0.5, 1.0, 3.5, 0.05, "up"),
     "linear": ("linear-shaker.toml", 0.5, 5.0, 17.0, 0.25, "up"),
     "hardening": ("hardening.toml", 0.5, 8.0, 13.0, 0.2, "both"),
     "friction": ("stiff-friction.toml", 1.0, 1.0, 3.5, 0.125, "both"),
@@ -54,7 +60,8 @@ METHODS = [("fixed 300 periods (practice)", "fixed_periods = 300"),
 
 
 def sweep(rig, case, settle: str, out: Path):
-    """Run one sweep; shaker seconds, wall seconds and per run (frequency, FRFs, transient flags)."""
+    """Run one sweep; shaker seconds, seconds at records, wall seconds and per run (frequency, FRFs, transient
+    flags)."""
     _, force, start, stop, step, direction = case
     text = (f"[settle]\n{settle}\n[[stepped_sine]]\nforce = {force}\nstart = {start}\nstop = {stop}\n"
             f"step = {step}\ndirection = \"{direction}\"\nrefine = false\n" + LIMITS)
@@ -63,13 +70,14 @@ def sweep(rig, case, settle: str, out: Path):
     with emulated_instruments(rig) as inst:
         summary = run_plan(plan, inst, out, overwrite=True)
     wall = time.perf_counter() - t
-    runs = {}
+    runs, at_records = {}, 0.0
     with open_session(out) as s:
         for name in s.run_names():
             run = s.run(name)
+            at_records += float(np.sum(run.arrays["settle_periods"] / run.arrays["measured_frequency"]))
             runs[name] = (run.arrays["measured_frequency"], np.stack([run.frf[d] for d in rig.sensor_dofs], 1),
                           run.arrays["transient"])
-    return summary.shaker_seconds, wall, runs
+    return summary.shaker_seconds, at_records, wall, runs
 
 
 def accuracy(rig, runs, reference) -> tuple[float, int]:
@@ -90,7 +98,7 @@ def accuracy(rig, runs, reference) -> tuple[float, int]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--rigs", default="linear,hardening,friction")
+    ap.add_argument("--rigs", default="light,linear,hardening,friction")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp())
     print(f"load average at start: {os.getloadavg()[0]:.1f}")
@@ -100,21 +108,21 @@ def main() -> None:
         results = {}
         for name, settle in METHODS:
             results[name] = sweep(rig, case, settle, tmp / f"{key}.h5")
-        linear = key == "linear"
-        reference = None if linear else results[METHODS[0][0]][2]
+        linear = key in ("light", "linear")
+        reference = None if linear else results[METHODS[0][0]][3]
         fixed = results[METHODS[0][0]][0]
         today = results[METHODS[1][0]][0]
         print(f"\n{key} ({case[0]}, {case[2]:g}-{case[3]:g} Hz step {case[4]:g}, {case[1]:g} N, {case[5]}); "
               f"accuracy against {'the analytic receptance' if linear else 'the fixed 300-period lines'}")
-        print(f"{'method':32s} {'shaker s':>9s} {'vs fixed':>9s} {'vs today':>9s} {'max FRF err':>12s} "
-              f"{'wrong br.':>9s} {'transient':>10s} {'wall s':>7s}")
+        print(f"{'method':32s} {'shaker s':>9s} {'vs fixed':>9s} {'vs today':>9s} {'at records':>10s} "
+              f"{'max FRF err':>12s} {'wrong br.':>9s} {'transient':>10s} {'wall s':>7s}")
         for name, _ in METHODS:
-            shaker, wall, runs = results[name]
+            shaker, records, wall, runs = results[name]
             err, wrong = accuracy(rig, runs, reference)
             n = sum(len(r[0]) for r in runs.values())
             via = sum(int(np.sum(r[2])) for r in runs.values())
             shown = "--" if (not linear and name == METHODS[0][0]) else f"{err:.1e}"
-            print(f"{name:32s} {shaker:9.1f} {fixed / shaker:8.1f}x {today / shaker:8.1f}x {shown:>12s} "
+            print(f"{name:32s} {shaker:9.1f} {fixed / shaker:8.1f}x {today / shaker:8.1f}x {records:10.1f} {shown:>12s} "
                   f"{wrong:9d} {via:4d}/{n:<5d} {wall:7.1f}")
     print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
 
