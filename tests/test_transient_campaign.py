@@ -36,6 +36,13 @@ def sweep(tmp_path, rig, method, force, start, stop, step, direction):
     return summary, runs, events
 
 
+def both(tmp_path, rig, *sweep_args):
+    """The same sweep waiting and transient-aware: (summary, runs) of each and the transient run's events."""
+    steady_summary, steady, _ = sweep(tmp_path, rig, "steady", *sweep_args)
+    summary, transient, events = sweep(tmp_path, rig, "transient", *sweep_args)
+    return steady_summary, steady, summary, transient, events
+
+
 def receptance(rig, f):
     """(K - w^2 M + j w C)^-1 of the rig's structure driven at its excitation DOF, at the sensor DOFs."""
     s = rig.structure
@@ -49,8 +56,7 @@ def receptance(rig, f):
 @pytest.mark.slow
 def test_linear_rig_same_accuracy_as_waiting_in_less_shaker_time(tmp_path):
     rig = load_rig(RIGS / "linear-shaker.toml")
-    steady_summary, steady, _ = sweep(tmp_path, rig, "steady", 0.5, 5.0, 17.0, 1.0, "up")
-    summary, transient, events = sweep(tmp_path, rig, "transient", 0.5, 5.0, 17.0, 1.0, "up")
+    steady_summary, steady, summary, transient, events = both(tmp_path, rig, 0.5, 5.0, 17.0, 1.0, "up")
     a, b = steady["sine_0.5N_up"], transient["sine_0.5N_up"]
     err_steady = np.abs(a["frf"] / receptance(rig, a["f"]) - 1).max()
     err = np.abs(b["frf"] / receptance(rig, b["f"]) - 1)
@@ -71,8 +77,7 @@ def test_hardening_rig_waits_where_harmonics_show_and_stays_on_the_branch(tmp_pa
     """Up and down through the jumps of a Duffing oscillator: every line on the branch the waiting path finds,
     the lines with harmonics (the jump among them) measured by waiting, the others as accurately as waiting."""
     rig = load_rig(RIGS / "hardening.toml")
-    _, steady, _ = sweep(tmp_path, rig, "steady", 0.5, 8.0, 13.0, 0.25, "both")
-    _, transient, events = sweep(tmp_path, rig, "transient", 0.5, 8.0, 13.0, 0.25, "both")
+    _, steady, _, transient, events = both(tmp_path, rig, 0.5, 8.0, 13.0, 0.25, "both")
     for name in ("sine_0.5N_up", "sine_0.5N_down"):
         a, b = steady[name], transient[name]
         np.testing.assert_allclose(b["f"], a["f"], rtol=1e-4)
@@ -90,8 +95,7 @@ def test_hardening_rig_waits_where_harmonics_show_and_stays_on_the_branch(tmp_pa
 def test_friction_rig_waits_where_it_should_and_no_line_leaves_the_settled_value(tmp_path):
     """Stick-slip and a hardening cubic: harmonics at every line, so every line waits, with its reason."""
     rig = load_rig(RIGS / "stiff-friction.toml")
-    _, steady, _ = sweep(tmp_path, rig, "steady", 1.0, 2.0, 3.0, 0.25, "up")
-    _, transient, events = sweep(tmp_path, rig, "transient", 1.0, 2.0, 3.0, 0.25, "up")
+    _, steady, _, transient, events = both(tmp_path, rig, 1.0, 2.0, 3.0, 0.25, "up")
     a, b = steady["sine_1N_up"], transient["sine_1N_up"]
     assert not b["transient"][a["thd"] > 2e-3].any()
     for f in b["f"][~b["transient"]]:
