@@ -10,6 +10,9 @@ ppm). Then:
   transient is within the tolerance too (or the change is down at the noise of the estimate); not after a
   fixed number of cycles. ``max_periods`` bounds the wait; a line measured at that bound is recorded with
   ``steady = False``.
+- **transient-aware** (``[settle] method = "transient"``): app/transient_line.py may estimate the steady state
+  from the records while they still hold the transient; an accepted estimate counts as a settled record for
+  everything below, a refused one leaves the line to the steady-state check.
 - **force control**: the drive voltage is scaled by target / measured (x0.5 .. x2 per step, within the
   generator's range) once the line is steady and its force is off by more than ``control_tolerance`` (1 %);
   before it settles when the force is more than COARSE_ERROR off and its level is known (the approach from
