@@ -103,3 +103,18 @@ def test_friction_rig_waits_where_it_should_and_no_line_leaves_the_settled_value
     with np.errstate(invalid="ignore"):
         change = np.nanmax(np.abs(b["frf"] / a["frf"] - 1), axis=1)
     assert np.all(change < 3e-3), change
+
+
+def test_start_drive_follows_the_gain_extrapolated_over_the_last_two_lines():
+    from types import SimpleNamespace
+
+    from app.campaign import Campaign
+    campaign = SimpleNamespace(_transient=object(), shaker=SimpleNamespace(amplitude_range=(0.0, 10.0)))
+    gain = lambda f: 2.0 * np.exp(0.05 * f)   # noqa: E731  (N/V, log-linear in frequency: extrapolated exactly)
+    gains = [(5.0, gain(5.0)), (5.5, gain(5.5))]
+    assert Campaign._predicted_drive(campaign, gains, 6.0, 0.5, 0.3) == pytest.approx(0.5 / gain(6.0), rel=1e-12)
+    # a steep change is taken at most x1.25 per line; the waiting methods keep the carried drive
+    steep = [(5.0, 1.0), (5.5, 3.0)]
+    assert Campaign._predicted_drive(campaign, steep, 6.0, 0.5, 0.3) == pytest.approx(0.5 / (3.0 * 1.25))
+    assert Campaign._predicted_drive(SimpleNamespace(_transient=None), gains, 6.0, 0.5, 0.3) == 0.3
+    assert Campaign._predicted_drive(campaign, gains[:1], 6.0, 0.5, 0.3) == 0.3
