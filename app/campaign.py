@@ -70,6 +70,7 @@ class CampaignSummary:
     control_tolerance: float = 0.01                             # relative: what the force loop holds
     lines_off_target: int = 0                                   # lines whose force is outside the tolerance
     unsteady_lines: int = 0
+    transient_lines: int = 0                                    # measured from their transient fit
     shaker_seconds: float = 0.0                                 # DAQ time spent driving
     faults: int = 0
     samples_lost: int = 0
@@ -94,7 +95,8 @@ class CampaignSummary:
                  for name, status in self.runs.items()]
         lines.append(f"{self.lines} lines; {self.force_text()}; "
                      f"{self.unsteady_lines} line(s) measured at the settling limit; "
-                     f"{self.shaker_seconds:.1f} s on the shaker")
+                     + (f"{self.transient_lines} from their transients; " if self.transient_lines else "")
+                     + f"{self.shaker_seconds:.1f} s on the shaker")
         if self.faults or self.samples_lost:
             lines.append(f"{self.faults} fault(s) logged, {self.samples_lost} samples lost in transit")
         if self.aborted:
@@ -474,6 +476,7 @@ class Campaign:
         self.summary.worst_force_error = max(self.summary.worst_force_error, error)
         self.summary.lines_off_target += int(not m.on_target)
         self.summary.unsteady_lines += int(not m.steady)
+        self.summary.transient_lines += int(m.transient)
         self.summary.shaker_seconds += m.settle_time
         self._run_lines.add(m, error > MISSED_FORCE)
         if not m.steady:

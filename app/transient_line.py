@@ -45,11 +45,13 @@ class TransientEstimate:
     """One fit of a line's records: the forced response and whether it stands for the steady state.
 
     ``phasors`` and ``std`` (n_harmonics + 1, channels) are at the first sample of the line's last record (the
-    origin of the steady path's harmonics); ``frf_std`` is the largest relative standard deviation of the
-    FRFs; ``reason`` says why the estimate was not taken ("" when it was)."""
+    origin of the steady path's harmonics); ``residual_rms`` (channels) is what the fit leaves unexplained,
+    channel units; ``frf_std`` is the largest relative standard deviation of the FRFs; ``reason`` says why the
+    estimate was not taken ("" when it was)."""
 
     phasors: np.ndarray
     std: np.ndarray
+    residual_rms: np.ndarray
     frf_std: float
     accepted: bool
     reason: str
@@ -124,7 +126,7 @@ class TransientLines:
         distorted = self._distorted(quick.phasors)
         if distorted:                    # a nonlinear line stays nonlinear: it waits without more fits
             self._nonlinear = True
-            return TransientEstimate(quick.phasors, quick.std, np.nan, False, distorted)
+            return TransientEstimate(quick.phasors, quick.std, quick.residual_rms, np.nan, False, distorted)
         full = fit_transient(t, y, frequency, self.poles, self.n_harmonics)
         later = fit_transient(t[first:], y[first:], frequency, full.poles, self.n_harmonics, refine=False)
         frf_std = self._relative_std(full.phasors[1], full.std[1])
@@ -132,7 +134,7 @@ class TransientLines:
                   or self._distorted(full.phasors) or self._unexplained(full, y, first))
         if not reason:
             self.poles = full.poles
-        return TransientEstimate(full.phasors, full.std, frf_std, not reason, reason)
+        return TransientEstimate(full.phasors, full.std, full.residual_rms, frf_std, not reason, reason)
 
     def _imprecise(self, relative_std: float) -> str:
         if 3 * relative_std > self.tolerance:
