@@ -85,7 +85,7 @@ def fit_transient(t, y, frequency: float, poles, n_harmonics: int = 5, refine: b
     scale[scale == 0] = 1.0
     ys = y / scale                                    # channels in their own units weigh alike
     if refine and x.size:
-        x = _refine(x, forced, tau, ys, w)
+        x = _refine(x, forced, tau, ys)
     A = np.hstack([forced, _free_design(x, tau)])
     coef, *_ = np.linalg.lstsq(A, ys, rcond=None)
     residual = ys - A @ coef
@@ -169,7 +169,7 @@ def _free_derivatives(x, tau, coef_free):
     return out
 
 
-def _refine(x0, forced, tau, ys, w):
+def _refine(x0, forced, tau, ys):
     """Variable projection: the poles that leave the least residual once the amplitudes are solved for (Kaufman's
     Jacobian: the derivative of the model, projected off the design's columns)."""
     def solve(x):
