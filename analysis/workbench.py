@@ -32,9 +32,8 @@ from .identify import identify_complex_stiffness
 from .laws import get_law
 from .linearity import LinearityVerdict, linearity_verdict
 from .measurements import Measurements
-from .modal_fit import ModalFit, fit_modes
 from .model import Model, load_model
-from .updating import UpdateResult, update_parameters
+from .reference import ReferenceReport, reference_from_random
 
 
 @dataclass
@@ -82,38 +81,6 @@ class HistoryStep:
                 "laws": self.laws, "model": self.model_toml}
 
 
-@dataclass
-class ReferenceReport:
-    """Modal fit of the random run and (optionally) the updating of the structure."""
-
-    modal: ModalFit | None
-    update: UpdateResult | None
-
-    def text(self) -> str:
-        lines = []
-        if self.modal is not None:
-            lines.append("modes from the random run (modal fit):")
-            lines += [f"  mode {i + 1}: {f:10.4f} Hz, damping {100 * z:.3f} %"
-                      for i, (f, z) in enumerate(zip(self.modal.frequency, self.modal.damping))]
-        if self.update is not None:
-            lines.append("reference model updated to the measured frequencies:")
-            lines += ["  " + line for line in self.update.table_text().splitlines()]
-        return "\n".join(lines)
-
-    def to_json(self) -> dict:
-        out: dict = {}
-        if self.modal is not None:
-            out["modes"] = [{"frequency": float(f), "damping": float(z)}
-                            for f, z in zip(self.modal.frequency, self.modal.damping)]
-        if self.update is not None:
-            u = self.update
-            out["updating"] = {"parameters": {p: {"before": float(b), "after": float(a)}
-                                              for p, b, a in zip(u.parameters, u.before, u.after)},
-                               "modes": u.modes, "measured_hz": u.measured_hz.tolist(),
-                               "before_hz": u.before_hz.tolist(), "after_hz": u.after_hz.tolist()}
-        return out
-
-
 class Workbench:
     """Carry one model through identification, fitting, comparison and the missing-effect loop."""
 
@@ -138,21 +105,10 @@ class Workbench:
     # ------------------------------------------------------------------ reference
     def update_reference(self) -> ReferenceReport:
         """Modal fit of the random run; update the parameters named in the model's ``[updating]`` table."""
-        rnd = self.measurements.random
-        modal = update = None
-        if rnd is not None:
-            n_wanted = max(self.model.updating_modes or [len(self.model.updating_parameters) or 1])
-            modal = fit_modes(rnd.frequency_hz, rnd.receptance, n_modes=n_wanted)
-            if self.model.updating_parameters:
-                modes = self.model.updating_modes or list(range(1, len(modal.frequency) + 1))
-                if len(modal.frequency) < len(modes):
-                    raise InputError(f"the random run shows {len(modal.frequency)} modes but {len(modes)} are to "
-                                     "be matched", self.model.source, "[updating].modes")
-                update = update_parameters(self.model.structure_table, self.model.updating_parameters,
-                                           modal.frequency[: len(modes)], modes, self.model.source)
-                self.model = self.model.with_structure(update.table)
-                self._predictor = None
-        self.reference = ReferenceReport(modal, update)
+        self.reference = reference_from_random(self.model, self.measurements.random)
+        if self.reference.update is not None:
+            self.model = self.model.with_structure(self.reference.update.table)
+            self._predictor = None
         return self.reference
 
     # ------------------------------------------------------------------ identification

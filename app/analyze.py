@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 from analysis.comparison import gain_phrase
 from analysis.errors import InputError
 from analysis.frf_noise import METHOD as NOISE_METHOD
-from analysis.model import load_model
+from analysis.model import Model, load_model
+from analysis.reference import ReferenceReport, reference_from_random
 from analysis.tables import load_toml
 from analysis.workbench import Workbench
 
@@ -76,6 +77,42 @@ def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = T
             raise err.located(field_prefix=f"--add {add}") from None
     candidates = wb.candidates() if rank else []
     return wb, candidates
+
+
+@dataclass
+class ReferenceAnalysis:
+    """A session with a random run and no stepped sine: the modal fit and the model updated to it -- all a
+    low-level test can tell (docs/workbench.md, section 1)."""
+
+    model: Model
+    reference: ReferenceReport
+
+    def text(self) -> str:
+        return "\n".join([self.reference.text(), "",
+                          "no stepped-sine run: the elements are not identified (a random run is the reference only)"])
+
+    def to_json(self) -> dict:
+        return {"reference": self.reference.to_json(), "elements": [], "candidates": [], "history": [],
+                "model": self.model.to_toml()}
+
+
+def reference_only(session_path, model_path, adds: list[str] = ()) -> ReferenceAnalysis | None:
+    """The reference analysis of a session that has a random run and no stepped sine (None if it has a
+    stepped-sine run: the workbench analyses it)."""
+    with open_session(session_path) as s:
+        measurements = measurements_from_session(s)
+    if measurements.sine or measurements.random is None:
+        return None
+    if adds:
+        raise InputError(f"--add {adds[0]}: the session has no stepped-sine run to fit a law to", str(session_path))
+    model = load_model(load_toml(model_path), str(model_path))
+    missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
+    if missing:
+        raise InputError(f"measured DOF(s) {', '.join(missing)} are not in the model's structure", model.source)
+    reference = reference_from_random(model, measurements.random)
+    if reference.update is not None:
+        model = model.with_structure(reference.update.table)
+    return ReferenceAnalysis(model, reference)
 
 
 def session_notes(session_path) -> SessionNotes:
