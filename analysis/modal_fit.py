@@ -27,6 +27,8 @@ import scipy.signal
 
 from .frf_estimation import expected_h1
 
+NOISE_PROMINENCE = 10.0    # a peak must stand this many random errors of |H1| above its surroundings (noise
+                           # bumps of a Welch estimate of 8 averages reach 5-12)
 LOW_COHERENCE = 0.8        # mean H1 coherence over a mode's half-power band below this: the mode is not trusted
 F_BOUNDS = (0.8, 1.25)     # the pole's frequency is searched within these factors of its peak line
 ZETA_BOUNDS = (1e-6, 0.5)
@@ -104,7 +106,7 @@ def _projected(w, H, wr, zeta):
 
 
 def fit_modes(frequency_hz, H, n_modes: int | None = None, band=None, min_prominence: float = 0.05,
-              coherence=None) -> ModalFit:
+              coherence=None, random_error=None) -> ModalFit:
     """Fit modes to receptance FRFs.
 
     Parameters
@@ -121,6 +123,9 @@ def fit_modes(frequency_hz, H, n_modes: int | None = None, band=None, min_promin
         Peak prominence in the log mode indicator (natural-log units) below which a bump is not a mode.
     coherence : array_like, shape (L,) or (L, p), optional
         Coherence of each FRF (random excitation): each mode's coherence is reported.
+    random_error : array_like, shape (L,) or (L, p), optional
+        Normalised random error of each |H1| (random excitation): a peak must also stand NOISE_PROMINENCE
+        times the random error (of the sensor that dominates the indicator there) above its surroundings.
 
     Returns the modes ascending in frequency; peaks whose pole is not a mode are in ``rejected``.
     """
@@ -128,15 +133,21 @@ def fit_modes(frequency_hz, H, n_modes: int | None = None, band=None, min_promin
     H = np.asarray(H, complex)
     H = H[:, None] if H.ndim == 1 else H
     coh = None if coherence is None else np.asarray(coherence, float).reshape(len(f), -1)
+    err = None if random_error is None else np.asarray(random_error, float).reshape(len(f), -1)
     if band is not None:
         keep = (f >= band[0]) & (f <= band[1])
         f, H = f[keep], H[keep]
         coh = None if coh is None else coh[keep]
+        err = None if err is None else err[keep]
     if len(f) < 8 or np.any(f <= 0):
         raise ValueError("need at least 8 lines, all at positive frequency")
     w = 2 * np.pi * f
     indicator = np.log(np.sum(np.abs(H) * (w[:, None] ** 2), axis=1))   # accelerance-weighted: flat in mass line
     peaks, props = scipy.signal.find_peaks(indicator, prominence=min_prominence)
+    if err is not None:                      # above the estimate's own scatter (a mass line is flat, not peaky)
+        dominant = np.abs(H[peaks]).argmax(axis=1)
+        above = props["prominences"] >= NOISE_PROMINENCE * err[peaks, dominant]
+        peaks, props = peaks[above], {k: v[above] for k, v in props.items()}
     if not len(peaks):
         raise ValueError("no resonance peak found in the band")
     if n_modes is not None:
@@ -189,7 +200,7 @@ def _fit_peak(f, H, i, sel) -> _Pole:
     _, coef, R = _projected(ws, Hs, wr, zeta)
     bound = ""
     if sol.active_mask[0]:
-        bound = f"frequency at {F_BOUNDS[sol.active_mask[0] > 0]:g} x the peak"
+        bound = f"frequency at {F_BOUNDS[int(sol.active_mask[0] > 0)]:g} x the peak"
     elif sol.active_mask[1]:
         bound = f"damping at its {'floor' if sol.active_mask[1] < 0 else 'ceiling'} {sol.x[1]:.2g}"
     return _Pole(wr / (2 * np.pi), zeta, coef[0], (f[sel][0], f[sel][-1]),

@@ -83,15 +83,18 @@ class ReferenceReport:
     """Modal fit of the random run, what to trust of it, and (optionally) the updating of the structure.
 
     ``leakage`` holds, per mode, the Hann leakage bias of its damping at the run's resolution (empty when the
-    run's resolution is not known); ``trusted`` marks the modes the updating may use (coherence not low, not a
+    run's resolution is not known; None for a mode not trusted); ``trusted`` marks the modes the updating may use (coherence not low, not a
     held structure); ``notes`` say why the reference was not updated where it was not."""
 
     modal: ModalFit | None
     update: UpdateResult | None
-    leakage: list[LeakageBias] = field(default_factory=list)
+    leakage: list[LeakageBias | None] = field(default_factory=list)
     stuck: list[StuckMode] = field(default_factory=list)
     trusted: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
+
+    def _trusted(self) -> np.ndarray:
+        return np.ones(len(self.modal.frequency), bool) if self.trusted is None else self.trusted
 
     def warnings(self) -> list[str]:
         """Low coherence and stuck structure, one sentence each."""
@@ -100,23 +103,27 @@ class ReferenceReport:
         out = []
         if self.modal.coherence is not None:
             low = self.modal.low_coherence
-            out = [f"LOW COHERENCE: the mode at {f:.4f} Hz has coherence {c:.2f} (below {LOW_COHERENCE:g}): not "
-                   "trusted" for f, c in zip(self.modal.frequency[low], self.modal.coherence[low])]
+            if low.any():
+                out.append(f"LOW COHERENCE (below {LOW_COHERENCE:g}) at {low.sum()} mode(s), not trusted: " + ", ".join(
+                    f"{f:.4g} Hz ({c:.2f})" for f, c in zip(self.modal.frequency[low], self.modal.coherence[low])))
         return out + [m.text() for m in self.stuck]
 
     def text(self) -> str:
         lines = []
         if self.modal is not None:
             lines.append("modes from the random run (modal fit):")
-            for i, (f, z) in enumerate(zip(self.modal.frequency, self.modal.damping)):
-                line = f"  mode {i + 1}: {f:10.4f} Hz, damping {100 * z:.3f} %"
+            trusted = self._trusted()
+            for n, i in enumerate(np.flatnonzero(trusted)):
+                f, z = self.modal.frequency[i], self.modal.damping[i]
+                line = f"  mode {n + 1}: {f:10.4f} Hz, damping {100 * z:.3f} %"
                 if self.modal.coherence is not None:
                     line += f", coherence {self.modal.coherence[i]:.2f}"
-                if self.leakage:
+                if self.leakage and self.leakage[i] is not None:
                     line += _leakage_text(self.leakage[i])
                 lines.append(line)
-            if not len(self.modal.frequency):
-                lines.append("  none: no peak of the random run fits as a mode")
+            if not trusted.any():
+                lines.append("  none to trust" if len(self.modal.frequency) else
+                             "  none: no peak of the random run fits as a mode")
             if self.modal.rejected:
                 lines.append(f"  {len(self.modal.rejected)} peak(s) not modes (pole on a bound of its search or "
                              "outside its band): " + ", ".join(f"{r.frequency:.4g}" for r in self.modal.rejected)
@@ -139,7 +146,7 @@ class ReferenceReport:
                 if m.coherence is not None:
                     entry["coherence"] = float(m.coherence[i])
                     entry["low_coherence"] = bool(m.low_coherence[i])
-                if self.leakage:
+                if self.leakage and self.leakage[i] is not None:
                     b = self.leakage[i]
                     entry["leakage"] = {"resolution": b.resolution, "damping_bias": _finite(b.bias),
                                         "damping_corrected": _finite(b.corrected)}
@@ -175,13 +182,17 @@ def reference_from_random(model: Model, run: RandomRun | None) -> ReferenceRepor
     if run is None:
         return ReferenceReport(None, None)
     try:
-        modal = fit_modes(run.frequency_hz, run.receptance, coherence=run.coherence)
+        modal = fit_modes(run.frequency_hz, run.receptance, coherence=run.coherence, random_error=run.random_error)
     except ValueError as exc:
-        return ReferenceReport(None, None, notes=[f"no modal fit of the random run: {exc}"])
+        notes = [f"no modal fit of the random run: {exc}"]
+        if run.coherence is not None and run.coherence.max() < LOW_COHERENCE:
+            notes.append(f"LOW COHERENCE: at most {run.coherence.max():.2f} over the band: the structure did not "
+                         "respond linearly to the random force (friction holding it at this level?)")
+        return ReferenceReport(None, None, notes=notes)
     stuck = stuck_modes(modal, model)
     trusted = ~modal.low_coherence & ~np.isin(modal.frequency, [s.frequency for s in stuck])
-    leakage = [] if run.resolution is None else [leakage_bias(f, z, run.resolution)
-                                                 for f, z in zip(modal.frequency, modal.damping)]
+    leakage = [] if run.resolution is None else [leakage_bias(f, z, run.resolution) if ok else None
+                                                 for f, z, ok in zip(modal.frequency, modal.damping, trusted)]
     report = ReferenceReport(modal, None, leakage, stuck, trusted)
     if model.updating_parameters:
         report.update = _update(model, modal.frequency[trusted], report.notes)
