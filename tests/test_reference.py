@@ -18,6 +18,7 @@ from analysis.reference import held_frequencies, reference_from_random
 from app.cli import main
 from app.plan import parse_plan
 from app.session import RunSpec, SessionWriter
+from drivers.simulation.rig import builtin_rig_path
 
 # a linear 2-DOF with modes near 12.7 and 24.5 Hz, force at x2
 RIG_12 = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 1.0]],
@@ -211,3 +212,27 @@ def test_random_only_session_through_analyze(tmp_path, capsys):
     # a law cannot be added without a stepped-sine run: one line, exit 2
     assert main(["analyze", str(path), str(model), "--add", "j:coulomb"]) == 2
     assert "no stepped-sine run to fit a law to" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_paper_2dof_random_run_at_low_level_is_seen_stuck(tmp_path, capsys):
+    """The paper's 2-DOF rig at 0.05 N rms: friction (fs = 0.1 N) holds x2, the coherence stays low, and the one
+    resonance is x1 on the held x2 (sqrt(200) / 2 pi = 2.2508 Hz). No pole on a bound is a mode, the modes are
+    ascending, the coherence is warned about and the stuck structure is said."""
+    plan = tmp_path / "random.toml"
+    plan.write_text(PLAN.format(extra=""), encoding="utf-8")
+    session = tmp_path / "s.h5"
+    assert main(["simulate", "paper-2dof", str(plan), "-o", str(session), "--quiet"]) == 0
+    capsys.readouterr()
+    model = builtin_rig_path("paper-2dof")             # the rig file is a model file: the truth as reference
+    assert main(["analyze", str(session), str(model), "--json"]) == 0
+    ref = json.loads(capsys.readouterr().out)["reference"]
+    freqs = [m["frequency"] for m in ref["modes"]]
+    assert freqs == sorted(freqs) and all(0.5 <= f <= 5.0 for f in freqs)
+    assert all(m["damping"] > 1.01e-6 for m in ref["modes"])
+    assert not any(m["trusted"] for m in ref["modes"]) and ref["warnings"]
+    assert ref["stuck"] and ref["stuck"][0]["elements"] == ["right"]
+    assert ref["stuck"][0]["frequency"] == pytest.approx(np.sqrt(200.0) / (2 * np.pi), rel=0.01)
+    assert main(["analyze", str(session), str(model)]) == 0
+    text = capsys.readouterr().out
+    assert "LOW COHERENCE" in text and "STUCK" in text
