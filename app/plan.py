@@ -7,7 +7,9 @@ measured anyway, default 600; ``block_periods``, default 5; ``fixed_periods`` re
 fixed-count practice, waiting that many periods after every change) and ``[control]`` the force loop (``tolerance``,
 default 0.01 = 1 %). ``[limits] max_lines`` caps the planned stepped-sine lines (default 10 000; a typo such
 as ``step = 1e-9`` would plan billions). ``[excitation] dof`` and ``[sensors] dofs`` say where the force gauge and
-the accelerometers sit, for real instruments. docs/campaigns.md describes them.
+the accelerometers sit, for real instruments. ``[random] resolution`` (Hz) sets the Welch line spacing of the
+random run, automatic from the band and ``expected_damping`` (default 0.01) otherwise. docs/campaigns.md describes
+them.
 """
 from __future__ import annotations
 
