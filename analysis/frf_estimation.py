@@ -181,14 +181,28 @@ def hann_kernel(offset_hz, resolution: float) -> np.ndarray:
     return (np.sinc(x) + 0.5 * np.sinc(x - 1.0) + 0.5 * np.sinc(x + 1.0)) ** 2
 
 
+def _kernel_average(frf, lines_hz, resolution: float, reach: float, points_per_line: int):
+    """(kernel-averaged H, kernel-averaged |H|^2) at each line: the expected cross and auto spectra per unit
+    force spectrum."""
+    lines_hz = np.asarray(lines_hz, float)
+    offsets = np.linspace(-reach, reach, int(2 * reach * points_per_line) + 1) * resolution
+    weight = hann_kernel(offsets, resolution)
+    weight = weight / weight.sum()
+    v = lines_hz[:, None] + offsets[None, :]
+    values = np.asarray(frf(np.abs(v).ravel()), complex).reshape(v.shape)
+    values = np.where(v > 0, values, np.conj(values))          # H(-f) = conj(H(f)) for a real system
+    return values @ weight, np.abs(values) ** 2 @ weight
+
+
+def expected_coherence(frf, lines_hz, resolution: float, reach: float = 8.0, points_per_line: int = 40):
+    """The coherence a Hann-windowed Welch estimate of a noise-free linear system converges to: below 1 only
+    where the FRF changes within a line (leakage), ``|E[G_fx]|^2 / (E[G_ff] E[G_xx])``."""
+    h, h2 = _kernel_average(frf, lines_hz, resolution, reach, points_per_line)
+    return np.abs(h) ** 2 / h2
+
+
 def expected_h1(frf, lines_hz, resolution: float, reach: float = 8.0, points_per_line: int = 40) -> np.ndarray:
     """The H1 a Hann-windowed Welch estimate converges to under a flat force spectrum: the true FRF averaged
     over each line's window kernel, ``E[H1](f) = int |W(f - v)|^2 H(v) dv / int |W(f - v)|^2 dv`` (the leakage
     bias; random error averaged away). ``frf(f_hz)`` evaluates the true FRF on an array of frequencies."""
-    lines_hz = np.asarray(lines_hz, float)
-    offsets = np.linspace(-reach, reach, int(2 * reach * points_per_line) + 1) * resolution
-    weight = hann_kernel(offsets, resolution)
-    v = lines_hz[:, None] + offsets[None, :]
-    values = np.asarray(frf(np.abs(v).ravel()), complex).reshape(v.shape)
-    values = np.where(v > 0, values, np.conj(values))          # H(-f) = conj(H(f)) for a real system
-    return values @ weight / weight.sum()
+    return _kernel_average(frf, lines_hz, resolution, reach, points_per_line)[0]

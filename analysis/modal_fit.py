@@ -25,7 +25,7 @@ import numpy as np
 import scipy.optimize
 import scipy.signal
 
-from .frf_estimation import expected_h1
+from .frf_estimation import expected_coherence, expected_h1
 
 NOISE_PROMINENCE = 10.0    # a peak must stand this many random errors of |H1| above its surroundings (noise
                            # bumps of a Welch estimate of 8 averages reach 5-12)
@@ -61,6 +61,9 @@ class ModalFit:
     coherence : ndarray, shape (m,), or None
         Mean coherence over each mode's half-power band at the sensor with the largest residue (None when
         no coherence was given).
+    leakage_coherence : ndarray, shape (m,), or None
+        The coherence a noise-free linear mode of the fitted frequency and damping shows on the same lines at
+        the Welch resolution (Hann leakage alone; 1 where the resolution is not known).
     rejected : list of RejectedPeak
         Peaks whose pole ended on a bound or outside its band.
     """
@@ -72,19 +75,23 @@ class ModalFit:
     fit_error: np.ndarray
     coherence: np.ndarray | None = None
     rejected: list[RejectedPeak] = field(default_factory=list)
+    leakage_coherence: np.ndarray | None = None
 
     @property
     def low_coherence(self) -> np.ndarray:
-        """Per mode: True where its coherence is below LOW_COHERENCE (all False without coherence)."""
+        """Per mode: True where its coherence is below LOW_COHERENCE times what leakage alone leaves (all False
+        without coherence)."""
         if self.coherence is None:
             return np.zeros(len(self.frequency), bool)
-        return self.coherence < LOW_COHERENCE
+        ceiling = 1.0 if self.leakage_coherence is None else self.leakage_coherence
+        return self.coherence < LOW_COHERENCE * ceiling
 
     def subset(self, keep) -> "ModalFit":
         """The modes selected by the boolean mask or index array ``keep`` (the rejected peaks stay)."""
         return ModalFit(self.frequency[keep], self.damping[keep], self.residues[keep], self.band[keep],
                         self.fit_error[keep], None if self.coherence is None else self.coherence[keep],
-                        list(self.rejected))
+                        list(self.rejected),
+                        None if self.leakage_coherence is None else self.leakage_coherence[keep])
 
     def shapes(self) -> np.ndarray:
         """Real mode shapes (m, p) from the residues, each scaled so its largest entry is +1."""
@@ -106,7 +113,7 @@ def _projected(w, H, wr, zeta):
 
 
 def fit_modes(frequency_hz, H, n_modes: int | None = None, band=None, min_prominence: float = 0.05,
-              coherence=None, random_error=None) -> ModalFit:
+              coherence=None, random_error=None, resolution: float | None = None) -> ModalFit:
     """Fit modes to receptance FRFs.
 
     Parameters
@@ -126,6 +133,9 @@ def fit_modes(frequency_hz, H, n_modes: int | None = None, band=None, min_promin
     random_error : array_like, shape (L,) or (L, p), optional
         Normalised random error of each |H1| (random excitation): a peak must also stand NOISE_PROMINENCE
         times the random error (of the sensor that dominates the indicator there) above its surroundings.
+    resolution : float, optional
+        Hz, of the Hann-windowed Welch estimate the FRFs come from: a mode's coherence is judged against what
+        leakage alone leaves at that resolution.
 
     Returns the modes ascending in frequency; peaks whose pole is not a mode are in ``rejected``.
     """
@@ -168,7 +178,10 @@ def fit_modes(frequency_hz, H, n_modes: int | None = None, band=None, min_promin
                    np.array([m.band for m in modes]).reshape(len(modes), 2),
                    np.array([m.fit_error for m in modes]), None, rejected)
     if coh is not None:
-        fit.coherence = np.array([_mode_coherence(f, coh, m) for m in modes])
+        fit.coherence = np.array([coh[_half_power_lines(f, m), int(np.abs(m.residue).argmax())].mean()
+                                  for m in modes])
+        if resolution is not None:
+            fit.leakage_coherence = np.array([_leakage_coherence(f, m, resolution) for m in modes])
     return fit
 
 
@@ -217,14 +230,23 @@ def _not_a_mode(pole: _Pole) -> str:
     return ""
 
 
-def _mode_coherence(f, coh, pole: _Pole) -> float:
-    """Mean coherence over the mode's half-power band (at least its nearest line), at the sensor with the
-    largest residue: the sensor that sees the mode most."""
-    half = pole.frequency * pole.damping
-    near = np.abs(f - pole.frequency) <= half
-    if not near.any():
-        near = np.abs(f - pole.frequency) == np.abs(f - pole.frequency).min()
-    return float(coh[near, int(np.abs(pole.residue).argmax())].mean())
+def _half_power_lines(f, pole: _Pole) -> np.ndarray:
+    """The lines within the mode's half-power band, or its nearest line: where its coherence is read (at the
+    sensor with the largest residue, the one that sees the mode most)."""
+    distance = np.abs(f - pole.frequency)
+    near = distance <= pole.frequency * pole.damping
+    return near if near.any() else distance == distance.min()
+
+
+def _leakage_coherence(f, pole: _Pole, resolution: float) -> float:
+    """The mean coherence Hann leakage alone leaves on the same lines for a single linear mode of this pole."""
+    wr = 2 * np.pi * pole.frequency
+
+    def receptance(f_hz):
+        w = 2 * np.pi * f_hz
+        return 1.0 / (wr**2 - w**2 + 2j * pole.damping * wr * w)
+
+    return float(expected_coherence(receptance, f[_half_power_lines(f, pole)], resolution).mean())
 
 
 def _half_power_damping(f, mag, ipk):

@@ -104,7 +104,8 @@ class ReferenceReport:
         if self.modal.coherence is not None:
             low = self.modal.low_coherence
             if low.any():
-                out.append(f"LOW COHERENCE (below {LOW_COHERENCE:g}) at {low.sum()} mode(s), not trusted: " + ", ".join(
+                out.append(f"LOW COHERENCE (below {LOW_COHERENCE:g} x what leakage alone leaves) at {low.sum()} mode(s), not "
+                           "trusted: " + ", ".join(
                     f"{f:.4g} Hz ({c:.2f})" for f, c in zip(self.modal.frequency[low], self.modal.coherence[low])))
         return out + [m.text() for m in self.stuck]
 
@@ -182,7 +183,8 @@ def reference_from_random(model: Model, run: RandomRun | None) -> ReferenceRepor
     if run is None:
         return ReferenceReport(None, None)
     try:
-        modal = fit_modes(run.frequency_hz, run.receptance, coherence=run.coherence, random_error=run.random_error)
+        modal = fit_modes(run.frequency_hz, run.receptance, coherence=run.coherence, random_error=run.random_error,
+                          resolution=run.resolution)
     except ValueError as exc:
         notes = [f"no modal fit of the random run: {exc}"]
         if run.coherence is not None and run.coherence.max() < LOW_COHERENCE:
