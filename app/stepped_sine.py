@@ -14,9 +14,11 @@ ppm). Then:
   generator's range) once the line is steady and its force is off by more than ``control_tolerance`` (1 %);
   before it settles when the force is more than COARSE_ERROR off and its level is known (the approach from
   a low start); and at the settling limit, LIMIT_RETRIES times. After each change the loop waits until the
-  data show it (:meth:`LineMeter._await_level`): samples from before the change still arrive for a while. A
-  voltage-driven shaker loses force at resonance, and kbar only means something at a stated force. The
-  instrument ramps the amplitude, so the drive never jumps.
+  data show it (:meth:`LineMeter._await_change`): samples from before the change still arrive for a while
+  (tens of seconds of them from a fast emulator over TCP), and records are measured -- counted by the
+  fixed-count practice, corrected on by the loop -- only from after the one that shows it. A voltage-driven
+  shaker loses force at resonance, and kbar only means something at a stated force. The instrument ramps the
+  amplitude, so the drive never jumps.
 
 The FRF is the receptance ``h_p = A_p / (-(2 pi f)^2 F)`` from the accelerometer and force fundamentals; its
 standard deviation combines the residual noise of the fit (a complex amplitude from N samples with white
