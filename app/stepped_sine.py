@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -125,21 +126,21 @@ class LineMeter:
         ramp_s = self._ramp_seconds(drive, previous)
         self.feed.skip(self.latency + int(np.ceil((ramp_s + 3.0 / frequency) * self.sample_rate)))
 
-    def _await_level(self, frequency: float, n_rec: int, force: complex, ratio: float, drive: float,
-                     previous: float) -> None:
-        """After the drive was scaled by ``ratio`` (``previous`` to ``drive`` V) from a level that gave
-        ``force``, wait until the data show the change, as :meth:`_new_line` waits for a new frequency: records
-        whose force is still the old one were sampled before the instrument acted (a socket or FIFO can hold
-        seconds of them), and a loop correcting on them doubles the drive again and again -- the first-line
-        overshoots of the force limit. Then the instrument's ramp is skipped once more, counted from the record
-        that showed the change: only records that provably follow it are measured."""
+    def _await_level(self, frequency: float, n_rec: int, force: complex, drive: float, previous: float) -> None:
+        """After the drive was scaled from ``previous`` to ``drive`` V at a level that gave ``force``, wait
+        until the data show the change, as :meth:`_new_line` waits for a new frequency: records whose force is
+        still the old one were sampled before the instrument acted (a socket or FIFO can hold seconds of them,
+        a fast emulator over TCP tens of seconds), and a loop correcting on them doubles the drive again and
+        again -- the first-line overshoots of the force limit. Then the instrument's ramp is skipped once more,
+        counted from the record that showed the change: only records that provably follow it are measured."""
         def shows(data: np.ndarray) -> bool:
-            return self._moved(abs(force), abs(self._analyse(data, frequency, fit_frequency=False).force), ratio)
+            now = abs(self._analyse(data, frequency, fit_frequency=False).force)
+            return self._moved(abs(force), now, drive / previous)
 
         self._await_change(n_rec, shows)
         self.feed.skip(int(np.ceil((self._ramp_seconds(drive, previous) + 3.0 / frequency) * self.sample_rate)))
 
-    def _await_change(self, n_rec: int, shows) -> None:
+    def _await_change(self, n_rec: int, shows: Callable[[np.ndarray], bool]) -> None:
         """Read records until one shows the last generator change (``shows(data)``) and drop that one too: the
         change happened before it ends, but maybe in its middle. Records read before it were sampled before the
         instrument acted; their samples update the learnt latency.
@@ -239,8 +240,7 @@ class LineMeter:
                 new_drive = float(min(wait.drive * ratio, self.v_max))
                 if new_drive != wait.drive:
                     self._set_drive(frequency, new_drive, wait.drive)
-                    self._await_level(frequency, n_rec, history[-1].force, new_drive / wait.drive, new_drive,
-                                      wait.drive)
+                    self._await_level(frequency, n_rec, history[-1].force, new_drive, wait.drive)
                     wait.drive_changed(new_drive, limit_retry=at_limit)
                     history = []
                     continue
