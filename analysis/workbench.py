@@ -138,6 +138,7 @@ class Workbench:
         self._comparison: Comparison | None = None
         self._single: Comparison | None = None
         self._predictor: Predictor | None = None
+        self._offers: tuple[Comparison, float, list[NonParametricOffer]] | None = None
 
     # ------------------------------------------------------------------ reference
     def update_reference(self) -> ReferenceReport:
@@ -305,8 +306,11 @@ class Workbench:
 
     def unexplained(self, false_alarm: float = 1e-3) -> list[NonParametricOffer]:
         """The elements whose kbar departs from their laws by much more than the noise
-        (:func:`analysis.unexplained.unexplained`), each with the error a non-parametric part would give."""
+        (:func:`analysis.unexplained.unexplained`), each with the error a non-parametric part would give. Kept
+        until the model changes (the report and the JSON both ask)."""
         base = self.single_harmonic_comparison()
+        if self._offers is not None and self._offers[0] is base and self._offers[1] == false_alarm:
+            return self._offers[2]
         out = []
         for i, el in enumerate(self.model.elements):
             report = self.reports.get(el.name)
@@ -315,6 +319,7 @@ class Workbench:
             finding = unexplained(report.samples, report.fit, false_alarm)
             if finding is not None:
                 out.append(offer_nonparametric(self.predictor, base, i, report.samples, report.fit, finding))
+        self._offers = (base, false_alarm, out)
         return out
 
     def linear_corrections(self, min_sigma: float = 5.0) -> list[str]:
@@ -368,6 +373,7 @@ class Workbench:
         out = {"elements": [self.reports[el.name].to_json(el) for el in self.model.elements],
                **comp.to_json(), "other_branch_hz": comp.other_branch_hz(self.measurements.sine),
                "candidates": [c.to_json() for c in (candidates or [])],
+               "unexplained": [o.to_json() for o in self.unexplained()],
                "history": [h.to_json() for h in self.history],
                "unfinished_runs": [note.to_json() for note in self.measurements.unfinished]}
         if self.reference is not None:
