@@ -37,7 +37,7 @@ from .errors import InputError
 from .tables import Fields
 
 NAME = "nonparametric"          # how --add and the model file name it
-KNOTS = 8                       # knots in ln X (fewer where the samples have fewer distinct amplitudes)
+KNOTS = 16                      # knots in ln X (fewer where the samples have fewer distinct amplitudes)
 W_KNOTS = 3                     # knots in ln w of the frequency part
 FREQUENCY_FALSE_ALARM = 1e-3    # of the F test that keeps the frequency part
 _LAMBDAS = np.logspace(-6, 4, 41)   # smoothing values tried (relative to the data's scale)

@@ -180,9 +180,10 @@ class NonParametricOffer:
     def text(self) -> str:
         clamp = (f"; {self.extrapolated_lines} predicted line(s) outside its amplitude range, held constant there"
                  if self.extrapolated_lines else "")
+        gain = (f"a better law could gain up to x{self.gain:.3g}" if self.gain >= 1 else
+                f"{gain_phrase(self.gain)}: the laws predict the FRFs better than the smoothed samples")
         return (f"a non-parametric '{self.element}' (--add {self.element}:nonparametric) gives error "
-                f"{self.error:.4g} ({gain_phrase(self.gain)}): a better law could gain up to x{self.gain:.2f}"
-                + clamp)
+                f"{self.error:.4g} against {self.error_before:.4g}: {gain}" + clamp)
 
     def to_json(self) -> dict:
         f = self.fit.frequency
