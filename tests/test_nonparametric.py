@@ -279,3 +279,31 @@ def test_analyze_adds_the_nonparametric_part_from_the_command_line(tmp_path, cap
     with open_session(session) as s:                    # the stored history loads back, part and all
         stored = read_model_history(s)[-1]["steps"][-1]
     assert load_model(tomllib.loads(stored["model"])).element("joint").nonparametric is not None
+
+
+@pytest.mark.slow
+def test_the_model_tab_shows_the_unexplained_joint_and_adds_its_nonparametric_part(qtbot, tmp_path):
+    from PySide6.QtWidgets import QPushButton
+
+    from app.gui.main_window import MainWindow
+    session, model = tmp_path / "s.h5", tmp_path / "model.toml"
+    write_session(session, measured(outside_force))
+    model.write_text(load_model(model_doc([{"law": "linear"}])).to_toml(), encoding="utf-8")
+    window = MainWindow("test")
+    qtbot.addWidget(window)
+    window.lab.load_model_file(str(model))
+    window.lab.open_session(str(session))
+    panel = window.model
+    with qtbot.waitSignal(window.lab.analysisUpdated, timeout=120000):
+        panel.analyze_button.click()
+    [shown] = window.lab.analysis.unexplained
+    assert shown.element == "joint" and shown.gain > 20
+    [button] = panel.unexplained.findChildren(QPushButton)
+    with qtbot.waitSignal(window.lab.analysisUpdated, timeout=120000):
+        button.click()
+    qtbot.waitUntil(lambda: len(window.lab.analysis.history) == 2)
+    view = window.lab.analysis
+    assert view.history[-1].action == "add joint:nonparametric" and view.unexplained == []
+    assert view.history[-1].error < view.history[0].error / 20
+    assert view.elements[0].nonparametric.startswith("nonparametric(16 knots")
+    assert not panel.unexplained.findChildren(QPushButton)
