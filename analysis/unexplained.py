@@ -22,7 +22,9 @@ the slopes of Re and Im of the residual against ln X and ln w together (a plane 
 squares), with their significance, since the signature alone does not say how Re moves with w.
 
 :func:`offer_nonparametric` fits the non-parametric part (:mod:`analysis.nonparametric`) to what the laws leave
-and predicts the FRFs with it: its error is what a better law could reach at best.
+and predicts the FRFs with it: its error is what a better law could reach at best. ``above_noise`` says whether
+that gain is more than the FRF noise explains (the FRF chi-square drop beyond its ``1 - FALSE_ALARM`` quantile for
+the part's effective parameters), as the candidates' FRF test does.
 """
 from __future__ import annotations
 
@@ -171,6 +173,7 @@ class NonParametricOffer:
     error: float
     error_before: float
     extrapolated_lines: int      # predicted lines where the element's amplitude lies outside the knots
+    above_noise: bool            # the FRF chi-square drops by more than the noise explains (module docstring)
     finding: Unexplained | None = None
 
     @property
@@ -182,13 +185,15 @@ class NonParametricOffer:
                  if self.extrapolated_lines else "")
         gain = (f"a better law could gain up to x{self.gain:.3g}" if self.gain >= 1 else
                 f"{gain_phrase(self.gain)}: the laws predict the FRFs better than the smoothed samples")
+        if self.gain >= 1 and not self.above_noise:
+            gain += " (no more than the FRF noise explains)"
         return (f"a non-parametric '{self.element}' (--add {self.element}:nonparametric) gives error "
                 f"{self.error:.4g} against {self.error_before:.4g}: {gain}" + clamp)
 
     def to_json(self) -> dict:
         f = self.fit.frequency
         return {"element": self.element, "error": self.error, "error_before": self.error_before,
-                "gain": self.gain, "extrapolated_lines": self.extrapolated_lines,
+                "gain": self.gain, "extrapolated_lines": self.extrapolated_lines, "above_noise": self.above_noise,
                 "frequency_dependent": self.fit.model.frequency_dependent,
                 "frequency_test": None if f is None else asdict(f),
                 "finding": None if self.finding is None else self.finding.to_json(), "text": self.text()}
@@ -207,7 +212,16 @@ def offer_nonparametric(predictor: Predictor, base: Comparison, index: int, samp
     predictions = predictor.predict(fns)
     comp = compare_predictions(predictor.runs, predictions)
     outside = sum(int(np_fit.model.outside(np.abs(p.y[:, index])).sum()) for p in predictions.values())
-    return NonParametricOffer(samples.name, np_fit, comp.error, base.error, outside, finding)
+    return NonParametricOffer(samples.name, np_fit, comp.error, base.error, outside,
+                              _frf_drop_above_noise(base, comp, np_fit.effective_parameters), finding)
+
+
+def _frf_drop_above_noise(base: Comparison, comp: Comparison, parameters: float) -> bool:
+    """Whether the FRF chi-square falls by more than its 1 - FALSE_ALARM quantile for the part's effective
+    parameters (True where the measurement has no standard deviations: nothing to judge against)."""
+    if base.chi_square is None or comp.chi_square is None:
+        return True
+    return bool(base.chi_square - comp.chi_square > scipy.stats.chi2.ppf(1 - FALSE_ALARM, max(parameters, 1.0)))
 
 
 def _with_part(laws, part: NonParametric):
