@@ -85,9 +85,10 @@ def _trends(samples: ElementSamples, residual: np.ndarray) -> Trends:
         # the slopes' scatter: the noise's, or the residual's own where it scatters more (a curved residual)
         scale = max(1.0, float(np.sum((A @ coef - weight * values) ** 2)) / max(len(lx) - len(cols), 1))
         sd = np.sqrt(np.diag(cov) * scale)
-        out[f"{part}_X"], out[f"{part}_X_sigma"] = float(coef[1]), float(coef[1] / sd[1])
-        out[f"{part}_w"], out[f"{part}_w_sigma"] = ((float(coef[2]), float(coef[2] / sd[2])) if w_varies
-                                                    else (0.0, 0.0))
+        # a variable that does not vary (one amplitude, one line) has no slope: 0 sigma
+        sigma = np.divide(coef, sd, out=np.zeros_like(coef), where=sd > 0)
+        out[f"{part}_X"], out[f"{part}_X_sigma"] = float(coef[1]), float(sigma[1])
+        out[f"{part}_w"], out[f"{part}_w_sigma"] = (float(coef[2]), float(sigma[2])) if w_varies else (0.0, 0.0)
     return Trends(**out)
 
 
@@ -113,8 +114,9 @@ class Unexplained:
         return math.sqrt(self.chi_square / self.expected)
 
     def text(self) -> str:
-        laws = " + ".join(self.laws) or "no law"
-        return (f"'{self.element}' is not explained by {laws}: kbar departs by {self.noise_ratio:.1f}x the noise "
+        head = (f"is not explained by {' + '.join(self.laws)}: kbar departs" if self.laws else
+                "has no law: kbar departs from 0")
+        return (f"'{self.element}' {head} by {self.noise_ratio:.1f}x the noise "
                 f"(trimmed chi-square {self.chi_square:.3g} against {self.threshold:.3g} at {self.false_alarm:g} "
                 f"false alarm, {self.left_out} largest of {self.n_samples} lines left out); residual: "
                 f"{self.words.re}; {self.words.im}; {self.trends.words()}")

@@ -298,6 +298,8 @@ class Workbench:
     def _add_nonparametric(self, el) -> HistoryStep:
         if el.nonparametric is not None:
             raise InputError(f"element {el.name!r} already has a non-parametric part", self.model.source)
+        if not self.reports:
+            self.fit()                          # identified and the laws fitted: the part takes what they leave
         if self.reports[el.name].samples is None:
             raise InputError(f"element {el.name!r} has no well-conditioned line to fit a non-parametric part to")
         self._fit_nonparametric(el)
@@ -306,15 +308,16 @@ class Workbench:
 
     def unexplained(self, false_alarm: float = 1e-3) -> list[NonParametricOffer]:
         """The elements whose kbar departs from their laws by much more than the noise
-        (:func:`analysis.unexplained.unexplained`), each with the error a non-parametric part would give. Kept
-        until the model changes (the report and the JSON both ask)."""
+        (:func:`analysis.unexplained.unexplained`), each with the error a non-parametric part would give. Only
+        elements with laws: where none is on yet, the library has not been tried and the candidates are the
+        advice. Kept until the model changes (the report and the JSON both ask)."""
         base = self.single_harmonic_comparison()
         if self._offers is not None and self._offers[0] is base and self._offers[1] == false_alarm:
             return self._offers[2]
         out = []
         for i, el in enumerate(self.model.elements):
             report = self.reports.get(el.name)
-            if report is None or report.samples is None or el.nonparametric is not None:
+            if report is None or report.samples is None or el.nonparametric is not None or not el.laws:
                 continue
             finding = unexplained(report.samples, report.fit, false_alarm)
             if finding is not None:
