@@ -158,7 +158,8 @@ class ModelPanel(QWidget):
         if self.lab.model is not None:
             for el in self.lab.model.elements:
                 where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
-                laws = " + ".join(t.law.name for t in el.laws) or "no laws (identify kbar only)"
+                parts = [t.law.name for t in el.laws] + ([NONPARAMETRIC] if el.nonparametric is not None else [])
+                laws = " + ".join(parts) or "no laws (identify kbar only)"
                 QTreeWidgetItem(self.laws, [f"{el.name} ({where}): {laws}"])
         self._update_enabled()
 
