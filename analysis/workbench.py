@@ -66,6 +66,8 @@ class ElementReport:
                "lines_used": self.lines_used, "lines_flagged": self.lines_flagged, "laws": laws}
         if self.verdict is not None:
             out["statistic"], out["threshold"] = self.verdict.statistic, self.verdict.threshold
+        if element.nonparametric is not None:
+            out[NONPARAMETRIC] = element.nonparametric.to_toml()
         return out
 
 

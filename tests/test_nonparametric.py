@@ -285,6 +285,8 @@ def test_model_file_round_trip_keeps_the_part_and_undo_takes_it_back():
     np.testing.assert_allclose(el_back.describing_function(X, w), el.describing_function(X, w), rtol=1e-12)
     assert back.to_toml() == text
     assert json.loads(json.dumps(wb.history[-1].to_json()))["laws"]["joint"][-1]["law"] == "nonparametric"
+    shown = json.loads(json.dumps(wb.to_json(), default=float))["elements"][0]["nonparametric"]
+    assert shown["X"] == list(el.nonparametric.X_knots)
     with pytest.raises(InputError, match="already has a non-parametric part"):
         wb.add("joint", "nonparametric")
     wb.undo()
