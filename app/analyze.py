@@ -170,6 +170,8 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
                 err = r.fit.terms[j].stderr.get(k) if r.fit is not None else None
                 params.append(f"{k} = {v:.5g}" + ("" if err is None or not math.isfinite(err) else f" ± {err:.2g}"))
             out.append(f"    law {term.law.name}: {', '.join(params)}")
+        if el.nonparametric is not None:
+            out.append(f"    {el.nonparametric.describe(r.samples.units[1] if r.samples else 'm')}")
     comp = wb.compare()
     out.append("")
     out.append(f"FRF error of the model: {comp.error:.4g}  (" +
@@ -182,6 +184,11 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
     out += _jump_lines(comp, wb.measurements.sine)
     if len(wb.history) > 1:
         out.append("history: " + " -> ".join(f"{h.action} {h.error:.3g}" for h in wb.history))
+    offers = wb.unexplained()
+    if offers:
+        out += ["", "not explained by the laws of the library:"]
+        for o in offers:
+            out += [f"  {o.finding.text()}", f"    {o.text()}"]
     if candidates:
         out += ["", "what is missing (best first):"]
         for c in candidates[:top]:
