@@ -123,7 +123,7 @@ class Combination:
         parts = []
         for name, a in self.coefficients.items():
             sign = "-" if a < 0 else "+"
-            magnitude = "" if math.isclose(abs(a), 1.0, rel_tol=1e-6) else f"{abs(a):.4g}*"
+            magnitude = "" if f"{abs(a):.4g}" == "1" else f"{abs(a):.4g}*"
             parts.append(f"{sign} {magnitude}{name}")
         text = " ".join(parts)
         text = text[2:] if text.startswith("+ ") else text
@@ -156,19 +156,24 @@ class Degeneracy:
         return (f"not separately identifiable: {names}; the samples determine only "
                 + "; ".join(str(c) for c in self.determined))
 
+    def to_json(self) -> dict:
+        return {"parameters": list(self.parameters),
+                "determined": [{"combination": dict(c.coefficients), "value": c.value, "stderr": c.stderr}
+                               for c in self.determined], "text": str(self)}
+
 
 @dataclass(frozen=True)
 class Correlation:
-    """Contract parameters the samples determine only together: their estimates correlate beyond
+    """Two contract parameters the samples determine only together: their estimates correlate beyond
     ``CORRELATION_LIMIT`` (a near-flat direction of the fit, e.g. a linear spring beside an iwan ``kt`` on
     samples without macro-slip).
 
     Attributes
     ----------
-    parameters : tuple[str, ...]
-        ``label.name`` of the group's contract parameters.
+    parameters : tuple[str, str]
+        ``label.name`` of the two contract parameters.
     correlation : float
-        The largest correlation magnitude between two of them.
+        The correlation of their estimates (-1..1).
     determined : Combination
         The combination of them the samples determine best, with its value and standard error.
     """
@@ -178,7 +183,7 @@ class Correlation:
     determined: Combination
 
     def __str__(self) -> str:
-        return (f"not determined separately (correlation {self.correlation:.4f}): {', '.join(self.parameters)}; "
+        return (f"not determined separately (correlation {self.correlation:+.4f}): {' and '.join(self.parameters)}; "
                 f"the samples determine {self.determined}")
 
     def to_json(self) -> dict:
@@ -230,7 +235,7 @@ class LawFit:
         Human-readable remarks: degeneracies, correlated groups, parameters that ended on a
         bound, a shape search that ran out of evaluations, samples left out as outliers.
     correlated : list[Correlation]
-        Groups of contract parameters the samples determine only together.
+        Pairs of contract parameters the samples determine only together.
     excluded : ndarray of bool, shape (N,), or None
         With ``exclude_outliers``: the samples left out of the fit (their residuals are still
         reported); None otherwise.
@@ -864,7 +869,7 @@ def _fit_once(terms, data: _Samples, opts: _Options, inflate: bool = False) -> L
               for name, value in at_bound]
 
     term_fits, contract_names, contract_cov = _term_fits(problem, fit_values, cov, unidentified)
-    correlated = _correlated_groups(term_fits, contract_names, contract_cov)
+    correlated = _correlated_pairs(term_fits, contract_names, contract_cov)
     _mark_undetermined(term_fits, correlated)
     notes += [str(g) for g in correlated]
     aic, bic = _information_criteria(chi_square, rank, 2 * n, data.sigma_given)
@@ -1000,41 +1005,30 @@ def _term_fits(problem: _Problem, fit_values: np.ndarray, cov: np.ndarray,
     return out, names, G_all @ sub @ G_all.T
 
 
-def _correlated_groups(terms: list[TermFit], names: list[str], cov: np.ndarray) -> list[Correlation]:
-    """Groups of contract parameters whose estimates correlate beyond ``CORRELATION_LIMIT`` (a near-flat
-    direction of the fit), each with the combination of them the samples determine best.
+def _correlated_pairs(terms: list[TermFit], names: list[str], cov: np.ndarray) -> list[Correlation]:
+    """Pairs of contract parameters whose estimates correlate beyond ``CORRELATION_LIMIT`` (a near-flat
+    direction of the fit), each with the combination of the two the samples determine best.
 
-    The combination is the eigenvector of the group's correlation matrix with the smallest eigenvalue, taken
-    back to the parameters (coefficient of parameter i: v_i / std_i), largest coefficient 1."""
+    For standard errors s_i, s_j and correlation r that combination is ``p_i / s_i - sign(r) p_j / s_j``
+    (the smaller eigenvalue's direction of the pair's correlation matrix), scaled so that its largest
+    coefficient is 1: ``k + kt`` for a linear spring beside an iwan kt."""
     values = np.array([v for t in terms for v in t.params.values()])
     std = np.sqrt(np.abs(np.diag(cov)))
     usable = np.isfinite(std) & (std > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(std, std)
-    linked = usable[:, None] & usable[None, :] & (np.abs(corr) > CORRELATION_LIMIT)
-    np.fill_diagonal(linked, False)
-    out, seen = [], set()
-    for i in range(len(names)):
-        if i in seen or not linked[i].any():
+    out = []
+    for i, j in zip(*np.triu_indices(len(names), k=1)):
+        if not (usable[i] and usable[j]):
             continue
-        group, frontier = [], [i]
-        seen.add(i)
-        while frontier:
-            j = frontier.pop()
-            group.append(j)
-            for k in np.flatnonzero(linked[j]):
-                if k not in seen:
-                    seen.add(int(k))
-                    frontier.append(int(k))
-        group.sort()
-        sub = corr[np.ix_(group, group)]
-        eigenvalues, vectors = np.linalg.eigh(sub)
-        a = vectors[:, 0] / std[group]
-        a = a / a[np.argmax(np.abs(a))]
-        combo = Combination({names[j]: float(c) for j, c in zip(group, a) if abs(c) > 1e-9},
-                            float(a @ values[group]), float(np.sqrt(max(a @ cov[np.ix_(group, group)] @ a, 0.0))))
-        largest = max(abs(corr[j, k]) for j in group for k in group if j != k)
-        out.append(Correlation(tuple(names[j] for j in group), float(largest), combo))
+        r = cov[i, j] / (std[i] * std[j])
+        if not abs(r) > CORRELATION_LIMIT:
+            continue
+        a = np.array([1.0 / std[i], -math.copysign(1.0, r) / std[j]])
+        a /= a[np.argmax(np.abs(a))]
+        pair = [i, j]
+        variance = a @ cov[np.ix_(pair, pair)] @ a
+        combo = Combination({names[i]: float(a[0]), names[j]: float(a[1])}, float(a @ values[pair]),
+                            float(np.sqrt(max(variance, 0.0))))
+        out.append(Correlation((names[i], names[j]), float(r), combo))
     return out
 
 
