@@ -38,9 +38,9 @@ _NULL_WEIGHT = 1e-8
 #: Two parameters whose estimates correlate beyond this (in magnitude) lie along a near-flat direction of the
 #: fit: the samples determine a combination of them, not each one (docs/fitting.md, "Identifiability").
 CORRELATION_LIMIT = 0.99
-#: A parameter whose standard error exceeds this fraction of its magnitude is "not determined by the data":
-#: its 95 % interval spans zero and both signs.
-UNDETERMINED_RELATIVE = 1.0
+#: A parameter closer to zero than this many standard errors is "not determined by the data": its 95 %
+#: interval holds zero, so the samples tell neither its size nor its sign.
+UNDETERMINED_Z = 1.959964
 #: Probability that a clean set of samples (model and sigma right) loses one sample as an outlier.
 OUTLIER_FALSE_ALARM = 0.01
 # Huber's threshold (in standard deviations of a sample's residual) for the reweighted start of the
@@ -78,8 +78,8 @@ class TermFit:
     fit_params : dict[str, float]
         The same values in the law's fit parametrisation (linear, then shape).
     undetermined : tuple[str, ...]
-        Contract parameters the samples do not determine: an infinite standard error, one above
-        ``UNDETERMINED_RELATIVE`` of the value, or a member of a correlated group
+        Contract parameters the samples do not determine: an infinite standard error, a 95 %
+        interval that holds zero (``UNDETERMINED_Z``), or a member of a correlated pair
         (:attr:`LawFit.correlated`). Their values are not findings; print them as undetermined.
     """
 
@@ -1033,14 +1033,14 @@ def _correlated_pairs(terms: list[TermFit], names: list[str], cov: np.ndarray) -
 
 
 def _mark_undetermined(terms: list[TermFit], correlated: list[Correlation]) -> None:
-    """Mark the contract parameters the samples do not determine: no finite standard error, a standard error
-    above ``UNDETERMINED_RELATIVE`` of the value, or a member of a correlated group."""
+    """Mark the contract parameters the samples do not determine: no finite standard error, a 95 % interval
+    that holds zero (``abs(value) < UNDETERMINED_Z * stderr``), or a member of a correlated pair."""
     in_group = {name for g in correlated for name in g.parameters}
     for t in terms:
         marked = set(t.undetermined)
         for name, value in t.params.items():
             err = t.stderr[name]
-            if (not math.isfinite(err) or err > UNDETERMINED_RELATIVE * abs(value)
+            if (not math.isfinite(err) or abs(value) < UNDETERMINED_Z * err
                     or f"{t.label}.{name}" in in_group):
                 marked.add(name)
         t.undetermined = tuple(n for n in t.law.param_names if n in marked)
