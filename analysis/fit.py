@@ -15,6 +15,7 @@ for most laws). docs/fitting.md states the definitions.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import re
 from dataclasses import dataclass, field
@@ -47,6 +48,12 @@ OUTLIER_FALSE_ALARM = 0.01
 # outlier search, and the most reweighting / exclusion passes.
 HUBER_LIMIT = 2.0
 _ROBUST_ITERATIONS = 20
+# Largest group of undetermined parameters whose determined combinations are searched for the sparsest basis
+# (2^n small SVDs).
+_SPARSE_LIMIT = 10
+# Singular values (of orthonormal rows) below this count as zero there: the finite-difference Jacobian leaves
+# the exact zeros at about 1e-8..1e-7.
+_SPARSE_TOL = 1e-6
 # Relative step of the central differences for the shape columns of the Jacobian
 # (~ eps^(1/3): balances truncation against round-off).
 _DIFF_STEP = 6e-6
@@ -681,12 +688,40 @@ def _covariance(J: np.ndarray, rank_rtol: float):
         # determined directions inside the group (in scaled parameters norm_j * theta_j)
         values, vectors = np.linalg.eigh(np.eye(len(group)) - projector[np.ix_(group, group)])
         combos = []
-        for k in np.flatnonzero(values > 0.5):
+        for row in _sparse_basis(vectors[:, values > 0.5].T):
             coef = np.zeros(P)
-            coef[group] = vectors[:, k] * norms[group]
+            coef[group] = row * norms[group]
             combos.append(coef / coef[np.argmax(np.abs(coef))])
         groups.append((group, combos))
     return cov, int(np.count_nonzero(keep)), involved, groups
+
+
+def _sparse_basis(rows: np.ndarray) -> np.ndarray:
+    """The sparsest basis of the determined combinations (rows: a basis, in scaled parameters).
+
+    Any basis of the determined subspace is right; the sparse one is what can be read: where the samples fix
+    ``k + kt`` beside a combination of the iwan shapes, it says so instead of two mixtures of all four. For
+    each set of parameters to leave out (most first), a combination without them exists when the basis
+    restricted to them has a one-dimensional left null space; such combinations are taken, sparsest first,
+    while they add a dimension. Groups beyond ``_SPARSE_LIMIT`` parameters keep the given basis."""
+    m, g = rows.shape
+    if g > _SPARSE_LIMIT or m == 0:
+        return rows
+    chosen: list[np.ndarray] = []
+    for n_zero in range(g - 1, -1, -1):
+        for zero in itertools.combinations(range(g), n_zero):
+            restricted = rows[:, list(zero)]
+            _, sv, vt = np.linalg.svd(restricted.T, full_matrices=True) if n_zero else (None, np.zeros(0), np.eye(m))
+            null = vt[np.count_nonzero(sv > _SPARSE_TOL):]
+            if len(null) != 1:
+                continue
+            candidate = null[0] @ rows
+            candidate[np.abs(candidate) < _SPARSE_TOL * np.abs(candidate).max()] = 0.0
+            if np.linalg.matrix_rank(np.array(chosen + [candidate]), tol=_SPARSE_TOL) > len(chosen):
+                chosen.append(candidate)
+                if len(chosen) == m:
+                    return np.array(chosen)
+    return np.array(chosen) if len(chosen) == m else rows
 
 
 def _coupled_groups(projector: np.ndarray, involved: np.ndarray) -> list[list[int]]:

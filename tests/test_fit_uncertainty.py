@@ -149,3 +149,49 @@ def test_a_parameter_whose_interval_holds_zero_is_undetermined():
     X, w, kbar = samples(laws, (1e-2, 0.2))
     fit = fit_laws(list(laws), X, w, kbar * (1 + 1e-3), 0.01 * np.abs(kbar))
     assert fit.terms[1].undetermined == ()
+
+
+@pytest.mark.slow
+def test_coverage_of_a_friction_law_with_a_searched_shape():
+    # jenkins: kt linear, the slip displacement searched; fs carried through fit_jacobian
+    measured, _ = coverage({"jenkins": {"kt": 1.0e4, "fs": 2.0}}, (5e-5, 2e-3))
+    for key, c in measured.items():
+        assert abs(c - 0.95) <= MARGIN, (key, c)
+
+
+def test_analyze_says_which_parameters_the_data_do_not_determine():
+    """One mass on a spring and an iwan joint driven below macro-slip, receptance from the exact single-harmonic
+    balance (X = F / |k - w^2 m + kbar(X)| solved per line); the model puts a linear spring beside the iwan."""
+    import json
+
+    from analysis.measurements import Measurements, SineRun
+    from analysis.model import load_model
+    from analysis.workbench import Workbench
+    from app.analyze import report_text
+
+    iwan = LawTerm(get_law("iwan"), IWAN)
+    f = np.concatenate([np.linspace(1.0, 4.0, 8), np.linspace(7.0, 10.0, 8)])
+    w, force = 2 * np.pi * f, 5.0
+    X = np.full(len(f), 1e-3)
+    for _ in range(200):
+        X = force / np.abs(1000.0 - w ** 2 + iwan.describing_function(X, w))
+    H = (X / force * np.exp(-1j * np.angle(1000.0 - w ** 2 + iwan.describing_function(X, w))))[:, None]
+    assert X.max() < 0.4 * 0.0501                        # micro-slip only: phi_max = 0.0501
+    run = SineRun("sine_5N_up", force, "up", "x1", ["x1"], f, H, 1e-4 * np.abs(H), distortion=np.zeros(len(f)))
+    model = {"structure": {"type": "lumped", "dofs": ["x1"], "mass": [[1.0]], "stiffness": [[1000.0]]},
+             "element": [{"name": "joint", "dof": "x1", "laws": ["linear", "iwan"]}]}
+    wb = Workbench(load_model(model), Measurements([run]))
+    wb.identify()
+    wb.fit()
+    text = report_text(wb, [])
+    assert "k = " in text and "(not determined by the data: ±" in text
+    assert "linear.k + iwan.kt = 152" in text
+    joint = json.loads(json.dumps(wb.to_json()))["elements"][0]
+    linear, iwan_json = joint["laws"]
+    assert "k" in linear["undetermined"] and {"kt", "fs", "beta"} <= set(iwan_json["undetermined"])
+    # at 0.01 % noise the pair is exactly degenerate (not merely correlated): its sum is the combination named
+    combos = [c for d in joint["not_identifiable"] for c in d["determined"]]
+    combos += [c for c in joint["correlated"]]
+    pair = next(c for c in combos if set(c["combination"]) == {"linear.k", "iwan.kt"})
+    assert pair["combination"]["linear.k"] == pytest.approx(pair["combination"]["iwan.kt"], rel=1e-3)
+    assert abs(pair["value"] - 152.0) <= 3 * pair["stderr"] + 1e-6 * 152.0
