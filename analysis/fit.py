@@ -955,9 +955,10 @@ def _fit_robust(terms, data: _Samples, opts: _Options) -> LawFit:
     """Fit, leaving out the samples that do not follow the fitted laws (docs/fitting.md, "Outliers").
 
     From a Huber start, the samples whose chi-square against the current fit exceeds :func:`outlier_limit`
-    are left out and the rest refitted, until the set stops changing. Residuals are reported for every sample;
-    the chi-square, information criteria and standard errors are those of the kept samples, the standard
-    errors scaled by the reduced chi-square where it exceeds 1."""
+    are left out and the rest refitted, until the set stops changing. Residuals are reported for every sample
+    (normalised in the caller's weights); the chi-square, information criteria and standard errors are those
+    of the kept samples, the standard errors scaled by the reduced chi-square where it exceeds 1."""
+    given = data
     if not data.sigma_given:
         data = _with_scatter_sigma(terms, data, opts)
     n = data.X.size
@@ -975,7 +976,8 @@ def _fit_robust(terms, data: _Samples, opts: _Options) -> LawFit:
             break
     model = fit.describing_function(data.X, data.w)
     fit.residuals = model - data.kbar
-    fit.normalized_residuals = (model - data.kbar).real * data.w_re + 1j * (model - data.kbar).imag * data.w_im
+    # in the caller's weights (unit ones without sigma), as a plain fit of the same samples reports them
+    fit.normalized_residuals = (model - data.kbar).real * given.w_re + 1j * (model - data.kbar).imag * given.w_im
     fit.excluded = ~keep
     if (~keep).any():
         fit.notes.append(f"{int((~keep).sum())} of {n} samples left out: their chi-square against the fitted laws "
