@@ -58,6 +58,7 @@ class ElementReport:
             if self.fit is not None:
                 entry["stderr"] = {k: (None if not np.isfinite(v) else float(v))
                                    for k, v in self.fit.terms[j].stderr.items()}
+                entry["undetermined"] = list(self.fit.terms[j].undetermined)
             laws.append(entry)
         out = {"name": self.name, "verdict": None if self.verdict is None else
                ("linear" if self.verdict.linear else "nonlinear"),
@@ -65,9 +66,19 @@ class ElementReport:
                "lines_used": self.lines_used, "lines_flagged": self.lines_flagged, "laws": laws}
         if self.verdict is not None:
             out["statistic"], out["threshold"] = self.verdict.statistic, self.verdict.threshold
+        if self.fit is not None:
+            out["not_identifiable"] = [d.to_json() for d in self.fit.degeneracies]
+            out["correlated"] = [c.to_json() for c in self.fit.correlated]
+            out["lines_excluded_hz"] = self.excluded_hz()
         if element.nonparametric is not None:
             out[NONPARAMETRIC] = element.nonparametric.to_toml()
         return out
+
+    def excluded_hz(self) -> list[float]:
+        """Frequencies, Hz, of the lines the fit left out as not following the fitted laws."""
+        if self.fit is None or self.fit.excluded is None or self.samples is None:
+            return []
+        return sorted(float(w) / (2 * np.pi) for w in self.samples.w[self.fit.excluded])
 
 
 @dataclass
@@ -175,11 +186,17 @@ class Workbench:
             if s is None:
                 raise InputError(f"element {el.name!r} has no well-conditioned line to fit its laws to")
             if el.laws:
-                report.fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std)
+                report.fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std,
+                                      exclude_outliers=self._harmonics_blind())
                 el.laws = [LawTerm(t.law, dict(report.fit.terms[j].params)) for j, t in enumerate(el.laws)]
             if el.nonparametric is not None:
                 self._fit_nonparametric(el)
         self._comparison = self._single = None
+
+    def _harmonics_blind(self) -> bool:
+        """Some run carries no harmonics (imported FRFs): no line could be left out as far from harmonic, so
+        the fits leave out the lines whose kbar does not follow the fitted laws (docs/fitting.md, "Outliers")."""
+        return any(run.distortion is None for run in self.measurements.sine)
 
     @property
     def predictor(self) -> Predictor:

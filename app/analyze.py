@@ -143,7 +143,8 @@ def _data_notes(wb: Workbench) -> list[str]:
     blind = [r.name for r in wb.measurements.sine if r.distortion is None]
     if blind:
         out.append(f"distortion: no harmonics for {', '.join(blind)}, so no line is left out as far from "
-                   "harmonic; lines that do not follow the fitted laws show in the misfit and the missing effects")
+                   "harmonic; the fits leave out the lines whose kbar does not follow the fitted laws (outliers, listed "
+                   "per element)")
     return out + ([""] if out else [])
 
 
@@ -165,13 +166,17 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
         if r.verdict is not None:
             out.append(f"    evidence: {r.verdict.evidence}")
         for j, term in enumerate(el.laws):
-            params = []
-            for k, v in term.values.items():
-                err = r.fit.terms[j].stderr.get(k) if r.fit is not None else None
-                params.append(f"{k} = {v:.5g}" + ("" if err is None or not math.isfinite(err) else f" ± {err:.2g}"))
+            fitted = r.fit.terms[j] if r.fit is not None else None
+            params = [_param_text(k, v, fitted) for k, v in term.values.items()]
             out.append(f"    law {term.law.name}: {', '.join(params)}")
         if el.nonparametric is not None:
             out.append(f"    {el.nonparametric.describe(r.samples.units[1] if r.samples else 'm')}")
+        if r.fit is not None:
+            out += [f"    {d}" for d in r.fit.degeneracies] + [f"    {c}" for c in r.fit.correlated]
+            left_out = r.excluded_hz()
+            if left_out:
+                out.append(f"    {len(left_out)} line(s) left out of the fit, their kbar not following the fitted "
+                           "laws (outliers): " + ", ".join(f"{f:.4g}" for f in left_out) + " Hz")
     comp = wb.compare()
     out.append("")
     out.append(f"FRF error of the model: {comp.error:.4g}  (" +
@@ -196,6 +201,15 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
             out.append(f"  {c.element}:{c.law}  error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
             out.append(f"    {c.explanation}")
     return "\n".join(out)
+
+
+def _param_text(name: str, value: float, fitted) -> str:
+    """``k3 = -742.1 ± 3.2``, or the value marked undetermined when the data do not determine it."""
+    err = None if fitted is None else fitted.stderr.get(name)
+    spread = "" if err is None or not math.isfinite(err) else f" ± {err:.2g}"
+    if fitted is not None and name in fitted.undetermined:
+        return f"{name} = {value:.5g} (not determined by the data{spread and ':' + spread})"
+    return f"{name} = {value:.5g}{spread}"
 
 
 def _jump_lines(comp, runs) -> list[str]:

@@ -21,6 +21,7 @@ class ParamView:
     value: float
     stderr: float | None          # None: not fitted yet; inf: not determined by the data
     unit: str
+    undetermined: bool = False    # the data do not determine it (docs/fitting.md): its value is no finding
 
     def text(self) -> str:
         value = f"{self.name} = {self.value:.5g} {self.unit}".rstrip()
@@ -28,6 +29,8 @@ class ParamView:
             return value
         if not math.isfinite(self.stderr):
             return value + "  (not determined by the data)"
+        if self.undetermined:
+            return value + f"  (not determined by the data: ± {self.stderr:.2g})"
         return f"{self.name} = {self.value:.5g} ± {self.stderr:.2g} {self.unit}".rstrip()
 
 
@@ -132,7 +135,9 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
             for j, term in enumerate(el.laws):
                 units = {p.name: p.render_unit(rotational) for p in term.law.params}
                 stderr = report.fit.terms[j].stderr if report.fit is not None else {}
-                laws.append(LawView(term.law.name, tuple(ParamView(k, float(v), stderr.get(k), units.get(k, ""))
+                loose = report.fit.terms[j].undetermined if report.fit is not None else ()
+                laws.append(LawView(term.law.name, tuple(ParamView(k, float(v), stderr.get(k), units.get(k, ""),
+                                                                   k in loose)
                                                          for k, v in term.values.items())))
         where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
         verdict = report.verdict
