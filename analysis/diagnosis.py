@@ -207,6 +207,8 @@ def signature_words(sig: Signature, stiffness_unit: str) -> SignatureWords:
 def _kbar_chi_square(samples: ElementSamples, fit: LawFit | None) -> float:
     """chi-square of the element's kbar against its current laws, in the convention of fit_laws."""
     if fit is not None:
+        if fit.excluded is not None:    # outliers left out of that fit: every sample counts here, as for a candidate
+            return float(np.sum(np.abs(fit.normalized_residuals) ** 2))
         return fit.chi_square
     if samples.kbar_std is None:
         return float(np.sum(np.abs(samples.kbar) ** 2))

@@ -2,7 +2,9 @@
 
 An element is grounded at one DOF (``dof = "x1"``) or acts between two
 (``between = ["x1", "x2"]``); its displacement is ``x_a`` or ``x_a - x_b``
-(docs/contracts.md §1). Its force is the sum of its law terms.
+(docs/contracts.md §1). Its force is the sum of its law terms, plus, in a model, an optional non-parametric
+part fitted to the identified kbar where no law explains it (:mod:`analysis.nonparametric`: a describing
+function only, so an element carrying one has no time-domain force).
 """
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ import numpy as np
 
 from .errors import InputError
 from .laws import Law, get_law
+from .nonparametric import NAME as NONPARAMETRIC, NonParametric
 from .structures import Structure
 from .tables import Fields
 
@@ -45,6 +48,13 @@ class Element:
     name: str
     dofs: tuple[str, ...]  # (a,) grounded, or (a, b) between
     laws: list[LawTerm] = field(default_factory=list)
+    nonparametric: NonParametric | None = None     # what the laws leave of kbar, where no law explains it
+
+    @property
+    def time_domain(self) -> bool:
+        """Whether the element has a time-domain force (every part is a law): needed to simulate it and to
+        predict it with harmonics."""
+        return self.nonparametric is None
 
     @property
     def grounded(self) -> bool:
@@ -67,11 +77,13 @@ class Element:
         return structure.is_rotational(self.dofs[0])
 
     def describing_function(self, X, w) -> np.ndarray:
-        """Sum of the law terms' kbar (0 when the element has no laws)."""
+        """Sum of the law terms' kbar and the non-parametric part's (0 when the element has neither)."""
         X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
         total = np.zeros(X.shape, complex)
         for term in self.laws:
             total = total + term.describing_function(X, w)
+        if self.nonparametric is not None:
+            total = total + self.nonparametric.describing_function(X, w)
         return total
 
 
@@ -80,14 +92,16 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
     """Read the ``[[element]]`` array of a rig or model file.
 
     ``complete=True`` (rig files: the truth) requires every parameter of every law;
-    otherwise (model files) values are optional starting values.
+    otherwise (model files) values are optional starting values, and an element may carry a fitted
+    ``nonparametric`` table (knots and values, :class:`analysis.nonparametric.NonParametric`), which a rig file
+    may not: it has no time-domain force to simulate.
     """
     root = Fields(document, source, "")
     elements: list[Element] = []
     seen: set[str] = set()
     for i, f in enumerate(root.list_of_tables("element")):
         f.where = f"[[element]][{i}]"
-        f.unknown_keys({"name", "dof", "between", "laws"})
+        f.unknown_keys({"name", "dof", "between", "laws", NONPARAMETRIC})
         name = f.string("name")
         if name in seen:
             raise f.error("name", f"element name {name!r} is used twice")
@@ -122,5 +136,11 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
                 if key in law.param_names:      # TOML numbers only: "-750" or true is not a stiffness
                     numbers.check_number(key, value)
             terms.append(LawTerm(law, law.check_params(values, complete, source, where)))
-        elements.append(Element(name, dofs, terms))
+        part = None
+        if f.has(NONPARAMETRIC):
+            if complete:
+                raise f.error(NONPARAMETRIC, "a rig's element needs laws with a time-domain force; a "
+                              "non-parametric part has none and cannot be simulated")
+            part = NonParametric.from_toml(f.table[NONPARAMETRIC], source, f.path(NONPARAMETRIC))
+        elements.append(Element(name, dofs, terms, part))
     return elements

@@ -15,6 +15,7 @@ for most laws). docs/fitting.md states the definitions.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import re
 from dataclasses import dataclass, field
@@ -35,6 +36,24 @@ RANK_RTOL = 1e-8
 # A parameter is reported non-identifiable when its squared component in the null
 # space exceeds this (round-off and finite-difference noise stay far below it).
 _NULL_WEIGHT = 1e-8
+#: Two parameters whose estimates correlate beyond this (in magnitude) lie along a near-flat direction of the
+#: fit: the samples determine a combination of them, not each one (docs/fitting.md, "Identifiability").
+CORRELATION_LIMIT = 0.99
+#: A parameter closer to zero than this many standard errors is "not determined by the data": its 95 %
+#: interval holds zero, so the samples tell neither its size nor its sign.
+UNDETERMINED_Z = 1.959964
+#: Probability that a clean set of samples (model and sigma right) loses one sample as an outlier.
+OUTLIER_FALSE_ALARM = 0.01
+# Huber's threshold (in standard deviations of a sample's residual) for the reweighted start of the
+# outlier search, and the most reweighting / exclusion passes.
+HUBER_LIMIT = 2.0
+_ROBUST_ITERATIONS = 20
+# Largest group of undetermined parameters whose determined combinations are searched for the sparsest basis
+# (2^n small SVDs).
+_SPARSE_LIMIT = 10
+# Singular values (of orthonormal rows) below this count as zero there: the finite-difference Jacobian leaves
+# the exact zeros at about 1e-8..1e-7.
+_SPARSE_TOL = 1e-6
 # Relative step of the central differences for the shape columns of the Jacobian
 # (~ eps^(1/3): balances truncation against round-off).
 _DIFF_STEP = 6e-6
@@ -65,6 +84,10 @@ class TermFit:
         determine the parameter (see :attr:`LawFit.degeneracies`).
     fit_params : dict[str, float]
         The same values in the law's fit parametrisation (linear, then shape).
+    undetermined : tuple[str, ...]
+        Contract parameters the samples do not determine: an infinite standard error, a 95 %
+        interval that holds zero (``UNDETERMINED_Z``), or a member of a correlated pair
+        (:attr:`LawFit.correlated`). Their values are not findings; print them as undetermined.
     """
 
     law: Law
@@ -72,6 +95,7 @@ class TermFit:
     params: dict[str, float]
     stderr: dict[str, float]
     fit_params: dict[str, float]
+    undetermined: tuple[str, ...] = ()
 
     def law_term(self) -> LawTerm:
         """The fitted term as a :class:`LawTerm` (e.g. to write a fitted model file)."""
@@ -106,7 +130,7 @@ class Combination:
         parts = []
         for name, a in self.coefficients.items():
             sign = "-" if a < 0 else "+"
-            magnitude = "" if math.isclose(abs(a), 1.0, rel_tol=1e-6) else f"{abs(a):.4g}*"
+            magnitude = "" if f"{abs(a):.4g}" == "1" else f"{abs(a):.4g}*"
             parts.append(f"{sign} {magnitude}{name}")
         text = " ".join(parts)
         text = text[2:] if text.startswith("+ ") else text
@@ -138,6 +162,41 @@ class Degeneracy:
             return f"not identifiable from these samples: {names} (no combination of them is determined)"
         return (f"not separately identifiable: {names}; the samples determine only "
                 + "; ".join(str(c) for c in self.determined))
+
+    def to_json(self) -> dict:
+        return {"parameters": list(self.parameters),
+                "determined": [{"combination": dict(c.coefficients), "value": c.value, "stderr": c.stderr}
+                               for c in self.determined], "text": str(self)}
+
+
+@dataclass(frozen=True)
+class Correlation:
+    """Two contract parameters the samples determine only together: their estimates correlate beyond
+    ``CORRELATION_LIMIT`` (a near-flat direction of the fit, e.g. a linear spring beside an iwan ``kt`` on
+    samples without macro-slip).
+
+    Attributes
+    ----------
+    parameters : tuple[str, str]
+        ``label.name`` of the two contract parameters.
+    correlation : float
+        The correlation of their estimates (-1..1).
+    determined : Combination
+        The combination of them the samples determine best, with its value and standard error.
+    """
+
+    parameters: tuple[str, ...]
+    correlation: float
+    determined: Combination
+
+    def __str__(self) -> str:
+        return (f"not determined separately (correlation {self.correlation:+.4f}): {' and '.join(self.parameters)}; "
+                f"the samples determine {self.determined}")
+
+    def to_json(self) -> dict:
+        c = self.determined
+        return {"parameters": list(self.parameters), "correlation": self.correlation,
+                "combination": dict(c.coefficients), "value": c.value, "stderr": c.stderr, "text": str(self)}
 
 
 @dataclass
@@ -180,8 +239,13 @@ class LawFit:
     degeneracies : list[Degeneracy]
         Non-identifiable parameter groups.
     notes : list[str]
-        Human-readable remarks: degeneracies, parameters that ended on a bound, and a
-        shape search that ran out of evaluations.
+        Human-readable remarks: degeneracies, correlated groups, parameters that ended on a
+        bound, a shape search that ran out of evaluations, samples left out as outliers.
+    correlated : list[Correlation]
+        Pairs of contract parameters the samples determine only together.
+    excluded : ndarray of bool, shape (N,), or None
+        With ``exclude_outliers``: the samples left out of the fit (their residuals are still
+        reported); None otherwise.
     """
 
     terms: list[TermFit]
@@ -199,6 +263,8 @@ class LawFit:
     covariance: np.ndarray
     degeneracies: list[Degeneracy] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    correlated: list[Correlation] = field(default_factory=list)
+    excluded: np.ndarray | None = None
 
     @property
     def reduced_chi_square(self) -> float:
@@ -622,12 +688,40 @@ def _covariance(J: np.ndarray, rank_rtol: float):
         # determined directions inside the group (in scaled parameters norm_j * theta_j)
         values, vectors = np.linalg.eigh(np.eye(len(group)) - projector[np.ix_(group, group)])
         combos = []
-        for k in np.flatnonzero(values > 0.5):
+        for row in _sparse_basis(vectors[:, values > 0.5].T):
             coef = np.zeros(P)
-            coef[group] = vectors[:, k] * norms[group]
+            coef[group] = row * norms[group]
             combos.append(coef / coef[np.argmax(np.abs(coef))])
         groups.append((group, combos))
     return cov, int(np.count_nonzero(keep)), involved, groups
+
+
+def _sparse_basis(rows: np.ndarray) -> np.ndarray:
+    """The sparsest basis of the determined combinations (rows: a basis, in scaled parameters).
+
+    Any basis of the determined subspace is right; the sparse one is what can be read: where the samples fix
+    ``k + kt`` beside a combination of the iwan shapes, it says so instead of two mixtures of all four. For
+    each set of parameters to leave out (most first), a combination without them exists when the basis
+    restricted to them has a one-dimensional left null space; such combinations are taken, sparsest first,
+    while they add a dimension. Groups beyond ``_SPARSE_LIMIT`` parameters keep the given basis."""
+    m, g = rows.shape
+    if g > _SPARSE_LIMIT or m == 0:
+        return rows
+    chosen: list[np.ndarray] = []
+    for n_zero in range(g - 1, -1, -1):
+        for zero in itertools.combinations(range(g), n_zero):
+            restricted = rows[:, list(zero)]
+            _, sv, vt = np.linalg.svd(restricted.T, full_matrices=True) if n_zero else (None, np.zeros(0), np.eye(m))
+            null = vt[np.count_nonzero(sv > _SPARSE_TOL):]
+            if len(null) != 1:
+                continue
+            candidate = null[0] @ rows
+            candidate[np.abs(candidate) < _SPARSE_TOL * np.abs(candidate).max()] = 0.0
+            if np.linalg.matrix_rank(np.array(chosen + [candidate]), tol=_SPARSE_TOL) > len(chosen):
+                chosen.append(candidate)
+                if len(chosen) == m:
+                    return np.array(chosen)
+    return np.array(chosen) if len(chosen) == m else rows
 
 
 def _coupled_groups(projector: np.ndarray, involved: np.ndarray) -> list[list[int]]:
@@ -650,7 +744,7 @@ def _coupled_groups(projector: np.ndarray, involved: np.ndarray) -> list[list[in
 # --------------------------------------------------------------------------- entry point
 def fit_laws(laws, X, w, kbar, sigma=None, start=None, *, grid_points: int = 7, grid_budget: int = 128,
              n_starts: int = 3, tolerance: float = 1e-12, max_evaluations: int = 60,
-             rank_rtol: float = RANK_RTOL) -> LawFit:
+             rank_rtol: float = RANK_RTOL, exclude_outliers: bool = False) -> LawFit:
     """Fit a sum of laws on one element to complex-stiffness samples.
 
     Parameters
@@ -692,6 +786,11 @@ def fit_laws(laws, X, w, kbar, sigma=None, start=None, *, grid_points: int = 7, 
     rank_rtol : float
         Relative singular-value cut of the column-scaled weighted Jacobian below
         which a parameter combination counts as not determined.
+    exclude_outliers : bool
+        Leave out the samples that do not follow the fitted laws (chi-square of the
+        sample above :func:`outlier_limit`, from an iteratively reweighted start), and
+        scale the standard errors by the reduced chi-square where it exceeds 1
+        (docs/fitting.md, "Outliers"). :attr:`LawFit.excluded` says which.
 
     Returns
     -------
@@ -706,7 +805,54 @@ def fit_laws(laws, X, w, kbar, sigma=None, start=None, *, grid_points: int = 7, 
     """
     terms = _resolve_terms(laws, start)
     X, w, kbar, w_re, w_im = _samples(X, w, kbar, sigma)
-    problem = _Problem(terms, X, w, kbar, w_re, w_im, rank_rtol)
+    opts = _Options(grid_points, grid_budget, n_starts, tolerance, max_evaluations, rank_rtol)
+    if exclude_outliers:
+        return _fit_robust(terms, _Samples(X, w, kbar, w_re, w_im, sigma is not None), opts)
+    return _fit_once(terms, _Samples(X, w, kbar, w_re, w_im, sigma is not None), opts)
+
+
+@dataclass(frozen=True)
+class _Options:
+    """The search settings of :func:`fit_laws`."""
+
+    grid_points: int
+    grid_budget: int
+    n_starts: int
+    tolerance: float
+    max_evaluations: int
+    rank_rtol: float
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """Validated samples with their per-part weights (1 / std); ``sigma_given`` False: unit weights."""
+
+    X: np.ndarray
+    w: np.ndarray
+    kbar: np.ndarray
+    w_re: np.ndarray
+    w_im: np.ndarray
+    sigma_given: bool
+
+    def subset(self, keep: np.ndarray, weight: np.ndarray | None = None) -> "_Samples":
+        """The kept samples, their stds divided by ``sqrt(weight)`` (iteratively reweighted fits)."""
+        root = 1.0 if weight is None else np.sqrt(weight[keep])
+        return _Samples(self.X[keep], self.w[keep], self.kbar[keep], self.w_re[keep] * root,
+                        self.w_im[keep] * root, self.sigma_given)
+
+    def distance(self, model: np.ndarray) -> np.ndarray:
+        """sqrt of each sample's chi-square contribution (Re and Im together) against a model kbar."""
+        r = model - self.kbar
+        return np.hypot(r.real * self.w_re, r.imag * self.w_im)
+
+
+def _fit_once(terms, data: _Samples, opts: _Options, inflate: bool = False) -> LawFit:
+    """One weighted least-squares fit of ``terms`` to ``data`` (module docstring).
+
+    ``inflate``: standard errors scaled by the reduced chi-square where it exceeds 1 (the samples scatter
+    more than their sigma says: a fit after outliers were left out)."""
+    X, w, kbar, w_re, w_im = data.X, data.w, data.kbar, data.w_re, data.w_im
+    problem = _Problem(terms, X, w, kbar, w_re, w_im, opts.rank_rtol)
     n, P = X.size, problem.n_linear + problem.n_shape
     if 2 * n <= P:
         raise InputError(f"{n} complex samples ({2 * n} real values) cannot determine {P} parameters "
@@ -721,18 +867,20 @@ def fit_laws(laws, X, w, kbar, sigma=None, start=None, *, grid_points: int = 7, 
             coords.append(_shape_coordinate(p, blk.law.example.get(p.name), X, force_scale))
     theta, converged = np.zeros(0), True
     if coords:
-        theta, converged = _search_shape(problem, coords, user, grid_points, grid_budget, n_starts,
-                                         tolerance, max_evaluations)
+        theta, converged = _search_shape(problem, coords, user, opts.grid_points, opts.grid_budget,
+                                         opts.n_starts, opts.tolerance, opts.max_evaluations)
     A = problem.design(theta)
     c, linear_at_bound = problem.solve_linear(A)
     r = A @ c - problem.b
     chi_square = float(r @ r)
 
     names = problem.linear_names + problem.shape_names
-    cov, rank, unidentified, groups = _covariance(problem.jacobian(theta, c, coords), rank_rtol)
+    cov, rank, unidentified, groups = _covariance(problem.jacobian(theta, c, coords), opts.rank_rtol)
     dof = 2 * n - rank
-    if sigma is None:
+    if not data.sigma_given:
         cov = cov * (chi_square / dof)
+    elif inflate:
+        cov = cov * max(1.0, chi_square / dof)
     fit_values = np.concatenate([c, theta])
     degeneracies = [
         Degeneracy(tuple(names[i] for i in group),
@@ -747,7 +895,7 @@ def fit_laws(laws, X, w, kbar, sigma=None, start=None, *, grid_points: int = 7, 
 
     notes = [str(d) for d in degeneracies]
     if not converged:
-        notes.append(f"the search for {', '.join(problem.shape_names)} stopped after {max_evaluations} "
+        notes.append(f"the search for {', '.join(problem.shape_names)} stopped after {opts.max_evaluations} "
                      "evaluations on a flat cost: the samples hardly determine them")
     at_bound = [(name, value) for name, value, hit in zip(problem.linear_names, c, linear_at_bound) if hit]
     at_bound += [(name, t) for name, coord, t in zip(problem.shape_names, coords, theta)
@@ -755,12 +903,95 @@ def fit_laws(laws, X, w, kbar, sigma=None, start=None, *, grid_points: int = 7, 
     notes += [f"{name} = {value:.6g} ended on its bound; its standard error assumes it free"
               for name, value in at_bound]
 
-    aic, bic = _information_criteria(chi_square, rank, 2 * n, sigma is not None)
-    return LawFit(terms=_term_fits(problem, fit_values, cov, unidentified),
+    term_fits, contract_names, contract_cov = _term_fits(problem, fit_values, cov, unidentified)
+    correlated = _correlated_pairs(term_fits, contract_names, contract_cov)
+    _mark_undetermined(term_fits, correlated)
+    notes += [str(g) for g in correlated]
+    aic, bic = _information_criteria(chi_square, rank, 2 * n, data.sigma_given)
+    return LawFit(terms=term_fits,
                   residuals=r[:n] / w_re + 1j * r[n:] / w_im, normalized_residuals=r[:n] + 1j * r[n:],
                   chi_square=chi_square, dof=dof, n_samples=n, n_parameters=P, effective_parameters=rank,
-                  aic=aic, bic=bic, sigma_given=sigma is not None, fit_parameter_names=names,
-                  covariance=cov, degeneracies=degeneracies, notes=notes)
+                  aic=aic, bic=bic, sigma_given=data.sigma_given, fit_parameter_names=names,
+                  covariance=cov, degeneracies=degeneracies, notes=notes, correlated=correlated)
+
+
+# --------------------------------------------------------------------------- outliers
+def outlier_limit(n: int) -> float:
+    """The chi-square (2 degrees of freedom: Re and Im) above which one of ``n`` samples is an outlier.
+
+    Bonferroni: a clean set of ``n`` samples whose sigma is right loses a sample with probability
+    ``OUTLIER_FALSE_ALARM``; the limit is ``-2 ln(OUTLIER_FALSE_ALARM / n)`` (18.4 for 97 samples, i.e. 4.3
+    standard deviations)."""
+    return -2.0 * math.log(OUTLIER_FALSE_ALARM / max(n, 1))
+
+
+def _robust_start(terms, data: _Samples, opts: _Options) -> LawFit:
+    """Iteratively reweighted fit with Huber weights: a start that large outliers do not drag far (a plain
+    least-squares start can sit so far off that the good samples look like the outliers)."""
+    weight = np.ones(data.X.size)
+    everything = np.ones(data.X.size, bool)
+    fit = _fit_once(terms, data, opts)
+    for _ in range(_ROBUST_ITERATIONS):
+        d = data.distance(fit.describing_function(data.X, data.w))
+        new = np.minimum(1.0, HUBER_LIMIT / np.maximum(d, 1e-300))
+        if np.allclose(new, weight, rtol=1e-3, atol=1e-6):
+            break
+        weight = new
+        fit = _fit_once(_refit_terms(fit), data.subset(everything, weight), _quick(opts))
+    return fit
+
+
+def _refit_terms(fit: LawFit):
+    """The fitted terms as starting values of a quick refit."""
+    return [(t.law, dict(t.params)) for t in fit.terms]
+
+
+def _quick(opts: _Options) -> _Options:
+    """Refit from the previous values: no grid scan, only the local search."""
+    return _Options(opts.grid_points, opts.grid_budget, 0, opts.tolerance, opts.max_evaluations, opts.rank_rtol)
+
+
+def _fit_robust(terms, data: _Samples, opts: _Options) -> LawFit:
+    """Fit, leaving out the samples that do not follow the fitted laws (docs/fitting.md, "Outliers").
+
+    From a Huber start, the samples whose chi-square against the current fit exceeds :func:`outlier_limit`
+    are left out and the rest refitted, until the set stops changing. Residuals are reported for every sample
+    (normalised in the caller's weights); the chi-square, information criteria and standard errors are those
+    of the kept samples, the standard errors scaled by the reduced chi-square where it exceeds 1."""
+    given = data
+    if not data.sigma_given:
+        data = _with_scatter_sigma(terms, data, opts)
+    n = data.X.size
+    limit = outlier_limit(n)
+    fit = _robust_start(terms, data, opts)
+    keep = np.ones(n, bool)
+    for _ in range(_ROBUST_ITERATIONS):
+        new = data.distance(fit.describing_function(data.X, data.w)) ** 2 <= limit
+        if 2 * new.sum() <= sum(len(t.fit_params) for t in fit.terms):
+            break                               # too few samples would be left: keep the last set
+        changed = not np.array_equal(new, keep)
+        keep = new
+        fit = _fit_once(_refit_terms(fit), data.subset(keep), _quick(opts), inflate=True)
+        if not changed:
+            break
+    model = fit.describing_function(data.X, data.w)
+    fit.residuals = model - data.kbar
+    # in the caller's weights (unit ones without sigma), as a plain fit of the same samples reports them
+    fit.normalized_residuals = (model - data.kbar).real * given.w_re + 1j * (model - data.kbar).imag * given.w_im
+    fit.excluded = ~keep
+    if (~keep).any():
+        fit.notes.append(f"{int((~keep).sum())} of {n} samples left out: their chi-square against the fitted laws "
+                         f"exceeds {limit:.3g} (outliers at false-alarm {OUTLIER_FALSE_ALARM:g} per fit)")
+    return fit
+
+
+def _with_scatter_sigma(terms, data: _Samples, opts: _Options) -> _Samples:
+    """Unit weights replaced by the scatter of a Huber fit (median of the chi-square with 2 dof: 2 ln 2)."""
+    fit = _robust_start(terms, data, opts)
+    r = fit.describing_function(data.X, data.w) - data.kbar
+    s = math.sqrt(float(np.median(np.abs(r) ** 2)) / (2 * math.log(2))) or 1.0
+    ones = np.full(data.X.size, 1.0 / s)
+    return _Samples(data.X, data.w, data.kbar, ones, ones, True)
 
 
 def _information_criteria(chi_square: float, rank: int, n_obs: int, sigma_given: bool) -> tuple[float, float]:
@@ -775,9 +1006,10 @@ def _information_criteria(chi_square: float, rank: int, n_obs: int, sigma_given:
 
 
 def _term_fits(problem: _Problem, fit_values: np.ndarray, cov: np.ndarray,
-               unidentified: np.ndarray) -> list[TermFit]:
-    """Contract parameters and their standard errors per law term (through ``Law.fit_jacobian``)."""
-    out = []
+               unidentified: np.ndarray) -> tuple[list[TermFit], list[str], np.ndarray]:
+    """Contract parameters and their standard errors per law term (through ``Law.fit_jacobian``), with the
+    names (``label.name``) and covariance of all contract parameters (undetermined rows and columns NaN)."""
+    out, names, blocks_G, blocks_idx = [], [], [], []
     for blk in problem.blocks:
         law = blk.law
         idx = [*range(blk.linear.start, blk.linear.stop),
@@ -795,5 +1027,57 @@ def _term_fits(problem: _Problem, fit_values: np.ndarray, cov: np.ndarray,
         scale = np.max(np.abs(G), axis=1, keepdims=True)
         depends_on_unidentified = np.any(np.abs(G[:, ~free]) > 1e-12 * scale, axis=1)
         stderr = np.where(depends_on_unidentified, np.inf, np.sqrt(np.maximum(var, 0.0)))
-        out.append(TermFit(law, blk.label, params, dict(zip(law.param_names, stderr.tolist())), values))
+        out.append(TermFit(law, blk.label, params, dict(zip(law.param_names, stderr.tolist())), values,
+                           tuple(n for n, bad in zip(law.param_names, depends_on_unidentified) if bad)))
+        names += [f"{blk.label}.{n}" for n in law.param_names]
+        blocks_G.append(np.where(depends_on_unidentified[:, None], np.nan, G))
+        blocks_idx += idx
+    G_all = np.zeros((len(names), len(blocks_idx)))
+    row = col = 0
+    for G in blocks_G:
+        G_all[row:row + G.shape[0], col:col + G.shape[1]] = G
+        row, col = row + G.shape[0], col + G.shape[1]
+    sub = cov[np.ix_(blocks_idx, blocks_idx)]
+    sub = np.where(np.isfinite(sub), sub, 0.0)              # undetermined rows of G are NaN already
+    return out, names, G_all @ sub @ G_all.T
+
+
+def _correlated_pairs(terms: list[TermFit], names: list[str], cov: np.ndarray) -> list[Correlation]:
+    """Pairs of contract parameters whose estimates correlate beyond ``CORRELATION_LIMIT`` (a near-flat
+    direction of the fit), each with the combination of the two the samples determine best.
+
+    For standard errors s_i, s_j and correlation r that combination is ``p_i / s_i - sign(r) p_j / s_j``
+    (the smaller eigenvalue's direction of the pair's correlation matrix), scaled so that its largest
+    coefficient is 1: ``k + kt`` for a linear spring beside an iwan kt."""
+    values = np.array([v for t in terms for v in t.params.values()])
+    std = np.sqrt(np.abs(np.diag(cov)))
+    usable = np.isfinite(std) & (std > 0)
+    out = []
+    for i, j in zip(*np.triu_indices(len(names), k=1)):
+        if not (usable[i] and usable[j]):
+            continue
+        r = cov[i, j] / (std[i] * std[j])
+        if not abs(r) > CORRELATION_LIMIT:
+            continue
+        a = np.array([1.0 / std[i], -math.copysign(1.0, r) / std[j]])
+        a /= a[np.argmax(np.abs(a))]
+        pair = [i, j]
+        variance = a @ cov[np.ix_(pair, pair)] @ a
+        combo = Combination({names[i]: float(a[0]), names[j]: float(a[1])}, float(a @ values[pair]),
+                            float(np.sqrt(max(variance, 0.0))))
+        out.append(Correlation((names[i], names[j]), float(r), combo))
     return out
+
+
+def _mark_undetermined(terms: list[TermFit], correlated: list[Correlation]) -> None:
+    """Mark the contract parameters the samples do not determine: no finite standard error, a 95 % interval
+    that holds zero (``abs(value) < UNDETERMINED_Z * stderr``), or a member of a correlated pair."""
+    in_group = {name for g in correlated for name in g.parameters}
+    for t in terms:
+        marked = set(t.undetermined)
+        for name, value in t.params.items():
+            err = t.stderr[name]
+            if (not math.isfinite(err) or abs(value) < UNDETERMINED_Z * err
+                    or f"{t.label}.{name}" in in_group):
+                marked.add(name)
+        t.undetermined = tuple(n for n in t.law.param_names if n in marked)

@@ -16,6 +16,8 @@ Random Data, table 9.6).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.signal
 
@@ -118,3 +120,89 @@ class FRFEstimator:
         if self.segment_length % 2 == 0:
             psd[-1] /= 2.0
         return psd
+
+
+# ---------------------------------------------------------------------------------------------- resolution
+LINES_PER_BANDWIDTH = 6      # automatic resolution: lines per half-power bandwidth of the lightest mode (Hann
+                             # leakage then overstates its damping by about 4 %)
+MIN_AVERAGES = 8             # ...unless the run is too short for this many Welch averages (50 % overlap)
+
+
+@dataclass
+class WelchResolution:
+    """The frequency resolution of a Welch estimate and how it was chosen.
+
+    Attributes
+    ----------
+    resolution : float
+        Hz, the line spacing (1 / segment duration).
+    wanted : float
+        Hz, what the rule asked for (LINES_PER_BANDWIDTH lines per half-power bandwidth ``2 zeta f_low``), or
+        the resolution the plan set.
+    averages : int
+        Welch averages (Hann, 50 % overlap) a run of the given duration gives.
+    limited_by_duration : bool
+        The run is too short for ``wanted`` with MIN_AVERAGES averages: the resolution is coarser.
+    """
+
+    resolution: float
+    wanted: float
+    averages: int
+    limited_by_duration: bool
+
+    @property
+    def segment_seconds(self) -> float:
+        return 1.0 / self.resolution
+
+
+def welch_averages(duration: float, resolution: float, overlap: float = 0.5) -> int:
+    """Segments of ``1 / resolution`` seconds a record of ``duration`` seconds holds with ``overlap``."""
+    segment = 1.0 / resolution
+    if duration < segment:
+        return 0
+    return 1 + int(np.floor((duration - segment) / (segment * (1.0 - overlap)) + 1e-9))
+
+
+def auto_resolution(band: tuple[float, float], duration: float, damping: float) -> WelchResolution:
+    """The resolution a random run of ``duration`` s over ``band`` Hz needs to resolve modes of damping ratio
+    ``damping``: LINES_PER_BANDWIDTH lines per half-power bandwidth ``2 damping band[0]`` (the narrowest: the
+    lightest mode at the lowest frequency), but no finer than MIN_AVERAGES Welch averages allow."""
+    wanted = 2.0 * damping * band[0] / LINES_PER_BANDWIDTH
+    finest = (MIN_AVERAGES + 1) / (2.0 * duration)        # 50 % overlap: averages = 2 duration / T - 1
+    resolution = max(wanted, finest)
+    return WelchResolution(resolution, wanted, welch_averages(duration, resolution), wanted < finest)
+
+
+# ---------------------------------------------------------------------------------------------- leakage
+def hann_kernel(offset_hz, resolution: float) -> np.ndarray:
+    """|W(offset)|^2 of a Hann window of duration 1 / resolution (unnormalised): how a Welch line at f weighs
+    the spectrum at f + offset."""
+    x = np.asarray(offset_hz, float) / resolution
+    return (np.sinc(x) + 0.5 * np.sinc(x - 1.0) + 0.5 * np.sinc(x + 1.0)) ** 2
+
+
+def _kernel_average(frf, lines_hz, resolution: float, reach: float, points_per_line: int):
+    """(kernel-averaged H, kernel-averaged |H|^2) at each line: the expected cross and auto spectra per unit
+    force spectrum."""
+    lines_hz = np.asarray(lines_hz, float)
+    offsets = np.linspace(-reach, reach, int(2 * reach * points_per_line) + 1) * resolution
+    weight = hann_kernel(offsets, resolution)
+    weight = weight / weight.sum()
+    v = lines_hz[:, None] + offsets[None, :]
+    values = np.asarray(frf(np.abs(v).ravel()), complex).reshape(v.shape)
+    values = np.where(v > 0, values, np.conj(values))          # H(-f) = conj(H(f)) for a real system
+    return values @ weight, np.abs(values) ** 2 @ weight
+
+
+def expected_coherence(frf, lines_hz, resolution: float, reach: float = 8.0, points_per_line: int = 40):
+    """The coherence a Hann-windowed Welch estimate of a noise-free linear system converges to: below 1 only
+    where the FRF changes within a line (leakage), ``|E[G_fx]|^2 / (E[G_ff] E[G_xx])``."""
+    h, h2 = _kernel_average(frf, lines_hz, resolution, reach, points_per_line)
+    return np.abs(h) ** 2 / h2
+
+
+def expected_h1(frf, lines_hz, resolution: float, reach: float = 8.0, points_per_line: int = 40) -> np.ndarray:
+    """The H1 a Hann-windowed Welch estimate converges to under a flat force spectrum: the true FRF averaged
+    over each line's window kernel, ``E[H1](f) = int |W(f - v)|^2 H(v) dv / int |W(f - v)|^2 dv`` (the leakage
+    bias; random error averaged away). ``frf(f_hz)`` evaluates the true FRF on an array of frequencies."""
+    return _kernel_average(frf, lines_hz, resolution, reach, points_per_line)[0]

@@ -13,8 +13,12 @@ weak nonlinearity only bends it slowly), so what the lines scatter about a local
   ``sigma_rel^2 = sum |e / H|^2 / (n - p)`` with ``p`` the complex coefficients fitted;
 * each line gets ``sigma_rel |H|`` of the window centred on it.
 
-Where the curve is not smooth enough for the fit, the estimate is larger than the noise: the line counts
-less, never more. A noise-free record is floored at ``FLOOR`` of the largest FRF value (its round-off).
+Where the curve is not smooth enough for the fit (a resonance peak bent over towards a fold, a jump), the
+window's estimate is larger than the noise. Left alone it would call those lines 10-100 times noisier than the
+rest, and drop the very lines (the resonance, the largest amplitudes) that carry most of what a nonlinear law
+shows; so each window's relative noise is capped at ``LOCAL_CAP`` times the median over the FRF's windows. The
+line still counts less there, never more. A noise-free record is floored at ``FLOOR`` of the largest FRF value
+(its round-off).
 Fewer than ``MIN_LINES`` lines: no estimate.
 """
 from __future__ import annotations
@@ -26,6 +30,7 @@ DEGREE = 4
 ITERATIONS = 4
 MIN_LINES = 5
 FLOOR = 1e-9
+LOCAL_CAP = 3.0                 # a window's relative noise std: at most this x the median over the FRF
 METHOD = (f"from each FRF's scatter about a local rational fit over {WINDOW} neighbouring lines "
           "(noise taken as a constant fraction of |H| within the window)")
 
@@ -68,6 +73,7 @@ def smoothness_noise(frequency_hz, receptance) -> np.ndarray | None:
     for p in range(H.shape[1]):
         by_start = {s: _relative_variance(fs[s:s + width], Hs[s:s + width, p]) for s in set(starts.tolist())}
         rel[:, p] = [by_start[s] for s in starts]
+    rel = np.minimum(rel, LOCAL_CAP ** 2 * np.median(rel, axis=0))      # variances: the cap squared
     std = np.empty_like(rel)
     std[order] = np.sqrt(rel) * np.abs(Hs)
     return np.maximum(std, FLOOR * np.abs(H).max())

@@ -559,7 +559,11 @@ class MultiharmonicResponse:
 
 
 def element_force_history(element: Element, y: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Time-domain force of an element's laws along (y, v), from rest; 1-D arrays."""
+    """Time-domain force of an element's laws along (y, v), from rest; 1-D arrays. An element with a
+    non-parametric part has no time-domain force (:mod:`analysis.nonparametric`): refused, never half a force."""
+    if not element.time_domain:
+        raise ValueError(f"element {element.name!r} has a non-parametric part: it has no time-domain force, so it "
+                         "cannot be marched nor predicted with harmonics")
     total = np.zeros_like(y)
     for term in element.laws:
         total += term.law.force(y, v, **term.values)

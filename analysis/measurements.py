@@ -74,6 +74,7 @@ class RandomRun:
     coherence: np.ndarray | None = None    # (L, P)
     random_error: np.ndarray | None = None  # (L, P) normalised random error of |H1|
     force_rms: float = 0.0
+    resolution: float | None = None        # Hz, of the Hann-windowed Welch estimate (None: not known)
 
 
 @dataclass

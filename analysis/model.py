@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 from .elements import Element, LawTerm, load_elements
 from .errors import InputError
+from .nonparametric import NAME as NONPARAMETRIC
 from .structures import Structure, load_structure
 from .tables import Fields
 
@@ -47,7 +48,7 @@ class Model:
 
     def copy(self) -> "Model":
         return Model(copy.deepcopy(self.structure_table), self.structure,
-                     [Element(e.name, e.dofs, [LawTerm(t.law, dict(t.values)) for t in e.laws])
+                     [Element(e.name, e.dofs, [LawTerm(t.law, dict(t.values)) for t in e.laws], e.nonparametric)
                       for e in self.elements],
                      list(self.updating_parameters), self.updating_modes, self.source)
 
@@ -62,7 +63,10 @@ class Model:
         lines = []
         for el in self.elements:
             where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
-            laws = " + ".join(_term_text(t) for t in el.laws) or "(reference only)"
+            parts = [_term_text(t) for t in el.laws]
+            if el.nonparametric is not None:
+                parts.append(el.nonparametric.describe("rad" if el.rotational(self.structure) else "m"))
+            laws = " + ".join(parts) or "(reference only)"
             lines.append(f"{el.name} [{where}]: {laws}")
         return "\n".join(lines)
 
@@ -80,6 +84,8 @@ class Model:
             laws = ", ".join("{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in t.to_toml().items()) + " }"
                              for t in el.laws)
             out.append(f"laws = [{laws}]")
+            if el.nonparametric is not None:
+                out.append(f"{NONPARAMETRIC} = {_toml_value(el.nonparametric.to_toml())}")
         return "\n".join(out) + "\n"
 
 

@@ -11,7 +11,9 @@ One object carries a model through the loop a test engineer works (docs/workbenc
 3. :meth:`Workbench.fit` -- each element's laws fitted to its kbar samples;
 4. :meth:`Workbench.compare` -- FRFs of every run predicted by harmonic balance, the error and where it fails;
 5. :meth:`Workbench.candidates` / :meth:`Workbench.add` -- the ranked missing effects, and adding one; every
-   step is kept in :attr:`Workbench.history` so the error falling is visible step by step.
+   step is kept in :attr:`Workbench.history` so the error falling is visible step by step;
+6. :meth:`Workbench.unexplained` -- the elements whose kbar their laws leave unexplained (an effect outside the
+   library), each with the error a non-parametric part would give (``add(element, "nonparametric")`` adds it).
 
 Analysis sees only measured data (``Measurements``) and the user's model: never the rig a simulated session
 came from.
@@ -32,9 +34,10 @@ from .identify import identify_complex_stiffness
 from .laws import get_law
 from .linearity import LinearityVerdict, linearity_verdict
 from .measurements import Measurements
-from .modal_fit import ModalFit, fit_modes
 from .model import Model, load_model
-from .updating import UpdateResult, update_parameters
+from .nonparametric import NAME as NONPARAMETRIC, fit_nonparametric
+from .reference import ReferenceReport, reference_from_random
+from .unexplained import NonParametricOffer, offer_nonparametric, unexplained
 
 
 @dataclass
@@ -55,6 +58,7 @@ class ElementReport:
             if self.fit is not None:
                 entry["stderr"] = {k: (None if not np.isfinite(v) else float(v))
                                    for k, v in self.fit.terms[j].stderr.items()}
+                entry["undetermined"] = list(self.fit.terms[j].undetermined)
             laws.append(entry)
         out = {"name": self.name, "verdict": None if self.verdict is None else
                ("linear" if self.verdict.linear else "nonlinear"),
@@ -62,7 +66,19 @@ class ElementReport:
                "lines_used": self.lines_used, "lines_flagged": self.lines_flagged, "laws": laws}
         if self.verdict is not None:
             out["statistic"], out["threshold"] = self.verdict.statistic, self.verdict.threshold
+        if self.fit is not None:
+            out["not_identifiable"] = [d.to_json() for d in self.fit.degeneracies]
+            out["correlated"] = [c.to_json() for c in self.fit.correlated]
+            out["lines_excluded_hz"] = self.excluded_hz()
+        if element.nonparametric is not None:
+            out[NONPARAMETRIC] = element.nonparametric.to_toml()
         return out
+
+    def excluded_hz(self) -> list[float]:
+        """Frequencies, Hz, of the lines the fit left out as not following the fitted laws."""
+        if self.fit is None or self.fit.excluded is None or self.samples is None:
+            return []
+        return sorted(float(w) / (2 * np.pi) for w in self.samples.w[self.fit.excluded])
 
 
 @dataclass
@@ -80,38 +96,6 @@ class HistoryStep:
         return {"step": self.step, "action": self.action, "error": self.error,
                 "error_by_level": [{"force": f, "error": e} for f, e in self.error_by_level],
                 "laws": self.laws, "model": self.model_toml}
-
-
-@dataclass
-class ReferenceReport:
-    """Modal fit of the random run and (optionally) the updating of the structure."""
-
-    modal: ModalFit | None
-    update: UpdateResult | None
-
-    def text(self) -> str:
-        lines = []
-        if self.modal is not None:
-            lines.append("modes from the random run (modal fit):")
-            lines += [f"  mode {i + 1}: {f:10.4f} Hz, damping {100 * z:.3f} %"
-                      for i, (f, z) in enumerate(zip(self.modal.frequency, self.modal.damping))]
-        if self.update is not None:
-            lines.append("reference model updated to the measured frequencies:")
-            lines += ["  " + line for line in self.update.table_text().splitlines()]
-        return "\n".join(lines)
-
-    def to_json(self) -> dict:
-        out: dict = {}
-        if self.modal is not None:
-            out["modes"] = [{"frequency": float(f), "damping": float(z)}
-                            for f, z in zip(self.modal.frequency, self.modal.damping)]
-        if self.update is not None:
-            u = self.update
-            out["updating"] = {"parameters": {p: {"before": float(b), "after": float(a)}
-                                              for p, b, a in zip(u.parameters, u.before, u.after)},
-                               "modes": u.modes, "measured_hz": u.measured_hz.tolist(),
-                               "before_hz": u.before_hz.tolist(), "after_hz": u.after_hz.tolist()}
-        return out
 
 
 class Workbench:
@@ -134,25 +118,15 @@ class Workbench:
         self._comparison: Comparison | None = None
         self._single: Comparison | None = None
         self._predictor: Predictor | None = None
+        self._offers: tuple[Comparison, float, list[NonParametricOffer]] | None = None
 
     # ------------------------------------------------------------------ reference
     def update_reference(self) -> ReferenceReport:
         """Modal fit of the random run; update the parameters named in the model's ``[updating]`` table."""
-        rnd = self.measurements.random
-        modal = update = None
-        if rnd is not None:
-            n_wanted = max(self.model.updating_modes or [len(self.model.updating_parameters) or 1])
-            modal = fit_modes(rnd.frequency_hz, rnd.receptance, n_modes=n_wanted)
-            if self.model.updating_parameters:
-                modes = self.model.updating_modes or list(range(1, len(modal.frequency) + 1))
-                if len(modal.frequency) < len(modes):
-                    raise InputError(f"the random run shows {len(modal.frequency)} modes but {len(modes)} are to "
-                                     "be matched", self.model.source, "[updating].modes")
-                update = update_parameters(self.model.structure_table, self.model.updating_parameters,
-                                           modal.frequency[: len(modes)], modes, self.model.source)
-                self.model = self.model.with_structure(update.table)
-                self._predictor = None
-        self.reference = ReferenceReport(modal, update)
+        self.reference = reference_from_random(self.model, self.measurements.random)
+        if self.reference.update is not None:
+            self.model = self.model.with_structure(self.reference.update.table)
+            self._predictor = None
         return self.reference
 
     # ------------------------------------------------------------------ identification
@@ -205,15 +179,24 @@ class Workbench:
             if names is not None and el.name not in names:
                 continue
             report = self.reports[el.name]
-            if not el.laws:
-                report.fit = None
+            report.fit = None
+            if not el.laws and el.nonparametric is None:
                 continue
             s = report.samples
             if s is None:
                 raise InputError(f"element {el.name!r} has no well-conditioned line to fit its laws to")
-            report.fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std)
-            el.laws = [LawTerm(t.law, dict(report.fit.terms[j].params)) for j, t in enumerate(el.laws)]
+            if el.laws:
+                report.fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std,
+                                      exclude_outliers=self._harmonics_blind())
+                el.laws = [LawTerm(t.law, dict(report.fit.terms[j].params)) for j, t in enumerate(el.laws)]
+            if el.nonparametric is not None:
+                self._fit_nonparametric(el)
         self._comparison = self._single = None
+
+    def _harmonics_blind(self) -> bool:
+        """Some run carries no harmonics (imported FRFs): no line could be left out as far from harmonic, so
+        the fits leave out the lines whose kbar does not follow the fitted laws (docs/fitting.md, "Outliers")."""
+        return any(run.distortion is None for run in self.measurements.sine)
 
     @property
     def predictor(self) -> Predictor:
@@ -228,13 +211,18 @@ class Workbench:
                 for t in el.laws:
                     if not t.complete:
                         raise InputError(f"element {el.name!r}: law {t.law.name} has no values; fit it first")
-            self._comparison = self.predictor.compare(locate_folds=True, harmonics=self.harmonics)
+            self._comparison = self.predictor.compare(locate_folds=True, harmonics=self._harmonics())
         return self._comparison
+
+    def _harmonics(self) -> HarmonicCriterion | None:
+        """The harmonic criterion, or None where an element has a non-parametric part (no time-domain force to
+        predict harmonics with: every line single-harmonic)."""
+        return self.harmonics if all(el.time_domain for el in self.model.elements) else None
 
     def single_harmonic_comparison(self) -> Comparison:
         """The error with every line predicted single-harmonically, as the candidates are (their gains are
         measured against it)."""
-        if self.harmonics is None:
+        if self._harmonics() is None:
             return self.compare()
         if self._single is None:
             self._single = self.predictor.compare()
@@ -243,8 +231,11 @@ class Workbench:
     def candidates(self, laws=None) -> list[Candidate]:
         """Ranked missing-effect candidates for the current model (best first)."""
         base = self.single_harmonic_comparison()
-        samples = {n: r.samples for n, r in self.reports.items() if r.samples is not None}
-        fits = {n: r.fit for n, r in self.reports.items()}
+        # an element with a non-parametric part is explained by construction: no candidate there, and its
+        # current kbar (laws plus the part) is the element's own describing function
+        finished = {el.name for el in self.model.elements if el.nonparametric is not None}
+        samples = {n: r.samples for n, r in self.reports.items() if r.samples is not None and n not in finished}
+        fits = {n: (None if n in finished else r.fit) for n, r in self.reports.items()}
         linear = frozenset(n for n, r in self.reports.items() if r.verdict is not None and r.verdict.linear)
         return rank_candidates(self.predictor, samples, fits, base, laws, linear_elements=linear)
 
@@ -253,19 +244,61 @@ class Workbench:
         """Append the current model and its error to the history."""
         comp = self.compare()
         step = HistoryStep(len(self.history), action, self.model.to_toml(), comp.error, comp.error_by_level,
-                           {el.name: [t.to_toml() for t in el.laws] for el in self.model.elements})
+                           {el.name: [t.to_toml() for t in el.laws] +
+                            ([{"law": NONPARAMETRIC, **el.nonparametric.to_toml()}] if el.nonparametric else [])
+                            for el in self.model.elements})
         self.history.append(step)
         return step
 
     def add(self, element: str, law: str) -> HistoryStep:
-        """Add ``law`` to ``element``, refit that element and record the new error."""
+        """Add ``law`` (or the non-parametric part, ``"nonparametric"``) to ``element``, refit that element and
+        record the new error."""
         el = self.model.element(element)
+        if law == NONPARAMETRIC:
+            return self._add_nonparametric(el)
         new = get_law(law)
         if any(t.law.name == new.name for t in el.laws):
             raise InputError(f"element {element!r} already has law {law!r}", self.model.source)
         el.laws.append(LawTerm(new, {}))
         self.fit([element])
         return self.record(f"add {element}:{law}")
+
+    def _fit_nonparametric(self, el) -> None:
+        """The element's non-parametric part fitted to what its (fitted) laws leave of its kbar samples."""
+        report = self.reports[el.name]
+        s = report.samples
+        left = s.kbar - (report.fit.describing_function(s.X, s.w) if report.fit else 0.0)
+        el.nonparametric = fit_nonparametric(s.X, s.w, left, s.kbar_std).model
+
+    def _add_nonparametric(self, el) -> HistoryStep:
+        if el.nonparametric is not None:
+            raise InputError(f"element {el.name!r} already has a non-parametric part", self.model.source)
+        if not self.reports:
+            self.fit()                          # identified and the laws fitted: the part takes what they leave
+        if self.reports[el.name].samples is None:
+            raise InputError(f"element {el.name!r} has no well-conditioned line to fit a non-parametric part to")
+        self._fit_nonparametric(el)
+        self._comparison = self._single = None
+        return self.record(f"add {el.name}:{NONPARAMETRIC}")
+
+    def unexplained(self, false_alarm: float = 1e-3) -> list[NonParametricOffer]:
+        """The elements whose kbar departs from their laws by much more than the noise
+        (:func:`analysis.unexplained.unexplained`), each with the error a non-parametric part would give. Only
+        elements with laws: where none is on yet, the library has not been tried and the candidates are the
+        advice. Kept until the model changes (the report and the JSON both ask)."""
+        base = self.single_harmonic_comparison()
+        if self._offers is not None and self._offers[0] is base and self._offers[1] == false_alarm:
+            return self._offers[2]
+        out = []
+        for i, el in enumerate(self.model.elements):
+            report = self.reports.get(el.name)
+            if report is None or report.samples is None or el.nonparametric is not None or not el.laws:
+                continue
+            finding = unexplained(report.samples, report.fit, false_alarm)
+            if finding is not None:
+                out.append(offer_nonparametric(self.predictor, base, i, report.samples, report.fit, finding))
+        self._offers = (base, false_alarm, out)
+        return out
 
     def linear_corrections(self, min_sigma: float = 5.0) -> list[str]:
         """Elements whose verdict is linear but whose kbar is a clear constant offset (more than ``min_sigma``
@@ -298,9 +331,10 @@ class Workbench:
         before = load_model(tomllib.loads(self.history[-1].model_toml), self.model.source)
         changed = []
         for el, old in zip(self.model.elements, before.elements):
-            if [t.law.name for t in el.laws] != [t.law.name for t in old.laws]:
+            if ([t.law.name for t in el.laws] != [t.law.name for t in old.laws]
+                    or (el.nonparametric is None) != (old.nonparametric is None)):
                 changed.append(el.name)
-            el.laws = old.laws
+            el.laws, el.nonparametric = old.laws, old.nonparametric
         self.fit(changed)                      # also drops the cached comparison
         return self.history[-1]
 
@@ -317,6 +351,7 @@ class Workbench:
         out = {"elements": [self.reports[el.name].to_json(el) for el in self.model.elements],
                **comp.to_json(), "other_branch_hz": comp.other_branch_hz(self.measurements.sine),
                "candidates": [c.to_json() for c in (candidates or [])],
+               "unexplained": [o.to_json() for o in self.unexplained()],
                "history": [h.to_json() for h in self.history],
                "unfinished_runs": [note.to_json() for note in self.measurements.unfinished]}
         if self.reference is not None:

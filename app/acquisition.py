@@ -66,13 +66,6 @@ class RecordFeed:
             self._pull()
         self.discard()
 
-    def unread(self, record: Record) -> None:
-        """Put a record back in front of what is collected (it will be returned again)."""
-        data = np.concatenate([record.data] + self._buffer, axis=0) if self._buffer else record.data
-        self._buffer, self._buffered = [data], len(data)
-        self._start = record.first_sample
-        self._overload |= record.overload
-
     def skip(self, n: int) -> None:
         """Read and drop ``n`` samples (still checking every block)."""
         self.discard()

@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 from analysis.comparison import gain_phrase
 from analysis.errors import InputError
 from analysis.frf_noise import METHOD as NOISE_METHOD
-from analysis.model import load_model
+from analysis.model import Model, load_model
+from analysis.reference import ReferenceReport, reference_from_random
 from analysis.tables import load_toml
 from analysis.workbench import Workbench
 
@@ -78,6 +79,42 @@ def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = T
     return wb, candidates
 
 
+@dataclass
+class ReferenceAnalysis:
+    """A session with a random run and no stepped sine: the modal fit and the model updated to it -- all a
+    low-level test can tell (docs/workbench.md, section 1)."""
+
+    model: Model
+    reference: ReferenceReport
+
+    def text(self) -> str:
+        return "\n".join([self.reference.text(), "",
+                          "no stepped-sine run: the elements are not identified (a random run is the reference only)"])
+
+    def to_json(self) -> dict:
+        return {"reference": self.reference.to_json(), "elements": [], "candidates": [], "history": [],
+                "model": self.model.to_toml()}
+
+
+def reference_only(session_path, model_path, adds: list[str] = ()) -> ReferenceAnalysis | None:
+    """The reference analysis of a session that has a random run and no stepped sine (None if it has a
+    stepped-sine run: the workbench analyses it)."""
+    with open_session(session_path) as s:
+        measurements = measurements_from_session(s)
+    if measurements.sine or measurements.random is None:
+        return None
+    if adds:
+        raise InputError(f"--add {adds[0]}: the session has no stepped-sine run to fit a law to", str(session_path))
+    model = load_model(load_toml(model_path), str(model_path))
+    missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
+    if missing:
+        raise InputError(f"measured DOF(s) {', '.join(missing)} are not in the model's structure", model.source)
+    reference = reference_from_random(model, measurements.random)
+    if reference.update is not None:
+        model = model.with_structure(reference.update.table)
+    return ReferenceAnalysis(model, reference)
+
+
 def session_notes(session_path) -> SessionNotes:
     """Incomplete runs and earlier model histories of a session."""
     with open_session(session_path) as s:
@@ -106,7 +143,8 @@ def _data_notes(wb: Workbench) -> list[str]:
     blind = [r.name for r in wb.measurements.sine if r.distortion is None]
     if blind:
         out.append(f"distortion: no harmonics for {', '.join(blind)}, so no line is left out as far from "
-                   "harmonic; lines that do not follow the fitted laws show in the misfit and the missing effects")
+                   "harmonic; the fits leave out the lines whose kbar does not follow the fitted laws (outliers, listed "
+                   "per element)")
     return out + ([""] if out else [])
 
 
@@ -128,11 +166,17 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
         if r.verdict is not None:
             out.append(f"    evidence: {r.verdict.evidence}")
         for j, term in enumerate(el.laws):
-            params = []
-            for k, v in term.values.items():
-                err = r.fit.terms[j].stderr.get(k) if r.fit is not None else None
-                params.append(f"{k} = {v:.5g}" + ("" if err is None or not math.isfinite(err) else f" ± {err:.2g}"))
+            fitted = r.fit.terms[j] if r.fit is not None else None
+            params = [_param_text(k, v, fitted) for k, v in term.values.items()]
             out.append(f"    law {term.law.name}: {', '.join(params)}")
+        if el.nonparametric is not None:
+            out.append(f"    {el.nonparametric.describe(r.samples.units[1] if r.samples else 'm')}")
+        if r.fit is not None:
+            out += [f"    {d}" for d in r.fit.degeneracies] + [f"    {c}" for c in r.fit.correlated]
+            left_out = r.excluded_hz()
+            if left_out:
+                out.append(f"    {len(left_out)} line(s) left out of the fit, their kbar not following the fitted "
+                           "laws (outliers): " + ", ".join(f"{f:.4g}" for f in left_out) + " Hz")
     comp = wb.compare()
     out.append("")
     out.append(f"FRF error of the model: {comp.error:.4g}  (" +
@@ -145,6 +189,11 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
     out += _jump_lines(comp, wb.measurements.sine)
     if len(wb.history) > 1:
         out.append("history: " + " -> ".join(f"{h.action} {h.error:.3g}" for h in wb.history))
+    offers = wb.unexplained()
+    if offers:
+        out += ["", "not explained by the laws of the library:"]
+        for o in offers:
+            out += [f"  {o.finding.text()}", f"    {o.text()}"]
     if candidates:
         out += ["", "what is missing (best first):"]
         for c in candidates[:top]:
@@ -152,6 +201,15 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
             out.append(f"  {c.element}:{c.law}  error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
             out.append(f"    {c.explanation}")
     return "\n".join(out)
+
+
+def _param_text(name: str, value: float, fitted) -> str:
+    """``k3 = -742.1 ± 3.2``, or the value marked undetermined when the data do not determine it."""
+    err = None if fitted is None else fitted.stderr.get(name)
+    spread = "" if err is None or not math.isfinite(err) else f" ± {err:.2g}"
+    if fitted is not None and name in fitted.undetermined:
+        return f"{name} = {value:.5g} (not determined by the data{spread and ':' + spread})"
+    return f"{name} = {value:.5g}{spread}"
 
 
 def _jump_lines(comp, runs) -> list[str]:

@@ -33,7 +33,6 @@ from .transient_line import TransientLines
 
 BLOCK_SECONDS = 0.5           # longest DAQ frame/block: the abort limits are checked at least this often
 BLOCK_POINTS = (64, 256)      # ...within these sizes (small frames cost throughput, large ones latency)
-RANDOM_SEGMENT_SECONDS = 8.0  # Welch segment length for the random run (frequency resolution 1/8 Hz)
 START_DRIVE = 0.05            # V peak: the first line of every sine run starts at most here...
 START_FRACTION = 0.5          # ...or at this fraction of the drive the last gain predicts, if less
 MISSED_FORCE = 0.05           # a line this far (relative) from its target force fails its run
@@ -271,11 +270,16 @@ class Campaign:
     def _random_run(self, guard: OutputGuard, spec: RandomSpec) -> None:
         name = "random"
         fs = self.daq.sample_rate
-        segment = int(2 ** np.ceil(np.log2(RANDOM_SEGMENT_SECONDS * fs)))
+        welch = spec.welch()
+        segment = int(round(fs / welch.resolution))           # the plan's resolution (docs/campaigns.md)
         run_spec = RunSpec(name, "random", spec.force_rms, "none", self.excitation_dof, self.sensor_dofs, fs,
                            list(self.daq.channels), list(self.daq.units), self._random_extras(),
                            {"band": list(spec.band), "duration": spec.duration, "segment_length": segment})
         with self._run(run_spec):
+            if welch.limited_by_duration:
+                self._log("note", f"random: resolution {fs / segment:.4g} Hz, coarser than the {welch.wanted:.4g} Hz "
+                                  f"damping {spec.expected_damping:g} asks for: a {spec.duration:g} s run holds "
+                                  f"{welch.averages} averages at most at that resolution")
             drive = self._noise_calibrate(guard, spec, fs)
             est = FRFEstimator(fs, segment)
             n_total = int(spec.duration * fs)

@@ -199,12 +199,18 @@ def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
 
-    from .analyze import report_text, run_workbench, session_notes, store_history
-    from .outputs import atomic_output, check_output, require_free_space
+    from .analyze import reference_only, report_text, run_workbench, session_notes, store_history
+    from .outputs import check_output
 
     inputs = [args.session, args.model]
     if args.output:                       # refused before any work: never an input, never silently replaced
         check_output(args.output, inputs=inputs, overwrite=args.force)
+    reference = reference_only(args.session, args.model, args.add or [])
+    if reference is not None:             # a random run only: its modes and the updated reference
+        print(json.dumps(reference.to_json(), indent=1, default=float) if args.json else reference.text())
+        if args.output:
+            _write_model(args, reference.model.to_toml(), inputs)
+        return 0
     wb, candidates = run_workbench(args.session, args.model, args.add or [])
     notes = session_notes(args.session)
     if not args.no_history:
@@ -218,13 +224,19 @@ def cmd_analyze(args) -> int:
     if notes.not_stored:
         print(f"contactid: warning: model history not stored: {notes.not_stored}", file=sys.stderr)
     if args.output:                       # last: a failure here leaves the report printed and no partial file
-        text = wb.model.to_toml()
-        require_free_space(args.output, len(text.encode()) + 4096, "write the fitted model")
-        with atomic_output(args.output, inputs=inputs, overwrite=args.force) as temp:
-            temp.write_text(text, encoding="utf-8")
-        if not args.json:
-            print(f"fitted model written to {args.output}")
+        _write_model(args, wb.model.to_toml(), inputs)
     return 0
+
+
+def _write_model(args, text: str, inputs: list) -> None:
+    """Write the analysed model to ``-o``, never over an input nor silently over a file."""
+    from .outputs import atomic_output, require_free_space
+
+    require_free_space(args.output, len(text.encode()) + 4096, "write the fitted model")
+    with atomic_output(args.output, inputs=inputs, overwrite=args.force) as temp:
+        temp.write_text(text, encoding="utf-8")
+    if not args.json:
+        print(f"fitted model written to {args.output}")
 
 
 def cmd_recover(args) -> int:

@@ -9,7 +9,9 @@ transient to die, ``"transient"`` estimates the steady state from records that s
 and ``[control]`` the force loop (``tolerance``,
 default 0.01 = 1 %). ``[limits] max_lines`` caps the planned stepped-sine lines (default 10 000; a typo such
 as ``step = 1e-9`` would plan billions). ``[excitation] dof`` and ``[sensors] dofs`` say where the force gauge and
-the accelerometers sit, for real instruments. docs/campaigns.md describes them.
+the accelerometers sit, for real instruments. ``[random] resolution`` (Hz) sets the Welch line spacing of the
+random run, automatic from the band and ``expected_damping`` (default 0.01) otherwise. docs/campaigns.md describes
+them.
 """
 from __future__ import annotations
 
@@ -18,7 +20,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from analysis.errors import InputError
+from analysis.frf_estimation import WelchResolution, auto_resolution, welch_averages
 from analysis.tables import Fields, load_toml
+
+
+DEFAULT_EXPECTED_DAMPING = 0.01   # lightest damping ratio a random run is planned to resolve, unless the plan says
+MIN_RANDOM_AVERAGES = 2           # a [random] resolution whose segments the run holds fewer times is refused
 
 
 @dataclass
@@ -26,6 +33,15 @@ class RandomSpec:
     force_rms: float            # N
     band: tuple[float, float]   # Hz
     duration: float             # s
+    resolution: float | None = None          # Hz; None: automatic from the band and expected_damping
+    expected_damping: float = DEFAULT_EXPECTED_DAMPING
+
+    def welch(self) -> WelchResolution:
+        """The Welch resolution of the run: the plan's, or the automatic one (docs/campaigns.md)."""
+        if self.resolution is None:
+            return auto_resolution(self.band, self.duration, self.expected_damping)
+        return WelchResolution(self.resolution, self.resolution, welch_averages(self.duration, self.resolution),
+                               False)
 
 
 @dataclass
@@ -145,7 +161,7 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
     if root.has("random"):
         f = root.sub("random")
         f.where = "[random]"
-        f.unknown_keys({"force_rms", "band", "duration"})
+        f.unknown_keys({"force_rms", "band", "duration", "resolution", "expected_damping"})
         band = f.require("band")
         if not isinstance(band, list) or len(band) != 2:
             raise f.error("band", "must be [low, high] in Hz")
@@ -153,6 +169,7 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         if hi <= lo:
             raise f.error("band", f"high end {hi} Hz must exceed the low end {lo} Hz")
         random = RandomSpec(f.number("force_rms", positive=True), (lo, hi), f.number("duration", positive=True))
+        _random_resolution(f, random)
     sines = []
     for i, f in enumerate(root.list_of_tables("stepped_sine")):
         f.where = f"[[stepped_sine]][{i}]"
@@ -213,6 +230,23 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         c.unknown_keys({"tolerance"})
         control = c.number("tolerance", 0.01, positive=True)
     return Plan(random, sines, limits, settle, control, text, source, _placement(root))
+
+
+def _random_resolution(f: Fields, spec: RandomSpec) -> None:
+    """``[random] resolution`` (Hz) and ``expected_damping`` (ratio), checked against the run's duration."""
+    spec.expected_damping = f.number("expected_damping", DEFAULT_EXPECTED_DAMPING, positive=True)
+    if spec.expected_damping >= 0.5:
+        raise f.error("expected_damping", f"must be a damping ratio below 0.5, got {spec.expected_damping:g}")
+    if not f.has("resolution"):
+        return
+    spec.resolution = f.number("resolution", positive=True)
+    if welch_averages(spec.duration, spec.resolution) < MIN_RANDOM_AVERAGES:
+        raise f.error("resolution", f"{spec.resolution:g} Hz needs {1 / spec.resolution:g} s segments: a "
+                                    f"{spec.duration:g} s run holds fewer than {MIN_RANDOM_AVERAGES} Welch averages "
+                                    "(coarsen the resolution or lengthen duration)")
+    if spec.resolution > (spec.band[1] - spec.band[0]) / 8:
+        raise f.error("resolution", f"{spec.resolution:g} Hz leaves fewer than 8 lines in the band "
+                                    f"{spec.band[0]:g}-{spec.band[1]:g} Hz")
 
 
 def _max_lines(lim: Fields) -> int:

@@ -203,7 +203,7 @@ def plot_kbar(wb: Workbench, path: Path) -> Path:
             measured = _symbols(_colour(levels, force), 4)
             re.plot(s.X[sel], s.kbar[sel].real, name=f"{force:g} N", **measured)
             im.plot(s.X[sel], s.kbar[sel].imag, **measured)
-        if el.laws and all(t.complete for t in el.laws):
+        if (el.laws or el.nonparametric is not None) and all(t.complete for t in el.laws):
             # the model at each sample's (X, w): markers, since kbar may depend on w as well as X
             model = el.describing_function(s.X, s.w)
             style = {"pen": None, "symbol": "x", "symbolSize": 5, "symbolPen": {"color": "k", "width": 1}}

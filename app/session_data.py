@@ -36,7 +36,7 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
         if run.kind == "random":
             random = RandomRun(run.excitation_dof, dofs, run.frequency[:n], H,
                                _stack(arrays, "coherence", dofs), _stack(arrays, "random_error", dofs),
-                               run.force)
+                               run.force, _welch_resolution(run.attrs))
             continue
         sine.append(_sine_run(run, dofs, run.frequency[:n], H, arrays))
     return Measurements(sine, random, unfinished)
@@ -52,6 +52,13 @@ def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarra
     return SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, frequency, H,
                    std if std is not None else smoothness_noise(frequency, H),
                    arrays.get("force_amplitude"), distortion, noise_estimated=std is None)
+
+
+def _welch_resolution(attrs: dict) -> float | None:
+    """The random run's Welch resolution (Hz) from its segment length and sample rate, where it has them."""
+    if "segment_length" in attrs and "sample_rate" in attrs and attrs["segment_length"] > 0:
+        return float(attrs["sample_rate"]) / float(attrs["segment_length"])
+    return None
 
 
 def _stack(arrays: dict, prefix: str, dofs: list[str]):

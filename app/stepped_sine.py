@@ -17,9 +17,11 @@ ppm). Then:
   generator's range) once the line is steady and its force is off by more than ``control_tolerance`` (1 %);
   before it settles when the force is more than COARSE_ERROR off and its level is known (the approach from
   a low start); and at the settling limit, LIMIT_RETRIES times. After each change the loop waits until the
-  data show it (:meth:`LineMeter._await_level`): samples from before the change still arrive for a while. A
-  voltage-driven shaker loses force at resonance, and kbar only means something at a stated force. The
-  instrument ramps the amplitude, so the drive never jumps.
+  data show it (:meth:`LineMeter._await_change`): samples from before the change still arrive for a while
+  (tens of seconds of them from a fast emulator over TCP), and records are measured -- counted by the
+  fixed-count practice, corrected on by the loop -- only from after the one that shows it. A voltage-driven
+  shaker loses force at resonance, and kbar only means something at a stated force. The instrument ramps the
+  amplitude, so the drive never jumps.
 
 The FRF is the receptance ``h_p = A_p / (-(2 pi f)^2 F)`` from the accelerometer and force fundamentals; its
 standard deviation combines the residual noise of the fit (a complex amplitude from N samples with white
@@ -28,7 +30,9 @@ relative (without it a noise-free measurement would claim a precision its transi
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -39,7 +43,8 @@ from .plan import SettleSpec
 from .transient_line import TransientEstimate, TransientLines
 
 N_HARMONICS = 5
-MAX_LATENCY_S = 10.0     # a generator change not seen in the data after this long is a fault of the set-up
+MAX_LATENCY_S = 10.0     # a generator change not seen in the data after this long (stream and wall time) is a
+                         # fault of the set-up
 FORCE_AGREEMENT = 0.05   # three records whose force magnitudes agree this well (relative) tell the force level
 TONE_TOLERANCE = 1e-3    # ...if the force's fitted frequency is the line's within this (relative)
 COARSE_ERROR = 0.2       # a force this far off target (relative) is corrected before the FRFs settle
@@ -133,32 +138,53 @@ class LineMeter:
         self.feed.stream.sync()    # the samples before the change all in: the change lands at a known sample
         self.shaker.set_sine(frequency, drive)
         self.feed.flush()
-        ramp_s = abs(drive - (previous or 0.0)) / max(getattr(self.shaker, "ramp_rate", np.inf), 1e-12)
+        ramp_s = self._ramp_seconds(drive, previous)
         self.feed.skip(self.latency + int(np.ceil((ramp_s + 3.0 / frequency) * self.sample_rate)))
 
-    def _await_level(self, frequency: float, n_rec: int, force: complex, ratio: float) -> None:
-        """After the drive was scaled by ``ratio`` from a level that gave ``force``, wait until the data show
-        the change, as :meth:`_new_line` waits for a new frequency: records whose force is still the old one
-        were sampled before the instrument acted (a socket or FIFO can hold seconds of them), and a loop
-        correcting on them doubles the drive again and again -- the first-line overshoots of the force limit.
-        The samples that took update the learnt latency."""
-        stale = 0
-        while stale < self.sample_rate * MAX_LATENCY_S:
+    def _await_level(self, frequency: float, n_rec: int, force: complex, drive: float, previous: float) -> None:
+        """After the drive was scaled from ``previous`` to ``drive`` V at a level that gave ``force``, wait
+        until the data show the change, as :meth:`_new_line` waits for a new frequency: records whose force is
+        still the old one were sampled before the instrument acted (a socket or FIFO can hold seconds of them,
+        a fast emulator over TCP tens of seconds), and a loop correcting on them doubles the drive again and
+        again -- the first-line overshoots of the force limit. Then the instrument's ramp is skipped once more,
+        counted from the record that showed the change: only records that provably follow it are measured."""
+        def shows(data: np.ndarray) -> bool:
+            now = abs(self._analyse(data, frequency, fit_frequency=False).force)
+            return self._moved(abs(force), now, drive / previous)
+
+        self._await_change(n_rec, shows)
+        self.feed.skip(int(np.ceil((self._ramp_seconds(drive, previous) + 3.0 / frequency) * self.sample_rate)))
+
+    def _await_change(self, n_rec: int, shows: Callable[[np.ndarray], bool]) -> None:
+        """Read records until one shows the last generator change (``shows(data)``) and drop that one too: the
+        change happened before it ends, but maybe in its middle. Records read before it were sampled before the
+        instrument acted; their samples update the learnt latency.
+
+        How many there are is for the path between converter and program to say, not for a clock: a fast
+        emulator served over TCP runs ahead of the host by whatever the socket buffers hold (measured: 47 s of
+        paper-2dof's stream), a real instrument by its FIFO. So the wait gives up only when both
+        MAX_LATENCY_S of stream and MAX_LATENCY_S of wall time went by without the change (:class:`ChangeWait`);
+        giving up after so much stream alone measured those stale records as the new state."""
+        waited = ChangeWait(self.sample_rate)
+        while not waited.expired():
             self.should_stop()
             rec = self.feed.record(n_rec)
-            now = abs(self._analyse(rec.data, frequency, fit_frequency=False).force)
-            if self._moved(abs(force), now, ratio):
-                self.feed.unread(rec)
+            if shows(rec.data):
                 break
-            stale += len(rec.data)
-        self.latency = max(self.latency, stale)
+            waited.add(len(rec.data))
+        self.latency = max(self.latency, waited.samples)
 
     @staticmethod
     def _moved(before: float, now: float, ratio: float) -> bool:
-        """Whether a force went at least half the way (in log) a drive change by ``ratio`` should take it."""
+        """Whether a force went at least half the way (in log) a drive change by ``ratio`` should take it, in
+        the direction it should (a stale record that happens to read low is no sign of a larger drive)."""
         if before <= 0 or now <= 0:
-            return now > 0
-        return abs(np.log(now / before)) >= 0.5 * abs(np.log(ratio))
+            return now > 0 and ratio > 1
+        return np.log(now / before) * np.sign(np.log(ratio)) >= 0.5 * abs(np.log(ratio))
+
+    def _ramp_seconds(self, drive: float, previous: float | None) -> float:
+        """How long the instrument ramps from ``previous`` to ``drive`` V (0 for one that does not ramp)."""
+        return abs(drive - (previous or 0.0)) / max(getattr(self.shaker, "ramp_rate", np.inf), 1e-12)
 
     def ramp_out(self, frequency: float, drive: float, periods: float) -> None:
         """Ramp the drive to zero over ``periods`` periods (at least the instrument's own ramp time) and wait
@@ -179,22 +205,16 @@ class LineMeter:
 
         Samples taken before the instrument acted on the command still arrive for a while (queues and FIFOs
         between the DAQ's converter and this program): a record counts only once the frequency fitted on its
-        force channel is the new one. The samples that took is the path's latency, kept (largest seen) for
-        the amplitude changes of the force loop, where no frequency tells old data from new.
+        force channel is the new one, and the line's records start after that one (:meth:`_await_change`).
+        The samples that took is the path's latency, kept (largest seen) for the amplitude changes of the
+        force loop, where no frequency tells old data from new.
         """
         self.feed.stream.sync()    # the samples before the change all in: the change lands at a known sample
         self.shaker.set_sine(frequency, drive)
         self.feed.flush()
-        stale = 0
-        tolerance = 1e-4 + 0.25 * abs(frequency - self._frequency) / frequency if self._frequency else np.inf
-        while self._frequency and stale < self.sample_rate * MAX_LATENCY_S:
-            self.should_stop()
-            rec = self.feed.record(n_rec)
-            if self._shows(rec.data, frequency, tolerance):
-                self.feed.unread(rec)
-                break
-            stale += len(rec.data)
-        self.latency = max(self.latency, stale)
+        if self._frequency:
+            tolerance = 1e-4 + 0.25 * abs(frequency - self._frequency) / frequency
+            self._await_change(n_rec, lambda data: self._shows(data, frequency, tolerance))
         self._frequency = frequency
         self.feed.skip(int(np.ceil(3.0 / frequency * self.sample_rate)))
 
@@ -239,7 +259,7 @@ class LineMeter:
                 new_drive = float(min(wait.drive * ratio, self.v_max))
                 if new_drive != wait.drive:
                     self._set_drive(frequency, new_drive, wait.drive)
-                    self._await_level(frequency, n_rec, history[-1].force, new_drive / wait.drive)
+                    self._await_level(frequency, n_rec, history[-1].force, new_drive, wait.drive)
                     wait.drive_changed(new_drive, limit_retry=at_limit)
                     history = []
                     self._restart_transient()
@@ -418,6 +438,27 @@ class RecordAnalysis:
     thd: np.ndarray
     frequency: float
     raw: np.ndarray
+
+
+@dataclass
+class ChangeWait:
+    """How long the data have not shown a generator change, by both clocks: samples of stream and wall time.
+
+    Expired only when both exceed MAX_LATENCY_S. Stream alone is no bound where the transport decides how
+    far the instrument runs ahead (a fast emulator fills every buffer between it and the host); wall time
+    alone would make a fast run depend on the speed of the machine. While the change shows in time -- always,
+    on a working set-up -- neither clock decides anything."""
+
+    sample_rate: float
+    samples: int = 0
+    began: float = field(default_factory=time.monotonic)
+
+    def add(self, n: int) -> None:
+        self.samples += n
+
+    def expired(self) -> bool:
+        return (self.samples >= self.sample_rate * MAX_LATENCY_S
+                and time.monotonic() - self.began >= MAX_LATENCY_S)
 
 
 @dataclass

@@ -30,6 +30,8 @@ PUBLIC_NAMES = {
     "analysis.harmonic_balance": ["predict_sweep"],
     "analysis.measurements": ["Measurements", "SineRun", "RandomRun"],
     "analysis.workbench": ["Workbench"],
+    "analysis.unexplained": ["NonParametricOffer", "Unexplained", "offer_nonparametric", "unexplained"],
+    "analysis.nonparametric": ["NonParametric", "fit_nonparametric"],
     "drivers": ["AbortLimits", "Block", "Daq", "InstrumentError", "LinkLost", "OutputGuard", "SerialDaq",
                 "SerialShaker", "ShakerController", "open_daq", "open_shaker"],
     "drivers.emulator": ["EmulatedRig", "register", "set_backend_factory"],

@@ -1,6 +1,7 @@
 """Model tab: the model's laws per element with fitted values and uncertainties, measured against predicted FRFs
 per level, the residual map, the ranked missing-effect candidates with their explanations and an Add button
-each, the error history (the error falling as effects are added) and undo."""
+each, the elements no law of the library explains with an Add button for their non-parametric part
+(docs/nonparametric.md), the error history (the error falling as effects are added) and undo."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -13,6 +14,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxL
                                QTreeWidgetItem, QVBoxLayout, QWidget)
 
 from analysis.comparison import gain_phrase
+from analysis.nonparametric import NAME as NONPARAMETRIC
 
 from .lab import Lab
 from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol
@@ -87,6 +89,10 @@ class ModelPanel(QWidget):
         self.candidates.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
         self.candidates.horizontalHeader().setStretchLastSection(True)
         self.candidates.itemSelectionChanged.connect(self._show_explanation)
+        self.unexplained = QWidget()            # one line and one Add button per unexplained element
+        self.unexplained.setLayout(QVBoxLayout())
+        self.unexplained.layout().setContentsMargins(0, 0, 0, 0)
+        cand_layout.addWidget(self.unexplained)
         cand_layout.addWidget(self.candidates, 2)
         self.explanation = QTextBrowser()
         self.explanation.setPlaceholderText("Select a candidate to read why it is proposed")
@@ -143,6 +149,7 @@ class ModelPanel(QWidget):
         self.jump_label.setText("")
         self.laws.clear()
         self.candidates.setRowCount(0)
+        self._clear_unexplained()
         self.explanation.clear()
         for plot in self.plots().values():
             plot.clear()
@@ -151,7 +158,8 @@ class ModelPanel(QWidget):
         if self.lab.model is not None:
             for el in self.lab.model.elements:
                 where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
-                laws = " + ".join(t.law.name for t in el.laws) or "no laws (identify kbar only)"
+                parts = [t.law.name for t in el.laws] + ([NONPARAMETRIC] if el.nonparametric is not None else [])
+                laws = " + ".join(parts) or "no laws (identify kbar only)"
                 QTreeWidgetItem(self.laws, [f"{el.name} ({where}): {laws}"])
         self._update_enabled()
 
@@ -175,6 +183,8 @@ class ModelPanel(QWidget):
             button = self.candidates.cellWidget(row, len(CANDIDATE_COLUMNS) - 1)
             if button is not None:
                 button.setEnabled(not busy)
+        for button in self.unexplained.findChildren(QPushButton):
+            button.setEnabled(not busy)
 
     def _show_explanation(self) -> None:
         rows = {i.row() for i in self.candidates.selectedIndexes()}
@@ -193,6 +203,7 @@ class ModelPanel(QWidget):
         self.jump_label.setText("<br>".join(["<b>Jumps</b> (predicted fold against measured):", *view.jumps])
                                 if view.jumps else "")
         self._draw_laws(view)
+        self._draw_unexplained(view)
         self._draw_candidates(view)
         self._draw_frf(view)
         self._draw_history(view)
@@ -208,7 +219,36 @@ class ModelPanel(QWidget):
                 item = QTreeWidgetItem(top, [law.law])
                 for p in law.params:
                     QTreeWidgetItem(item, [p.text()])
+            if el.nonparametric:
+                QTreeWidgetItem(top, [el.nonparametric])
         self.laws.expandAll()
+
+    def _clear_unexplained(self) -> None:
+        layout = self.unexplained.layout()
+        while layout.count():
+            row = layout.takeAt(0).widget()
+            row.setParent(None)                 # gone from the panel now, deleted when Qt is done with it
+            row.deleteLater()
+
+    def _draw_unexplained(self, view: AnalysisView) -> None:
+        """Each element the laws leave unexplained: the finding, what a non-parametric part gives, its Add."""
+        self._clear_unexplained()
+        for u in view.unexplained:
+            row = QWidget()
+            line = QHBoxLayout(row)
+            line.setContentsMargins(0, 0, 0, 0)
+            label = QLabel(f"<b>Not explained by the library:</b> {u.element}, kbar {u.noise_ratio:.0f}× the noise "
+                           f"off its laws. A non-parametric part gives error {u.error:.3g} (now "
+                           f"{u.error_before:.3g}): a better law could gain up to ×{u.gain:.3g}")
+            label.setWordWrap(True)
+            label.setToolTip(u.finding)
+            line.addWidget(label, 1)
+            button = QPushButton("Add non-parametric")
+            button.setToolTip(f"Add a non-parametric part to {u.element} (kbar smoothed from its samples), refit "
+                              f"and rank again\n\n{u.finding}")
+            button.clicked.connect(lambda _=False, e=u.element: self.lab.act(self.lab.add_law, e, NONPARAMETRIC))
+            line.addWidget(button)
+            self.unexplained.layout().addWidget(row)
 
     def _draw_candidates(self, view: AnalysisView) -> None:
         table = self.candidates
@@ -227,7 +267,10 @@ class ModelPanel(QWidget):
             table.selectRow(0)
             self._show_explanation()          # row 0 may have been selected already: no selection signal
         else:
-            self.explanation.setPlainText("No candidate: every law of the library was tried.")
+            self.explanation.setPlainText("No candidate: every law of the library was tried" +
+                                          ("; an element with a non-parametric part gets none (it explains that "
+                                           "element's kbar)." if any(el.nonparametric for el in view.elements)
+                                           else "."))
 
     def _draw_frf(self, view: AnalysisView) -> None:
         for plot in (self.frf, self.residual):

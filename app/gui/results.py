@@ -21,6 +21,7 @@ class ParamView:
     value: float
     stderr: float | None          # None: not fitted yet; inf: not determined by the data
     unit: str
+    undetermined: bool = False    # the data do not determine it (docs/fitting.md): its value is no finding
 
     def text(self) -> str:
         value = f"{self.name} = {self.value:.5g} {self.unit}".rstrip()
@@ -28,6 +29,8 @@ class ParamView:
             return value
         if not math.isfinite(self.stderr):
             return value + "  (not determined by the data)"
+        if self.undetermined:
+            return value + f"  (not determined by the data: ± {self.stderr:.2g})"
         return f"{self.name} = {self.value:.5g} ± {self.stderr:.2g} {self.unit}".rstrip()
 
 
@@ -49,6 +52,7 @@ class ElementView:
     lines_used: int
     lines_flagged: int
     laws: tuple[LawView, ...] = ()
+    nonparametric: str = ""           # the non-parametric part, described; "" when the element has none
 
     @property
     def verdict(self) -> str:
@@ -65,6 +69,18 @@ class CandidateView:
     gain: float
     significant: bool
     explanation: str
+
+
+@dataclass(frozen=True)
+class UnexplainedView:
+    """An element whose kbar its laws leave unexplained, and what a non-parametric part gives there."""
+
+    element: str
+    finding: str          # the detector's sentence: how far and how the kbar departs
+    noise_ratio: float
+    error: float          # with the non-parametric part
+    error_before: float
+    gain: float
 
 
 @dataclass(frozen=True)
@@ -91,6 +107,7 @@ class AnalysisView:
     other_branch: dict[str, np.ndarray] = field(default_factory=dict)   # lines measured on another branch
     compared: dict[str, np.ndarray] = field(default_factory=dict)       # the prediction each line was compared with
     jumps: list[str] = field(default_factory=list)                       # predicted against measured, one per jump
+    unexplained: list[UnexplainedView] = field(default_factory=list)     # elements outside the library
 
     @property
     def can_undo(self) -> bool:
@@ -118,13 +135,16 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
             for j, term in enumerate(el.laws):
                 units = {p.name: p.render_unit(rotational) for p in term.law.params}
                 stderr = report.fit.terms[j].stderr if report.fit is not None else {}
-                laws.append(LawView(term.law.name, tuple(ParamView(k, float(v), stderr.get(k), units.get(k, ""))
+                loose = report.fit.terms[j].undetermined if report.fit is not None else ()
+                laws.append(LawView(term.law.name, tuple(ParamView(k, float(v), stderr.get(k), units.get(k, ""),
+                                                                   k in loose)
                                                          for k, v in term.values.items())))
         where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
         verdict = report.verdict
+        part = el.nonparametric.describe("rad" if rotational else "m") if with_laws and el.nonparametric else ""
         views.append(ElementView(el.name, where, report.samples, None if verdict is None else verdict.linear,
                                  "" if verdict is None else verdict.evidence, report.lines_used,
-                                 report.lines_flagged, tuple(laws)))
+                                 report.lines_flagged, tuple(laws), part))
     return views
 
 
@@ -151,4 +171,6 @@ def analysis_view(wb: Workbench, candidates: list[Candidate]) -> AnalysisView:
         [CandidateView(c.element, c.law, c.error, c.gain, c.significant, c.explanation) for c in candidates],
         [HistoryView(h.step, h.action, h.error) for h in wb.history], wb.model.to_toml(),
         wb.reference.text() if wb.reference is not None else "", dict(comp.other_branch), dict(comp.compared),
-        [j.text() for j in comp.jumps])
+        [j.text() for j in comp.jumps],
+        [UnexplainedView(o.element, o.finding.text(), o.finding.noise_ratio, o.error, o.error_before, o.gain)
+         for o in wb.unexplained()])

@@ -13,7 +13,6 @@ import numpy as np
 from analysis.errors import InputError
 from analysis.frf_estimation import FRFEstimator
 
-from ..campaign import RANDOM_SEGMENT_SECONDS
 from .runs import ImportedRun, RawRecord, SourceOptions
 from .units import FORCES, PREFIX, RESPONSES, SI_UNITS, FileUnits, file_default, to_receptance, unit_factor
 
@@ -49,8 +48,11 @@ def _channel(path: str, number: int, fields: dict, units: FileUnits | None) -> t
     return kind, data * factor, dt
 
 
+RANDOM_SEGMENT_SECONDS = 8.0  # imported time histories carry no plan: a power of two near this many seconds
+
+
 def segment_length(fs: float, samples: int) -> int:
-    """The campaign's segment (a power of two near 8 s) or shorter, so MIN_AVERAGES segments fit."""
+    """A power-of-two segment near RANDOM_SEGMENT_SECONDS or shorter, so MIN_AVERAGES segments fit."""
     longest = int(2 ** np.ceil(np.log2(RANDOM_SEGMENT_SECONDS * fs)))
     fitting = int(2 ** np.floor(np.log2(max(2 * samples / (MIN_AVERAGES + 1), 8))))
     return max(8, min(longest, fitting))
