@@ -180,3 +180,61 @@ def test_no_law_is_supported_where_the_laws_already_explain_the_kbar_within_the_
     c = Candidate("a", "quintic", 0.1, 0.2, 0.0, True, "", evidence=50.0)
     assert _supported(c, 50.0, 0.1, False, RankingRules())
     assert not _supported(c, 50.0, 0.1, False, RankingRules(), explained=True)
+
+
+@pytest.mark.slow
+def test_the_auto_button_runs_the_same_loop(qtbot, rk4_joint):
+    from app.gui.main_window import MainWindow
+    from app.gui.results import analysis_view
+
+    window = MainWindow("test")
+    qtbot.addWidget(window)
+    wb = started(rk4_joint, element("a", "x1", ""))
+    window.lab._workbench = (window.lab._generation, wb)       # as Analyze leaves it
+    window.model._update(analysis_view(wb, []))
+    panel = window.model
+    assert panel.auto_button.isEnabled()
+    with qtbot.waitSignal(window.lab.analysisUpdated, timeout=300000):
+        panel.auto_button.click()
+    expected = run_auto(started(rk4_joint, element("a", "x1", "")))
+    shown = panel.auto_label.text()
+    assert all(s.line() in shown for s in expected.steps) and f"stopped: {expected.stopped}" in shown
+    assert [h.action for h in window.lab.analysis.history] == ["start"] + [
+        f"add a:{'+'.join(s.laws)}" for s in expected.steps]
+
+
+# ------------------------------------------------------------------------------------------------ jump rig
+@pytest.mark.slow
+def test_the_jump_rig_adds_coulomb_and_no_quintic(tmp_path):
+    from test_jump_error import PLAN, RIG_ELEMENTS
+
+    wb = analyse(LUMPED, LUMPED_IO, PLAN, RIG_ELEMENTS, element("a", "x1", '"cubic"') + element("b", "x2", ""),
+                 tmp_path)
+    result = run_auto(wb)
+    assert laws_of(wb) == {"a": ["cubic"], "b": ["coulomb"]}, [s.line() for s in result.steps]
+    assert wb.history[0].error / wb.history[-1].error >= 10
+
+
+# ------------------------------------------------------------------------------------------------ paper beam
+@pytest.mark.slow
+def test_the_paper_beam_loop_ends_on_iwan(tmp_path):
+    """The demo's rig and quick plan: the tangential contact is an Iwan element and nothing else."""
+    from analysis.tables import load_toml
+    from app.instruments import emulated_instruments
+    from app.measure import run_plan
+    from app.models import asset
+    from app.plan import load_plan
+    from app.session import open_session
+    from app.session_data import measurements_from_session
+    from drivers.simulation.rig import load_rig
+
+    with emulated_instruments(load_rig("paper-beam")) as inst:
+        assert run_plan(load_plan(asset("paper-beam.quick.plan.toml")), inst, tmp_path / "s.h5").complete
+    with open_session(tmp_path / "s.h5") as s:
+        measurements = measurements_from_session(s)
+    path = asset("paper-beam.model.toml")
+    wb = Workbench(load_model(load_toml(path), str(path)), measurements)
+    wb.start()
+    result = run_auto(wb)
+    assert laws_of(wb) == {"normal": ["linear"], "tangential": ["iwan"]}, [s.line() for s in result.steps]
+    assert wb.history[0].error / wb.history[-1].error >= 10
