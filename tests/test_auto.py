@@ -131,27 +131,27 @@ TWO_EFFECTS = element("a", "x1", '{ law = "cubic", k3 = 3.0e5 }') + \
 def test_two_effects_on_two_elements_are_found_and_the_loop_stops(tmp_path, capsys):
     from app.cli import main
 
-    wb = analyse(LUMPED, LUMPED_IO + NOISE, LUMPED_PLAN, TWO_EFFECTS, UNKNOWN_LUMPED, tmp_path)
-    result = run_auto(wb)
-    assert laws_of(wb) == {"a": ["cubic"], "b": ["quadratic_damping"]}, [s.line() for s in result.steps]
-    assert wb.history[0].error / wb.history[-1].error >= 10
-    assert all(not c.significant for c in result.candidates)
-
-    # the same loop from the command line: each step as it is taken, then the report; and as JSON
+    analyse(LUMPED, LUMPED_IO + NOISE, LUMPED_PLAN, TWO_EFFECTS, UNKNOWN_LUMPED, tmp_path)
     (tmp_path / "model.toml").write_text(LUMPED + UNKNOWN_LUMPED, encoding="utf-8")
     args = ["analyze", str(tmp_path / "s.h5"), str(tmp_path / "model.toml"), "--auto", "--no-history"]
-    assert main(args) == 0
-    out = capsys.readouterr().out
-    progress = [line for line in out.splitlines() if line.startswith("auto: ")]
-    assert progress == [f"auto: {s.line()}" for s in result.steps]
-    assert "automatic loop:" in out and f"stopped: {result.stopped}" in out
     assert main(args + ["--json"]) == 0
     captured = capsys.readouterr()
     doc = json.loads(captured.out)
-    assert [(s["element"], s["laws"]) for s in doc["auto"]["steps"]] == [(s.element, list(s.laws))
-                                                                        for s in result.steps]
-    assert doc["auto"]["stopped"] == result.stopped and doc["error"] == pytest.approx(wb.history[-1].error)
-    assert captured.err.count("auto: ") == len(result.steps)
+    laws = {el["name"]: sorted(law["law"] for law in el["laws"]) for el in doc["elements"]}
+    steps = doc["auto"]["steps"]
+    assert laws == {"a": ["cubic"], "b": ["quadratic_damping"]}, steps
+    assert steps[0]["error_before"] / steps[-1]["error_after"] >= 10
+    assert doc["auto"]["stopped"].startswith("nothing significant is left")
+    assert not any(c["significant"] for c in doc["candidates"])
+    # each step as it was taken, on stderr (stdout is the JSON object)
+    assert [line for line in captured.err.splitlines() if line.startswith("auto: ")] == [
+        f"auto: {s['action']} {s['element']}:{'+'.join(s['laws'])}: error {s['error_before']:.3g} -> "
+        f"{s['error_after']:.3g} (x{s['gain']:.2f} better)" for s in steps]
+    # the text report: the same steps, printed as taken and then with their reasons and the stop
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert sum(line.startswith("auto: ") for line in out.splitlines()) == len(steps)
+    assert "automatic loop:" in out and f"stopped: {doc['auto']['stopped']}" in out
 
 
 def test_step_and_result_records():
