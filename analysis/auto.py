@@ -49,8 +49,7 @@ class AutoStep:
 
     def line(self) -> str:
         """One line: what was added and the error before and after."""
-        what = f"{self.element}:{'+'.join(self.laws)}" if self.action != "linear correction" else \
-            f"linear at {self.element}"
+        what = f"at {self.element}" if self.action == "linear correction" else f"{self.element}:{'+'.join(self.laws)}"
         return (f"{self.action} {what}: error {self.error_before:.3g} -> {self.error_after:.3g} "
                 f"({gain_phrase(self.gain)})")
 

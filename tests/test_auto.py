@@ -238,3 +238,5 @@ def test_the_paper_beam_loop_ends_on_iwan(tmp_path):
     result = run_auto(wb)
     assert laws_of(wb) == {"normal": ["linear"], "tangential": ["iwan"]}, [s.line() for s in result.steps]
     assert wb.history[0].error / wb.history[-1].error >= 10
+    correction = AutoStep("linear correction", "normal", ("linear",), 1.23, 1.24, "why")
+    assert correction.line() == "linear correction at normal: error 1.23 -> 1.24 (x1.01 worse)"
