@@ -4,14 +4,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.signal
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from analysis.harmonics import harmonics, sine_fit
 from analysis.laws import LAWS
 from analysis.structures import Structure
+from drivers.simulation import kernels
 from drivers.simulation.rig import load_rig, parse_rig
-from drivers.simulation.simulator import RigSimulator, SimulationError
+from drivers.simulation.simulator import RigSimulator, SimulationError, _anti_alias_taps
 from test_laws import iwan_lipschitz_excess
 
 TWO_PI = 2 * math.pi
@@ -600,3 +602,18 @@ def test_stiff_friction_rig_matches_an_exact_stick_slip_reference(amplitude, stu
         errors.append(np.abs(x - reference).max(axis=0) / np.abs(reference).max(axis=0))
     assert np.all(errors[0] < 0.01), errors
     assert np.all(errors[1] < errors[0] / 2.5), errors
+
+
+def test_anti_alias_filter_streamed_in_chunks_equals_one_filtering_of_the_whole_record():
+    """The polyphase filter, fed in chunks shorter and longer than its history, keeps every
+    oversample-th output of scipy's direct filtering of the whole record (zero initial state)."""
+    taps = _anti_alias_taps(256.0, 4, 0.4)
+    record = np.random.default_rng(3).standard_normal((4 * 700, 3))
+    history = np.zeros((len(taps) - 1, 3))
+    chunks, start = [], 0
+    for length in (4, 8, 40, 400, 1200, 4, 1144):
+        chunks.append(kernels.fir_decimate(record[start:start + length], history, taps, 4))
+        start += length
+    assert start == len(record)
+    expected = scipy.signal.lfilter(taps, [1.0], record, axis=0)[::4]
+    np.testing.assert_allclose(np.concatenate(chunks), expected, rtol=0, atol=1e-13)

@@ -600,7 +600,7 @@ def adc(y, lsb, ranges, half_codes, clip_counts):
     return out
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath={"reassoc"})
 def fir_decimate(samples, history, taps, factor):
     """Low-pass FIR filter and keep every ``factor``-th output (polyphase: only kept outputs).
 
@@ -622,7 +622,8 @@ def fir_decimate(samples, history, taps, factor):
     L = taps.shape[0]
     H = L - 1
     # each channel joined to its history in one contiguous row: every output is then a dot product of
-    # contiguous vectors, which the compiler vectorises (fastmath lets it reorder the sum)
+    # contiguous vectors, which the compiler vectorises (allowed to reassociate the sum; no other fast-math
+    # assumption, so a non-finite sample stays non-finite)
     joined = np.empty((nch, n + H))
     for i in range(H):
         for c in range(nch):
