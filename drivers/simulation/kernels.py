@@ -49,9 +49,14 @@ _CALLBACKS: dict[str, tuple] = {}
 
 # --- the records the integration loop takes ------------------------------------------
 class StepMatrices(NamedTuple):
-    """The linear part discretised over one internal step (nz states, r elements, nch channels)."""
+    """The linear part discretised over one internal step (nz states, r elements, nch channels).
+
+    The state may be in modal coordinates, where Phi is block diagonal: only its diagonal blocks
+    ``edges[b]:edges[b + 1]`` are used (one block [0, nz] for a dense Phi).
+    """
 
     Phi: np.ndarray   # (nz, nz) state transition over one step
+    edges: np.ndarray  # (n_blocks + 1,) int64 first state of each diagonal block of Phi, then nz
     Qu: np.ndarray    # (nz, 3) drive input at the step start, middle and end (quadratic hold)
     Pg0: np.ndarray   # (nz, r) residual element forces at the step start (first-order hold)
     Pg1: np.ndarray   # (nz, r) ... and at the step end
@@ -484,8 +489,8 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
     u : (2 n_steps + 1,)
         Drive at every half step, V (shaker) or drive units of an ideal source.
     record : Recording
-        Filled with the channels at every internal step and the state and element law
-        forces at the DAQ instants.
+        Filled with the channels at every internal step and the state (in the coordinates of
+        ``system``) and element law forces at the DAQ instants.
     scratch : Scratch
         Work space from :func:`scratch_space`.
 
@@ -495,7 +500,7 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
         Index of the step where the integration stopped (-1: all done) and whether it
         stopped because the implicit solve failed (1) rather than on a non-finite state (0).
     """
-    Phi, Qu, Pg0, Pg1, Cy, D, Co, Dou, Dog = system
+    Phi, edges, Qu, Pg0, Pg1, Cy, D, Co, Dou, Dog = system
     z, g, g_prev, S, mode, sigma, jac, jac_valid = state
     out, z_daq, f_daq = record
     zf, y_free, x, v, F, g_new, work, J, S_trial, S_probe = scratch
@@ -530,13 +535,14 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
                 total += z[i]
             if not math.isfinite(total):
                 return m, 0
-        for i in range(nz):
-            acc = Qu[i, 0] * u0 + Qu[i, 1] * um + Qu[i, 2] * u1
-            for j in range(nz):
-                acc += Phi[i, j] * z[j]
-            for e in range(r):
-                acc += Pg0[i, e] * g[e]
-            zf[i] = acc
+        for b in range(edges.shape[0] - 1):
+            for i in range(edges[b], edges[b + 1]):
+                acc = Qu[i, 0] * u0 + Qu[i, 1] * um + Qu[i, 2] * u1
+                for j in range(edges[b], edges[b + 1]):
+                    acc += Phi[i, j] * z[j]
+                for e in range(r):
+                    acc += Pg0[i, e] * g[e]
+                zf[i] = acc
         if r > 0:
             for k in range(2 * r):
                 acc = 0.0
