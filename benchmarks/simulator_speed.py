@@ -6,7 +6,8 @@ interpreter, then the steady speed of ``RigSimulator.advance`` read in one-secon
 blocks and in 10 ms chunks (as the instrument emulator advances while it paces or
 ramps), and the ratio to a plain vectorised-numpy RK4 of the same (reduced) rig at the
 same internal step, whose element forces come from the same law kernels. The speeds
-are process CPU time (the machine is shared); the load average is printed. Prints one
+are process CPU time (the machine is shared), the median of five timings; the load
+average is printed. Prints one
 line per case; the figures go to docs/performance.md ("## Rig simulator").
 
 Usage: python benchmarks/simulator_speed.py [--seconds S] [--cases CASE ...]
@@ -47,6 +48,8 @@ for name, rig_elements in HIDDEN.items():
     CASES[f"hidden: {name}"] = ("name = \"hidden\"\n" + LUMPED + rig_elements + element("b", "x2", "") + LUMPED_IO,
                                 6.0, 3.0)
 
+REPEATS = 5  # timings per speed figure, of which the median is printed
+
 FIRST_CALL = """
 import time
 t0 = time.perf_counter()
@@ -76,18 +79,23 @@ def case_rig(case: str):
 
 
 def simulator_speed(case: str, seconds: float, chunk_seconds: float) -> float:
-    """Simulated seconds per CPU second, read in chunks of ``chunk_seconds``, after a warm-up."""
+    """Simulated seconds per CPU second, read in chunks of ``chunk_seconds`` after a warm-up: the median
+    of REPEATS timings of ``seconds / REPEATS`` each (one timing of a few ms of CPU on a shared machine
+    can be off by a factor of two)."""
     _, f, a = CASES[case]
     sim = RigSimulator(case_rig(case))
     sim.set_sine(f, a)
     sim.set_output(True)
     sim.advance(int(sim.sample_rate) * 2)
     chunk = max(1, round(chunk_seconds * sim.sample_rate))
-    calls = max(1, round(seconds * sim.sample_rate / chunk))
-    start = time.process_time()
-    for _ in range(calls):
-        sim.advance(chunk)
-    return calls * chunk / sim.sample_rate / (time.process_time() - start)
+    calls = max(1, round(seconds * sim.sample_rate / chunk / REPEATS))
+    speeds = []
+    for _ in range(REPEATS):
+        start = time.process_time()
+        for _ in range(calls):
+            sim.advance(chunk)
+        speeds.append(calls * chunk / sim.sample_rate / (time.process_time() - start))
+    return float(np.median(speeds))
 
 
 def rk4_speed(case: str, seconds: float) -> float:
