@@ -88,7 +88,7 @@ class SolverState(NamedTuple):
 
     z: np.ndarray            # (nz,) state
     g: np.ndarray            # (r,) residual element forces now
-    g_prev: np.ndarray       # (2, r) ... one and two steps earlier
+    g_prev: np.ndarray       # (3, r) ... one, two and three steps earlier
     S: np.ndarray            # (n_terms, max states) committed law states, rows as LawTable.P
     mode: np.ndarray         # (r,) int64 friction mode per element (FREE, STICK, SLIP)
     sigma: np.ndarray        # (r,) slip direction per element
@@ -550,12 +550,14 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
                     acc += Cy[k, i] * zf[i]
                 y_free[k] = acc
             for e in range(r):
-                # quadratic extrapolation: the Newton start is O(h^3) off on a smooth path
-                g_new[e] = 3.0 * (g[e] - g_prev[0, e]) + g_prev[1, e]
+                # cubic extrapolation: the Newton start is O(h^4) off on a smooth path, so one iterate
+                # reaches the tolerance where a start O(h^3) off often needed two
+                g_new[e] = 4.0 * (g[e] + g_prev[1, e]) - 6.0 * g_prev[0, e] - g_prev[2, e]
             if not _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g_new, x, v, F, work, jac,
                                jac_valid, J):
                 return m, 1
             for e in range(r):
+                g_prev[2, e] = g_prev[1, e]
                 g_prev[1, e] = g_prev[0, e]
                 g_prev[0, e] = g[e]
                 g[e] = g_new[e]

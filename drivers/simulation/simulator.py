@@ -411,7 +411,7 @@ class RigSimulator:
         self._z = np.zeros(self._nz)   # physical state [q, q', (coil current)]
         self._w = np.zeros(self._nz)   # ... in the integration's coordinates during a call
         self._g = np.zeros(r)
-        self._g_prev = np.zeros((2, r))  # residual forces one and two steps earlier
+        self._g_prev = np.zeros((3, r))  # residual forces one, two and three steps earlier
         self._mode = np.where(self._terms.has_friction, kernels.STICK, kernels.FREE).astype(np.int64)
         self._sigma = np.zeros(r)
         self._jacobian = np.zeros((r, r))
