@@ -681,3 +681,35 @@ sample_rate = 256.0
 """, "critical.toml")
     assert not RigSimulator(rig(20.0))._on.modal   # c = 2 sqrt(k m)
     assert RigSimulator(rig(2.0))._on.modal
+
+
+def test_an_element_without_laws_stays_out_of_the_solve_and_reports_zero_force():
+    """The hidden-effect rigs carry elements the analysis model names but the rig leaves empty: such an
+    element changes nothing (the same motion as the rig without it), has zero force and is free."""
+    structure = """[structure]
+type = "lumped"
+dofs = ["x1", "x2"]
+mass = [[1.0, 0.0], [0.0, 1.0]]
+stiffness = [[3000.0, -1000.0], [-1000.0, 2000.0]]
+rayleigh = [0.3, 1.0e-4]
+[[element]]
+name = "a"
+dof = "x1"
+laws = [ { law = "coulomb", fs = 0.08 }, { law = "cubic", k3 = 2.0e5 } ]
+"""
+    io = '[excitation]\ndof = "x2"\n[sensors]\ndofs = ["x1", "x2"]\n[daq]\nsample_rate = 512.0\n'
+    idle = '[[element]]\nname = "b"\ndof = "x2"\nlaws = []\n'
+    runs = []
+    for text in (structure + io, structure + idle + io):
+        sim = RigSimulator(parse_rig('name = "idle"\n' + text, "idle.toml"))
+        sim.set_sine(6.0, 3.0)
+        sim.set_output(True)
+        sim.advance(1024)
+        runs.append((sim.truth, sim.element_states(), sim.displacements()["x2"]))
+    (alone, alone_states, _), (with_idle, states, x2) = runs
+    np.testing.assert_allclose(with_idle.q, alone.q, rtol=0, atol=1e-12 * np.abs(alone.q).max())
+    np.testing.assert_allclose(with_idle.element_force[:, 0], alone.element_force[:, 0], rtol=0,
+                               atol=1e-12 * np.abs(alone.element_force).max())
+    assert with_idle.element_force.shape[1] == 2 and not np.any(with_idle.element_force[:, 1])
+    assert states["b"]["mode"] == "free" and states["a"]["mode"] == alone_states["a"]["mode"]
+    assert states["b"]["displacement"] == pytest.approx(x2, rel=1e-12)

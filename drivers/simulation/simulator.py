@@ -69,12 +69,14 @@ class _Discrete:
         return len(self.steps.edges) > 2
 
 
-def _state_space(rig: Rig, model: LinearModel, enabled: bool):
+def _state_space(rig: Rig, model: LinearModel, enabled: bool, elements: np.ndarray | None = None):
     """Continuous model ``z' = A z + b_u u + B_g g`` with outputs, z = [q, q', (coil current)].
 
-    Returns A, b_u, B_g, Cy (element x and v), Co, dou, Dog (channels: gauge force, accelerations).
+    Returns A, b_u, B_g, Cy (element x and v), Co, dou, Dog (channels: gauge force, accelerations);
+    g and the element motion of the ``elements`` given (indices; default all).
     """
-    nq, r = model.n, len(model.k0)
+    vectors = model.element_vectors if elements is None else model.element_vectors[elements]
+    nq, r = model.n, len(vectors)
     shaker = rig.shaker
     nz = 2 * nq + (1 if shaker else 0)
     Minv = np.linalg.inv(model.M)
@@ -93,10 +95,10 @@ def _state_space(rig: Rig, model: LinearModel, enabled: bool):
         b_u[2 * nq] = 1.0 / shaker.inductance
     # disabled amplifier: open coil, the current stays zero and the drive does nothing
     B_g = np.zeros((nz, r))
-    B_g[nq:2 * nq] = -Minv @ model.element_vectors.T
+    B_g[nq:2 * nq] = -Minv @ vectors.T
     Cy = np.zeros((2 * r, nz))
-    Cy[:r, :nq] = model.element_vectors
-    Cy[r:, nq:2 * nq] = model.element_vectors
+    Cy[:r, :nq] = vectors
+    Cy[r:, nq:2 * nq] = vectors
     qdd = slice(nq, 2 * nq)
     n_s = model.sensor_rows.shape[0]
     Co = np.zeros((1 + n_s, nz))
@@ -201,6 +203,15 @@ def _block_mask(edges: np.ndarray) -> np.ndarray:
 
 
 # --- the element laws as arrays ---------------------------------------------------
+def _law_elements(elements: list[Element], model: LinearModel) -> np.ndarray:
+    """Indices of the elements with a law: an element without one (a place the analysis model names, where
+    the rig has nothing) adds no force and no small-amplitude stiffness, so it stays out of the solve."""
+    active = np.array([e for e, el in enumerate(elements) if el.laws], np.int64)
+    idle = np.setdiff1d(np.arange(len(elements)), active)
+    assert not np.any(model.k0[idle]) and not np.any(model.c0[idle]), "an element without laws has k0 or c0"
+    return active
+
+
 @dataclass
 class _Terms:
     """The law terms of all elements as the arrays the integration kernel takes."""
@@ -397,17 +408,21 @@ class RigSimulator:
         self._noise_rng = np.random.default_rng(noise_seq)
         self._drive_rng = np.random.default_rng(drive_seq)
 
-        self._terms = _law_terms(rig.elements)
+        # the implicit solve and the state arrays below cover these elements only
+        self._active = _law_elements(rig.elements, self.model)
+        self._terms = _law_terms([rig.elements[e] for e in self._active])
         t = self._terms
         self._laws = kernels.LawTable(t.force_address, t.limit_address, t.count, t.element, t.friction, t.P,
-                                      t.n_params, t.n_state, self.model.k0, self.model.c0, t.has_friction)
-        self._on = _discretise(*_state_space(rig, self.model, True), self.step)
-        self._off = _discretise(*_state_space(rig, self.model, False), self.step) if rig.shaker else self._on
+                                      t.n_params, t.n_state, self.model.k0[self._active],
+                                      self.model.c0[self._active], t.has_friction)
+        self._on = _discretise(*_state_space(rig, self.model, True, self._active), self.step)
+        self._off = (_discretise(*_state_space(rig, self.model, False, self._active), self.step) if rig.shaker
+                     else self._on)
         self._nz = self._on.T.shape[0]
         self._taps = _anti_alias_taps(daq.sample_rate, daq.oversample, daq.passband)
         self.filter_delay = (len(self._taps) - 1) // (2 * daq.oversample)
 
-        r = len(rig.elements)
+        r = len(self._active)
         self._z = np.zeros(self._nz)   # physical state [q, q', (coil current)]
         self._w = np.zeros(self._nz)   # ... in the integration's coordinates during a call
         self._g = np.zeros(r)
@@ -606,7 +621,9 @@ class RigSimulator:
         time = (self._samples + np.arange(n)) / self.sample_rate
         z_daq = w_daq @ system.T[:2 * nq].T if system.modal else w_daq
         # the DAQ instants are the first internal step of every group: their channels are already computed
-        truth = BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), f_daq,
+        element_force = np.zeros((n, len(self.rig.elements)))
+        element_force[:, self._active] = f_daq
+        truth = BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), element_force,
                            internal[::self.oversample].copy(), u[: 2 * n_steps: 2 * self.oversample],
                            self.model, self.rig.structure.dofs)
         self._samples += n
@@ -638,8 +655,10 @@ class RigSimulator:
         nq = self.model.n
         x = self.model.element_vectors @ self._z[:nq]
         v = self.model.element_vectors @ self._z[nq:2 * nq]
+        mode = np.full(len(self.rig.elements), kernels.FREE)
+        mode[self._active] = self._mode
         modes = {kernels.FREE: "free", kernels.STICK: "stick", kernels.SLIP: "slip"}
-        return {el.name: {"displacement": float(x[e]), "velocity": float(v[e]), "mode": modes[int(self._mode[e])]}
+        return {el.name: {"displacement": float(x[e]), "velocity": float(v[e]), "mode": modes[int(mode[e])]}
                 for e, el in enumerate(self.rig.elements)}
 
     def state_snapshot(self) -> SimulatorState:
