@@ -21,7 +21,11 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
+# The simulator runs in one thread; BLAS worker threads left spinning after a small matrix product would
+# count in the process CPU time measured here (set before numpy loads BLAS)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))

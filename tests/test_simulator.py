@@ -629,6 +629,7 @@ MODAL_CASES = [("paper-2dof", 1.27, 0.8, 3.0), ("paper-beam", 53.0, 1.0, 1.0),
 
 def _modal_run(rig, f, drive, seconds, dense, monkeypatch):
     with monkeypatch.context() as m:
+        m.setattr(simulator, "_MODAL_MIN_STATES", 0)  # the small rigs too
         if dense:
             m.setattr(simulator, "_MAX_MODAL_CONDITION", 0.0)  # no basis is this well conditioned
         sim = RigSimulator(rig)
@@ -661,7 +662,7 @@ def test_modal_step_equals_the_dense_step_to_round_off(rig, f, drive, seconds, m
     np.testing.assert_array_equal(state.mode, dense_state.mode)
 
 
-def test_a_defective_linear_part_keeps_the_dense_step():
+def test_a_defective_linear_part_keeps_the_dense_step(monkeypatch):
     """A critically damped mode (a double pole with one eigenvector) has no modal basis: the step stays
     dense, and the underdamped rig next to it takes the modal one."""
     def rig(c1):
@@ -679,6 +680,8 @@ dofs = ["x1", "x2"]
 [daq]
 sample_rate = 256.0
 """, "critical.toml")
+    assert not RigSimulator(rig(2.0))._on.modal    # 4 states: the dense step is cheaper
+    monkeypatch.setattr(simulator, "_MODAL_MIN_STATES", 0)
     assert not RigSimulator(rig(20.0))._on.modal   # c = 2 sqrt(k m)
     assert RigSimulator(rig(2.0))._on.modal
 
