@@ -67,10 +67,7 @@ class _Discrete:
     steps: kernels.StepMatrices
     T: np.ndarray
     T_inv: np.ndarray
-
-    @property
-    def modal(self) -> bool:
-        return len(self.steps.edges) > 2
+    modal: bool     # T is not the identity
 
 
 def _state_space(rig: Rig, model: LinearModel, enabled: bool, elements: np.ndarray | None = None):
@@ -155,14 +152,15 @@ def _discretise(A, b_u, B_g, Cy, Co, dou, Dog, h: float) -> _Discrete:
     Pg0 = J0[:, 1:] - Pg1
     D = Cy @ Pg1  # physical, whatever the coordinates: the element motion does not depend on them
     T, T_inv, edges = _modal_basis(A, Phi)
-    if edges is not None:
+    modal = edges is not None
+    if modal:
         Phi = np.where(_block_mask(edges), T_inv @ Phi @ T, 0.0)
         Qu, Pg0, Pg1, Cy, Co = T_inv @ Qu, T_inv @ Pg0, T_inv @ Pg1, Cy @ T, Co @ T
     else:
         edges = np.array([0, nz])
     c = np.ascontiguousarray
     return _Discrete(kernels.StepMatrices(c(Phi), edges.astype(np.int64), c(Qu), c(Pg0), c(Pg1), c(Cy), c(D),
-                                          c(Co), c(dou), c(Dog)), T, T_inv)
+                                          c(Co), c(dou), c(Dog)), T, T_inv, modal)
 
 
 def _modal_basis(A, Phi):
@@ -602,9 +600,12 @@ class RigSimulator:
         w_daq = np.empty((n, self._nz))
         f_daq = np.empty((n, len(self._g)))
         system = self._on if self._output_on else self._off
-        np.dot(system.T_inv, self._z, out=self._w)
+        w = self._z  # the dense step advances the physical state itself
+        if system.modal:
+            w = self._w
+            np.dot(system.T_inv, self._z, out=w)
         args = (n_steps, self.oversample, system.steps, self._laws,
-                kernels.SolverState(self._w, self._g, self._g_prev, self._terms.S, self._mode, self._sigma,
+                kernels.SolverState(w, self._g, self._g_prev, self._terms.S, self._mode, self._sigma,
                                     self._jacobian, self._jacobian_valid),
                 u, kernels.Recording(internal, w_daq, f_daq), self._scratch)
         layout = _layout(args[4])
@@ -614,7 +615,8 @@ class RigSimulator:
             self._integrate = kernels.typed_entry(kernels.integrate_block, args)
             self._integrate_layout = layout
         stop, solve_failed = self._integrate(*args)
-        np.dot(system.T, self._w, out=self._z)
+        if system.modal:
+            np.dot(system.T, w, out=self._z)
         if stop >= 0:
             cause = ("the element forces have no solution (a softening element may have lost its stability, "
                      "or a law force jumps)" if solve_failed else
