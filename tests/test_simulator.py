@@ -4,14 +4,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.signal
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from analysis.harmonics import harmonics, sine_fit
 from analysis.laws import LAWS
 from analysis.structures import Structure
+from drivers.simulation import kernels
 from drivers.simulation.rig import load_rig, parse_rig
-from drivers.simulation.simulator import RigSimulator, SimulationError
+from drivers.simulation import simulator
+from drivers.simulation.simulator import RigSimulator, SimulationError, _anti_alias_taps
 from test_laws import iwan_lipschitz_excess
 
 TWO_PI = 2 * math.pi
@@ -600,3 +603,116 @@ def test_stiff_friction_rig_matches_an_exact_stick_slip_reference(amplitude, stu
         errors.append(np.abs(x - reference).max(axis=0) / np.abs(reference).max(axis=0))
     assert np.all(errors[0] < 0.01), errors
     assert np.all(errors[1] < errors[0] / 2.5), errors
+
+
+def test_anti_alias_filter_streamed_in_chunks_equals_one_filtering_of_the_whole_record():
+    """The polyphase filter, fed in chunks shorter and longer than its history, keeps every
+    oversample-th output of scipy's direct filtering of the whole record (zero initial state)."""
+    taps = _anti_alias_taps(256.0, 4, 0.4)
+    record = np.random.default_rng(3).standard_normal((4 * 700, 3))
+    history = np.zeros((len(taps) - 1, 3))
+    chunks, start = [], 0
+    for length in (4, 8, 40, 400, 1200, 4, 1144):
+        chunks.append(kernels.fir_decimate(record[start:start + length], history, taps, 4))
+        start += length
+    assert start == len(record)
+    expected = scipy.signal.lfilter(taps, [1.0], record, axis=0)[::4]
+    np.testing.assert_allclose(np.concatenate(chunks), expected, rtol=0, atol=1e-13)
+
+
+RIGS_DIR = Path(__file__).parent / "rigs"
+# rig, sine (Hz, drive), seconds with the output on: every built-in and test rig, friction sticking on the stiff one
+MODAL_CASES = [("paper-2dof", 1.27, 0.8, 3.0), ("paper-beam", 53.0, 1.0, 1.0),
+               (RIGS_DIR / "stiff-friction.toml", 2.0, 0.3, 3.0), (RIGS_DIR / "hardening.toml", 9.5, 5.0, 2.0),
+               (RIGS_DIR / "linear-shaker.toml", 12.0, 1.0, 2.0)]
+
+
+def _modal_run(rig, f, drive, seconds, dense, monkeypatch):
+    with monkeypatch.context() as m:
+        m.setattr(simulator, "_MODAL_MIN_STATES", 0)  # the small rigs too
+        if dense:
+            m.setattr(simulator, "_MAX_MODAL_CONDITION", 0.0)  # no basis is this well conditioned
+        sim = RigSimulator(rig)
+    sim.set_sine(f, drive)
+    sim.set_output(True)
+    sim.advance(int(seconds * sim.sample_rate))
+    truths = [sim.truth]
+    modes = [m["mode"] for m in sim.element_states().values()]
+    sim.set_output(False)  # the amplifier-off matrices of a shaker rig, entered mid-motion
+    sim.advance(int(0.25 * sim.sample_rate))
+    truths.append(sim.truth)
+    return sim, truths, modes, sim.state_snapshot()
+
+
+@pytest.mark.parametrize("rig, f, drive, seconds", MODAL_CASES, ids=lambda c: Path(str(c)).stem)
+def test_modal_step_equals_the_dense_step_to_round_off(rig, f, drive, seconds, monkeypatch):
+    """The block-diagonal step in the rig's real modal basis and the dense step in physical coordinates
+    give the same truth, channels and state: the change of coordinates only reorders round-off."""
+    modal, truths, modes, state = _modal_run(rig, f, drive, seconds, False, monkeypatch)
+    dense, dense_truths, dense_modes, dense_state = _modal_run(rig, f, drive, seconds, True, monkeypatch)
+    several_modes = modal.model.n > 1  # one mode is one block: the dense step itself
+    assert not dense._on.modal and modal._on.modal == several_modes and modal._off.modal == several_modes
+    assert modes == dense_modes
+    for truth, reference in zip(truths, dense_truths):
+        for name in ("q", "qdot", "element_force", "channels"):
+            a, b = getattr(truth, name), getattr(reference, name)
+            difference = np.abs(a - b).max(initial=0.0) / np.abs(b).max(initial=1e-300)
+            assert difference < 1e-8, (name, difference)
+    np.testing.assert_allclose(state.z, dense_state.z, rtol=0, atol=1e-8 * np.abs(dense_state.z).max())
+    np.testing.assert_array_equal(state.mode, dense_state.mode)
+
+
+def test_a_defective_linear_part_keeps_the_dense_step(monkeypatch):
+    """A critically damped mode (a double pole with one eigenvector) has no modal basis: the step stays
+    dense, and the underdamped rig next to it takes the modal one."""
+    def rig(c1):
+        return parse_rig(f"""name = "critical"
+[structure]
+type = "lumped"
+dofs = ["x1", "x2"]
+mass = [[1.0, 0.0], [0.0, 1.0]]
+stiffness = [[100.0, 0.0], [0.0, 400.0]]
+damping = [[{c1}, 0.0], [0.0, 0.4]]
+[excitation]
+dof = "x1"
+[sensors]
+dofs = ["x1", "x2"]
+[daq]
+sample_rate = 256.0
+""", "critical.toml")
+    assert not RigSimulator(rig(2.0))._on.modal    # 4 states: the dense step is cheaper
+    monkeypatch.setattr(simulator, "_MODAL_MIN_STATES", 0)
+    assert not RigSimulator(rig(20.0))._on.modal   # c = 2 sqrt(k m)
+    assert RigSimulator(rig(2.0))._on.modal
+
+
+def test_an_element_without_laws_stays_out_of_the_solve_and_reports_zero_force():
+    """The hidden-effect rigs carry elements the analysis model names but the rig leaves empty: such an
+    element changes nothing (the same motion as the rig without it), has zero force and is free."""
+    structure = """[structure]
+type = "lumped"
+dofs = ["x1", "x2"]
+mass = [[1.0, 0.0], [0.0, 1.0]]
+stiffness = [[3000.0, -1000.0], [-1000.0, 2000.0]]
+rayleigh = [0.3, 1.0e-4]
+[[element]]
+name = "a"
+dof = "x1"
+laws = [ { law = "coulomb", fs = 0.08 }, { law = "cubic", k3 = 2.0e5 } ]
+"""
+    io = '[excitation]\ndof = "x2"\n[sensors]\ndofs = ["x1", "x2"]\n[daq]\nsample_rate = 512.0\n'
+    idle = '[[element]]\nname = "b"\ndof = "x2"\nlaws = []\n'
+    runs = []
+    for text in (structure + io, structure + idle + io):
+        sim = RigSimulator(parse_rig('name = "idle"\n' + text, "idle.toml"))
+        sim.set_sine(6.0, 3.0)
+        sim.set_output(True)
+        sim.advance(1024)
+        runs.append((sim.truth, sim.element_states(), sim.displacements()["x2"]))
+    (alone, alone_states, _), (with_idle, states, x2) = runs
+    np.testing.assert_allclose(with_idle.q, alone.q, rtol=0, atol=1e-12 * np.abs(alone.q).max())
+    np.testing.assert_allclose(with_idle.element_force[:, 0], alone.element_force[:, 0], rtol=0,
+                               atol=1e-12 * np.abs(alone.element_force).max())
+    assert with_idle.element_force.shape[1] == 2 and not np.any(with_idle.element_force[:, 1])
+    assert states["b"]["mode"] == "free" and states["a"]["mode"] == alone_states["a"]["mode"]
+    assert states["b"]["displacement"] == pytest.approx(x2, rel=1e-12)

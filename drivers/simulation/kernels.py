@@ -49,9 +49,14 @@ _CALLBACKS: dict[str, tuple] = {}
 
 # --- the records the integration loop takes ------------------------------------------
 class StepMatrices(NamedTuple):
-    """The linear part discretised over one internal step (nz states, r elements, nch channels)."""
+    """The linear part discretised over one internal step (nz states, r elements, nch channels).
+
+    The state may be in modal coordinates, where Phi is block diagonal: only its diagonal blocks
+    ``edges[b]:edges[b + 1]`` are used (one block [0, nz] for a dense Phi).
+    """
 
     Phi: np.ndarray   # (nz, nz) state transition over one step
+    edges: np.ndarray  # (n_blocks + 1,) int64 first state of each diagonal block of Phi, then nz
     Qu: np.ndarray    # (nz, 3) drive input at the step start, middle and end (quadratic hold)
     Pg0: np.ndarray   # (nz, r) residual element forces at the step start (first-order hold)
     Pg1: np.ndarray   # (nz, r) ... and at the step end
@@ -83,7 +88,7 @@ class SolverState(NamedTuple):
 
     z: np.ndarray            # (nz,) state
     g: np.ndarray            # (r,) residual element forces now
-    g_prev: np.ndarray       # (2, r) ... one and two steps earlier
+    g_prev: np.ndarray       # (3, r) ... one, two and three steps earlier
     S: np.ndarray            # (n_terms, max states) committed law states, rows as LawTable.P
     mode: np.ndarray         # (r,) int64 friction mode per element (FREE, STICK, SLIP)
     sigma: np.ndarray        # (r,) slip direction per element
@@ -484,8 +489,8 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
     u : (2 n_steps + 1,)
         Drive at every half step, V (shaker) or drive units of an ideal source.
     record : Recording
-        Filled with the channels at every internal step and the state and element law
-        forces at the DAQ instants.
+        Filled with the channels at every internal step and the state (in the coordinates of
+        ``system``) and element law forces at the DAQ instants.
     scratch : Scratch
         Work space from :func:`scratch_space`.
 
@@ -495,7 +500,7 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
         Index of the step where the integration stopped (-1: all done) and whether it
         stopped because the implicit solve failed (1) rather than on a non-finite state (0).
     """
-    Phi, Qu, Pg0, Pg1, Cy, D, Co, Dou, Dog = system
+    Phi, edges, Qu, Pg0, Pg1, Cy, D, Co, Dou, Dog = system
     z, g, g_prev, S, mode, sigma, jac, jac_valid = state
     out, z_daq, f_daq = record
     zf, y_free, x, v, F, g_new, work, J, S_trial, S_probe = scratch
@@ -530,13 +535,14 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
                 total += z[i]
             if not math.isfinite(total):
                 return m, 0
-        for i in range(nz):
-            acc = Qu[i, 0] * u0 + Qu[i, 1] * um + Qu[i, 2] * u1
-            for j in range(nz):
-                acc += Phi[i, j] * z[j]
-            for e in range(r):
-                acc += Pg0[i, e] * g[e]
-            zf[i] = acc
+        for b in range(edges.shape[0] - 1):
+            for i in range(edges[b], edges[b + 1]):
+                acc = Qu[i, 0] * u0 + Qu[i, 1] * um + Qu[i, 2] * u1
+                for j in range(edges[b], edges[b + 1]):
+                    acc += Phi[i, j] * z[j]
+                for e in range(r):
+                    acc += Pg0[i, e] * g[e]
+                zf[i] = acc
         if r > 0:
             for k in range(2 * r):
                 acc = 0.0
@@ -544,12 +550,14 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
                     acc += Cy[k, i] * zf[i]
                 y_free[k] = acc
             for e in range(r):
-                # quadratic extrapolation: the Newton start is O(h^3) off on a smooth path
-                g_new[e] = 3.0 * (g[e] - g_prev[0, e]) + g_prev[1, e]
+                # cubic extrapolation: the Newton start is O(h^4) off on a smooth path, so one iterate
+                # reaches the tolerance where a start O(h^3) off often needed two
+                g_new[e] = 4.0 * (g[e] + g_prev[1, e]) - 6.0 * g_prev[0, e] - g_prev[2, e]
             if not _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g_new, x, v, F, work, jac,
                                jac_valid, J):
                 return m, 1
             for e in range(r):
+                g_prev[2, e] = g_prev[1, e]
                 g_prev[1, e] = g_prev[0, e]
                 g_prev[0, e] = g[e]
                 g[e] = g_new[e]
@@ -600,7 +608,7 @@ def adc(y, lsb, ranges, half_codes, clip_counts):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"reassoc"})
 def fir_decimate(samples, history, taps, factor):
     """Low-pass FIR filter and keep every ``factor``-th output (polyphase: only kept outputs).
 
@@ -621,14 +629,25 @@ def fir_decimate(samples, history, taps, factor):
     n, nch = samples.shape
     L = taps.shape[0]
     H = L - 1
-    out = np.empty((n // factor, nch))
-    for k in range(n // factor):
-        m = k * factor  # index in samples; in the joined record it is m + H
+    # each channel joined to its history in one contiguous row: every output is then a dot product of
+    # contiguous vectors, which the compiler vectorises (allowed to reassociate the sum; no other fast-math
+    # assumption, so a non-finite sample stays non-finite)
+    joined = np.empty((nch, n + H))
+    for i in range(H):
         for c in range(nch):
+            joined[c, i] = history[i, c]
+    for i in range(n):
+        for c in range(nch):
+            joined[c, H + i] = samples[i, c]
+    reversed_taps = taps[::-1].copy()
+    out = np.empty((n // factor, nch))
+    for c in range(nch):
+        row = joined[c]
+        for k in range(n // factor):
+            m = k * factor  # the output at joined index m + H
             acc = 0.0
             for j in range(L):
-                idx = m + H - j
-                acc += taps[j] * (samples[idx - H, c] if idx >= H else history[idx, c])
+                acc += reversed_taps[j] * row[m + j]
             out[k, c] = acc
     if H > 0:
         if n >= H:
