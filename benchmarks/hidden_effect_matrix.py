@@ -1,0 +1,70 @@
+"""The hidden-effect matrix: every case of tests/matrix_cases.py measured, diagnosed from a model without the
+hidden laws, and scored; the confusion table regenerated in docs/workbench.md.
+
+    python benchmarks/hidden_effect_matrix.py              # the whole matrix: results file and docs table
+    python benchmarks/hidden_effect_matrix.py --only beam  # cases whose name contains "beam"; writes nothing
+
+One line per case as it finishes (fit for a terminal and a log), then the summary and the table. The whole
+matrix writes the outcomes to benchmarks/hidden_effect_matrix.json (what the docs table is checked against by
+tests/test_hidden_effect_matrix.py) and replaces the table between its markers in docs/workbench.md.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+import matrix_cases as mc  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "hidden_effect_matrix.json"
+DOCS = ROOT / "docs" / "workbench.md"
+LOOP_FILES = ("analysis/auto.py", "analysis/diagnosis.py", "analysis/workbench.py")
+
+
+def loop_commit() -> str:
+    """The last commit that changed the loop's code, and whether the work tree changes it further."""
+    commit = subprocess.run(["git", "log", "-1", "--format=%h", "--", *LOOP_FILES], cwd=ROOT, capture_output=True,
+                            text=True).stdout.strip()
+    dirty = subprocess.run(["git", "status", "--porcelain", "--", *LOOP_FILES], cwd=ROOT, capture_output=True,
+                           text=True).stdout.strip()
+    return f"{mc.LOOP_NAME} at commit {commit}" + (" with uncommitted changes" if dirty else "")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", action="append", default=[], help="run the cases whose name contains this text")
+    args = ap.parse_args()
+    cases = [c for c in mc.CASES if not args.only or any(s in c.name for s in args.only)]
+    if not cases:
+        print(f"no case matches {args.only}", file=sys.stderr)
+        return 2
+    loop, date = loop_commit(), datetime.date.today().isoformat()
+    outcomes = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, c in enumerate(cases, 1):
+            folder = Path(tmp) / f"case{i}"
+            folder.mkdir()
+            t0 = time.monotonic()
+            outcomes.append(mc.run_case(c, folder))
+            print(mc.progress_line(i, len(cases), outcomes[-1], time.monotonic() - t0), flush=True)
+    section = mc.render(outcomes, date, loop)
+    print("\n" + section)
+    if not args.only:
+        RESULTS.write_text(json.dumps({"date": date, "loop": loop, "outcomes": [o.to_json() for o in outcomes]},
+                                      indent=1) + "\n", encoding="utf-8")
+        DOCS.write_text(mc.replace_section(DOCS.read_text(encoding="utf-8"), section), encoding="utf-8")
+        print(f"\nwritten: {RESULTS.relative_to(ROOT)}, {DOCS.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
