@@ -324,20 +324,24 @@ def _plan_lines(bench: Bench) -> tuple[np.ndarray, list[float]]:
 
 
 def imported_session(c: Case, folder: Path) -> Path:
-    """RK4 receptances with relative circular noise, written as a user's CSV and imported (``contactid import``)."""
+    """RK4 receptances with relative circular noise, written as a user's CSV with their standard deviation (as a
+    controller that measured it exports them) and imported (``contactid import``). Without it the noise is
+    estimated from the FRF (docs/import.md), which at 0.1 Hz lines across a 0.06 Hz wide resonance came out 2-4 x
+    the truth there and hid the cubic between the 3-DOF chain's masses."""
     freqs, forces = _plan_lines(c.bench)
     rng = np.random.default_rng(_seed(c.name))
     dofs = Lumped.of(c.bench).dofs
-    H = rk4_receptance(c, freqs, forces)
-    H = H + c.noise * np.abs(H) / np.sqrt(2) * (rng.normal(size=H.shape) + 1j * rng.normal(size=H.shape))
+    exact = rk4_receptance(c, freqs, forces)
+    std = c.noise * np.abs(exact)
+    H = exact + std / np.sqrt(2) * (rng.normal(size=exact.shape) + 1j * rng.normal(size=exact.shape))
     table = folder / "frf.csv"
     with open(table, "w", newline="") as fh:
         out = csv.writer(fh)
-        out.writerow(["frequency_hz", "force_n", "dof", "re", "im"])
-        for F, H_level in zip(forces, H):
+        out.writerow(["frequency_hz", "force_n", "dof", "re", "im", "std"])
+        for F, H_level, std_level in zip(forces, H, std):
             for p, dof in enumerate(dofs):
-                for f, h in zip(freqs, H_level[:, p]):
-                    out.writerow([repr(float(f)), F, dof, repr(float(h.real)), repr(float(h.imag))])
+                for f, h, s in zip(freqs, H_level[:, p], std_level[:, p]):
+                    out.writerow([repr(float(f)), F, dof, repr(float(h.real)), repr(float(h.imag)), repr(float(s))])
     session = folder / "imported.h5"
     excitation = tomllib.loads(c.bench.io)["excitation"]["dof"]
     import_files(ImportRequest([(str(table), SourceOptions(excitation=excitation))], str(session)))
