@@ -3,6 +3,7 @@ hidden laws, and scored; the confusion table regenerated in docs/workbench.md.
 
     python benchmarks/hidden_effect_matrix.py              # the whole matrix: results file and docs table
     python benchmarks/hidden_effect_matrix.py --only beam  # cases whose name contains "beam"; writes nothing
+    python benchmarks/hidden_effect_matrix.py --from-results  # the docs table again from the stored outcomes
 
 One line per case as it finishes (fit for a terminal and a log), then the summary and the table. The whole
 matrix writes the outcomes to benchmarks/hidden_effect_matrix.json (what the docs table is checked against by
@@ -42,7 +43,16 @@ def loop_commit() -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", action="append", default=[], help="run the cases whose name contains this text")
+    ap.add_argument("--from-results", action="store_true",
+                    help="run nothing: rewrite the docs table from the stored outcomes (after a change of its format)")
     args = ap.parse_args()
+    if args.from_results:
+        recorded = json.loads(RESULTS.read_text(encoding="utf-8"))
+        outcomes = [mc.Outcome.from_json(o) for o in recorded["outcomes"]]
+        section = mc.render(outcomes, recorded["date"], recorded["loop"])
+        DOCS.write_text(mc.replace_section(DOCS.read_text(encoding="utf-8"), section), encoding="utf-8")
+        print(section)
+        return 0
     cases = [c for c in mc.CASES if not args.only or any(s in c.name for s in args.only)]
     if not cases:
         print(f"no case matches {args.only}", file=sys.stderr)
