@@ -194,6 +194,17 @@ class Predictor:
         self._systems: dict[tuple, CondensedSystem] = {}
         self._rows = {run.name: [model.structure.index(d) for d in run.sensor_dofs] for run in self.runs}
 
+    def with_laws(self, laws: dict[int, list]) -> "Predictor":
+        """A predictor for the same structure, measurements and element places whose elements carry other laws
+        (element index -> list of LawTerm); it shares the condensation, which depends on neither."""
+        model = self.model.copy()
+        for i, terms in laws.items():
+            model.elements[i].laws = list(terms)
+        out = Predictor.__new__(Predictor)
+        out.model, out.runs, out._groups, out._systems, out._rows = model, self.runs, self._groups, self._systems, \
+            self._rows
+        return out
+
     def _system(self, key) -> CondensedSystem:
         if key not in self._systems:
             exc, _, freqs = key

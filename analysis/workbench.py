@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .comparison import Comparison, HarmonicCriterion, Predictor
-from .diagnosis import Candidate, ElementSamples, rank_candidates
+from .diagnosis import Candidate, ElementSamples, RankingRules, check_model_form, rank_candidates, rank_pairs
 from .elements import LawTerm
 from .errors import InputError
 from .fit import LawFit, fit_laws
@@ -240,13 +240,35 @@ class Workbench:
             self._single = self.predictor.compare()
         return self._single
 
-    def candidates(self, laws=None) -> list[Candidate]:
-        """Ranked missing-effect candidates for the current model (best first)."""
-        base = self.single_harmonic_comparison()
+    def _ranking_inputs(self):
         samples = {n: r.samples for n, r in self.reports.items() if r.samples is not None}
         fits = {n: r.fit for n, r in self.reports.items()}
         linear = frozenset(n for n, r in self.reports.items() if r.verdict is not None and r.verdict.linear)
-        return rank_candidates(self.predictor, samples, fits, base, laws, linear_elements=linear)
+        return samples, fits, linear
+
+    def candidates(self, laws=None, rules: RankingRules = RankingRules()) -> list[Candidate]:
+        """Ranked missing-effect candidates for the current model (best first); the significant ones are checked
+        against what the single-harmonic model cannot represent (:func:`analysis.diagnosis.check_model_form`)."""
+        samples, fits, linear = self._ranking_inputs()
+        ranked = rank_candidates(self.predictor, samples, fits, self.single_harmonic_comparison(), laws,
+                                 linear_elements=linear, rules=rules)
+        check_model_form(self.predictor, ranked, rules, self.harmonics_or_default.n_harmonics,
+                         self.harmonics_or_default.n_time)
+        return ranked
+
+    def pair_candidates(self, element: str, pairs: list[tuple[str, str]],
+                        rules: RankingRules = RankingRules()) -> list[Candidate]:
+        """Pairs of laws added together to ``element``, best first, checked like single candidates."""
+        samples, fits, linear = self._ranking_inputs()
+        ranked = rank_pairs(self.predictor, samples, fits, self.single_harmonic_comparison(), element, pairs,
+                            element in linear, rules)
+        check_model_form(self.predictor, ranked, rules, self.harmonics_or_default.n_harmonics,
+                         self.harmonics_or_default.n_time)
+        return ranked
+
+    @property
+    def harmonics_or_default(self) -> HarmonicCriterion:
+        return self.harmonics or HarmonicCriterion()
 
     # ------------------------------------------------------------------ the loop
     def record(self, action: str) -> HistoryStep:
@@ -259,13 +281,18 @@ class Workbench:
 
     def add(self, element: str, law: str) -> HistoryStep:
         """Add ``law`` to ``element``, refit that element and record the new error."""
+        return self.add_laws(element, (law,))
+
+    def add_laws(self, element: str, laws: tuple[str, ...]) -> HistoryStep:
+        """Add ``laws`` (one, or a pair found together) to ``element``, refit it and record one step."""
         el = self.model.element(element)
-        new = get_law(law)
-        if any(t.law.name == new.name for t in el.laws):
-            raise InputError(f"element {element!r} already has law {law!r}", self.model.source)
-        el.laws.append(LawTerm(new, {}))
+        new = [get_law(law) for law in laws]
+        for law, n in zip(laws, new):
+            if any(t.law.name == n.name for t in el.laws):
+                raise InputError(f"element {element!r} already has law {law!r}", self.model.source)
+        el.laws += [LawTerm(n, {}) for n in new]
         self.fit([element])
-        return self.record(f"add {element}:{law}")
+        return self.record(f"add {element}:{'+'.join(laws)}")
 
     def linear_corrections(self, min_sigma: float = 5.0) -> list[str]:
         """Elements whose verdict is linear but whose kbar is a clear constant offset (more than ``min_sigma``

@@ -1,0 +1,164 @@
+"""The missing-effect loop run automatically (docs/workbench.md §5): the product's own advice followed step by step.
+
+From a started workbench: the linear corrections first (elements whose verdict is linear with a constant kbar
+offset: a wrong reference, applied together), then rank, add the top significant candidate, refit, rank again,
+until nothing significant is left. Where no single law is significant but an element's kbar is clearly not
+explained by its laws, pairs of laws on that element are tried before giving up (two effects of one joint can
+each look insignificant alone). Significance is that of the ranking (:mod:`analysis.diagnosis`), including the
+check against what the single-harmonic model cannot represent, so the loop stops on the physics the data show.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from itertools import combinations
+from typing import Callable
+
+import numpy as np
+import scipy.stats
+
+from .comparison import gain_phrase
+from .diagnosis import Candidate, RankingRules, _kbar_chi_square
+from .workbench import ElementReport, Workbench
+
+
+@dataclass(frozen=True)
+class AutoRules:
+    """The thresholds of the loop."""
+
+    max_steps: int = 6               # laws (or pairs) added at most, the linear corrections not counted
+    linear_corrections: bool = True  # apply the linear corrections first
+    pairs: bool = True               # try pairs of laws on an element whose kbar is not explained
+    pair_pool: int = 4               # the element's laws with the largest kbar evidence, paired among themselves
+    unexplained_false_alarm: float = 1e-3   # of the test "the kbar is not explained by the element's laws"
+    ranking: RankingRules = RankingRules()
+
+
+@dataclass
+class AutoStep:
+    """One step of the loop: what was added, why, and the FRF error before and after."""
+
+    action: str                      # "linear correction", "add" or "add pair"
+    element: str | None              # the element (for a linear correction: the elements, comma-separated)
+    laws: tuple[str, ...]
+    error_before: float
+    error_after: float
+    reason: str
+
+    @property
+    def gain(self) -> float:
+        return self.error_before / self.error_after if self.error_after > 0 else float("inf")
+
+    def text(self) -> str:
+        what = f"{self.element}:{'+'.join(self.laws)}" if self.action != "linear correction" else \
+            f"linear at {self.element}"
+        return (f"{self.action} {what}: error {self.error_before:.3g} -> {self.error_after:.3g} "
+                f"({gain_phrase(self.gain)})\n    {self.reason}")
+
+    def to_json(self) -> dict:
+        return {"action": self.action, "element": self.element, "laws": list(self.laws),
+                "error_before": self.error_before, "error_after": self.error_after, "gain": self.gain,
+                "reason": self.reason}
+
+
+@dataclass
+class AutoResult:
+    """The steps taken and why the loop ended; ``candidates`` is the ranking it ended on."""
+
+    steps: list[AutoStep]
+    stopped: str
+    candidates: list[Candidate] = field(default_factory=list)
+
+    def text(self) -> str:
+        lines = ["automatic loop:"] + [f"  {i + 1}. {s.text()}" for i, s in enumerate(self.steps)]
+        return "\n".join(lines + [f"  stopped: {self.stopped}"])
+
+    def to_json(self) -> dict:
+        return {"steps": [s.to_json() for s in self.steps], "stopped": self.stopped}
+
+
+def kbar_unexplained(report: ElementReport, false_alarm: float = 1e-3) -> bool:
+    """Whether an element's kbar is clearly not explained by its fitted laws: the chi-square of its samples
+    against them (against zero without laws) beyond the ``1 - false_alarm`` quantile of the noise's."""
+    s = report.samples
+    if s is None or s.kbar_std is None:
+        return False
+    k = report.fit.n_parameters if report.fit is not None else 0
+    dof = 2 * len(s.X) - k
+    return dof > 0 and _kbar_chi_square(s, report.fit) > scipy.stats.chi2.ppf(1 - false_alarm, dof)
+
+
+def _pairs(wb: Workbench, ranked: list[Candidate], element: str, pool: int) -> list[tuple[str, str]]:
+    """Pairs of the ``pool`` laws with the largest positive kbar evidence on the element."""
+    mine = sorted((c for c in ranked if c.element == element and len(c.laws) == 1 and c.evidence > 0),
+                  key=lambda c: -c.evidence)
+    return list(combinations([c.law for c in mine[:pool]], 2))
+
+
+def _best_pair(wb: Workbench, ranked: list[Candidate], rules: AutoRules) -> Candidate | None:
+    """The best significant pair of laws on an element whose kbar is not explained, or None."""
+    best = None
+    for el in wb.model.elements:
+        report = wb.reports.get(el.name)
+        if report is None or not kbar_unexplained(report, rules.unexplained_false_alarm):
+            continue
+        pairs = _pairs(wb, ranked, el.name, rules.pair_pool)
+        found = [c for c in wb.pair_candidates(el.name, pairs, rules.ranking) if c.significant] if pairs else []
+        if found and (best is None or found[0].bic < best.bic):
+            best = found[0]
+    return best
+
+
+def _reason(c: Candidate) -> str:
+    mh = "" if c.multiharmonic_gain is None else f", {gain_phrase(c.multiharmonic_gain)} with harmonics"
+    return (f"top significant candidate ({gain_phrase(c.gain)} single-harmonic{mh}, kbar evidence "
+            f"{c.evidence:.3g}): {c.explanation}")
+
+
+def _stop_reason(ranked: list[Candidate], pairs_tried: bool, min_gain: float) -> str:
+    if not ranked:
+        return "no candidate could be scored (no element has enough well-conditioned lines)"
+    top = ranked[0]
+    why = top.model_form or ("its kbar evidence is not positive" if not top.supported else
+                             "its FRF improvement is within the noise" if not top.above_noise else
+                             f"it cuts the error less than the x{min_gain:g} required")
+    pairs = "; no pair of laws on an unexplained element is significant either" if pairs_tried else ""
+    return (f"nothing significant is left: the best candidate, {top.name}, gives {top.error:.3g} "
+            f"({gain_phrase(top.gain)}), not significant because {why}{pairs}")
+
+
+def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
+             progress: Callable[[AutoStep], None] | None = None) -> AutoResult:
+    """Run the loop on a started workbench (``wb.start()`` called). Afterwards ``wb.model`` is the final model
+    and ``wb.history`` holds every step; ``progress`` is called with each step as it is taken."""
+    if not wb.history:
+        raise ValueError("run_auto needs a started workbench (call wb.start() first)")
+    steps: list[AutoStep] = []
+
+    def take(step: AutoStep) -> None:
+        steps.append(step)
+        if progress is not None:
+            progress(step)
+
+    if rules.linear_corrections:
+        names = wb.linear_corrections()
+        if names:
+            before = wb.history[-1].error
+            after = wb.apply_linear_corrections(names).error
+            take(AutoStep("linear correction", ", ".join(names), ("linear",), before, after,
+                          "linear verdict with a constant kbar offset: the reference is wrong there (the "
+                          "corrections are coupled, so they are applied together)"))
+    for _ in range(rules.max_steps):
+        ranked = wb.candidates(rules=rules.ranking)
+        top = next((c for c in ranked if c.significant), None)
+        pairs_tried = top is None and rules.pairs
+        if pairs_tried:
+            top = _best_pair(wb, ranked, rules)
+        if top is None:
+            return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked)
+        before = wb.history[-1].error
+        after = wb.add_laws(top.element, top.laws).error
+        take(AutoStep("add pair" if len(top.laws) > 1 else "add", top.element, top.laws, before, after,
+                      _reason(top)))
+        if not np.isfinite(after):
+            return AutoResult(steps, f"the model with {top.name} has no prediction", [])
+    return AutoResult(steps, f"stopped after the {rules.max_steps} steps allowed (AutoRules.max_steps)", [])
