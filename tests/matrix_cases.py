@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.auto import run_auto
 from analysis.laws import LAWS
 from analysis.model import load_model
 from analysis.workbench import Workbench
@@ -359,22 +360,7 @@ def started_workbench(c: Case, folder: Path) -> Workbench:
 
 
 # --------------------------------------------------------------------------------------------- diagnosis
-MAX_STEPS = 5
-LOOP_NAME = "the advice loop (Workbench.candidates / add)"
-
-
-def diagnose(wb: Workbench) -> str:
-    """Follow the product's advice from the started workbench: linear corrections, then the top significant
-    candidate, re-rank, repeat. Returns why it stopped."""
-    linear = wb.linear_corrections()
-    if linear:
-        wb.apply_linear_corrections(linear)
-    for _ in range(MAX_STEPS):
-        ranked = wb.candidates()
-        if not ranked or not ranked[0].significant:
-            return "no significant candidate"
-        wb.add(ranked[0].element, ranked[0].law)
-    return f"{MAX_STEPS} laws added"
+LOOP_NAME = "run_auto (analysis/auto.py), default AutoRules"
 
 
 # --------------------------------------------------------------------------------------------- scoring
@@ -457,8 +443,9 @@ def score(c: Case, wb: Workbench, stopped: str) -> Outcome:
 
 
 def run_case(c: Case, folder: Path) -> Outcome:
+    """Measure the case, run the missing-effect loop on the model without its hidden laws, score the result."""
     wb = started_workbench(c, folder)
-    return score(c, wb, diagnose(wb))
+    return score(c, wb, run_auto(wb).stopped)
 
 
 # --------------------------------------------------------------------------------------------- the table
