@@ -359,10 +359,6 @@ def started_workbench(c: Case, folder: Path) -> Workbench:
     return wb
 
 
-# --------------------------------------------------------------------------------------------- diagnosis
-LOOP_NAME = "run_auto (analysis/auto.py), default AutoRules"
-
-
 # --------------------------------------------------------------------------------------------- scoring
 @dataclass(frozen=True)
 class Found:
@@ -440,6 +436,9 @@ def score(c: Case, wb: Workbench, stopped: str) -> Outcome:
     order = [f"{e}:{law}" for e, law in added_laws(wb)]
     return Outcome(c.name, c.bench.name, c.source, c.noise, tuple(effects), tuple(order),
                    tuple(f"{e}:{law}" for e, law in pool), tuple(h.error for h in wb.history), stopped)
+
+
+LOOP_NAME = "run_auto (analysis/auto.py), default AutoRules"
 
 
 def run_case(c: Case, folder: Path) -> Outcome:
