@@ -64,7 +64,10 @@ def main() -> int:
             folder = Path(tmp) / f"case{i}"
             folder.mkdir()
             t0 = time.monotonic()
-            outcomes.append(mc.run_case(c, folder))
+            try:
+                outcomes.append(mc.run_case(c, folder))
+            except Exception as exc:       # a case that breaks is scored as found nothing, with the reason shown
+                outcomes.append(mc.Outcome.broken(c, f"{type(exc).__name__}: {exc}".splitlines()[0]))
             print(mc.progress_line(i, len(cases), outcomes[-1], time.monotonic() - t0), flush=True)
     section = mc.render(outcomes, date, loop)
     print("\n" + section)
