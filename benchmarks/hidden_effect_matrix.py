@@ -4,6 +4,7 @@ hidden laws, and scored; the confusion table regenerated in docs/workbench.md.
     python benchmarks/hidden_effect_matrix.py              # the whole matrix: results file and docs table
     python benchmarks/hidden_effect_matrix.py --only beam  # cases whose name contains "beam"; writes nothing
     python benchmarks/hidden_effect_matrix.py --from-results  # the docs table again from the stored outcomes
+    python benchmarks/hidden_effect_matrix.py --only "rk4 2dof gap" --into-results  # a new case into them
 
 One line per case as it finishes (fit for a terminal and a log), then the summary and the table. The whole
 matrix writes the outcomes to benchmarks/hidden_effect_matrix.json (what the docs table is checked against by
@@ -43,6 +44,9 @@ def loop_commit() -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", action="append", default=[], help="run the cases whose name contains this text")
+    ap.add_argument("--into-results", action="store_true",
+                    help="with --only: put the outcomes of the cases run into the stored ones (same loop only) and "
+                         "rewrite the docs table")
     ap.add_argument("--from-results", action="store_true",
                     help="run nothing: rewrite the docs table from the stored outcomes (after a change of its format)")
     args = ap.parse_args()
@@ -71,7 +75,16 @@ def main() -> int:
             print(mc.progress_line(i, len(cases), outcomes[-1], time.monotonic() - t0), flush=True)
     section = mc.render(outcomes, date, loop)
     print("\n" + section)
-    if not args.only:
+    if args.into_results:
+        recorded = json.loads(RESULTS.read_text(encoding="utf-8"))
+        if recorded["loop"] != loop:
+            print(f"the stored outcomes are of {recorded['loop']}, not {loop}: run the whole matrix", file=sys.stderr)
+            return 2
+        new = {o.case: o for o in outcomes}
+        old = {o["case"]: mc.Outcome.from_json(o) for o in recorded["outcomes"]}
+        outcomes = [new.get(c.name) or old[c.name] for c in mc.CASES]
+        section = mc.render(outcomes, recorded["date"], loop)
+    if not args.only or args.into_results:
         RESULTS.write_text(json.dumps({"date": date, "loop": loop, "outcomes": [o.to_json() for o in outcomes]},
                                       indent=1) + "\n", encoding="utf-8")
         DOCS.write_text(mc.replace_section(DOCS.read_text(encoding="utf-8"), section), encoding="utf-8")

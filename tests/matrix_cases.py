@@ -220,6 +220,8 @@ CASES: tuple[Case, ...] = (
     # data from the independent integrator below
     _case("rk4 2dof cubic + damping elsewhere", LUMPED2, [A_CUBIC, B_QUAD], noise=0.003, source="rk4"),
     _case("rk4 3dof cubic between masses", CHAIN3, [J_CUBIC], noise=0.005, source="rk4"),
+    # the emulated rig's integrator stopped on this one ("the element forces have no solution")
+    _case("rk4 2dof gap", LUMPED2, [_law("a", "gap", k=2000.0, gap=0.003)], noise=0.003, source="rk4"),
     _case("rk4 2dof nothing missing (cubic known)", LUMPED2, [_law("a", "cubic", k3=2.0e5)], hidden=[],
           noise=0.01, source="rk4"),
 )
@@ -272,13 +274,15 @@ def _site_vector(site: Site, dofs: list[str]) -> np.ndarray:
 
 
 def _law_force(law: Law, d: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """The element forces the independent integrator knows, written from their physics (smooth laws only:
+    """The element forces the independent integrator knows, written from their physics (continuous forces only:
     a fixed-step RK4 would need a tiny step at a friction's switch)."""
     p = dict(law.values)
     if law.law == "cubic":
         return p["k3"] * d ** 3
     if law.law == "quadratic_damping":
         return p["c2"] * np.abs(v) * v
+    if law.law == "gap":
+        return np.where(np.abs(d) > p["gap"], p["k"] * (d - p["gap"] * np.sign(d)), 0.0)
     raise ValueError(f"the independent integrator has no force for law {law.law!r}")
 
 
@@ -404,6 +408,10 @@ class Outcome:
                    tuple(Found(h.element, h.law, h.kind, NOTHING) for h in c.hidden), (), (), (), reason)
 
     @property
+    def measured(self) -> bool:
+        return bool(self.errors)
+
+    @property
     def error_fall(self) -> float:
         return self.errors[0] / self.errors[-1] if self.errors else float("nan")
 
@@ -482,15 +490,17 @@ class Summary:
     min_fall_right: float     # smallest error fall among the right answers with a hidden effect (inf: none)
     lumped: int               # 2- and 3-DOF cases with hidden effects (the issue's "done when")
     lumped_done: int          # of those: right, with the error falling at least DONE_FALL
+    unmeasured: int           # cases whose data could not be made: not counted above
 
     @classmethod
     def of(cls, outcomes: list[Outcome]) -> Summary:
+        everything, outcomes = outcomes, [o for o in outcomes if o.measured]
         falls = [o.error_fall for o in outcomes if o.right and o.effects]
         lumped = [o for o in outcomes if o.structure in LUMPED_BENCHES and o.effects]
         return cls(len(outcomes), sum(o.right for o in outcomes), sum(len(o.effects) for o in outcomes),
                    sum(f.right for o in outcomes for f in o.effects), sum(len(o.false_alarms) for o in outcomes),
                    min(falls, default=float("inf")), len(lumped),
-                   sum(o.right and o.error_fall >= DONE_FALL for o in lumped))
+                   sum(o.right and o.error_fall >= DONE_FALL for o in lumped), len(everything) - len(outcomes))
 
     @property
     def goal_met(self) -> bool:
@@ -504,14 +514,16 @@ class Summary:
                 f"right answer x{self.min_fall_right:.3g}; goal (>= 95 % right, no false alarm, every right "
                 f"answer >= x5): {'met' if self.goal_met else 'not met'}. 2- and 3-DOF cases with hidden effects "
                 f"found whole, with nothing added the rig does not have and the error falling >= x{DONE_FALL:g}: "
-                f"{self.lumped_done}/{self.lumped}")
+                f"{self.lumped_done}/{self.lumped}"
+                + (f". Not counted: {self.unmeasured} case{'s' * (self.unmeasured != 1)} whose data could not be "
+                   "made (below)" if self.unmeasured else ""))
 
 
 def confusion(outcomes: list[Outcome]) -> dict[tuple[str, str], int]:
     """(true kind, kind found at that element) -> count, over every hidden effect; the false alarms count in the
     row ``nothing`` (the rig has no such law there), under the kind of the law added."""
     out: dict[tuple[str, str], int] = {}
-    for o in outcomes:
+    for o in (o for o in outcomes if o.measured):
         for f in o.effects:
             out[f.kind, f.found] = out.get((f.kind, f.found), 0) + 1
         for alarm in o.false_alarms:
@@ -541,7 +553,7 @@ def render(outcomes: list[Outcome], date: str, loop: str) -> str:
               "|---|---|---|---|---|---|---|---|"]
     for o in outcomes:
         hidden = ", ".join(f"{f.element}:{f.law}" for f in o.effects) or NOTHING
-        verdict = "right" if o.right else "; ".join(
+        verdict = "not measured" if not o.measured else "right" if o.right else "; ".join(
             [f"{f.element}:{f.law} found {f.found}" for f in o.effects if not f.right]
             + [f"false alarm {a}" for a in o.false_alarms])
         lines.append(f"| {o.case} | {o.structure} | {o.source} | {100 * o.noise:g} % | {hidden} | "
