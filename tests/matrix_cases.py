@@ -533,9 +533,13 @@ def confusion(outcomes: list[Outcome]) -> dict[tuple[str, str], int]:
 
 
 def _fmt_fall(o: Outcome) -> str:
-    if not o.errors:
-        return f"-- ({o.stopped})"
+    if not o.measured:
+        return "--"
     return f"{o.errors[0]:.3g} -> {o.errors[-1]:.3g} (x{o.error_fall:.3g})"
+
+
+def _short(text: str, limit: int = 160) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def render(outcomes: list[Outcome], date: str, loop: str) -> str:
@@ -553,7 +557,7 @@ def render(outcomes: list[Outcome], date: str, loop: str) -> str:
               "|---|---|---|---|---|---|---|---|"]
     for o in outcomes:
         hidden = ", ".join(f"{f.element}:{f.law}" for f in o.effects) or NOTHING
-        verdict = "not measured" if not o.measured else "right" if o.right else "; ".join(
+        verdict = f"not measured: {_short(o.stopped)}" if not o.measured else "right" if o.right else "; ".join(
             [f"{f.element}:{f.law} found {f.found}" for f in o.effects if not f.right]
             + [f"false alarm {a}" for a in o.false_alarms])
         lines.append(f"| {o.case} | {o.structure} | {o.source} | {100 * o.noise:g} % | {hidden} | "
