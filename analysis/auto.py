@@ -10,14 +10,12 @@ check against what the single-harmonic model cannot represent, so the loop stops
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from itertools import combinations
 from typing import Callable
 
 import numpy as np
-import scipy.stats
 
 from .comparison import gain_phrase
-from .diagnosis import Candidate, RankingRules, _kbar_chi_square
+from .diagnosis import Candidate, RankingRules, explained_within_noise
 from .workbench import ElementReport, Workbench
 
 
@@ -28,7 +26,8 @@ class AutoRules:
     max_steps: int = 6               # laws (or pairs) added at most, the linear corrections not counted
     linear_corrections: bool = True  # apply the linear corrections first
     pairs: bool = True               # try pairs of laws on an element whose kbar is not explained
-    pair_pool: int = 4               # the element's laws with the largest kbar evidence, paired among themselves
+    pair_pool: int = 2               # the element's laws with the largest kbar evidence, each paired with every
+                                     # other law of positive evidence
     unexplained_false_alarm: float = 1e-3   # of the test "the kbar is not explained by the element's laws"
     ranking: RankingRules = RankingRules()
 
@@ -48,11 +47,14 @@ class AutoStep:
     def gain(self) -> float:
         return self.error_before / self.error_after if self.error_after > 0 else float("inf")
 
-    def text(self) -> str:
-        what = f"{self.element}:{'+'.join(self.laws)}" if self.action != "linear correction" else \
-            f"linear at {self.element}"
+    def line(self) -> str:
+        """One line: what was added and the error before and after."""
+        what = f"at {self.element}" if self.action == "linear correction" else f"{self.element}:{'+'.join(self.laws)}"
         return (f"{self.action} {what}: error {self.error_before:.3g} -> {self.error_after:.3g} "
-                f"({gain_phrase(self.gain)})\n    {self.reason}")
+                f"({gain_phrase(self.gain)})")
+
+    def text(self) -> str:
+        return f"{self.line()}\n     {self.reason}"
 
     def to_json(self) -> dict:
         return {"action": self.action, "element": self.element, "laws": list(self.laws),
@@ -80,18 +82,18 @@ def kbar_unexplained(report: ElementReport, false_alarm: float = 1e-3) -> bool:
     """Whether an element's kbar is clearly not explained by its fitted laws: the chi-square of its samples
     against them (against zero without laws) beyond the ``1 - false_alarm`` quantile of the noise's."""
     s = report.samples
-    if s is None or s.kbar_std is None:
-        return False
-    k = report.fit.n_parameters if report.fit is not None else 0
-    dof = 2 * len(s.X) - k
-    return dof > 0 and _kbar_chi_square(s, report.fit) > scipy.stats.chi2.ppf(1 - false_alarm, dof)
+    return s is not None and s.kbar_std is not None and not explained_within_noise(s, report.fit, false_alarm)
 
 
-def _pairs(wb: Workbench, ranked: list[Candidate], element: str, pool: int) -> list[tuple[str, str]]:
-    """Pairs of the ``pool`` laws with the largest positive kbar evidence on the element."""
+def _pairs(ranked: list[Candidate], element: str, pool: int) -> list[tuple[str, str]]:
+    """The ``pool`` laws of the element with the largest positive kbar evidence, each paired with every other
+    law of positive evidence: of two effects of one joint the one in the larger part of kbar (Im, say) has the
+    larger evidence, and the other (in Re) may have far less -- its evidence is measured against a kbar still
+    dominated by the first."""
     mine = sorted((c for c in ranked if c.element == element and len(c.laws) == 1 and c.evidence > 0),
                   key=lambda c: -c.evidence)
-    return list(combinations([c.law for c in mine[:pool]], 2))
+    pairs = dict.fromkeys(tuple(sorted((a.law, b.law))) for a in mine[:pool] for b in mine if b.law != a.law)
+    return list(pairs)
 
 
 def _best_pair(wb: Workbench, ranked: list[Candidate], rules: AutoRules) -> Candidate | None:
@@ -101,7 +103,7 @@ def _best_pair(wb: Workbench, ranked: list[Candidate], rules: AutoRules) -> Cand
         report = wb.reports.get(el.name)
         if report is None or not kbar_unexplained(report, rules.unexplained_false_alarm):
             continue
-        pairs = _pairs(wb, ranked, el.name, rules.pair_pool)
+        pairs = _pairs(ranked, el.name, rules.pair_pool)
         found = [c for c in wb.pair_candidates(el.name, pairs, rules.ranking) if c.significant] if pairs else []
         if found and (best is None or found[0].bic < best.bic):
             best = found[0]
@@ -118,7 +120,8 @@ def _stop_reason(ranked: list[Candidate], pairs_tried: bool, min_gain: float) ->
     if not ranked:
         return "no candidate could be scored (no element has enough well-conditioned lines)"
     top = ranked[0]
-    why = top.model_form or ("its kbar evidence is not positive" if not top.supported else
+    why = top.model_form or ("its kbar evidence is not positive, or its element's laws already explain the "
+                             "kbar to within the noise" if not top.supported else
                              "its FRF improvement is within the noise" if not top.above_noise else
                              f"it cuts the error less than the x{min_gain:g} required")
     pairs = "; no pair of laws on an unexplained element is significant either" if pairs_tried else ""

@@ -227,6 +227,18 @@ def _kbar_chi_square(samples: ElementSamples, fit: LawFit | None) -> float:
     return float(np.sum(2 * np.abs(samples.kbar) ** 2 / samples.kbar_std ** 2))
 
 
+def explained_within_noise(samples: ElementSamples, fit: LawFit | None, false_alarm: float) -> bool:
+    """Whether the element's laws (none: zero) already explain its kbar samples to within their noise: the
+    chi-square of the samples against them at or below its ``1 - false_alarm`` quantile. Then the kbar holds
+    no evidence of anything missing at that element, and a law added there could only improve the FRFs by
+    standing in for something else (the refit of a flat direction of the present laws, another element's
+    effect, what one harmonic cannot represent). False without standard deviations (nothing to judge by)."""
+    if samples.kbar_std is None:
+        return False
+    dof = 2 * len(samples.X) - (fit.n_parameters if fit is not None else 0)
+    return bool(dof > 0 and _kbar_chi_square(samples, fit) <= scipy.stats.chi2.ppf(1 - false_alarm, dof))
+
+
 def _duplicates_present_laws(fit: LawFit, n_new: int, max_correlation: float) -> bool:
     """Whether the new (last ``n_new``) terms are not separately identifiable from the terms already there --
     e.g. a linear spring beside an Iwan element that never leaves micro-slip, whose stiffness it trades off
@@ -329,9 +341,12 @@ def _score(scene: _Scene, el: _Element, laws: tuple[str, ...], rules: RankingRul
 
 
 def _supported(c: Candidate, best_evidence: float, best_frf: float, linear_verdict: bool,
-               rules: RankingRules) -> bool:
+               rules: RankingRules, explained: bool = False) -> bool:
     """Near the element's best kbar evidence, or as good as the best in the FRFs -- what the ranking is about --
-    with positive evidence; where the verdict is linear, only laws without amplitude dependence."""
+    with positive evidence; where the verdict is linear, only laws without amplitude dependence; nothing where
+    the element's laws already explain its kbar to within the noise (:func:`explained_within_noise`)."""
+    if explained:
+        return False
     if linear_verdict and LAWS[c.law].amplitude_dependent:
         return False                          # the verdict found no amplitude dependence to explain
     slack = max(scipy.stats.chi2.ppf(1 - rules.false_alarm, len(LAWS[c.law].params)), rules.tie * best_evidence)
@@ -405,8 +420,9 @@ def rank_candidates(predictor: Predictor, samples: dict[str, ElementSamples], fi
                 if c is not None]
         best_evidence = max((c.evidence for c in mine), default=0.0)
         best_frf = min((c.error for c in mine if c.evidence > 0), default=np.inf)
+        explained = explained_within_noise(element.samples, fits.get(el.name), rules.false_alarm)
         for c in mine:
-            c.supported = _supported(c, best_evidence, best_frf, el.name in linear_elements, rules)
+            c.supported = _supported(c, best_evidence, best_frf, el.name in linear_elements, rules, explained)
             c.significant = _significant(c, rules)
         out += mine
     leaders: dict[str, _Leader] = {}

@@ -4,6 +4,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from typing import Callable
+
+from analysis.auto import AutoResult, AutoStep, run_auto
 from analysis.comparison import gain_phrase
 from analysis.errors import InputError
 from analysis.frf_noise import METHOD as NOISE_METHOD
@@ -63,6 +66,19 @@ def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = T
     """The workbench taken through start, the requested additions and (optionally) the candidate ranking.
 
     Returns (workbench, candidates)."""
+    wb = _started_workbench(session_path, model_path, adds)
+    return wb, (wb.candidates() if rank else [])
+
+
+def run_workbench_auto(session_path, model_path, adds: list[str] = (),
+                       progress: Callable[[AutoStep], None] | None = None) -> tuple[Workbench, AutoResult]:
+    """The workbench taken through start and the requested additions, then the automatic loop
+    (:func:`analysis.auto.run_auto`, each step reported to ``progress`` as it is taken)."""
+    wb = _started_workbench(session_path, model_path, adds)
+    return wb, run_auto(wb, progress=progress)
+
+
+def _started_workbench(session_path, model_path, adds) -> Workbench:
     model = load_model(load_toml(model_path), str(model_path))
     with open_session(session_path) as s:
         measurements = measurements_from_session(s)
@@ -74,8 +90,7 @@ def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = T
             wb.add(element, law)
         except InputError as err:               # the workbench knows nothing of the command line: say where
             raise err.located(field_prefix=f"--add {add}") from None
-    candidates = wb.candidates() if rank else []
-    return wb, candidates
+    return wb
 
 
 def session_notes(session_path) -> SessionNotes:
@@ -149,8 +164,10 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
         out += ["", "what is missing (best first):"]
         for c in candidates[:top]:
             mark = "significant" if c.significant else "not significant"
-            out.append(f"  {c.element}:{c.law}  error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
+            out.append(f"  {c.name}  error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
             out.append(f"    {c.explanation}")
+            if c.model_form:
+                out.append(f"    not significant: {c.model_form}")
     return "\n".join(out)
 
 

@@ -199,19 +199,30 @@ def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
 
-    from .analyze import report_text, run_workbench, session_notes, store_history
+    from .analyze import report_text, run_workbench, run_workbench_auto, session_notes, store_history
     from .outputs import atomic_output, check_output, require_free_space
 
     inputs = [args.session, args.model]
     if args.output:                       # refused before any work: never an input, never silently replaced
         check_output(args.output, inputs=inputs, overwrite=args.force)
-    wb, candidates = run_workbench(args.session, args.model, args.add or [])
+    # each step of --auto as it is taken, one plain line (stderr under --json: stdout is the JSON object)
+    step_out = sys.stderr if args.json else sys.stdout
+    auto = None
+    if args.auto:
+        wb, auto = run_workbench_auto(args.session, args.model, args.add or [],
+                                      progress=lambda step: print(f"auto: {step.line()}", file=step_out, flush=True))
+        candidates = auto.candidates
+    else:
+        wb, candidates = run_workbench(args.session, args.model, args.add or [])
     notes = session_notes(args.session)
     if not args.no_history:
         store_history(args.session, wb, args.model, notes)
     if args.json:
-        print(json.dumps({**wb.to_json(candidates), **notes.to_json()}, indent=1, default=float))
+        extra = {"auto": auto.to_json()} if auto is not None else {}
+        print(json.dumps({**wb.to_json(candidates), **notes.to_json(), **extra}, indent=1, default=float))
     else:
+        if auto is not None:
+            print(auto.text() + "\n")
         print(report_text(wb, candidates))
         if notes.text():
             print(notes.text())
@@ -324,6 +335,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("session", help="session file (.h5)")
     p.add_argument("model", help="model file (TOML)")
     p.add_argument("--add", action="append", metavar="ELEMENT:LAW", help="add a law before fitting (repeatable)")
+    p.add_argument("--auto", action="store_true",
+                   help="run the missing-effect loop: linear corrections, then add the top significant candidate, "
+                        "refit and rank again until nothing significant is left (each step printed)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-o", "--output", metavar="FITTED.toml", help="write the fitted model (never one of the inputs)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FITTED.toml")

@@ -3,7 +3,8 @@
 1. campaign through the real drivers on the emulated rig: random run, stepped sine at several force levels;
 2. the reference model updated to the random run's natural frequencies;
 3. complex stiffness of the two contact elements identified at every line and level, with verdicts;
-4. the missing-effect loop from a model with no laws: rank, add the best significant candidate, refit, repeat;
+4. the missing-effect loop from a model with no laws (:func:`analysis.auto.run_auto`, as ``analyze --auto``):
+   linear corrections, then rank, add the top significant candidate, refit, repeat;
 5. the session (with the model history), the fitted model and report plots written to the output folder.
 """
 from __future__ import annotations
@@ -12,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from analysis.auto import run_auto
 from analysis.model import load_model
 from analysis.tables import load_toml
 from analysis.workbench import Workbench
@@ -26,9 +28,6 @@ from .plan import load_plan
 from .report import write_report
 from .session import append_model_history, open_session
 from .session_data import measurements_from_session
-
-MAX_STEPS = 4
-
 
 def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: str = "", say=print) -> Workbench:
     """Run the demo into ``out``; returns the final workbench."""
@@ -78,21 +77,8 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
             f"stiffness is {'too high' if k < 0 else 'too low'}; the contact behaves as k_w + kbar = "
             f"{1e7 + k:.3g} N/m.")
     say(f"\n4. What is missing, starting from no laws at all (FRF error {wb.history[-1].error:.3g}):")
-    linear = wb.linear_corrections()
-    if linear:
-        step = wb.apply_linear_corrections(linear)
-        say(f"   linear verdict with a constant offset at {', '.join(linear)}: the reference is wrong there; "
-            f"linear correction added -> FRF error {step.error:.3g}")
-    for _ in range(MAX_STEPS):
-        ranked = wb.candidates()
-        if not ranked or not ranked[0].significant:
-            say("   no candidate improves the model significantly any more.")
-            break
-        top = ranked[0]
-        say(f"   best candidate: {top.element}:{top.law}")
-        say(f"     {top.explanation}")
-        step = wb.add(top.element, top.law)
-        say(f"     added -> FRF error {step.error:.3g} (was {top.error_before:.3g})")
+    result = run_auto(wb, progress=lambda step: say(f"   {step.text()}"))
+    say(f"   {result.stopped}")
     say("   error history: " + " -> ".join(f"{h.error:.3g}" for h in wb.history) + "\n")
     append_model_history(session, [h.to_json() for h in wb.history], str(model_path))
     fitted = out / "paper-beam.fitted.toml"

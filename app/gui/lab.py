@@ -17,6 +17,7 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
+from analysis.auto import run_auto
 from analysis.errors import InputError
 from analysis.model import Model, load_model
 from analysis.tables import load_toml
@@ -520,16 +521,23 @@ class Lab(QObject):
         """Take back the last added law."""
         self._on_workbench(lambda wb: wb.undo())
 
-    def _on_workbench(self, change) -> None:
+    def auto(self) -> None:
+        """The missing-effect loop (:func:`analysis.auto.run_auto`, as ``contactid analyze --auto``) on the
+        analysed model: linear corrections, then the top significant candidate added until none is left."""
+        self._on_workbench(run_auto, lambda wb, result: analysis_view(wb, result.candidates, result))
+
+    def _on_workbench(self, change, view=None) -> None:
+        """Run ``change(wb)`` on the analysed workbench in the analysis worker, then show
+        ``view(wb, what change returned)`` (default: the view with the candidates ranked again)."""
         generation = self._generation
 
         def task():
             if self._workbench is None or self._workbench[0] != generation:
                 raise InputError("the model or the session changed: press Analyze first")
             wb = self._workbench[1]
-            change(wb)
-            return self._view(wb)
-        self.analysis_tasks.submit(task, lambda view: self._analysis_done(view, generation))
+            done = change(wb)
+            return self._view(wb) if view is None else view(wb, done)
+        self.analysis_tasks.submit(task, lambda v: self._analysis_done(v, generation))
 
     @staticmethod
     def _view(wb: Workbench) -> AnalysisView:

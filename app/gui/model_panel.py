@@ -1,6 +1,6 @@
 """Model tab: the model's laws per element with fitted values and uncertainties, measured against predicted FRFs
 per level, the residual map, the ranked missing-effect candidates with their explanations and an Add button
-each, the error history (the error falling as effects are added) and undo."""
+each and an Auto button that follows that advice by itself, the error history (the error falling as effects are added) and undo."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -88,6 +88,18 @@ class ModelPanel(QWidget):
         self.candidates.horizontalHeader().setStretchLastSection(True)
         self.candidates.itemSelectionChanged.connect(self._show_explanation)
         cand_layout.addWidget(self.candidates, 2)
+        auto_row = QHBoxLayout()
+        self.auto_button = QPushButton("Auto")
+        self.auto_button.setToolTip("Follow the advice by itself: linear corrections, then add the top significant "
+                                    "candidate, refit and rank again until nothing significant is left "
+                                    "(as contactid analyze --auto)")
+        self.auto_button.clicked.connect(lambda: self.lab.act(self.lab.auto))
+        self.auto_label = QLabel("")
+        self.auto_label.setWordWrap(True)
+        self.auto_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        auto_row.addWidget(self.auto_button, 0, Qt.AlignmentFlag.AlignTop)
+        auto_row.addWidget(self.auto_label, 1)
+        cand_layout.addLayout(auto_row)
         self.explanation = QTextBrowser()
         self.explanation.setPlaceholderText("Select a candidate to read why it is proposed")
         cand_layout.addWidget(self.explanation, 1)
@@ -141,6 +153,7 @@ class ModelPanel(QWidget):
         self.model_label.setText(self.lab.model_label or "no model: open one, or make a starter model from the rig")
         self.error_label.setText("FRF error: — (press Analyze)")
         self.jump_label.setText("")
+        self.auto_label.setText("")
         self.laws.clear()
         self.candidates.setRowCount(0)
         self.explanation.clear()
@@ -168,6 +181,7 @@ class ModelPanel(QWidget):
         busy = self.lab.analysis_tasks.busy
         have_view = self.view is not None
         self.analyze_button.setEnabled(not busy and self.lab.model is not None)
+        self.auto_button.setEnabled(not busy and have_view)
         self.undo_button.setEnabled(not busy and have_view and self.view.can_undo)
         self.save_button.setEnabled(have_view)
         self.starter_button.setEnabled(self.lab.rig is not None)
@@ -192,6 +206,7 @@ class ModelPanel(QWidget):
         self.error_label.setText(f"FRF error {view.error:.4g}   ({by_level})")
         self.jump_label.setText("<br>".join(["<b>Jumps</b> (predicted fold against measured):", *view.jumps])
                                 if view.jumps else "")
+        self.auto_label.setText("<br>".join(["<b>Automatic loop</b>", *view.auto]) if view.auto else "")
         self._draw_laws(view)
         self._draw_candidates(view)
         self._draw_frf(view)

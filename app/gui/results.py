@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from analysis.auto import AutoResult
 from analysis.diagnosis import Candidate, ElementSamples
 from analysis.measurements import SineRun
 from analysis.workbench import Workbench
@@ -91,6 +92,7 @@ class AnalysisView:
     other_branch: dict[str, np.ndarray] = field(default_factory=dict)   # lines measured on another branch
     compared: dict[str, np.ndarray] = field(default_factory=dict)       # the prediction each line was compared with
     jumps: list[str] = field(default_factory=list)                       # predicted against measured, one per jump
+    auto: list[str] = field(default_factory=list)       # the steps of the last automatic loop and why it stopped
 
     @property
     def can_undo(self) -> bool:
@@ -142,8 +144,9 @@ def identification_of(view: AnalysisView) -> IdentificationView:
     return _identification(view.elements, view.runs, live=False)
 
 
-def analysis_view(wb: Workbench, candidates: list[Candidate]) -> AnalysisView:
-    """After :meth:`Workbench.start` / ``add`` / ``undo`` and the candidate ranking."""
+def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult | None = None) -> AnalysisView:
+    """After :meth:`Workbench.start` / ``add`` / ``undo`` and the candidate ranking, or after the automatic loop
+    (``auto``; its ranking is ``candidates``)."""
     comp = wb.compare()
     return AnalysisView(
         element_views(wb, with_laws=True), comp.error, list(comp.error_by_level), list(wb.measurements.sine),
@@ -151,4 +154,5 @@ def analysis_view(wb: Workbench, candidates: list[Candidate]) -> AnalysisView:
         [CandidateView(c.element, c.law, c.error, c.gain, c.significant, c.explanation) for c in candidates],
         [HistoryView(h.step, h.action, h.error) for h in wb.history], wb.model.to_toml(),
         wb.reference.text() if wb.reference is not None else "", dict(comp.other_branch), dict(comp.compared),
-        [j.text() for j in comp.jumps])
+        [j.text() for j in comp.jumps],
+        [] if auto is None else [s.line() for s in auto.steps] + [f"stopped: {auto.stopped}"])

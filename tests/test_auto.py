@@ -1,0 +1,242 @@
+"""The missing-effect loop run by itself (analysis/auto.py): from a model with no laws it must find every missing
+effect -- on different elements and on the same element -- and stop when nothing significant is left, adding
+nothing the rig does not have. Data from the project's simulator through the whole campaign stack, and from a
+small RK4 integrator written here (steady state at every line from rest), which shares no code with it."""
+import json
+import tomllib
+
+import numpy as np
+import pytest
+
+from analysis.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained, run_auto
+from analysis.diagnosis import RankingRules
+from analysis.measurements import Measurements, SineRun
+from analysis.model import load_model
+from analysis.workbench import Workbench
+from test_hidden_effects import LUMPED, LUMPED_IO, LUMPED_PLAN, UNKNOWN_LUMPED, analyse, element
+
+# ---------------------------------------------------------------------------------------------------- RK4 rig
+M = np.eye(2)
+K = np.array([[3000.0, -1000.0], [-1000.0, 2000.0]])
+C = 0.3 * M + 1.0e-4 * K                   # LUMPED's Rayleigh damping
+FREQS = np.arange(5.0, 11.01, 0.6)
+FORCES = (0.5, 2.0)
+FRF_NOISE = 2e-4                           # relative, circular complex, on each receptance
+
+
+def steady_receptance(freqs, forces, k3, c2, settle_seconds=40.0, per_period=64, keep=2):
+    """RK4 of M x'' + C x' + K x + (k3 x1^3 + c2 |v1| v1) e1 = F sin(wt) e2, every (force, line) at once,
+    started on the linear steady state (the transient that must die out is only the nonlinear part; mode 1
+    decays in 4.5 s; 64 steps per period keep the scheme's own damping error below the noise, 32 did not); the
+    fundamental X of x1 and x2 (x = Im X e^{jwt}) over the last periods, over F. Shape (levels, L, 2)."""
+    F = np.repeat(np.asarray(forces, float), len(freqs))
+    w = np.tile(2 * np.pi * np.asarray(freqs, float), len(forces))
+    dt = 2 * np.pi / w / per_period
+    X0 = np.linalg.solve(K - w[:, None, None] ** 2 * M + 1j * w[:, None, None] * C,
+                         np.broadcast_to([0.0, 1.0], (len(w), 2))[..., None])[..., 0] * F[:, None]
+
+    def rhs(t, y):
+        x, v = y[:, :2], y[:, 2:]
+        f = x @ K.T + v @ C.T
+        f[:, 0] += k3 * x[:, 0] ** 3 + c2 * np.abs(v[:, 0]) * v[:, 0]
+        f[:, 1] -= F * np.sin(w * t)
+        return np.hstack([v, -f @ np.linalg.inv(M).T])
+
+    y, t = np.hstack([X0.imag, w[:, None] * X0.real]), np.zeros(len(w))
+    fundamental = np.zeros((len(w), 2), complex)
+    settle = int(np.ceil(settle_seconds * max(freqs))) * per_period
+    for i in range(settle + keep * per_period):
+        if i >= settle:
+            fundamental += y[:, :2] * (np.sin(w * t) + 1j * np.cos(w * t))[:, None]
+        k1 = rhs(t, y)
+        k2 = rhs(t + dt / 2, y + (dt / 2)[:, None] * k1)
+        k3_ = rhs(t + dt / 2, y + (dt / 2)[:, None] * k2)
+        k4 = rhs(t + dt, y + dt[:, None] * k3_)
+        y, t = y + (dt / 6)[:, None] * (k1 + 2 * k2 + 2 * k3_ + k4), t + dt
+    return (fundamental * 2 / (keep * per_period) / F[:, None]).reshape(len(forces), len(freqs), 2)
+
+
+@pytest.fixture(scope="module")
+def rk4_joint():
+    """Measurements of the RK4 rig whose one joint (at x1) has a hardening cubic spring and quadratic damping:
+    stiffness and damping of the same element missing at once."""
+    H = steady_receptance(FREQS, FORCES, k3=3.0e5, c2=3.0)
+    rng = np.random.default_rng(7)
+    runs = []
+    for F, h in zip(FORCES, H):
+        std = FRF_NOISE * np.abs(h)
+        noisy = h + std / np.sqrt(2) * (rng.normal(size=h.shape) + 1j * rng.normal(size=h.shape))
+        runs.append(SineRun(f"sine_{F:g}N_up", F, "up", "x2", ["x1", "x2"], FREQS, noisy, std))
+    return Measurements(sine=runs)
+
+
+def started(measurements, model_elements):
+    wb = Workbench(load_model(tomllib.loads(LUMPED + model_elements)), measurements)
+    wb.start()
+    return wb
+
+
+def laws_of(wb):
+    return {el.name: sorted(t.law.name for t in el.laws) for el in wb.model.elements}
+
+
+@pytest.mark.slow
+def test_stiffness_and_damping_of_one_joint_are_both_found_in_independent_data(rk4_joint):
+    wb = started(rk4_joint, element("a", "x1", ""))
+    seen = []
+    result = run_auto(wb, progress=seen.append)
+    assert seen == result.steps
+    assert laws_of(wb) == {"a": ["cubic", "quadratic_damping"]}, [s.line() for s in result.steps]
+    values = {t.law.name: t.values for t in wb.model.element("a").laws}
+    assert values["cubic"]["k3"] == pytest.approx(3.0e5, rel=0.02)
+    assert values["quadratic_damping"]["c2"] == pytest.approx(3.0, rel=0.05)
+    assert wb.history[0].error / wb.history[-1].error >= 10
+    assert len(wb.history) == 1 + len(result.steps)
+    assert result.stopped.startswith("nothing significant is left")
+
+
+@pytest.mark.slow
+def test_a_pair_is_tried_where_no_single_law_is_significant(rk4_joint):
+    # with a gain threshold above what either law alone gives but below what the two give together, only
+    # the pair search can find the joint
+    wb = started(rk4_joint, element("a", "x1", ""))
+    singles = {c.law: c.gain for c in wb.candidates()}
+    pair_gain = wb.pair_candidates("a", [("cubic", "quadratic_damping")])[0].gain
+    threshold = np.sqrt(max(singles["cubic"], singles["quadratic_damping"]) * pair_gain)
+    assert pair_gain > threshold > max(singles.values())
+    assert kbar_unexplained(wb.reports["a"])
+    result = run_auto(wb, AutoRules(ranking=RankingRules(min_gain=threshold)))
+    assert [(s.action, s.element, set(s.laws)) for s in result.steps] == \
+        [("add pair", "a", {"cubic", "quadratic_damping"})]
+    assert not run_auto(started(rk4_joint, element("a", "x1", "")),
+                        AutoRules(pairs=False, ranking=RankingRules(min_gain=threshold))).steps
+
+
+@pytest.mark.slow
+def test_nothing_missing_adds_nothing(rk4_joint):
+    wb = started(rk4_joint, element("a", "x1", '"cubic", "quadratic_damping"'))
+    result = run_auto(wb)
+    assert result.steps == [] and len(wb.history) == 1
+    assert result.stopped.startswith("nothing significant is left")
+    assert not kbar_unexplained(wb.reports["a"])
+
+
+# ------------------------------------------------------------------------------------ the project's simulator
+NOISE = "[noise]\nforce = 0.003\nacceleration = 0.003\n"
+TWO_EFFECTS = element("a", "x1", '{ law = "cubic", k3 = 3.0e5 }') + \
+    element("b", "x2", '{ law = "quadratic_damping", c2 = 3.0 }')
+
+
+@pytest.mark.slow
+def test_two_effects_on_two_elements_are_found_and_the_loop_stops(tmp_path, capsys):
+    from app.cli import main
+
+    analyse(LUMPED, LUMPED_IO + NOISE, LUMPED_PLAN, TWO_EFFECTS, UNKNOWN_LUMPED, tmp_path)
+    (tmp_path / "model.toml").write_text(LUMPED + UNKNOWN_LUMPED, encoding="utf-8")
+    args = ["analyze", str(tmp_path / "s.h5"), str(tmp_path / "model.toml"), "--auto", "--no-history"]
+    assert main(args + ["--json"]) == 0
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
+    laws = {el["name"]: sorted(law["law"] for law in el["laws"]) for el in doc["elements"]}
+    steps = doc["auto"]["steps"]
+    assert laws == {"a": ["cubic"], "b": ["quadratic_damping"]}, steps
+    assert steps[0]["error_before"] / steps[-1]["error_after"] >= 10
+    assert doc["auto"]["stopped"].startswith("nothing significant is left")
+    assert not any(c["significant"] for c in doc["candidates"])
+    # each step as it was taken, on stderr (stdout is the JSON object)
+    assert [line for line in captured.err.splitlines() if line.startswith("auto: ")] == [
+        f"auto: {s['action']} {s['element']}:{'+'.join(s['laws'])}: error {s['error_before']:.3g} -> "
+        f"{s['error_after']:.3g} (x{s['gain']:.2f} better)" for s in steps]
+    # the text report: the same steps, printed as taken and then with their reasons and the stop
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert sum(line.startswith("auto: ") for line in out.splitlines()) == len(steps)
+    assert "automatic loop:" in out and f"stopped: {doc['auto']['stopped']}" in out
+
+
+def test_step_and_result_records():
+    step = AutoStep("add", "b", ("quadratic_damping",), 1.0, 0.125, "why")
+    assert step.gain == 8.0
+    assert step.line() == "add b:quadratic_damping: error 1 -> 0.125 (x8.00 better)"
+    assert step.to_json() == {"action": "add", "element": "b", "laws": ["quadratic_damping"], "error_before": 1.0,
+                              "error_after": 0.125, "gain": 8.0, "reason": "why"}
+    result = AutoResult([step], "nothing significant is left")
+    assert json.loads(json.dumps(result.to_json()))["stopped"] == "nothing significant is left"
+    assert result.text().splitlines()[-1] == "  stopped: nothing significant is left"
+
+
+def test_no_law_is_supported_where_the_laws_already_explain_the_kbar_within_the_noise():
+    from analysis.diagnosis import Candidate, ElementSamples, _supported, explained_within_noise
+    from analysis.fit import fit_laws
+    from analysis.laws import LAWS
+
+    rng = np.random.default_rng(0)
+    X, w = np.geomspace(1e-4, 1e-2, 40), np.full(40, 40.0)
+    std = np.full(40, 5.0)
+    kbar = 3.0e5 * 0.75 * X ** 2 + std / np.sqrt(2) * (rng.normal(size=40) + 1j * rng.normal(size=40))
+    samples = ElementSamples("a", X, w, kbar, std, np.ones(40))
+    assert not explained_within_noise(samples, None, 1e-3)          # a clear hardening against no law
+    assert explained_within_noise(samples, fit_laws([LAWS["cubic"]], X, w, kbar, std), 1e-3)
+    c = Candidate("a", "quintic", 0.1, 0.2, 0.0, True, "", evidence=50.0)
+    assert _supported(c, 50.0, 0.1, False, RankingRules())
+    assert not _supported(c, 50.0, 0.1, False, RankingRules(), explained=True)
+
+
+@pytest.mark.slow
+def test_the_auto_button_runs_the_same_loop(qtbot, rk4_joint):
+    from app.gui.main_window import MainWindow
+    from app.gui.results import analysis_view
+
+    window = MainWindow("test")
+    qtbot.addWidget(window)
+    wb = started(rk4_joint, element("a", "x1", ""))
+    window.lab._workbench = (window.lab._generation, wb)       # as Analyze leaves it
+    window.model._update(analysis_view(wb, []))
+    panel = window.model
+    assert panel.auto_button.isEnabled()
+    with qtbot.waitSignal(window.lab.analysisUpdated, timeout=300000):
+        panel.auto_button.click()
+    expected = run_auto(started(rk4_joint, element("a", "x1", "")))
+    shown = panel.auto_label.text()
+    assert all(s.line() in shown for s in expected.steps) and f"stopped: {expected.stopped}" in shown
+    assert [h.action for h in window.lab.analysis.history] == ["start"] + [
+        f"add a:{'+'.join(s.laws)}" for s in expected.steps]
+
+
+# ------------------------------------------------------------------------------------------------ jump rig
+@pytest.mark.slow
+def test_the_jump_rig_adds_coulomb_and_no_quintic(tmp_path):
+    from test_jump_error import PLAN, RIG_ELEMENTS
+
+    wb = analyse(LUMPED, LUMPED_IO, PLAN, RIG_ELEMENTS, element("a", "x1", '"cubic"') + element("b", "x2", ""),
+                 tmp_path)
+    result = run_auto(wb)
+    assert laws_of(wb) == {"a": ["cubic"], "b": ["coulomb"]}, [s.line() for s in result.steps]
+    assert wb.history[0].error / wb.history[-1].error >= 10
+
+
+# ------------------------------------------------------------------------------------------------ paper beam
+@pytest.mark.slow
+def test_the_paper_beam_loop_ends_on_iwan(tmp_path):
+    """The demo's rig and quick plan: the tangential contact is an Iwan element and nothing else."""
+    from analysis.tables import load_toml
+    from app.instruments import emulated_instruments
+    from app.measure import run_plan
+    from app.models import asset
+    from app.plan import load_plan
+    from app.session import open_session
+    from app.session_data import measurements_from_session
+    from drivers.simulation.rig import load_rig
+
+    with emulated_instruments(load_rig("paper-beam")) as inst:
+        assert run_plan(load_plan(asset("paper-beam.quick.plan.toml")), inst, tmp_path / "s.h5").complete
+    with open_session(tmp_path / "s.h5") as s:
+        measurements = measurements_from_session(s)
+    path = asset("paper-beam.model.toml")
+    wb = Workbench(load_model(load_toml(path), str(path)), measurements)
+    wb.start()
+    result = run_auto(wb)
+    assert laws_of(wb) == {"normal": ["linear"], "tangential": ["iwan"]}, [s.line() for s in result.steps]
+    assert wb.history[0].error / wb.history[-1].error >= 10
+    correction = AutoStep("linear correction", "normal", ("linear",), 1.23, 1.24, "why")
+    assert correction.line() == "linear correction at normal: error 1.23 -> 1.24 (x1.01 worse)"
