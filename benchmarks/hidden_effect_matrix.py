@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 import matrix_cases as mc  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "hidden_effect_matrix.json"
-DOCS = ROOT / "docs" / "workbench.md"
+DOCS = ROOT / "docs/workbench.md"
 LOOP_FILES = ("analysis/auto.py", "analysis/diagnosis.py", "analysis/workbench.py")
 
 

@@ -89,7 +89,7 @@ def test_the_published_table_is_the_last_full_run():
     outcomes = [mc.Outcome.from_json(o) for o in recorded["outcomes"]]
     assert [o.case for o in outcomes] == [c.name for c in mc.CASES]
     section = mc.render(outcomes, recorded["date"], recorded["loop"])
-    assert section in (ROOT / "docs" / "workbench.md").read_text(encoding="utf-8")
+    assert section in (ROOT / "docs/workbench.md").read_text(encoding="utf-8")
 
 
 @pytest.mark.slow
