@@ -1,0 +1,100 @@
+"""The hidden-effect matrix (tests/matrix_cases.py, docs/workbench.md "The hidden-effect matrix"): the case set
+covers what the matrix promises, the independent integrator is right, the scoring counts what it says, the
+published table is the one the last full run produced, and a representative subset of cases is diagnosed right
+(slow)."""
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import matrix_cases as mc
+from analysis.laws import LAWS
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_every_law_of_the_library_has_one_kind():
+    for law in LAWS:
+        assert sum(law in members for members in mc.LAW_KINDS.values()) == 1, law
+    assert set().union(*mc.LAW_KINDS.values()) == set(LAWS)
+
+
+def test_the_matrix_covers_structures_laws_counts_noise_and_nothing_missing():
+    cases = mc.CASES
+    assert len(cases) >= 24 and len({c.name for c in cases}) == len(cases)
+    assert {c.bench.name for c in cases} == {"2-DOF", "3-DOF chain", "beam"}
+    assert {h.law for c in cases for h in c.hidden} == set(LAWS)
+    counts = {len(c.hidden) for c in cases}
+    assert counts == {0, 1, 2}
+    two = [c for c in cases if len(c.hidden) == 2]
+    assert any(a.element == b.element for a, b in (c.hidden for c in two))      # the same element
+    assert any(a.element != b.element for a, b in (c.hidden for c in two))      # different elements
+    assert min(c.noise for c in cases) == 0.001 and max(c.noise for c in cases) == 0.02
+    assert {c.source for c in cases} == {"simulator", "rk4"}
+    assert any(s.placement.startswith("between") for c in cases for s in c.bench.sites)
+    for c in cases:
+        assert set(c.hidden) <= set(c.laws)
+
+
+def test_the_rig_and_model_files_differ_by_the_hidden_laws_only():
+    import tomllib
+    c = mc.case("2dof damping missing beside cubic")
+    rig, model = tomllib.loads(c.rig_toml()), tomllib.loads(c.model_toml())
+    assert [e["laws"] for e in rig["element"]] == [[{"law": "cubic", "k3": 1.0e5}], [{"law": "quadratic_damping",
+                                                                                       "c2": 3.0}]]
+    assert [e["laws"] for e in model["element"]] == [["cubic"], []]
+    assert rig["noise"]["acceleration"] == rig["noise"]["force"] == 0.001
+
+
+def test_the_integrator_gives_the_analytic_receptance_of_a_linear_rig():
+    # no laws: X = (K - w^2 M + j w C)^-1 F e_q, the steady state the integrator must settle to
+    c = mc.case("2dof nothing missing (linear rig)")
+    lumped = mc.Lumped.of(c.bench)
+    freqs = np.array([5.0, 5.9])          # below and at the first resonance (Q about 85)
+    H = mc.rk4_receptance(c, freqs, [1.0])[0]
+    for f, h, tol in zip(freqs, H, (1e-4, 5e-4)):
+        w = 2 * np.pi * f
+        exact = np.linalg.solve(lumped.K - w ** 2 * lumped.M + 1j * w * lumped.C, [0.0, 1.0])
+        assert np.abs(h - exact).max() < tol * np.abs(exact).max(), (f, h, exact)
+
+
+def _wb(first: dict, final: dict):
+    """A stand-in for a diagnosed workbench: the laws of the first history step and of the final model."""
+    elements = [SimpleNamespace(name=n, laws=[SimpleNamespace(law=SimpleNamespace(name=law)) for law in laws])
+                for n, laws in final.items()]
+    history = [SimpleNamespace(laws={n: [{"law": law} for law in laws] for n, laws in first.items()}, error=1.0),
+               SimpleNamespace(laws={}, error=0.01)]
+    return SimpleNamespace(history=history, model=SimpleNamespace(elements=elements))
+
+
+def test_scoring_counts_kinds_elements_and_false_alarms():
+    c = mc.case("2dof cubic + damping same element")          # cubic and quadratic damping at a, both hidden
+    right = mc.score(c, _wb({"a": [], "b": []}, {"a": ["quintic", "cubic_damping"], "b": []}), "stop")
+    assert right.right and right.error_fall == pytest.approx(100) and not right.false_alarms
+    wrong = mc.score(c, _wb({"a": [], "b": []}, {"a": ["cubic", "coulomb"], "b": ["quadratic_damping"]}), "stop")
+    assert [f.found for f in wrong.effects] == ["stiffness", "friction"]
+    assert wrong.false_alarms == ("a:coulomb", "b:quadratic_damping") and not wrong.right
+    known = mc.case("2dof nothing missing (cubic known)")      # a surplus law of the kind the rig has is an alarm
+    extra = mc.score(known, _wb({"a": ["cubic"], "b": []}, {"a": ["cubic", "quintic"], "b": []}), "stop")
+    assert extra.false_alarms == ("a:quintic",) and not extra.right
+    table = mc.confusion([right, wrong, extra])
+    assert table == {("stiffness", "stiffness"): 2, ("damping", "damping"): 1, ("damping", "friction"): 1,
+                     ("nothing", "friction"): 1, ("nothing", "damping"): 1, ("nothing", "stiffness"): 1}
+
+
+def test_the_published_table_is_the_last_full_run():
+    recorded = json.loads((ROOT / "benchmarks" / "hidden_effect_matrix.json").read_text(encoding="utf-8"))
+    outcomes = [mc.Outcome.from_json(o) for o in recorded["outcomes"]]
+    assert [o.case for o in outcomes] == [c.name for c in mc.CASES]
+    section = mc.render(outcomes, recorded["date"], recorded["loop"])
+    assert section in (ROOT / "docs/workbench.md").read_text(encoding="utf-8")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["2dof cubic + damping elsewhere", "rk4 3dof cubic between masses"])
+def test_a_representative_case_is_diagnosed_right(name, tmp_path):
+    outcome = mc.run_case(mc.case(name), tmp_path)
+    assert outcome.right, mc.progress_line(1, 1, outcome, 0)
+    assert outcome.error_fall >= mc.GOAL_FALL, outcome.errors
