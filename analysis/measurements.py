@@ -105,6 +105,9 @@ class RunNote:
             what = "is incomplete: the process writing it stopped during the run (crash or kill)"
         elif self.status == "running":
             what = "is still being measured"
+        elif self.status == "failed":
+            what = ("failed" + (f" ({self.reason})" if self.reason else "")
+                    + " -- it ran to its end, but its data missed the plan")
         else:
             what = "was aborted" + (f" ({self.reason})" if self.reason else "")
         return f"run {self.run} {what}; its {self.lines} line{'s' * (self.lines != 1)} measured before are used"

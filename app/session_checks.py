@@ -7,7 +7,7 @@ nothing is repaired or guessed.
 
 A run still being written, or one whose writer died (``incomplete``), may end with a line that reached some of
 its datasets but not all: only the lines present in every per-line dataset are used. A run that ended
-("complete", or "aborted" by the campaign) must have the same number of lines in every per-line dataset.
+("complete", "failed" -- measured to its end but missing the plan -- or "aborted" by the campaign) must have the same number of lines in every per-line dataset.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from analysis.measurements import RunNote
 from .session import FORMAT_VERSION, RunData
 
 KINDS = ("random", "stepped_sine")
-STATUSES = ("running", "complete", "aborted")
+STATUSES = ("running", "complete", "failed", "aborted")
 DIRECTIONS = {"stepped_sine": ("up", "down"), "random": ("none",)}
 
 

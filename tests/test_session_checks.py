@@ -149,3 +149,15 @@ def test_aborted_run_is_noted_with_its_reason(capsys, files):
         f["runs"][RUN].attrs.update({"status": "aborted", "end_reason": "limit max_force"})
     rc, out, err = analyze(capsys, session, model)
     assert rc == 0 and f"note: run {RUN} was aborted (limit max_force); its 12 lines" in out
+
+
+def test_failed_run_is_read_and_noted_with_its_reason(capsys, files):
+    # a run that ran to its end but missed its force target is kept and analysed, never taken as complete
+    session, model = files
+    with h5py.File(session, "r+") as f:
+        f["runs"][RUN].attrs.update({"status": "failed", "end_reason": "force OFF TARGET at 3 of 12 lines"})
+    rc, out, err = analyze(capsys, session, model)
+    assert rc == 0 and f"note: run {RUN} failed (force OFF TARGET at 3 of 12 lines)" in out
+    rc, out, err = analyze(capsys, session, model, "--json")
+    note, = json.loads(out)["unfinished_runs"]
+    assert note["status"] == "failed" and note["lines"] == 12
