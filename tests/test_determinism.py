@@ -68,4 +68,5 @@ def test_the_same_plan_gives_the_same_session_on_an_idle_and_a_loaded_machine(tm
     a, b = datasets(tmp_path / "idle.h5"), datasets(tmp_path / "loaded.h5")
     assert a.keys() == b.keys() and any(name.endswith("frf/x2") for name in a)
     for name in a:
-        assert np.array_equal(a[name], b[name]), name
+        # NaN marks a quantity a line does not have (no transient estimate on a line that waited): same places
+        assert np.array_equal(a[name], b[name], equal_nan=a[name].dtype.kind in "fc"), name
