@@ -39,6 +39,9 @@ _MAX_BACKTRACK = 30
 _RTOL = 1e-10
 # a Newton step that reduces the residual less than this factor refreshes the Jacobian
 _SLOW_CONTRACTION = 0.25
+# the bracketed fallback of a single element (:func:`_bracketed`): search reach and bisection steps
+_BRACKET_DOUBLINGS = 13
+_MAX_BISECTION = 200
 
 _FORCE_SIGNATURE = types.float64(types.float64, types.float64, types.CPointer(types.float64), types.intp,
                                  types.CPointer(types.float64), types.intp)
@@ -413,6 +416,80 @@ def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, wo
 
 
 @njit(cache=True, _nrt=False, inline="always")
+def _signed_residual(laws, S, S_probe, y_free, D, mode, sigma, gv, work):
+    """Residual of a single free element at residual force ``gv`` (signed), and its size in tolerances.
+
+    The motion, law forces and states of the evaluation are left in ``work[3:6]`` and ``S_probe``."""
+    res, g_trial, x_probe, v_probe, F_probe = work[1], work[2], work[3], work[4], work[5]
+    g_trial[0] = gv
+    _element_motion(y_free, D, g_trial, 1, x_probe, v_probe)
+    _element_forces(laws, S, S_probe, x_probe, v_probe, mode, sigma, F_probe)
+    worst = _residual(g_trial, x_probe, v_probe, F_probe, laws.k0, laws.c0, mode, y_free, D, 1, res)
+    return res[0], worst
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _bracketed(laws, S, S_trial, S_probe, y_free, D, mode, sigma, g, x, v, F, work):
+    """Fallback of a single free element whose Newton iteration failed: bisection on the residual's sign change.
+
+    A law force that jumps with the displacement (velocity_stiffness's sgn(x) at x = 0, while the element
+    moves) leaves the step-end equation without a root whenever the step's free motion ends within
+    ``|D_x| * jump`` of the discontinuity: the residual steps over zero there. The sign change is then the
+    jump itself, and the step ends on the discontinuity with the law force between its one-sided limits, as
+    a stuck friction element's constraint force lies within its stick limit (the set-valued solution of the
+    step). The motion crosses the discontinuity, it is not held there: the next step leaves it. Returns
+    False if no sign change lies within 2^12 residuals of the last iterate (no solution near: divergence).
+    On success g, x, v, F and S_trial belong to the accepted side of the bracket.
+    """
+    r0, worst = _signed_residual(laws, S, S_probe, y_free, D, mode, sigma, g[0], work)
+    if not math.isfinite(r0):
+        return False
+    lo = hi = g[0]
+    r_lo = r_hi = r0
+    reach = abs(r0)
+    found = False
+    for _ in range(_BRACKET_DOUBLINGS):
+        # the residual rises with g where the law force is smooth: the root lies on the side against its sign
+        probe = g[0] - reach if r0 > 0.0 else g[0] + reach
+        rp, _w = _signed_residual(laws, S, S_probe, y_free, D, mode, sigma, probe, work)
+        if not math.isfinite(rp):
+            return False
+        if (rp > 0.0) != (r0 > 0.0):
+            lo, hi, r_lo, r_hi = (probe, g[0], rp, r0) if probe < g[0] else (g[0], probe, r0, rp)
+            found = True
+            break
+        reach *= 2.0
+    if not found:
+        return False
+    for _ in range(_MAX_BISECTION):
+        mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:
+            break
+        rm, worst = _signed_residual(laws, S, S_probe, y_free, D, mode, sigma, mid, work)
+        if worst <= 1.0:
+            lo = hi = mid
+            r_lo = r_hi = rm
+            break
+        if (rm > 0.0) == (r_lo > 0.0):
+            lo, r_lo = mid, rm
+        else:
+            hi, r_hi = mid, rm
+    g[0] = lo if abs(r_lo) <= abs(r_hi) else hi
+    _element_motion(y_free, D, g, 1, x, v)
+    _element_forces(laws, S, S_trial, x, v, mode, sigma, F)
+    return True
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _bracket_fallback(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac_valid):
+    """After a failed Newton iteration: :func:`_bracketed` where it applies (one element, not stuck)."""
+    if r != 1 or mode[0] == STICK:
+        return False
+    jac_valid[0] = 0  # the kept Jacobian failed here (and a jump's side is no guide to the next step)
+    return _bracketed(laws, S, S_trial, S_probe, y_free, D, mode, sigma, g, x, v, F, work)
+
+
+@njit(cache=True, _nrt=False, inline="always")
 def _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J):
     """Step-end element forces with stick/slip decided for every friction element.
 
@@ -425,7 +502,9 @@ def _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F
     k0 = laws.k0
     ok = True
     for _ in range(2 + 4 * r):
-        if _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J) < 0:
+        if (_newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J) < 0
+                and not _bracket_fallback(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work,
+                                          jac_valid)):
             ok = False
         changed = False
         _stick_limits(laws, x, limit)
