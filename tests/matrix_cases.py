@@ -508,7 +508,7 @@ class Summary:
                 and self.min_fall_right >= GOAL_FALL)
 
     def text(self) -> str:
-        return (f"{self.right}/{self.cases} cases right ({100 * self.right / self.cases:.0f} %), "
+        return (f"{self.right}/{self.cases} cases right ({100 * self.right / max(self.cases, 1):.0f} %), "
                 f"{self.effects_right}/{self.effects} hidden effects found with the right element and kind, "
                 f"{self.false_alarms} false alarm{'s' * (self.false_alarms != 1)}, smallest error fall of a "
                 f"right answer x{self.min_fall_right:.3g}; goal (>= 95 % right, no false alarm, every right "
