@@ -14,8 +14,12 @@ the coupled poles known
 
 is a polynomial in u -- each structural mode adds degree 2 -- however sharp the force's dip at the resonance.
 The lines measured so far give Q; a polynomial fitted to the last WINDOW of them, extrapolated to the next
-line, gives its N/V. An ideal force source (no poles of its own, a constant N/V) is the special case of a
-constant Q over |D_c|^2.
+line, gives its N/V.
+
+A few lines do not determine that polynomial, and an ideal force source (a constant N/V) needs the full degree
+to come out constant through |D_c|^2; so the same fit without the poles -- a polynomial in u for |F/V|^2
+itself -- competes with it, and the one that predicted the latest line better from the lines before it
+predicts the next one (a single line: the N/V stays as it was).
 """
 from __future__ import annotations
 
@@ -28,11 +32,28 @@ MAX_DEGREE = 4     # in u: two structural modes within the window (more lines th
 def predicted_gain(frequencies, gains, poles, frequency: float) -> float | None:
     """N/V at ``frequency`` Hz from the lines at ``frequencies`` Hz that gave ``gains`` N/V, with the free
     response's ``poles`` (rad/s, one of each conjugate pair); None when no line is known or the extrapolated
-    Q is not positive (the fit says nothing there)."""
+    N/V is not positive (the fit says nothing there)."""
     f = np.asarray(frequencies, float)[-WINDOW:]
     g = np.asarray(gains, float)[-WINDOW:]
     if not len(f) or np.any(g <= 0):
         return None
+    return _extrapolated(f, g, _better_model(f, g, poles), frequency)
+
+
+def _better_model(f: np.ndarray, g: np.ndarray, poles) -> np.ndarray:
+    """The poles (or none) whose model predicted the latest line better from the lines before it."""
+    with_poles = np.asarray(poles, complex).ravel()
+    if len(f) < 2 or not len(with_poles):
+        return with_poles[:0]
+    errors = []
+    for candidate in (with_poles, with_poles[:0]):
+        guess = _extrapolated(f[:-1], g[:-1], candidate, f[-1])
+        errors.append(np.inf if guess is None else abs(np.log(guess / g[-1])))
+    return with_poles if errors[0] < errors[1] else with_poles[:0]
+
+
+def _extrapolated(f: np.ndarray, g: np.ndarray, poles: np.ndarray, frequency: float) -> float | None:
+    """|F/V| at ``frequency`` from the polynomial in u fitted to Q = |F/V|^2 |D(j w)|^2 over ``poles``."""
     w = 2 * np.pi * f
     q = g**2 * _denominator(w, poles)
     degree = min(MAX_DEGREE, _distinct(w) - 1)
