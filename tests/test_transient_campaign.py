@@ -105,16 +105,22 @@ def test_friction_rig_waits_where_it_should_and_no_line_leaves_the_settled_value
     assert np.all(change < 3e-3), change
 
 
-def test_start_drive_follows_the_gain_extrapolated_over_the_last_two_lines():
+def test_start_drive_follows_the_predicted_gain_within_one_correction_step():
     from types import SimpleNamespace
 
     from app.campaign import Campaign
-    campaign = SimpleNamespace(_transient=object(), shaker=SimpleNamespace(amplitude_range=(0.0, 10.0)))
-    gain = lambda f: 2.0 * np.exp(0.05 * f)   # noqa: E731  (N/V, log-linear in frequency: extrapolated exactly)
-    gains = [(5.0, gain(5.0)), (5.5, gain(5.5))]
-    assert Campaign._predicted_drive(campaign, gains, 6.0, 0.5, 0.3) == pytest.approx(0.5 / gain(6.0), rel=1e-12)
-    # a steep change is taken at most x1.25 per line; the waiting methods keep the carried drive
-    steep = [(5.0, 1.0), (5.5, 3.0)]
-    assert Campaign._predicted_drive(campaign, steep, 6.0, 0.5, 0.3) == pytest.approx(0.5 / (3.0 * 1.25))
+    from test_drive_prediction import shaker_on_structure
+    gain_of, poles = shaker_on_structure()
+    campaign = SimpleNamespace(_transient=SimpleNamespace(poles=poles),
+                               shaker=SimpleNamespace(amplitude_range=(0.0, 10.0)))
+    f = np.arange(5.0, 6.7501, 0.25)
+    gains = [(fi, abs(gain_of(2j * np.pi * fi))) for fi in f]
+    truth = abs(gain_of(2j * np.pi * 7.0))          # the dip at the first resonance: 0.58 x the last line's
+    assert Campaign._predicted_drive(campaign, gains, 7.0, 0.5, 0.3) == pytest.approx(0.5 / truth, rel=1e-3)
+    # a steep predicted change is taken at most x2 per line (one step of the force loop)
+    steep = [(5.0, 1.0), (5.5, 3.0), (6.0, 9.0)]
+    assert Campaign._predicted_drive(SimpleNamespace(_transient=SimpleNamespace(poles=[]), shaker=campaign.shaker),
+                                     steep, 6.5, 0.5, 0.3) == pytest.approx(0.5 / (9.0 * 2.0))
+    # the waiting methods keep the carried drive; a single line keeps its N/V
     assert Campaign._predicted_drive(SimpleNamespace(_transient=None), gains, 6.0, 0.5, 0.3) == 0.3
-    assert Campaign._predicted_drive(campaign, gains[:1], 6.0, 0.5, 0.3) == 0.3
+    assert Campaign._predicted_drive(campaign, gains[:1], 6.0, 0.5, 0.3) == pytest.approx(0.5 / gains[0][1])
