@@ -118,9 +118,9 @@ def test_start_drive_follows_the_predicted_gain_within_one_correction_step():
     truth = abs(gain_of(2j * np.pi * 7.0))          # the dip at the first resonance: 0.58 x the last line's
     assert Campaign._predicted_drive(campaign, gains, 7.0, 0.5, 0.3) == pytest.approx(0.5 / truth, rel=1e-3)
     # a steep predicted change is taken at most x2 per line (one step of the force loop)
-    steep = [(5.0, 1.0), (5.5, 3.0), (6.0, 9.0)]
+    steep = [(5.0, 1.0), (5.5, 5.0), (6.0, 25.0), (6.5, 125.0)]    # extrapolated: 257 N/V
     assert Campaign._predicted_drive(SimpleNamespace(_transient=SimpleNamespace(poles=[]), shaker=campaign.shaker),
-                                     steep, 6.5, 0.5, 0.3) == pytest.approx(0.5 / (9.0 * 2.0))
+                                     steep, 7.0, 0.5, 0.3) == pytest.approx(0.5 / (125.0 * 2.0))
     # the waiting methods keep the carried drive; a single line keeps its N/V
     assert Campaign._predicted_drive(SimpleNamespace(_transient=None), gains, 6.0, 0.5, 0.3) == 0.3
     assert Campaign._predicted_drive(campaign, gains[:1], 6.0, 0.5, 0.3) == pytest.approx(0.5 / gains[0][1])
