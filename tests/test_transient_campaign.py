@@ -29,6 +29,7 @@ def sweep(tmp_path, rig, method, force, start, stop, step, direction):
             run = s.run(name)
             runs[name] = {"f": run.arrays["measured_frequency"], "transient": run.arrays["transient"],
                           "transient_std": run.arrays["transient_std"],
+                          "control_steps": run.arrays["control_steps"],
                           "frf": np.stack([run.frf[d] for d in rig.sensor_dofs], axis=1),
                           "thd": run.arrays[f"thd/acc:{rig.sensor_dofs[0]}"],
                           "frf_std": np.stack([run.arrays[f"frf_std/{d}"] for d in rig.sensor_dofs], axis=1)}
@@ -70,6 +71,19 @@ def test_linear_rig_same_accuracy_as_waiting_in_less_shaker_time(tmp_path):
     assert np.all(err[sel] <= 5 * b["frf_std"][sel] / np.abs(b["frf"][sel]) + 1e-6)
     assert np.all(b["transient_std"][sel] <= 2e-3 / 3)
     assert summary.shaker_seconds < steady_summary.shaker_seconds
+
+
+@pytest.mark.slow
+def test_predicted_start_drive_spares_the_corrections_across_the_shaker_resonances(tmp_path):
+    """Through the stack: the lines after the first start from the predicted force per volt, and few need a
+    correction although the N/V halves and doubles from line to line at the resonances (24 corrections with
+    the N/V extrapolated from the last two lines)."""
+    rig = load_rig(RIGS / "linear-shaker.toml")
+    summary, runs, _ = sweep(tmp_path, rig, "transient", 0.5, 5.0, 17.0, 0.25, "up")
+    run = runs["sine_0.5N_up"]
+    assert summary.lines_off_target == 0 and len(run["f"]) == 49
+    assert run["control_steps"][1:].sum() <= 6, run["control_steps"]
+    assert np.abs(run["frf"] / receptance(rig, run["f"]) - 1).max() < 1e-3
 
 
 @pytest.mark.slow
