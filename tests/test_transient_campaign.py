@@ -138,3 +138,15 @@ def test_start_drive_follows_the_predicted_gain_within_one_correction_step():
     # the waiting methods keep the carried drive; a single line keeps its N/V
     assert Campaign._predicted_drive(SimpleNamespace(_transient=None), gains, 6.0, 0.5, 0.3) == 0.3
     assert Campaign._predicted_drive(campaign, gains[:1], 6.0, 0.5, 0.3) == pytest.approx(0.5 / gains[0][1])
+
+
+def test_after_an_amplitude_change_only_a_line_that_waits_skips_periods_beyond_the_ramp():
+    from types import SimpleNamespace
+
+    from app.stepped_sine import CHANGE_MARGIN_PERIODS, LineMeter
+    meter = object.__new__(LineMeter)
+    for transient, margin in ((None, CHANGE_MARGIN_PERIODS),                          # method "steady"
+                              (SimpleNamespace(poles=np.empty(0, complex)), CHANGE_MARGIN_PERIODS),   # no poles
+                              (SimpleNamespace(poles=np.array([-1.2 + 46.1j])), 0.0)):              # the fit's
+        meter.transient = transient
+        assert meter._margin_periods() == margin
