@@ -159,11 +159,12 @@ class LineMeter:
 
     def _margin_periods(self) -> float:
         """Periods skipped after an amplitude change and its ramp: CHANGE_MARGIN_PERIODS where the line will
-        wait (its settling check starts clear of the change), none where the transient fit will see the
-        records (poles known): what follows the ramp is the new forced response plus a free response, the
-        fit's model, and the ramp began before the end of the record that showed it. (A line whose fit is
-        refused then waits as any other: its settling check needs records that agree.)"""
-        fitting = self.transient is not None and len(self.transient.poles) > 0
+        wait (its settling check starts clear of the change), none where the transient fit may take the
+        records (poles known, no harmonics shown at this line): what follows the ramp is the new forced
+        response plus a free response, the fit's model, and the ramp began before the end of the record that
+        showed it. (A line whose fit is refused then waits as any other: its settling check needs records
+        that agree.)"""
+        fitting = self.transient is not None and self.transient.fitting
         return 0.0 if fitting else CHANGE_MARGIN_PERIODS
 
     def _await_change(self, n_rec: int, shows: Callable[[np.ndarray], bool]) -> None:

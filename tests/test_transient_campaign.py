@@ -2,6 +2,7 @@
 instruments: the same FRFs as waiting, in less shaker time, and waiting where the model of the transient fails."""
 import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -120,8 +121,6 @@ def test_friction_rig_waits_where_it_should_and_no_line_leaves_the_settled_value
 
 
 def test_start_drive_follows_the_predicted_gain_within_one_correction_step():
-    from types import SimpleNamespace
-
     from app.campaign import Campaign
     from test_drive_prediction import shaker_on_structure
     gain_of, poles = shaker_on_structure()
@@ -141,12 +140,18 @@ def test_start_drive_follows_the_predicted_gain_within_one_correction_step():
 
 
 def test_after_an_amplitude_change_only_a_line_that_waits_skips_periods_beyond_the_ramp():
-    from types import SimpleNamespace
-
     from app.stepped_sine import CHANGE_MARGIN_PERIODS, LineMeter
+    from app.transient_line import TransientLines
     meter = object.__new__(LineMeter)
-    for transient, margin in ((None, CHANGE_MARGIN_PERIODS),                          # method "steady"
-                              (SimpleNamespace(poles=np.empty(0, complex)), CHANGE_MARGIN_PERIODS),   # no poles
-                              (SimpleNamespace(poles=np.array([-1.2 + 46.1j])), 0.0)):              # the fit's
-        meter.transient = transient
-        assert meter._margin_periods() == margin
+    meter.transient = None                                       # method "steady"
+    assert meter._margin_periods() == CHANGE_MARGIN_PERIODS
+    meter.transient = TransientLines(512.0, 5, 2e-3, 0, [1])
+    assert meter._margin_periods() == CHANGE_MARGIN_PERIODS      # no poles yet: the line waits
+    meter.transient.poles = np.array([-1.2 + 46.1j])
+    assert meter._margin_periods() == 0.0                        # the fit models what follows the ramp
+    # a line with harmonics waits: 3 periods on the ramp again
+    t = np.arange(512) / 512.0
+    data = np.column_stack([np.sin(2 * np.pi * 8 * t), np.sin(2 * np.pi * 8 * t) + 0.05 * np.sin(2 * np.pi * 24 * t)])
+    meter.transient.add(SimpleNamespace(data=data, first_sample=0), 8.0)
+    assert meter.transient.reason.startswith("harmonics")
+    assert meter._margin_periods() == CHANGE_MARGIN_PERIODS
