@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from analysis.drive_prediction import predicted_gain
 from analysis.frf_estimation import FRFEstimator
 from drivers import AbortLimits, InstrumentError, LimitExceeded, OutputGuard
 from drivers.errors import describe_instrument_error
@@ -440,17 +441,19 @@ class Campaign:
         return min(m.drive * ratio, self.shaker.amplitude_range[1])
 
     def _predicted_drive(self, gains: list[tuple[float, float]], f: float, force: float, carried: float) -> float:
-        """The transient-aware path's start drive: the gain (N/V) at ``f`` extrapolated from the run's last two
-        lines (within x0.8..1.25 of the last). A line measured from its transient takes a record or two once
-        its force is on target, while a drive correction costs the latency of the command-to-data path and a
-        new transient; the waiting paths keep the carried drive."""
-        if self._transient is None or len(gains) < 2:
+        """The transient-aware path's start drive: the force per volt at ``f`` predicted from the run's lines so
+        far and the free response's poles (analysis/drive_prediction.py), within x0.5..2 of the last line's --
+        no further than one correction of the force loop could move it. A line measured from its transient
+        takes a record or two once its force is on target, while a drive correction costs the latency of the
+        command-to-data path and a new transient; the waiting paths keep the carried drive."""
+        if self._transient is None or not gains:
             return carried
-        (f0, g0), (f1, g1) = gains[-2:]
-        if min(g0, g1) <= 0 or f1 == f0:
+        last = gains[-1][1]
+        gain = predicted_gain([g[0] for g in gains], [g[1] for g in gains], self._transient.poles, f)
+        if gain is None or last <= 0:
             return carried
-        change = np.clip(np.log(g1 / g0) / (f1 - f0) * (f - f1), np.log(0.8), np.log(1.25))
-        return float(min(force / (g1 * np.exp(change)), self.shaker.amplitude_range[1]))
+        gain = float(np.clip(gain, 0.5 * last, 2.0 * last))
+        return float(min(force / gain, self.shaker.amplitude_range[1]))
 
     def _judge(self, name: str, force: float) -> None:
         """Fail a run whose data missed the plan (docs/campaigns.md, "Complete or failed")."""

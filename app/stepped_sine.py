@@ -51,6 +51,7 @@ COARSE_ERROR = 0.2       # a force this far off target (relative) is corrected b
 LIMIT_RETRIES = 2        # corrections of a force still off target at the settling limit, per line
 MIN_RAMP_RATE = 1e-3     # V/s: the slowest ramp asked of a generator (SCPI instruments' usual lower limit)
 MAX_CONTROL_STEPS = 20   # drive corrections per line at most (a loop that cannot converge must still end)
+CHANGE_MARGIN_PERIODS = 3.0   # skipped after an amplitude change has shown and its ramp, before a line waits
 
 
 @dataclass
@@ -153,7 +154,18 @@ class LineMeter:
             return self._moved(abs(force), now, drive / previous)
 
         self._await_change(n_rec, shows)
-        self.feed.skip(int(np.ceil((self._ramp_seconds(drive, previous) + 3.0 / frequency) * self.sample_rate)))
+        margin = self._margin_periods() / frequency
+        self.feed.skip(int(np.ceil((self._ramp_seconds(drive, previous) + margin) * self.sample_rate)))
+
+    def _margin_periods(self) -> float:
+        """Periods skipped after an amplitude change and its ramp: CHANGE_MARGIN_PERIODS where the line will
+        wait (its settling check starts clear of the change), none where the transient fit may take the
+        records (poles known, no harmonics shown at this line): what follows the ramp is the new forced
+        response plus a free response, the fit's model, and the ramp began before the end of the record that
+        showed it. (A line whose fit is refused then waits as any other: its settling check needs records
+        that agree.)"""
+        fitting = self.transient is not None and self.transient.fitting
+        return 0.0 if fitting else CHANGE_MARGIN_PERIODS
 
     def _await_change(self, n_rec: int, shows: Callable[[np.ndarray], bool]) -> None:
         """Read records until one shows the last generator change (``shows(data)``) and drop that one too: the

@@ -84,6 +84,11 @@ class TransientLines:
         self._records: list = []
         self._nonlinear = False                         # the line in progress showed harmonics
 
+    @property
+    def fitting(self) -> bool:
+        """Whether the line in progress is one the fit may take: poles known, no harmonics shown."""
+        return len(self.poles) > 0 and not self._nonlinear
+
     def restart(self) -> None:
         """A new line, or the drive changed: the records so far hold another forcing."""
         self._records = []

@@ -147,3 +147,15 @@ def test_an_invalid_plan_is_refused_before_arming(window, qtbot):
     window.acquire.editor.set_levels([LEVEL])
     window.rig.max_force.setValue(0.5)
     assert window.lab.plan is None and "max_force" in window.acquire.editor.validation.text()
+
+
+def test_last_line_says_which_path_it_took():
+    from types import SimpleNamespace
+
+    from app.gui.acquire_panel import _line_path
+    line = dict(frequency=7.25, settle_periods=10.0, steady=True, transient=True, transient_std=2e-6)
+    assert _line_path(SimpleNamespace(**line)) == \
+        "last line 7.25 Hz: from its transient after 10 periods (3 std 6.0e-06)"
+    assert _line_path(SimpleNamespace(**{**line, "transient": False})) == "last line 7.25 Hz: steady after 10 periods"
+    assert _line_path(SimpleNamespace(**{**line, "transient": False, "steady": False})) == \
+        "last line 7.25 Hz: measured at the settling limit (10 periods)"

@@ -123,3 +123,12 @@ def test_a_file_that_is_not_a_session_is_a_message_not_a_crash(window, tmp_path)
     assert not window.lab.act(window.lab.open_session, str(bogus))
     assert window.error_bar.isVisibleTo(window) and "not a readable HDF5 session" in window.error_bar.label.text()
     assert window.lab.session is None and window.session.path_label.text() == "no session open"
+
+
+def test_runs_table_counts_the_lines_measured_from_their_transients():
+    from types import SimpleNamespace
+
+    from app.gui.session_panel import _from_transient
+    assert _from_transient(SimpleNamespace(arrays={"transient": np.array([False, True, True])})) == "2/3"
+    assert _from_transient(SimpleNamespace(arrays={"transient": np.zeros(4, bool)})) == "—"
+    assert _from_transient(SimpleNamespace(arrays={})) == "—"          # a random run, or an older session

@@ -2,6 +2,7 @@
 instruments: the same FRFs as waiting, in less shaker time, and waiting where the model of the transient fails."""
 import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -29,6 +30,7 @@ def sweep(tmp_path, rig, method, force, start, stop, step, direction):
             run = s.run(name)
             runs[name] = {"f": run.arrays["measured_frequency"], "transient": run.arrays["transient"],
                           "transient_std": run.arrays["transient_std"],
+                          "control_steps": run.arrays["control_steps"],
                           "frf": np.stack([run.frf[d] for d in rig.sensor_dofs], axis=1),
                           "thd": run.arrays[f"thd/acc:{rig.sensor_dofs[0]}"],
                           "frf_std": np.stack([run.arrays[f"frf_std/{d}"] for d in rig.sensor_dofs], axis=1)}
@@ -73,6 +75,19 @@ def test_linear_rig_same_accuracy_as_waiting_in_less_shaker_time(tmp_path):
 
 
 @pytest.mark.slow
+def test_predicted_start_drive_spares_the_corrections_across_the_shaker_resonances(tmp_path):
+    """Through the stack: the lines after the first start from the predicted force per volt, and few need a
+    correction although the N/V halves and doubles from line to line at the resonances (24 corrections with
+    the N/V extrapolated from the last two lines)."""
+    rig = load_rig(RIGS / "linear-shaker.toml")
+    summary, runs, _ = sweep(tmp_path, rig, "transient", 0.5, 5.0, 17.0, 0.25, "up")
+    run = runs["sine_0.5N_up"]
+    assert summary.lines_off_target == 0 and len(run["f"]) == 49
+    assert run["control_steps"][1:].sum() <= 6, run["control_steps"]
+    assert np.abs(run["frf"] / receptance(rig, run["f"]) - 1).max() < 1e-3
+
+
+@pytest.mark.slow
 def test_hardening_rig_waits_where_harmonics_show_and_stays_on_the_branch(tmp_path):
     """Up and down through the jumps of a Duffing oscillator: every line on the branch the waiting path finds,
     the lines with harmonics (the jump among them) measured by waiting, the others as accurately as waiting."""
@@ -105,16 +120,38 @@ def test_friction_rig_waits_where_it_should_and_no_line_leaves_the_settled_value
     assert np.all(change < 3e-3), change
 
 
-def test_start_drive_follows_the_gain_extrapolated_over_the_last_two_lines():
-    from types import SimpleNamespace
-
+def test_start_drive_follows_the_predicted_gain_within_one_correction_step():
     from app.campaign import Campaign
-    campaign = SimpleNamespace(_transient=object(), shaker=SimpleNamespace(amplitude_range=(0.0, 10.0)))
-    gain = lambda f: 2.0 * np.exp(0.05 * f)   # noqa: E731  (N/V, log-linear in frequency: extrapolated exactly)
-    gains = [(5.0, gain(5.0)), (5.5, gain(5.5))]
-    assert Campaign._predicted_drive(campaign, gains, 6.0, 0.5, 0.3) == pytest.approx(0.5 / gain(6.0), rel=1e-12)
-    # a steep change is taken at most x1.25 per line; the waiting methods keep the carried drive
-    steep = [(5.0, 1.0), (5.5, 3.0)]
-    assert Campaign._predicted_drive(campaign, steep, 6.0, 0.5, 0.3) == pytest.approx(0.5 / (3.0 * 1.25))
+    from test_drive_prediction import shaker_on_structure
+    gain_of, poles = shaker_on_structure()
+    campaign = SimpleNamespace(_transient=SimpleNamespace(poles=poles),
+                               shaker=SimpleNamespace(amplitude_range=(0.0, 10.0)))
+    f = np.arange(5.0, 6.7501, 0.25)
+    gains = [(fi, abs(gain_of(2j * np.pi * fi))) for fi in f]
+    truth = abs(gain_of(2j * np.pi * 7.0))          # the dip at the first resonance: 0.58 x the last line's
+    assert Campaign._predicted_drive(campaign, gains, 7.0, 0.5, 0.3) == pytest.approx(0.5 / truth, rel=1e-3)
+    # a steep predicted change is taken at most x2 per line (one step of the force loop)
+    steep = [(5.0, 1.0), (5.5, 5.0), (6.0, 25.0), (6.5, 125.0)]    # extrapolated: 257 N/V
+    assert Campaign._predicted_drive(SimpleNamespace(_transient=SimpleNamespace(poles=[]), shaker=campaign.shaker),
+                                     steep, 7.0, 0.5, 0.3) == pytest.approx(0.5 / (125.0 * 2.0))
+    # the waiting methods keep the carried drive; a single line keeps its N/V
     assert Campaign._predicted_drive(SimpleNamespace(_transient=None), gains, 6.0, 0.5, 0.3) == 0.3
-    assert Campaign._predicted_drive(campaign, gains[:1], 6.0, 0.5, 0.3) == 0.3
+    assert Campaign._predicted_drive(campaign, gains[:1], 6.0, 0.5, 0.3) == pytest.approx(0.5 / gains[0][1])
+
+
+def test_after_an_amplitude_change_only_a_line_that_waits_skips_periods_beyond_the_ramp():
+    from app.stepped_sine import CHANGE_MARGIN_PERIODS, LineMeter
+    from app.transient_line import TransientLines
+    meter = object.__new__(LineMeter)
+    meter.transient = None                                       # method "steady"
+    assert meter._margin_periods() == CHANGE_MARGIN_PERIODS
+    meter.transient = TransientLines(512.0, 5, 2e-3, 0, [1])
+    assert meter._margin_periods() == CHANGE_MARGIN_PERIODS      # no poles yet: the line waits
+    meter.transient.poles = np.array([-1.2 + 46.1j])
+    assert meter._margin_periods() == 0.0                        # the fit models what follows the ramp
+    # a line with harmonics waits: 3 periods on the ramp again
+    t = np.arange(512) / 512.0
+    data = np.column_stack([np.sin(2 * np.pi * 8 * t), np.sin(2 * np.pi * 8 * t) + 0.05 * np.sin(2 * np.pi * 24 * t)])
+    meter.transient.add(SimpleNamespace(data=data, first_sample=0), 8.0)
+    assert meter.transient.reason.startswith("harmonics")
+    assert meter._margin_periods() == CHANGE_MARGIN_PERIODS

@@ -36,6 +36,17 @@ def default_session_name() -> str:
     return f"session-{_dt.datetime.now():%Y%m%d-%H%M%S}.h5"
 
 
+def _line_path(m) -> str:
+    """How the last line was measured: from its transient (with the fit's 3 std), after waiting, or at the
+    settling limit."""
+    head = f"last line {m.frequency:.4g} Hz: "
+    if m.transient:
+        return head + f"from its transient after {m.settle_periods:.0f} periods (3 std {3 * m.transient_std:.1e})"
+    if m.steady:
+        return head + f"steady after {m.settle_periods:.0f} periods"
+    return head + f"measured at the settling limit ({m.settle_periods:.0f} periods)"
+
+
 def _spin(value: float, decimals: int = 4, minimum: float = 0.0, maximum: float = 1e5) -> QDoubleSpinBox:
     spin = QDoubleSpinBox(decimals=decimals, minimum=minimum, maximum=maximum)
     spin.setValue(value)
@@ -228,7 +239,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
                                           "frequency", "Hz", "force amplitude", "N")
         self.thd = configure_plot(bottom.addPlot(0, 1), "THD: response ●, force ┄",
                                   "frequency", "Hz", "THD", "%")
-        self.settle = configure_plot(bottom.addPlot(0, 2), "Settling wait (× at the limit)",
+        self.settle = configure_plot(bottom.addPlot(0, 2), "Settling: waited ●, from the transient ◆, limit ×",
                                      "frequency", "Hz", "periods waited", None)
         self.phase.setXLink(self.magnitude)
         self.ci.layout.setRowStretchFactor(1, 2)
@@ -245,7 +256,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
 
     def shown(self, plot: pg.PlotItem, run: str, what: str) -> tuple[np.ndarray, np.ndarray]:
         """The points a run's curve on ``plot`` shows now (``what``: a sensor DOF on the FRF plots; "achieved",
-        "target", "response", "force", "steady" or "limit" on the others); empty before its first line."""
+        "target", "response", "force", "steady", "transient" or "limit" on the others); empty before its first line."""
         curve = self._run_curves.get((id(plot), run, what))
         x, y = (None, None) if curve is None else curve.getOriginalDataset()
         return (np.empty(0), np.empty(0)) if x is None else (np.asarray(x), np.asarray(y))
@@ -358,8 +369,13 @@ class LivePlots(pg.GraphicsLayoutWidget):
             self._curve(self.thd, (run.name, "force"), pen=self.palette.pen(run.force, dashed=True)).setData(
                 f[order], 100 * a["thd/force"][order])
         steady = a["steady"].astype(bool)
+        transient = a["transient"].astype(bool) if "transient" in a else np.zeros(len(f), bool)
+        waited = steady & ~transient
         self._curve(self.settle, (run.name, "steady"), pen=None, symbol="o", symbolSize=5,
-                    symbolBrush=pg.mkBrush(color), symbolPen=None).setData(f[steady], a["settle_periods"][steady])
+                    symbolBrush=pg.mkBrush(color), symbolPen=None).setData(f[waited], a["settle_periods"][waited])
+        self._curve(self.settle, (run.name, "transient"), pen=None, symbol="d", symbolSize=7,
+                    symbolBrush=None, symbolPen=pg.mkPen(color, width=1.2)).setData(
+            f[transient], a["settle_periods"][transient])
         self._curve(self.settle, (run.name, "limit"), pen=None, symbol="x", symbolSize=9,
                     symbolBrush=pg.mkBrush("#d62728"), symbolPen=pg.mkPen("#d62728")).setData(
             f[~steady], a["settle_periods"][~steady])
@@ -372,7 +388,7 @@ class AcquirePanel(QWidget):
         super().__init__(parent)
         self.lab = lab
         self._last_line_end = 0
-        self._last_line: tuple[float, float, bool] | None = None     # frequency, periods waited, steady
+        self._last_line = None                                       # the last LineMeasurement
         splitter = QSplitter(Qt.Orientation.Horizontal, self)
         outer = QHBoxLayout(self)
         outer.addWidget(splitter)
@@ -478,7 +494,7 @@ class AcquirePanel(QWidget):
 
     def _on_line(self, run: str, index: int, m, target: float) -> None:
         self._last_line_end = self.lab.feed.ring.end
-        self._last_line = (m.frequency, m.settle_periods, m.steady)
+        self._last_line = m
 
     def _on_progress(self, done: int, total: int, eta, run: str) -> None:
         """Lines done against lines planned; refinement near resonance may add lines beyond the plan."""
@@ -502,9 +518,7 @@ class AcquirePanel(QWidget):
         waiting = (ring.end - self._last_line_end) / ring.sample_rate
         text = f"waiting for steady state: {waiting:.1f} s of signal at this line"
         if self._last_line is not None:
-            f, periods, steady = self._last_line
-            text += (f"\nlast line {f:.4g} Hz: steady after {periods:.0f} periods" if steady else
-                     f"\nlast line {f:.4g} Hz: measured at the settling limit ({periods:.0f} periods)")
+            text += "\n" + _line_path(self._last_line)
         self.settle_label.setText(text)
 
     def _add_event(self, kind: str, message: str) -> None:

@@ -20,8 +20,17 @@ from .live import ALARM_COLOR, is_alarm
 from .plots import (LevelPalette, configure_plot, export_png, finite_log, random_pen, safe_file_name,
                     sensor_symbol)
 
-RUN_COLUMNS = ("Run", "Kind", "Force [N]", "Direction", "Status", "Lines")
+RUN_COLUMNS = ("Run", "Kind", "Force [N]", "Direction", "Status", "Lines", "From transient")
 FOLLOW_INTERVAL_MS = 1000
+
+
+def _from_transient(run) -> str:
+    """Lines of a stepped-sine run measured from their transient fits, of all ("—": none could be, method
+    "steady" or a random run)."""
+    transient = run.arrays.get("transient")
+    if transient is None or not np.any(transient):
+        return "—"
+    return f"{int(np.sum(transient))}/{len(transient)}"
 
 
 class SessionPanel(QWidget):
@@ -179,7 +188,8 @@ class SessionPanel(QWidget):
         for row, name in enumerate(names):
             run = session.run(name)
             status = run.status + (" (incomplete)" if run.incomplete else "")
-            cells = (name, run.kind, f"{run.force:g}", run.direction, status, str(len(run.frequency)))
+            cells = (name, run.kind, f"{run.force:g}", run.direction, status, str(len(run.frequency)),
+                     _from_transient(run))
             for col, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 if col == 4 and run.status != "complete":
