@@ -30,6 +30,7 @@ class AutoRules:
     pair_pool: int = 2               # the element's laws with the largest kbar evidence, each paired with every
                                      # other law of positive evidence
     unexplained_false_alarm: float = 1e-3   # of the test "the kbar is not explained by the element's laws"
+    partial_min_gain: float = 5.0    # error cut a law must reach alone when its element's kbar stays unexplained
     ranking: RankingRules = RankingRules()
 
 
@@ -86,6 +87,26 @@ def kbar_unexplained(report: ElementReport, false_alarm: float = 1e-3) -> bool:
     return report.samples is not None and unexplained(report.samples, report.fit, false_alarm) is not None
 
 
+def _hold_back_partial(wb: Workbench, candidates: list[Candidate], rules: AutoRules) -> None:
+    """Take significance away from a candidate after which its element's kbar is still clearly not explained
+    (:func:`analysis.unexplained.unexplained` on the element's laws with it) and that cuts the error less than
+    ``rules.partial_min_gain``: a law of the wrong kind can fit most of a kbar it does not describe (a constant
+    spring beside a stiffness growing with frequency) and still gain x1.5 in the FRFs, and a law that is only
+    part of the answer gains little alone. Then pairs are tried, and if none fits either the loop stops and says
+    the element is unexplained, rather than add the least bad law. ``held_back`` says why."""
+    for c in candidates:
+        if not c.significant or c.gain >= rules.partial_min_gain or c.fit is None:
+            continue
+        samples = wb.reports[c.element].samples
+        finding = unexplained(samples, c.fit, rules.unexplained_false_alarm) if samples is not None else None
+        if finding is not None:
+            c.significant = False
+            c.held_back = (f"with it '{c.element}' is still not explained ({finding.noise_ratio:.1f}x the noise: "
+                           f"{finding.trends.words()}) and it cuts the error less than the x"
+                           f"{rules.partial_min_gain:g} a law must reach alone then -- an effect outside the "
+                           f"library? (--add {c.element}:nonparametric)")
+
+
 def _pairs(ranked: list[Candidate], element: str, pool: int) -> list[tuple[str, str]]:
     """The ``pool`` laws of the element with the largest positive kbar evidence, each paired with every other
     law of positive evidence: of two effects of one joint the one in the larger part of kbar (Im, say) has the
@@ -105,7 +126,9 @@ def _best_pair(wb: Workbench, ranked: list[Candidate], rules: AutoRules) -> Cand
         if report is None or not kbar_unexplained(report, rules.unexplained_false_alarm):
             continue
         pairs = _pairs(ranked, el.name, rules.pair_pool)
-        found = [c for c in wb.pair_candidates(el.name, pairs, rules.ranking) if c.significant] if pairs else []
+        scored = wb.pair_candidates(el.name, pairs, rules.ranking) if pairs else []
+        _hold_back_partial(wb, scored, rules)
+        found = [c for c in scored if c.significant]
         if found and (best is None or found[0].bic < best.bic):
             best = found[0]
     return best
@@ -121,10 +144,10 @@ def _stop_reason(ranked: list[Candidate], pairs_tried: bool, min_gain: float) ->
     if not ranked:
         return "no candidate could be scored (no element has enough well-conditioned lines)"
     top = ranked[0]
-    why = top.model_form or ("its kbar evidence is not positive, or its element's laws already explain the "
-                             "kbar to within the noise" if not top.supported else
-                             "its FRF improvement is within the noise" if not top.above_noise else
-                             f"it cuts the error less than the x{min_gain:g} required")
+    why = top.model_form or top.held_back or (
+        "its kbar evidence is not positive, or its element's laws already explain the kbar to within the noise"
+        if not top.supported else "its FRF improvement is within the noise" if not top.above_noise else
+        f"it cuts the error less than the x{min_gain:g} required")
     pairs = "; no pair of laws on an unexplained element is significant either" if pairs_tried else ""
     return (f"nothing significant is left: the best candidate, {top.name}, gives {top.error:.3g} "
             f"({gain_phrase(top.gain)}), not significant because {why}{pairs}")
@@ -153,6 +176,7 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
                           "corrections are coupled, so they are applied together)"))
     for _ in range(rules.max_steps):
         ranked = wb.candidates(rules=rules.ranking)
+        _hold_back_partial(wb, ranked, rules)
         top = next((c for c in ranked if c.significant), None)
         pairs_tried = top is None and rules.pairs
         if pairs_tried:

@@ -124,6 +124,7 @@ class Candidate:
     laws: tuple[str, ...] = ()      # every law the candidate adds (a pair: two); () means (law,)
     multiharmonic_gain: float | None = None   # the gain with the harmonics represented (check_model_form)
     model_form: str = ""            # why the model-form check took significance away ("" if it did not)
+    held_back: str = ""             # why the automatic loop did not take it (analysis.auto; "" if it did)
 
     def __post_init__(self):
         self.laws = tuple(self.laws) or (self.law,)
@@ -143,7 +144,7 @@ class Candidate:
         return {"element": self.element, "law": self.law, "laws": list(self.laws), "error": self.error,
                 "gain": self.gain, "significant": self.significant, "kbar_evidence": self.evidence,
                 "supported": self.supported, "multiharmonic_gain": self.multiharmonic_gain,
-                "model_form": self.model_form, "explanation": self.explanation,
+                "model_form": self.model_form, "held_back": self.held_back, "explanation": self.explanation,
                 "params": {} if self.fit is None else
                 {k: v for t in self.fit.terms[-n:] for k, v in t.params.items()}}
 

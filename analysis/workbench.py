@@ -329,18 +329,31 @@ class Workbench:
 
     def linear_corrections(self, min_sigma: float = 5.0) -> list[str]:
         """Elements whose verdict is linear but whose kbar is a clear constant offset (more than ``min_sigma``
-        standard deviations from zero) and that have no laws yet: the reference is wrong there, and the offset
-        is a linear correction (the paper's k_w). Corrections of several elements are coupled -- a wrong
-        reference stiffness at one place is compensated elsewhere by the updating -- so they are applied
-        together, before laws are added one at a time."""
+        standard deviations from zero, and explained by the ``linear`` law: :meth:`_linear_law_explains`) and
+        that have no laws yet: the reference is wrong there, and the offset is a linear correction (the paper's
+        k_w). Corrections of several elements are coupled -- a wrong reference stiffness at one place is
+        compensated elsewhere by the updating -- so they are applied together, before laws are added one at a
+        time."""
         out = []
         for el in self.model.elements:
-            v = self.reports[el.name].verdict if el.name in self.reports else None
+            report = self.reports.get(el.name)
+            v = report.verdict if report is not None else None
             if v is None or not v.linear or el.laws:
                 continue
-            if abs(v.mean_kbar) > min_sigma * max(v.mean_kbar_std, 1e-300):
+            if abs(v.mean_kbar) > min_sigma * max(v.mean_kbar_std, 1e-300) and self._linear_law_explains(report):
                 out.append(el.name)
         return out
+
+    def _linear_law_explains(self, report: ElementReport) -> bool:
+        """Whether the ``linear`` law (k + j c w) fitted to the element's kbar leaves nothing the detector of
+        effects outside the library finds (:func:`analysis.unexplained.unexplained`). A linear verdict only says
+        kbar does not move with the amplitude: a kbar that moves with the frequency in another way (a stiffness
+        growing with w) is no constant offset, and the element is left to the ranking, where the linear law
+        competes with the laws that may explain it."""
+        s = report.samples
+        fit = fit_laws([LawTerm(get_law("linear"), {})], s.X, s.w, s.kbar, s.kbar_std,
+                       exclude_outliers=self._harmonics_blind())
+        return unexplained(s, fit) is None
 
     def apply_linear_corrections(self, names: list[str]) -> HistoryStep:
         """Add the ``linear`` law to each named element, refit them, record one history step."""

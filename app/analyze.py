@@ -215,8 +215,8 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
             mark = "significant" if c.significant else "not significant"
             out.append(f"  {c.name}  error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
             out.append(f"    {c.explanation}")
-            if c.model_form:
-                out.append(f"    not significant: {c.model_form}")
+            if c.model_form or c.held_back:
+                out.append(f"    not significant: {c.model_form or c.held_back}")
     return "\n".join(out)
 
 

@@ -8,11 +8,13 @@ import tomllib
 import numpy as np
 import pytest
 
+import analysis.auto as auto_module
 from analysis.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained, run_auto
-from analysis.diagnosis import RankingRules
+from analysis.diagnosis import Candidate, ElementSamples, RankingRules
+from analysis.linearity import linearity_verdict
 from analysis.measurements import Measurements, SineRun
 from analysis.model import load_model
-from analysis.workbench import Workbench
+from analysis.workbench import ElementReport, Workbench
 from test_hidden_effects import LUMPED, LUMPED_IO, LUMPED_PLAN, UNKNOWN_LUMPED, analyse, element
 
 # ---------------------------------------------------------------------------------------------------- RK4 rig
@@ -180,6 +182,57 @@ def test_no_law_is_supported_where_the_laws_already_explain_the_kbar_within_the_
     c = Candidate("a", "quintic", 0.1, 0.2, 0.0, True, "", evidence=50.0)
     assert _supported(c, 50.0, 0.1, False, RankingRules())
     assert not _supported(c, 50.0, 0.1, False, RankingRules(), explained=True)
+
+
+# ------------------------------------------------------------------- a kbar that no constant offset explains
+def kbar_workbench(kbar_of_w, rng):
+    """A workbench (not started: identification replaced by kbar samples of element 'a' at two force levels,
+    5..11 Hz, 1 % noise, with their linearity verdict) whose element 'a' has kbar = ``kbar_of_w(w)``."""
+    w = np.tile(2 * np.pi * np.arange(5.0, 11.01, 0.2), 2)
+    X = np.where(np.arange(len(w)) < len(w) // 2, 3e-4, 2e-3)
+    std = 0.01 * np.abs(kbar_of_w(w))
+    kbar = kbar_of_w(w) + std / np.sqrt(2) * (rng.normal(size=len(w)) + 1j * rng.normal(size=len(w)))
+    samples = ElementSamples("a", X, w, kbar, std, np.where(X < 1e-3, 0.5, 3.0))
+    lines = FREQS[:3]
+    H = np.linalg.solve(K - (2 * np.pi * lines[:, None, None]) ** 2 * M + 2j * np.pi * lines[:, None, None] * C,
+                        np.broadcast_to([0.0, 1.0], (3, 2))[..., None])[..., 0]
+    wb = Workbench(load_model(tomllib.loads(LUMPED + element("a", "x1", ""))),
+                   Measurements(sine=[SineRun("sine", 1.0, "up", "x2", ["x1", "x2"], lines, H, 1e-3 * np.abs(H))]))
+    wb.reports["a"] = ElementReport("a", samples, linearity_verdict(X, w, kbar, std, level=samples.level),
+                                    len(w), 0)
+    return wb
+
+
+def test_a_stiffness_growing_with_frequency_is_no_linear_correction():
+    # both kbar do not move with the amplitude (linear verdict) and sit far from zero; only the constant one is
+    # an offset of the reference the linear law corrects
+    rng = np.random.default_rng(3)
+    offset = kbar_workbench(lambda w: np.full(len(w), 220.0 + 3.0j), rng)
+    growing = kbar_workbench(lambda w: 4.0 * w + 0j, rng)
+    assert offset.reports["a"].verdict.linear and growing.reports["a"].verdict.linear
+    assert offset.linear_corrections() == ["a"]
+    assert growing.linear_corrections() == []
+
+
+def test_a_law_that_leaves_its_element_unexplained_must_gain_much_alone():
+    from analysis.auto import _hold_back_partial
+    from analysis.fit import fit_laws
+
+    wb = kbar_workbench(lambda w: 4.0 * w + 0j, np.random.default_rng(4))
+    s = wb.reports["a"].samples
+
+    def candidate(law, gain):
+        fit = fit_laws([law], s.X, s.w, s.kbar, s.kbar_std)
+        return Candidate("a", law, 1.0 / gain, 1.0, 0.0, True, "", evidence=1e6, supported=True, significant=True,
+                         fit=fit)
+
+    wrong, right, large = candidate("linear", 1.5), candidate("velocity_stiffness", 1.5), candidate("linear", 6.0)
+    _hold_back_partial(wb, [wrong, right, large], AutoRules())
+    assert not wrong.significant and "'a' is still not explained" in wrong.held_back
+    assert "Re rises with w" in wrong.held_back and "--add a:nonparametric" in wrong.held_back
+    assert right.significant and not right.held_back          # the right law explains the kbar
+    assert large.significant                                  # x6: more than part of the answer
+    assert wrong.held_back in auto_module._stop_reason([wrong], True, 1.3)
 
 
 @pytest.mark.slow
