@@ -208,13 +208,13 @@ def _block_mask(edges: np.ndarray) -> np.ndarray:
 
 
 # --- the element laws as arrays ---------------------------------------------------
-def _law_elements(elements: list[Element], model: LinearModel) -> np.ndarray:
-    """Indices of the elements with a law: an element without one (a place the analysis model names, where
-    the rig has nothing) adds no force and no small-amplitude stiffness, so it stays out of the solve."""
-    active = np.array([e for e, el in enumerate(elements) if el.laws], np.int64)
-    idle = np.setdiff1d(np.arange(len(elements)), active)
-    assert not np.any(model.k0[idle]) and not np.any(model.c0[idle]), "an element without laws has k0 or c0"
-    return active
+def _solved_elements(elements: list[Element]) -> np.ndarray:
+    """Indices of the elements the implicit solve needs: those with a law whose force is not exactly its
+    small-amplitude tangent. The others -- an element without laws (a place the analysis model names, where
+    the rig has nothing) or with springs and dampers only -- are wholly in the linear part (their ``k0`` and
+    ``c0``), so their residual force is zero and solving for it would only cost a Newton row per step."""
+    return np.array([e for e, el in enumerate(elements) if any(not term.law.tangent_exact for term in el.laws)],
+                    np.int64)
 
 
 @dataclass
@@ -304,7 +304,7 @@ class SimulatorState:
     z: np.ndarray
     g: np.ndarray
     g_prev: np.ndarray
-    law_states: np.ndarray
+    law_states: np.ndarray  # one row per law term of the elements in the implicit solve (_solved_elements)
     mode: np.ndarray
     sigma: np.ndarray
     fir_history: np.ndarray
@@ -414,7 +414,7 @@ class RigSimulator:
         self._drive_rng = np.random.default_rng(drive_seq)
 
         # the implicit solve and the state arrays below cover these elements only
-        self._active = _law_elements(rig.elements, self.model)
+        self._active = _solved_elements(rig.elements)
         self._terms = _law_terms([rig.elements[e] for e in self._active])
         t = self._terms
         self._laws = kernels.LawTable(t.force_address, t.limit_address, t.count, t.element, t.friction, t.P,
@@ -632,13 +632,19 @@ class RigSimulator:
         # the DAQ instants are the first internal step of every group: their channels are already computed
         element_force = f_daq
         if len(self._active) < len(self.rig.elements):
-            element_force = np.zeros((n, len(self.rig.elements)))
+            element_force = self._tangent_forces(z_daq)
             element_force[:, self._active] = f_daq
         truth = BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), element_force,
                            internal[::self.oversample].copy(), u[: 2 * n_steps: 2 * self.oversample],
                            self.model, self.rig.structure.dofs)
         self._samples += n
         return block, truth
+
+    def _tangent_forces(self, z: np.ndarray) -> np.ndarray:
+        """Force of every element as its small-amplitude tangent ``k0 x + c0 x'`` at the states ``z`` (rows): the
+        whole force of the elements outside the solve (:func:`_solved_elements`)."""
+        nq, m = self.model.n, self.model
+        return (z[:, :nq] @ m.element_vectors.T) * m.k0 + (z[:, nq:2 * nq] @ m.element_vectors.T) * m.c0
 
     def _sensors(self, clean: np.ndarray) -> np.ndarray:
         """Noise relative to each channel's running rms, then the ADC (range, resolution)."""
