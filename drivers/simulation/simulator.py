@@ -415,6 +415,9 @@ class RigSimulator:
 
         # the implicit solve and the state arrays below cover these elements only
         self._active = _solved_elements(rig.elements)
+        # the elements outside the solve with a force of their own (springs, dampers; not the empty ones)
+        self._springs = np.array([e for e in np.setdiff1d(np.arange(len(rig.elements)), self._active)
+                                  if self.model.k0[e] or self.model.c0[e]], np.int64)
         self._terms = _law_terms([rig.elements[e] for e in self._active])
         t = self._terms
         self._laws = kernels.LawTable(t.force_address, t.limit_address, t.count, t.element, t.friction, t.P,
@@ -632,19 +635,22 @@ class RigSimulator:
         # the DAQ instants are the first internal step of every group: their channels are already computed
         element_force = f_daq
         if len(self._active) < len(self.rig.elements):
-            element_force = self._tangent_forces(z_daq)
+            element_force = np.zeros((n, len(self.rig.elements)))
             element_force[:, self._active] = f_daq
+            if len(self._springs):
+                element_force[:, self._springs] = self._spring_forces(z_daq)
         truth = BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), element_force,
                            internal[::self.oversample].copy(), u[: 2 * n_steps: 2 * self.oversample],
                            self.model, self.rig.structure.dofs)
         self._samples += n
         return block, truth
 
-    def _tangent_forces(self, z: np.ndarray) -> np.ndarray:
-        """Force of every element as its small-amplitude tangent ``k0 x + c0 x'`` at the states ``z`` (rows): the
-        whole force of the elements outside the solve (:func:`_solved_elements`)."""
-        nq, m = self.model.n, self.model
-        return (z[:, :nq] @ m.element_vectors.T) * m.k0 + (z[:, nq:2 * nq] @ m.element_vectors.T) * m.c0
+    def _spring_forces(self, z: np.ndarray) -> np.ndarray:
+        """Force ``k0 x + c0 x'`` of the spring and damper elements outside the solve at the states ``z`` (rows):
+        their whole force."""
+        nq, m, e = self.model.n, self.model, self._springs
+        vectors = m.element_vectors[e]
+        return (z[:, :nq] @ vectors.T) * m.k0[e] + (z[:, nq:2 * nq] @ vectors.T) * m.c0[e]
 
     def _sensors(self, clean: np.ndarray) -> np.ndarray:
         """Noise relative to each channel's running rms, then the ADC (range, resolution)."""
