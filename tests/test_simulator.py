@@ -808,7 +808,7 @@ sample_rate = 512.0
                                atol=1e-12 * np.abs(k * x2 + c * v2).max())
 
 
-@pytest.mark.parametrize("n", [1, 2, 300, 511, 512, 513, 2 * 8192 + 1])
+@pytest.mark.parametrize("n", [1, 2, 300, 2047, 2048, 2049, 2 * 8192 + 1])
 @pytest.mark.parametrize("phase", [0.0, 2.5, 6.2])
 def test_the_drive_sine_equals_numpys_to_round_off(n, phase):
     """The generator's sine by angle addition over rows (long records) or directly (short ones) is np.sin of

@@ -64,6 +64,10 @@ turning point by less than the gap. The oldest point (on the virgin curve) is ne
 moved. Below 64 nested reversals the force is exact at every sample point (the update is
 exact along any monotone path between two calls); the velocity argument is not used
 (rate independent).
+
+The kernel takes phi_max, ``chi + 1`` and ``1 / ((1 + beta)(chi + 2))`` from the parameter vector
+(``Iwan.kernel_constants``, computed once) and the power ``(u / phi_max)^(chi+1)`` by a square root
+or products where chi is -1/2, 0, 1/2 or 1: it runs twice per step of a simulation.
 """
 from __future__ import annotations
 

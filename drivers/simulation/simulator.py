@@ -418,6 +418,10 @@ class RigSimulator:
         # the elements outside the solve with a force of their own (springs, dampers; not the empty ones)
         self._springs = np.array([e for e in np.setdiff1d(np.arange(len(rig.elements)), self._active)
                                   if self.model.k0[e] or self.model.c0[e]], np.int64)
+        # ... their whole force k0 x + c0 x' from the state [q, q']
+        vectors = self.model.element_vectors[self._springs]
+        self._spring_rows = np.vstack([vectors.T * self.model.k0[self._springs],
+                                       vectors.T * self.model.c0[self._springs]])
         self._terms = _law_terms([rig.elements[e] for e in self._active])
         t = self._terms
         self._laws = kernels.LawTable(t.force_address, t.limit_address, t.count, t.element, t.friction, t.P,
@@ -638,19 +642,12 @@ class RigSimulator:
             element_force = np.zeros((n, len(self.rig.elements)))
             element_force[:, self._active] = f_daq
             if len(self._springs):
-                element_force[:, self._springs] = self._spring_forces(z_daq)
+                element_force[:, self._springs] = z_daq[:, :2 * nq] @ self._spring_rows
         truth = BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), element_force,
                            internal[::self.oversample].copy(), u[: 2 * n_steps: 2 * self.oversample],
                            self.model, self.rig.structure.dofs)
         self._samples += n
         return block, truth
-
-    def _spring_forces(self, z: np.ndarray) -> np.ndarray:
-        """Force ``k0 x + c0 x'`` of the spring and damper elements outside the solve at the states ``z`` (rows):
-        their whole force."""
-        nq, m, e = self.model.n, self.model, self._springs
-        vectors = m.element_vectors[e]
-        return (z[:, :nq] @ vectors.T) * m.k0[e] + (z[:, nq:2 * nq] @ vectors.T) * m.c0[e]
 
     def _sensors(self, clean: np.ndarray) -> np.ndarray:
         """Noise relative to each channel's running rms, then the ADC (range, resolution)."""
@@ -728,7 +725,7 @@ class RigSimulator:
 
 # samples per row of :func:`_sine_samples`, and the fewest rows worth the angle-addition formula
 _SINE_ROW = 128
-_SINE_MIN_ROWS = 4
+_SINE_MIN_ROWS = 16  # below about 2000 samples np.sin is as fast
 
 
 def _sine_samples(phase: float, omega: float, tau: np.ndarray, spacing: float) -> np.ndarray:
