@@ -122,7 +122,7 @@ def _power(y, exponent):
 
 @njit(cache=True)
 def _backbone(u, c):
-    """Virgin loading force at displacement u >= 0; ``c`` the kernel constants (:data:`_CONSTANTS`)."""
+    """Virgin loading force at displacement u >= 0; ``c`` the kernel constants (:class:`_Constants`)."""
     if u >= c.phi_max:
         return c.fs
     return c.kt * u * (1.0 - _power(u / c.phi_max, c.exponent) * c.curvature)

@@ -217,6 +217,15 @@ def _solved_elements(elements: list[Element]) -> np.ndarray:
                     np.int64)
 
 
+def _springs(model: LinearModel, solved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The elements outside the solve with a force of their own (springs and dampers, not the empty ones),
+    and the matrix that gives their whole force ``k0 x + c0 x'`` from the state rows ``[q, q']``."""
+    outside = np.setdiff1d(np.arange(len(model.k0)), solved)
+    springs = outside[(model.k0[outside] != 0.0) | (model.c0[outside] != 0.0)].astype(np.int64)
+    vectors = model.element_vectors[springs]
+    return springs, np.vstack([vectors.T * model.k0[springs], vectors.T * model.c0[springs]])
+
+
 @dataclass
 class _Terms:
     """The law terms of all elements as the arrays the integration kernel takes."""
@@ -415,13 +424,7 @@ class RigSimulator:
 
         # the implicit solve and the state arrays below cover these elements only
         self._active = _solved_elements(rig.elements)
-        # the elements outside the solve with a force of their own (springs, dampers; not the empty ones)
-        self._springs = np.array([e for e in np.setdiff1d(np.arange(len(rig.elements)), self._active)
-                                  if self.model.k0[e] or self.model.c0[e]], np.int64)
-        # ... their whole force k0 x + c0 x' from the state [q, q']
-        vectors = self.model.element_vectors[self._springs]
-        self._spring_rows = np.vstack([vectors.T * self.model.k0[self._springs],
-                                       vectors.T * self.model.c0[self._springs]])
+        self._springs, self._spring_rows = _springs(self.model, self._active)
         self._terms = _law_terms([rig.elements[e] for e in self._active])
         t = self._terms
         self._laws = kernels.LawTable(t.force_address, t.limit_address, t.count, t.element, t.friction, t.P,
