@@ -401,9 +401,10 @@ def test_iwan_force_stays_continuous_when_its_reversal_memory_overflows(kind, ch
     assert iwan_lipschitz_excess(state, values, 1.1 * np.max(np.abs(turning))) <= 1e-6
 
 
-def test_iwan_virgin_loading_is_the_population_backbone():
+@pytest.mark.parametrize("chi", [-0.3, -0.5, 0.0, 0.5, 1.0])  # a general power, and the kernel's square roots
+def test_iwan_virgin_loading_is_the_population_backbone(chi):
     """F(u) = int_0^u rho phi dphi + u int_u^phi_max rho dphi + S min(u, phi_max), by quadrature."""
-    kt, fs, chi, beta = 1.0e5, 10.0, -0.3, 0.4
+    kt, fs, beta = 1.0e5, 10.0, 0.4
     phi = slip_range(fs / kt, chi, beta)
     R = kt * (chi + 1) / ((1 + beta) * phi ** (chi + 1))
     S = beta * kt / (1 + beta)

@@ -14,7 +14,7 @@ from analysis.structures import Structure
 from drivers.simulation import kernels
 from drivers.simulation.rig import load_rig, parse_rig
 from drivers.simulation import simulator
-from drivers.simulation.simulator import RigSimulator, SimulationError, _anti_alias_taps
+from drivers.simulation.simulator import RigSimulator, SimulationError, _anti_alias_taps, _sine_samples
 from test_laws import iwan_lipschitz_excess
 
 TWO_PI = 2 * math.pi
@@ -404,7 +404,7 @@ def test_paper_beam_random_drive_then_low_level_sine_steps():
         sim.set_sine(frequency, 0.04)
         sim.advance(2048)
     values = dict(sim.rig.elements[1].laws[0].values)
-    state, reach = _iwan_memory(sim, 1)
+    state, reach = _iwan_memory(sim, 0)  # the linear normal element is wholly in the linear part: no law state
     assert state[0] >= 32  # the memory is still well filled: many remembered points to cross
     assert iwan_lipschitz_excess(state, values, reach) <= 1e-6
 
@@ -762,3 +762,59 @@ laws = [ { law = "coulomb", fs = 0.08 }, { law = "cubic", k3 = 2.0e5 } ]
     assert with_idle.element_force.shape[1] == 2 and not np.any(with_idle.element_force[:, 1])
     assert states["b"]["mode"] == "free" and states["a"]["mode"] == alone_states["a"]["mode"]
     assert states["b"]["displacement"] == pytest.approx(x2, rel=1e-12)
+
+
+def test_a_spring_and_damper_element_stays_out_of_the_solve_and_reports_its_force():
+    """A linear element is wholly in the linear part: the rig moves as the same rig with the spring and damper
+    written into its structure matrices, and the element's force is k x + c x' of its own motion."""
+    k, c = 700.0, 0.9
+
+    def rig(stiffness, damping, element):
+        return parse_rig(f"""name = "spring"
+[structure]
+type = "lumped"
+dofs = ["x1", "x2"]
+mass = [[1.0, 0.0], [0.0, 1.0]]
+stiffness = {stiffness}
+damping = {damping}
+[[element]]
+name = "a"
+dof = "x1"
+laws = [ {{ law = "cubic", k3 = 2.0e5 }} ]
+{element}[excitation]
+dof = "x2"
+[sensors]
+dofs = ["x1", "x2"]
+[daq]
+sample_rate = 512.0
+""", "spring.toml")
+
+    spring = f'[[element]]\nname = "b"\ndof = "x2"\nlaws = [ {{ law = "linear", k = {k}, c = {c} }} ]\n'
+    runs = []
+    for text in (rig([[3000.0, -1000.0], [-1000.0, 2000.0]], [[0.6, -0.1], [-0.1, 0.4]], spring),
+                 rig([[3000.0, -1000.0], [-1000.0, 2000.0 + k]], [[0.6, -0.1], [-0.1, 0.4 + c]], "")):
+        sim = RigSimulator(text)
+        sim.set_sine(6.0, 3.0)
+        sim.set_output(True)
+        sim.advance(1024)
+        runs.append((sim, sim.truth))
+    (with_spring, truth), (_, reference) = runs
+    assert len(with_spring.state_snapshot().g) == 1  # only the cubic is solved for
+    np.testing.assert_allclose(truth.q, reference.q, rtol=0, atol=1e-10 * np.abs(reference.q).max())
+    np.testing.assert_allclose(truth.element_force[:, 0], reference.element_force[:, 0], rtol=0,
+                               atol=1e-10 * np.abs(reference.element_force[:, 0]).max())
+    x2, v2 = truth.displacement("x2"), truth.velocity("x2")
+    np.testing.assert_allclose(truth.element_force[:, 1], k * x2 + c * v2, rtol=0,
+                               atol=1e-12 * np.abs(k * x2 + c * v2).max())
+
+
+@pytest.mark.parametrize("n", [1, 2, 300, 2047, 2048, 2049, 2 * 8192 + 1])
+@pytest.mark.parametrize("phase", [0.0, 2.5, 6.2])
+def test_the_drive_sine_equals_numpys_to_round_off(n, phase):
+    """The generator's sine by angle addition over rows (long records) or directly (short ones) is np.sin of
+    the same arguments to a few units in the last place of the largest argument."""
+    omega, spacing = 2 * np.pi * 53.0, 0.5 / 8192
+    tau = np.arange(n) * spacing
+    argument = phase + omega * tau
+    difference = np.abs(_sine_samples(phase, omega, tau, spacing) - np.sin(argument)).max()
+    assert difference <= 4 * np.spacing(np.abs(argument).max())

@@ -16,7 +16,9 @@ displacement ``xs = fs / kt`` (shape). ``to_fit`` / ``from_fit`` convert.
 
 The time-domain force is a numba kernel ``kernel(x, v, p, s) -> f``: ``x`` and
 ``v`` the element displacement and velocity, ``p`` the contract parameters in the
-order of ``params``, ``s`` the law's state (updated in place). For rate-independent
+order of ``params`` followed by the constants the law derives from them
+(``kernel_constants``; ``parameter_vector`` builds the whole), ``s`` the law's state
+(updated in place). For rate-independent
 hysteretic laws the update is exact along any monotone path between two calls, so
 a marched force is exact at the sample points. Laws with a jump in the velocity
 sign (dry friction) also provide ``stick_limit(x, p)``: the largest force the
@@ -139,6 +141,9 @@ class Law(ABC):
     explanation: ClassVar[str]
     # False where kbar is a constant the linear law already reproduces (only harmonics reveal the law)
     visible_in_kbar: ClassVar[bool] = True
+    # True where the force is its small-amplitude tangent k0 x + c0 x' at every amplitude and state (a spring
+    # and damper): a time integrator that moves k0 and c0 into its linear part has nothing left to solve for
+    tangent_exact: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs):
         # A jitted function stored on a class binds like a method; keep the numba
@@ -291,8 +296,16 @@ class Law(ABC):
 
     # --- time domain ---------------------------------------------------------
     def parameter_vector(self, **params) -> np.ndarray:
+        """What the kernel takes as ``p``: the contract parameters in the order of ``params``, then the
+        law's :meth:`kernel_constants`."""
         values = self.check_params(params, complete=True)
-        return np.array([values[p.name] for p in self.params], float)
+        contract = [values[p.name] for p in self.params]
+        return np.array(contract + list(self.kernel_constants(*contract)), float)
+
+    def kernel_constants(self, *contract: float) -> tuple[float, ...]:
+        """Constants the kernel derives from the contract parameters, computed once per parameter vector
+        instead of at every call (none by default)."""
+        return ()
 
     def initial_state(self, p: np.ndarray) -> np.ndarray:
         """State at rest (x = 0, never moved)."""

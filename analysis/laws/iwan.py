@@ -64,10 +64,15 @@ turning point by less than the gap. The oldest point (on the virgin curve) is ne
 moved. Below 64 nested reversals the force is exact at every sample point (the update is
 exact along any monotone path between two calls); the velocity argument is not used
 (rate independent).
+
+The kernel takes phi_max, ``chi + 1`` and ``1 / ((1 + beta)(chi + 2))`` from the parameter vector
+(``Iwan.kernel_constants``, computed once) and the power ``(u / phi_max)^(chi+1)`` by a square root
+or products where chi is -1/2, 0, 1/2 or 1: it runs twice per step of a simulation.
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -81,6 +86,17 @@ MAX_REVERSALS = 64
 _HEADER = 4  # n, direction, previous x, previous force
 # bisection steps placing a merged turning point (each halves the bracket; it stops early at adjacent doubles)
 _BISECTIONS = 100
+_N_CONTRACT = 4  # kt, fs, chi, beta; the kernel constants follow them in the parameter vector
+
+
+class _Constants(NamedTuple):
+    """What the kernel needs of the parameters, derived once (:meth:`Iwan.kernel_constants`)."""
+
+    kt: float
+    fs: float
+    phi_max: float     # slip range
+    exponent: float    # chi + 1
+    curvature: float   # 1 / ((1 + beta) (chi + 2)): the backbone is kt u (1 - curvature (u / phi_max)^exponent)
 
 
 @njit(cache=True)
@@ -90,28 +106,43 @@ def slip_range(xs, chi, beta):
 
 
 @njit(cache=True)
-def _backbone(u, kt, fs, chi, beta, phi_max):
-    """Virgin loading force at displacement u >= 0."""
-    if u >= phi_max:
-        return fs
-    return kt * u * (1.0 - (u / phi_max) ** (chi + 1.0) / ((1.0 + beta) * (chi + 2.0)))
+def _power(y, exponent):
+    """y ** exponent, by a square root or products for the exponents of chi = -1/2, 0, 1/2, 1 (a general power
+    costs several times a square root, and the kernel takes one per call)."""
+    if exponent == 0.5:
+        return math.sqrt(y)
+    if exponent == 1.0:
+        return y
+    if exponent == 1.5:
+        return y * math.sqrt(y)
+    if exponent == 2.0:
+        return y * y
+    return y ** exponent
 
 
 @njit(cache=True)
-def _virgin(x, kt, fs, chi, beta, phi_max):
+def _backbone(u, c):
+    """Virgin loading force at displacement u >= 0; ``c`` the kernel constants (:class:`_Constants`)."""
+    if u >= c.phi_max:
+        return c.fs
+    return c.kt * u * (1.0 - _power(u / c.phi_max, c.exponent) * c.curvature)
+
+
+@njit(cache=True)
+def _virgin(x, c):
     """Force at x on the virgin curve (the backbone, odd in x)."""
-    f = _backbone(abs(x), kt, fs, chi, beta, phi_max)
+    f = _backbone(abs(x), c)
     return -f if x < 0.0 else f
 
 
 @njit(cache=True)
-def _branch(x, x_r, f_r, direction, kt, fs, chi, beta, phi_max):
+def _branch(x, x_r, f_r, direction, c):
     """Force at x on the Masing branch leaving the reversal point (x_r, f_r) in ``direction``."""
-    return f_r + 2.0 * direction * _backbone(0.5 * direction * (x - x_r), kt, fs, chi, beta, phi_max)
+    return f_r + 2.0 * direction * _backbone(0.5 * direction * (x - x_r), c)
 
 
 @njit(cache=True)
-def _merge_one_loop(s, n, kt, fs, chi, beta, phi_max):
+def _merge_one_loop(s, n, c):
     """Merge away the smallest remembered loop (module docstring); return the new count.
 
     Over the reversal points ``x_0 .. x_(n-1)`` (n >= 5), ``j`` runs over ``2 .. n-3``;
@@ -134,8 +165,8 @@ def _merge_one_loop(s, n, kt, fs, chi, beta, phi_max):
     outer_direction = 1.0 if upper > x_outer else -1.0  # the branch leaving x' runs the other way
 
     def mismatch(x_turn):
-        f_turn = _branch(x_turn, x_outer, f_outer, outer_direction, kt, fs, chi, beta, phi_max)
-        return _branch(x_next, x_turn, f_turn, -outer_direction, kt, fs, chi, beta, phi_max) - f_next
+        f_turn = _branch(x_turn, x_outer, f_outer, outer_direction, c)
+        return _branch(x_next, x_turn, f_turn, -outer_direction, c) - f_next
 
     m_lower, m_upper = mismatch(lower), mismatch(upper)
     # bisect while the ends bracket the root; without a sign change the root is at an end (it is there
@@ -151,7 +182,7 @@ def _merge_one_loop(s, n, kt, fs, chi, beta, phi_max):
             upper, m_upper = middle, m_middle
     x_turn = lower if abs(m_lower) < abs(m_upper) else upper
     s[_HEADER + 2 * (j - 1)] = x_turn
-    s[_HEADER + 2 * (j - 1) + 1] = _branch(x_turn, x_outer, f_outer, outer_direction, kt, fs, chi, beta, phi_max)
+    s[_HEADER + 2 * (j - 1) + 1] = _branch(x_turn, x_outer, f_outer, outer_direction, c)
     for k in range(j, n - 2):
         s[_HEADER + 2 * k] = s[_HEADER + 2 * (k + 2)]
         s[_HEADER + 2 * k + 1] = s[_HEADER + 2 * (k + 2) + 1]
@@ -160,11 +191,10 @@ def _merge_one_loop(s, n, kt, fs, chi, beta, phi_max):
 
 @njit(cache=True)
 def iwan_force(x, v, p, s):
-    kt, fs, chi, beta = p[0], p[1], p[2], p[3]
     x_last, f_last = s[2], s[3]
     if x == x_last:
         return f_last
-    phi_max = slip_range(fs / kt, chi, beta)
+    c = _Constants(p[0], p[1], p[_N_CONTRACT], p[_N_CONTRACT + 1], p[_N_CONTRACT + 2])
     n = int(s[0])
     direction = 1.0 if x > x_last else -1.0
     if s[1] != 0.0 and direction != s[1]:
@@ -173,7 +203,7 @@ def iwan_force(x, v, p, s):
         s[_HEADER + 2 * n + 1] = f_last
         n += 1
         if n > MAX_REVERSALS:
-            n = _merge_one_loop(s, n, kt, fs, chi, beta, phi_max)
+            n = _merge_one_loop(s, n, c)
     # Madelung memory: close every loop whose starting point the path has passed
     while n > 0:
         x_r = s[_HEADER + 2 * (n - 1)]
@@ -182,10 +212,9 @@ def iwan_force(x, v, p, s):
             break
         n = n - 2 if n >= 2 else 0
     if n == 0:
-        f = _virgin(x, kt, fs, chi, beta, phi_max)
+        f = _virgin(x, c)
     else:
-        f = _branch(x, s[_HEADER + 2 * (n - 1)], s[_HEADER + 2 * (n - 1) + 1], direction, kt, fs, chi, beta,
-                    phi_max)
+        f = _branch(x, s[_HEADER + 2 * (n - 1)], s[_HEADER + 2 * (n - 1) + 1], direction, c)
     s[0] = n
     s[1] = direction
     s[2] = x
@@ -252,6 +281,9 @@ class Iwan(Law):
     example = {"kt": 1.0e5, "fs": 10.0, "chi": -0.5, "beta": 0.1}
     example_amplitude = (1e-6, 1e-2)
     kernel = iwan_force
+
+    def kernel_constants(self, kt, fs, chi, beta):
+        return slip_range(fs / kt, chi, beta), chi + 1.0, 1.0 / ((1.0 + beta) * (chi + 2.0))
 
     def to_fit(self, values):
         return ({"kt": values["kt"]},

@@ -22,6 +22,7 @@ class Linear(Law):
     linear = ("k", "c")
     example = {"k": 1.0e4, "c": 5.0}
     amplitude_dependent = False
+    tangent_exact = True
     kernel = linear_force
 
     def basis(self, X, w):

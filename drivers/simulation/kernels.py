@@ -119,8 +119,8 @@ class Scratch(NamedTuple):
     g_new: np.ndarray     # (r,) step-end residual forces being solved for
     work: np.ndarray      # (11, r) rows of Newton work vectors
     J: np.ndarray         # (r, r) factorised copy of the Jacobian
-    S_trial: np.ndarray   # law states of the accepted iterate
-    S_probe: np.ndarray   # law states of a trial iterate
+    S_trial: np.ndarray   # law states of the iterate
+    S_probe: np.ndarray   # law states of the Jacobian's probes and the bracketed fallback's evaluations
 
 
 def law_callbacks(law) -> tuple:
@@ -386,7 +386,10 @@ def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, wo
             for e in range(r):
                 g_trial[e] = g[e] + lam * step[e]
             _element_motion(y_free, D, g_trial, r, x_probe, v_probe)
-            _element_forces(laws, S, S_probe, x_probe, v_probe, mode, sigma, F_probe)
+            # the trial's law states go straight to S_trial: only an accepted iterate's are read after this
+            # (a rejected trial is followed by another trial, or the iteration fails), and copying an iwan's
+            # memory costs more than the law itself
+            _element_forces(laws, S, S_trial, x_probe, v_probe, mode, sigma, F_probe)
             trial = _residual(g_trial, x_probe, v_probe, F_probe, k0, c0, mode, y_free, D, r, res_trial)
             if trial < worst or trial <= 1.0:
                 accepted = True
@@ -409,9 +412,6 @@ def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, wo
             v[e] = v_probe[e]
             F[e] = F_probe[e]
             res[e] = res_trial[e]
-        for k in range(laws.count):
-            for j in range(laws.n_state[k]):
-                S_trial[k, j] = S_probe[k, j]
     return -1 if worst > 1.0 else _MAX_NEWTON
 
 

@@ -208,13 +208,22 @@ def _block_mask(edges: np.ndarray) -> np.ndarray:
 
 
 # --- the element laws as arrays ---------------------------------------------------
-def _law_elements(elements: list[Element], model: LinearModel) -> np.ndarray:
-    """Indices of the elements with a law: an element without one (a place the analysis model names, where
-    the rig has nothing) adds no force and no small-amplitude stiffness, so it stays out of the solve."""
-    active = np.array([e for e, el in enumerate(elements) if el.laws], np.int64)
-    idle = np.setdiff1d(np.arange(len(elements)), active)
-    assert not np.any(model.k0[idle]) and not np.any(model.c0[idle]), "an element without laws has k0 or c0"
-    return active
+def _solved_elements(elements: list[Element]) -> np.ndarray:
+    """Indices of the elements the implicit solve needs: those with a law whose force is not exactly its
+    small-amplitude tangent. The others -- an element without laws (a place the analysis model names, where
+    the rig has nothing) or with springs and dampers only -- are wholly in the linear part (their ``k0`` and
+    ``c0``), so their residual force is zero and solving for it would only cost a Newton row per step."""
+    return np.array([e for e, el in enumerate(elements) if any(not term.law.tangent_exact for term in el.laws)],
+                    np.int64)
+
+
+def _springs(model: LinearModel, solved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The elements outside the solve with a force of their own (springs and dampers, not the empty ones),
+    and the matrix that gives their whole force ``k0 x + c0 x'`` from the state rows ``[q, q']``."""
+    outside = np.setdiff1d(np.arange(len(model.k0)), solved)
+    springs = outside[(model.k0[outside] != 0.0) | (model.c0[outside] != 0.0)].astype(np.int64)
+    vectors = model.element_vectors[springs]
+    return springs, np.vstack([vectors.T * model.k0[springs], vectors.T * model.c0[springs]])
 
 
 @dataclass
@@ -304,7 +313,7 @@ class SimulatorState:
     z: np.ndarray
     g: np.ndarray
     g_prev: np.ndarray
-    law_states: np.ndarray
+    law_states: np.ndarray  # one row per law term of the elements in the implicit solve (_solved_elements)
     mode: np.ndarray
     sigma: np.ndarray
     fir_history: np.ndarray
@@ -414,7 +423,8 @@ class RigSimulator:
         self._drive_rng = np.random.default_rng(drive_seq)
 
         # the implicit solve and the state arrays below cover these elements only
-        self._active = _law_elements(rig.elements, self.model)
+        self._active = _solved_elements(rig.elements)
+        self._springs, self._spring_rows = _springs(self.model, self._active)
         self._terms = _law_terms([rig.elements[e] for e in self._active])
         t = self._terms
         self._laws = kernels.LawTable(t.force_address, t.limit_address, t.count, t.element, t.friction, t.P,
@@ -544,7 +554,7 @@ class RigSimulator:
         tau = np.arange(2 * n_steps + 1) * (0.5 * self.step)
         if not self._output_on:
             return np.zeros(tau.shape)
-        u = self._sine.values(tau) * np.sin(self._phase + 2 * np.pi * self._frequency * tau)
+        u = self._sine.values(tau) * _sine_samples(self._phase, 2 * np.pi * self._frequency, tau, 0.5 * self.step)
         for source in self._noise_sources:
             white = self._drive_rng.standard_normal(2 * n_steps)
             filtered, source.zi = scipy.signal.sosfilt(source.sos, white, zi=source.zi)
@@ -634,6 +644,8 @@ class RigSimulator:
         if len(self._active) < len(self.rig.elements):
             element_force = np.zeros((n, len(self.rig.elements)))
             element_force[:, self._active] = f_daq
+            if len(self._springs):
+                element_force[:, self._springs] = z_daq[:, :2 * nq] @ self._spring_rows
         truth = BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), element_force,
                            internal[::self.oversample].copy(), u[: 2 * n_steps: 2 * self.oversample],
                            self.model, self.rig.structure.dofs)
@@ -712,6 +724,29 @@ class RigSimulator:
         self._noise_rng.bit_generator.state, self._drive_rng.bit_generator.state = gen["rng"]
         self._output_on = state.output_on
         self.clip_counts[:] = state.clip_counts
+
+
+# samples per row of :func:`_sine_samples`, and the fewest rows worth the angle-addition formula
+_SINE_ROW = 128
+_SINE_MIN_ROWS = 16  # below about 2000 samples np.sin is as fast
+
+
+def _sine_samples(phase: float, omega: float, tau: np.ndarray, spacing: float) -> np.ndarray:
+    """``sin(phase + omega tau)`` at the instants ``tau = k spacing``, ``k = 0, 1, ...``, to round-off.
+
+    A long record goes by the angle-addition formula over rows of ``_SINE_ROW`` samples: the sines and
+    cosines of the row starts and of the offsets within a row, about ``2 sqrt(n)`` of each, instead of a
+    sine per sample (np.sin took 27 ns a sample, half the cost of a one-second block outside the
+    integration loop); a short one, whose handful of array operations would cost more, directly.
+    """
+    n = tau.shape[0]
+    rows = -(-n // _SINE_ROW)
+    if rows < _SINE_MIN_ROWS:
+        return np.sin(phase + omega * tau)
+    start = phase + omega * spacing * _SINE_ROW * np.arange(rows)
+    offset = omega * spacing * np.arange(_SINE_ROW)
+    grid = np.sin(start)[:, None] * np.cos(offset) + np.cos(start)[:, None] * np.sin(offset)
+    return grid.ravel()[:n]
 
 
 def _layout(arrays) -> tuple:
