@@ -573,13 +573,14 @@ def element_force_history(element: Element, y: np.ndarray, v: np.ndarray) -> np.
 class _AFT:
     """Alternating frequency-time evaluation of the elements' forces for harmonics 0..H: the laws' time-domain
     kernels are marched over two periods of the trial motion (so hysteretic laws start their second cycle on
-    the closed loop) and the second period is transformed."""
+    the closed loop) and the second period is transformed, with each force jump at a velocity reversal placed
+    where the reversal is (:func:`_reversal_correction`)."""
 
     def __init__(self, elements: Sequence[Element], n_harmonics: int, n_time: int):
         self.elements, self.n_time = elements, n_time
-        theta = 2 * np.pi * np.arange(n_time) / n_time
+        self.theta = 2 * np.pi * np.arange(n_time) / n_time
         self.k = np.arange(n_harmonics + 1)
-        self.S, self.C = np.sin(np.outer(theta, self.k)), np.cos(np.outer(theta, self.k))
+        self.S, self.C = np.sin(np.outer(self.theta, self.k)), np.cos(np.outer(self.theta, self.k))
 
     def forces(self, Yk: np.ndarray, w: float) -> np.ndarray:
         """Element force phasors (H+1, r) of the motion with element phasors ``Yk`` (H+1, r) at w."""
@@ -591,7 +592,37 @@ class _AFT:
             f[:, i] = element_force_history(el, np.tile(y_t[:, i], 2), np.tile(v_t[:, i], 2))[n:]
         Fk = 2.0 / n * (S.T @ f + 1j * (C.T @ f))
         Fk[0] = f.mean(axis=0)
-        return Fk
+        return Fk + _reversal_correction(f, v_t, self.theta, k)
+
+
+def _reversal_correction(f: np.ndarray, v: np.ndarray, theta: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """What moving each force jump at a velocity reversal from the middle of its sampling interval (where the
+    sum over the samples puts it) to the reversal itself adds to the force phasors (H+1, r).
+
+    A friction force jumps where the velocity changes sign. The plain sum over ``n`` samples places the jump
+    on the sampling grid, so the phasors move in steps of about ``jump / n`` as the reversal crosses a sample:
+    the balance residual is discontinuous, and Newton stalls at that size without a root (the 2-DOF
+    Anderson-Ferri rig: residuals of 1e-4 to 3e-3 at half its lines, 7 harmonics, 512 points). The reversal
+    lies at the fraction ``s = v_m / (v_m - v_{m+1})`` of its interval (linear interpolation); the jump is the
+    change of force across the interval less the mean change across its neighbours (a smooth force's change,
+    so that smooth laws are left as they are to O(1/n^2)); the jump held over ``(1/2 - s)`` of the interval
+    adds ``(2/n) jump (1/2 - s) (sin k theta + j cos k theta)`` at its middle (half that for the mean). The
+    phasors are then continuous in the motion to O(1/n^2)."""
+    n = len(theta)
+    after = np.roll(v, -1, axis=0)
+    m, col = np.nonzero(v * after < 0)                      # interval m: samples m and m + 1 (periodic)
+    out = np.zeros((len(k), f.shape[1]), complex)
+    if not len(m):
+        return out
+    s = v[m, col] / (v[m, col] - after[m, col])
+    df = np.roll(f, -1, axis=0) - f                          # change across interval m
+    jump = df[m, col] - 0.5 * (df[(m - 1) % n, col] + df[(m + 1) % n, col])
+    mid = theta[m] + np.pi / n
+    held = jump * (0.5 - s) / n
+    phasor = 2 * held[:, None] * (np.sin(np.outer(mid, k)) + 1j * np.cos(np.outer(mid, k)))
+    phasor[:, 0] = held
+    np.add.at(out.T, col, phasor)                            # the jumps of each element summed
+    return out
 
 
 def single_harmonic_distortion(structure: Structure, elements: Sequence[Element], excitation_dof: str, w,
