@@ -570,6 +570,11 @@ def element_force_history(element: Element, y: np.ndarray, v: np.ndarray) -> np.
     return total
 
 
+#: A force change across the sampling interval of a velocity reversal counts as a jump (friction) when, less the
+#: neighbours' mean change, it exceeds this many times the neighbours' changes (a step: O(n) times larger).
+JUMP_RATIO = 2.0
+
+
 class _AFT:
     """Alternating frequency-time evaluation of the elements' forces for harmonics 0..H: the laws' time-domain
     kernels are marched over two periods of the trial motion (so hysteretic laws start their second cycle on
@@ -607,16 +612,21 @@ def _reversal_correction(f: np.ndarray, v: np.ndarray, theta: np.ndarray, k: np.
     change of force across the interval less the mean change across its neighbours (a smooth force's change,
     so that smooth laws are left as they are to O(1/n^2)); the jump held over ``(1/2 - s)`` of the interval
     adds ``(2/n) jump (1/2 - s) (sin k theta + j cos k theta)`` at its middle (half that for the mean). The
-    phasors are then continuous in the motion to O(1/n^2)."""
+    phasors are then continuous in the motion to O(1/n^2). Only a jump larger than ``JUMP_RATIO`` times the
+    changes across the two neighbouring intervals counts: a continuous force that bends at the reversal (a
+    Jenkins slider sticking, quadratic damping) changes by about as much beside it and is left as sampled."""
     n = len(theta)
     after = np.roll(v, -1, axis=0)
     m, col = np.nonzero(v * after < 0)                      # interval m: samples m and m + 1 (periodic)
     out = np.zeros((len(k), f.shape[1]), complex)
     if not len(m):
         return out
-    s = v[m, col] / (v[m, col] - after[m, col])
     df = np.roll(f, -1, axis=0) - f                          # change across interval m
+    beside = np.abs(df[(m - 1) % n, col]) + np.abs(df[(m + 1) % n, col])
     jump = df[m, col] - 0.5 * (df[(m - 1) % n, col] + df[(m + 1) % n, col])
+    real = np.abs(jump) > JUMP_RATIO * beside                # a force that only bends at the reversal: left alone
+    m, col, jump = m[real], col[real], jump[real]
+    s = v[m, col] / (v[m, col] - after[m, col])
     mid = theta[m] + np.pi / n
     held = jump * (0.5 - s) / n
     phasor = 2 * held[:, None] * (np.sin(np.outer(mid, k)) + 1j * np.cos(np.outer(mid, k)))
