@@ -271,25 +271,31 @@ def _paper_period(z0, w):
     return z, segments
 
 
-def _paper_orbit_fundamental(w, X):
-    """Fundamental phasors of x1, x2 on the periodic orbit: shooting (Newton on one period) from ``X``."""
+def _orbit_fundamental(period, w, X, tol=1e-12, floor=1e-3):
+    """Fundamental phasors of x1, x2 on a periodic orbit: shooting (Newton on one period, ``period(z0)`` ->
+    (end state, segments)) from the phasors ``X``; finite-difference steps 1e-7 of each state, at least of
+    ``floor``."""
     z0 = np.array([X[0].imag, X[1].imag, w * X[0].real, w * X[1].real])
     for _ in range(10):
-        zT, _ = _paper_period(z0, w)
-        if np.linalg.norm(zT - z0) < 1e-12 * np.linalg.norm(z0):
+        zT, _ = period(z0)
+        if np.linalg.norm(zT - z0) < tol * np.linalg.norm(z0):
             break
         J = np.empty((4, 4))
         for j in range(4):
             dz = np.zeros(4)
-            dz[j] = 1e-7 * max(abs(z0[j]), 1e-3)
-            J[:, j] = (_paper_period(z0 + dz, w)[0] - zT) / dz[j]
+            dz[j] = 1e-7 * max(abs(z0[j]), floor)
+            J[:, j] = (period(z0 + dz)[0] - zT) / dz[j]
         z0 = z0 - np.linalg.solve(J - np.eye(4), zT - z0)
-    _, segments = _paper_period(z0, w)
+    _, segments = period(z0)
     n = 4096
     t = np.arange(n) * 2 * np.pi / w / n
     x = np.concatenate([seg.sol(t[(t >= seg.t[0]) & ((t < seg.t[-1]) | (k == len(segments) - 1))])[:2]
                         for k, seg in enumerate(segments)], axis=1)
     return 2 / n * (x * (np.sin(w * t) + 1j * np.cos(w * t))).sum(axis=1)
+
+
+def _paper_orbit_fundamental(w, X):
+    return _orbit_fundamental(lambda z: _paper_period(z, w), w, X)
 
 
 @pytest.mark.parametrize("f_hz, direction, single_off, limits, falling", [
@@ -388,27 +394,6 @@ def _af_period(z0, w, force):
     return z, segments
 
 
-def _af_orbit_fundamental(w, X, force):
-    """Fundamental phasors of x1, x2 on the rig's periodic orbit: shooting from the phasors ``X``."""
-    z0 = np.array([X[0].imag, X[1].imag, w * X[0].real, w * X[1].real])
-    for _ in range(10):
-        zT, _ = _af_period(z0, w, force)
-        if np.linalg.norm(zT - z0) < 1e-11 * np.linalg.norm(z0):
-            break
-        J = np.empty((4, 4))
-        for j in range(4):
-            dz = np.zeros(4)
-            dz[j] = 1e-7 * max(abs(z0[j]), 1e-6)
-            J[:, j] = (_af_period(z0 + dz, w, force)[0] - zT) / dz[j]
-        z0 = z0 - np.linalg.solve(J - np.eye(4), zT - z0)
-    _, segments = _af_period(z0, w, force)
-    n = 4096
-    t = np.arange(n) * 2 * np.pi / w / n
-    x = np.concatenate([seg.sol(t[(t >= seg.t[0]) & ((t < seg.t[-1]) | (k == len(segments) - 1))])[:2]
-                        for k, seg in enumerate(segments)], axis=1)
-    return 2 / n * (x * (np.sin(w * t) + 1j * np.cos(w * t))).sum(axis=1)
-
-
 @pytest.mark.slow
 def test_multiharmonic_converges_on_anderson_ferri_friction_and_matches_its_periodic_orbit():
     """The friction force is comparable with what moves x2 at 0.5 N: its harmonics shift the reversals and give
@@ -422,7 +407,7 @@ def test_multiharmonic_converges_on_anderson_ferri_friction_and_matches_its_peri
     mh = predict_multiharmonic(s, els, "x2", w, 0.5, 7, 512, y_start=single.y[:, 0])
     assert mh.converged.all(), w[~mh.converged] / HZ
     for i in (5, 12, 16):                                   # 6.0, 7.4 and 8.2 Hz
-        ref = _af_orbit_fundamental(w[i], mh.harmonics[i, 1], 0.5)
+        ref = _orbit_fundamental(lambda z: _af_period(z, w[i], 0.5), w[i], mh.harmonics[i, 1], 1e-11, 1e-6)
         single_off = np.linalg.norm(single.receptance[i, 0] * 0.5 - ref) / np.linalg.norm(ref)
         off = np.linalg.norm(mh.harmonics[i, 1] - ref) / np.linalg.norm(ref)
         assert off < 0.3 * single_off, (w[i] / HZ, single_off, off)
