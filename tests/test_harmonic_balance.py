@@ -339,24 +339,28 @@ def test_the_harmonic_criterion_selects_the_third_harmonic_on_mode_2_and_the_fol
 
 
 # --------------------------------------------------------------------------- a friction force's jump in the AFT
-def test_aft_of_a_coulomb_force_follows_its_fourier_series_at_any_phase():
-    """fs sgn(x') along x = X sin(theta + phi) is fs sgn(cos(theta + phi)) = (4 fs / pi) sum over odd k of
-    (-1)^((k-1)/2) cos(k (theta + phi)) / k: the phasors must follow phi smoothly, not in steps of a sample."""
-    fs, H = 0.1, 7
-    _, els = sdof([{"law": "coulomb", "fs": fs}])
-    k = np.arange(H + 1)
+@pytest.mark.parametrize("law, fundamental", [
+    # fs sgn(x') along x = X sin(u): (4 fs / pi) cos(u) + harmonics, a jump where x' changes sign
+    ({"law": "coulomb", "fs": 0.1}, lambda X, w: 4 * 0.1 / np.pi * 1j * X / abs(X)),
+    # (pi/2) gamma |x'| sgn(x): gamma w X sin(u) + harmonics, a jump where x changes sign
+    ({"law": "velocity_stiffness", "gamma": 4.0}, lambda X, w: 4.0 * w * X),
+])
+def test_aft_of_a_jumping_force_follows_its_fourier_series_at_any_phase(law, fundamental):
+    """The fundamental of a force that jumps must follow the phase of the motion smoothly, not in steps of a
+    sample: exact against the describing function of the law (its fundamental over a harmonic motion)."""
+    _, els = sdof([law])
+    H, w = 7, 10.0
     worst = {}
     for n in (64, 256):
         aft = _AFT(els, H, n)
         worst[n] = 0.0
-        for phi in np.linspace(0.0, 2 * np.pi / n, 9):    # the reversal moved across one sampling interval
+        for phi in np.linspace(0.0, 2 * np.pi / n, 9):    # the jump moved across one sampling interval
             Yk = np.zeros((H + 1, 1), complex)
             Yk[1] = 1e-3 * np.exp(1j * phi)
-            exact = np.where(k % 2 == 1, 4 * fs / np.pi * (-1.0) ** ((k - 1) // 2) / np.maximum(k, 1), 0.0) \
-                * 1j * np.exp(1j * k * phi)
-            worst[n] = max(worst[n], np.abs(aft.forces(Yk, 10.0)[:, 0] - exact)[1] / np.abs(exact[1]))
-    # the jump left on the grid misses the fundamental by up to pi/n (4.9 % at 64 points); placed at the
-    # reversal, by the aliasing of the samples: O(1/n^2) (measured 0.16 % and 0.010 %)
+            exact = fundamental(Yk[1, 0], w)
+            worst[n] = max(worst[n], abs(aft.forces(Yk, w)[1, 0] - exact) / abs(exact))
+    # the jump left on the grid misses the fundamental by up to pi/n (4.9 % at 64 points); placed where the
+    # sign changes, by the aliasing of the samples: O(1/n^2) (measured 0.16 % and 0.010 % for Coulomb)
     assert worst[64] < 2.5e-3 and worst[256] < 1.5e-4 and worst[64] / worst[256] > 10, worst
 
 
