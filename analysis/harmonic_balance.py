@@ -570,16 +570,23 @@ def element_force_history(element: Element, y: np.ndarray, v: np.ndarray) -> np.
     return total
 
 
+#: A force change across the sampling interval of a sign change of the velocity or the displacement counts as a
+#: jump (friction; velocity stiffness) when, less the neighbours' mean change, it exceeds this many times the
+#: neighbours' changes (a step: O(n) times larger).
+JUMP_RATIO = 2.0
+
+
 class _AFT:
     """Alternating frequency-time evaluation of the elements' forces for harmonics 0..H: the laws' time-domain
     kernels are marched over two periods of the trial motion (so hysteretic laws start their second cycle on
-    the closed loop) and the second period is transformed."""
+    the closed loop) and the second period is transformed, with each force jump at a sign change of the
+    velocity or the displacement placed where the sign changes (:func:`_jump_correction`)."""
 
     def __init__(self, elements: Sequence[Element], n_harmonics: int, n_time: int):
         self.elements, self.n_time = elements, n_time
-        theta = 2 * np.pi * np.arange(n_time) / n_time
+        self.theta = 2 * np.pi * np.arange(n_time) / n_time
         self.k = np.arange(n_harmonics + 1)
-        self.S, self.C = np.sin(np.outer(theta, self.k)), np.cos(np.outer(theta, self.k))
+        self.S, self.C = np.sin(np.outer(self.theta, self.k)), np.cos(np.outer(self.theta, self.k))
 
     def forces(self, Yk: np.ndarray, w: float) -> np.ndarray:
         """Element force phasors (H+1, r) of the motion with element phasors ``Yk`` (H+1, r) at w."""
@@ -591,7 +598,43 @@ class _AFT:
             f[:, i] = element_force_history(el, np.tile(y_t[:, i], 2), np.tile(v_t[:, i], 2))[n:]
         Fk = 2.0 / n * (S.T @ f + 1j * (C.T @ f))
         Fk[0] = f.mean(axis=0)
-        return Fk
+        return Fk + _jump_correction(f, y_t, v_t, self.theta, k)
+
+
+def _jump_correction(f: np.ndarray, y: np.ndarray, v: np.ndarray, theta: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """What moving each force jump from the middle of its sampling interval (where the sum over the samples puts
+    it) to where it is adds to the force phasors (H+1, r). The laws' forces jump where the velocity changes sign
+    (friction) or the displacement does (velocity stiffness, ``|x'| sgn(x)``).
+
+    The plain sum over ``n`` samples places a jump on the sampling grid, so the phasors move in steps of about
+    ``jump / n`` as the sign change crosses a sample: the balance residual is discontinuous, and Newton stalls
+    at that size without a root (the 2-DOF Anderson-Ferri rig: residuals of 1e-4 to 3e-3 at half its lines, 7
+    harmonics, 512 points). The sign change of ``u`` (v or y) lies at the fraction ``s = u_m / (u_m - u_{m+1})``
+    of its interval (linear interpolation); the jump is the change of force across the interval less the mean
+    change across its neighbours (what a smooth force changes by); held over ``(1/2 - s)`` of the interval it
+    adds ``(2/n) jump (1/2 - s) (sin k theta + j cos k theta)`` at its middle (half that for the mean). The
+    phasors are then continuous in the motion to O(1/n^2). Only a jump larger than ``JUMP_RATIO`` times the
+    changes across the two neighbouring intervals counts: a continuous force that bends there (a Jenkins
+    slider sticking, quadratic damping) changes by about as much beside it and is left as sampled."""
+    n = len(theta)
+    df = np.roll(f, -1, axis=0) - f                          # change across interval m: samples m and m + 1
+    out = np.zeros((len(k), f.shape[1]), complex)
+    placed = np.zeros(f.shape, bool)                         # an interval's jump is placed once
+    for u in (v, y):
+        after = np.roll(u, -1, axis=0)
+        m, col = np.nonzero((u * after < 0) & ~placed)
+        placed[m, col] = True
+        beside = np.abs(df[(m - 1) % n, col]) + np.abs(df[(m + 1) % n, col])
+        jump = df[m, col] - 0.5 * (df[(m - 1) % n, col] + df[(m + 1) % n, col])
+        real = np.abs(jump) > JUMP_RATIO * beside            # a force that only bends there: left alone
+        m, col, jump = m[real], col[real], jump[real]
+        s = u[m, col] / (u[m, col] - after[m, col])
+        mid = theta[m] + np.pi / n
+        held = jump * (0.5 - s) / n
+        phasor = 2 * held[:, None] * (np.sin(np.outer(mid, k)) + 1j * np.cos(np.outer(mid, k)))
+        phasor[:, 0] = held
+        np.add.at(out.T, col, phasor)                        # the jumps of each element summed
+    return out
 
 
 def single_harmonic_distortion(structure: Structure, elements: Sequence[Element], excitation_dof: str, w,

@@ -6,7 +6,7 @@ from scipy.integrate import solve_ivp
 
 from analysis import load_elements, load_structure
 from analysis.comparison import HarmonicCriterion
-from analysis.harmonic_balance import (continue_response, predict_multiharmonic, predict_sweep, predict_sweeps,
+from analysis.harmonic_balance import (_AFT, continue_response, predict_multiharmonic, predict_sweep, predict_sweeps,
                                        single_harmonic_distortion)
 
 SDOF = {"type": "lumped", "dofs": ["x"], "mass": [[1.0]], "stiffness": [[100.0]], "damping": [[0.2]]}
@@ -271,20 +271,22 @@ def _paper_period(z0, w):
     return z, segments
 
 
-def _paper_orbit_fundamental(w, X):
-    """Fundamental phasors of x1, x2 on the periodic orbit: shooting (Newton on one period) from ``X``."""
+def _orbit_fundamental(period, w, X, tol=1e-12, floor=1e-3):
+    """Fundamental phasors of x1, x2 on a periodic orbit: shooting (Newton on one period, ``period(z0)`` ->
+    (end state, segments)) from the phasors ``X``; finite-difference steps 1e-7 of each state, at least of
+    ``floor``."""
     z0 = np.array([X[0].imag, X[1].imag, w * X[0].real, w * X[1].real])
     for _ in range(10):
-        zT, _ = _paper_period(z0, w)
-        if np.linalg.norm(zT - z0) < 1e-12 * np.linalg.norm(z0):
+        zT, _ = period(z0)
+        if np.linalg.norm(zT - z0) < tol * np.linalg.norm(z0):
             break
         J = np.empty((4, 4))
         for j in range(4):
             dz = np.zeros(4)
-            dz[j] = 1e-7 * max(abs(z0[j]), 1e-3)
-            J[:, j] = (_paper_period(z0 + dz, w)[0] - zT) / dz[j]
+            dz[j] = 1e-7 * max(abs(z0[j]), floor)
+            J[:, j] = (period(z0 + dz)[0] - zT) / dz[j]
         z0 = z0 - np.linalg.solve(J - np.eye(4), zT - z0)
-    _, segments = _paper_period(z0, w)
+    _, segments = period(z0)
     n = 4096
     t = np.arange(n) * 2 * np.pi / w / n
     x = np.concatenate([seg.sol(t[(t >= seg.t[0]) & ((t < seg.t[-1]) | (k == len(segments) - 1))])[:2]
@@ -292,12 +294,18 @@ def _paper_orbit_fundamental(w, X):
     return 2 / n * (x * (np.sin(w * t) + 1j * np.cos(w * t))).sum(axis=1)
 
 
-@pytest.mark.parametrize("f_hz, direction, single_off, limits", [
-    (0.8, "up", (0.014, 0.018), {3: 7.5e-3, 5: 5.2e-3, 7: 4.2e-3}),      # 3rd harmonic on mode 2 (2.45 Hz)
-    (1.18, "down", (0.016, 0.020), {3: 3e-4, 7: 3e-5}),                 # resonant branch near its fold
+def _paper_orbit_fundamental(w, X):
+    return _orbit_fundamental(lambda z: _paper_period(z, w), w, X)
+
+
+@pytest.mark.parametrize("f_hz, direction, single_off, limits, falling", [
+    (0.8, "up", (0.014, 0.018), {3: 7.5e-3, 5: 5.2e-3, 7: 4.2e-3}, True),    # 3rd harmonic on mode 2 (2.45 Hz)
+    # resonant branch near its fold: from 3 harmonics on the error is that of the friction force's slowly
+    # converging Fourier series (2e-5 .. 3e-5, not falling with every harmonic)
+    (1.18, "down", (0.016, 0.020), {3: 5e-5, 7: 5e-5}, False),
 ])
 @pytest.mark.slow
-def test_multiharmonic_on_the_paper_model_against_its_periodic_orbit(f_hz, direction, single_off, limits):
+def test_multiharmonic_on_the_paper_model_against_its_periodic_orbit(f_hz, direction, single_off, limits, falling):
     s, els = paper()
     w = HZ * f_hz
     lines = HZ * (np.arange(0.8, f_hz + 1e-9, 0.01) if direction == "up" else np.arange(1.4, f_hz - 1e-9, -0.01))
@@ -309,7 +317,7 @@ def test_multiharmonic_on_the_paper_model_against_its_periodic_orbit(f_hz, direc
     single_err = np.linalg.norm(x1 - ref) / np.linalg.norm(ref)
     assert single_off[0] < single_err < single_off[1]
     assert all(off[H] < limit for H, limit in limits.items()), off
-    assert list(off.values()) == sorted(off.values(), reverse=True)
+    assert not falling or list(off.values()) == sorted(off.values(), reverse=True)
     # what the comparison uses (7 harmonics, 512 points per period) is as close
     used = predict_multiharmonic(s, els, "x2", [w], 0.8, HarmonicCriterion().n_harmonics, HarmonicCriterion().n_time,
                                  y_start=y1).harmonics[0, 1]
@@ -328,3 +336,82 @@ def test_the_harmonic_criterion_selects_the_third_harmonic_on_mode_2_and_the_fol
     assert HarmonicCriterion().selects(None, implied, multivalued).tolist() == [True, True, False]
     # measured distortion counts too
     assert HarmonicCriterion().selects(np.array([0.0, 0.0, 0.02]), implied, multivalued).tolist() == [True] * 3
+
+
+# --------------------------------------------------------------------------- a friction force's jump in the AFT
+@pytest.mark.parametrize("law, fundamental", [
+    # fs sgn(x') along x = X sin(u): (4 fs / pi) cos(u) + harmonics, a jump where x' changes sign
+    ({"law": "coulomb", "fs": 0.1}, lambda X, w: 4 * 0.1 / np.pi * 1j * X / abs(X)),
+    # (pi/2) gamma |x'| sgn(x): gamma w X sin(u) + harmonics, a jump where x changes sign
+    ({"law": "velocity_stiffness", "gamma": 4.0}, lambda X, w: 4.0 * w * X),
+])
+def test_aft_of_a_jumping_force_follows_its_fourier_series_at_any_phase(law, fundamental):
+    """The fundamental of a force that jumps must follow the phase of the motion smoothly, not in steps of a
+    sample: exact against the describing function of the law (its fundamental over a harmonic motion)."""
+    _, els = sdof([law])
+    H, w = 7, 10.0
+    worst = {}
+    for n in (64, 256):
+        aft = _AFT(els, H, n)
+        worst[n] = 0.0
+        for phi in np.linspace(0.0, 2 * np.pi / n, 9):    # the jump moved across one sampling interval
+            Yk = np.zeros((H + 1, 1), complex)
+            Yk[1] = 1e-3 * np.exp(1j * phi)
+            exact = fundamental(Yk[1, 0], w)
+            worst[n] = max(worst[n], abs(aft.forces(Yk, w)[1, 0] - exact) / abs(exact))
+    # the jump left on the grid misses the fundamental by up to pi/n (4.9 % at 64 points); placed where the
+    # sign changes, by the aliasing of the samples: O(1/n^2) (measured 0.16 % and 0.010 % for Coulomb)
+    assert worst[64] < 2.5e-3 and worst[256] < 1.5e-4 and worst[64] / worst[256] > 10, worst
+
+
+def _af_rig():
+    """The 2-DOF rig with Anderson-Ferri friction at x2 (a = 0.1 N, b = 30 N/m), Rayleigh damping."""
+    s = load_structure({"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 1.0]],
+                        "stiffness": [[3000.0, -1000.0], [-1000.0, 2000.0]], "rayleigh": [0.3, 1.0e-4]})
+    return s, load_elements({"element": [{"name": "b", "dof": "x2", "laws": [
+        {"law": "anderson_ferri", "a": 0.1, "b": 30.0, "c": 0.0}]}]}, s, None, True)
+
+
+def _af_period(z0, w, force):
+    """One period of the Anderson-Ferri rig, the sliding direction flipped at each reversal of v2 (event)."""
+    M, K = np.eye(2), np.array([[3000.0, -1000.0], [-1000.0, 2000.0]])
+    C = 0.3 * M + 1e-4 * K
+    T = 2 * np.pi / w
+    t, z, sgn, segments = 0.0, np.array(z0, float), np.sign(z0[3]), []
+    while t < T:
+        def rhs(t, z, sgn=sgn):
+            x, v = z[:2], z[2:]
+            f = K @ x + C @ v + np.array([0.0, (np.pi / 4 * 0.1 + np.pi / 2 * 30.0 * abs(x[1])) * sgn])
+            return np.r_[v, np.array([0.0, force * np.sin(w * t)]) - f]
+
+        def reversal(t, z):
+            return z[3]
+
+        reversal.terminal, reversal.direction = True, -sgn
+        sol = solve_ivp(rhs, (t, T), z, method="DOP853", rtol=1e-11, atol=1e-14, events=reversal, dense_output=True)
+        segments.append(sol)
+        t, z = sol.t[-1], sol.y[:, -1]
+        if sol.status == 1:
+            held = force * np.sin(w * t) - (K @ z[:2] + C @ z[2:])[1]
+            assert abs(held) > np.pi / 4 * 0.1 + np.pi / 2 * 30.0 * abs(z[1])     # slides on: no stick
+            sgn = -sgn
+    return z, segments
+
+
+@pytest.mark.slow
+def test_multiharmonic_converges_on_anderson_ferri_friction_and_matches_its_periodic_orbit():
+    """The friction force is comparable with what moves x2 at 0.5 N: its harmonics shift the reversals and give
+    the fundamental a part in phase with the motion that the single-harmonic balance misses (by 1-3 % below
+    the antiresonance of x2 at 8.7 Hz). The multi-harmonic balance of the comparison (7 harmonics, 512 points)
+    must converge at every line of a sweep (with the jump on the sampling grid: 23 of 31) and find the
+    periodic orbit, to what 7 harmonics of a jumping force can give."""
+    s, els = _af_rig()
+    w = HZ * np.arange(5.0, 11.01, 0.2)
+    single = predict_sweep(s, els, "x2", w, 0.5)
+    mh = predict_multiharmonic(s, els, "x2", w, 0.5, 7, 512, y_start=single.y[:, 0])
+    assert mh.converged.all(), w[~mh.converged] / HZ
+    for i in (5, 12, 16):                                   # 6.0, 7.4 and 8.2 Hz
+        ref = _orbit_fundamental(lambda z: _af_period(z, w[i], 0.5), w[i], mh.harmonics[i, 1], 1e-11, 1e-6)
+        single_off = np.linalg.norm(single.receptance[i, 0] * 0.5 - ref) / np.linalg.norm(ref)
+        off = np.linalg.norm(mh.harmonics[i, 1] - ref) / np.linalg.norm(ref)
+        assert off < 0.3 * single_off, (w[i] / HZ, single_off, off)
