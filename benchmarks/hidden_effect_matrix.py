@@ -29,7 +29,9 @@ import matrix_cases as mc  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "hidden_effect_matrix.json"
 DOCS = ROOT / "docs/workbench.md"
-LOOP_FILES = ("analysis/auto.py", "analysis/diagnosis.py", "analysis/workbench.py")
+# The loop and what its decisions rest on: the fit, the comparison, the model-form check, the detector.
+LOOP_FILES = ("analysis/auto.py", "analysis/diagnosis.py", "analysis/workbench.py", "analysis/fit.py",
+              "analysis/comparison.py", "analysis/harmonic_balance.py", "analysis/unexplained.py")
 
 
 def loop_commit() -> str:
