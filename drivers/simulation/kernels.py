@@ -672,8 +672,6 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
                 total += z[i]
             if not math.isfinite(total):
                 return m, 0
-        if r > 0:
-            y_free[:] = 0.0
         for b in range(edges.shape[0] - 1):
             lo = edges[b]
             hi = edges[b + 1]
@@ -693,10 +691,6 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
                     a1 += Pg0[lo + 1, e] * g[e]
                 zf[lo] = a0
                 zf[lo + 1] = a1
-                # the element motion of the free state, summed as the states come (ascending, as Cy @ zf)
-                for k in range(2 * r):
-                    y_free[k] += Cy[k, lo] * a0
-                    y_free[k] += Cy[k, lo + 1] * a1
                 continue
             for i in range(lo, hi):
                 acc = Qu[i, 0] * u0 + Qu[i, 1] * um + Qu[i, 2] * u1
@@ -705,9 +699,16 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
                 for e in range(r):
                     acc += Pg0[i, e] * g[e]
                 zf[i] = acc
-                for k in range(2 * r):
-                    y_free[k] += Cy[k, i] * acc
         if r > 0:
+            # the element motion of the free state; an element's displacement and velocity summed side by side
+            for e in range(r):
+                xe = 0.0
+                ve = 0.0
+                for i in range(nz):
+                    xe += Cy[e, i] * zf[i]
+                    ve += Cy[r + e, i] * zf[i]
+                y_free[e] = xe
+                y_free[r + e] = ve
             for e in range(r):
                 # cubic extrapolation: the Newton start is O(h^4) off on a smooth path, so one iterate
                 # reaches the tolerance where a start O(h^3) off often needed two
@@ -723,11 +724,12 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
                 g_prev[1, e] = g_prev[0, e]
                 g_prev[0, e] = g[e]
                 g[e] = g_new[e]
-            for i in range(nz):
-                acc = zf[i]
-                for e in range(r):
-                    acc += Pg1[i, e] * g[e]
-                zf[i] = acc
+            # element by element, each over all states (the same sums in the same order; the loop over the
+            # states vectorises, one over a single element did not)
+            for e in range(r):
+                ge = g[e]
+                for i in range(nz):
+                    zf[i] += Pg1[i, e] * ge
         for i in range(nz):
             z[i] = zf[i]
     total = 0.0
