@@ -805,13 +805,31 @@ def fir_decimate(samples, history, taps, factor):
             joined[c, H + i] = samples[i, c]
     reversed_taps = taps[::-1].copy()
     out = np.empty((n // factor, nch))
+    n_out = n // factor
     for c in range(nch):
         row = joined[c]
-        for k in range(n // factor):
+        k = 0
+        # two outputs at a time: their sums are independent, so neither waits on the other's additions; each
+        # output's inputs as a view indexed from 0 (an index m + j, which numba must check for negative
+        # values, kept the loads scalar)
+        while k + 2 <= n_out:
             m = k * factor  # the output at joined index m + H
+            first = row[m:m + L]
+            second = row[m + factor:m + factor + L]
+            acc0 = 0.0
+            acc1 = 0.0
+            for j in range(L):
+                acc0 += reversed_taps[j] * first[j]
+                acc1 += reversed_taps[j] * second[j]
+            out[k, c] = acc0
+            out[k + 1, c] = acc1
+            k += 2
+        if k < n_out:
+            m = k * factor
+            first = row[m:m + L]
             acc = 0.0
             for j in range(L):
-                acc += reversed_taps[j] * row[m + j]
+                acc += reversed_taps[j] * first[j]
             out[k, c] = acc
     if H > 0:
         if n >= H:
