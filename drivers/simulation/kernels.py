@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 from llvmlite import ir
 from numba import carray, cfunc, njit, types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 # element modes of the friction solver
@@ -65,7 +66,8 @@ class StepMatrices(NamedTuple):
     Pg1: np.ndarray   # (nz, r) ... and at the step end
     Cy: np.ndarray    # (2 r, nz) element displacements then velocities from the state
     D: np.ndarray     # (2 r, r) Cy @ Pg1: how the step-end element motion depends on the step-end forces
-    Co: np.ndarray    # (nch, nz) channel outputs (force, accelerations) from the state,
+    Co: np.ndarray    # (nch, nz) channel outputs (force, accelerations) from the state, column-major (the loop
+    #                   sums the channels side by side, a column at a time),
     Dou: np.ndarray   # (nch,) ... from the drive
     Dog: np.ndarray   # (nch, r) ... and from the residual element forces
 
@@ -184,24 +186,40 @@ def _call_limit(typingctx, address, x, p_address, n_p):
     return sig, codegen
 
 
+@intrinsic
+def _copy_doubles(typingctx, destination, source, count):
+    """Copy ``count`` float64 from the address ``source`` to ``destination`` (one memcpy: an iwan's
+    134-number memory element by element through two-dimensional indexing cost as much as the law itself)."""
+    sig = types.void(types.intp, types.intp, types.intp)
+
+    def codegen(context, builder, signature, args):
+        pointer = ir.DoubleType().as_pointer()
+        cgutils.raw_memcpy(builder, builder.inttoptr(args[0], pointer), builder.inttoptr(args[1], pointer),
+                           args[2], 8, align=8)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
 # --- law evaluation --------------------------------------------------------------
 @njit(cache=True, _nrt=False, inline="always")
-def _element_forces(laws, S, S_trial, x, v, mode, sigma, out):
+def _element_forces(laws, S, S_trial, x, v, mode, sigma, out, copy=True):
     """Sum of the law forces per element at (x, v), from the committed law states ``S``.
 
-    The updated states land in ``S_trial`` (``S`` is untouched). Dry-friction terms of
-    a stuck element are left out (their force is the constraint force); the other
-    terms of a stuck element see zero velocity.
+    The updated states land in ``S_trial`` (``S`` is untouched); ``copy=False`` when ``S_trial`` already
+    holds ``S`` (right after a commit). Dry-friction terms of a stuck element are left out (their force is
+    the constraint force); the other terms of a stuck element see zero velocity.
     """
     out[:] = 0.0
     P = laws.P
     p_base = P.ctypes.data
     s_base = S_trial.ctypes.data
+    s_source = S.ctypes.data
     for k in range(laws.count):
         e = laws.element[k]
         ns = laws.n_state[k]
-        for j in range(ns):
-            S_trial[k, j] = S[k, j]
+        if copy:
+            _copy_doubles(s_base + k * S_trial.strides[0], s_source + k * S.strides[0], ns)
         ve = v[e]
         if mode[e] == STICK:
             if laws.friction[k]:
@@ -349,19 +367,19 @@ def _broyden(jac, lam, step, res, res_new, r):
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J):
+def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J, synced):
     """Solve the step-end equations for the residual forces g with the element modes fixed.
 
     Modified Newton: the Jacobian in ``jac`` is reused across iterations and steps
     while ``jac_valid[0]`` is set, and refreshed when a step fails or converges slowly.
     On return x, v, F and S_trial belong to the accepted g. Returns the number of
-    iterations, or -1 if the iteration did not converge.
+    iterations, or -1 if the iteration did not converge. ``synced``: S_trial holds S on entry.
     """
     res, res_trial, g_trial, x_probe, v_probe, F_probe, step, rhs = (work[0], work[1], work[2], work[3],
                                                                     work[4], work[5], work[6], work[7])
     k0, c0 = laws.k0, laws.c0
     _element_motion(y_free, D, g, r, x, v)
-    _element_forces(laws, S, S_trial, x, v, mode, sigma, F)
+    _element_forces(laws, S, S_trial, x, v, mode, sigma, F, not synced)
     worst = _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res)
     for it in range(_MAX_NEWTON):
         if worst <= 1.0:
@@ -490,19 +508,22 @@ def _bracket_fallback(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J):
+def _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J,
+                synced):
     """Step-end element forces with stick/slip decided for every friction element.
 
     Active-set iteration: solve with the modes fixed, then let a stuck element slip
     when its constraint force exceeds its stick limit (in the direction of that
     force) and stop a sliding element whose velocity would reverse. Commits the law
-    states. Returns False if the Newton iteration failed.
+    states (S_trial then holds S). Returns False if the Newton iteration failed.
+    ``synced``: S_trial holds S on entry (the last step committed in this call).
     """
     limit = work[10]
     k0 = laws.k0
     ok = True
     for _ in range(2 + 4 * r):
-        if (_newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J) < 0
+        if (_newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J,
+                    synced) < 0
                 and not _bracket_fallback(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work,
                                           jac_valid)):
             ok = False
@@ -524,10 +545,53 @@ def _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F
         if not changed:
             break
         jac_valid[0] = 0
+        synced = False
+    s_base = S.ctypes.data
+    trial_base = S_trial.ctypes.data
     for k in range(laws.count):
-        for j in range(laws.n_state[k]):
-            S[k, j] = S_trial[k, j]
+        _copy_doubles(s_base + k * S.strides[0], trial_base + k * S_trial.strides[0], laws.n_state[k])
     return ok
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _channel_outputs(Co, Dou, Dog, z, g, u0, channels):
+    """The channels at one step, ``Dou u0 + Co z + Dog g``, each summed in that order over ascending indices.
+
+    Four channels at a time side by side (``Co`` column-major: their four coefficients of a state are
+    adjacent), so their sums do not wait on one another's additions; the rest one by one."""
+    nch = channels.shape[0]
+    nz = z.shape[0]
+    r = g.shape[0]
+    c = 0
+    while c + 4 <= nch:
+        a0 = Dou[c] * u0
+        a1 = Dou[c + 1] * u0
+        a2 = Dou[c + 2] * u0
+        a3 = Dou[c + 3] * u0
+        for i in range(nz):
+            zi = z[i]
+            a0 += Co[c, i] * zi
+            a1 += Co[c + 1, i] * zi
+            a2 += Co[c + 2, i] * zi
+            a3 += Co[c + 3, i] * zi
+        for e in range(r):
+            ge = g[e]
+            a0 += Dog[c, e] * ge
+            a1 += Dog[c + 1, e] * ge
+            a2 += Dog[c + 2, e] * ge
+            a3 += Dog[c + 3, e] * ge
+        channels[c] = a0
+        channels[c + 1] = a1
+        channels[c + 2] = a2
+        channels[c + 3] = a3
+        c += 4
+    for k in range(c, nch):
+        acc = Dou[k] * u0
+        for i in range(nz):
+            acc += Co[k, i] * z[i]
+        for e in range(r):
+            acc += Dog[k, e] * g[e]
+        channels[k] = acc
 
 
 # --- the block loop ----------------------------------------------------------------
@@ -586,18 +650,12 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
     k0, c0 = laws.k0, laws.c0
     nz = z.shape[0]
     r = k0.shape[0]
-    nch = out.shape[1]
+    synced = False
     for m in range(n_steps):
         u0 = u[2 * m]
         um = u[2 * m + 1]
         u1 = u[2 * m + 2]
-        for c in range(nch):
-            acc = Dou[c] * u0
-            for i in range(nz):
-                acc += Co[c, i] * z[i]
-            for e in range(r):
-                acc += Dog[c, e] * g[e]
-            out[m, c] = acc
+        _channel_outputs(Co, Dou, Dog, z, g, u0, out[m])
         if m % oversample == 0:
             row = m // oversample
             for i in range(nz):
@@ -615,36 +673,63 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
             if not math.isfinite(total):
                 return m, 0
         for b in range(edges.shape[0] - 1):
-            for i in range(edges[b], edges[b + 1]):
+            lo = edges[b]
+            hi = edges[b + 1]
+            if hi - lo == 2:
+                # a mode's 2 x 2 block written out: the general loop's index bookkeeping cost more than its
+                # arithmetic (the same sums in the same order)
+                z0 = z[lo]
+                z1 = z[lo + 1]
+                a0 = Qu[lo, 0] * u0 + Qu[lo, 1] * um + Qu[lo, 2] * u1
+                a1 = Qu[lo + 1, 0] * u0 + Qu[lo + 1, 1] * um + Qu[lo + 1, 2] * u1
+                a0 += Phi[lo, lo] * z0
+                a0 += Phi[lo, lo + 1] * z1
+                a1 += Phi[lo + 1, lo] * z0
+                a1 += Phi[lo + 1, lo + 1] * z1
+                for e in range(r):
+                    a0 += Pg0[lo, e] * g[e]
+                    a1 += Pg0[lo + 1, e] * g[e]
+                zf[lo] = a0
+                zf[lo + 1] = a1
+                continue
+            for i in range(lo, hi):
                 acc = Qu[i, 0] * u0 + Qu[i, 1] * um + Qu[i, 2] * u1
-                for j in range(edges[b], edges[b + 1]):
+                for j in range(lo, hi):
                     acc += Phi[i, j] * z[j]
                 for e in range(r):
                     acc += Pg0[i, e] * g[e]
                 zf[i] = acc
         if r > 0:
-            for k in range(2 * r):
-                acc = 0.0
+            # the element motion of the free state; an element's displacement and velocity summed side by side
+            for e in range(r):
+                xe = 0.0
+                ve = 0.0
                 for i in range(nz):
-                    acc += Cy[k, i] * zf[i]
-                y_free[k] = acc
+                    xe += Cy[e, i] * zf[i]
+                    ve += Cy[r + e, i] * zf[i]
+                y_free[e] = xe
+                y_free[r + e] = ve
             for e in range(r):
                 # cubic extrapolation: the Newton start is O(h^4) off on a smooth path, so one iterate
                 # reaches the tolerance where a start O(h^3) off often needed two
                 g_new[e] = 4.0 * (g[e] + g_prev[1, e]) - 6.0 * g_prev[0, e] - g_prev[2, e]
             if not _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g_new, x, v, F, work, jac,
-                               jac_valid, J):
+                               jac_valid, J, synced):
                 return m, 1
+            # after the commit the trial states equal the committed ones: the next step's first evaluation
+            # starts from them without copying (the caller may change S between calls, so not before)
+            synced = True
             for e in range(r):
                 g_prev[2, e] = g_prev[1, e]
                 g_prev[1, e] = g_prev[0, e]
                 g_prev[0, e] = g[e]
                 g[e] = g_new[e]
-            for i in range(nz):
-                acc = zf[i]
-                for e in range(r):
-                    acc += Pg1[i, e] * g[e]
-                zf[i] = acc
+            # element by element, each over all states (the same sums in the same order; the loop over the
+            # states vectorises, one over a single element did not)
+            for e in range(r):
+                ge = g[e]
+                for i in range(nz):
+                    zf[i] += Pg1[i, e] * ge
         for i in range(nz):
             z[i] = zf[i]
     total = 0.0
@@ -720,13 +805,31 @@ def fir_decimate(samples, history, taps, factor):
             joined[c, H + i] = samples[i, c]
     reversed_taps = taps[::-1].copy()
     out = np.empty((n // factor, nch))
+    n_out = n // factor
     for c in range(nch):
         row = joined[c]
-        for k in range(n // factor):
+        k = 0
+        # two outputs at a time: their sums are independent, so neither waits on the other's additions; each
+        # output's inputs as a view indexed from 0 (an index m + j, which numba must check for negative
+        # values, kept the loads scalar)
+        while k + 2 <= n_out:
             m = k * factor  # the output at joined index m + H
+            first = row[m:m + L]
+            second = row[m + factor:m + factor + L]
+            acc0 = 0.0
+            acc1 = 0.0
+            for j in range(L):
+                acc0 += reversed_taps[j] * first[j]
+                acc1 += reversed_taps[j] * second[j]
+            out[k, c] = acc0
+            out[k + 1, c] = acc1
+            k += 2
+        if k < n_out:
+            m = k * factor
+            first = row[m:m + L]
             acc = 0.0
             for j in range(L):
-                acc += reversed_taps[j] * row[m + j]
+                acc += reversed_taps[j] * first[j]
             out[k, c] = acc
     if H > 0:
         if n >= H:

@@ -160,7 +160,7 @@ def _discretise(A, b_u, B_g, Cy, Co, dou, Dog, h: float) -> _Discrete:
         edges = np.array([0, nz])
     c = np.ascontiguousarray
     return _Discrete(kernels.StepMatrices(c(Phi), edges.astype(np.int64), c(Qu), c(Pg0), c(Pg1), c(Cy), c(D),
-                                          c(Co), c(dou), c(Dog)), T, T_inv, modal)
+                                          np.asfortranarray(Co), c(dou), c(Dog)), T, T_inv, modal)
 
 
 def _modal_basis(A, Phi):
