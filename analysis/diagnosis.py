@@ -196,7 +196,9 @@ def explain(element: str, law: str, sig: Signature, fit: LawFit | None, units: t
     """One sentence: what the data show for ``element`` and why ``law`` is the physics behind it."""
     params = ""
     if fit is not None:
-        params = ", ".join(f"{k} = {v:.4g}" for k, v in fit.terms[-1].params.items())
+        term = fit.terms[-1]
+        params = ", ".join(f"{k} = {v:.4g}" + (" (not determined by the data)" if k in term.undetermined else "")
+                           for k, v in term.params.items())
     X0, X1 = sig.X_range
     head = f"'{element}' over X = {X0:.3g}..{X1:.3g} {units[1]}: "
     return head + LAWS[law].explain(signature_words(sig, units[0])) + (f"; fitted {params}" if params else "")

@@ -1,11 +1,13 @@
 """The named decisions of the missing-effect ranking (support, significance, order) on hand-made candidates,
 and the per-run samples joined into one set."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import scipy.stats
 
-from analysis.diagnosis import (Candidate, ElementSamples, RankingRules, _Leader, _rank_key, _significant,
-                                _supported)
+from analysis.diagnosis import (Candidate, ElementSamples, RankingRules, Signature, _Leader, _rank_key, _significant,
+                                _supported, explain)
 
 RULES = RankingRules()
 
@@ -82,3 +84,12 @@ def test_rules_default_to_the_documented_thresholds():
     assert RULES == RankingRules(min_gain=1.3, tie=1e-3, false_alarm=1e-3, frf_tie=0.05)
     with pytest.raises(AttributeError):
         RULES.min_gain = 2.0                                         # frozen: a retune is a new record
+
+
+def test_a_candidate_explanation_marks_the_parameters_the_data_do_not_determine():
+    sig = Signature(0.5, None, 0.8, -20.0, 10.0, -5.0, 2.0, 0.0, -20.0, 0.5, 6.0, (1e-5, 7e-3), False)
+    term = SimpleNamespace(params={"kt": 98.3, "fs": 0.85, "chi": -0.5, "beta": 0.039},
+                           undetermined=("fs", "beta"))
+    text = explain("tangential", "iwan", sig, SimpleNamespace(terms=[term]), ("N·m/rad", "rad"))
+    assert "kt = 98.3, fs = 0.85 (not determined by the data), chi = -0.5, beta = 0.039 (not determined by the data)" \
+        in text
