@@ -2,6 +2,8 @@
 does not have: Analyze, Add on the top candidate (the displayed error falls, to the value the command-line
 analysis finds for the same addition), Undo (back to where it was)."""
 import re
+import tomllib
+from types import SimpleNamespace
 
 import pytest
 
@@ -120,3 +122,18 @@ def test_analyze_names_a_bad_add_by_the_option_that_gave_it(hidden_effect_sessio
     assert err.startswith("contactid: error: --add left:cubicc: unknown law 'cubicc'") and "\n" not in err
     assert main(["analyze", str(session), str(model), "--add", "middle:cubic", "--no-history"]) == 2
     assert f"{model}: --add middle:cubic: no element named 'middle'" in capsys.readouterr().err
+
+
+def test_a_model_without_joints_is_no_identification_error(qtbot):
+    """A linear rig (a structure and no elements) gives FRFs and nothing to identify: no error banner."""
+    window = MainWindow("test")
+    qtbot.addWidget(window)
+    errors = []
+    window.lab.error.connect(errors.append)
+    structure = tomllib.loads(LINEAR_MODEL.split("[[element]]")[0])["structure"]
+    window.lab.model = load_model({"structure": structure, "element": []}, "linear rig")
+    window.lab._measurement_reader = lambda: (lambda: SimpleNamespace(sine=["a stepped-sine run"], random=None))
+    window.lab._identify_now()
+    qtbot.waitUntil(lambda: not window.lab.analysis_tasks.busy)
+    qtbot.wait(50)
+    assert errors == [] and window.lab.identification is None
