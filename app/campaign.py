@@ -448,10 +448,10 @@ class Campaign:
         command-to-data path and a new transient; the waiting paths keep the carried drive."""
         if self._transient is None or not gains:
             return carried
-        last = gains[-1][1]
         gain = predicted_gain([g[0] for g in gains], [g[1] for g in gains], self._transient.poles, f)
-        if gain is None or last <= 0:
+        if gain is None:                         # (also where a gain so far is not positive)
             return carried
+        last = gains[-1][1]
         gain = float(np.clip(gain, 0.5 * last, 2.0 * last))
         return float(min(force / gain, self.shaker.amplitude_range[1]))
 

@@ -804,8 +804,8 @@ def fir_decimate(samples, history, taps, factor):
         for c in range(nch):
             joined[c, H + i] = samples[i, c]
     reversed_taps = taps[::-1].copy()
-    out = np.empty((n // factor, nch))
     n_out = n // factor
+    out = np.empty((n_out, nch))
     for c in range(nch):
         row = joined[c]
         k = 0
