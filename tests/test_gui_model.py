@@ -131,7 +131,8 @@ def test_a_model_without_joints_is_no_identification_error(qtbot):
     errors = []
     window.lab.error.connect(errors.append)
     structure = tomllib.loads(LINEAR_MODEL.split("[[element]]")[0])["structure"]
-    window.lab.model = load_model({"structure": structure, "element": []}, "linear rig")
+    window.lab.set_model(load_model({"structure": structure, "element": []}, "linear rig"), "linear rig")
+    assert window.identify.status.text().startswith("The model has no elements: nothing to identify")
     window.lab._measurement_reader = lambda: (lambda: SimpleNamespace(sine=["a stepped-sine run"], random=None))
     window.lab._identify_now()
     qtbot.waitUntil(lambda: not window.lab.analysis_tasks.busy)

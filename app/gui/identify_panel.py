@@ -14,6 +14,10 @@ from .lab import Lab
 from .plots import FrameClock, LevelPalette, Redraw, configure_plot, scatter
 from .results import IdentificationView
 
+NO_IDENTIFICATION = "No identification yet: run a campaign or open a session, with a model (Model tab)."
+NO_ELEMENTS = ("The model has no elements: nothing to identify. A linear structure's result is its measured FRFs "
+               "(Session tab).")
+
 
 class IdentifyPanel(QWidget):
     """The Identify tab (module docstring)."""
@@ -24,7 +28,7 @@ class IdentifyPanel(QWidget):
         self.palette = palette
         self.view: IdentificationView | None = None
         layout = QVBoxLayout(self)
-        self.status = QLabel("No identification yet: run a campaign or open a session, with a model (Model tab).")
+        self.status = QLabel(NO_IDENTIFICATION)
         self.status.setWordWrap(True)
         layout.addWidget(self.status)
         splitter = QSplitter(Qt.Orientation.Horizontal)
@@ -53,6 +57,8 @@ class IdentifyPanel(QWidget):
         self._rows.clear()
         self._curves.clear()
         self.verdicts.clear()
+        model = self.lab.model
+        self.status.setText(NO_ELEMENTS if model is not None and not model.elements else NO_IDENTIFICATION)
 
     def _update(self, view: IdentificationView) -> None:
         self.view = view
