@@ -401,6 +401,44 @@ def test_iwan_force_stays_continuous_when_its_reversal_memory_overflows(kind, ch
     assert iwan_lipschitz_excess(state, values, 1.1 * np.max(np.abs(turning))) <= 1e-6
 
 
+def _live_state(s):
+    """An iwan state's meaning: the header and the remembered reversal points (not the spare room)."""
+    return s[:4 + 2 * int(s[0])]
+
+
+@pytest.mark.parametrize("kind", ["decay", "beat", "walk"])
+@pytest.mark.parametrize("chi, beta", [(-0.5, 0.1), (0.3, 0.0)])
+def test_update_apart_then_commit_is_the_kernel_in_place(kind, chi, beta):
+    """The simulator's use of a law with ``update``: evaluations from the committed state (a probe, then the
+    accepted point) into a row holding anything, then ``commit``. Force and committed state are those of
+    the in-place kernel to the last bit, through histories that overflow the memory (merges)."""
+    law = LAWS["iwan"]
+    values = {"kt": 1.0e5, "fs": 10.0, "chi": chi, "beta": beta}
+    p = law.parameter_vector(**values)
+    phi = slip_range(values["fs"] / values["kt"], chi, beta)
+    x = _monotone_history(_overflowing_turning_points(kind, phi, 0.3, np.random.default_rng(7)), 4)
+    in_place = law.initial_state(p)
+    committed = law.initial_state(p)
+    written = np.empty_like(committed)
+    merges = 0
+    for xi in x:
+        expected = law.kernel(xi, 0.0, p, in_place)
+        written[:] = np.nan  # what an earlier evaluation left there must not matter
+        law.update(xi * (1.0 + 1e-3) + 1e-3 * phi, 0.0, p, committed, written)
+        written[:] = np.nan
+        assert law.update(xi, 0.0, p, committed, written) == expected
+        merges += written[-1] - written[-2] > 1  # only a merge writes more than the point it pushes
+        law.commit(written, committed)
+        assert np.array_equal(_live_state(committed), _live_state(in_place))
+    assert merges > 0 or kind == "walk"  # a random walk closes most of its loops: it need not fill the memory
+
+
+def test_a_law_needs_both_update_and_commit():
+    with pytest.raises(TypeError, match="update and commit"):
+        class _Half(type(LAWS["jenkins"])):
+            update = LAWS["jenkins"].kernel
+
+
 @pytest.mark.parametrize("chi", [-0.3, -0.5, 0.0, 0.5, 1.0])  # a general power, and the kernel's square roots
 def test_iwan_virgin_loading_is_the_population_backbone(chi):
     """F(u) = int_0^u rho phi dphi + u int_u^phi_max rho dphi + S min(u, phi_max), by quadrature."""

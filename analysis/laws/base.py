@@ -18,7 +18,11 @@ The time-domain force is a numba kernel ``kernel(x, v, p, s) -> f``: ``x`` and
 ``v`` the element displacement and velocity, ``p`` the contract parameters in the
 order of ``params`` followed by the constants the law derives from them
 (``kernel_constants``; ``parameter_vector`` builds the whole), ``s`` the law's state
-(updated in place). For rate-independent
+(updated in place). A law whose state is large also provides the kernel with the state
+read and written apart, ``update(x, v, p, s, out) -> f`` (``out`` may be ``s``), and
+``commit(out, s)``, which copies into ``s`` what an update wrote: a simulator evaluates
+a law about twice a step from the same committed state, and without these it copies
+the whole state for every evaluation. For rate-independent
 hysteretic laws the update is exact along any monotone path between two calls, so
 a marched force is exact at the sample points. Laws with a jump in the velocity
 sign (dry friction) also provide ``stick_limit(x, p)``: the largest force the
@@ -130,6 +134,10 @@ class Law(ABC):
     amplitude_dependent: ClassVar[bool] = True
     kernel: ClassVar[Any]
     stick_limit: ClassVar[Any] = None
+    # The kernel with the state read and written apart, and the copy of what it wrote (module docstring);
+    # None: a simulator copies the whole state before each evaluation and at each commit
+    update: ClassVar[Any] = None
+    commit: ClassVar[Any] = None
     # Typical values on a translational DOF (for tests, docs and fit starting points)
     # and the amplitude range over which the law's effect is visible.
     example: ClassVar[dict[str, float]]
@@ -150,7 +158,7 @@ class Law(ABC):
         # functions plain so ``law.kernel(x, v, p, s)`` and ``law.stick_limit(x, p)``
         # work from Python as well as from jitted code.
         super().__init_subclass__(**kwargs)
-        for attr in ("kernel", "stick_limit"):
+        for attr in ("kernel", "stick_limit", "update", "commit"):
             value = cls.__dict__.get(attr)
             if value is not None and not isinstance(value, staticmethod):
                 setattr(cls, attr, staticmethod(value))
@@ -160,6 +168,8 @@ class Law(ABC):
         missing = [a for a in REQUIRED if not hasattr(cls, a)]
         if missing:
             raise TypeError(f"law class {cls.__name__} lacks {', '.join(missing)}")
+        if (cls.update is None) != (cls.commit is None):
+            raise TypeError(f"law class {cls.__name__} defines one of update and commit without the other")
         unknown = {f for _, f, _, _ in string.Formatter().parse(cls.explanation) if f is not None} - EXPLANATION_FIELDS
         if unknown:
             raise TypeError(f"law {cls.name!r}: explanation uses unknown field(s) {', '.join(sorted(unknown))} "

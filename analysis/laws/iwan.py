@@ -47,7 +47,8 @@ stack:
     s[0] number of remembered reversal points n, s[1] current direction (0 at rest),
     s[2], s[3] the previous position and force,
     s[4 + 2k], s[5 + 2k] reversal point k (k = 0 oldest; room for one more than the
-    memory holds, pushed before a merge).
+    memory holds, pushed before a merge),
+    s[134], s[135] the range of reversal points the last update wrote (:func:`iwan_update`).
 
 At most ``MAX_REVERSALS`` = 64 nested reversal points are remembered (a slowly decaying
 oscillation, or a random response followed by a steady one, piles them up). When one
@@ -84,6 +85,8 @@ from .base import Law, Param
 
 MAX_REVERSALS = 64
 _HEADER = 4  # n, direction, previous x, previous force
+_WRITTEN = _HEADER + 2 * (MAX_REVERSALS + 1)  # the range of reversal points the last update wrote (room to push
+#                                               one before merging)
 # bisection steps placing a merged turning point (each halves the bracket; it stops early at adjacent doubles)
 _BISECTIONS = 100
 _N_CONTRACT = 4  # kt, fs, chi, beta; the kernel constants follow them in the parameter vector
@@ -189,37 +192,78 @@ def _merge_one_loop(s, n, c):
     return n - 2
 
 
-@njit(cache=True)
-def iwan_force(x, v, p, s):
+# inlined into its callers (the simulator's C callback): called across a function boundary it cost 12 ns more
+@njit(cache=True, inline="always")
+def iwan_update(x, v, p, s, out):
+    """Force at x from the state ``s``; the state after goes to ``out``, which may be ``s`` itself.
+
+    Only what changes is written to ``out``: the header, the written range ``out[_WRITTEN:]`` and the
+    reversal points in it (the point pushed, or all after a merge). :func:`iwan_commit` copies exactly
+    those, so a simulator that evaluates the law twice a step from the same committed state copies a few
+    numbers instead of the whole memory. Points below the range are read from ``s``."""
     x_last, f_last = s[2], s[3]
+    n = int(s[0])
+    first = n  # reversal points from ``first`` on are read from (and were written to) out
     if x == x_last:
+        out[0], out[1], out[2], out[3] = s[0], s[1], x_last, f_last
+        out[_WRITTEN] = out[_WRITTEN + 1] = 0.0
         return f_last
     c = _Constants(p[0], p[1], p[_N_CONTRACT], p[_N_CONTRACT + 1], p[_N_CONTRACT + 2])
-    n = int(s[0])
     direction = 1.0 if x > x_last else -1.0
     if s[1] != 0.0 and direction != s[1]:
         # x_last was a turning point: remember it
-        s[_HEADER + 2 * n] = x_last
-        s[_HEADER + 2 * n + 1] = f_last
+        out[_HEADER + 2 * n] = x_last
+        out[_HEADER + 2 * n + 1] = f_last
         n += 1
         if n > MAX_REVERSALS:
-            n = _merge_one_loop(s, n, c)
+            for i in range(_HEADER, _HEADER + 2 * first):
+                out[i] = s[i]
+            first = 0
+            n = _merge_one_loop(out, n, c)
+    written = n
     # Madelung memory: close every loop whose starting point the path has passed
     while n > 0:
-        x_r = s[_HEADER + 2 * (n - 1)]
-        target = s[_HEADER + 2 * (n - 2)] if n >= 2 else -x_r
+        k = _HEADER + 2 * (n - 1)
+        x_r = out[k] if n - 1 >= first else s[k]
+        if n >= 2:
+            target = out[k - 2] if n - 2 >= first else s[k - 2]
+        else:
+            target = -x_r
         if direction * (x - target) < 0.0:
             break
         n = n - 2 if n >= 2 else 0
     if n == 0:
         f = _virgin(x, c)
     else:
-        f = _branch(x, s[_HEADER + 2 * (n - 1)], s[_HEADER + 2 * (n - 1) + 1], direction, c)
-    s[0] = n
-    s[1] = direction
-    s[2] = x
-    s[3] = f
+        k = _HEADER + 2 * (n - 1)
+        if n - 1 >= first:
+            f = _branch(x, out[k], out[k + 1], direction, c)
+        else:
+            f = _branch(x, s[k], s[k + 1], direction, c)
+    out[0] = n
+    out[1] = direction
+    out[2] = x
+    out[3] = f
+    out[_WRITTEN] = min(first, written)
+    out[_WRITTEN + 1] = written
     return f
+
+
+@njit(cache=True)
+def iwan_commit(out, s):
+    """Make ``s`` the state :func:`iwan_update` wrote into ``out``: the header and the written points."""
+    for i in range(_HEADER):
+        s[i] = out[i]
+    lo, hi = _HEADER + 2 * int(out[_WRITTEN]), _HEADER + 2 * int(out[_WRITTEN + 1])
+    for i in range(lo, hi):
+        s[i] = out[i]
+    s[_WRITTEN] = out[_WRITTEN]
+    s[_WRITTEN + 1] = out[_WRITTEN + 1]
+
+
+@njit(cache=True)
+def iwan_force(x, v, p, s):
+    return iwan_update(x, v, p, s, s)
 
 
 def iwan_unit(X, xs, chi, beta) -> np.ndarray:
@@ -276,11 +320,13 @@ class Iwan(Law):
               _CHI, _BETA)
     linear = ("kt",)
     shape = (_XS, _CHI, _BETA)
-    n_state = _HEADER + 2 * (MAX_REVERSALS + 1)  # room to push one before merging
+    n_state = _WRITTEN + 2
     hysteretic = True
     example = {"kt": 1.0e5, "fs": 10.0, "chi": -0.5, "beta": 0.1}
     example_amplitude = (1e-6, 1e-2)
     kernel = iwan_force
+    update = iwan_update
+    commit = iwan_commit
 
     def kernel_constants(self, kt, fs, chi, beta):
         return slip_range(fs / kt, chi, beta), chi + 1.0, 1.0 / ((1.0 + beta) * (chi + 2.0))

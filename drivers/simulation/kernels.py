@@ -45,8 +45,9 @@ _BRACKET_DOUBLINGS = 13
 _MAX_BISECTION = 200
 
 _FORCE_SIGNATURE = types.float64(types.float64, types.float64, types.CPointer(types.float64), types.intp,
-                                 types.CPointer(types.float64), types.intp)
+                                 types.CPointer(types.float64), types.CPointer(types.float64), types.intp)
 _LIMIT_SIGNATURE = types.float64(types.float64, types.CPointer(types.float64), types.intp)
+_COMMIT_SIGNATURE = types.void(types.CPointer(types.float64), types.CPointer(types.float64), types.intp)
 
 _CALLBACKS: dict[str, tuple] = {}
 
@@ -77,6 +78,7 @@ class LawTable(NamedTuple):
 
     force_address: np.ndarray   # (n_terms,) int64 address of each term's force callback (:func:`law_callbacks`)
     limit_address: np.ndarray   # (n_terms,) int64 address of its stick-limit callback, 0 = none
+    commit_address: np.ndarray  # (n_terms,) int64 address of its commit callback
     count: int                  # n_terms
     element: np.ndarray         # (n_terms,) int64 element of each term
     friction: np.ndarray        # (n_terms,) bool: the term is dry friction
@@ -121,29 +123,64 @@ class Scratch(NamedTuple):
     g_new: np.ndarray     # (r,) step-end residual forces being solved for
     work: np.ndarray      # (11, r) rows of Newton work vectors
     J: np.ndarray         # (r, r) factorised copy of the Jacobian
-    S_trial: np.ndarray   # law states of the iterate
+    S_trial: np.ndarray   # law states of the iterate (what the laws wrote: :func:`law_callbacks`)
     S_probe: np.ndarray   # law states of the Jacobian's probes and the bracketed fallback's evaluations
 
 
 def law_callbacks(law) -> tuple:
-    """C callbacks ``(force, stick_limit)`` calling ``law.kernel`` and ``law.stick_limit``.
+    """C callbacks ``(force, stick_limit, commit)`` of a law.
 
-    ``force(x, v, p_ptr, n_p, s_ptr, n_s) -> f`` and ``stick_limit(x, p_ptr, n_p)``
-    (None for laws without a stick limit). Built once per law and process and kept
-    alive here (the integration loop holds only their addresses). A callback compiles
-    in a fraction of a second; the law kernels come from their own disk cache.
+    ``force(x, v, p_ptr, n_p, s_ptr, out_ptr, n_s) -> f`` evaluates the law from the state at ``s_ptr`` and
+    writes the state after to ``out_ptr`` (``law.update``; for a law without one, the state is copied and
+    ``law.kernel`` updates the copy); ``commit(out_ptr, s_ptr, n_s)`` makes the state at ``s_ptr`` what an
+    evaluation wrote (``law.commit``, else the whole state is copied); ``stick_limit(x, p_ptr, n_p)`` is None
+    for laws without a stick limit. Built once per law and process and kept alive here (the integration
+    loop holds only their addresses). A callback compiles in a fraction of a second; the law kernels come
+    from their own disk cache.
     """
     if law.name not in _CALLBACKS:
         limit = None if law.stick_limit is None else _limit_callback(law.stick_limit)
-        _CALLBACKS[law.name] = (_force_callback(law.kernel), limit)
+        if law.update is None:
+            force, commit = _copying_force_callback(law.kernel), _copy_commit_callback()
+        else:
+            force, commit = _force_callback(law.update), _commit_callback(law.commit)
+        _CALLBACKS[law.name] = (force, limit, commit)
     return _CALLBACKS[law.name]
 
 
-def _force_callback(kernel):
+def _force_callback(update):
     @cfunc(_FORCE_SIGNATURE)
-    def force(x, v, p, n_p, s, n_s):
-        return kernel(x, v, carray(p, (n_p,)), carray(s, (n_s,)))
+    def force(x, v, p, n_p, s, out, n_s):
+        return update(x, v, carray(p, (n_p,)), carray(s, (n_s,)), carray(out, (n_s,)))
     return force
+
+
+def _copying_force_callback(kernel):
+    @cfunc(_FORCE_SIGNATURE)
+    def force(x, v, p, n_p, s, out, n_s):
+        state = carray(out, (n_s,))
+        source = carray(s, (n_s,))
+        for i in range(n_s):
+            state[i] = source[i]
+        return kernel(x, v, carray(p, (n_p,)), state)
+    return force
+
+
+def _commit_callback(commit):
+    @cfunc(_COMMIT_SIGNATURE)
+    def callback(out, s, n_s):
+        commit(carray(out, (n_s,)), carray(s, (n_s,)))
+    return callback
+
+
+def _copy_commit_callback():
+    @cfunc(_COMMIT_SIGNATURE)
+    def callback(out, s, n_s):
+        state = carray(s, (n_s,))
+        written = carray(out, (n_s,))
+        for i in range(n_s):
+            state[i] = written[i]
+    return callback
 
 
 def _limit_callback(stick_limit):
@@ -154,19 +191,35 @@ def _limit_callback(stick_limit):
 
 
 @intrinsic
-def _call_force(typingctx, address, x, v, p_address, n_p, s_address, n_s):
-    """Call the force callback at ``address`` with parameter and state rows at the given addresses."""
+def _call_force(typingctx, address, x, v, p_address, n_p, s_address, out_address, n_s):
+    """Call the force callback at ``address`` with the parameter row, the state row read and the row written."""
     sig = types.float64(types.intp, types.float64, types.float64, types.intp, types.intp, types.intp,
-                        types.intp)
+                        types.intp, types.intp)
 
     def codegen(context, builder, signature, args):
         double = ir.DoubleType()
         pointer = double.as_pointer()
         index = context.get_value_type(types.intp)
         function = builder.inttoptr(args[0], ir.FunctionType(double, [double, double, pointer, index, pointer,
-                                                                      index]).as_pointer())
+                                                                      pointer, index]).as_pointer())
         return builder.call(function, [args[1], args[2], builder.inttoptr(args[3], pointer), args[4],
-                                       builder.inttoptr(args[5], pointer), args[6]])
+                                       builder.inttoptr(args[5], pointer), builder.inttoptr(args[6], pointer),
+                                       args[7]])
+
+    return sig, codegen
+
+
+@intrinsic
+def _call_commit(typingctx, address, out_address, s_address, n_s):
+    """Call the commit callback at ``address``: the state row at ``s_address`` becomes what was written."""
+    sig = types.void(types.intp, types.intp, types.intp, types.intp)
+
+    def codegen(context, builder, signature, args):
+        pointer = ir.DoubleType().as_pointer()
+        index = context.get_value_type(types.intp)
+        function = builder.inttoptr(args[0], ir.FunctionType(ir.VoidType(), [pointer, pointer, index]).as_pointer())
+        builder.call(function, [builder.inttoptr(args[1], pointer), builder.inttoptr(args[2], pointer), args[3]])
+        return context.get_dummy_value()
 
     return sig, codegen
 
@@ -188,8 +241,7 @@ def _call_limit(typingctx, address, x, p_address, n_p):
 
 @intrinsic
 def _copy_doubles(typingctx, destination, source, count):
-    """Copy ``count`` float64 from the address ``source`` to ``destination`` (one memcpy: an iwan's
-    134-number memory element by element through two-dimensional indexing cost as much as the law itself)."""
+    """Copy ``count`` float64 from the address ``source`` to ``destination`` (one memcpy)."""
     sig = types.void(types.intp, types.intp, types.intp)
 
     def codegen(context, builder, signature, args):
@@ -203,32 +255,41 @@ def _copy_doubles(typingctx, destination, source, count):
 
 # --- law evaluation --------------------------------------------------------------
 @njit(cache=True, _nrt=False, inline="always")
-def _element_forces(laws, S, S_trial, x, v, mode, sigma, out, copy=True):
+def _element_forces(laws, S, S_trial, x, v, mode, sigma, out):
     """Sum of the law forces per element at (x, v), from the committed law states ``S``.
 
-    The updated states land in ``S_trial`` (``S`` is untouched); ``copy=False`` when ``S_trial`` already
-    holds ``S`` (right after a commit). Dry-friction terms of a stuck element are left out (their force is
-    the constraint force); the other terms of a stuck element see zero velocity.
+    What the laws write of their updated states lands in ``S_trial`` (``S`` is untouched; :func:`_commit`).
+    Dry-friction terms of a stuck element are left out (their force is the constraint force; their state is
+    copied as it is); the other terms of a stuck element see zero velocity.
     """
     out[:] = 0.0
     P = laws.P
     p_base = P.ctypes.data
-    s_base = S_trial.ctypes.data
-    s_source = S.ctypes.data
+    trial_base = S_trial.ctypes.data
+    s_base = S.ctypes.data
     for k in range(laws.count):
         e = laws.element[k]
         ns = laws.n_state[k]
-        if copy:
-            _copy_doubles(s_base + k * S_trial.strides[0], s_source + k * S.strides[0], ns)
         ve = v[e]
         if mode[e] == STICK:
             if laws.friction[k]:
+                _copy_doubles(trial_base + k * S_trial.strides[0], s_base + k * S.strides[0], ns)
                 continue
             ve = 0.0
         elif mode[e] == SLIP and laws.friction[k] and sigma[e] * ve <= 0.0:
             ve = sigma[e] * _SLIP_PROBE
         out[e] += _call_force(laws.force_address[k], x[e], ve, p_base + k * P.strides[0], laws.n_params[k],
-                              s_base + k * S_trial.strides[0], ns)
+                              s_base + k * S.strides[0], trial_base + k * S_trial.strides[0], ns)
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _commit(laws, S, S_trial):
+    """The committed law states become those of the last evaluation into ``S_trial``."""
+    s_base = S.ctypes.data
+    trial_base = S_trial.ctypes.data
+    for k in range(laws.count):
+        _call_commit(laws.commit_address[k], trial_base + k * S_trial.strides[0], s_base + k * S.strides[0],
+                     laws.n_state[k])
 
 
 @njit(cache=True, _nrt=False, inline="always")
@@ -367,19 +428,19 @@ def _broyden(jac, lam, step, res, res_new, r):
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J, synced):
+def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J):
     """Solve the step-end equations for the residual forces g with the element modes fixed.
 
     Modified Newton: the Jacobian in ``jac`` is reused across iterations and steps
     while ``jac_valid[0]`` is set, and refreshed when a step fails or converges slowly.
     On return x, v, F and S_trial belong to the accepted g. Returns the number of
-    iterations, or -1 if the iteration did not converge. ``synced``: S_trial holds S on entry.
+    iterations, or -1 if the iteration did not converge.
     """
     res, res_trial, g_trial, x_probe, v_probe, F_probe, step, rhs = (work[0], work[1], work[2], work[3],
                                                                     work[4], work[5], work[6], work[7])
     k0, c0 = laws.k0, laws.c0
     _element_motion(y_free, D, g, r, x, v)
-    _element_forces(laws, S, S_trial, x, v, mode, sigma, F, not synced)
+    _element_forces(laws, S, S_trial, x, v, mode, sigma, F)
     worst = _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res)
     for it in range(_MAX_NEWTON):
         if worst <= 1.0:
@@ -404,9 +465,8 @@ def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, wo
             for e in range(r):
                 g_trial[e] = g[e] + lam * step[e]
             _element_motion(y_free, D, g_trial, r, x_probe, v_probe)
-            # the trial's law states go straight to S_trial: only an accepted iterate's are read after this
-            # (a rejected trial is followed by another trial, or the iteration fails), and copying an iwan's
-            # memory costs more than the law itself
+            # the trial's law states go straight to S_trial: only an accepted iterate's are committed (a
+            # rejected trial is followed by another trial, or the iteration fails)
             _element_forces(laws, S, S_trial, x_probe, v_probe, mode, sigma, F_probe)
             trial = _residual(g_trial, x_probe, v_probe, F_probe, k0, c0, mode, y_free, D, r, res_trial)
             if trial < worst or trial <= 1.0:
@@ -508,22 +568,19 @@ def _bracket_fallback(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J,
-                synced):
+def _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J):
     """Step-end element forces with stick/slip decided for every friction element.
 
     Active-set iteration: solve with the modes fixed, then let a stuck element slip
     when its constraint force exceeds its stick limit (in the direction of that
     force) and stop a sliding element whose velocity would reverse. Commits the law
-    states (S_trial then holds S). Returns False if the Newton iteration failed.
-    ``synced``: S_trial holds S on entry (the last step committed in this call).
+    states. Returns False if the Newton iteration failed.
     """
     limit = work[10]
     k0 = laws.k0
     ok = True
     for _ in range(2 + 4 * r):
-        if (_newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J,
-                    synced) < 0
+        if (_newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac, jac_valid, J) < 0
                 and not _bracket_fallback(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work,
                                           jac_valid)):
             ok = False
@@ -545,11 +602,7 @@ def _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F
         if not changed:
             break
         jac_valid[0] = 0
-        synced = False
-    s_base = S.ctypes.data
-    trial_base = S_trial.ctypes.data
-    for k in range(laws.count):
-        _copy_doubles(s_base + k * S.strides[0], trial_base + k * S_trial.strides[0], laws.n_state[k])
+    _commit(laws, S, S_trial)
     return ok
 
 
@@ -595,6 +648,16 @@ def _channel_outputs(Co, Dou, Dog, z, g, u0, channels):
 
 
 # --- the block loop ----------------------------------------------------------------
+@njit(cache=True, _nrt=False, inline="always")
+def _leading_pairs(edges):
+    """How many diagonal blocks of Phi, from the first, are 2 x 2 (a modal basis puts its complex pole pairs
+    first: :func:`drivers.simulation.simulator._modal_basis`)."""
+    n = 0
+    while n + 1 < edges.shape[0] and edges[n + 1] - edges[n] == 2:
+        n += 1
+    return n
+
+
 def typed_entry(dispatcher, args):
     """The compiled function a numba dispatcher runs for the types of ``args`` (compiled or loaded if needed).
 
@@ -650,7 +713,7 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
     k0, c0 = laws.k0, laws.c0
     nz = z.shape[0]
     r = k0.shape[0]
-    synced = False
+    n_pairs = _leading_pairs(edges)
     for m in range(n_steps):
         u0 = u[2 * m]
         um = u[2 * m + 1]
@@ -672,26 +735,26 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
                 total += z[i]
             if not math.isfinite(total):
                 return m, 0
-        for b in range(edges.shape[0] - 1):
+        for p in range(n_pairs):
+            # a mode's 2 x 2 block written out: the general loop's index bookkeeping cost more than its
+            # arithmetic (the same sums in the same order)
+            lo = 2 * p
+            z0 = z[lo]
+            z1 = z[lo + 1]
+            a0 = Qu[lo, 0] * u0 + Qu[lo, 1] * um + Qu[lo, 2] * u1
+            a1 = Qu[lo + 1, 0] * u0 + Qu[lo + 1, 1] * um + Qu[lo + 1, 2] * u1
+            a0 += Phi[lo, lo] * z0
+            a0 += Phi[lo, lo + 1] * z1
+            a1 += Phi[lo + 1, lo] * z0
+            a1 += Phi[lo + 1, lo + 1] * z1
+            for e in range(r):
+                a0 += Pg0[lo, e] * g[e]
+                a1 += Pg0[lo + 1, e] * g[e]
+            zf[lo] = a0
+            zf[lo + 1] = a1
+        for b in range(n_pairs, edges.shape[0] - 1):
             lo = edges[b]
             hi = edges[b + 1]
-            if hi - lo == 2:
-                # a mode's 2 x 2 block written out: the general loop's index bookkeeping cost more than its
-                # arithmetic (the same sums in the same order)
-                z0 = z[lo]
-                z1 = z[lo + 1]
-                a0 = Qu[lo, 0] * u0 + Qu[lo, 1] * um + Qu[lo, 2] * u1
-                a1 = Qu[lo + 1, 0] * u0 + Qu[lo + 1, 1] * um + Qu[lo + 1, 2] * u1
-                a0 += Phi[lo, lo] * z0
-                a0 += Phi[lo, lo + 1] * z1
-                a1 += Phi[lo + 1, lo] * z0
-                a1 += Phi[lo + 1, lo + 1] * z1
-                for e in range(r):
-                    a0 += Pg0[lo, e] * g[e]
-                    a1 += Pg0[lo + 1, e] * g[e]
-                zf[lo] = a0
-                zf[lo + 1] = a1
-                continue
             for i in range(lo, hi):
                 acc = Qu[i, 0] * u0 + Qu[i, 1] * um + Qu[i, 2] * u1
                 for j in range(lo, hi):
@@ -714,11 +777,8 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
                 # reaches the tolerance where a start O(h^3) off often needed two
                 g_new[e] = 4.0 * (g[e] + g_prev[1, e]) - 6.0 * g_prev[0, e] - g_prev[2, e]
             if not _solve_step(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g_new, x, v, F, work, jac,
-                               jac_valid, J, synced):
+                               jac_valid, J):
                 return m, 1
-            # after the commit the trial states equal the committed ones: the next step's first evaluation
-            # starts from them without copying (the caller may change S between calls, so not before)
-            synced = True
             for e in range(r):
                 g_prev[2, e] = g_prev[1, e]
                 g_prev[1, e] = g_prev[0, e]

@@ -232,6 +232,7 @@ class _Terms:
 
     force_address: np.ndarray
     limit_address: np.ndarray
+    commit_address: np.ndarray
     count: int
     element: np.ndarray
     friction: np.ndarray
@@ -257,8 +258,9 @@ def _law_terms(elements: list[Element]) -> _Terms:
     has_friction = np.zeros(len(elements), bool)
     for (e, _), fr in zip(rows, friction):
         has_friction[e] |= fr
-    return _Terms(np.array([force.address for force, _ in callbacks], np.int64),
-                  np.array([limit.address if limit is not None else 0 for _, limit in callbacks], np.int64), n,
+    return _Terms(np.array([force.address for force, _, _ in callbacks], np.int64),
+                  np.array([limit.address if limit is not None else 0 for _, limit, _ in callbacks], np.int64),
+                  np.array([commit.address for _, _, commit in callbacks], np.int64), n,
                   np.array([e for e, _ in rows], np.int64), friction, P,
                   np.array([len(p) for p in params], np.int64), S,
                   np.array([len(s) for s in states], np.int64), has_friction)
@@ -427,7 +429,8 @@ class RigSimulator:
         self._springs, self._spring_rows = _springs(self.model, self._active)
         self._terms = _law_terms([rig.elements[e] for e in self._active])
         t = self._terms
-        self._laws = kernels.LawTable(t.force_address, t.limit_address, t.count, t.element, t.friction, t.P,
+        self._laws = kernels.LawTable(t.force_address, t.limit_address, t.commit_address, t.count, t.element,
+                                      t.friction, t.P,
                                       t.n_params, t.n_state, self.model.k0[self._active],
                                       self.model.c0[self._active], t.has_friction)
         self._on = _discretise(*_state_space(rig, self.model, True, self._active), self.step)
