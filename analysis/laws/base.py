@@ -22,7 +22,8 @@ order of ``params`` followed by the constants the law derives from them
 read and written apart, ``update(x, v, p, s, out) -> f`` (``out`` may be ``s``), and
 ``commit(out, s)``, which copies into ``s`` what an update wrote: a simulator evaluates
 a law about twice a step from the same committed state, and without these it copies
-the whole state for every evaluation. For rate-independent
+the whole state for every evaluation. Both only index ``p``, ``s`` and ``out``, which
+are arrays from Python and C pointers from the simulator. For rate-independent
 hysteretic laws the update is exact along any monotone path between two calls, so
 a marched force is exact at the sample points. Laws with a jump in the velocity
 sign (dry friction) also provide ``stick_limit(x, p)``: the largest force the

@@ -192,8 +192,7 @@ def _merge_one_loop(s, n, c):
     return n - 2
 
 
-# inlined into its callers (the simulator's C callback): called across a function boundary it cost 12 ns more
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def iwan_update(x, v, p, s, out):
     """Force at x from the state ``s``; the state after goes to ``out``, which may be ``s`` itself.
 
