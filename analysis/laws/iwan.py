@@ -194,6 +194,18 @@ def _merge_one_loop(s, n, c):
 
 @njit(cache=True)
 def iwan_update(x, v, p, s, out):
+    """The law with its state read and written apart (:func:`_step`); the simulator calls it with C pointers."""
+    return _step(x, v, p, s, out)
+
+
+@njit(cache=True)
+def iwan_force(x, v, p, s):
+    return _step(x, v, p, s, s)
+
+
+# inlined into both entries: a call across a function boundary costs more than the law's arithmetic
+@njit(cache=True, inline="always")
+def _step(x, v, p, s, out):
     """Force at x from the state ``s``; the state after goes to ``out``, which may be ``s`` itself.
 
     Only what changes is written to ``out``: the header, the written range ``out[_WRITTEN:]`` and the
@@ -258,11 +270,6 @@ def iwan_commit(out, s):
         s[i] = out[i]
     s[_WRITTEN] = out[_WRITTEN]
     s[_WRITTEN + 1] = out[_WRITTEN + 1]
-
-
-@njit(cache=True)
-def iwan_force(x, v, p, s):
-    return iwan_update(x, v, p, s, s)
 
 
 def iwan_unit(X, xs, chi, beta) -> np.ndarray:
