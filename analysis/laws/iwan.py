@@ -255,7 +255,7 @@ def _step(x, v, p, s, out):
     out[1] = direction
     out[2] = x
     out[3] = f
-    out[_WRITTEN] = min(first, written)
+    out[_WRITTEN] = first
     out[_WRITTEN + 1] = written
     return f
 
