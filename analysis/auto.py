@@ -1,6 +1,7 @@
 """The missing-effect loop run automatically (docs/workbench.md §5): the product's own advice followed step by step.
 
-From a started workbench: the linear corrections first (elements whose verdict is linear with a constant kbar
+From a started workbench: model discovery first -- every element without laws gets the set of laws its kbar
+and the FRFs choose (:mod:`analysis.discovery`), one history step per element --, then the linear corrections (elements whose verdict is linear with a constant kbar
 offset: a wrong reference, applied together), then rank, add the top significant candidate, refit, rank again,
 until nothing significant is left. Where no single law is significant but an element's kbar is clearly not
 explained by its laws, pairs of laws on that element are tried before giving up (two effects of one joint can
@@ -16,6 +17,7 @@ import numpy as np
 
 from .comparison import gain_phrase
 from .diagnosis import Candidate, RankingRules
+from .discovery import Discovery, DiscoveryRules, ElementDiscovery
 from .unexplained import unexplained
 from .workbench import ElementReport, Workbench
 
@@ -24,7 +26,8 @@ from .workbench import ElementReport, Workbench
 class AutoRules:
     """The thresholds of the loop."""
 
-    max_steps: int = 6               # laws (or pairs) added at most, the linear corrections not counted
+    max_steps: int = 6               # laws (or pairs) added at most, discovery and linear corrections not counted
+    discovery: DiscoveryRules | None = DiscoveryRules()   # laws of the elements without any first (None: not)
     linear_corrections: bool = True  # apply the linear corrections first
     pairs: bool = True               # try pairs of laws on an element whose kbar is not explained
     pair_pool: int = 2               # the element's laws with the largest kbar evidence, each paired with every
@@ -38,7 +41,7 @@ class AutoRules:
 class AutoStep:
     """One step of the loop: what was added, why, and the FRF error before and after."""
 
-    action: str                      # "linear correction", "add" or "add pair"
+    action: str                      # "discover", "linear correction", "add" or "add pair"
     element: str | None              # the element (for a linear correction: the elements, comma-separated)
     laws: tuple[str, ...]
     error_before: float
@@ -71,13 +74,16 @@ class AutoResult:
     steps: list[AutoStep]
     stopped: str
     candidates: list[Candidate] = field(default_factory=list)
+    discovery: Discovery | None = None
 
     def text(self) -> str:
-        lines = ["automatic loop:"] + [f"  {i + 1}. {s.text()}" for i, s in enumerate(self.steps)]
+        lines = [self.discovery.text()] if self.discovery is not None and self.discovery.elements else []
+        lines += ["automatic loop:"] + [f"  {i + 1}. {s.text()}" for i, s in enumerate(self.steps)]
         return "\n".join(lines + [f"  stopped: {self.stopped}"])
 
     def to_json(self) -> dict:
-        return {"steps": [s.to_json() for s in self.steps], "stopped": self.stopped}
+        return {"steps": [s.to_json() for s in self.steps], "stopped": self.stopped,
+                "discovery": None if self.discovery is None else self.discovery.to_json()}
 
 
 def kbar_unexplained(report: ElementReport, false_alarm: float = 1e-3) -> bool:
@@ -118,12 +124,14 @@ def _pairs(ranked: list[Candidate], element: str, pool: int) -> list[tuple[str, 
     return list(pairs)
 
 
-def _best_pair(wb: Workbench, ranked: list[Candidate], rules: AutoRules) -> Candidate | None:
-    """The best significant pair of laws on an element whose kbar is not explained, or None."""
+def _best_pair(wb: Workbench, ranked: list[Candidate], rules: AutoRules,
+               searched: frozenset[str] = frozenset()) -> Candidate | None:
+    """The best significant pair of laws on an element whose kbar is not explained, or None. Elements in
+    ``searched`` are left out: discovery already judged every set of up to three laws there."""
     best = None
     for el in wb.model.elements:
         report = wb.reports.get(el.name)
-        if report is None or not kbar_unexplained(report, rules.unexplained_false_alarm):
+        if el.name in searched or report is None or not kbar_unexplained(report, rules.unexplained_false_alarm):
             continue
         pairs = _pairs(ranked, el.name, rules.pair_pool)
         scored = wb.pair_candidates(el.name, pairs, rules.ranking) if pairs else []
@@ -153,10 +161,19 @@ def _stop_reason(ranked: list[Candidate], pairs_tried: bool, min_gain: float) ->
             f"({gain_phrase(top.gain)}), not significant because {why}{pairs}")
 
 
+def _discovery_reason(found: ElementDiscovery) -> str:
+    taken = [s for s in found.walk if s.taken]
+    judged = "; ".join(s.text() for s in taken)
+    return (f"the set of laws its kbar chooses ({found.sets_fitted} sets fitted), judged by the FRFs: {judged}"
+            if judged else f"the set of laws its kbar chooses ({found.sets_fitted} sets fitted)")
+
+
 def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
-             progress: Callable[[AutoStep], None] | None = None) -> AutoResult:
+             progress: Callable[[AutoStep], None] | None = None,
+             note: Callable[[str], None] | None = None) -> AutoResult:
     """Run the loop on a started workbench (``wb.start()`` called). Afterwards ``wb.model`` is the final model
-    and ``wb.history`` holds every step; ``progress`` is called with each step as it is taken."""
+    and ``wb.history`` holds every step; ``progress`` is called with each step as it is taken, ``note`` with a
+    line of text while discovery searches an element."""
     if not wb.history:
         raise ValueError("run_auto needs a started workbench (call wb.start() first)")
     steps: list[AutoStep] = []
@@ -166,6 +183,16 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
         if progress is not None:
             progress(step)
 
+    found, searched = None, frozenset()
+    if rules.discovery is not None:
+        found = wb.discover(rules.discovery, note)
+        searched = frozenset(e.element for e in found.elements)
+        for element in found.elements:
+            if not element.laws:
+                continue
+            before = wb.history[-1].error
+            after = wb.add_laws(element.element, element.laws, action="discover").error
+            take(AutoStep("discover", element.element, element.laws, before, after, _discovery_reason(element)))
     if rules.linear_corrections:
         names = wb.linear_corrections()
         if names:
@@ -180,13 +207,13 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
         top = next((c for c in ranked if c.significant), None)
         pairs_tried = top is None and rules.pairs
         if pairs_tried:
-            top = _best_pair(wb, ranked, rules)
+            top = _best_pair(wb, ranked, rules, searched)
         if top is None:
-            return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked)
+            return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked, found)
         before = wb.history[-1].error
         after = wb.add_laws(top.element, top.laws).error
         take(AutoStep("add pair" if len(top.laws) > 1 else "add", top.element, top.laws, before, after,
                       _reason(top)))
         if not np.isfinite(after):
-            return AutoResult(steps, f"the model with {top.name} has no prediction", [])
-    return AutoResult(steps, f"stopped after the {rules.max_steps} steps allowed (AutoRules.max_steps)", [])
+            return AutoResult(steps, f"the model with {top.name} has no prediction", [], found)
+    return AutoResult(steps, f"stopped after the {rules.max_steps} steps allowed (AutoRules.max_steps)", [], found)

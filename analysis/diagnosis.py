@@ -52,7 +52,7 @@ import scipy.stats
 from .comparison import Comparison, HarmonicCriterion, Predictor, gain_phrase, kbar_functions_with
 from .elements import LawTerm
 from .errors import InputError
-from .fit import LawFit, fit_laws
+from .fit import LawFit, TermFit, fit_laws
 from .laws import LAWS
 from .laws.base import SignatureWords
 
@@ -192,11 +192,11 @@ def _slope(value: float | None) -> str:
     return "n/a" if value is None else f"{value:+.2f}"
 
 
-def explain(element: str, law: str, sig: Signature, fit: LawFit | None, units: tuple[str, str]) -> str:
-    """One sentence: what the data show for ``element`` and why ``law`` is the physics behind it."""
+def explain(element: str, law: str, sig: Signature, term: TermFit | None, units: tuple[str, str]) -> str:
+    """One sentence: what the data show for ``element`` and why ``law`` is the physics behind it (``term``: the
+    law's fitted values, stated where given)."""
     params = ""
-    if fit is not None:
-        term = fit.terms[-1]
+    if term is not None:
         params = ", ".join(f"{k} = {v:.4g}" + (" (not determined by the data)" if k in term.undetermined else "")
                            for k, v in term.params.items())
     X0, X1 = sig.X_range
@@ -244,27 +244,41 @@ def explained_within_noise(samples: ElementSamples, fit: LawFit | None, false_al
     return bool(dof > 0 and _kbar_chi_square(samples, fit) <= scipy.stats.chi2.ppf(1 - false_alarm, dof))
 
 
-def _duplicates_present_laws(fit: LawFit, n_new: int, max_correlation: float) -> bool:
-    """Whether the new (last ``n_new``) terms are not separately identifiable from the terms already there --
-    e.g. a linear spring beside an Iwan element that never leaves micro-slip, whose stiffness it trades off
-    against. Such a candidate would only move along a flat direction of the fit: either the fit finds the
-    direction exactly flat (a degeneracy) or a parameter of a new term is correlated with one of a present
-    term beyond ``max_correlation`` (on the demo beam linear.k against iwan.kt: -0.9996)."""
-    new = tuple(t.label + "." for t in fit.terms[-n_new:])
+def tied_parameters(fit: LawFit, terms: set[int], max_correlation: float) -> set[str]:
+    """The fit parameters of the law terms at indices ``terms`` that the fit cannot tell apart from a parameter
+    of its other terms -- e.g. the stiffness of a linear spring beside an Iwan element that never leaves
+    micro-slip, which trades off against the Iwan's: either the fit finds a direction exactly flat across both
+    (a degeneracy), or the two are correlated beyond ``max_correlation`` (on the demo beam linear.k against
+    iwan.kt: -0.9996)."""
+    mine = tuple(fit.terms[j].label + "." for j in terms)
+    tied = set()
     for d in fit.degeneracies:
-        mine = [p for p in d.parameters if p.startswith(new)]
-        if mine and len(mine) < len(d.parameters):
-            return True
+        inside = [p for p in d.parameters if p.startswith(mine)]
+        if inside and len(inside) < len(d.parameters):
+            tied.update(inside)
     names = fit.fit_parameter_names
-    is_new = np.array([n.startswith(new) for n in names])
-    if is_new.all() or not is_new.any():
-        return False
+    is_mine = np.array([n.startswith(mine) for n in names])
+    if is_mine.all() or not is_mine.any():
+        return tied
     cov = fit.covariance
     sd = np.sqrt(np.abs(np.diag(cov)))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(sd, sd)
-    block = np.abs(corr[np.ix_(is_new, ~is_new)])
-    return bool(np.any(np.nan_to_num(block, nan=0.0) > max_correlation))
+    block = np.nan_to_num(np.abs(corr[np.ix_(is_mine, ~is_mine)]), nan=0.0) > max_correlation
+    return tied | {n for n, row in zip(np.array(names)[is_mine], block) if row.any()}
+
+
+def inseparable(fit: LawFit, terms: set[int], max_correlation: float) -> bool:
+    """Whether any parameter of the law terms at indices ``terms`` is tied to one of the other terms
+    (:func:`tied_parameters`)."""
+    return bool(tied_parameters(fit, terms, max_correlation))
+
+
+def _duplicates_present_laws(fit: LawFit, n_new: int, max_correlation: float) -> bool:
+    """Whether the new (last ``n_new``) terms are not separately identifiable from the terms already there
+    (:func:`inseparable`): such a candidate would only move along a flat direction of the fit."""
+    n = len(fit.terms)
+    return inseparable(fit, set(range(n - n_new, n)), max_correlation)
 
 
 @dataclass(frozen=True)
@@ -310,7 +324,7 @@ class _Leader:
     error: float
 
 
-def _frf_criterion(base: Comparison, comp: Comparison, k_added: int, false_alarm: float) -> tuple[float, bool]:
+def frf_criterion(base: Comparison, comp: Comparison, k_added: int, false_alarm: float) -> tuple[float, bool]:
     """(BIC of the FRFs, whether the FRF chi-square drops by more than the noise explains)."""
     n_obs = base.n_observations
     if base.chi_square is not None and comp.chi_square is not None:
@@ -338,8 +352,8 @@ def _score(scene: _Scene, el: _Element, laws: tuple[str, ...], rules: RankingRul
     comp = scene.predictor.compare(fns)
     if not np.isfinite(comp.error):
         return None
-    bic, above_noise = _frf_criterion(scene.base, comp, k_added, rules.false_alarm)
-    text = "; ".join(explain(el.name, law, el.signature, fit if law == laws[-1] else None, s.units)
+    bic, above_noise = frf_criterion(scene.base, comp, k_added, rules.false_alarm)
+    text = "; ".join(explain(el.name, law, el.signature, fit.terms[-1] if law == laws[-1] else None, s.units)
                      for law in laws)
     return Candidate(el.name, laws[0], comp.error, scene.base.error, bic, above_noise, text, float(evidence),
                      fit=fit, comparison=comp, laws=laws)
@@ -481,7 +495,7 @@ def check_model_form(predictor: Predictor, candidates: list[Candidate], rules: R
         variant = predictor.with_laws({index[c.element]: c.fit.law_terms()})
         comp = variant.compare(harmonics=criterion)
         c.multiharmonic_gain = base.error / comp.error if comp.error > 0 else float("inf")
-        _, above_noise = _frf_criterion(base, comp, sum(len(LAWS[n].params) for n in c.laws), rules.false_alarm)
+        _, above_noise = frf_criterion(base, comp, sum(len(LAWS[n].params) for n in c.laws), rules.false_alarm)
         if not (above_noise and c.multiharmonic_gain >= rules.min_gain):
             c.significant = False
             c.model_form = (f"with the harmonics represented at the lines where they are not negligible the error "

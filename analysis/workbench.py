@@ -22,11 +22,13 @@ from __future__ import annotations
 
 import tomllib
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from .comparison import Comparison, HarmonicCriterion, Predictor
 from .diagnosis import Candidate, ElementSamples, RankingRules, check_model_form, rank_candidates, rank_pairs
+from .discovery import Discovery, DiscoveryRules, discover
 from .elements import LawTerm
 from .errors import InputError
 from .fit import LawFit, fit_laws
@@ -279,8 +281,9 @@ class Workbench:
             return self._add_nonparametric(self.model.element(element))
         return self.add_laws(element, (law,))
 
-    def add_laws(self, element: str, laws: tuple[str, ...]) -> HistoryStep:
-        """Add ``laws`` (one, or a pair found together) to ``element``, refit it and record one step."""
+    def add_laws(self, element: str, laws: tuple[str, ...], action: str = "add") -> HistoryStep:
+        """Add ``laws`` (one, or several found together) to ``element``, refit it and record one step
+        (``action``: the word the history starts the step with)."""
         el = self.model.element(element)
         new = [get_law(law) for law in laws]
         for law, n in zip(laws, new):
@@ -288,7 +291,15 @@ class Workbench:
                 raise InputError(f"element {element!r} already has law {law!r}", self.model.source)
         el.laws += [LawTerm(n, {}) for n in new]
         self.fit([element])
-        return self.record(f"add {element}:{'+'.join(laws)}")
+        return self.record(f"{action} {element}:{'+'.join(laws)}")
+
+    def discover(self, rules: DiscoveryRules = DiscoveryRules(),
+                 note: Callable[[str], None] | None = None) -> Discovery:
+        """The laws of every element that has none (:func:`analysis.discovery.discover`); the model is not
+        changed (``add_laws`` adds a choice)."""
+        samples, _, linear = self._ranking_inputs()
+        h = self.harmonics_or_default
+        return discover(self.predictor, samples, linear, rules, h.n_harmonics, h.n_time, note, self._harmonics_blind())
 
     def _fit_nonparametric(self, el) -> None:
         """The element's non-parametric part fitted to what its (fitted) laws leave of its kbar samples."""

@@ -72,11 +72,13 @@ def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = T
 
 
 def run_workbench_auto(session_path, model_path, adds: list[str] = (),
-                       progress: Callable[[AutoStep], None] | None = None) -> tuple[Workbench, AutoResult]:
+                       progress: Callable[[AutoStep], None] | None = None,
+                       note: Callable[[str], None] | None = None) -> tuple[Workbench, AutoResult]:
     """The workbench taken through start and the requested additions, then the automatic loop
-    (:func:`analysis.auto.run_auto`, each step reported to ``progress`` as it is taken)."""
+    (:func:`analysis.auto.run_auto`, each step reported to ``progress`` as it is taken, discovery's search
+    lines to ``note``)."""
     wb = _started_workbench(session_path, model_path, adds)
-    return wb, run_auto(wb, progress=progress)
+    return wb, run_auto(wb, progress=progress, note=note)
 
 
 def _started_workbench(session_path, model_path, adds) -> Workbench:

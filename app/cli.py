@@ -216,7 +216,8 @@ def cmd_analyze(args) -> int:
     auto = None
     if args.auto:
         wb, auto = run_workbench_auto(args.session, args.model, args.add or [],
-                                      progress=lambda step: print(f"auto: {step.line()}", file=step_out, flush=True))
+                                      progress=lambda step: print(f"auto: {step.line()}", file=step_out, flush=True),
+                                      note=lambda line: print(f"auto: {line}", file=step_out, flush=True))
         candidates = auto.candidates
     else:
         wb, candidates = run_workbench(args.session, args.model, args.add or [])

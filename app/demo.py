@@ -77,7 +77,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
             f"stiffness is {'too high' if k < 0 else 'too low'}; the contact behaves as k_w + kbar = "
             f"{1e7 + k:.3g} N/m.")
     say(f"\n4. What is missing, starting from no laws at all (FRF error {wb.history[-1].error:.3g}):")
-    result = run_auto(wb, progress=lambda step: say(f"   {step.text()}"))
+    result = run_auto(wb, progress=lambda step: say(f"   {step.text()}"), note=lambda line: say(f"   {line}"))
     say(f"   {result.stopped}")
     say("   error history: " + " -> ".join(f"{h.error:.3g}" for h in wb.history) + "\n")
     append_model_history(session, [h.to_json() for h in wb.history], str(model_path))

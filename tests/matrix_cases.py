@@ -18,6 +18,7 @@ import numpy as np
 
 from analysis.auto import run_auto
 from analysis.laws import LAWS
+from analysis.laws.base import KINDS
 from analysis.model import load_model
 from analysis.workbench import Workbench
 from app.importers.runs import SourceOptions
@@ -33,22 +34,10 @@ from test_hidden_effects import BEAM, BEAM_IO, LUMPED, LUMPED_IO, LUMPED_PLAN
 # --------------------------------------------------------------------------------------------- law kinds
 # What a diagnosis must get right is the kind of physics, not the law's exact name: laws of one kind have
 # describing functions that coincide over a range of amplitude (a Jenkins element in gross slip is Coulomb
-# friction; a quintic and a cubic both harden), so the data cannot always tell them apart.
-LAW_KINDS: dict[str, frozenset[str]] = {
-    # a constant offset of kbar: a linear correction; bilinear too, since kbar sees only its mean stiffness
-    "linear": frozenset({"linear", "bilinear"}),
-    # Re kbar moves with amplitude, Im flat: hardening or softening conservative springs
-    "stiffness": frozenset({"cubic", "quintic", "tanh_softening", "arctan_softening"}),
-    # Re kbar moves with frequency, not amplitude
-    "rate stiffness": frozenset({"velocity_stiffness"}),
-    # Im kbar grows with velocity amplitude: viscous-like nonlinear damping
-    "damping": frozenset({"quadratic_damping", "cubic_damping"}),
-    # Im kbar from a slip force, in gross slip or micro-slip (Jenkins, Iwan), with or without a normal load that
-    # follows the motion (Anderson-Ferri)
-    "friction": frozenset({"coulomb", "anderson_ferri", "jenkins", "iwan"}),
-    # Re kbar rises past a threshold amplitude: a clearance that closes, on both sides or one
-    "clearance": frozenset({"gap", "unilateral"}),
-}
+# friction; a quintic and a cubic both harden), so the data cannot always tell them apart. Each law class names
+# its kind (analysis.laws.base.KINDS).
+LAW_KINDS: dict[str, frozenset[str]] = {kind: frozenset(n for n, law in LAWS.items() if law.kind == kind)
+                                        for kind in KINDS}
 
 
 def law_kind(law: str) -> str:

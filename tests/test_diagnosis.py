@@ -90,6 +90,6 @@ def test_a_candidate_explanation_marks_the_parameters_the_data_do_not_determine(
     sig = Signature(0.5, None, 0.8, -20.0, 10.0, -5.0, 2.0, 0.0, -20.0, 0.5, 6.0, (1e-5, 7e-3), False)
     term = SimpleNamespace(params={"kt": 98.3, "fs": 0.85, "chi": -0.5, "beta": 0.039},
                            undetermined=("fs", "beta"))
-    text = explain("tangential", "iwan", sig, SimpleNamespace(terms=[term]), ("N·m/rad", "rad"))
+    text = explain("tangential", "iwan", sig, term, ("N·m/rad", "rad"))
     assert "kt = 98.3, fs = 0.85 (not determined by the data), chi = -0.5, beta = 0.039 (not determined by the data)" \
         in text

@@ -33,7 +33,7 @@ def test_every_law_carries_its_whole_description(name):
     sentence = law.explain(WORDS)
     assert sentence and "{" not in sentence and "}" not in sentence
     row = law.docs_row()
-    assert row.startswith(f"| {name} | ") and row.count(" | ") == 5       # six cells, escaped pipes excepted
+    assert row.startswith(f"| {name} | {law.kind} | ") and row.count(" | ") == 6   # seven cells, escaped pipes excepted
     assert all(p.name in row for p in law.params)
 
 
@@ -49,11 +49,15 @@ def test_visible_in_kbar_means_kbar_is_not_one_constant(name):
 
 def test_a_law_lacking_part_of_its_description_fails_when_defined():
     linear = LAWS["linear"]
-    body = {"name": "spring2", "summary": "s", "params": linear.params, "linear": linear.linear,
+    body = {"name": "spring2", "kind": "linear", "summary": "s", "params": linear.params, "linear": linear.linear,
             "example": linear.example, "kernel": linear.kernel, "force_text": "k x", "kbar_text": "k",
             "basis": type(linear).basis}
     with pytest.raises(TypeError, match="lacks explanation"):
         type("Spring2", (Law,), dict(body))
+    with pytest.raises(TypeError, match="lacks kind"):
+        type("Spring2", (Law,), {k: v for k, v in body.items() if k != "kind"} | {"explanation": "{re}"})
+    with pytest.raises(TypeError, match="kind 'spring' is not one of"):
+        type("Spring2", (Law,), dict(body, kind="spring", explanation="{re}"))
     with pytest.raises(TypeError, match=r"unknown field\(s\) slope"):
         type("Spring2", (Law,), dict(body, explanation="{re} with {slope}"))
     law = type("Spring2", (Law,), dict(body, explanation="{re}: a spring"))()

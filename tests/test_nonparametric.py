@@ -69,7 +69,8 @@ def receptances(force, F):
             x = np.linalg.solve(D, [0.0, F])
             z = np.concatenate([x.real, x.imag])
         z, _, ier, msg = scipy.optimize.fsolve(residual, z, full_output=True, xtol=1e-12)
-        assert ier == 1, msg
+        # "not making good progress" at the round-off floor is still a root: judge by the residual itself
+        assert ier == 1 or np.max(np.abs(residual(z))) < 1e-10 * F, msg
         out.append((z[:2] + 1j * z[2:]) / F)
     return np.array(out)
 

@@ -35,6 +35,7 @@ def anderson_ferri_stick_limit(x, p):
 
 class AndersonFerri(Law):
     name = "anderson_ferri"
+    kind = "friction"
     summary = "Anderson-Ferri generalised friction (paper eq. 33)"
     force_text = "((pi/4) a + (pi/2) b |x| + c |x'|) sgn(x'); stick limit max(0, (pi/4) a + (pi/2) b |x|)"
     kbar_text = "j (a/X + b + c w)"

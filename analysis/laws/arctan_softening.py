@@ -32,6 +32,7 @@ def arctan_softening_force(x, v, p, s):
 
 class ArctanSoftening(Law):
     name = "arctan_softening"
+    kind = "stiffness"
     summary = "arctan saturating spring"
     force_text = "alpha arctan(beta x)"
     kbar_text = "2 alpha beta / (1 + sqrt(1 + beta^2 X^2))"

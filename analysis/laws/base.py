@@ -106,7 +106,21 @@ class SignatureWords:
 
 EXPLANATION_FIELDS = frozenset(f.name for f in fields(SignatureWords))
 # What every concrete law class must define (the rest has defaults in Law).
-REQUIRED = ("name", "summary", "params", "linear", "example", "kernel", "force_text", "kbar_text", "explanation")
+REQUIRED = ("name", "kind", "summary", "params", "linear", "example", "kernel", "force_text", "kbar_text",
+            "explanation")
+
+# The kinds of physics a law belongs to. Laws of one kind have describing functions that can coincide over a range
+# of amplitude (a Jenkins element in gross slip is Coulomb friction; a quintic and a cubic both harden), and one
+# joint has at most one mechanism of each kind: model discovery combines laws of different kinds only.
+KINDS = {
+    "linear": "a constant offset of kbar: a linear spring and damper (bilinear too: kbar sees its mean stiffness)",
+    "stiffness": "Re kbar moves with amplitude, Im flat: a hardening or softening conservative spring",
+    "rate stiffness": "Re kbar moves with frequency, not amplitude",
+    "damping": "Im kbar grows with the velocity amplitude: viscous-like nonlinear damping",
+    "friction": "Im kbar from a slip force, in gross slip or micro-slip, with or without a normal load that "
+                "follows the motion",
+    "clearance": "Re kbar rises past a threshold amplitude: a clearance that closes, on both sides or one",
+}
 
 
 # Not disk-cached: the cache key of a function taking another jitted function includes its address, so a
@@ -123,6 +137,7 @@ class Law(ABC):
     """Base class of the element laws; one subclass (and one module) per law."""
 
     name: ClassVar[str]
+    kind: ClassVar[str]             # one of KINDS
     summary: ClassVar[str]
     params: ClassVar[tuple[Param, ...]]
     # Fit parametrisation: names entering kbar linearly, and the shape parameters
@@ -169,6 +184,8 @@ class Law(ABC):
         missing = [a for a in REQUIRED if not hasattr(cls, a)]
         if missing:
             raise TypeError(f"law class {cls.__name__} lacks {', '.join(missing)}")
+        if cls.kind not in KINDS:
+            raise TypeError(f"law {cls.name!r}: kind {cls.kind!r} is not one of {', '.join(KINDS)}")
         if (cls.update is None) != (cls.commit is None):
             raise TypeError(f"law class {cls.__name__} defines one of update and commit without the other")
         unknown = {f for _, f, _, _ in string.Formatter().parse(cls.explanation) if f is not None} - EXPLANATION_FIELDS
@@ -226,7 +243,7 @@ class Law(ABC):
         # a shape parameter outside the contract says what it is (jenkins' xs = fs / kt)
         shape = [p.name if p.name in self.param_names else f"{p.name} ({p.description})" for p in self.shape]
         fit = ", ".join(self.linear) + " / " + (", ".join(shape) or "–")
-        cells = (self.name, self.parameter_text(), self.force_text, self.kbar_text, fit,
+        cells = (self.name, self.kind, self.parameter_text(), self.force_text, self.kbar_text, fit,
                  "yes" if self.visible_in_kbar else "no (only harmonics)")
         return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
 

@@ -22,6 +22,7 @@ def bilinear_force(x, v, p, s):
 
 class Bilinear(Law):
     name = "bilinear"
+    kind = "linear"
     summary = "bilinear spring (different tension and compression stiffness)"
     force_text = "k_pos x (x > 0), k_neg x (x <= 0)"
     kbar_text = "(k_pos + k_neg)/2"

@@ -31,6 +31,7 @@ def coulomb_stick_limit(x, p):
 
 class Coulomb(Law):
     name = "coulomb"
+    kind = "friction"
     summary = "Coulomb dry friction"
     force_text = "fs sgn(x'); stick limit fs"
     kbar_text = "j 4 fs / (pi X) (pure sliding)"

@@ -12,6 +12,7 @@ def cubic_force(x, v, p, s):
 
 class Cubic(Law):
     name = "cubic"
+    kind = "stiffness"
     summary = "cubic spring"
     force_text = "k3 x^3"
     kbar_text = "(3/4) k3 X^2"

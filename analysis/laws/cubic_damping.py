@@ -15,6 +15,7 @@ def cubic_damping_force(x, v, p, s):
 
 class CubicDamping(Law):
     name = "cubic_damping"
+    kind = "damping"
     summary = "cubic viscous damper"
     force_text = "c3 x'^3"
     kbar_text = "j (3/4) c3 w^3 X^2"

@@ -30,8 +30,8 @@ def _number(value: float, scientific: bool = False) -> str:
 
 
 def law_table() -> str:
-    head = ("| law | parameters: unit translational (rotational), bounds | time-domain force | "
-            "describing function kbar(X, w) | fit: linear / shape | seen in kbar |\n|---|---|---|---|---|---|")
+    head = ("| law | kind | parameters: unit translational (rotational), bounds | time-domain force | "
+            "describing function kbar(X, w) | fit: linear / shape | seen in kbar |\n|---|---|---|---|---|---|---|")
     return "\n".join([head] + [law.docs_row() for law in LAWS.values()])
 
 

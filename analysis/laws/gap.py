@@ -31,6 +31,7 @@ def gap_force(x, v, p, s):
 
 class Gap(Law):
     name = "gap"
+    kind = "clearance"
     summary = "dead-zone spring (clearance)"
     force_text = "k (x - gap sgn x) for |x| > gap, else 0"
     kbar_text = "X <= gap: 0; else k [1 - (2/pi)(asin u + u sqrt(1 - u^2))], u = gap/X"

@@ -316,6 +316,7 @@ _BETA = Param("beta", "1", "spike ratio: stiffness of the macro-slip spike over 
 
 class Iwan(Law):
     name = "iwan"
+    kind = "friction"
     summary = "four-parameter (Segalman) Iwan joint"
     force_text = "parallel Jenkins continuum, Masing branches with Madelung memory (below)"
     kbar_text = "closed form below"

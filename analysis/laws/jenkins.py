@@ -43,6 +43,7 @@ def jenkins_unit(X, xs) -> np.ndarray:
 
 class Jenkins(Law):
     name = "jenkins"
+    kind = "friction"
     summary = "Jenkins element (spring in series with a Coulomb slider)"
     force_text = "kt (x - z), slider z moves so that |f| <= fs"
     kbar_text = "X <= Xs: kt; X > Xs: kt ReJ(Xs/X) + j (4 fs/(pi X))(1 - Xs/X), Xs = fs/kt"

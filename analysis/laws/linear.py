@@ -12,6 +12,7 @@ def linear_force(x, v, p, s):
 
 class Linear(Law):
     name = "linear"
+    kind = "linear"
     summary = "linear spring and viscous damper"
     force_text = "k x + c x'"
     kbar_text = "k + j c w"

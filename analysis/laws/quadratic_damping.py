@@ -17,6 +17,7 @@ def quadratic_damping_force(x, v, p, s):
 
 class QuadraticDamping(Law):
     name = "quadratic_damping"
+    kind = "damping"
     summary = "quadratic (velocity-squared) damper"
     force_text = "c2 |x'| x'"
     kbar_text = "j (8/(3 pi)) c2 w^2 X"

@@ -16,6 +16,7 @@ def quintic_force(x, v, p, s):
 
 class Quintic(Law):
     name = "quintic"
+    kind = "stiffness"
     summary = "quintic spring"
     force_text = "k5 x^5"
     kbar_text = "(5/8) k5 X^4"

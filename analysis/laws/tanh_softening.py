@@ -78,6 +78,7 @@ def tanh_fundamental(z) -> np.ndarray:
 
 class TanhSoftening(Law):
     name = "tanh_softening"
+    kind = "stiffness"
     summary = "tanh saturating spring (paper eq. 32)"
     force_text = "alpha tanh(beta x)"
     kbar_text = "alpha beta G(beta X), G below"

@@ -31,6 +31,7 @@ def unilateral_force(x, v, p, s):
 
 class Unilateral(Law):
     name = "unilateral"
+    kind = "clearance"
     summary = "one-sided contact spring (clearance or preload)"
     force_text = "k (x - gap) for x > gap, else 0"
     kbar_text = "u >= 1: 0; u <= -1: k; else (k/2)[1 - (2/pi)(asin u + u sqrt(1 - u^2))], u = gap/X"

@@ -23,6 +23,7 @@ def velocity_stiffness_force(x, v, p, s):
 
 class VelocityStiffness(Law):
     name = "velocity_stiffness"
+    kind = "rate stiffness"
     summary = "frequency-proportional stiffness (paper eq. 32)"
     force_text = "(pi/2) gamma |x'| sgn(x)"
     kbar_text = "gamma w (real)"

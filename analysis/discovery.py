@@ -1,0 +1,564 @@
+"""Model discovery: the laws of every element that has none, found from an empty law set (docs/discovery.md).
+
+A user knows the structure and where the joints are, not a single law. The closed-form identification gives
+every element its own kbar samples with their noise, so the elements' laws can be chosen where the elements are
+decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the few best choices:
+
+1. **Sets of laws, fitted to the element's kbar.** Every set of one to ``max_laws`` laws of the library, at most
+   one of each kind (:data:`analysis.laws.base.KINDS`: one joint has one stiffness mechanism, one damping, one
+   friction...), is fitted to the element's kbar samples (pairs all; triples extend the ``triple_pool`` best pairs).
+   A set whose laws the fit cannot tell apart (an exact degeneracy across two laws, or parameters of two laws
+   correlated beyond ``max_correlation``) is not a set of separate effects and is dropped. Where the element's
+   verdict is linear, only laws without amplitude dependence enter.
+2. **A criterion that charges for parameters.** ``chi2 / s^2 + p ln(2N)`` (BIC in the kbar noise), with ``s^2``
+   the reduced chi-square of the best-fitting set where it exceeds 1: no law of the library fits a kbar the
+   single-harmonic describing function cannot represent (friction that sticks for part of the cycle), and that
+   remainder is noise to every set alike, not evidence for a richer one. Per number of laws the best set by the
+   criterion is that size's *representative*.
+3. **Equivalent sets are named.** Sets that fit the kbar neither better nor worse than the chosen one by more than
+   the noise explains (``|chi2 - chi2_chosen| <= s^2 q``, ``q`` the chi-square quantile at ``false_alarm``) are
+   *indistinguishable on these data*; the one with the fewest parameters is taken, the others listed with the
+   test that would separate them (where their describing functions part: a lower or higher level, another band).
+4. **The FRFs judge the size.** Each element's shortlists (:func:`_shortlists`) are walked from no law upward,
+   every other searched element represented meanwhile by its own measured kbar (a stand-in, :func:`_standins`),
+   so that no element's choice waits on another's: of each size the set the kbar criterion prefers among those
+   whose single-harmonic FRF error is within ``min_gain`` of the best is tried, and taken only if it cuts the
+   error of the current choice by ``min_gain`` and the FRF chi-square by more than the noise explains. Then -- the model-form check, with every element at its choice -- each
+   element's last step must do the same with the lines that carry harmonics predicted multi-harmonically
+   (unless its gain is beyond ``certain_gain``), or it is taken back. A law that fits only what one harmonic
+   cannot represent, or a wrong law standing in for part of a kbar, gains too little there.
+
+The chosen laws' explanations are written from the *partial* kbar each law explains (the samples less the other
+laws of the set), so the log-slopes printed beside a law are the ones it fits; a law whose own signature departs
+from them says so.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import scipy.stats
+
+from .comparison import Comparison, HarmonicCriterion, Predictor, gain_phrase, kbar_functions_with
+from .diagnosis import ElementSamples, RankingRules, explain, frf_criterion, signature, tied_parameters
+from .errors import InputError
+from .fit import LawFit, fit_laws, outlier_limit
+from .laws import LAWS
+from .nonparametric import fit_nonparametric
+
+
+@dataclass(frozen=True)
+class DiscoveryRules:
+    """The settings of model discovery (module docstring)."""
+
+    max_laws: int = 3                 # laws in one set at most
+    triple_pool: int = 8              # best pairs extended to sets of three
+    walk_width: int = 3               # sets of each size the FRFs judge (:func:`_shortlists`)
+    max_correlation: float = 0.995    # parameters of two laws of a set this correlated: not separate effects
+    screening_grid: int = 4           # shape-parameter grid points per parameter while sets are screened
+    screening_starts: int = 1         # local searches per screening fit
+    screening_evaluations: int = 30   # residual evaluations per local search while screening
+    certain_gain: float = 5.0         # a single-harmonic gain this large is not the harmonics' effect: no
+                                      # multi-harmonic check (laws that only fit what one harmonic cannot
+                                      # represent gained x1.26-x1.9 in every case measured)
+    ranking: RankingRules = RankingRules()   # min_gain, false_alarm, model_form_thd
+
+
+@dataclass
+class LawSet:
+    """One set of laws fitted to one element's kbar."""
+
+    laws: tuple[str, ...]
+    fit: LawFit | None                # None for the empty set
+    chi_square: float
+    n_parameters: int
+    criterion: float = np.inf         # chi2 / s^2 + p ln(2N), set once s^2 is known
+
+    @property
+    def name(self) -> str:
+        return "+".join(self.laws) if self.laws else "no law"
+
+    def describing_function(self, X, w) -> np.ndarray:
+        X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
+        return self.fit.describing_function(X, w) if self.fit is not None else np.zeros(X.shape, complex)
+
+
+@dataclass
+class Separation:
+    """Where an indistinguishable set's describing function parts from the chosen one's."""
+
+    laws: tuple[str, ...]
+    test: str                          # the test that would separate them, in words
+
+    def to_json(self) -> dict:
+        return {"laws": list(self.laws), "test": self.test}
+
+
+@dataclass
+class WalkStep:
+    """One comparison of the walk: a set tried against the element's current choice, with the FRF errors."""
+
+    laws: tuple[str, ...]
+    error: float                       # single-harmonic FRF error with it
+    error_before: float                # ... with the current choice
+    taken: bool
+    multiharmonic_gain: float | None = None
+    why: str = ""
+
+    @property
+    def gain(self) -> float:
+        return self.error_before / self.error if self.error > 0 else float("inf")
+
+    def text(self) -> str:
+        name = "+".join(self.laws) if self.laws else "no law"
+        mh = "" if self.multiharmonic_gain is None else f", {gain_phrase(self.multiharmonic_gain)} with harmonics"
+        verdict = "taken" if self.taken else f"not taken{': ' + self.why if self.why else ''}"
+        return f"{name}: {self.error:.3g} ({gain_phrase(self.gain)} single-harmonic{mh}), {verdict}"
+
+    def to_json(self) -> dict:
+        return {"laws": list(self.laws), "error": self.error, "error_before": self.error_before, "gain": self.gain,
+                "taken": self.taken, "multiharmonic_gain": self.multiharmonic_gain, "why": self.why}
+
+
+@dataclass
+class ElementDiscovery:
+    """What discovery found for one element."""
+
+    element: str
+    chosen: LawSet
+    scale: float                       # s^2: the best set's reduced chi-square, at least 1
+    sets_fitted: int
+    explanations: list[str]
+    equivalents: list[Separation] = field(default_factory=list)
+    walk: list[WalkStep] = field(default_factory=list)
+
+    @property
+    def laws(self) -> tuple[str, ...]:
+        return self.chosen.laws
+
+    def text(self) -> str:
+        out = [f"{self.element}: {self.chosen.name} ({self.chosen.n_parameters} parameter(s); {self.sets_fitted} "
+               f"sets of up to three laws fitted to its kbar)"]
+        out += [f"  {e}" for e in self.explanations]
+        if self.equivalents:
+            out.append("  indistinguishable on these data (they fit its kbar as well; the fewest parameters are "
+                       "taken): " + "; ".join(f"{'+'.join(s.laws)} ({s.test})" for s in self.equivalents))
+        if self.walk:
+            out.append("  judged by the FRFs: " + "; ".join(s.text() for s in self.walk))
+        return "\n".join(out)
+
+    def to_json(self) -> dict:
+        return {"element": self.element, "laws": list(self.chosen.laws), "n_parameters": self.chosen.n_parameters,
+                "kbar_chi_square": self.chosen.chi_square, "kbar_scale": self.scale,
+                "sets_fitted": self.sets_fitted, "explanations": self.explanations,
+                "indistinguishable": [s.to_json() for s in self.equivalents],
+                "walk": [s.to_json() for s in self.walk]}
+
+
+@dataclass
+class _Search:
+    """The kbar stage of one element: every set fitted, the scale and each size's representative."""
+
+    index: int
+    samples: ElementSamples
+    sets: list[LawSet]
+    scale: float
+    by_size: dict[int, list[LawSet]]   # the shortlist of each number of laws (:func:`_shortlists`)
+
+
+def law_sets(names: list[str], size: int) -> list[tuple[str, ...]]:
+    """Every set of ``size`` laws out of ``names`` with at most one law of each kind."""
+    return [combo for combo in itertools.combinations(names, size)
+            if len({LAWS[n].kind for n in combo}) == size]
+
+
+def _candidate_laws(linear_verdict: bool) -> list[str]:
+    """The laws discovery may use on an element: those kbar can reveal; only laws without amplitude dependence
+    where the element's verdict is linear (the verdict found nothing else to explain)."""
+    return [n for n, law in LAWS.items()
+            if law.visible_in_kbar and not (linear_verdict and law.amplitude_dependent)]
+
+
+def _fit_set(samples: ElementSamples, laws: tuple[str, ...], rules: DiscoveryRules, robust: bool) -> LawSet | None:
+    """The set fitted with the screening settings; None where it cannot be fitted or one of its laws adds no
+    direction of its own (:func:`_adds_nothing`). ``robust``: the fit leaves out the samples that do not follow
+    it (data without harmonics, where no line could be left out as far from harmonic), and the set is judged by
+    :func:`capped_chi_square`."""
+    try:
+        fit = fit_laws(list(laws), samples.X, samples.w, samples.kbar, samples.kbar_std,
+                       grid_points=rules.screening_grid, n_starts=rules.screening_starts,
+                       max_evaluations=rules.screening_evaluations, exclude_outliers=robust)
+    except InputError:
+        return None                                   # too few samples for this many parameters
+    if len(laws) > 1 and any(_adds_nothing(fit, j, rules.max_correlation) for j in range(len(laws))):
+        return None
+    chi2 = capped_chi_square(np.abs(fit.normalized_residuals) ** 2) if robust else fit.chi_square
+    return LawSet(laws, fit, chi2, fit.n_parameters)
+
+
+def capped_chi_square(z: np.ndarray) -> float:
+    """The chi-square with every sample's share capped at the outlier limit (:func:`analysis.fit.outlier_limit`):
+    where lines may depart from any describing function (data without harmonics), a set of laws neither wins by
+    bending to the departing lines nor loses nothing by leaving a line out -- each costs the limit."""
+    return float(np.sum(np.minimum(z, outlier_limit(len(z)))))
+
+
+def _adds_nothing(fit: LawFit, j: int, max_correlation: float) -> bool:
+    """Whether every parameter of law ``j`` of the set is tied to another law's
+    (:func:`analysis.diagnosis.tied_parameters`): the law is then no separate effect, only another way of
+    writing the others. A law with some parameters tied and others free stays: a linear law beside an Iwan
+    element in micro-slip trades its stiffness with the Iwan's, but its damping is its own (a reference whose
+    damping is wrong at the joint)."""
+    tied = tied_parameters(fit, {j}, max_correlation)
+    prefix = fit.terms[j].label + "."
+    return all(name in tied for name in fit.fit_parameter_names if name.startswith(prefix))
+
+
+def _empty_set(samples: ElementSamples, robust: bool) -> LawSet:
+    std = samples.kbar_std
+    z = np.abs(samples.kbar) ** 2 if std is None else 2 * np.abs(samples.kbar) ** 2 / std ** 2
+    return LawSet((), None, capped_chi_square(z) if robust else float(np.sum(z)), 0)
+
+
+def _scale(sets: list[LawSet], n_obs: int) -> float:
+    """s^2: the reduced chi-square of the best-fitting set, at least 1 (module docstring, step 2)."""
+    best = min(sets, key=lambda s: s.chi_square)
+    return max(1.0, best.chi_square / max(n_obs - best.n_parameters, 1))
+
+
+def search_element(index: int, samples: ElementSamples, linear_verdict: bool,
+                   rules: DiscoveryRules = DiscoveryRules(), robust: bool = False) -> _Search:
+    """The kbar stage of one element (module docstring, steps 1 and 2; ``robust``: :func:`_fit_set`)."""
+    names = _candidate_laws(linear_verdict)
+    sets = [_empty_set(samples, robust)]
+    by_laws: dict[tuple[str, ...], LawSet] = {}
+    for size in range(1, min(rules.max_laws, 2) + 1):
+        for laws in law_sets(names, size):
+            s = _fit_set(samples, laws, rules, robust)
+            if s is not None:
+                by_laws[laws] = s
+    if rules.max_laws >= 3:
+        pairs = sorted((s for s in by_laws.values() if len(s.laws) == 2), key=lambda s: s.chi_square)
+        tried = set()
+        for pair in pairs[:rules.triple_pool]:
+            for extra in names:
+                laws = tuple(sorted(pair.laws + (extra,), key=names.index))
+                if len(set(laws)) < 3 or laws in tried or len({LAWS[n].kind for n in laws}) < 3:
+                    continue
+                tried.add(laws)
+                s = _fit_set(samples, laws, rules, robust)
+                if s is not None:
+                    by_laws[laws] = s
+    sets += list(by_laws.values())
+    n_obs = 2 * len(samples.X)
+    scale = _scale(sets, n_obs)
+    for s in sets:
+        s.criterion = s.chi_square / scale + s.n_parameters * np.log(n_obs)
+    sets.sort(key=lambda s: s.criterion)
+    return _Search(index, samples, sets, scale, _shortlists(sets, rules.walk_width))
+
+
+def _determined(s: LawSet) -> bool:
+    return s.fit is not None and not any(t.undetermined for t in s.fit.terms)
+
+
+def _shortlists(sets: list[LawSet], width: int) -> dict[int, list[LawSet]]:
+    """Per number of laws, the sets the FRFs judge (``sets`` sorted by the criterion): the ``width`` best that
+    fit the kbar differently (of sets with the same chi-square, as Coulomb and a stiff Jenkins element, only the
+    first), and the best whose parameters the kbar all determines. Where lines depart from every describing
+    function (friction whose harmonics the data do not carry) the kbar criterion can prefer a law with a
+    parameter run to its limit -- a saturating spring turned into a sign function -- over the true one by a
+    little, and the FRFs tell them apart by far."""
+    out: dict[int, list[LawSet]] = {}
+    for s in sets:
+        mine = out.setdefault(len(s.laws), [])
+        fits_alike = any(abs(s.chi_square - t.chi_square) <= 1e-6 * max(t.chi_square, 1e-300) for t in mine)
+        if len(mine) < width and not fits_alike:
+            mine.append(s)
+    for size, mine in out.items():
+        if not any(_determined(s) for s in mine):
+            best = next((s for s in sets if len(s.laws) == size and _determined(s)), None)
+            if best is not None:
+                mine.append(best)
+    return out
+
+
+def _indistinguishable(search: _Search, chosen: LawSet, false_alarm: float) -> list[LawSet]:
+    """The sets of as many laws as ``chosen``, and at least as many parameters, that fit the element's kbar
+    neither better nor worse than it by more than the noise explains (module docstring, step 3)."""
+    out = []
+    for s in search.sets:
+        if s is chosen or len(s.laws) != len(chosen.laws) or s.n_parameters < chosen.n_parameters:
+            continue
+        q = scipy.stats.chi2.ppf(1 - false_alarm, max(1, abs(s.n_parameters - chosen.n_parameters)))
+        if abs(s.chi_square - chosen.chi_square) <= search.scale * q:
+            out.append(s)
+    return out
+
+
+def _separation(search: _Search, chosen: LawSet, other: LawSet) -> str:
+    """The test that would tell ``other`` from ``chosen``: the nearest amplitude outside the measured range (at
+    the measured frequencies), or the nearest frequency outside the band (at the measured amplitudes), where
+    their describing functions part by three times the kbar noise."""
+    s = search.samples
+    noise = 3.0 * np.sqrt(search.scale) * (float(np.median(s.kbar_std)) if s.kbar_std is not None else
+                                           float(np.std(s.kbar - chosen.describing_function(s.X, s.w))))
+    x_lo, x_hi = float(s.X.min()), float(s.X.max())
+    w_lo, w_hi = float(s.w.min()), float(s.w.max())
+    unit = s.units[1]
+    w_mid = float(np.median(s.w))
+    X_mid = float(np.median(s.X))
+
+    def parts(X, w) -> np.ndarray:
+        return np.abs(chosen.describing_function(X, w) - other.describing_function(X, w)) > noise
+
+    factors = np.geomspace(1.05, 100.0, 40)
+    for f in factors:                                      # nearest first, lower and higher side by side
+        if parts(x_lo / f, w_mid):
+            return f"a lower level would: they part at X = {x_lo / f:.2g} {unit}"
+        if parts(x_hi * f, w_mid):
+            return f"a higher level would: they part at X = {x_hi * f:.2g} {unit}"
+    for f in factors:
+        if parts(X_mid, w_lo / f):
+            return f"a lower band would: they part at {w_lo / f / (2 * np.pi):.3g} Hz"
+        if parts(X_mid, w_hi * f):
+            return f"a higher band would: they part at {w_hi * f / (2 * np.pi):.3g} Hz"
+    return "no test within 100 x of the measured amplitudes and band separates them"
+
+
+def _explanations(name: str, search: _Search, chosen: LawSet) -> list[str]:
+    """One sentence per law of the chosen set, from the part of the kbar that law explains (the samples less the
+    set's other laws); where the law's own signature departs from that part's, the sentence says so."""
+    if chosen.fit is None:
+        return []
+    s = search.samples
+    whole = chosen.fit.describing_function(s.X, s.w)
+    out = []
+    for term in chosen.fit.terms:
+        own = term.describing_function(s.X, s.w)
+        sig = signature(s, whole - own)
+        text = explain(name, term.law.name, sig, term, s.units)
+        own_sig = signature(ElementSamples(s.name, s.X, s.w, own, s.kbar_std, s.level, s.rotational))
+        departs = _departing_slope(sig, own_sig)
+        if departs:
+            text += f" (the law's own kbar has {departs}: another effect overlaps this part here)"
+        out.append(text)
+    return out
+
+
+def _departing_slope(measured, own, tolerance: float = 0.5) -> str:
+    """The log-slope of the law's own kbar that differs from the measured part's by more than ``tolerance``,
+    in words ("" where they agree or cannot be compared)."""
+    for label, a, b in (("Im log-slope in X", measured.im_slope_X, own.im_slope_X),
+                        ("Im log-slope in w", measured.im_slope_w, own.im_slope_w),
+                        ("Re log-slope in X", measured.re_slope_X, own.re_slope_X)):
+        if a is not None and b is not None and abs(a - b) > tolerance:
+            return f"{label} {b:+.2f} where the data show {a:+.2f}"
+    return ""
+
+
+class _Judge:
+    """Scores choices of law sets by the FRFs, single-harmonic and with harmonics (cached by choice).
+
+    A choice maps element indices to law sets. In a single-harmonic score, the searched elements the choice
+    leaves out are represented by their stand-ins (their measured kbar, :func:`_standins`) or, with
+    ``standins=False``, by nothing; a score with harmonics needs every searched element's laws (a stand-in has
+    no time-domain force)."""
+
+    def __init__(self, predictor: Predictor, rules: DiscoveryRules, n_harmonics: int, n_time: int,
+                 standins: dict[int, Callable]):
+        self.predictor = predictor
+        self.rules = rules
+        self.criterion = HarmonicCriterion(rules.ranking.model_form_thd, n_harmonics, n_time)
+        self.standins = standins
+        self._single: dict[tuple, Comparison] = {}
+        self._multi: dict[tuple, Comparison] = {}
+
+    @staticmethod
+    def _key(choice: dict[int, LawSet], *extra) -> tuple:
+        return tuple(sorted((i, s.laws) for i, s in choice.items())) + extra
+
+    def single(self, choice: dict[int, LawSet], standins: bool = True) -> Comparison:
+        key = self._key(choice, standins)
+        if key not in self._single:
+            replace = {i: f for i, f in self.standins.items() if standins and i not in choice}
+            replace.update({i: s.describing_function for i, s in choice.items()})
+            self._single[key] = self.predictor.compare(kbar_functions_with(self.predictor.model.elements, replace))
+        return self._single[key]
+
+    def multi(self, choice: dict[int, LawSet]) -> Comparison:
+        key = self._key(choice)
+        if key not in self._multi:
+            variant = self.predictor.with_laws({i: (s.fit.law_terms() if s.fit is not None else [])
+                                                for i, s in choice.items()})
+            self._multi[key] = variant.compare(harmonics=self.criterion)
+        return self._multi[key]
+
+    def step_up(self, i: int, current: LawSet, larger: LawSet) -> WalkStep:
+        """Whether ``larger`` earns its extra parameters on element ``i`` (the others by their stand-ins):
+        ``min_gain`` and above the noise, single-harmonic."""
+        ranking = self.rules.ranking
+        a, b = self.single({i: current}), self.single({i: larger})
+        step = WalkStep(larger.laws, b.error, a.error, False)
+        _, above = frf_criterion(a, b, max(larger.n_parameters - current.n_parameters, 1), ranking.false_alarm)
+        if not np.isfinite(b.error):
+            step.why = "no prediction"
+        elif step.gain < ranking.min_gain:
+            step.why = f"less than the x{ranking.min_gain:g} required"
+        elif not above:
+            step.why = "within the noise"
+        else:
+            step.taken = True
+        return step
+
+    def holds_with_harmonics(self, choice: dict[int, LawSet], i: int, before: LawSet, step: WalkStep) -> bool:
+        """The model-form check of a step taken on element ``i`` (module docstring, step 4): with every searched
+        element at its choice, the step must also gain ``min_gain``, above the noise, with the lines that carry
+        harmonics predicted multi-harmonically. A gain beyond ``certain_gain`` is not the harmonics' effect."""
+        if step.gain >= self.rules.certain_gain:
+            return True
+        ranking = self.rules.ranking
+        ma, mb = self.multi({**choice, i: before}), self.multi(choice)
+        step.multiharmonic_gain = ma.error / mb.error if mb.error > 0 else float("inf")
+        _, above = frf_criterion(ma, mb, max(choice[i].n_parameters - before.n_parameters, 1), ranking.false_alarm)
+        if step.multiharmonic_gain >= ranking.min_gain and above:
+            return True
+        step.taken = False
+        step.why = ("with the harmonics represented it gains too little: the single-harmonic gain fits what one "
+                    "harmonic cannot represent")
+        return False
+
+
+def _standins(searches: list["_Search"]) -> dict[int, Callable]:
+    """Each searched element's measured kbar as a describing function (the non-parametric part fitted to its
+    samples, :func:`analysis.nonparametric.fit_nonparametric`): while one element's laws are judged by the FRFs,
+    the others are represented by what was measured of them, so no element's choice waits on another's (with
+    another joint still empty or wrong, the FRF error is that joint's, and a right law elsewhere gains nothing)."""
+    out = {}
+    for search in searches:
+        s = search.samples
+        out[search.index] = fit_nonparametric(s.X, s.w, s.kbar, s.kbar_std).model.describing_function
+    return out
+
+
+def _walk_element(judge: _Judge, search: _Search) -> tuple[list[LawSet], list[WalkStep]]:
+    """Element ``search.index``'s shortlists from no law upward, the others by their stand-ins (module docstring,
+    step 4): of each size one set (:func:`_preferred`, of its shortlist and the best that keeps the laws already
+    taken) is tried against the current choice.
+    Returns the sets taken, from no law on, and every step tried."""
+    i = search.index
+    taken = [search.by_size[0][0]]
+    steps = []
+    for size in sorted(search.by_size):
+        if size == 0:
+            continue
+        best = _preferred(judge, i, search.by_size[size] + _extension(search, taken[-1], size))
+        step = judge.step_up(i, taken[-1], best)
+        steps.append(step)
+        if step.taken:
+            taken.append(best)
+    return taken, steps
+
+
+def _preferred(judge: _Judge, i: int, sets: list[LawSet]) -> LawSet:
+    """Of sets of one size, the first by the kbar criterion whose single-harmonic FRF error is within
+    ``min_gain`` of the best of them: the kbar chooses, and the FRFs overrule it only by the margin a law must
+    bring (the stand-ins of the other elements leave an error floor of their own, within which the FRFs cannot
+    choose)."""
+    errors = [judge.single({i: s}).error for s in sets]
+    best = min(errors)
+    ordered = sorted(zip(sets, errors), key=lambda pair: pair[0].criterion)
+    return next(s for s, e in ordered if e <= judge.rules.ranking.min_gain * best)
+
+
+def _extension(search: _Search, current: LawSet, size: int) -> list[LawSet]:
+    """The best set of ``size`` laws by the criterion that keeps every law of ``current`` (none if it is on the
+    shortlist already): the walk also tries adding to what it took, not only the shortlist's other sets."""
+    keep = set(current.laws)
+    best = next((s for s in search.sets if len(s.laws) == size and keep <= set(s.laws)), None)
+    return [] if best is None or best in search.by_size[size] else [best]
+
+
+def _check_with_harmonics(judge: _Judge, taken: dict[int, list[LawSet]], walks: dict[int, list[WalkStep]]) -> None:
+    """Each element's last step, checked with the harmonics represented and every other element at its choice;
+    a step that fails is taken back and the one before it checked in turn."""
+    for i, sets in taken.items():
+        while len(sets) > 1:
+            step = next(s for s in reversed(walks[i]) if s.taken and s.laws == sets[-1].laws)
+            choice = {j: other[-1] for j, other in taken.items()}
+            if judge.holds_with_harmonics(choice, i, sets[-2], step):
+                break
+            sets.pop()
+
+
+@dataclass
+class Discovery:
+    """The laws found for every element that had none, in the order they are best added."""
+
+    elements: list[ElementDiscovery]
+
+    def text(self) -> str:
+        if not self.elements:
+            return "model discovery: no element without laws"
+        return "\n".join(["model discovery (laws chosen per element from its kbar, judged by the FRFs):"] +
+                         ["  " + line for e in self.elements for line in e.text().splitlines()])
+
+    def to_json(self) -> dict:
+        return {"elements": [e.to_json() for e in self.elements]}
+
+
+def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: frozenset[str],
+             rules: DiscoveryRules = DiscoveryRules(), n_harmonics: int = 7, n_time: int = 512,
+             progress: Callable[[str], None] | None = None, robust: bool = False) -> Discovery:
+    """The laws of every element of ``predictor.model`` that has none and has kbar samples (module docstring).
+
+    ``samples``: element name -> its identified kbar samples; ``linear``: the elements whose verdict is linear;
+    ``robust``: the data carry no harmonics, so the kbar fits leave out the lines that do not follow them
+    (:func:`_fit_set`). The other elements keep their laws. ``progress`` is called with a line of text as each
+    element is searched.
+    """
+    searches: list[_Search] = []
+    for i, el in enumerate(predictor.model.elements):
+        s = samples.get(el.name)
+        if el.laws or el.nonparametric is not None or s is None or len(s.X) < 3:
+            continue
+        searches.append(search_element(i, s, el.name in linear, rules, robust))
+        if progress is not None:
+            best = searches[-1].sets[0]
+            progress(f"discovery: {el.name}: {len(searches[-1].sets) - 1} sets of laws fitted to its kbar; "
+                     f"best {best.name}")
+    if not searches:
+        return Discovery([])
+    judge = _Judge(predictor, rules, n_harmonics, n_time, _standins(searches))
+    taken, walks = {}, {}
+    for search in searches:
+        taken[search.index], walks[search.index] = _walk_element(judge, search)
+    _check_with_harmonics(judge, taken, walks)
+    choice = {i: sets[-1] for i, sets in taken.items()}
+    names = {i: el.name for i, el in enumerate(predictor.model.elements)}
+    found = []
+    for search in searches:
+        chosen = choice[search.index]
+        equivalents = [Separation(s.laws, _separation(search, chosen, s))
+                       for s in _indistinguishable(search, chosen, rules.ranking.false_alarm)]
+        found.append(ElementDiscovery(names[search.index], chosen, search.scale, len(search.sets) - 1,
+                                      _explanations(names[search.index], search, chosen), equivalents,
+                                      walks.get(search.index, [])))
+    by_index = {s.index: f for s, f in zip(searches, found)}
+    return Discovery([by_index[i] for i in _order(judge, choice)])
+
+
+def _order(judge: _Judge, choice: dict[int, LawSet]) -> list[int]:
+    """The elements in the order their laws are best added one at a time: each time the one whose laws cut the
+    (single-harmonic) error most with those already added and the rest still empty, so that the history falls
+    step by step (a joint's laws added while another joint is still empty may show little alone)."""
+    added: dict[int, LawSet] = {}
+    order = []
+    while len(order) < len(choice):
+        rest = [i for i in choice if i not in added]
+        best = min(rest, key=lambda i: judge.single({**added, i: choice[i]}, standins=False).error)
+        added[best] = choice[best]
+        order.append(best)
+    return order
