@@ -22,8 +22,10 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
 4. **The FRFs judge the size.** Each element's shortlists (:func:`_shortlists`) are walked from no law upward,
    every other searched element represented meanwhile by its own measured kbar (a stand-in, :func:`_standins`),
    so that no element's choice waits on another's: of each size the set the kbar criterion prefers among those
-   whose single-harmonic FRF error is within ``min_gain`` of the best is tried, and taken only if it cuts the
-   error of the current choice by ``min_gain`` and the FRF chi-square by more than the noise explains. Then -- the model-form check, with every element at its choice -- each
+   whose single-harmonic FRF error is within ``min_gain`` of the best is tried, and taken only if the kbar
+   criterion prefers it to the current choice too (not on data without harmonics, where the capped criterion
+   can prefer no law to a right one), and it cuts the error of the current choice by ``min_gain`` and the FRF
+   chi-square by more than the noise explains. Then -- the model-form check, with every element at its choice -- each
    element's last step must do the same with the lines that carry harmonics predicted multi-harmonically
    (unless its gain is beyond ``certain_gain``), or it is taken back. A law that fits only what one harmonic
    cannot represent, or a wrong law standing in for part of a kbar, gains too little there.
@@ -133,6 +135,7 @@ class ElementDiscovery:
     explanations: list[str]
     equivalents: list[Separation] = field(default_factory=list)
     walk: list[WalkStep] = field(default_factory=list)
+    simplified_from: tuple[str, ...] | None = None   # the set the FRFs took, where a simpler alike one replaced it
 
     @property
     def laws(self) -> tuple[str, ...]:
@@ -147,6 +150,9 @@ class ElementDiscovery:
                        "taken): " + "; ".join(f"{'+'.join(s.laws)} ({s.test})" for s in self.equivalents))
         if self.walk:
             out.append("  judged by the FRFs: " + "; ".join(s.text() for s in self.walk))
+        if self.simplified_from:
+            out.append(f"  taken as {self.chosen.name} rather than {'+'.join(self.simplified_from)}: it fits the "
+                       "kbar as well with fewer parameters or fewer laws whose kbar depends on the amplitude")
         return "\n".join(out)
 
     def to_json(self) -> dict:
@@ -154,7 +160,8 @@ class ElementDiscovery:
                 "kbar_chi_square": self.chosen.chi_square, "kbar_scale": self.scale,
                 "sets_fitted": self.sets_fitted, "explanations": self.explanations,
                 "indistinguishable": [s.to_json() for s in self.equivalents],
-                "walk": [s.to_json() for s in self.walk]}
+                "walk": [s.to_json() for s in self.walk],
+                "simplified_from": None if self.simplified_from is None else list(self.simplified_from)}
 
 
 @dataclass
@@ -285,17 +292,29 @@ def _shortlists(sets: list[LawSet], width: int) -> dict[int, list[LawSet]]:
     return out
 
 
+def _alike(search: _Search, a: LawSet, b: LawSet, false_alarm: float) -> bool:
+    """Whether two sets of as many laws fit the element's kbar neither better nor worse than each other by more
+    than the noise explains (module docstring, step 3)."""
+    q = scipy.stats.chi2.ppf(1 - false_alarm, max(1, abs(a.n_parameters - b.n_parameters)))
+    return len(a.laws) == len(b.laws) and abs(a.chi_square - b.chi_square) <= search.scale * q
+
+
+def _simplest(judge: "_Judge", search: _Search, chosen: LawSet) -> LawSet:
+    """Of the sets alike ``chosen`` in the kbar (itself included) whose single-harmonic FRF error is within
+    ``min_gain`` of its own, the one with the fewest parameters, then the fewest laws whose kbar depends on the
+    amplitude (a linear spring before a preloaded one-sided contact that never opens, which is the same spring),
+    then the best criterion."""
+    rules = judge.rules.ranking
+    alike = sorted((s for s in search.sets if s is chosen or _alike(search, s, chosen, rules.false_alarm)),
+                   key=lambda s: (s.n_parameters, sum(LAWS[n].amplitude_dependent for n in s.laws), s.criterion))
+    limit = rules.min_gain * judge.single({search.index: chosen}).error
+    return next(s for s in alike if s is chosen or judge.single({search.index: s}).error <= limit)
+
+
 def _indistinguishable(search: _Search, chosen: LawSet, false_alarm: float) -> list[LawSet]:
-    """The sets of as many laws as ``chosen``, and at least as many parameters, that fit the element's kbar
-    neither better nor worse than it by more than the noise explains (module docstring, step 3)."""
-    out = []
-    for s in search.sets:
-        if s is chosen or len(s.laws) != len(chosen.laws) or s.n_parameters < chosen.n_parameters:
-            continue
-        q = scipy.stats.chi2.ppf(1 - false_alarm, max(1, abs(s.n_parameters - chosen.n_parameters)))
-        if abs(s.chi_square - chosen.chi_square) <= search.scale * q:
-            out.append(s)
-    return out
+    """The sets alike ``chosen`` with at least as many parameters: the ones the user is told of."""
+    return [s for s in search.sets if s is not chosen and s.n_parameters >= chosen.n_parameters
+            and _alike(search, s, chosen, false_alarm)]
 
 
 def _separation(search: _Search, chosen: LawSet, other: LawSet) -> str:
@@ -368,9 +387,12 @@ class _Judge:
     no time-domain force)."""
 
     def __init__(self, predictor: Predictor, rules: DiscoveryRules, n_harmonics: int, n_time: int,
-                 standins: dict[int, Callable]):
+                 standins: dict[int, Callable], kbar_judges: bool = True):
         self.predictor = predictor
         self.rules = rules
+        # whether a step must lower the kbar criterion too: not where lines depart from every describing function
+        # (data without harmonics), whose capped criterion can prefer no law to a right one
+        self.kbar_judges = kbar_judges
         self.criterion = HarmonicCriterion(rules.ranking.model_form_thd, n_harmonics, n_time)
         self.standins = standins
         self._single: dict[tuple, Comparison] = {}
@@ -403,7 +425,9 @@ class _Judge:
         a, b = self.single({i: current}), self.single({i: larger})
         step = WalkStep(larger.laws, b.error, a.error, False)
         _, above = frf_criterion(a, b, max(larger.n_parameters - current.n_parameters, 1), ranking.false_alarm)
-        if not np.isfinite(b.error):
+        if self.kbar_judges and larger.criterion >= current.criterion:
+            step.why = "its kbar does not call for it (the criterion, which charges for parameters, does not fall)"
+        elif not np.isfinite(b.error):
             step.why = "no prediction"
         elif step.gain < ranking.min_gain:
             step.why = f"less than the x{ranking.min_gain:g} required"
@@ -531,12 +555,14 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
                      f"best {best.name}")
     if not searches:
         return Discovery([])
-    judge = _Judge(predictor, rules, n_harmonics, n_time, _standins(searches))
+    judge = _Judge(predictor, rules, n_harmonics, n_time, _standins(searches), kbar_judges=not robust)
     taken, walks = {}, {}
     for search in searches:
         taken[search.index], walks[search.index] = _walk_element(judge, search)
     _check_with_harmonics(judge, taken, walks)
-    choice = {i: sets[-1] for i, sets in taken.items()}
+    judged = {i: sets[-1] for i, sets in taken.items()}
+    index = {s.index: s for s in searches}
+    choice = {i: _simplest(judge, index[i], s) for i, s in judged.items()}
     names = {i: el.name for i, el in enumerate(predictor.model.elements)}
     found = []
     for search in searches:
@@ -545,7 +571,8 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
                        for s in _indistinguishable(search, chosen, rules.ranking.false_alarm)]
         found.append(ElementDiscovery(names[search.index], chosen, search.scale, len(search.sets) - 1,
                                       _explanations(names[search.index], search, chosen), equivalents,
-                                      walks.get(search.index, [])))
+                                      walks.get(search.index, []),
+                                      judged[search.index].laws if judged[search.index] is not chosen else None))
     by_index = {s.index: f for s, f in zip(searches, found)}
     return Discovery([by_index[i] for i in _order(judge, choice)])
 

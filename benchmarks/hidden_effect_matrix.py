@@ -30,7 +30,8 @@ import matrix_cases as mc  # noqa: E402
 RESULTS = ROOT / "benchmarks" / "hidden_effect_matrix.json"
 DOCS = ROOT / "docs/workbench.md"
 # The loop and what its decisions rest on: the fit, the comparison, the model-form check, the detector.
-LOOP_FILES = ("analysis/auto.py", "analysis/diagnosis.py", "analysis/workbench.py", "analysis/fit.py",
+LOOP_FILES = ("analysis/auto.py", "analysis/discovery.py", "analysis/diagnosis.py", "analysis/workbench.py",
+              "analysis/fit.py", "analysis/nonparametric.py",
               "analysis/comparison.py", "analysis/harmonic_balance.py", "analysis/unexplained.py")
 
 
@@ -65,13 +66,16 @@ def main() -> int:
         return 2
     loop, date = loop_commit(), datetime.date.today().isoformat()
     outcomes = []
+    sessions: dict[str, Path] = {}          # a case's "from empty" variant analyses the same data
     with tempfile.TemporaryDirectory() as tmp:
         for i, c in enumerate(cases, 1):
             folder = Path(tmp) / f"case{i}"
             folder.mkdir()
             t0 = time.monotonic()
             try:
-                outcomes.append(mc.run_case(c, folder))
+                if c.data_name not in sessions:
+                    sessions[c.data_name] = mc.case_session(c, folder)
+                outcomes.append(mc.run_case(c, folder, sessions[c.data_name]))
             except Exception as exc:       # a case that breaks is scored as found nothing, with the reason shown
                 outcomes.append(mc.Outcome.broken(c, f"{type(exc).__name__}: {exc}".splitlines()[0]))
             print(mc.progress_line(i, len(cases), outcomes[-1], time.monotonic() - t0), flush=True)

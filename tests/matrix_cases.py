@@ -78,7 +78,9 @@ class Law:
     values: tuple[tuple[str, float], ...]
 
     def toml(self) -> str:
-        return "{ " + ", ".join([f'law = "{self.law}"'] + [f"{k} = {v!r}" for k, v in self.values]) + " }"
+        # v0: the independent integrator's regularisation of Coulomb friction, not a parameter of the law
+        return "{ " + ", ".join([f'law = "{self.law}"'] + [f"{k} = {v!r}" for k, v in self.values if k != "v0"]) \
+            + " }"
 
     @property
     def kind(self) -> str:
@@ -96,9 +98,20 @@ class Case:
     hidden: tuple[Law, ...]
     noise: float
     source: str = "simulator"
+    data_of: str = ""               # the case whose data this one shares (its "from empty" variant), else ""
+
+    @property
+    def data_name(self) -> str:
+        """The name the data are made under (the noise seed): a variant shares its case's data."""
+        return self.data_of or self.name
+
+    def from_empty(self) -> Case:
+        """The same rig and data, the model with no law at all: discovery must find every law."""
+        return Case(f"{self.name} from empty", self.bench, self.laws, self.laws, self.noise, self.source, self.name)
 
     def rig_toml(self) -> str:
-        noise = f"\n[noise]\nforce = {self.noise!r}\nacceleration = {self.noise!r}\nseed = {_seed(self.name)}\n"
+        seed = _seed(self.data_name)
+        noise = f"\n[noise]\nforce = {self.noise!r}\nacceleration = {self.noise!r}\nseed = {seed}\n"
         return (f'name = "{self.name}"\n' + self.bench.structure + self._elements(self.laws) + self.bench.io
                 + noise)
 
@@ -213,7 +226,19 @@ CASES: tuple[Case, ...] = (
     _case("rk4 2dof gap", LUMPED2, [_law("a", "gap", k=2000.0, gap=0.003)], noise=0.003, source="rk4"),
     _case("rk4 2dof nothing missing (cubic known)", LUMPED2, [_law("a", "cubic", k3=2.0e5)], hidden=[],
           noise=0.01, source="rk4"),
+    # two laws on each of two elements, none known: the paper's own example is of this kind
+    _case("2dof two joints: cubic + damping, cubic + friction", LUMPED2,
+          [A_CUBIC, A_QUAD, _law("b", "cubic", k3=-2.0e4), _law("b", "coulomb", fs=0.08)], noise=0.003),
+    _case("2dof two joints: cubic + friction, gap + damping", LUMPED2,
+          [A_CUBIC, A_COULOMB, _law("b", "gap", k=2000.0, gap=0.003), B_QUAD], noise=0.005),
+    _case("3dof two joints: cubic + friction between, damping + cubic at x3", CHAIN3,
+          [J_CUBIC, J_COULOMB, _law("g", "quadratic_damping", c2=3.0), _law("g", "cubic", k3=1.0e5)],
+          noise=0.003),
+    _case("rk4 2dof two joints: cubic + damping, gap + damping", LUMPED2,
+          [A_CUBIC, A_QUAD, _law("b", "gap", k=2000.0, gap=0.003), B_QUAD], noise=0.003, source="rk4"),
 )
+# every case with a known law again from a model with none
+CASES = CASES + tuple(c.from_empty() for c in CASES if len(c.hidden) < len(c.laws))
 
 
 def case(name: str) -> Case:
@@ -225,7 +250,7 @@ def simulated_session(c: Case, folder: Path) -> Path:
     """The case's plan run on its emulated rig through the drivers, into a session."""
     rig = parse_rig(c.rig_toml(), f"{c.name}.toml")
     path = folder / "session.h5"
-    with emulated_instruments(rig, seed=_seed(c.name)) as inst:
+    with emulated_instruments(rig, seed=_seed(c.data_name)) as inst:
         plan = c.plan_toml()
         summary = run_plan(parse_plan(tomllib.loads(plan), plan), inst, path)
     if not summary.complete:
@@ -262,17 +287,30 @@ def _site_vector(site: Site, dofs: list[str]) -> np.ndarray:
     return e
 
 
+# Coulomb friction in the independent integrator: fs tanh(v / v0), v0 this fraction of the element's velocity
+# amplitude scale (``COULOMB_V0`` m/s unless a case says otherwise); a fixed-step RK4 needs no switch then.
+COULOMB_V0 = 1e-4
+
+
 def _law_force(law: Law, d: np.ndarray, v: np.ndarray) -> np.ndarray:
     """The element forces the independent integrator knows, written from their physics (continuous forces only:
-    a fixed-step RK4 would need a tiny step at a friction's switch)."""
+    a fixed-step RK4 would need a tiny step at a friction's switch, so Coulomb friction is a steep tanh)."""
     p = dict(law.values)
-    if law.law == "cubic":
-        return p["k3"] * d ** 3
-    if law.law == "quadratic_damping":
-        return p["c2"] * np.abs(v) * v
-    if law.law == "gap":
-        return np.where(np.abs(d) > p["gap"], p["k"] * (d - p["gap"] * np.sign(d)), 0.0)
-    raise ValueError(f"the independent integrator has no force for law {law.law!r}")
+    forces = {
+        "linear": lambda: p.get("k", 0.0) * d + p.get("c", 0.0) * v,
+        "cubic": lambda: p["k3"] * d ** 3,
+        "quintic": lambda: p["k5"] * d ** 5,
+        "quadratic_damping": lambda: p["c2"] * np.abs(v) * v,
+        "cubic_damping": lambda: p["c3"] * v ** 3,
+        "tanh_softening": lambda: p["alpha"] * np.tanh(p["beta"] * d),
+        "arctan_softening": lambda: p["alpha"] * np.arctan(p["beta"] * d),
+        "gap": lambda: np.where(np.abs(d) > p["gap"], p["k"] * (d - p["gap"] * np.sign(d)), 0.0),
+        "unilateral": lambda: np.where(d > p["gap"], p["k"] * (d - p["gap"]), 0.0),
+        "coulomb": lambda: p["fs"] * np.tanh(v / p.get("v0", COULOMB_V0)),
+    }
+    if law.law not in forces:
+        raise ValueError(f"the independent integrator has no force for law {law.law!r}")
+    return forces[law.law]()
 
 
 def rk4_receptance(c: Case, freqs: np.ndarray, forces: np.ndarray, settle_seconds: float = 40.0,
@@ -326,15 +364,15 @@ def _plan_lines(bench: Bench) -> tuple[np.ndarray, list[float]]:
     return np.linspace(r["start"], r["stop"], n), [float(run["force"]) for run in runs]
 
 
-def imported_session(c: Case, folder: Path) -> Path:
+def imported_session(c: Case, folder: Path, settle_seconds: float = 40.0, per_period: int = 48) -> Path:
     """RK4 receptances with relative circular noise, written as a user's CSV with their standard deviation (as a
     controller that measured it exports them) and imported (``contactid import``). Without it the noise is
     estimated from the FRF (docs/import.md), which at 0.1 Hz lines across a 0.06 Hz wide resonance came out 2-4 x
     the truth there and hid the cubic between the 3-DOF chain's masses."""
     freqs, forces = _plan_lines(c.bench)
-    rng = np.random.default_rng(_seed(c.name))
+    rng = np.random.default_rng(_seed(c.data_name))
     dofs = Lumped.of(c.bench).dofs
-    exact = rk4_receptance(c, freqs, forces)
+    exact = rk4_receptance(c, freqs, forces, settle_seconds, per_period)
     std = c.noise * np.abs(exact)
     H = exact + std / np.sqrt(2) * (rng.normal(size=exact.shape) + 1j * rng.normal(size=exact.shape))
     table = folder / "frf.csv"
@@ -351,9 +389,15 @@ def imported_session(c: Case, folder: Path) -> Path:
     return session
 
 
-def started_workbench(c: Case, folder: Path) -> Workbench:
-    """The case's data, and a workbench on the model without the hidden laws, started."""
-    session = imported_session(c, folder) if c.source == "rk4" else simulated_session(c, folder)
+def case_session(c: Case, folder: Path) -> Path:
+    """The case's data: a campaign on the emulated rig, or the independent integrator's imported CSV."""
+    return imported_session(c, folder) if c.source == "rk4" else simulated_session(c, folder)
+
+
+def started_workbench(c: Case, folder: Path, session: Path | None = None) -> Workbench:
+    """The case's data (``session``: already made, e.g. for the case whose data it shares), and a workbench on
+    the model without the hidden laws, started."""
+    session = session or case_session(c, folder)
     with open_session(session) as s:
         measurements = measurements_from_session(s)
     wb = Workbench(load_model(tomllib.loads(c.model_toml()), f"{c.name} model"), measurements)
@@ -450,12 +494,13 @@ def score(c: Case, wb: Workbench, stopped: str) -> Outcome:
                    tuple(f"{e}:{law}" for e, law in pool), tuple(h.error for h in wb.history), stopped)
 
 
-LOOP_NAME = "run_auto (analysis/auto.py), default AutoRules"
+LOOP_NAME = "run_auto (analysis/auto.py: discovery first), default AutoRules"
 
 
-def run_case(c: Case, folder: Path) -> Outcome:
-    """Measure the case, run the missing-effect loop on the model without its hidden laws, score the result."""
-    wb = started_workbench(c, folder)
+def run_case(c: Case, folder: Path, session: Path | None = None) -> Outcome:
+    """Measure the case (unless ``session`` holds its data), run the missing-effect loop on the model without
+    its hidden laws, score the result."""
+    wb = started_workbench(c, folder, session)
     return score(c, wb, run_auto(wb).stopped)
 
 
