@@ -19,8 +19,9 @@ import argparse
 import sys
 from importlib.metadata import PackageNotFoundError, version
 
-from analysis import LAWS, InputError
-from analysis.tables import load_toml
+# Only light modules here: each command imports what it uses, so that `--help` and `laws` start fast
+# (docs/performance.md, "Start-up"; tests/test_public_api.py checks what they import).
+from analysis.errors import InputError
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -45,6 +46,7 @@ def cmd_modes(args) -> int:
     from pathlib import Path
 
     from analysis.model import load_model
+    from analysis.tables import load_toml
     from drivers.simulation.rig import builtin_rig_path, builtin_rigs
 
     if not Path(args.file).exists():
@@ -68,6 +70,8 @@ def cmd_modes(args) -> int:
 
 def cmd_laws(args) -> int:
     """List the element laws with their parameters and units."""
+    from analysis.laws import LAWS
+
     for law in LAWS.values():
         params = ", ".join(f"{p.name} [{p.render_unit()}]" for p in law.params)
         print(f"{law.name:20s} {law.summary}: {params}")
@@ -282,9 +286,12 @@ def cmd_gui(args) -> int:
                model=args.model, software_version=software_version())
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from drivers.emulator.core import SHAKER_MODELS
+# the keys of drivers.emulator.core.SHAKER_MODELS, spelled here so that --help does not import the emulator
+# (and numpy); tests/test_public_api.py checks that they agree
+EMULATED_SHAKER_MODELS = ("SC-1", "33500B")
 
+
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contactid", description=(
         "Identify how a joint or contact interface behaves: stepped-sine tests, equivalent complex "
         "stiffness per element, nonlinear law fitting."), epilog=EXIT_CODES_HELP)
@@ -339,7 +346,7 @@ def build_parser() -> argparse.ArgumentParser:
     way.add_argument("--tcp", metavar="HOST:PORT", help="TCP: PORT for the shaker, PORT+1 for the DAQ")
     p.add_argument("--fast", action="store_true", help="as fast as the host reads instead of real time")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--shaker-model", choices=tuple(SHAKER_MODELS), default="SC-1",
+    p.add_argument("--shaker-model", choices=EMULATED_SHAKER_MODELS, default="SC-1",
                    help="the shaker controller: SC-1, or 33500B (a bench function generator: no ramp, no watchdog)")
     p.set_defaults(run=cmd_emulate)
 
@@ -403,11 +410,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _NeverRaised(Exception):
+    """Stands for an exception class whose module no command has imported: nothing can have raised it."""
+
+
+def _raised_class(module: str, name: str) -> type[BaseException]:
+    """The exception class ``module.name`` if the command imported its module, else :class:`_NeverRaised`:
+    ``main`` need not import the campaign and the drivers to recognise their errors (start-up time)."""
+    loaded = sys.modules.get(module)
+    return getattr(loaded, name) if loaded is not None else _NeverRaised
+
+
 def main(argv: list[str] | None = None) -> int:
-    from drivers.errors import InstrumentError, describe_instrument_error
-
-    from .campaign import CampaignIncomplete
-
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -417,7 +431,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"contactid: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except CampaignIncomplete as exc:
+    except _raised_class("app.campaign", "CampaignIncomplete") as exc:
         print(f"contactid: {exc}", file=sys.stderr)
         return EXIT_INCOMPLETE
     except FileNotFoundError as exc:
@@ -425,9 +439,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"contactid: error: {exc.filename}: no such file", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except InstrumentError as exc:
+    except _raised_class("drivers.errors", "InstrumentError") as exc:
         if args.debug:
             raise
+        from drivers.errors import describe_instrument_error
+
         where = describe_instrument_error(exc, _instrument_roles(args))
         print(f"contactid: instrument failure: {where}", file=sys.stderr)
         return EXIT_INSTRUMENT

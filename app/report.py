@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.numbers import engineering
 from analysis.workbench import Workbench
 
 LEVEL_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
@@ -49,26 +50,6 @@ def _export(layout, path: Path, width: int = 1400, height: int = 900) -> Path:
     exporter.export(str(path))
     layout.close()
     return path
-
-
-_PREFIXES = {-15: "f", -12: "p", -9: "n", -6: "µ", -3: "m", 0: "", 3: "k", 6: "M", 9: "G", 12: "T"}
-_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
-
-
-def engineering(value: float, unit: str = "") -> str:
-    """``value`` in engineering notation: a mantissa in [1, 1000) and an SI prefix on ``unit`` ("20 µm",
-    "1.5 kN/m"). Without a unit, plain numbers from 0.001 to 1000 and powers of ten beyond ("10⁻⁶")."""
-    if value == 0 or not np.isfinite(value):
-        return f"{value:g} {unit}".strip()
-    exponent = int(np.floor(np.log10(abs(value)) + 1e-9))
-    if not unit:
-        if -3 <= exponent < 4:
-            return f"{value:.4g}"
-        mantissa = value / 10.0**exponent
-        head = "" if np.isclose(mantissa, 1.0) else f"{mantissa:.3g}·"
-        return f"{head}10{str(exponent).translate(_SUPERSCRIPT)}"
-    third = min(max(3 * (exponent // 3), min(_PREFIXES)), max(_PREFIXES))
-    return f"{value / 10.0**third:.3g} {_PREFIXES[third]}{unit}"
 
 
 def _labelled_log_ticks(low: float, high: float) -> list[float]:

@@ -4,7 +4,8 @@ import pytest
 
 from analysis.model import load_model
 from analysis.workbench import Workbench
-from app.report import _labelled_log_ticks, _log_axis, engineering, qt_application, write_report
+from analysis.numbers import engineering
+from app.report import _labelled_log_ticks, _log_axis, qt_application, write_report
 from test_workbench import PAPER_LAWS, model_doc, synthesise
 
 
