@@ -83,11 +83,11 @@ def cmd_export(args) -> int:
     from .export import export_csv, export_uff
 
     if args.uff:
-        done = export_uff(args.session, args.uff, overwrite=args.force, per_run=args.per_run,
+        done = export_uff(args.session, args.uff, overwrite=args.overwrite, per_run=args.per_run,
                           binary=args.binary, frf_only=args.frf_only)
         print(f"wrote {done.records} records to {', '.join(str(p) for p in done.files)}")
     else:
-        paths = export_csv(args.session, args.csv, overwrite=args.force)
+        paths = export_csv(args.session, args.csv, overwrite=args.overwrite)
         print(f"wrote {len(paths)} CSV files to {args.csv}")
     return 0
 
@@ -97,9 +97,11 @@ def cmd_import(args) -> int:
     from .importers.runs import SourceOptions, parse_dof_map
     from .importers.store import ImportRequest, import_files
 
-    if args.force is not None and not args.force > 0:
-        raise InputError(f"--force must be a force amplitude > 0 N, got {args.force:g}", field="--force")
-    options = SourceOptions(args.kind, args.force, args.direction, [parse_dof_map(t) for t in args.dof or []],
+    if args.force_amplitude is not None and not args.force_amplitude > 0:
+        raise InputError(f"--force-amplitude must be a force amplitude > 0 N, got {args.force_amplitude:g}",
+                         field="--force-amplitude")
+    options = SourceOptions(args.kind, args.force_amplitude, args.direction,
+                            [parse_dof_map(t) for t in args.dof or []],
                             args.excitation)
     result = import_files(ImportRequest([(f, options) for f in args.files], args.output, args.append,
                                         args.overwrite, " ".join(sys.argv), software_version()))
@@ -163,7 +165,7 @@ def cmd_simulate(args) -> int:
     rig = load_rig(args.rig)
     plan = _load_plan_for(args.rig, args.plan)
     with emulated_instruments(rig, seed=args.seed) as inst:
-        summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
+        summary = run_plan(plan, inst, args.output, overwrite=args.overwrite, command=" ".join(sys.argv),
                            software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
     return _finish(summary, args.output)
 
@@ -177,7 +179,7 @@ def cmd_acquire(args) -> int:
     plan = load_plan(args.plan)
     placement = plan.placement.overridden(args.excitation, args.sensors)
     with real_instruments(args.shaker, args.daq, placement=placement, unguarded=args.unguarded) as inst:
-        summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
+        summary = run_plan(plan, inst, args.output, overwrite=args.overwrite, command=" ".join(sys.argv),
                            software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
     return _finish(summary, args.output)
 
@@ -208,7 +210,7 @@ def cmd_analyze(args) -> int:
 
     inputs = [args.session, args.model]
     if args.output:                       # refused before any work: never an input, never silently replaced
-        check_output(args.output, inputs=inputs, overwrite=args.force)
+        check_output(args.output, inputs=inputs, overwrite=args.overwrite)
     reference = reference_only(args.session, args.model, args.add or [])
     if reference is not None:             # a random run only: its modes and the updated reference
         print(json.dumps(reference.to_json(), indent=1, default=float) if args.json else reference.text())
@@ -248,7 +250,7 @@ def _write_model(args, text: str, inputs: list) -> None:
     from .outputs import atomic_output, require_free_space
 
     require_free_space(args.output, len(text.encode()) + 4096, "write the fitted model")
-    with atomic_output(args.output, inputs=inputs, overwrite=args.force) as temp:
+    with atomic_output(args.output, inputs=inputs, overwrite=args.overwrite) as temp:
         temp.write_text(text, encoding="utf-8")
     if not args.json:
         print(f"fitted model written to {args.output}")
@@ -286,6 +288,28 @@ def cmd_gui(args) -> int:
                model=args.model, software_version=software_version())
 
 
+class _OldSpelling(argparse.Action):
+    """An option's former spelling: it still works, as ``replacement`` does, and says so in one line on stderr
+    (the command line is a contract: docs/contracts.md §6, "One meaning per flag")."""
+
+    def __init__(self, option_strings, dest, replacement: str, **kwargs):
+        super().__init__(option_strings, dest, help=argparse.SUPPRESS, **kwargs)
+        self.replacement = replacement
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"contactid: note: {option_string} is the old spelling of {self.replacement} here; use "
+              f"{self.replacement}", file=sys.stderr)
+        setattr(namespace, self.dest, self.const if self.nargs == 0 else values)
+
+
+def _overwrite_option(p: argparse.ArgumentParser, what: str) -> None:
+    """``--overwrite``, the one spelling of "replace an existing output" in every command; ``--force`` is its
+    former spelling in analyze, export, simulate and acquire."""
+    p.add_argument("--overwrite", action="store_true", help=f"overwrite {what}")
+    p.add_argument("--force", dest="overwrite", action=_OldSpelling, replacement="--overwrite", nargs=0,
+                   const=True, default=False)
+
+
 # the keys of drivers.emulator.core.SHAKER_MODELS, spelled here so that --help does not import the emulator
 # (and numpy); tests/test_public_api.py checks that they agree
 EMULATED_SHAKER_MODELS = ("SC-1", "33500B")
@@ -317,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("plan", nargs="?", help="plan file (default: the built-in rig's plan)")
     p.add_argument("-o", "--output", metavar="SESSION.h5", help="session file to write")
     p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated rig")
-    p.add_argument("--force", action="store_true", help="overwrite an existing session file")
+    _overwrite_option(p, "an existing session file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--list", action="store_true", help="list the built-in rigs")
     p.set_defaults(run=cmd_simulate)
@@ -332,7 +356,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sensors", nargs="+", metavar="DOF",
                    help="accelerometer DOFs (overrides the plan's [sensors] dofs; default: the DAQ's acc:<dof> "
                         "channels)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing session file")
+    _overwrite_option(p, "an existing session file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--unguarded", action="store_true",
                    help="let a function generator arm although nothing would switch it off if contactid were "
@@ -359,7 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "refit and rank again until nothing significant is left (each step printed)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-o", "--output", metavar="FITTED.toml", help="write the fitted model (never one of the inputs)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing FITTED.toml")
+    _overwrite_option(p, "an existing FITTED.toml")
     p.add_argument("--no-history", action="store_true", help="do not append the model history to the session")
     p.set_defaults(run=cmd_analyze)
 
@@ -377,7 +401,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--binary", action="store_true", help="UFF: binary records (58b; abscissae kept exact)")
     p.add_argument("--frf-only", action="store_true",
                    help="UFF: only the FRF records, without contactid's per-line quantities")
-    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    _overwrite_option(p, "existing output files")
     p.set_defaults(run=cmd_export)
 
     p = sub.add_parser("import", help="import FRFs or time histories of other systems (UFF58, CSV) into a "
@@ -385,11 +409,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("files", nargs="+", metavar="FILE", help="UFF58 files (ASCII or binary) or CSV files (.csv)")
     p.add_argument("-o", "--output", required=True, metavar="SESSION.h5", help="session file to write")
     p.add_argument("--append", action="store_true", help="add the runs to an existing session")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing session file")
+    p.add_argument("--overwrite", action="store_true", help="overwrite an existing session file")
     p.add_argument("--kind", choices=["sine", "random"], help="what the FRF records are (default: the file's "
                                                               "contactid tags, else sine)")
-    p.add_argument("--force", type=float, metavar="N", help="force amplitude of the stepped-sine records, N "
-                                                            "(where the file does not say it)")
+    p.add_argument("--force-amplitude", type=float, metavar="N", help="force amplitude of the stepped-sine "
+                                                                      "records, N (where the file does not say it)")
+    p.add_argument("--force", dest="force_amplitude", type=float, metavar="N", action=_OldSpelling,
+                   replacement="--force-amplitude")
     p.add_argument("--direction", choices=["up", "down"], help="sweep direction (default: from the line order)")
     p.add_argument("--dof", action="append", metavar="NODE[+DIR]=NAME",
                    help="map a UFF node (and direction) to a model DOF, e.g. 3+Z=A.w (repeatable)")
