@@ -41,12 +41,15 @@ def software_version() -> str:
 
 
 def cmd_modes(args) -> int:
-    """Print the DOFs and natural frequencies of the [structure] of a rig or model file, or of a built-in rig."""
+    """Print the DOFs and natural frequencies of a rig or model file, or of a built-in rig: by default with the
+    elements' small-amplitude stiffness (the contact as a low-level test sees it), with --bare the structure
+    alone."""
     import tomllib
     from pathlib import Path
 
     from analysis.model import load_model
     from analysis.tables import load_toml
+    from drivers.simulation.linear_model import structure_at_rest
     from drivers.simulation.rig import builtin_rig_path, builtin_rigs
 
     if not Path(args.file).exists():
@@ -58,14 +61,36 @@ def cmd_modes(args) -> int:
     else:
         source = args.file
         doc = load_toml(args.file)
-    s = load_model(doc, source).structure     # the whole file is checked, as analyze and simulate check it
+    model = load_model(doc, source)     # the whole file is checked, as analyze and simulate check it
+    s = model.structure
     print(f"{source}: {s.description}, {s.n} DOFs")
     shown = s.dofs if args.all_dofs or s.n <= 12 else s.dofs[:12] + ["..."]
     print("DOFs: " + ", ".join(shown))
-    freqs = s.natural_frequencies()
-    for i, f in enumerate(freqs[: args.count], 1):
+    if args.bare:
+        print("natural frequencies of the structure alone (its [structure] springs included; the elements "
+              "left out)")
+    else:
+        at_rest = structure_at_rest(s, model.elements)
+        s = at_rest.structure
+        print(_at_rest_words(at_rest))
+    for i, f in enumerate(s.natural_frequencies()[: args.count], 1):
         print(f"  mode {i:2d}: {f:12.4f} Hz")
     return 0
+
+
+def _at_rest_words(at_rest) -> str:
+    """What ``modes`` shows by default: which elements' small-amplitude stiffness it adds, which it cannot."""
+    from analysis.numbers import engineering
+
+    s = at_rest.structure
+    added = "; ".join(f"{el.name} on {' - '.join(el.dofs)}: "
+                      f"{engineering(k0, 'N·m/rad' if el.rotational(s) else 'N/m', 4)}" for el, k0 in at_rest.added)
+    text = ("natural frequencies with the elements' small-amplitude stiffness (" + added + "); --bare for the "
+            "structure alone" if at_rest.added else "natural frequencies of the structure, its [structure] springs "
+            "included (no element law has values to add)")
+    if at_rest.added and at_rest.without_values:
+        text += f"; left out, their laws have no values: {', '.join(el.name for el in at_rest.without_values)}"
+    return text
 
 
 def cmd_laws(args) -> int:
@@ -323,10 +348,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("modes", help="natural frequencies of a rig or model file's structure")
+    p = sub.add_parser("modes", help="natural frequencies of a rig or model file: its structure with the "
+                                     "elements' small-amplitude stiffness (the contact at rest)")
     p.add_argument("file", help="rig or model TOML file, or a built-in rig name (see simulate --list)")
     p.add_argument("-n", "--count", type=int, default=6, help="how many modes to print (default 6)")
     p.add_argument("--all-dofs", action="store_true", help="list every DOF name")
+    p.add_argument("--bare", action="store_true",
+                   help="the structure alone (its springs included), without the elements' small-amplitude "
+                        "stiffness")
     p.set_defaults(run=cmd_modes)
 
     p = sub.add_parser("demo", help="the main job on the built-in simulated beam: campaign, identification, "
