@@ -76,7 +76,7 @@ COMMANDS = {
     "export": ["session", "--uff", "--csv", "--force", "--overwrite"],
     "import": ["files", "-o", "--output", "--append", "--overwrite", "--kind", "--force", "--force-amplitude",
                "--direction", "--dof", "--excitation"],
-    "modes": ["file", "-n", "--count", "--all-dofs"],
+    "modes": ["file", "-n", "--count", "--all-dofs", "--bare"],
     "laws": [],
 }
 
