@@ -230,7 +230,8 @@ def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
 
-    from .analyze import reference_only, report_text, run_workbench, run_workbench_auto, session_notes, store_history
+    from .analyze import (misfits_json, reference_only, report_text, run_workbench, run_workbench_auto,
+                          session_notes, store_history)
     from .outputs import check_output
 
     inputs = [args.session, args.model]
@@ -256,7 +257,8 @@ def cmd_analyze(args) -> int:
         store_history(args.session, wb, args.model, notes)
     if args.json:
         extra = {"auto": auto.to_json()} if auto is not None else {}
-        print(json.dumps({**wb.to_json(candidates), **notes.to_json(), **extra}, indent=1, default=float))
+        print(json.dumps({**wb.to_json(candidates), **misfits_json(wb), **notes.to_json(), **extra}, indent=1,
+                         default=float))
     else:
         if auto is not None:
             print(auto.text() + "\n")

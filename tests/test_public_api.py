@@ -269,6 +269,7 @@ def test_analyze_json_has_every_documented_key(analyzed, capsys):
     example = json.loads(text.split("## 6.")[1].split("```json")[1].split("```")[0])
     assert _keys_missing(example, out) == []
     assert out["elements"][0]["verdict"] in ("linear", "nonlinear", None)
+    assert isinstance(out["misfits"], list)
     right = next(e for e in out["elements"] if e["name"] == "right")
     assert [law["law"] for law in right["laws"]] == ["cubic", "coulomb"]
     # the fitted model is a model file again (docs/contracts.md §4)
