@@ -15,6 +15,9 @@ import numpy as np
 from analysis.numbers import engineering
 from analysis.workbench import Workbench
 
+from .analyze import element_misfits
+from .kbar_view import LEGEND_OFFSETS, emptiest_corner, linear_axis, model_paths
+
 LEVEL_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
                  (140, 86, 75), (227, 119, 194), (127, 127, 127)]
 
@@ -154,42 +157,56 @@ def plot_frfs(wb: Workbench, path: Path, sensor: str | None = None) -> Path:
 
 
 def plot_kbar(wb: Workbench, path: Path) -> Path:
-    """Re and Im of every element's kbar against its amplitude, coloured by force level; the fitted laws as
-    crosses at the same samples."""
+    """Re and Im of every element's kbar against its amplitude: the identified samples as dots coloured by force
+    level, drawn above the fitted laws, which are a black line per level through the same lines in frequency
+    order (app/kbar_view.py). An element judged linear is drawn on an axis that shows how flat it is."""
     levels = wb.measurements.levels
     lay = _layout()
-    lay.addLabel("Equivalent complex stiffness kbar of each element against its amplitude X: identified "
-                 "(dots, one colour per force level) and fitted laws (crosses)", row=0, col=0,
-                 colspan=max(len(wb.model.elements), 1), size="11pt")
+    lay.addLabel("Equivalent complex stiffness kbar of each element against its amplitude X: identified (dots, one "
+                 "colour per force level) and the fitted laws (black line per level, in frequency order)", row=0,
+                 col=0, colspan=max(len(wb.model.elements), 1), size="11pt")
     for col, el in enumerate(wb.model.elements):
         rep = wb.reports.get(el.name)
         s = rep.samples if rep else None
         k_u, x_u = s.units if s is not None else ("N/m", "m")
-        verdict = "" if rep is None or rep.verdict is None else (": linear" if rep.verdict.linear else
-                                                                 ": nonlinear")
-        re = _log_plot(lay, 1, col, title=f"element {el.name} at {' - '.join(el.dofs)}{verdict}", x_unit=x_u)
-        im = _log_plot(lay, 2, col, x_unit=x_u)
-        re.setLabel("left", "Re kbar", units=k_u)
-        im.setLabel("left", "Im kbar", units=k_u)
-        im.setLabel("bottom", "amplitude X")
-        im.setXLink(re)
-        if col == 0:
-            re.addLegend(offset=(-10, 10))
+        linear = rep is not None and rep.verdict is not None and rep.verdict.linear
+        verdict = "" if rep is None or rep.verdict is None else (": linear" if linear else ": nonlinear")
+        misfits = {m.part: m for m in element_misfits(wb, el)}
+        panels = {}
+        for row, part, take in ((1, "Re", np.real), (2, "Im", np.imag)):
+            plot = _log_plot(lay, row, col, x_unit=x_u)
+            plot.setLabel("left", f"{part} kbar", units=k_u)
+            corner = emptiest_corner(s.X, take(s.kbar)) if s is not None else "top right"
+            plot.addLegend(offset=LEGEND_OFFSETS[corner], labelTextSize="8pt")
+            panels[part] = (plot, take)
+        panels["Im"][0].setLabel("bottom", "amplitude X")
+        panels["Im"][0].setXLink(panels["Re"][0])
         if s is None:
+            panels["Re"][0].setTitle(f"kbar of {el.name} at {' - '.join(el.dofs)}{verdict}: no samples")
             continue
-        for force in levels:
-            sel = np.isclose(s.level, force)
-            if not sel.any():
-                continue
-            measured = _symbols(_colour(levels, force), 4)
-            re.plot(s.X[sel], s.kbar[sel].real, name=f"{force:g} N", **measured)
-            im.plot(s.X[sel], s.kbar[sel].imag, **measured)
-        if (el.laws or el.nonparametric is not None) and all(t.complete for t in el.laws):
-            # the model at each sample's (X, w): markers, since kbar may depend on w as well as X
-            model = el.describing_function(s.X, s.w)
-            style = {"pen": None, "symbol": "x", "symbolSize": 5, "symbolPen": {"color": "k", "width": 1}}
-            re.plot(s.X, model.real, **style)
-            im.plot(s.X, model.imag, **style)
+        fitted = (el.laws or el.nonparametric is not None) and all(t.complete for t in el.laws)
+        paths = model_paths(s.X, s.w, s.level, el.describing_function(s.X, s.w)) if fitted else []
+        for part, (plot, take) in panels.items():
+            title = f"{part} kbar of {el.name} at {' - '.join(el.dofs)}{verdict}"
+            for i, p in enumerate(paths):      # under the dots: the measured points stay visible
+                line = plot.plot(p.X, take(p.kbar), pen={"color": "k", "width": 1.5},
+                                 name="fitted laws" if i == 0 else None)
+                line.setZValue(0)
+            for force in levels:
+                sel = np.isclose(s.level, force)
+                if sel.any():
+                    dots = plot.plot(s.X[sel], take(s.kbar[sel]), name=f"{force:g} N identified",
+                                     **_symbols(_colour(levels, force), 5))
+                    dots.setZValue(10)
+            axis = linear_axis(take(s.kbar)) if linear else None
+            if axis is not None:
+                plot.setYRange(axis.low, axis.high, padding=0)
+                title += f" ({axis.words()})"
+            if part in misfits:
+                m = misfits[part]
+                title += (f"<br>systematic misfit: law {'above' if m.misfit < 0 else 'below'} the data at "
+                          f"{engineering(m.X_range[0], x_u)}..{engineering(m.X_range[1], x_u)}")
+            plot.setTitle(title, size="10pt")
     return _export(lay, path)
 
 
