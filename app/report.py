@@ -211,24 +211,57 @@ def plot_kbar(wb: Workbench, path: Path) -> Path:
 
 
 def plot_residuals(wb: Workbench, path: Path) -> Path:
-    """Relative FRF error per line and run: where the model fails."""
+    """Relative FRF error per line and run, over every response the runs measured: where the model fails."""
     comp = wb.compare()
     levels = wb.measurements.levels
+    runs = wb.measurements.sine
+    responses = ", ".join(dict.fromkeys(d for run in runs for d in run.sensor_dofs))
     lay = _layout()
-    p = _log_plot(lay, 0, 0, title="Where the model fails: relative FRF error of the prediction at each "
-                                   "frequency line and force level", y_unit="")
+    p = _log_plot(lay, 0, 0, title=f"Where the model fails: relative FRF error of the prediction at each frequency "
+                                   f"line and force level, over the responses {responses} "
+                                   f"(force at {runs[0].excitation_dof})", y_unit="")
     p.setLabel("left", "relative FRF error")
     p.setLabel("bottom", "frequency", units="Hz")
     p.addLegend(offset=(-10, 10))
-    for run in wb.measurements.sine:
+    shown = []
+    for run in runs:
         order = np.argsort(run.frequency_hz)
-        p.plot(run.frequency_hz[order], np.maximum(comp.residual_map[run.name][order], 1e-6),
+        residual = np.maximum(comp.residual_map[run.name][order], 1e-6)
+        shown.append(residual)
+        p.plot(run.frequency_hz[order], residual,
                pen={"color": _colour(levels, run.force), "width": 2}, name=f"{run.force:g} N {run.direction}")
         other = comp.other_branch.get(run.name, np.zeros(len(order), bool))
         if other.any():                    # measured on another branch than the swept prediction (a jump)
             p.plot(run.frequency_hz[other], np.maximum(comp.residual_map[run.name][other], 1e-6), pen=None,
                    symbol="x", symbolSize=14, symbolPen={"color": _colour(levels, run.force), "width": 2})
+    p.setYRange(*_log_range_with_ticks(np.concatenate(shown)), padding=0)
     return _export(lay, path, height=600)
+
+
+def _log_range_with_ticks(values, headroom: float = 0.05) -> tuple[float, float]:
+    """The view (log10 low, log10 high) of a log axis showing ``values``: it reaches down to the nearest value
+    below the lowest point that the axis labels (:func:`_labelled_log_ticks`: a reader reads the lowest point
+    against a number under it), and ``headroom`` of the span above the highest."""
+    lo, hi = float(np.log10(np.min(values))), float(np.log10(np.max(values)))
+    high = hi + headroom * max(hi - lo, 0.3)
+    decade = np.floor(lo)
+    # the 1-2-5 values below the lowest point, nearest first
+    for low in decade + np.log10([5.0, 2.0, 1.0, 0.5, 0.2, 0.1]):
+        if low <= lo and min(_labelled_log_ticks(low, high)) <= low + 1e-9:
+            return float(low), float(high)
+    return float(decade - 1), float(high)
+
+
+def _label_anchor(values: np.ndarray, i: int) -> tuple[float, float]:
+    """Where a point's value label goes so that the line does not run through it: above a point no neighbour
+    rises above, below one no neighbour falls under, else on the right beside a point the line passes through
+    (above right where it falls, below right where it rises)."""
+    neighbours = [values[j] for j in (i - 1, i + 1) if 0 <= j < len(values)]
+    if all(n <= values[i] for n in neighbours):
+        return 0.5, 1.4
+    if all(n >= values[i] for n in neighbours):
+        return 0.5, -0.4
+    return (-0.15, 1.2) if values[i - 1] > values[i + 1] else (-0.15, -0.2)
 
 
 def plot_history(wb: Workbench, path: Path) -> Path:
@@ -236,17 +269,19 @@ def plot_history(wb: Workbench, path: Path) -> Path:
     import pyqtgraph as pg
 
     lay = _layout()
-    p = _log_plot(lay, 0, 0, title="FRF error of the model after each step: the start, linear corrections "
-                                   "and each effect added", y_unit="")
+    p = _log_plot(lay, 0, 0, title="FRF error of the model after each step (all responses, all force levels): the "
+                                   "start, linear corrections and each effect added", y_unit="")
     x = np.arange(len(wb.history))
     errors = np.array([max(h.error, 1e-9) for h in wb.history])
     p.plot(x, errors, pen={"color": (31, 119, 180), "width": 2}, symbol="o", symbolSize=9,
            symbolBrush=(31, 119, 180))
     p.getAxis("bottom").setTicks([[(i, h.action.replace("add ", "+")) for i, h in enumerate(wb.history)]])
     p.setXRange(-0.5, len(wb.history) - 0.5, padding=0)   # room for the first and last step's names
+    low, high = _log_range_with_ticks(errors, headroom=0.12)   # room above for a label over the highest point
+    p.setYRange(low, high, padding=0)
     p.setLabel("left", "relative FRF error")
     for i, e in enumerate(errors):
-        label = pg.TextItem(f"{e:.3g}", color="k", anchor=(0.5, 1.3))
+        label = pg.TextItem(f"{e:.3g}", color="k", anchor=_label_anchor(errors, i))
         label.setPos(i, np.log10(e))
         p.addItem(label)
     return _export(lay, path, height=600)
