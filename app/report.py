@@ -157,6 +157,11 @@ def plot_frfs(wb: Workbench, path: Path, sensor: str | None = None) -> Path:
 
 
 def plot_kbar(wb: Workbench, path: Path) -> Path:
+    """Re and Im of every element's kbar against its amplitude (:func:`kbar_layout`) as a PNG."""
+    return _export(kbar_layout(wb), path)
+
+
+def kbar_layout(wb: Workbench):
     """Re and Im of every element's kbar against its amplitude: the identified samples as dots coloured by force
     level, drawn above the fitted laws, which are a black line per level through the same lines in frequency
     order (app/kbar_view.py). An element judged linear is drawn on an axis that shows how flat it is."""
@@ -207,7 +212,7 @@ def plot_kbar(wb: Workbench, path: Path) -> Path:
                 title += (f"<br>systematic misfit: law {'above' if m.misfit < 0 else 'below'} the data at "
                           f"{engineering(m.X_range[0], x_u)}..{engineering(m.X_range[1], x_u)}")
             plot.setTitle(title, size="10pt")
-    return _export(lay, path)
+    return lay
 
 
 def plot_residuals(wb: Workbench, path: Path) -> Path:
