@@ -129,7 +129,8 @@ def imported_session(fmt, measured, tmp_path):
         return out
     for i, F in enumerate(FORCES):
         f = commercial_uff(tmp_path / f"level{i}.uff", measured[F], binary=fmt == "uff-binary")
-        assert main(["import", str(f), "-o", str(out), "--force-amplitude", str(F), *DOFS] + (["--append"] if i else [])) == 0
+        assert main(["import", str(f), "-o", str(out), "--force-amplitude", str(F), *DOFS]
+                    + (["--append"] if i else [])) == 0
     return out
 
 
