@@ -41,11 +41,16 @@ def linear_axis(values) -> LinearAxis | None:
     return LinearAxis(mean - half, mean + half, float(np.ptp(v)) / abs(mean))
 
 
+JUMP = 1.5           # consecutive lines whose amplitudes differ by more than this factor are a jump, not a step
+
+
 @dataclass(frozen=True)
 class ModelPath:
     """The fitted model at one force level's samples, in frequency order: the path the measured points of that
     level trace (a law that depends on w as well as X is not a function of X alone, so a line sorted by X would
-    zigzag between the two sides of the resonance)."""
+    zigzag between the two sides of the resonance). The path is broken (NaN; draw with ``connect="finite"``)
+    where the amplitude jumps between neighbouring lines -- a fold, or another sweep's branch at the same level --
+    so that no straight segment crosses the plot where nothing was measured."""
     level: float
     X: np.ndarray
     kbar: np.ndarray
@@ -58,7 +63,9 @@ def model_paths(X, w, level, model) -> list[ModelPath]:
     for force in np.unique(np.round(level, 12)):
         sel = np.flatnonzero(np.isclose(level, force))
         order = sel[np.argsort(w[sel], kind="stable")]
-        paths.append(ModelPath(float(force), X[order], model[order]))
+        x, k = X[order].astype(float), model[order].astype(complex)
+        jumps = np.flatnonzero(np.abs(np.diff(np.log(x))) > np.log(JUMP)) + 1
+        paths.append(ModelPath(float(force), np.insert(x, jumps, np.nan), np.insert(k, jumps, np.nan)))
     return paths
 
 
@@ -82,3 +89,11 @@ def emptiest_corner(x, y, log_x: bool = True, box: tuple[float, float] = (0.35, 
     counts = {"top right": np.sum(right & top), "top left": np.sum(left & top),
               "bottom right": np.sum(right & bottom), "bottom left": np.sum(left & bottom)}
     return min(counts, key=lambda k: counts[k])       # dicts keep order: the top right wins a tie
+
+
+def legend_to(legend, corner: str) -> None:
+    """Move a pyqtgraph legend into ``corner`` of its plot (a key of LEGEND_OFFSETS), remembering where it is."""
+    offset = LEGEND_OFFSETS[corner]
+    anchor = (0 if offset[0] > 0 else 1, 0 if offset[1] > 0 else 1)
+    legend.anchor(itemPos=anchor, parentPos=anchor, offset=offset)
+    legend.corner = corner

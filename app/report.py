@@ -194,7 +194,7 @@ def kbar_layout(wb: Workbench):
         for part, (plot, take) in panels.items():
             title = f"{part} kbar of {el.name} at {' - '.join(el.dofs)}{verdict}"
             for i, p in enumerate(paths):      # under the dots: the measured points stay visible
-                line = plot.plot(p.X, take(p.kbar), pen={"color": "k", "width": 1.5},
+                line = plot.plot(p.X, take(p.kbar), pen={"color": "k", "width": 1.5}, connect="finite",
                                  name="fitted laws" if i == 0 else None)
                 line.setZValue(0)
             for force in levels:

@@ -12,7 +12,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QLabel, QSplitter, QTextBrowser, QVBoxLayout, QWidget
 
 from .lab import Lab
-from ..kbar_view import linear_axis, model_paths
+from ..kbar_view import emptiest_corner, legend_to, linear_axis, model_paths
 from .plots import FrameClock, LevelPalette, Redraw, configure_plot, scatter
 from .results import IdentificationView
 
@@ -128,7 +128,8 @@ class IdentifyPanel(QWidget):
             return
         if line is None:
             named = not any(k[1] == key[1] and k[-1] == "model" for k in self._curves)
-            line = plot.plot([], [], pen=pg.mkPen("k", width=1.5), name="fitted laws" if named else None)
+            line = plot.plot([], [], pen=pg.mkPen("k", width=1.5), connect="finite",
+                             name="fitted laws" if named else None)
             line.setZValue(0)
             self._curves[key] = line
         line.setData(path.X, part(path.kbar))
@@ -146,6 +147,10 @@ class IdentifyPanel(QWidget):
             title += f", linear: {axis.words()}"
         if plot.titleLabel.text != title:        # redrawn every frame while live: set only what changed
             plot.setTitle(title, size="10pt")
+        if el.samples is not None:
+            corner = emptiest_corner(el.samples.X, part(el.samples.kbar))
+            if getattr(plot.legend, "corner", None) != corner:
+                legend_to(plot.legend, corner)
 
     @staticmethod
     def _verdict_html(view: IdentificationView) -> str:
