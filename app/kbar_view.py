@@ -41,7 +41,7 @@ def linear_axis(values) -> LinearAxis | None:
     return LinearAxis(mean - half, mean + half, float(np.ptp(v)) / abs(mean))
 
 
-JUMP = 1.5           # consecutive lines whose amplitudes differ by more than this factor are a jump, not a step
+JUMP = 2.0           # consecutive lines whose amplitudes differ by more than this factor are a jump, not a step
 
 
 @dataclass(frozen=True)

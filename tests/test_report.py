@@ -150,7 +150,8 @@ def test_history_labels_sit_off_the_line():
 def test_model_paths_break_where_the_amplitude_jumps():
     # an up-sweep over a fold: the amplitude grows to 0.12 and drops to 0.04 between two neighbouring lines
     w = np.linspace(1.0, 2.0, 6)
-    X = np.array([0.05, 0.08, 0.12, 0.04, 0.03, 0.02])
+    X = np.array([0.05, 0.08, 0.12, 0.04, 0.03, 0.02])     # steps of x1.6 on the flank are still a path
     (path,) = model_paths(X, w, np.full(6, 0.8), 1.0 + 0j * X)
     assert np.isnan(path.X[3]) and np.isnan(path.kbar[3].real)         # no segment from 0.12 to 0.04
     assert np.count_nonzero(np.isnan(path.X)) == 1 and list(path.X[:3]) == [0.05, 0.08, 0.12]
+    assert list(path.X[4:]) == [0.04, 0.03, 0.02]
