@@ -2,11 +2,23 @@
 
 Pure numerics -- no Qt, no serial ports, no files beyond TOML tables handed in.
 Stable entry points (docs/contracts.md §8): :func:`load_structure`, :func:`describing_function`.
-"""
-from .elements import Element, LawTerm, load_elements
-from .errors import InputError
-from .laws import LAWS, describing_function, get_law
-from .structures import Structure, load_structure
 
-__all__ = ["Element", "InputError", "LAWS", "LawTerm", "Structure", "describing_function", "get_law",
-           "load_elements", "load_structure"]
+The names below are imported on first use, so that ``import analysis.errors`` (the command line's start-up) does
+not load numba and scipy (docs/performance.md, "Start-up").
+"""
+from importlib import import_module
+
+_EXPORTS = {"Element": ".elements", "LawTerm": ".elements", "load_elements": ".elements",
+            "InputError": ".errors",
+            "LAWS": ".laws", "describing_function": ".laws", "get_law": ".laws",
+            "Structure": ".structures", "load_structure": ".structures"}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'analysis' has no attribute {name!r}")
+    value = getattr(import_module(_EXPORTS[name], __name__), name)
+    globals()[name] = value            # once imported, an ordinary attribute
+    return value

@@ -55,6 +55,7 @@ from .errors import InputError
 from .fit import LawFit, TermFit, fit_laws
 from .laws import LAWS
 from .laws.base import SignatureWords
+from .numbers import change_words
 
 
 @dataclass
@@ -210,11 +211,11 @@ def signature_words(sig: Signature, stiffness_unit: str) -> SignatureWords:
     re_flat = abs(sig.re_change_sigma) < 3
     im_flat = abs(sig.im_change_sigma) < 3
     re_text = ("Re kbar stays flat" if re_flat else
-               f"Re kbar {'rises' if sig.re_change_sigma > 0 else 'falls'} from {sig.re_small:.3g} to "
-               f"{sig.re_large:.3g} {k_u} ({abs(sig.re_change_sigma):.0f} sigma)")
+               "Re kbar {} {}".format(*change_words(sig.re_small, sig.re_large, k_u))
+               + f" ({abs(sig.re_change_sigma):.0f} sigma)")
     im_text = ("Im kbar stays flat" if im_flat else
-               f"Im kbar {'rises' if sig.im_change_sigma > 0 else 'falls'} from {sig.im_small:.3g} to "
-               f"{sig.im_large:.3g} {k_u} (log-slope {_slope(sig.im_slope_X)} in X"
+               "Im kbar {} {}".format(*change_words(sig.im_small, sig.im_large, k_u))
+               + f" (log-slope {_slope(sig.im_slope_X)} in X"
                + (f", {_slope(sig.im_slope_w)} in w)" if sig.im_slope_w is not None else ")"))
     return SignatureWords(re=re_text, im=im_text, re_slope=_slope(sig.re_slope_X),
                           mean_re=f"{sig.mean_re:+.3g} {k_u}", mean_im=f"{sig.mean_im:+.3g} {k_u}",

@@ -33,6 +33,7 @@ import numpy as np
 import scipy.stats
 
 from .errors import InputError
+from .numbers import engineering
 
 DEFAULT_FALSE_ALARM = 1.0e-3
 SHARED_LINE_TOLERANCE = 1.0e-9   # relative: lines closer than this are the same line
@@ -335,7 +336,7 @@ def _evidence(v: LinearityVerdict, k_unit: str, x_unit: str, n_lines: int) -> st
             parts.append(f"{name}: the amplitude does not vary enough to show a trend")
             continue
         direction = "rises" if trend.change > 0 else "falls"
-        parts.append(f"{name} {direction} by {abs(trend.change):.3g} {k_unit} ({trend.sigma:.1f} sigma) "
+        parts.append(f"{name} {direction} by {engineering(abs(trend.change), k_unit)} ({trend.sigma:.1f} sigma) "
                      f"over X {x_lo:.3g}..{x_hi:.3g} {x_unit}")
     if v.linear_correction is not None:
         c = v.linear_correction

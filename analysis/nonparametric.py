@@ -30,8 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.stats
-from scipy.interpolate import CubicSpline
 
 from .errors import InputError
 from .tables import Fields
@@ -44,8 +42,10 @@ _LAMBDAS = np.logspace(-6, 4, 41)   # smoothing values tried (relative to the da
 TOML_KEYS = ("X", "re", "im", "w", "w_re", "w_im")
 
 
-def _spline(knots: np.ndarray, values: np.ndarray) -> CubicSpline | None:
+def _spline(knots: np.ndarray, values: np.ndarray) -> "CubicSpline | None":
     """Natural cubic spline through (knots, values) along axis 0; None for a single knot (a constant)."""
+    from scipy.interpolate import CubicSpline    # here, not at the top: the command line starts without scipy
+
     return CubicSpline(knots, values, bc_type="natural") if len(knots) > 1 else None
 
 
@@ -221,6 +221,8 @@ def _frequency_dependent(rss_without: float, fitted: _Solved, n_obs: int, added:
     """F test: does the frequency part drop the residual more than noise would, at FREQUENCY_FALSE_ALARM?"""
     dof = max(n_obs - fitted.edf, 1.0)
     statistic = ((rss_without - fitted.rss) / added) / max(fitted.rss / dof, 1e-300)
+    import scipy.stats    # here, not at the top: scipy.stats alone takes ~0.5 s to import
+
     threshold = float(scipy.stats.f.ppf(1 - FREQUENCY_FALSE_ALARM, added, dof))
     return FrequencyTest(float(statistic), threshold, bool(statistic > threshold))
 

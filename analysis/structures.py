@@ -6,6 +6,7 @@ receptance matrix H(w) and the normal modes.
 """
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +25,17 @@ MAX_BEAM_ELEMENTS = 1000
 SINGULAR_RCOND = 8 * np.finfo(float).eps
 # A damping matrix may be singular (undamped DOFs) but not negative beyond round-off of its scaled entries.
 SEMIDEFINITE_SHIFT = 1e-12
+
+
+def dof_suggestions(name, dofs: list[str], shown: int = 12) -> str:
+    """The DOFs to offer for a name that is not one: the closest spellings first, then the others, up to
+    ``shown`` names in all, so that a long list never cuts off the one the user meant."""
+    close = difflib.get_close_matches(str(name), dofs, n=3, cutoff=0.6)
+    ordered = close + [d for d in dofs if d not in close]
+    listed = ", ".join(ordered[:shown]) + (", ..." if len(ordered) > shown else "")
+    if not close:
+        return f"its DOFs: {listed}"
+    return f"did you mean {close[0]!r}? its DOFs, closest first: {listed}"
 
 
 @dataclass
@@ -63,8 +75,7 @@ class Structure:
         try:
             return self._index[name]
         except (KeyError, TypeError):
-            shown = ", ".join(self.dofs[:12]) + (", ..." if self.n > 12 else "")
-            raise InputError(f"DOF {name!r} is not in the structure (its DOFs: {shown})",
+            raise InputError(f"DOF {name!r} is not in the structure ({dof_suggestions(name, self.dofs)})",
                              self.source, field) from None
 
     def is_rotational(self, name: str) -> bool:

@@ -107,7 +107,24 @@ class UpdateResult:
                          f"{self.after_hz[i]:11.4f} {ea:8.3f}")
         for name, b, a in zip(self.parameters, self.before, self.after):
             lines.append(f"{name}: {b:.6g} -> {a:.6g}")
-        return "\n".join(lines)
+        return "\n".join(lines + self.worse_notes())
+
+    def worse_notes(self) -> list[str]:
+        """A line for each matched mode the update moved away from its measured frequency: the least-squares
+        fit of the relative errors trades it against the others, and the reader must not take it for a match."""
+        eb = 100 * (self.before_hz / self.measured_hz - 1)
+        ea = 100 * (self.after_hz / self.measured_hz - 1)
+        notes = []
+        for i, m in enumerate(self.modes):
+            if abs(ea[i]) <= abs(eb[i]):
+                continue
+            others = ", ".join(f"mode {n}: {eb[j]:.3f} % -> {ea[j]:.3f} %" for j, n in enumerate(self.modes) if j != i)
+            notes.append(f"note: the update moved mode {m} away from its measured frequency (error {eb[i]:.3f} % -> "
+                         f"{ea[i]:.3f} %): fitting {', '.join(self.parameters)} to the relative errors of all matched "
+                         f"modes by least squares traded it against the others"
+                         + (f" ({others})" if others else "")
+                         + "; the reference cannot match them all")
+        return notes
 
 
 def frequency_sensitivity(structure_of, values: np.ndarray, modes: list[int]) -> tuple[np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ from analysis.auto import AutoResult, AutoStep, run_auto
 from analysis.comparison import gain_phrase
 from analysis.errors import InputError
 from analysis.frf_noise import METHOD as NOISE_METHOD
+from analysis.misfit import Misfit, systematic_misfits
 from analysis.model import Model, load_model
 from analysis.reference import ReferenceReport, reference_from_random
 from analysis.tables import load_toml
@@ -165,6 +166,23 @@ def _data_notes(wb: Workbench) -> list[str]:
     return out + ([""] if out else [])
 
 
+def element_misfits(wb: Workbench, element) -> list[Misfit]:
+    """The systematic misfits the fitted laws leave in an element's kbar (analysis/misfit.py); none for an
+    element without fitted laws (nothing to misfit) or without samples."""
+    report = wb.reports.get(element.name)
+    s = report.samples if report is not None else None
+    fitted = (element.laws or element.nonparametric is not None) and all(t.complete for t in element.laws)
+    if s is None or not fitted or len(s.X) == 0:
+        return []
+    return systematic_misfits(element.name, s.X, s.kbar, element.describing_function(s.X, s.w), s.kbar_std,
+                              s.units)
+
+
+def misfits_json(wb: Workbench) -> dict:
+    """The ``misfits`` entry of ``analyze --json`` (docs/contracts.md §6)."""
+    return {"misfits": [m.to_json() for el in wb.model.elements for m in element_misfits(wb, el)]}
+
+
 def report_text(wb: Workbench, candidates, top: int = 5) -> str:
     """The analysis as a test engineer reads it."""
     out = [f"note: {note.text()}" for note in wb.measurements.unfinished]
@@ -188,6 +206,7 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
             out.append(f"    law {term.law.name}: {', '.join(params)}")
         if el.nonparametric is not None:
             out.append(f"    {el.nonparametric.describe(r.samples.units[1] if r.samples else 'm')}")
+        out += [f"    systematic misfit: {m.text()}" for m in element_misfits(wb, el)]
         if r.fit is not None:
             out += [f"    {d}" for d in r.fit.degeneracies] + [f"    {c}" for c in r.fit.correlated]
             left_out = r.excluded_hz()

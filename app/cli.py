@@ -19,8 +19,9 @@ import argparse
 import sys
 from importlib.metadata import PackageNotFoundError, version
 
-from analysis import LAWS, InputError
-from analysis.tables import load_toml
+# Only light modules here: each command imports what it uses, so that `--help` and `laws` start fast
+# (docs/performance.md, "Start-up"; tests/test_public_api.py checks what they import).
+from analysis.errors import InputError
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -40,11 +41,15 @@ def software_version() -> str:
 
 
 def cmd_modes(args) -> int:
-    """Print the DOFs and natural frequencies of the [structure] of a rig or model file, or of a built-in rig."""
+    """Print the DOFs and natural frequencies of a rig or model file, or of a built-in rig: by default with the
+    elements' small-amplitude stiffness (the contact as a low-level test sees it), with --bare the structure
+    alone."""
     import tomllib
     from pathlib import Path
 
     from analysis.model import load_model
+    from analysis.tables import load_toml
+    from drivers.simulation.linear_model import structure_at_rest
     from drivers.simulation.rig import builtin_rig_path, builtin_rigs
 
     if not Path(args.file).exists():
@@ -56,18 +61,42 @@ def cmd_modes(args) -> int:
     else:
         source = args.file
         doc = load_toml(args.file)
-    s = load_model(doc, source).structure     # the whole file is checked, as analyze and simulate check it
+    model = load_model(doc, source)     # the whole file is checked, as analyze and simulate check it
+    s = model.structure
     print(f"{source}: {s.description}, {s.n} DOFs")
     shown = s.dofs if args.all_dofs or s.n <= 12 else s.dofs[:12] + ["..."]
     print("DOFs: " + ", ".join(shown))
-    freqs = s.natural_frequencies()
-    for i, f in enumerate(freqs[: args.count], 1):
+    if args.bare:
+        print("natural frequencies of the structure alone (its [structure] springs included; the elements "
+              "left out)")
+    else:
+        at_rest = structure_at_rest(s, model.elements)
+        s = at_rest.structure
+        print(_at_rest_words(at_rest))
+    for i, f in enumerate(s.natural_frequencies()[: args.count], 1):
         print(f"  mode {i:2d}: {f:12.4f} Hz")
     return 0
 
 
+def _at_rest_words(at_rest) -> str:
+    """What ``modes`` shows by default: which elements' small-amplitude stiffness it adds, which it cannot."""
+    from analysis.numbers import engineering
+
+    s = at_rest.structure
+    added = "; ".join(f"{el.name} on {' - '.join(el.dofs)}: "
+                      f"{engineering(k0, 'N·m/rad' if el.rotational(s) else 'N/m', 4)}" for el, k0 in at_rest.added)
+    text = ("natural frequencies with the elements' small-amplitude stiffness (" + added + "); --bare for the "
+            "structure alone" if at_rest.added else "natural frequencies of the structure, its [structure] springs "
+            "included (no element law has values to add)")
+    if at_rest.added and at_rest.without_values:
+        text += f"; left out, their laws have no values: {', '.join(el.name for el in at_rest.without_values)}"
+    return text
+
+
 def cmd_laws(args) -> int:
     """List the element laws with their parameters and units."""
+    from analysis.laws import LAWS
+
     for law in LAWS.values():
         params = ", ".join(f"{p.name} [{p.render_unit()}]" for p in law.params)
         print(f"{law.name:20s} {law.summary}: {params}")
@@ -79,11 +108,11 @@ def cmd_export(args) -> int:
     from .export import export_csv, export_uff
 
     if args.uff:
-        done = export_uff(args.session, args.uff, overwrite=args.force, per_run=args.per_run,
+        done = export_uff(args.session, args.uff, overwrite=args.overwrite, per_run=args.per_run,
                           binary=args.binary, frf_only=args.frf_only)
         print(f"wrote {done.records} records to {', '.join(str(p) for p in done.files)}")
     else:
-        paths = export_csv(args.session, args.csv, overwrite=args.force)
+        paths = export_csv(args.session, args.csv, overwrite=args.overwrite)
         print(f"wrote {len(paths)} CSV files to {args.csv}")
     return 0
 
@@ -93,9 +122,11 @@ def cmd_import(args) -> int:
     from .importers.runs import SourceOptions, parse_dof_map
     from .importers.store import ImportRequest, import_files
 
-    if args.force is not None and not args.force > 0:
-        raise InputError(f"--force must be a force amplitude > 0 N, got {args.force:g}", field="--force")
-    options = SourceOptions(args.kind, args.force, args.direction, [parse_dof_map(t) for t in args.dof or []],
+    if args.force_amplitude is not None and not args.force_amplitude > 0:
+        raise InputError(f"--force-amplitude must be a force amplitude > 0 N, got {args.force_amplitude:g}",
+                         field="--force-amplitude")
+    options = SourceOptions(args.kind, args.force_amplitude, args.direction,
+                            [parse_dof_map(t) for t in args.dof or []],
                             args.excitation)
     result = import_files(ImportRequest([(f, options) for f in args.files], args.output, args.append,
                                         args.overwrite, " ".join(sys.argv), software_version()))
@@ -159,7 +190,7 @@ def cmd_simulate(args) -> int:
     rig = load_rig(args.rig)
     plan = _load_plan_for(args.rig, args.plan)
     with emulated_instruments(rig, seed=args.seed) as inst:
-        summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
+        summary = run_plan(plan, inst, args.output, overwrite=args.overwrite, command=" ".join(sys.argv),
                            software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
     return _finish(summary, args.output)
 
@@ -173,7 +204,7 @@ def cmd_acquire(args) -> int:
     plan = load_plan(args.plan)
     placement = plan.placement.overridden(args.excitation, args.sensors)
     with real_instruments(args.shaker, args.daq, placement=placement, unguarded=args.unguarded) as inst:
-        summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
+        summary = run_plan(plan, inst, args.output, overwrite=args.overwrite, command=" ".join(sys.argv),
                            software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
     return _finish(summary, args.output)
 
@@ -199,12 +230,13 @@ def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
 
-    from .analyze import reference_only, report_text, run_workbench, run_workbench_auto, session_notes, store_history
+    from .analyze import (misfits_json, reference_only, report_text, run_workbench, run_workbench_auto,
+                          session_notes, store_history)
     from .outputs import check_output
 
     inputs = [args.session, args.model]
     if args.output:                       # refused before any work: never an input, never silently replaced
-        check_output(args.output, inputs=inputs, overwrite=args.force)
+        check_output(args.output, inputs=inputs, overwrite=args.overwrite)
     reference = reference_only(args.session, args.model, args.add or [])
     if reference is not None:             # a random run only: its modes and the updated reference
         print(json.dumps(reference.to_json(), indent=1, default=float) if args.json else reference.text())
@@ -226,7 +258,8 @@ def cmd_analyze(args) -> int:
         store_history(args.session, wb, args.model, notes)
     if args.json:
         extra = {"auto": auto.to_json()} if auto is not None else {}
-        print(json.dumps({**wb.to_json(candidates), **notes.to_json(), **extra}, indent=1, default=float))
+        print(json.dumps({**wb.to_json(candidates), **misfits_json(wb), **notes.to_json(), **extra}, indent=1,
+                         default=float))
     else:
         if auto is not None:
             print(auto.text() + "\n")
@@ -245,7 +278,7 @@ def _write_model(args, text: str, inputs: list) -> None:
     from .outputs import atomic_output, require_free_space
 
     require_free_space(args.output, len(text.encode()) + 4096, "write the fitted model")
-    with atomic_output(args.output, inputs=inputs, overwrite=args.force) as temp:
+    with atomic_output(args.output, inputs=inputs, overwrite=args.overwrite) as temp:
         temp.write_text(text, encoding="utf-8")
     if not args.json:
         print(f"fitted model written to {args.output}")
@@ -283,9 +316,34 @@ def cmd_gui(args) -> int:
                model=args.model, software_version=software_version())
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from drivers.emulator.core import SHAKER_MODELS
+class _OldSpelling(argparse.Action):
+    """An option's former spelling: it still works, as ``replacement`` does, and says so in one line on stderr
+    (the command line is a contract: docs/contracts.md §6, "One meaning per flag")."""
 
+    def __init__(self, option_strings, dest, replacement: str, **kwargs):
+        super().__init__(option_strings, dest, help=argparse.SUPPRESS, **kwargs)
+        self.replacement = replacement
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"contactid: note: {option_string} is the old spelling of {self.replacement} here; use "
+              f"{self.replacement}", file=sys.stderr)
+        setattr(namespace, self.dest, self.const if self.nargs == 0 else values)
+
+
+def _overwrite_option(p: argparse.ArgumentParser, what: str) -> None:
+    """``--overwrite``, the one spelling of "replace an existing output" in every command; ``--force`` is its
+    former spelling in analyze, export, simulate and acquire."""
+    p.add_argument("--overwrite", action="store_true", help=f"overwrite {what}")
+    p.add_argument("--force", dest="overwrite", action=_OldSpelling, replacement="--overwrite", nargs=0,
+                   const=True, default=False)
+
+
+# the keys of drivers.emulator.core.SHAKER_MODELS, spelled here so that --help does not import the emulator
+# (and numpy); tests/test_public_api.py checks that they agree
+EMULATED_SHAKER_MODELS = ("SC-1", "33500B")
+
+
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contactid", description=(
         "Identify how a joint or contact interface behaves: stepped-sine tests, equivalent complex "
         "stiffness per element, nonlinear law fitting."), epilog=EXIT_CODES_HELP)
@@ -293,10 +351,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("modes", help="natural frequencies of a rig or model file's structure")
+    p = sub.add_parser("modes", help="natural frequencies of a rig or model file: its structure with the "
+                                     "elements' small-amplitude stiffness (the contact at rest)")
     p.add_argument("file", help="rig or model TOML file, or a built-in rig name (see simulate --list)")
     p.add_argument("-n", "--count", type=int, default=6, help="how many modes to print (default 6)")
     p.add_argument("--all-dofs", action="store_true", help="list every DOF name")
+    p.add_argument("--bare", action="store_true",
+                   help="the structure alone (its springs included), without the elements' small-amplitude "
+                        "stiffness")
     p.set_defaults(run=cmd_modes)
 
     p = sub.add_parser("demo", help="the main job on the built-in simulated beam: campaign, identification, "
@@ -311,7 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("plan", nargs="?", help="plan file (default: the built-in rig's plan)")
     p.add_argument("-o", "--output", metavar="SESSION.h5", help="session file to write")
     p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated rig")
-    p.add_argument("--force", action="store_true", help="overwrite an existing session file")
+    _overwrite_option(p, "an existing session file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--list", action="store_true", help="list the built-in rigs")
     p.set_defaults(run=cmd_simulate)
@@ -326,7 +388,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sensors", nargs="+", metavar="DOF",
                    help="accelerometer DOFs (overrides the plan's [sensors] dofs; default: the DAQ's acc:<dof> "
                         "channels)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing session file")
+    _overwrite_option(p, "an existing session file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--unguarded", action="store_true",
                    help="let a function generator arm although nothing would switch it off if contactid were "
@@ -340,7 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
     way.add_argument("--tcp", metavar="HOST:PORT", help="TCP: PORT for the shaker, PORT+1 for the DAQ")
     p.add_argument("--fast", action="store_true", help="as fast as the host reads instead of real time")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--shaker-model", choices=tuple(SHAKER_MODELS), default="SC-1",
+    p.add_argument("--shaker-model", choices=EMULATED_SHAKER_MODELS, default="SC-1",
                    help="the shaker controller: SC-1, or 33500B (a bench function generator: no ramp, no watchdog)")
     p.set_defaults(run=cmd_emulate)
 
@@ -353,7 +415,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "refit and rank again until nothing significant is left (each step printed)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-o", "--output", metavar="FITTED.toml", help="write the fitted model (never one of the inputs)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing FITTED.toml")
+    _overwrite_option(p, "an existing FITTED.toml")
     p.add_argument("--no-history", action="store_true", help="do not append the model history to the session")
     p.set_defaults(run=cmd_analyze)
 
@@ -371,7 +433,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--binary", action="store_true", help="UFF: binary records (58b; abscissae kept exact)")
     p.add_argument("--frf-only", action="store_true",
                    help="UFF: only the FRF records, without contactid's per-line quantities")
-    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    _overwrite_option(p, "existing output files")
     p.set_defaults(run=cmd_export)
 
     p = sub.add_parser("import", help="import FRFs or time histories of other systems (UFF58, CSV) into a "
@@ -379,11 +441,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("files", nargs="+", metavar="FILE", help="UFF58 files (ASCII or binary) or CSV files (.csv)")
     p.add_argument("-o", "--output", required=True, metavar="SESSION.h5", help="session file to write")
     p.add_argument("--append", action="store_true", help="add the runs to an existing session")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing session file")
+    p.add_argument("--overwrite", action="store_true", help="overwrite an existing session file")
     p.add_argument("--kind", choices=["sine", "random"], help="what the FRF records are (default: the file's "
                                                               "contactid tags, else sine)")
-    p.add_argument("--force", type=float, metavar="N", help="force amplitude of the stepped-sine records, N "
-                                                            "(where the file does not say it)")
+    p.add_argument("--force-amplitude", type=float, metavar="N", help="force amplitude of the stepped-sine "
+                                                                      "records, N (where the file does not say it)")
+    p.add_argument("--force", dest="force_amplitude", type=float, metavar="N", action=_OldSpelling,
+                   replacement="--force-amplitude")
     p.add_argument("--direction", choices=["up", "down"], help="sweep direction (default: from the line order)")
     p.add_argument("--dof", action="append", metavar="NODE[+DIR]=NAME",
                    help="map a UFF node (and direction) to a model DOF, e.g. 3+Z=A.w (repeatable)")
@@ -404,11 +468,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _NeverRaised(Exception):
+    """Stands for an exception class whose module no command has imported: nothing can have raised it."""
+
+
+def _raised_class(module: str, name: str) -> type[BaseException]:
+    """The exception class ``module.name`` if the command imported its module, else :class:`_NeverRaised`:
+    ``main`` need not import the campaign and the drivers to recognise their errors (start-up time)."""
+    loaded = sys.modules.get(module)
+    return getattr(loaded, name) if loaded is not None else _NeverRaised
+
+
 def main(argv: list[str] | None = None) -> int:
-    from drivers.errors import InstrumentError, describe_instrument_error
-
-    from .campaign import CampaignIncomplete
-
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -418,7 +489,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"contactid: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except CampaignIncomplete as exc:
+    except _raised_class("app.campaign", "CampaignIncomplete") as exc:
         print(f"contactid: {exc}", file=sys.stderr)
         return EXIT_INCOMPLETE
     except FileNotFoundError as exc:
@@ -426,9 +497,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"contactid: error: {exc.filename}: no such file", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except InstrumentError as exc:
+    except _raised_class("drivers.errors", "InstrumentError") as exc:
         if args.debug:
             raise
+        from drivers.errors import describe_instrument_error
+
         where = describe_instrument_error(exc, _instrument_roles(args))
         print(f"contactid: instrument failure: {where}", file=sys.stderr)
         return EXIT_INSTRUMENT

@@ -2,8 +2,8 @@
 
 Every command that writes a file goes through here:
 
-* an existing file is refused unless the user said ``--force`` (:func:`check_output`);
-* an output that is one of the command's own inputs is refused even with ``--force``;
+* an existing file is refused unless the user said ``--overwrite`` (:func:`check_output`);
+* an output that is one of the command's own inputs is refused even with ``--overwrite``;
 * the file is written beside its destination under a temporary name and moved into place only when it is
   complete (:func:`atomic_output`): a full disk, a crash or an error leaves the old file (or no file), never a
   half-written one;
@@ -46,7 +46,7 @@ def check_output(path, *, inputs: Iterable = (), overwrite: bool = False, field:
     if path.is_dir():
         raise InputError("is a folder; give a file name", str(path), field)
     if path.exists() and not overwrite:
-        raise InputError("exists already; pass --force to overwrite it", str(path), field)
+        raise InputError("exists already; pass --overwrite to overwrite it", str(path), field)
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise InputError("its folder does not exist", str(path), field)

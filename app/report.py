@@ -12,7 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.numbers import engineering
 from analysis.workbench import Workbench
+
+from .analyze import element_misfits
+from .kbar_view import LEGEND_OFFSETS, emptiest_corner, linear_axis, model_paths
 
 LEVEL_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
                  (140, 86, 75), (227, 119, 194), (127, 127, 127)]
@@ -49,26 +53,6 @@ def _export(layout, path: Path, width: int = 1400, height: int = 900) -> Path:
     exporter.export(str(path))
     layout.close()
     return path
-
-
-_PREFIXES = {-15: "f", -12: "p", -9: "n", -6: "µ", -3: "m", 0: "", 3: "k", 6: "M", 9: "G", 12: "T"}
-_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
-
-
-def engineering(value: float, unit: str = "") -> str:
-    """``value`` in engineering notation: a mantissa in [1, 1000) and an SI prefix on ``unit`` ("20 µm",
-    "1.5 kN/m"). Without a unit, plain numbers from 0.001 to 1000 and powers of ten beyond ("10⁻⁶")."""
-    if value == 0 or not np.isfinite(value):
-        return f"{value:g} {unit}".strip()
-    exponent = int(np.floor(np.log10(abs(value)) + 1e-9))
-    if not unit:
-        if -3 <= exponent < 4:
-            return f"{value:.4g}"
-        mantissa = value / 10.0**exponent
-        head = "" if np.isclose(mantissa, 1.0) else f"{mantissa:.3g}·"
-        return f"{head}10{str(exponent).translate(_SUPERSCRIPT)}"
-    third = min(max(3 * (exponent // 3), min(_PREFIXES)), max(_PREFIXES))
-    return f"{value / 10.0**third:.3g} {_PREFIXES[third]}{unit}"
 
 
 def _labelled_log_ticks(low: float, high: float) -> list[float]:
@@ -173,64 +157,116 @@ def plot_frfs(wb: Workbench, path: Path, sensor: str | None = None) -> Path:
 
 
 def plot_kbar(wb: Workbench, path: Path) -> Path:
-    """Re and Im of every element's kbar against its amplitude, coloured by force level; the fitted laws as
-    crosses at the same samples."""
+    """Re and Im of every element's kbar against its amplitude (:func:`kbar_layout`) as a PNG."""
+    return _export(kbar_layout(wb), path)
+
+
+def kbar_layout(wb: Workbench):
+    """Re and Im of every element's kbar against its amplitude: the identified samples as dots coloured by force
+    level, drawn above the fitted laws, which are a black line per level through the same lines in frequency
+    order (app/kbar_view.py). An element judged linear is drawn on an axis that shows how flat it is."""
     levels = wb.measurements.levels
     lay = _layout()
-    lay.addLabel("Equivalent complex stiffness kbar of each element against its amplitude X: identified "
-                 "(dots, one colour per force level) and fitted laws (crosses)", row=0, col=0,
-                 colspan=max(len(wb.model.elements), 1), size="11pt")
+    lay.addLabel("Equivalent complex stiffness kbar of each element against its amplitude X: identified (dots, one "
+                 "colour per force level) and the fitted laws (black line per level, in frequency order)", row=0,
+                 col=0, colspan=max(len(wb.model.elements), 1), size="11pt")
     for col, el in enumerate(wb.model.elements):
         rep = wb.reports.get(el.name)
         s = rep.samples if rep else None
         k_u, x_u = s.units if s is not None else ("N/m", "m")
-        verdict = "" if rep is None or rep.verdict is None else (": linear" if rep.verdict.linear else
-                                                                 ": nonlinear")
-        re = _log_plot(lay, 1, col, title=f"element {el.name} at {' - '.join(el.dofs)}{verdict}", x_unit=x_u)
-        im = _log_plot(lay, 2, col, x_unit=x_u)
-        re.setLabel("left", "Re kbar", units=k_u)
-        im.setLabel("left", "Im kbar", units=k_u)
-        im.setLabel("bottom", "amplitude X")
-        im.setXLink(re)
-        if col == 0:
-            re.addLegend(offset=(-10, 10))
+        linear = rep is not None and rep.verdict is not None and rep.verdict.linear
+        verdict = "" if rep is None or rep.verdict is None else (": linear" if linear else ": nonlinear")
+        misfits = {m.part: m for m in element_misfits(wb, el)}
+        panels = {}
+        for row, part, take in ((1, "Re", np.real), (2, "Im", np.imag)):
+            plot = _log_plot(lay, row, col, x_unit=x_u)
+            plot.setLabel("left", f"{part} kbar", units=k_u)
+            corner = emptiest_corner(s.X, take(s.kbar)) if s is not None else "top right"
+            plot.addLegend(offset=LEGEND_OFFSETS[corner], labelTextSize="8pt")
+            panels[part] = (plot, take)
+        panels["Im"][0].setLabel("bottom", "amplitude X")
+        panels["Im"][0].setXLink(panels["Re"][0])
         if s is None:
+            panels["Re"][0].setTitle(f"kbar of {el.name} at {' - '.join(el.dofs)}{verdict}: no samples")
             continue
-        for force in levels:
-            sel = np.isclose(s.level, force)
-            if not sel.any():
-                continue
-            measured = _symbols(_colour(levels, force), 4)
-            re.plot(s.X[sel], s.kbar[sel].real, name=f"{force:g} N", **measured)
-            im.plot(s.X[sel], s.kbar[sel].imag, **measured)
-        if (el.laws or el.nonparametric is not None) and all(t.complete for t in el.laws):
-            # the model at each sample's (X, w): markers, since kbar may depend on w as well as X
-            model = el.describing_function(s.X, s.w)
-            style = {"pen": None, "symbol": "x", "symbolSize": 5, "symbolPen": {"color": "k", "width": 1}}
-            re.plot(s.X, model.real, **style)
-            im.plot(s.X, model.imag, **style)
-    return _export(lay, path)
+        fitted = (el.laws or el.nonparametric is not None) and all(t.complete for t in el.laws)
+        paths = model_paths(s.X, s.w, s.level, el.describing_function(s.X, s.w)) if fitted else []
+        for part, (plot, take) in panels.items():
+            title = f"{part} kbar of {el.name} at {' - '.join(el.dofs)}{verdict}"
+            for i, p in enumerate(paths):      # under the dots: the measured points stay visible
+                line = plot.plot(p.X, take(p.kbar), pen={"color": "k", "width": 1.5}, connect="finite",
+                                 name="fitted laws" if i == 0 else None)
+                line.setZValue(0)
+            for force in levels:
+                sel = np.isclose(s.level, force)
+                if sel.any():
+                    dots = plot.plot(s.X[sel], take(s.kbar[sel]), name=f"{force:g} N identified",
+                                     **_symbols(_colour(levels, force), 5))
+                    dots.setZValue(10)
+            axis = linear_axis(take(s.kbar)) if linear else None
+            if axis is not None:
+                plot.setYRange(axis.low, axis.high, padding=0)
+                title += f" ({axis.words()})"
+            if part in misfits:
+                m = misfits[part]
+                title += (f"<br>systematic misfit: law {'above' if m.misfit < 0 else 'below'} the data at "
+                          f"{engineering(m.X_range[0], x_u)}..{engineering(m.X_range[1], x_u)}")
+            plot.setTitle(title, size="10pt")
+    return lay
 
 
 def plot_residuals(wb: Workbench, path: Path) -> Path:
-    """Relative FRF error per line and run: where the model fails."""
+    """Relative FRF error per line and run, over every response the runs measured: where the model fails."""
     comp = wb.compare()
     levels = wb.measurements.levels
+    runs = wb.measurements.sine
+    responses = ", ".join(dict.fromkeys(d for run in runs for d in run.sensor_dofs))
     lay = _layout()
-    p = _log_plot(lay, 0, 0, title="Where the model fails: relative FRF error of the prediction at each "
-                                   "frequency line and force level", y_unit="")
+    p = _log_plot(lay, 0, 0, title=f"Where the model fails: relative FRF error of the prediction at each frequency "
+                                   f"line and force level, over the responses {responses} "
+                                   f"(force at {runs[0].excitation_dof})", y_unit="")
     p.setLabel("left", "relative FRF error")
     p.setLabel("bottom", "frequency", units="Hz")
     p.addLegend(offset=(-10, 10))
-    for run in wb.measurements.sine:
+    shown = []
+    for run in runs:
         order = np.argsort(run.frequency_hz)
-        p.plot(run.frequency_hz[order], np.maximum(comp.residual_map[run.name][order], 1e-6),
+        residual = np.maximum(comp.residual_map[run.name][order], 1e-6)
+        shown.append(residual)
+        p.plot(run.frequency_hz[order], residual,
                pen={"color": _colour(levels, run.force), "width": 2}, name=f"{run.force:g} N {run.direction}")
         other = comp.other_branch.get(run.name, np.zeros(len(order), bool))
         if other.any():                    # measured on another branch than the swept prediction (a jump)
             p.plot(run.frequency_hz[other], np.maximum(comp.residual_map[run.name][other], 1e-6), pen=None,
                    symbol="x", symbolSize=14, symbolPen={"color": _colour(levels, run.force), "width": 2})
+    p.setYRange(*_log_range_with_ticks(np.concatenate(shown)), padding=0)
     return _export(lay, path, height=600)
+
+
+def _log_range_with_ticks(values, headroom: float = 0.05) -> tuple[float, float]:
+    """The view (log10 low, log10 high) of a log axis showing ``values``: it reaches down to the nearest value
+    below the lowest point that the axis labels (:func:`_labelled_log_ticks`: a reader reads the lowest point
+    against a number under it), and ``headroom`` of the span above the highest."""
+    lo, hi = float(np.log10(np.min(values))), float(np.log10(np.max(values)))
+    high = hi + headroom * max(hi - lo, 0.3)
+    decade = np.floor(lo)
+    # the 1-2-5 values below the lowest point, nearest first
+    for low in decade + np.log10([5.0, 2.0, 1.0, 0.5, 0.2, 0.1]):
+        if low <= lo and min(_labelled_log_ticks(low, high)) <= low + 1e-9:
+            return float(low), float(high)
+    return float(decade - 1), float(high)
+
+
+def _label_anchor(values: np.ndarray, i: int) -> tuple[float, float]:
+    """Where a point's value label goes so that the line does not run through it: above a point no neighbour
+    rises above, below one no neighbour falls under, else on the right beside a point the line passes through
+    (above right where it falls, below right where it rises)."""
+    neighbours = [values[j] for j in (i - 1, i + 1) if 0 <= j < len(values)]
+    if all(n <= values[i] for n in neighbours):
+        return 0.5, 1.4
+    if all(n >= values[i] for n in neighbours):
+        return 0.5, -0.4
+    return (-0.15, 1.2) if values[i - 1] > values[i + 1] else (-0.15, -0.2)
 
 
 def plot_history(wb: Workbench, path: Path) -> Path:
@@ -238,17 +274,19 @@ def plot_history(wb: Workbench, path: Path) -> Path:
     import pyqtgraph as pg
 
     lay = _layout()
-    p = _log_plot(lay, 0, 0, title="FRF error of the model after each step: the start, linear corrections "
-                                   "and each effect added", y_unit="")
+    p = _log_plot(lay, 0, 0, title="FRF error of the model after each step (all responses, all force levels): the "
+                                   "start, linear corrections and each effect added", y_unit="")
     x = np.arange(len(wb.history))
     errors = np.array([max(h.error, 1e-9) for h in wb.history])
     p.plot(x, errors, pen={"color": (31, 119, 180), "width": 2}, symbol="o", symbolSize=9,
            symbolBrush=(31, 119, 180))
     p.getAxis("bottom").setTicks([[(i, h.action.replace("add ", "+")) for i, h in enumerate(wb.history)]])
     p.setXRange(-0.5, len(wb.history) - 0.5, padding=0)   # room for the first and last step's names
+    low, high = _log_range_with_ticks(errors, headroom=0.12)   # room above for a label over the highest point
+    p.setYRange(low, high, padding=0)
     p.setLabel("left", "relative FRF error")
     for i, e in enumerate(errors):
-        label = pg.TextItem(f"{e:.3g}", color="k", anchor=(0.5, 1.3))
+        label = pg.TextItem(f"{e:.3g}", color="k", anchor=_label_anchor(errors, i))
         label.setPos(i, np.log10(e))
         p.addItem(label)
     return _export(lay, path, height=600)

@@ -64,7 +64,7 @@ class SessionWriter:
     ----------
     path : str or Path
     overwrite : bool
-        An existing file is refused (InputError) unless this is set (``--force``); it is replaced only once the
+        An existing file is refused (InputError) unless this is set (``--overwrite``); it is replaced only once the
         first measured data is in.
     plan_text, rig_text : str
         The plan file text and, for simulated sessions only, the rig file text (``/provenance/rig``).

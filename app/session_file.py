@@ -9,7 +9,7 @@ Session tab) follow along, and even a kill of the writer process itself loses at
 (``contactid recover`` then makes the file readable by any tool).
 
 The file is first written under a temporary name beside its destination and moved into place once the first
-measured data is in: a start that fails leaves the old file (``--force``) or no file.
+measured data is in: a start that fails leaves the old file (``--overwrite``) or no file.
 
 This module imports only NumPy, h5py and the standard library so that the writer process starts quickly.
 """

@@ -129,7 +129,8 @@ def imported_session(fmt, measured, tmp_path):
         return out
     for i, F in enumerate(FORCES):
         f = commercial_uff(tmp_path / f"level{i}.uff", measured[F], binary=fmt == "uff-binary")
-        assert main(["import", str(f), "-o", str(out), "--force", str(F), *DOFS] + (["--append"] if i else [])) == 0
+        assert main(["import", str(f), "-o", str(out), "--force-amplitude", str(F), *DOFS]
+                    + (["--append"] if i else [])) == 0
     return out
 
 
@@ -283,7 +284,7 @@ BAD_UFF = {
     "NaN": ([_frf(data=np.array([1, 2, 777, 4]) * (1 - 1j))], DOFS,          # 777 becomes NaN in the file
             r"b.uff: record 1: data: line 2 is .*nan.*not a finite number"),
     "level missing": ([_frf()], ["--dof", "1=x1", "--excitation", "x2"],
-                      r"b.uff: record 1: force: the file does not say the force level .*--force N"),
+                      r"b.uff: record 1: force: the file does not say the force level .*--force-amplitude N"),
     "unknown unit": ([_frf(ordinate_axis_units_lab="furlong")], DOFS,
                      r"b.uff: record 1: ordinate_axis_units_lab: unit 'furlong' not known"),
     "not a force over": ([_frf(orddenom_spec_data_type=12)], DOFS,
@@ -299,7 +300,7 @@ def test_bad_uff_names_file_record_and_field_and_writes_nothing(case, tmp_path, 
     bad = _write(tmp_path / "b.uff", sets)
     text = (tmp_path / "b.uff").read_text()                 # pyuff itself writes NaN as 0
     (tmp_path / "b.uff").write_text(text.replace("7.77000000000e+02", "nan".rjust(17), 1))
-    force = [] if case == "level missing" else ["--force", "0.5"]
+    force = [] if case == "level missing" else ["--force-amplitude", "0.5"]
     rc = main(["import", good, bad, "-o", str(tmp_path / "s.h5"), *force, *flags])
     err = capsys.readouterr().err
     assert rc == 2 and len(err.strip().splitlines()) == 1

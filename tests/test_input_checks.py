@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
 
 from analysis import InputError
@@ -108,6 +109,52 @@ def test_modes_accepts_built_in_rig_names_as_simulate_does(capsys):
     assert out.startswith("builtin:paper-2dof: lumped, 2 DOFs") and "mode  1:       1.2672 Hz" in out
     assert main(["modes", "paper-2dof.toml"]) == 2
     assert "no such file, and no built-in rig of that name" in capsys.readouterr().err
+
+
+TWO_DOF_WITH_CONTACT = """
+[structure]
+type = "lumped"
+dofs = ["x1", "x2"]
+mass = [[1.0, 0.0], [0.0, 2.0]]
+stiffness = [[200.0, -100.0], [-100.0, 200.0]]
+
+[[element]]
+name = "contact"
+dof = "x1"
+laws = [ { law = "linear", k = 50.0, c = 0.0 } ]
+
+[[element]]
+name = "unknown"
+dof = "x2"
+laws = ["cubic"]
+"""
+
+
+def _printed_hz(out: str) -> list[float]:
+    return [float(line.split()[-2]) for line in out.splitlines() if line.strip().startswith("mode")]
+
+
+def test_modes_includes_the_elements_stiffness_at_rest_and_says_so(tmp_path, capsys):
+    model = tmp_path / "m.toml"
+    model.write_text(TWO_DOF_WITH_CONTACT)
+    assert main(["modes", str(model)]) == 0
+    out = capsys.readouterr().out
+    # det(K + k e1 e1' - lam M) = 0: 2 lam^2 - 700 lam + 40000 = 0
+    lam = (700 + np.array([-1, 1]) * np.sqrt(700**2 - 8 * 40000)) / 4
+    assert np.allclose(_printed_hz(out), np.sqrt(lam) / (2 * np.pi), rtol=1e-4)
+    assert "with the elements' small-amplitude stiffness (contact on x1: 50 N/m)" in out
+    assert "left out, their laws have no values: unknown" in out
+    assert main(["modes", str(model), "--bare"]) == 0
+    out = capsys.readouterr().out
+    lam = (600 + np.array([-1, 1]) * np.sqrt(600**2 - 8 * 30000)) / 4      # 2 lam^2 - 600 lam + 30000 = 0
+    assert np.allclose(_printed_hz(out), np.sqrt(lam) / (2 * np.pi), rtol=1e-4)
+    assert "the structure alone" in out
+
+
+def test_modes_of_the_demo_rig_are_what_the_demo_measures(capsys):
+    # the bare clamped-free beam is at 11.6 / 72.9 Hz; with its contact the rig rings at 53.05 / 157.9 Hz
+    assert main(["modes", "paper-beam", "-n", "2"]) == 0
+    assert np.allclose(_printed_hz(capsys.readouterr().out), [53.05, 157.9], rtol=2e-3)
 
 
 # --- where the force gauge and accelerometers sit ------------------------------------------------------------

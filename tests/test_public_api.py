@@ -67,12 +67,16 @@ COMMANDS = {
     None: ["--version", "--debug"],
     "demo": ["--out", "--quick"],
     "gui": ["session", "--rig", "--shaker", "--daq", "--excitation", "--model"],
-    "simulate": ["rig", "plan", "-o", "--output", "--seed", "--force", "--quiet", "--list"],
-    "acquire": ["plan", "-o", "--output", "--shaker", "--daq", "--excitation", "--sensors", "--force", "--quiet"],
+    "simulate": ["rig", "plan", "-o", "--output", "--seed", "--force", "--overwrite", "--quiet", "--list"],
+    "acquire": ["plan", "-o", "--output", "--shaker", "--daq", "--excitation", "--sensors", "--force", "--overwrite",
+                "--quiet"],
     "emulate": ["rig", "--pty", "--tcp", "--fast", "--seed"],
-    "analyze": ["session", "model", "--add", "--auto", "--json", "-o", "--output", "--no-history"],
-    "export": ["session", "--uff", "--csv", "--force"],
-    "modes": ["file", "-n", "--count", "--all-dofs"],
+    "analyze": ["session", "model", "--add", "--auto", "--json", "-o", "--output", "--no-history", "--force",
+                "--overwrite"],
+    "export": ["session", "--uff", "--csv", "--force", "--overwrite"],
+    "import": ["files", "-o", "--output", "--append", "--overwrite", "--kind", "--force", "--force-amplitude",
+               "--direction", "--dof", "--excitation"],
+    "modes": ["file", "-n", "--count", "--all-dofs", "--bare"],
     "laws": [],
 }
 
@@ -114,6 +118,38 @@ def test_every_pinned_command_and_option_parses():
     missing = {cmd: sorted(set(want) - options.get(cmd, set())) for cmd, want in COMMANDS.items()
                if cmd not in options or not set(want) <= options[cmd]}
     assert missing == {}
+
+
+def _parsed(argv: list[str]):
+    return build_parser().parse_args(argv)
+
+
+@pytest.mark.parametrize("argv", [["simulate", "paper-beam", "-o", "s.h5"], ["acquire", "p.toml", "-o", "s.h5",
+                                  "--shaker", "a", "--daq", "b"], ["analyze", "s.h5", "m.toml", "-o", "f.toml"],
+                                  ["export", "s.h5", "--csv", "d"], ["import", "a.uff", "-o", "s.h5"]])
+def test_overwrite_has_one_spelling_and_force_is_its_old_one(argv, capsys):
+    assert _parsed(argv).overwrite is False and _parsed(argv + ["--overwrite"]).overwrite is True
+    assert capsys.readouterr().err == ""
+    if argv[0] != "import":                  # --force was "overwrite" here: it still is, with a note
+        assert _parsed(argv + ["--force"]).overwrite is True
+        assert capsys.readouterr().err.strip() == ("contactid: note: --force is the old spelling of --overwrite "
+                                                   "here; use --overwrite")
+
+
+def test_import_names_its_force_as_a_force(capsys):
+    argv = ["import", "a.uff", "-o", "s.h5"]
+    assert _parsed(argv + ["--force-amplitude", "0.5"]).force_amplitude == 0.5
+    assert capsys.readouterr().err == ""
+    old = _parsed(argv + ["--force", "0.5"])
+    assert old.force_amplitude == 0.5 and old.overwrite is False
+    assert "use --force-amplitude" in capsys.readouterr().err
+
+
+def test_a_refused_output_names_the_flag_that_overwrites(tmp_path, capsys):
+    existing = tmp_path / "fitted.toml"
+    existing.write_text("")
+    assert main(["analyze", str(tmp_path / "s.h5"), str(tmp_path / "m.toml"), "-o", str(existing)]) == 2
+    assert "pass --overwrite to overwrite it" in capsys.readouterr().err
 
 
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -233,6 +269,7 @@ def test_analyze_json_has_every_documented_key(analyzed, capsys):
     example = json.loads(text.split("## 6.")[1].split("```json")[1].split("```")[0])
     assert _keys_missing(example, out) == []
     assert out["elements"][0]["verdict"] in ("linear", "nonlinear", None)
+    assert isinstance(out["misfits"], list)
     right = next(e for e in out["elements"] if e["name"] == "right")
     assert [law["law"] for law in right["laws"]] == ["cubic", "coulomb"]
     # the fitted model is a model file again (docs/contracts.md §4)

@@ -4,7 +4,13 @@ import pytest
 
 from analysis.model import load_model
 from analysis.workbench import Workbench
-from app.report import _labelled_log_ticks, _log_axis, engineering, qt_application, write_report
+from types import SimpleNamespace
+
+from analysis.diagnosis import ElementSamples
+from analysis.numbers import engineering
+from app.kbar_view import FLAT_VIEW, emptiest_corner, model_paths
+from app.report import (_label_anchor, _labelled_log_ticks, _log_axis, _log_range_with_ticks, kbar_layout,
+                        qt_application, write_report)
 from test_workbench import PAPER_LAWS, model_doc, synthesise
 
 
@@ -43,3 +49,109 @@ def test_write_report_draws_every_plot(tmp_path):
     for p in paths:
         image = QImage(str(p))
         assert image.width() == 1400 and image.height() in (600, 900)
+
+
+# --- the kbar plot's rules (docs/workbench.md, "kbar plots") ---------------------------------------------------
+TWO_ELEMENTS = {"structure": {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
+                              "stiffness": [[200.0, -100.0], [-100.0, 200.0]]},
+                "element": [{"name": "flat", "dof": "x1", "laws": [{"law": "linear", "k": -9.6e6, "c": -99.0}]},
+                            {"name": "soft", "dof": "x2", "laws": [{"law": "cubic", "k3": -2e5}]}]}
+
+
+def _sweep(level_count=2, lines=40):
+    """Samples as a sweep gives them: each level's amplitude rises to the resonance and falls after it, so one
+    amplitude occurs at two frequencies (a law depending on w is not a function of X alone)."""
+    w = np.tile(np.linspace(300.0, 360.0, lines), level_count)
+    level = np.repeat([0.1 * 4**i for i in range(level_count)], lines)
+    X = level * 1e-4 / (1 + ((w - 330.0) / 8.0) ** 2) ** 0.5
+    return X, w, level
+
+
+def _kbar_workbench():
+    model = load_model(TWO_ELEMENTS)
+    X, w, level = _sweep()
+    rng = np.random.default_rng(1)
+    reports = {}
+    for el, linear in zip(model.elements, (True, False)):
+        kbar = el.describing_function(X, w) * (1 + 2e-5 * rng.standard_normal(len(X)))
+        samples = ElementSamples(el.name, X, w, kbar, None, level)
+        reports[el.name] = SimpleNamespace(samples=samples, verdict=SimpleNamespace(linear=linear))
+    return SimpleNamespace(model=model, reports=reports, measurements=SimpleNamespace(levels=[0.1, 0.4]))
+
+
+def _panels(layout):
+    import pyqtgraph as pg
+    return [item for item in layout.ci.items if isinstance(item, pg.PlotItem)]
+
+
+def _curves(plot):
+    return [item for item in plot.listDataItems()]
+
+
+def test_kbar_plot_draws_the_measured_points_above_the_fitted_laws_and_a_legend_in_every_panel():
+    qt_application()
+    layout = kbar_layout(_kbar_workbench())           # kept: the plots live as long as their layout
+    panels = _panels(layout)
+    assert len(panels) == 4
+    for plot in panels:
+        dots = [c for c in _curves(plot) if c.opts["symbol"] is not None]
+        lines = [c for c in _curves(plot) if c.opts["symbol"] is None]
+        assert dots and lines
+        assert min(d.zValue() for d in dots) > max(line.zValue() for line in lines)
+        assert all(line.opts["pen"] is not None for line in lines)        # the model is a line, not crosses
+        names = [label.text for _, label in plot.legend.items]
+        assert "fitted laws" in names and any(n.endswith("identified") for n in names)
+
+
+def test_kbar_plot_draws_a_linear_element_on_an_axis_that_shows_it_flat():
+    qt_application()
+    wb = _kbar_workbench()
+    layout = kbar_layout(wb)
+    re_flat = layout.getItem(1, 0)                      # Re kbar of the linear element
+    low, high = re_flat.viewRange()[1]
+    mean = -9.6e6
+    assert high - low >= 2 * FLAT_VIEW * abs(mean) * 0.999 and low < mean < high
+    assert "samples within" in re_flat.titleLabel.text
+    # the nonlinear element keeps the axis its data span
+    assert layout.getItem(1, 1).vb.autoRangeEnabled()[1] and not re_flat.vb.autoRangeEnabled()[1]
+
+
+def test_model_paths_follow_each_level_in_frequency_order():
+    X, w, level = _sweep()
+    model = -99.0j * w                                  # a linear law's Im kbar = c w: not single-valued in X
+    paths = model_paths(X, w, level, model)
+    assert [p.level for p in paths] == [0.1, 0.4]
+    for p in paths:
+        assert np.all(np.diff(-p.kbar.imag / 99.0) > 0)   # along w, never jumping between the two sides
+        assert len(p.X) == 40
+
+
+def test_legend_goes_where_it_hides_least():
+    X = np.geomspace(1e-5, 1e-2, 50)
+    assert emptiest_corner(X, np.linspace(0, 9, 50)) in ("top left", "bottom right")   # a rising curve
+    assert emptiest_corner(X, np.linspace(9, 0, 50)) in ("top right", "bottom left")    # a falling one
+
+
+def test_log_axis_reaches_a_labelled_number_below_the_lowest_point():
+    for values in ([1.23, 1.24, 0.0222], [0.0013, 0.05], [0.02224], [0.5, 0.9]):
+        low, high = _log_range_with_ticks(np.array(values))
+        assert min(_labelled_log_ticks(low, high)) <= np.log10(min(values))
+        assert high >= np.log10(max(values))
+
+
+def test_history_labels_sit_off_the_line():
+    errors = np.array([1.23, 1.24, 0.0222, 0.03])
+    assert _label_anchor(errors, 1)[1] > 1       # the highest: above
+    assert _label_anchor(errors, 0)[1] < 0       # its neighbour is higher: below
+    assert _label_anchor(errors, 2)[1] < 0       # the lowest: below
+    assert _label_anchor(errors, 3)[1] > 1       # the last, above its neighbour
+
+
+def test_model_paths_break_where_the_amplitude_jumps():
+    # an up-sweep over a fold: the amplitude grows to 0.12 and drops to 0.04 between two neighbouring lines
+    w = np.linspace(1.0, 2.0, 6)
+    X = np.array([0.05, 0.08, 0.12, 0.04, 0.03, 0.02])     # steps of x1.6 on the flank are still a path
+    (path,) = model_paths(X, w, np.full(6, 0.8), 1.0 + 0j * X)
+    assert np.isnan(path.X[3]) and np.isnan(path.kbar[3].real)         # no segment from 0.12 to 0.04
+    assert np.count_nonzero(np.isnan(path.X)) == 1 and list(path.X[:3]) == [0.05, 0.08, 0.12]
+    assert list(path.X[4:]) == [0.04, 0.03, 0.02]

@@ -76,7 +76,7 @@ def line(w, i):
 def test_existing_file_is_not_overwritten_without_force(tmp_path):
     path = tmp_path / "s.h5"
     path.write_bytes(b"precious")
-    with pytest.raises(InputError, match="exists already.*--force"):
+    with pytest.raises(InputError, match="exists already.*--overwrite"):
         SessionWriter(path)
     assert path.read_bytes() == b"precious"
 

@@ -77,7 +77,7 @@ def test_analyze_never_writes_over_one_of_its_inputs(copies, capsys, which):
     session, model = copies
     target = session if which == "session" else model
     before = target.read_bytes()
-    assert main(["analyze", str(session), str(model), "-o", str(target), "--force"]) == 2
+    assert main(["analyze", str(session), str(model), "-o", str(target), "--overwrite"]) == 2
     assert "also an input" in one_line_error(capsys, target)
     assert target.read_bytes() == before
 
@@ -92,7 +92,7 @@ def test_analyze_output_refuses_an_existing_toml_without_force_and_shows_earlier
     assert fitted.read_text() == "# keep me\n"
     assert main(["analyze", str(session), str(model)]) == 0          # stores analysis_0
     assert "stored in the session as /models/analysis_0" in capsys.readouterr().out
-    assert main(["analyze", str(session), str(model), "-o", str(fitted), "--force"]) == 0
+    assert main(["analyze", str(session), str(model), "-o", str(fitted), "--overwrite"]) == 0
     out = capsys.readouterr().out
     assert "earlier analyses stored in this session (1):" in out and "analysis_0" in out
     assert "stored in the session as /models/analysis_1" in out
@@ -151,11 +151,11 @@ def test_a_typo_in_acquire_leaves_the_complete_session_as_it_was(copies, capsys)
     plan = session.parent / "p.toml"
     plan.write_text("[[stepped_sine]]\nforce = 0.8\nstart = 1.0\nstop = 1.2\nstep = 0.1\n[limits]\n"
                     "max_force = 5.0\nmax_acceleration = 50.0\n")
-    code = main(["acquire", str(plan), "-o", str(session), "--force", "--shaker", "sim://paper-2dof/shaker",
+    code = main(["acquire", str(plan), "-o", str(session), "--overwrite", "--shaker", "sim://paper-2dof/shaker",
                  "--daq", "sim://paper-2dof/daq", "--excitation", "x2", "--sensors", "q"])
     assert code != 0 and "q" in capsys.readouterr().err
     assert session.read_bytes() == before
-    fresh = session.parent / "fresh.h5"                  # without --force: no empty file blocks the retry
+    fresh = session.parent / "fresh.h5"                  # without --overwrite: no empty file blocks the retry
     assert main(["acquire", str(plan), "-o", str(fresh), "--shaker", "sim://paper-2dof/shaker", "--daq",
                  "sim://paper-2dof/daq", "--excitation", "x2", "--sensors", "q"]) != 0
     assert sorted(p.name for p in session.parent.iterdir()) == ["model.toml", "p.toml", "s.h5"]

@@ -202,3 +202,17 @@ def test_damping_may_leave_a_dof_undamped_but_not_add_energy():
         load_structure({**PAPER_2DOF, "damping": [[1.0, 2.0], [2.0, 1.0]]}, "model.toml")
     with pytest.raises(InputError, match=r"DOF 'x2'"):
         load_structure({**PAPER_2DOF, "damping": [[1.0, 0.0], [0.0, -0.1]]}, "model.toml")
+
+
+def test_a_dof_typo_names_the_closest_dofs_first():
+    # the demo's beam has 14 DOFs: the plain list of twelve stopped before O.theta, the one a user mistypes
+    from pathlib import Path
+
+    from analysis.model import load_model
+    structure = load_model(load_toml(Path(__file__).parents[1] / "app/models/paper-beam.model.toml")).structure
+    assert structure.n > 12 and structure.dofs.index("O.theta") >= 12
+    with pytest.raises(InputError) as err:
+        structure.index("O.tehta", field="element[1].dof")
+    assert "did you mean 'O.theta'? its DOFs, closest first: O.theta," in str(err.value)
+    listed = str(err.value).split("closest first: ")[1].removesuffix(", ...)").split(", ")
+    assert len(listed) == 12 and len(set(listed)) == 12

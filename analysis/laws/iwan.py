@@ -77,8 +77,6 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
-from scipy.special import beta as beta_function
-from scipy.special import hyp2f1
 
 from ._special import slip_imag, slip_real
 from .base import Law, Param
@@ -284,6 +282,8 @@ def iwan_unit(X, xs, chi, beta) -> np.ndarray:
     chi, beta : float
         Density exponent (-1 < chi <= 1) and spike ratio (>= 0).
     """
+    from scipy.special import beta as beta_function, hyp2f1    # here: `contactid laws` starts without scipy
+
     X = np.asarray(X, float)
     e = chi + 1.0
     phi_max = slip_range(xs, chi, beta)

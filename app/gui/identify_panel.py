@@ -1,6 +1,7 @@
 """Identify tab: Re and Im of the equivalent complex stiffness kbar against the element amplitude X for every
-element, coloured by force level, growing while a campaign runs; the linear/nonlinear verdict with its
-evidence."""
+element, coloured by force level, growing while a campaign runs; after fitting, the fitted laws as a black line
+per level under the dots (app/kbar_view.py, as kbar.png draws them); an element judged linear on an axis that
+shows it flat; the linear/nonlinear verdict with its evidence."""
 from __future__ import annotations
 
 import html
@@ -11,6 +12,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QLabel, QSplitter, QTextBrowser, QVBoxLayout, QWidget
 
 from .lab import Lab
+from ..kbar_view import emptiest_corner, legend_to, linear_axis, model_paths
 from .plots import FrameClock, LevelPalette, Redraw, configure_plot, scatter
 from .results import IdentificationView
 
@@ -70,9 +72,9 @@ class IdentifyPanel(QWidget):
         self._model_changed()
         for i, name in enumerate(names):
             re_plot = configure_plot(self.graphics.addPlot(i, 0), f"{name}: Re kbar (stiffness)", "amplitude X",
-                                     None, "Re kbar", "N/m", log_x=True, legend=i == 0)
+                                     None, "Re kbar", "N/m", log_x=True, legend=True)
             im_plot = configure_plot(self.graphics.addPlot(i, 1), f"{name}: Im kbar (damping)", "amplitude X",
-                                     None, "Im kbar", "N/m", log_x=True)
+                                     None, "Im kbar", "N/m", log_x=True, legend=True)
             self._rows[name] = (re_plot, im_plot)
 
     def _draw(self) -> None:
@@ -88,23 +90,67 @@ class IdentifyPanel(QWidget):
                 for plot, part in ((re_plot, "Re"), (im_plot, "Im")):
                     plot.setLabel("bottom", "amplitude X", units=x_unit)
                     plot.setLabel("left", f"{part} kbar", units=k_unit)
-            for level in view.levels:
-                for plot, part in ((re_plot, np.real), (im_plot, np.imag)):
-                    key = (el.name, id(plot), level)
-                    curve = self._curves.get(key)
-                    if curve is None:
-                        curve = scatter(plot, self.palette.color(level), size=5,
-                                        name=f"{level:g} N" if plot is re_plot else None)
-                        self._curves[key] = curve
-                    if samples is None:
-                        curve.setData([], [])
-                        continue
-                    mask = np.isclose(samples.level, level)
-                    curve.setData(samples.X[mask], part(samples.kbar[mask]))
+            for plot, part, name in ((re_plot, np.real, "Re"), (im_plot, np.imag, "Im")):
+                self._draw_part(el, plot, part, view.levels)
+                self._set_axis(el, plot, part, name)
         origin = "live, while the campaign runs" if view.live else "from the session"
         self.status.setText(f"kbar identified at {view.lines} stepped-sine lines ({origin}); "
                             f"levels {', '.join(f'{f:g} N' for f in view.levels)}")
         self.verdicts.setHtml(self._verdict_html(view))
+
+    def _draw_part(self, el, plot: pg.PlotItem, part, levels: list[float]) -> None:
+        """The identified dots of each level above the fitted laws' line through the same lines."""
+        samples = el.samples
+        paths = {round(p.level, 9): p for p in model_paths(samples.X, samples.w, samples.level, el.model)} \
+            if samples is not None and el.model is not None else {}
+        for level in levels:
+            key = (el.name, id(plot), level)
+            self._draw_model(plot, key + ("model",), paths.get(round(level, 9)), part)
+            curve = self._curves.get(key)
+            if curve is None:
+                curve = scatter(plot, self.palette.color(level), size=5, name=f"{level:g} N identified")
+                curve.setZValue(10)
+                self._curves[key] = curve
+            if samples is None:
+                curve.setData([], [])
+                continue
+            mask = np.isclose(samples.level, level)
+            curve.setData(samples.X[mask], part(samples.kbar[mask]))
+
+    def _draw_model(self, plot: pg.PlotItem, key: tuple, path, part) -> None:
+        """The fitted laws along one level's lines, under its dots; the legend names them once per plot, and
+        only while they are drawn."""
+        line = self._curves.get(key)
+        if path is None:
+            if line is not None:
+                plot.removeItem(line)            # and from the legend: nothing fitted is shown
+                del self._curves[key]
+            return
+        if line is None:
+            named = not any(k[1] == key[1] and k[-1] == "model" for k in self._curves)
+            line = plot.plot([], [], pen=pg.mkPen("k", width=1.5), connect="finite",
+                             name="fitted laws" if named else None)
+            line.setZValue(0)
+            self._curves[key] = line
+        line.setData(path.X, part(path.kbar))
+
+    @staticmethod
+    def _set_axis(el, plot: pg.PlotItem, part, name: str) -> None:
+        """A linear element on an axis that shows it flat, its spread in the title; any other one fitted to its
+        data."""
+        title = f"{el.name}: {name} kbar ({'stiffness' if name == 'Re' else 'damping'})"
+        axis = linear_axis(part(el.samples.kbar)) if el.linear and el.samples is not None else None
+        if axis is None:
+            plot.enableAutoRange(axis="y")
+        else:
+            plot.setYRange(axis.low, axis.high, padding=0)
+            title += f", linear: {axis.words()}"
+        if plot.titleLabel.text != title:        # redrawn every frame while live: set only what changed
+            plot.setTitle(title, size="10pt")
+        if el.samples is not None:
+            corner = emptiest_corner(el.samples.X, part(el.samples.kbar))
+            if getattr(plot.legend, "corner", None) != corner:
+                legend_to(plot.legend, corner)
 
     @staticmethod
     def _verdict_html(view: IdentificationView) -> str:

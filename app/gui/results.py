@@ -54,6 +54,7 @@ class ElementView:
     lines_flagged: int
     laws: tuple[LawView, ...] = ()
     nonparametric: str = ""           # the non-parametric part, described; "" when the element has none
+    model: np.ndarray | None = None   # the fitted laws' kbar at the samples; None before fitting
 
     @property
     def verdict(self) -> str:
@@ -144,9 +145,13 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
         where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
         verdict = report.verdict
         part = el.nonparametric.describe("rad" if rotational else "m") if with_laws and el.nonparametric else ""
-        views.append(ElementView(el.name, where, report.samples, None if verdict is None else verdict.linear,
+        samples = report.samples
+        fitted = with_laws and samples is not None and (el.laws or el.nonparametric is not None) \
+            and all(t.complete for t in el.laws)
+        views.append(ElementView(el.name, where, samples, None if verdict is None else verdict.linear,
                                  "" if verdict is None else verdict.evidence, report.lines_used,
-                                 report.lines_flagged, tuple(laws), part))
+                                 report.lines_flagged, tuple(laws), part,
+                                 el.describing_function(samples.X, samples.w) if fitted else None))
     return views
 
 

@@ -202,7 +202,8 @@ def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions
         force = options.force
         if force is None:
             if kind == "stepped_sine":
-                raise InputError("the file does not say the force level of its stepped-sine FRFs: give it (--force N)",
+                raise InputError("the file does not say the force level of its stepped-sine FRFs: give it "
+                                 "(--force-amplitude N)",
                                  path, first.record.where("force"))
             force = 0.0
         direction = "none" if kind == "random" else sweep_direction(first.frequency, options.direction)

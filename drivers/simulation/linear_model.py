@@ -125,6 +125,32 @@ def element_tangent(element: Element) -> tuple[float, float]:
     return k0, c0
 
 
+@dataclass
+class AtRest:
+    """A structure with its elements' small-amplitude stiffness added (what a low-level test sees of it)."""
+    structure: Structure
+    added: list[tuple[Element, float]]      # the elements whose laws have values, with their stiffness k0
+    without_values: list[Element]           # the elements whose laws lack values (or that have none): left out
+
+
+def structure_at_rest(structure: Structure, elements: list[Element]) -> AtRest:
+    """``structure`` with each element's small-amplitude stiffness (:func:`element_tangent`) added, for the
+    elements whose laws all have values."""
+    K = structure.K.copy()
+    added, without = [], []
+    for el in elements:
+        if not el.laws or not all(term.complete for term in el.laws):
+            without.append(el)
+            continue
+        k0, _ = element_tangent(el)
+        E = el.vector(structure)
+        if abs(k0) <= NEGLIGIBLE_TANGENT * np.abs(np.diag(structure.K))[E != 0].max(initial=0.0):
+            k0 = 0.0                        # round-off of the central difference (a cubic law at rest)
+        K += k0 * np.outer(E, E)
+        added.append((el, k0))
+    return AtRest(structure.with_matrices(K=K), added, without)
+
+
 def build_linear_model(rig: Rig) -> LinearModel:
     """Assemble, check and (for beams) reduce the rig's linear part.
 

@@ -1,0 +1,63 @@
+"""The Identify tab draws kbar by the plot rules of kbar.png: the identified dots above the fitted laws' line per
+level, a legend in every plot, an element judged linear on an axis that shows it flat."""
+import numpy as np
+from PySide6.QtCore import QObject, Signal
+
+from app.gui.identify_panel import IdentifyPanel
+from app.gui.plots import FrameClock, LevelPalette
+from app.gui.results import ElementView, IdentificationView
+from app.kbar_view import FLAT_VIEW
+from test_report import _kbar_workbench
+
+
+class _Lab(QObject):
+    identificationUpdated = Signal(object)
+    modelChanged = Signal()
+    model = None
+
+
+def _view(fitted: bool) -> IdentificationView:
+    wb = _kbar_workbench()
+    elements = []
+    for el in wb.model.elements:
+        r = wb.reports[el.name]
+        s = r.samples
+        elements.append(ElementView(el.name, el.dofs[0], s, r.verdict.linear, "", len(s.X), 0,
+                                    model=el.describing_function(s.X, s.w) if fitted else None))
+    return IdentificationView(elements, 80, False, [0.1, 0.4])
+
+
+def _panel(qtbot, view):
+    panel = IdentifyPanel(_Lab(), FrameClock(), LevelPalette())
+    qtbot.addWidget(panel)
+    panel._update(view)
+    panel.redraw.now()
+    return panel
+
+
+def test_identify_tab_draws_dots_above_the_fitted_laws_with_a_legend_in_every_plot(qtbot):
+    panel = _panel(qtbot, _view(fitted=True))
+    plots = panel.plots()
+    assert len(plots) == 4
+    for name, plot in plots.items():
+        items = plot.listDataItems()
+        dots = [c for c in items if c.opts["symbol"] is not None and len(c.xData)]
+        lines = [c for c in items if c.opts["symbol"] is None and len(c.xData)]
+        assert len(dots) == 2 and len(lines) == 2, name
+        assert min(d.zValue() for d in dots) > max(line.zValue() for line in lines), name
+        legend = [label.text for _, label in plot.legend.items]
+        assert legend.count("fitted laws") == 1 and "0.1 N identified" in legend, name
+
+
+def test_identify_tab_before_fitting_names_no_fitted_laws(qtbot):
+    panel = _panel(qtbot, _view(fitted=False))
+    for plot in panel.plots().values():
+        assert "fitted laws" not in [label.text for _, label in plot.legend.items]
+
+
+def test_identify_tab_shows_a_linear_element_flat(qtbot):
+    panel = _panel(qtbot, _view(fitted=True))
+    flat = panel.plots()["kbar_re_flat"]
+    low, high = flat.viewRange()[1]
+    assert high - low >= 2 * FLAT_VIEW * 9.6e6 * 0.999 and "linear: samples within" in flat.titleLabel.text
+    assert panel.plots()["kbar_re_soft"].vb.autoRangeEnabled()[1]
