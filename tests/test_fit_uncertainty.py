@@ -114,15 +114,22 @@ def test_a_linear_spring_beside_an_iwan_kt_is_reported_as_a_correlated_pair_with
     fit = fit_laws(["linear", "iwan"], X, w, kbar, sigma)
     linear, iwan = fit.terms
     assert "k" in linear.undetermined and "kt" in iwan.undetermined
-    pair = next(c for c in fit.correlated if c.parameters == ("linear.k", "iwan.kt"))
-    assert abs(pair.correlation) > CORRELATION_LIMIT
-    coef = pair.determined.coefficients
+    # the pair is found either as correlated beyond the limit or, where the rank test already finds the direction
+    # flat (it does with some LAPACK builds), as part of a degeneracy: both name the sum the samples determine
+    pair = next((c for c in fit.correlated if c.parameters == ("linear.k", "iwan.kt")), None)
+    if pair is not None:
+        assert abs(pair.correlation) > CORRELATION_LIMIT
+        determined, where = pair.determined, pair
+    else:
+        where = next(d for d in fit.degeneracies if {"linear.k", "iwan.kt"} <= set(d.parameters))
+        determined = next(c for c in where.determined if set(c.coefficients) == {"linear.k", "iwan.kt"})
+    coef = determined.coefficients
     assert coef["linear.k"] == pytest.approx(1.0, abs=0.02) and coef["iwan.kt"] == pytest.approx(1.0, abs=0.02)
     # k + kt is the stuck stiffness the samples see: the rig's 152, within its own (small) interval
-    assert abs(pair.determined.value - 152.0) <= 3 * pair.determined.stderr
-    assert pair.determined.stderr < 0.01 * 152.0
-    assert any(str(pair) == n for n in fit.notes)
-    assert "linear.k + iwan.kt" in str(pair)
+    assert abs(determined.value - 152.0) <= 3 * determined.stderr
+    assert determined.stderr < 0.01 * 152.0
+    assert any(str(where) == n for n in fit.notes)
+    assert "linear.k + iwan.kt" in str(where)
 
 
 def test_well_determined_parameters_are_not_marked():

@@ -27,7 +27,16 @@ def test_the_matrix_covers_structures_laws_counts_noise_and_nothing_missing():
     assert {c.bench.name for c in cases} == {"2-DOF", "3-DOF chain", "beam"}
     assert {h.law for c in cases for h in c.hidden} == set(LAWS)
     counts = {len(c.hidden) for c in cases}
-    assert counts == {0, 1, 2}
+    assert counts == {0, 1, 2, 4}
+    # two laws on each of two joints, none known, as the paper's own example
+    four = [c for c in cases if len(c.hidden) == 4]
+    assert len(four) >= 4 and all(len({h.element for h in c.hidden}) == 2 for c in four)
+    # every case with a known law again from a model with none, on the same data
+    known = [c for c in cases if len(c.hidden) < len(c.laws)]
+    empty = {c.data_of: c for c in cases if c.data_of}
+    assert known and all(c.name in empty and empty[c.name].hidden == c.laws for c in known)
+    assert all(c.rig_toml() == mc.case(c.data_of).rig_toml().replace(
+        f'name = "{c.data_of}"', f'name = "{c.name}"') for c in empty.values())
     two = [c for c in cases if len(c.hidden) == 2]
     assert any(a.element == b.element for a, b in (c.hidden for c in two))      # the same element
     assert any(a.element != b.element for a, b in (c.hidden for c in two))      # different elements
