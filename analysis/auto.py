@@ -168,15 +168,21 @@ def _discovery_reason(found: ElementDiscovery) -> str:
             if judged else f"the set of laws its kbar chooses ({found.sets_fitted} sets fitted)")
 
 
+STOPPED_BY_USER = "stopped by the user"
+
+
 def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
              progress: Callable[[AutoStep], None] | None = None,
-             note: Callable[[str], None] | None = None) -> AutoResult:
+             note: Callable[[str], None] | None = None,
+             stop: Callable[[], bool] | None = None) -> AutoResult:
     """Run the loop on a started workbench (``wb.start()`` called). Afterwards ``wb.model`` is the final model
     and ``wb.history`` holds every step; ``progress`` is called with each step as it is taken, ``note`` with a
-    line of text while discovery searches an element."""
+    line of text while discovery searches an element. ``stop`` is asked before every step: once it answers
+    True the loop ends there (the steps taken stay)."""
     if not wb.history:
         raise ValueError("run_auto needs a started workbench (call wb.start() first)")
     steps: list[AutoStep] = []
+    stopping = stop or (lambda: False)
 
     def take(step: AutoStep) -> None:
         steps.append(step)
@@ -190,6 +196,8 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
         for element in found.elements:
             if not element.laws:
                 continue
+            if stopping():
+                return AutoResult(steps, STOPPED_BY_USER, [], found)
             before = wb.history[-1].error
             after = wb.add_laws(element.element, element.laws, action="discover").error
             take(AutoStep("discover", element.element, element.laws, before, after, _discovery_reason(element)))
@@ -202,6 +210,8 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
                           "linear verdict with a constant kbar offset: the reference is wrong there (the "
                           "corrections are coupled, so they are applied together)"))
     for _ in range(rules.max_steps):
+        if stopping():
+            return AutoResult(steps, STOPPED_BY_USER, [], found)
         ranked = wb.candidates(rules=rules.ranking)
         _hold_back_partial(wb, ranked, rules)
         top = next((c for c in ranked if c.significant), None)

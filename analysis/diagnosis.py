@@ -93,7 +93,7 @@ class Signature:
 
     im_slope_X: float | None        # d ln Im / d ln X
     im_slope_w: float | None        # d ln Im / d ln w
-    re_slope_X: float | None        # d ln |Re - Re(smallest X)| / d ln X
+    re_slope_X: float | None        # p of Re = a + b X^p (None where Re does not change beyond 3 sigma)
     re_change_sigma: float          # (Re at large X - Re at small X) / its std
     im_change_sigma: float
     mean_re: float
@@ -150,6 +150,29 @@ class Candidate:
                 {k: v for t in self.fit.terms[-n:] for k, v in t.params.items()}}
 
 
+# exponents tried by _power: every power law of the library's stiffness laws lies on this grid
+_POWERS = np.round(np.arange(-2.0, 6.0001, 0.05), 2)
+_POWERS = _POWERS[np.abs(_POWERS) > 0.01]
+
+
+def _power(lx: np.ndarray, values: np.ndarray, std: np.ndarray) -> float:
+    """The exponent p of ``values = a + b X^p`` best fitting by weighted least squares (``lx = ln X``): the
+    log-slope of a change, free of the offset it starts from (the slope of ``ln |v - v(smallest X)|`` read a
+    cubic's X^2 as +0.65 where the smallest amplitudes sit on the noise)."""
+    u = lx - lx.max()                                    # X / X_max: the powers stay within range
+    wt = 1.0 / np.maximum(std, 1e-300)
+    y = values * wt
+    best, best_p = np.inf, float("nan")
+    for p in _POWERS:
+        A = np.stack([wt, np.exp(p * u) * wt], axis=1)
+        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+        r = A @ coef - y
+        cost = float(r @ r)
+        if cost < best:
+            best, best_p = cost, float(p)
+    return best_p
+
+
 def signature(samples: ElementSamples, model_kbar: np.ndarray | None = None) -> Signature:
     """The signature of ``samples.kbar - model_kbar`` (docs/method.md §3 table)."""
     res = samples.kbar - (0.0 if model_kbar is None else model_kbar)
@@ -179,11 +202,7 @@ def signature(samples: ElementSamples, model_kbar: np.ndarray | None = None) -> 
         coef, *_ = np.linalg.lstsq(np.stack(cols, axis=1), np.log(im[usable]), rcond=None)
         im_slope_X = float(coef[1])
         im_slope_w = float(coef[2]) if w_varies else None
-    dre = np.abs(res.real - re_small)
-    usable = dre > 2 * std / np.sqrt(2)
-    re_slope_X = None
-    if usable.sum() >= 4 and np.ptp(lx[usable]) > 0.1:
-        re_slope_X = float(np.polyfit(lx[usable], np.log(dre[usable]), 1)[0])
+    re_slope_X = _power(lx, res.real, std / np.sqrt(2)) if abs(re_sig) >= 3 and np.ptp(lx) > 0.1 else None
     return Signature(im_slope_X, im_slope_w, re_slope_X, float(re_sig), float(im_sig), float(res.real.mean()),
                      float(res.imag.mean()), float(re_small), float(re_large), float(im_small), float(im_large),
                      (float(X.min()), float(X.max())), bool(w_varies))

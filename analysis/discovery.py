@@ -23,9 +23,9 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    every other searched element represented meanwhile by its own measured kbar (a stand-in, :func:`_standins`),
    so that no element's choice waits on another's: of each size the set the kbar criterion prefers among those
    whose single-harmonic FRF error is within ``min_gain`` of the best is tried, and taken only if the kbar
-   criterion prefers it to the current choice too (not on data without harmonics, where the capped criterion
-   can prefer no law to a right one), and it cuts the error of the current choice by ``min_gain`` and the FRF
-   chi-square by more than the noise explains. Then -- the model-form check, with every element at its choice -- each
+   criterion prefers it to the current choice too and no set alike it in the kbar has laws of other kinds (not
+   on data without harmonics, where the capped criterion can prefer no law to a right one), and it cuts the
+   error of the current choice by ``min_gain`` and the FRF chi-square by more than the noise explains. Then -- the model-form check, with every element at its choice -- each
    element's last step must do the same with the lines that carry harmonics predicted multi-harmonically
    (unless its gain is beyond ``certain_gain``), or it is taken back. A law that fits only what one harmonic
    cannot represent, or a wrong law standing in for part of a kbar, gains too little there.
@@ -311,6 +311,17 @@ def _simplest(judge: "_Judge", search: _Search, chosen: LawSet) -> LawSet:
     return next(s for s in alike if s is chosen or judge.single({search.index: s}).error <= limit)
 
 
+def _kinds(s: LawSet) -> list[str]:
+    return sorted(LAWS[n].kind for n in s.laws)
+
+
+def _other_kinds(search: _Search, s: LawSet, false_alarm: float) -> list[LawSet]:
+    """The sets alike ``s`` whose laws are of other kinds: where there are any, the kbar does not tell what
+    physics the set adds (a law fitting what no describing function of the library represents -- the mean shift
+    of a one-sided contact -- can be written with laws of several kinds alike)."""
+    return [t for t in search.sets if t is not s and _alike(search, t, s, false_alarm) and _kinds(t) != _kinds(s)]
+
+
 def _indistinguishable(search: _Search, chosen: LawSet, false_alarm: float) -> list[LawSet]:
     """The sets alike ``chosen`` with at least as many parameters: the ones the user is told of."""
     return [s for s in search.sets if s is not chosen and s.n_parameters >= chosen.n_parameters
@@ -418,15 +429,20 @@ class _Judge:
             self._multi[key] = variant.compare(harmonics=self.criterion)
         return self._multi[key]
 
-    def step_up(self, i: int, current: LawSet, larger: LawSet) -> WalkStep:
-        """Whether ``larger`` earns its extra parameters on element ``i`` (the others by their stand-ins):
-        ``min_gain`` and above the noise, single-harmonic."""
-        ranking = self.rules.ranking
+    def step_up(self, search: _Search, current: LawSet, larger: LawSet) -> WalkStep:
+        """Whether ``larger`` earns its extra parameters on the element (the others by their stand-ins): the kbar
+        criterion falls, the kbar tells the kinds of its laws, and the FRF error falls by ``min_gain`` and above
+        the noise, single-harmonic."""
+        i, ranking = search.index, self.rules.ranking
         a, b = self.single({i: current}), self.single({i: larger})
         step = WalkStep(larger.laws, b.error, a.error, False)
         _, above = frf_criterion(a, b, max(larger.n_parameters - current.n_parameters, 1), ranking.false_alarm)
+        other_kinds = _other_kinds(search, larger, ranking.false_alarm) if self.kbar_judges else []
         if self.kbar_judges and larger.criterion >= current.criterion:
             step.why = "its kbar does not call for it (the criterion, which charges for parameters, does not fall)"
+        elif other_kinds:
+            step.why = (f"its kbar cannot tell which physics it is: {other_kinds[0].name} fits it as well with "
+                        "laws of other kinds")
         elif not np.isfinite(b.error):
             step.why = "no prediction"
         elif step.gain < ranking.min_gain:
@@ -479,7 +495,7 @@ def _walk_element(judge: _Judge, search: _Search) -> tuple[list[LawSet], list[Wa
         if size == 0:
             continue
         best = _preferred(judge, i, search.by_size[size] + _extension(search, taken[-1], size))
-        step = judge.step_up(i, taken[-1], best)
+        step = judge.step_up(search, taken[-1], best)
         steps.append(step)
         if step.taken:
             taken.append(best)

@@ -10,7 +10,8 @@ laws each, of different kinds, from the laws the independent integrator of tests
 physics (linear, cubic, quintic, tanh and arctan softening, quadratic and cubic damping, Coulomb friction as a
 steep tanh, gap, unilateral contact), with parameters scaled to the joint's linear amplitude at the higher level
 so that every law shows (a cubic changes the joint's stiffness by 10-60 % there, a damping law adds 2-10 % of
-it as loss, ...). Two force levels, a 1:4 ratio, swept over the lowest modes at 0.1 Hz; relative noise 0.1-1 %.
+it as loss, a friction slips at 10-30 % of the lower level's force...). Two force levels, a 1:4 ratio, swept over
+the lowest modes at 0.15 Hz; relative noise 0.1-1 %; 20 s of settling (at least 7 decay times of the slowest mode).
 The receptances come from that RK4 integrator (never the project's simulator), are written as a user's CSV and
 imported. The model is the structure with its joints and no law; the automatic loop (discovery first) runs, and
 the case is scored as the hidden-effect matrix scores (tests/matrix_cases.py `score`: the right kind of law at
@@ -43,12 +44,15 @@ GOAL = 0.90
 RANGES = {
     "linear": (0.1, 0.3), "cubic": (0.1, 0.6), "quintic": (0.1, 0.6), "tanh_softening": (0.2, 0.6),
     "arctan_softening": (0.2, 0.6), "quadratic_damping": (0.03, 0.1), "cubic_damping": (0.03, 0.1),
-    "coulomb": (0.05, 0.2), "gap": (0.5, 2.0), "unilateral": (0.5, 2.0),
+    "coulomb": (0.1, 0.3), "gap": (0.2, 1.0), "unilateral": (0.2, 1.0),
 }
 
 
-def law_values(law: str, r: float, sign: float, k: float, X: float, w: float, rng) -> dict[str, float]:
-    """The law's parameters giving an effect of relative size ``r`` at amplitude X (module docstring)."""
+def law_values(law: str, r: float, sign: float, k: float, X: float, w: float, force: float,
+               rng) -> dict[str, float]:
+    """The law's parameters giving an effect of relative size ``r`` at amplitude X (module docstring); a
+    friction's slip force is ``r`` times the lower level's force amplitude (larger, the joint sticks through
+    most of the lower level's band, as no joint test is planned)."""
     if law == "linear":
         return {"k": sign * r * k, "c": 0.0}
     if law == "cubic":
@@ -64,7 +68,7 @@ def law_values(law: str, r: float, sign: float, k: float, X: float, w: float, rn
         return {"c3": r * k / (0.75 * w ** 3 * X ** 2)}
     if law == "coulomb":
         # v0 half a percent of the velocity amplitude: sliding like dry friction, smooth enough for a fixed step
-        return {"fs": r * np.pi * X * k / 4, "v0": 5e-3 * w * X}
+        return {"fs": r * force, "v0": 5e-3 * w * X}
     if law in ("gap", "unilateral"):
         return {"k": r * k, "gap": rng.uniform(0.2, 0.5) * X}
     raise ValueError(law)
@@ -115,7 +119,7 @@ def draw_case(rng, index: int) -> mc.Case:
     io = (f'\n[excitation]\ndof = "x{n}"\n[sensors]\ndofs = [{", ".join(chr(34) + d + chr(34) for d in dofs)}]\n'
           "[daq]\nsample_rate = 512.0\n")
     plan = "".join(f"[[stepped_sine]]\nforce = {F!r}\nstart = {round(f_lo, 1)!r}\nstop = {round(f_hi, 1)!r}\n"
-                   f'step = 0.1\ndirection = "up"\n' for F in (force, 4 * force))
+                   f'step = 0.15\ndirection = "up"\n' for F in (force, 4 * force))
     places = [("dof", d) for d in dofs] + ([("between", ("x1", "x2"))] if n == 3 else [])
     chosen = [places[i] for i in rng.choice(len(places), size=int(rng.choice([1, 2])), replace=False)]
     sites, laws = [], []
@@ -132,7 +136,7 @@ def draw_case(rng, index: int) -> mc.Case:
             law = str(rng.choice(sorted(law for law in RANGES if mc.law_kind(law) == kind_name)))
             r = float(rng.uniform(*RANGES[law]))
             sign = float(rng.choice([-1.0, 1.0]))
-            values = law_values(law, r, sign, k_scale, X, w0, rng)
+            values = law_values(law, r, sign, k_scale, X, w0, force, rng)
             laws.append(mc._law(name, law, **{k: float(v) for k, v in values.items()}))
     noise = float(rng.uniform(0.001, 0.01))
     bench = mc.Bench(f"random {n}-DOF", structure, io, plan, tuple(sites))
@@ -142,7 +146,7 @@ def draw_case(rng, index: int) -> mc.Case:
 def run(c: mc.Case, folder: Path) -> mc.Outcome:
     """The case's RK4 data imported, the loop from no law, the score. Friction integrates with 2 x the steps."""
     per_period = 96 if any(law.law == "coulomb" for law in c.laws) else 48
-    session = mc.imported_session(c, folder, settle_seconds=30.0, per_period=per_period)
+    session = mc.imported_session(c, folder, settle_seconds=20.0, per_period=per_period, line_step=0.15)
     wb = mc.started_workbench(c, folder, session)
     return mc.score(c, wb, run_auto(wb).stopped)
 
@@ -154,7 +158,8 @@ def report(outcomes: list[mc.Outcome], cases: list[mc.Case], seed: int) -> str:
     kinds = list(mc.LAW_KINDS) + [mc.NOTHING]
     rows = [r for r in kinds if any(k[0] == r for k in table)]
     cols = [c for c in kinds if any(k[1] == c for k in table)]
-    laws = {c.name: ", ".join(f"{law.element}:{law.law}" for law in c.laws) for c in cases}
+    laws = {c.name: ", ".join(f"{law.element}:{law.law} ({', '.join(f'{k} = {v:.3g}' for k, v in law.values)})"
+                              for law in c.laws) for c in cases}
     lines = [BEGIN, f"Seed {seed}: {len(cases)} cases drawn, {len(measured)} measured; discovery from an empty model "
              f"right on {right}/{len(measured)} ({100 * right / max(len(measured), 1):.0f} %; goal "
              f"{100 * GOAL:.0f} %), {sum(len(o.false_alarms) for o in measured)} false alarm(s).", "",
@@ -166,7 +171,8 @@ def report(outcomes: list[mc.Outcome], cases: list[mc.Case], seed: int) -> str:
     for o in misses:
         why = "; ".join([f"{f.element}:{f.law} found {f.found}" for f in o.effects if not f.right]
                         + [f"false alarm {a}" for a in o.false_alarms]) if o.measured else f"not measured: {o.stopped}"
-        lines.append(f"- {o.case} ({o.structure}; rig {laws[o.case]}; noise {100 * o.noise:.2g} %): {why}")
+        lines.append(f"- {o.case} ({o.structure}; rig {laws[o.case]}; noise {100 * o.noise:.2g} %; error "
+                     f"{mc._fmt_fall(o)}): {why}")
     return "\n".join(lines + [END])
 
 

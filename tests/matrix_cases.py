@@ -356,20 +356,21 @@ def rk4_receptance(c: Case, freqs: np.ndarray, forces: np.ndarray, settle_second
 RK4_STEP = 0.1
 
 
-def _plan_lines(bench: Bench) -> tuple[np.ndarray, list[float]]:
-    """The lines (at ``RK4_STEP`` over the plan's band) and the force levels of the bench's plan."""
+def _plan_lines(bench: Bench, step: float = RK4_STEP) -> tuple[np.ndarray, list[float]]:
+    """The lines (at ``step`` over the plan's band) and the force levels of the bench's plan."""
     runs = tomllib.loads(bench.plan)["stepped_sine"]
     r = runs[0]
-    n = int(round((r["stop"] - r["start"]) / RK4_STEP)) + 1
+    n = int(round((r["stop"] - r["start"]) / step)) + 1
     return np.linspace(r["start"], r["stop"], n), [float(run["force"]) for run in runs]
 
 
-def imported_session(c: Case, folder: Path, settle_seconds: float = 40.0, per_period: int = 48) -> Path:
+def imported_session(c: Case, folder: Path, settle_seconds: float = 40.0, per_period: int = 48,
+                     line_step: float = RK4_STEP) -> Path:
     """RK4 receptances with relative circular noise, written as a user's CSV with their standard deviation (as a
     controller that measured it exports them) and imported (``contactid import``). Without it the noise is
     estimated from the FRF (docs/import.md), which at 0.1 Hz lines across a 0.06 Hz wide resonance came out 2-4 x
     the truth there and hid the cubic between the 3-DOF chain's masses."""
-    freqs, forces = _plan_lines(c.bench)
+    freqs, forces = _plan_lines(c.bench, line_step)
     rng = np.random.default_rng(_seed(c.data_name))
     dofs = Lumped.of(c.bench).dofs
     exact = rk4_receptance(c, freqs, forces, settle_seconds, per_period)

@@ -10,6 +10,7 @@ session or model that has since been replaced is dropped, not shown.
 from __future__ import annotations
 
 import logging
+import threading
 import tomllib
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -80,6 +81,7 @@ class Lab(QObject):
     identificationUpdated = Signal(object)     # IdentificationView
     analysisUpdated = Signal(object)           # AnalysisView
     analysisBusy = Signal(bool)
+    autoProgress = Signal(str)                 # a line of the automatic loop as it is taken
     instrumentsBusy = Signal(bool)
     error = Signal(str)
 
@@ -93,6 +95,7 @@ class Lab(QObject):
             runner.failed.connect(self.error)
         self.instrument_tasks.busyChanged.connect(self.instrumentsBusy)
         self.analysis_tasks.busyChanged.connect(self.analysisBusy)
+        self._auto_stop = threading.Event()      # set by stop_auto, read by the loop in the analysis worker
         # instruments
         self.instruments: Instruments | None = None
         self.rig: Rig | None = None
@@ -523,8 +526,19 @@ class Lab(QObject):
 
     def auto(self) -> None:
         """The missing-effect loop (:func:`analysis.auto.run_auto`, as ``contactid analyze --auto``) on the
-        analysed model: linear corrections, then the top significant candidate added until none is left."""
-        self._on_workbench(run_auto, lambda wb, result: analysis_view(wb, result.candidates, result))
+        analysed model: discovery of the elements without laws, linear corrections, then the top significant
+        candidate added until none is left. Each step is sent as ``autoProgress`` as it is taken;
+        :meth:`stop_auto` ends the loop before its next step."""
+        self._auto_stop.clear()
+
+        def loop(wb):
+            return run_auto(wb, progress=lambda step: self.autoProgress.emit(step.line()),
+                            note=self.autoProgress.emit, stop=self._auto_stop.is_set)
+        self._on_workbench(loop, lambda wb, result: analysis_view(wb, result.candidates, result))
+
+    def stop_auto(self) -> None:
+        """End the automatic loop before its next step (the steps taken stay)."""
+        self._auto_stop.set()
 
     def _on_workbench(self, change, view=None) -> None:
         """Run ``change(wb)`` on the analysed workbench in the analysis worker, then show

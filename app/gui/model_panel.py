@@ -100,11 +100,22 @@ class ModelPanel(QWidget):
         self.auto_button.setToolTip("Follow the advice by itself: linear corrections, then add the top significant "
                                     "candidate, refit and rank again until nothing significant is left "
                                     "(as contactid analyze --auto)")
-        self.auto_button.clicked.connect(lambda: self.lab.act(self.lab.auto))
+        self.auto_button.clicked.connect(self._start_auto)
+        self.stop_button = QPushButton("Stop")
+        self.stop_button.setToolTip("End the automatic loop before its next step (the steps taken stay)")
+        self.stop_button.clicked.connect(self.lab.stop_auto)
+        self.stop_button.setEnabled(False)
+        self.lab.autoProgress.connect(self._auto_line)
+        self._auto_lines: list[str] = []
+        self._auto_running = False
         self.auto_label = QLabel("")
         self.auto_label.setWordWrap(True)
         self.auto_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
-        auto_row.addWidget(self.auto_button, 0, Qt.AlignmentFlag.AlignTop)
+        buttons = QVBoxLayout()
+        buttons.addWidget(self.auto_button)
+        buttons.addWidget(self.stop_button)
+        buttons.addStretch(1)
+        auto_row.addLayout(buttons)
         auto_row.addWidget(self.auto_label, 1)
         cand_layout.addLayout(auto_row)
         self.explanation = QTextBrowser()
@@ -154,6 +165,19 @@ class ModelPanel(QWidget):
         c = self.view.candidates[row]
         self.lab.act(self.lab.add_law, c.element, c.law)
 
+    # ------------------------------------------------------------------ the automatic loop
+    def _start_auto(self) -> None:
+        self._auto_lines = []
+        self._auto_running = self.lab.act(self.lab.auto)
+        if self._auto_running:
+            self.auto_label.setText("<b>Automatic loop</b> (running: each step appears as it is taken)")
+        self._update_enabled()
+
+    def _auto_line(self, line: str) -> None:
+        """A step of the running loop, shown as it is taken."""
+        self._auto_lines.append(line)
+        self.auto_label.setText("<br>".join(["<b>Automatic loop</b> (running)", *self._auto_lines[-12:]]))
+
     # ------------------------------------------------------------------ views
     def _model_changed(self) -> None:
         self.view = None
@@ -184,6 +208,8 @@ class ModelPanel(QWidget):
 
     def _show_busy(self, busy: bool) -> None:
         self.busy_label.setText("working …" if busy else "")
+        if not busy:
+            self._auto_running = False
         self._update_enabled()
 
     def _update_enabled(self) -> None:
@@ -191,6 +217,7 @@ class ModelPanel(QWidget):
         have_view = self.view is not None
         self.analyze_button.setEnabled(not busy and self.lab.model is not None)
         self.auto_button.setEnabled(not busy and have_view)
+        self.stop_button.setEnabled(busy and self._auto_running)
         self.undo_button.setEnabled(not busy and have_view and self.view.can_undo)
         self.save_button.setEnabled(have_view)
         self.starter_button.setEnabled(self.lab.rig is not None)

@@ -169,6 +169,16 @@ def identification_of(view: AnalysisView) -> IdentificationView:
     return _identification(view.elements, view.runs, live=False)
 
 
+def _discovered(auto: AutoResult) -> list[str]:
+    """One line per element whose laws discovery chose, with the sets the data cannot tell from them."""
+    out = []
+    for e in [] if auto.discovery is None else auto.discovery.elements:
+        alike = f"; indistinguishable on these data: {', '.join('+'.join(s.laws) for s in e.equivalents)}" \
+            if e.equivalents else ""
+        out.append(f"discovered {e.element}: {e.chosen.name}{alike}")
+    return out
+
+
 def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult | None = None) -> AnalysisView:
     """After :meth:`Workbench.start` / ``add`` / ``undo`` and the candidate ranking, or after the automatic loop
     (``auto``; its ranking is ``candidates``)."""
@@ -182,4 +192,4 @@ def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult |
         [j.text() for j in comp.jumps],
         [UnexplainedView(o.element, o.finding.text(), o.finding.noise_ratio, o.error, o.error_before, o.gain)
          for o in wb.unexplained()],
-        [] if auto is None else [s.line() for s in auto.steps] + [f"stopped: {auto.stopped}"])
+        [] if auto is None else _discovered(auto) + [s.line() for s in auto.steps] + [f"stopped: {auto.stopped}"])
