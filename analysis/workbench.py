@@ -400,7 +400,8 @@ class Workbench:
     def to_json(self, candidates: list[Candidate] | None = None) -> dict:
         comp = self.compare()
         out = {"elements": [self.reports[el.name].to_json(el) for el in self.model.elements],
-               **comp.to_json(), "other_branch_hz": comp.other_branch_hz(self.measurements.sine),
+               **comp.to_json(), "single_harmonic_error": self.single_harmonic_comparison().error,
+               "other_branch_hz": comp.other_branch_hz(self.measurements.sine),
                "candidates": [c.to_json() for c in (candidates or [])],
                "unexplained": [o.to_json() for o in self.unexplained()],
                "history": [h.to_json() for h in self.history],

@@ -215,8 +215,11 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
                            "laws (outliers): " + ", ".join(f"{f:.4g}" for f in left_out) + " Hz")
     comp = wb.compare()
     out.append("")
+    single = wb.single_harmonic_comparison().error
     out.append(f"FRF error of the model: {comp.error:.4g}  (" +
-               ", ".join(f"{f:g} N: {e:.3g}" for f, e in comp.error_by_level) + ")")
+               ", ".join(f"{f:g} N: {e:.3g}" for f, e in comp.error_by_level) + ")" +
+               ("" if single == comp.error else
+                f"; single-harmonic {single:.4g}, the measure the candidates below are judged by"))
     worst = max(comp.residual_map, key=lambda n: comp.residual_map[n].max())
     i = int(comp.residual_map[worst].argmax())
     run = next(r for r in wb.measurements.sine if r.name == worst)
@@ -231,10 +234,10 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
         for o in offers:
             out += [f"  {o.finding.text()}", f"    {o.text()}"]
     if candidates:
-        out += ["", "what is missing (best first):"]
+        out += ["", f"what is missing (best first; single-harmonic FRF error, the model's {single:.4g}):"]
         for c in candidates[:top]:
             mark = "significant" if c.significant else "not significant"
-            out.append(f"  {c.name}  error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
+            out.append(f"  {c.name}  single-harmonic error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
             out.append(f"    {c.explanation}")
             if c.model_form or c.held_back:
                 out.append(f"    not significant: {c.model_form or c.held_back}")

@@ -21,7 +21,7 @@ from .lab import Lab
 from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol
 from .results import AnalysisView
 
-CANDIDATE_COLUMNS = ("Element", "Law", "Error after", "Gain", "Significant", "")
+CANDIDATE_COLUMNS = ("Element", "Law", "Error after (1 harmonic)", "Gain", "Significant", "")
 
 
 class ModelPanel(QWidget):
@@ -233,7 +233,7 @@ class ModelPanel(QWidget):
         if self.view is None or not rows:
             return
         c = self.view.candidates[min(rows)]
-        self.explanation.setPlainText(f"{c.element}:{c.law} — error {c.error:.4g} ({gain_phrase(c.gain).replace('x', '×', 1)}, "
+        self.explanation.setPlainText(f"{c.element}:{c.law} — single-harmonic error {c.error:.4g} ({gain_phrase(c.gain).replace('x', '×', 1)}, "
                                       f"{'significant' if c.significant else 'not significant'})\n\n{c.explanation}")
 
     def _draw(self) -> None:
@@ -241,7 +241,9 @@ class ModelPanel(QWidget):
         if view is None:
             return
         by_level = ", ".join(f"{f:g} N: {e:.3g}" for f, e in view.error_by_level)
-        self.error_label.setText(f"FRF error {view.error:.4g}   ({by_level})")
+        single = "" if view.single_harmonic_error == view.error else \
+            f"; single-harmonic {view.single_harmonic_error:.4g}, as the candidates' errors"
+        self.error_label.setText(f"FRF error {view.error:.4g}   ({by_level}{single})")
         self.jump_label.setText("<br>".join(["<b>Jumps</b> (predicted fold against measured):", *view.jumps])
                                 if view.jumps else "")
         self.auto_label.setText("<br>".join(["<b>Automatic loop</b>", *view.auto]) if view.auto else "")

@@ -111,6 +111,7 @@ class AnalysisView:
     jumps: list[str] = field(default_factory=list)                       # predicted against measured, one per jump
     unexplained: list[UnexplainedView] = field(default_factory=list)     # elements outside the library
     auto: list[str] = field(default_factory=list)       # the steps of the last automatic loop and why it stopped
+    single_harmonic_error: float = float("nan")         # the measure the candidates are judged by
 
     @property
     def can_undo(self) -> bool:
@@ -192,4 +193,5 @@ def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult |
         [j.text() for j in comp.jumps],
         [UnexplainedView(o.element, o.finding.text(), o.finding.noise_ratio, o.error, o.error_before, o.gain)
          for o in wb.unexplained()],
-        [] if auto is None else _discovered(auto) + [s.line() for s in auto.steps] + [f"stopped: {auto.stopped}"])
+        [] if auto is None else _discovered(auto) + [s.line() for s in auto.steps] + [f"stopped: {auto.stopped}"],
+        wb.single_harmonic_comparison().error)
