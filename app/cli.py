@@ -123,7 +123,9 @@ def _load_plan_for(rig_name: str | None, plan_arg: str | None):
 def _finish(summary, output) -> int:
     """Print the summary; the exit status says whether the campaign is complete (module docstring)."""
     print(summary.text())
-    print(f"session: {output}")
+    print(f"session: {summary.session or output}")
+    if summary.replaced:
+        print(f"contactid: {summary.replaced}", file=sys.stderr)
     if summary.aborted:
         print(f"contactid: campaign aborted: {summary.aborted} (output off; the lines measured so far are kept)",
               file=sys.stderr)
@@ -149,6 +151,7 @@ def cmd_simulate(args) -> int:
 
     from .instruments import emulated_instruments
     from .measure import ProgressBar, run_plan
+    from .outputs import check_output
 
     if args.list:
         for name in builtin_rigs():
@@ -156,6 +159,7 @@ def cmd_simulate(args) -> int:
         return 0
     if not args.rig or not args.output:
         raise InputError("usage: contactid simulate RIG [PLAN] -o SESSION.h5 (or --list)")
+    check_output(args.output, inputs=[args.rig, args.plan], overwrite=args.force)
     rig = load_rig(args.rig)
     plan = _load_plan_for(args.rig, args.plan)
     with emulated_instruments(rig, seed=args.seed) as inst:
@@ -168,8 +172,10 @@ def cmd_acquire(args) -> int:
     """Run a plan on real instruments."""
     from .instruments import real_instruments
     from .measure import ProgressBar, run_plan
+    from .outputs import check_output
     from .plan import load_plan
 
+    check_output(args.output, inputs=[args.plan], overwrite=args.force)
     plan = load_plan(args.plan)
     placement = plan.placement.overridden(args.excitation, args.sensors)
     with real_instruments(args.shaker, args.daq, placement=placement, unguarded=args.unguarded) as inst:
@@ -267,7 +273,7 @@ def cmd_demo(args) -> int:
     """The main job on the built-in paper-beam rig."""
     from .demo import main_demo
 
-    return main_demo(args.out, args.quick, software_version())
+    return main_demo(args.out, args.quick, software_version(), overwrite=args.overwrite)
 
 
 def cmd_gui(args) -> int:
@@ -302,6 +308,9 @@ def build_parser() -> argparse.ArgumentParser:
                                     "missing effects, report")
     p.add_argument("--out", default="contactid-demo", help="output folder (default ./contactid-demo)")
     p.add_argument("--quick", action="store_true", help="a shorter campaign")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier demo's files in the folder (its session only once the new campaign "
+                        "is complete)")
     p.set_defaults(run=cmd_demo)
 
     p = sub.add_parser("simulate", help="run a plan on an emulated rig through the real drivers",

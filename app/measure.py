@@ -90,11 +90,16 @@ def run_plan(plan: Plan, instruments: Instruments, output, *, overwrite: bool = 
                            rig_text=None if instruments.rig is None else instruments.rig.text,
                            software_version=software_version, command=command,
                            instruments=instruments.identities())
+    summary = None
     try:
         campaign = Campaign(plan, instruments.shaker, instruments.daq, writer, instruments.excitation_dof,
                             instruments.sensor_dofs, listener)
         if on_campaign is not None:
             on_campaign(campaign)
-        return campaign.run()
+        summary = campaign.run()
     finally:
-        writer.close()
+        writer.close(complete=summary is not None and summary.complete)
+    summary.session = str(writer.written_to)
+    if writer.kept_path is not None and summary.session != str(writer.path):
+        summary.replaced = f"{writer.path} is left as it was: this session is incomplete and was kept beside it"
+    return summary

@@ -57,3 +57,42 @@ def test_a_file_changed_in_place_is_whole_or_untouched(tmp_path):
         temp.write_text("new")
     assert target.read_text() == "new" and target.stat().st_mode & 0o777 == 0o640
     assert list(tmp_path.iterdir()) == [target]
+
+
+# ----- commands that write sessions: never over an input, never over an earlier demo ---------------------------
+def _cli(argv):
+    from app.cli import main
+    return main(argv)
+
+
+@pytest.mark.parametrize("flags", [[], ["--force"]])
+def test_simulate_refuses_to_write_its_session_over_its_own_plan(tmp_path, capsys, flags):
+    plan = tmp_path / "p.toml"
+    plan.write_text("[random]\nforce_rms = 0.05\nband = [0.5, 5.0]\nduration = 8.0\n"
+                    "[limits]\nmax_force = 5.0\nmax_acceleration = 50.0\n", encoding="utf-8")
+    before = plan.read_bytes()
+    assert _cli(["simulate", "paper-2dof", str(plan), "-o", str(plan), *flags]) == 2
+    err = capsys.readouterr().err
+    assert "p.toml" in err and "also an input" in err and len(err.strip().splitlines()) == 1
+    assert plan.read_bytes() == before
+
+
+def test_acquire_refuses_to_write_its_session_over_its_plan_before_opening_a_port(tmp_path, capsys):
+    plan = tmp_path / "p.toml"
+    plan.write_text("not even TOML", encoding="utf-8")
+    assert _cli(["acquire", str(plan), "-o", str(plan), "--force", "--shaker", "sim://nowhere/shaker",
+                 "--daq", "sim://nowhere/daq"]) == 2
+    assert "also an input" in capsys.readouterr().err
+    assert plan.read_text(encoding="utf-8") == "not even TOML"
+
+
+@pytest.mark.parametrize("earlier", ["paper-beam.h5", "paper-beam.fitted.toml", "report/kbar.png"])
+def test_the_demo_refuses_a_folder_holding_an_earlier_demo_without_overwrite(tmp_path, capsys, earlier):
+    out = tmp_path / "demo"
+    (out / "report").mkdir(parents=True)
+    (out / earlier).write_bytes(b"an earlier demo")
+    assert _cli(["demo", "--quick", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert earlier in err and "--overwrite" in err and len(err.strip().splitlines()) == 1
+    assert (out / earlier).read_bytes() == b"an earlier demo"
+    assert sorted(p.name for p in out.rglob("*")) == sorted({"report", earlier.split("/")[-1]})

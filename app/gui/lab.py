@@ -28,6 +28,7 @@ from drivers.simulation.rig import Rig, load_rig
 
 from ..campaign import CampaignSummary
 from ..export import export_csv, export_uff
+from ..outputs import atomic_output
 from ..importers.store import ImportRequest, ImportResult, import_files
 from ..instruments import Instruments, emulated_instruments, real_instruments
 from ..plan import Plan, check_against_instruments, parse_plan
@@ -39,6 +40,13 @@ from .results import AnalysisView, IdentificationView, analysis_view, identifica
 from .workers import CampaignThread, TaskRunner
 
 log = logging.getLogger("contactid.gui")
+
+
+def save_text(path, text: str) -> None:
+    """Write a text file the operator chose in a save dialog (which asked before replacing one), all at once:
+    an error leaves the old file as it was."""
+    with atomic_output(path, overwrite=True, field=None) as temp:
+        temp.write_text(text, encoding="utf-8")
 
 IDENTIFY_INTERVAL_MS = 1500
 """Least time between two live identifications (they run while lines arrive)."""
