@@ -41,7 +41,6 @@ def software_version() -> str:
 
 def cmd_modes(args) -> int:
     """Print the DOFs and natural frequencies of the [structure] of a rig or model file, or of a built-in rig."""
-    import tomllib
     from pathlib import Path
 
     from analysis.model import load_model
@@ -52,7 +51,7 @@ def cmd_modes(args) -> int:
             raise InputError(f"no such file, and no built-in rig of that name (built-in rigs: "
                              f"{', '.join(builtin_rigs())})", args.file)
         source = f"builtin:{args.file}"
-        doc = tomllib.loads(builtin_rig_path(args.file).read_text(encoding="utf-8"))
+        doc = load_toml(builtin_rig_path(args.file))
     else:
         source = args.file
         doc = load_toml(args.file)
@@ -138,6 +137,16 @@ def _finish(summary, output) -> int:
     return EXIT_OK
 
 
+MAX_SEED = 2**32 - 1
+
+
+def _check_seed(seed: int) -> int:
+    """A noise seed the simulator takes: a whole number from 0 to MAX_SEED."""
+    if not 0 <= seed <= MAX_SEED:
+        raise InputError(f"must be a whole number from 0 to {MAX_SEED}, got {seed}", field="--seed")
+    return seed
+
+
 def _instrument_roles(args) -> dict[str, str]:
     """Instrument names by the URLs given as --shaker/--daq, for messages (an emulated instrument's
     ``sim://rig/shaker`` URL names itself)."""
@@ -159,9 +168,11 @@ def cmd_simulate(args) -> int:
         return 0
     if not args.rig or not args.output:
         raise InputError("usage: contactid simulate RIG [PLAN] -o SESSION.h5 (or --list)")
+    _check_seed(args.seed)
     check_output(args.output, inputs=[args.rig, args.plan], overwrite=args.force)
     rig = load_rig(args.rig)
     plan = _load_plan_for(args.rig, args.plan)
+    print(f"plan: {plan.summary()}")
     with emulated_instruments(rig, seed=args.seed) as inst:
         summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
                            software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
@@ -177,6 +188,7 @@ def cmd_acquire(args) -> int:
 
     check_output(args.output, inputs=[args.plan], overwrite=args.force)
     plan = load_plan(args.plan)
+    print(f"plan: {plan.summary()}")
     placement = plan.placement.overridden(args.excitation, args.sensors)
     with real_instruments(args.shaker, args.daq, placement=placement, unguarded=args.unguarded) as inst:
         summary = run_plan(plan, inst, args.output, overwrite=args.force, command=" ".join(sys.argv),
@@ -190,6 +202,7 @@ def cmd_emulate(args) -> int:
     from drivers.serve import parse_tcp_address, serve_emulator
     from drivers.simulation.simulator import RigSimulator
 
+    _check_seed(args.seed)
     rig = load_rig(args.rig)
     if args.tcp:
         host, port = parse_tcp_address(args.tcp)

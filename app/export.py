@@ -270,6 +270,9 @@ def export_csv(session_path, directory, overwrite: bool = False) -> list[Path]:
     session_path, directory = Path(session_path), Path(directory)
     with open_session(session_path) as s:
         runs = _runs_to_export(s)
+    if directory.exists() and not directory.is_dir():
+        raise InputError("is a file; --csv takes a folder (one CSV per run is written into it)", str(directory),
+                         "--csv")
     directory.mkdir(parents=True, exist_ok=True)
     paths = [directory / f"{run.name}.csv" for run in runs]
     for path in paths:

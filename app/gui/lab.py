@@ -285,11 +285,7 @@ class Lab(QObject):
             self.planChecked.emit(False, self.plan_message)
             return
         self.plan = plan
-        lines = sum(len(spec.lines(d)) for spec, d in plan.runs)
-        parts = [f"{len(plan.runs)} stepped-sine run(s), {lines} planned lines"]
-        if plan.random is not None:
-            parts.insert(0, f"random run {plan.random.duration:g} s")
-        self.plan_message = "plan valid: " + ", ".join(parts) + \
+        self.plan_message = "plan valid: " + plan.summary() + \
             ("" if self.instruments is not None else " (not yet checked against instruments)")
         self.planChecked.emit(True, self.plan_message)
 

@@ -10,7 +10,6 @@ documented in docs/rig-simulator.md.
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -20,7 +19,7 @@ from analysis.elements import Element, load_elements
 from analysis.errors import InputError
 from analysis.model import RIG_TABLES
 from analysis.structures import Structure, load_structure
-from analysis.tables import Fields
+from analysis.tables import Fields, parse_toml, read_toml_text
 
 from .linear_model import LinearModel, build_linear_model
 
@@ -234,19 +233,12 @@ def load_rig(path_or_name: str | Path) -> Rig:
             return parse_rig(builtin_rig_path(name).read_text(encoding="utf-8"), f"builtin:{name}")
         raise InputError(f"no such rig file, and no built-in rig of that name "
                          f"(built-in rigs: {', '.join(builtin_rigs())})", str(path_or_name))
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"not UTF-8 text (byte offset {exc.start})", str(path)) from None
-    return parse_rig(text, str(path))
+    return parse_rig(read_toml_text(path), str(path))
 
 
 def parse_rig(text: str, source: str = "<rig>") -> Rig:
     """Build and validate a :class:`Rig` from rig-file text (e.g. a session's provenance)."""
-    try:
-        document = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"not valid TOML: {exc}", source) from None
+    document = parse_toml(text, source)
     root = Fields(document, source, "")
     root.unknown_keys(set(RIG_TABLES))
     name = root.string("name")
