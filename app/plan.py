@@ -83,6 +83,7 @@ class SineSpec:
 
 
 SETTLE_METHODS = ("steady", "transient")
+MAX_SINE_TABLES = 200           # [[stepped_sine]] tables (force levels) in one plan
 MAX_RANDOM_SECONDS = 3600.0      # [random] duration: one hour of random excitation at most
 MAX_BLOCK_PERIODS = 1000         # [settle] block_periods: periods in one record
 MAX_SETTLE_PERIODS = 100_000     # [settle] max_periods and fixed_periods: periods a line may wait
@@ -218,7 +219,11 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
                                       "excitation (docs/campaigns.md, limits); split it into runs of another plan")
         _random_resolution(f, random)
     sines = []
-    for i, f in enumerate(root.list_of_tables("stepped_sine")):
+    tables = root.list_of_tables("stepped_sine")
+    if len(tables) > MAX_SINE_TABLES:
+        raise InputError(f"{len(tables)} stepped-sine tables: at most {MAX_SINE_TABLES} force levels a plan "
+                         "(docs/campaigns.md, limits)", source, "[[stepped_sine]]")
+    for i, f in enumerate(tables):
         f.where = f"[[stepped_sine]][{i}]"
         f.unknown_keys({"force", "start", "stop", "step", "direction", "refine", "min_step"})
         start, stop, step = f.number("start", positive=True), f.number("stop", positive=True), \

@@ -25,6 +25,7 @@ from .linear_model import LinearModel, build_linear_model
 
 REDUCTIONS = ("craig-bampton", "none")
 DEFAULT_SAMPLE_RATE = 1024.0  # Hz, when a rig has no [daq].sample_rate
+MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 1.0, 1e6   # Hz: what a rig's DAQ may sample at
 
 
 @dataclass(frozen=True)
@@ -322,7 +323,11 @@ def _daq(f: Fields) -> DaqSpec:
     passband = f.number("passband", 0.4, positive=True)
     if passband >= 0.5:
         raise f.error("passband", f"must be below 0.5 (the Nyquist frequency), got {passband}")
-    return DaqSpec(f.number("sample_rate", DEFAULT_SAMPLE_RATE, positive=True), whole["resolution"],
+    rate = f.number("sample_rate", DEFAULT_SAMPLE_RATE, positive=True)
+    if not MIN_SAMPLE_RATE <= rate <= MAX_SAMPLE_RATE:
+        raise f.error("sample_rate", f"{rate:g} Hz is not a DAQ's sample rate ({MIN_SAMPLE_RATE:g} to "
+                                     f"{MAX_SAMPLE_RATE:g} Hz)")
+    return DaqSpec(rate, whole["resolution"],
                    f.number("force_range", 10.0, positive=True), f.number("acceleration_range", 500.0, positive=True),
                    ppm, whole["oversample"], passband)
 
