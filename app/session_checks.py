@@ -25,8 +25,17 @@ from .session import FORMAT_VERSION, RunData
 KINDS = ("random", "stepped_sine")
 STATUSES = ("running", "complete", "failed", "aborted")
 DIRECTIONS = {"stepped_sine": ("up", "down"), "random": ("none",)}
+PER_HARMONIC = "harmonics/"
+MAX_RUNS = 500          # runs a session may hold for the analysis and export (plans: at most 200 force levels)
 MIN_FREQUENCY = 1e-3    # Hz: a line below or above these is a damaged dataset, not a vibration measurement
 MAX_FREQUENCY = 1e6
+
+
+def check_run_count(names: list[str], source: str | None) -> None:
+    """Refuse a session of more than MAX_RUNS runs before reading them (their analysis would take hours)."""
+    if len(names) > MAX_RUNS:
+        raise InputError(f"holds {len(names)} runs; contactid reads sessions of at most {MAX_RUNS} runs "
+                         "(docs/session-format.md, limits)", source, "/runs")
 
 
 def check_format(attrs: dict, source: str | None) -> None:
@@ -87,6 +96,11 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
             raise error(f"dataset frf/{d}", f"holds real numbers ({run.frf[d].dtype}); receptances are complex")
         if np.ndim(run.frf[d]) != 1:
             raise error(f"dataset frf/{d}", f"has shape {np.shape(run.frf[d])}; an FRF holds one value a line")
+    for name, values in run.arrays.items():
+        per_line = 2 if name.startswith(PER_HARMONIC) else 1     # a row of harmonics a line, else one value
+        if np.ndim(values) != per_line:
+            raise error(f"dataset {name}", f"has shape {np.shape(values)}; it holds "
+                                           f"{'a row of harmonics' if per_line == 2 else 'one value'} a line")
     lines = _whole_lines(run, sensors, status == "running" or run.incomplete, error)
     bad = np.flatnonzero(~np.isfinite(frequency[:lines]) | (frequency[:lines] < MIN_FREQUENCY)
                          | (frequency[:lines] > MAX_FREQUENCY))

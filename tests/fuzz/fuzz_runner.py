@@ -1,7 +1,7 @@
 """The fuzz corpus's runner: one hostile input, one command, run in process, checked against the contract.
 
-A :class:`Case` is the files a command finds in a fresh folder (bytes, or ``None`` for a sub-folder), the
-command line (``{d}`` stands for that folder) and the exit statuses the contract allows. :func:`run_case` writes
+A :class:`Case` is the files a command finds in a fresh folder (bytes, ``None`` for a sub-folder, or a function
+making the bytes from the valid inputs the fixtures provide, such as a simulated session), the command line (``{d}`` stands for that folder) and the exit statuses the contract allows. :func:`run_case` writes
 the files, calls ``app.cli.main`` with the arguments and records what came out; :func:`check` asserts the
 contract: no traceback, no hang (a case that takes HANG_SECONDS fails), an exit status allowed, a refusal (2) is
 one line naming the file (or argparse's usage error), and no file in the folder changed, appeared or vanished.
@@ -18,7 +18,7 @@ import signal
 from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping, Union
 
 import pytest
 
@@ -28,12 +28,15 @@ FAST_PER_GROUP = 2
 """Cases of each group in the fast set (the rest are marked slow)."""
 
 
+Content = Union[bytes, None, Callable[[Mapping[str, Any]], bytes]]
+
+
 @dataclass(frozen=True)
 class Case:
     group: str                              # the corpus it belongs to, e.g. "plan" or "session-edit"
     name: str                               # what was done to the input
     argv: tuple[str, ...]                   # the command line; "{d}" is the case's folder
-    files: Mapping[str, bytes | None]       # written into the folder first (None: a sub-folder)
+    files: Mapping[str, Content]            # written into the folder first (None: a sub-folder)
     statuses: tuple[int, ...] = (2,)        # exit statuses the contract allows for it
     names: tuple[str, ...] = ()             # file names a refusal must mention (one of them)
     usage: bool = False                     # refused by the argument parser (usage line + error line)
@@ -64,11 +67,14 @@ def _alarm(signum, frame):
     raise Hang(f"no answer within {HANG_SECONDS} s")
 
 
-def run_case(case: Case, folder: Path) -> Outcome:
-    """Write the case's files into ``folder`` and run its command in this process."""
+def run_case(case: Case, folder: Path, inputs: Mapping[str, Any] | None = None) -> Outcome:
+    """Write the case's files into ``folder`` (functions among them are given ``inputs``) and run its command
+    in this process."""
     from app.cli import main
 
     for name, data in case.files.items():
+        if callable(data):
+            data = data(inputs or {})
         target = folder / name
         if data is None:
             target.mkdir(parents=True, exist_ok=True)
