@@ -425,6 +425,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _notes(exc: BaseException) -> str:
+    """What was added to an error on its way up (where an interrupted session went), for its one line."""
+    notes = getattr(exc, "__notes__", [])
+    return f"; {'; '.join(notes)}" if notes else ""
+
+
 def main(argv: list[str] | None = None) -> int:
     from drivers.errors import InstrumentError, describe_instrument_error
 
@@ -440,7 +446,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"contactid: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except CampaignIncomplete as exc:
-        print(f"contactid: {exc}", file=sys.stderr)
+        print(f"contactid: {exc}{_notes(exc)}", file=sys.stderr)
         return EXIT_INCOMPLETE
     except FileNotFoundError as exc:
         if args.debug:
@@ -451,10 +457,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         where = describe_instrument_error(exc, _instrument_roles(args))
-        print(f"contactid: instrument failure: {where}", file=sys.stderr)
+        print(f"contactid: instrument failure: {where}{_notes(exc)}", file=sys.stderr)
         return EXIT_INSTRUMENT
-    except KeyboardInterrupt:
-        print("contactid: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print(f"contactid: interrupted{_notes(exc)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Exception as exc:  # a one-line report for anything unexpected; --debug shows the traceback
         if args.debug:

@@ -96,3 +96,34 @@ def test_the_demo_refuses_a_folder_holding_an_earlier_demo_without_overwrite(tmp
     assert earlier in err and "--overwrite" in err and len(err.strip().splitlines()) == 1
     assert (out / earlier).read_bytes() == b"an earlier demo"
     assert sorted(p.name for p in out.rglob("*")) == sorted({"report", earlier.split("/")[-1]})
+
+
+@pytest.mark.slow
+def test_an_interrupted_demo_with_overwrite_leaves_the_earlier_session_and_keeps_the_new_one_beside_it(tmp_path):
+    """The demo interrupted (Ctrl-C) while it measures: the earlier session is untouched, the lines measured
+    are kept beside it as paper-beam.incomplete.h5, and the command says so."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import h5py
+
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "paper-beam.h5").write_bytes(b"a complete earlier session")
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "demo", "--quick", "--overwrite", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(out.glob(".paper-beam.h5.*.partial")) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(3)                                   # some lines in
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode != 0
+    assert (out / "paper-beam.h5").read_bytes() == b"a complete earlier session"
+    kept = out / "paper-beam.incomplete.h5"
+    assert "left as it was" in err and str(kept) in err
+    with h5py.File(kept, "r") as f:
+        assert len(f["runs"]) >= 1
+    assert not list(out.glob(".*partial"))
