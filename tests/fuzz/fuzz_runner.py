@@ -1,8 +1,9 @@
 """The fuzz corpus's runner: one hostile input, one command, run in process, checked against the contract.
 
 A :class:`Case` is the files a command finds in a fresh folder (bytes, ``None`` for a sub-folder, or a function
-making the bytes from the valid inputs the fixtures provide, such as a simulated session), the command line (``{d}`` stands for that folder) and the exit statuses the contract allows. :func:`run_case` writes
-the files, calls ``app.cli.main`` with the arguments and records what came out; :func:`check` asserts the
+making the bytes from the valid inputs the fixtures provide, such as a simulated session), the command line
+(``{d}`` stands for that folder) and the exit statuses the contract allows. :func:`run_case` writes the files,
+calls ``app.cli.main`` with the arguments and records what came out; :func:`check` asserts the
 contract: no traceback, no hang (a case that takes HANG_SECONDS fails), an exit status allowed, a refusal (2) is
 one line naming the file (or argparse's usage error), and no file in the folder changed, appeared or vanished.
 
