@@ -511,20 +511,33 @@ def needs_recovery(path) -> bool:
     try:
         with h5py.File(path, "r"):
             closed = True
-    except OSError:
+    except OSError as exc:
+        if "truncated file" in str(exc):     # cut short: no repair brings back what is missing
+            raise InputError(f"is truncated, damaged beyond a repair ({exc})", str(path)) from None
         closed = False
     if alive and not closed:
         raise InputError("is still being written by a running process; wait for it to finish", str(path))
     return not closed
 
 
+class DamagedSession(SessionWriteError):
+    """A session whose objects cannot be read back to be copied (a write that needs the copy is not done)."""
+
+    def __init__(self, path: Path, detail: str):
+        super().__init__(f"{path}: {detail}")
+        self.detail = detail
+
+
 def _copy_objects(path: Path, target: Path) -> None:
     """Everything of a session that plain readers refuse, copied (read in SWMR mode) into a new clean file."""
-    with h5py.File(path, "r", libver="latest", swmr=True) as src, h5py.File(target, "w", libver="latest") as dst:
-        for key, value in src.attrs.items():
-            dst.attrs[key] = value
-        for key in src:
-            src.copy(src[key], dst, name=key)
+    with _open_for_reading(path) as src, h5py.File(target, "w", libver="latest") as dst:
+        try:
+            for key, value in src.attrs.items():
+                dst.attrs[key] = value
+            for key in src:
+                src.copy(src[key], dst, name=key)
+        except (RuntimeError, KeyError, ValueError) as exc:   # what HDF5 raises for damaged objects
+            raise DamagedSession(path, f"damaged beyond a repair ({exc}); the file is unchanged") from None
 
 
 def _mark_running_runs(f: h5py.File) -> list[str]:
@@ -569,6 +582,8 @@ def recover_session(path) -> list[str]:
             return marked
     except OSError as exc:
         raise SessionWriteError(f"{path}: cannot recover the session ({exc}); the file is unchanged") from None
+    except DamagedSession as exc:          # the file is damaged, not the disk: bad input
+        raise InputError(exc.detail, str(path)) from None
 
 
 @dataclass

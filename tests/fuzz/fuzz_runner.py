@@ -13,6 +13,7 @@ first FAST_PER_GROUP cases of each group in the fast set and marks the rest slow
 """
 from __future__ import annotations
 
+import faulthandler
 import hashlib
 import io
 import signal
@@ -87,6 +88,8 @@ def run_case(case: Case, folder: Path, inputs: Mapping[str, Any] | None = None) 
     out, err = io.StringIO(), io.StringIO()
     previous = signal.signal(signal.SIGALRM, _alarm)
     signal.alarm(HANG_SECONDS)
+    # a hang inside C code (HDF5) never returns to the alarm's handler: then the worker ends with a traceback
+    faulthandler.dump_traceback_later(2 * HANG_SECONDS, exit=True)
     try:
         with redirect_stdout(out), redirect_stderr(err):
             try:
@@ -94,6 +97,7 @@ def run_case(case: Case, folder: Path, inputs: Mapping[str, Any] | None = None) 
             except SystemExit as exc:             # argparse's refusals
                 status = exc.code if isinstance(exc.code, int) else 2
     finally:
+        faulthandler.cancel_dump_traceback_later()
         signal.alarm(0)
         signal.signal(signal.SIGALRM, previous)
     after = _snapshot(folder)

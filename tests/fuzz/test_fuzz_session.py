@@ -78,6 +78,9 @@ COMMANDS = [("analyze", "{d}/s.h5", "{d}/model.toml", "--no-history"),
             ("export", "{d}/s.h5", "--uff", "{d}/s.uff")]
 
 
+RECOVER = ("recover", "{d}/s.h5")
+
+
 def edited(edit):
     """The simulated session with ``edit`` applied (made when the case runs)."""
     def make(inputs) -> bytes:
@@ -106,7 +109,11 @@ def cases():
     for name, edit in EDITS:
         for argv in COMMANDS:
             yield Case("session-edit", name, argv, {"s.h5": edited(edit), "model.toml": model}, names=("s.h5",))
+        # recover leaves a session closed normally alone (exit 0) whatever it holds, or refuses it
+        yield Case("session-edit", name, RECOVER, {"s.h5": edited(edit)}, statuses=(0, 2), names=("s.h5",))
     for fraction in (0.05, 0.1, 0.3, 0.5, 0.7, 0.9, 0.99):
+        yield Case("session-truncated", f"cut to {fraction:.0%}", RECOVER, {"s.h5": truncated(fraction)},
+                   names=("s.h5",))
         for argv in COMMANDS:
             yield Case("session-truncated", f"cut to {fraction:.0%}", argv,
                        {"s.h5": truncated(fraction), "model.toml": model}, names=("s.h5",))

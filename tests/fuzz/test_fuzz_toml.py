@@ -124,8 +124,11 @@ def cases():
     for name, data in structural(RIG) + RIG_EDITS:
         for argv in rig_cmds[1:] if name in RIG_ONLY else rig_cmds:
             yield Case("rig", name, argv, {"rig.toml": data, "plan.toml": PLAN.encode()}, names=("rig.toml",))
+    acquire = ("acquire", "{d}/plan.toml", "-o", "{d}/out.h5", "--shaker", "sim://none/shaker", "--daq",
+               "sim://none/daq")
     for name, data in structural(PLAN) + PLAN_EDITS:
-        yield Case("plan", name, plan_cmd, {"plan.toml": data}, names=("plan.toml",))
+        for argv in (plan_cmd, acquire):
+            yield Case("plan", name, argv, {"plan.toml": data}, names=("plan.toml",))
     for name, data in structural(MODEL) + MODEL_EDITS:
         for argv in model_cmds:
             yield Case("model", name, argv, {"model.toml": data, "s.h5": SESSION}, names=("model.toml",))
