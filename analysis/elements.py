@@ -103,6 +103,9 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
         f.where = f"[[element]][{i}]"
         f.unknown_keys({"name", "dof", "between", "laws", NONPARAMETRIC})
         name = f.string("name")
+        if not name or name != name.strip() or ":" in name:
+            raise f.error("name", f"{name!r} is not an element name: give a non-empty name without a colon "
+                                  "and without spaces around it (--add ELEMENT:LAW must be able to name it)")
         if name in seen:
             raise f.error("name", f"element name {name!r} is used twice")
         seen.add(name)

@@ -11,18 +11,38 @@ import numpy as np
 from .errors import InputError
 
 
-def load_toml(path: str | Path) -> dict:
-    """Parse a TOML file; InputError naming the file and line on a syntax error."""
+def read_toml_text(path: str | Path) -> str:
+    """A TOML file's text; InputError naming the file when it is missing, a folder, or not UTF-8. A UTF-8 byte
+    order mark (which some editors write) is dropped."""
     path = Path(path)
     try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
+        data = path.read_bytes()
     except FileNotFoundError:
         raise InputError("file not found", str(path)) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"not valid TOML: {exc}", str(path)) from None
+    except IsADirectoryError:
+        raise InputError("is a folder, not a TOML file", str(path)) from None
+    except OSError as exc:
+        raise InputError(f"cannot be read: {exc.strerror}", str(path)) from None
+    try:
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise InputError(f"not UTF-8 text (byte offset {exc.start})", str(path)) from None
+        what = "an HDF5 file (a session?)" if data.startswith(b"\x89HDF") else "not UTF-8 text"
+        raise InputError(f"{what}, not a TOML file (byte offset {exc.start})", str(path)) from None
+
+
+def parse_toml(text: str, source: str | None) -> dict:
+    """Parse TOML text; InputError naming the file (and line) on a syntax error or absurd nesting."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML: {exc}", source) from None
+    except RecursionError:
+        raise InputError("not valid TOML here: arrays or tables nested too deeply", source) from None
+
+
+def load_toml(path: str | Path) -> dict:
+    """Parse a TOML file (:func:`read_toml_text`, :func:`parse_toml`)."""
+    return parse_toml(read_toml_text(path), str(path))
 
 
 class Fields:

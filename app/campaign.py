@@ -77,6 +77,8 @@ class CampaignSummary:
     aborted: str = ""
     aborted_by_instrument: bool = False                         # a link or instrument failure ended it
     failed: dict[str, str] = field(default_factory=dict)        # run -> why its data missed the plan
+    session: str = ""                                           # where the session file is, once closed
+    replaced: str = ""                                          # why an existing file was not replaced
 
     @property
     def complete(self) -> bool:

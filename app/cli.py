@@ -57,7 +57,7 @@ def cmd_modes(args) -> int:
             raise InputError(f"no such file, and no built-in rig of that name (built-in rigs: "
                              f"{', '.join(builtin_rigs())})", args.file)
         source = f"builtin:{args.file}"
-        doc = tomllib.loads(builtin_rig_path(args.file).read_text(encoding="utf-8"))
+        doc = load_toml(builtin_rig_path(args.file))
     else:
         source = args.file
         doc = load_toml(args.file)
@@ -154,7 +154,9 @@ def _load_plan_for(rig_name: str | None, plan_arg: str | None):
 def _finish(summary, output) -> int:
     """Print the summary; the exit status says whether the campaign is complete (module docstring)."""
     print(summary.text())
-    print(f"session: {output}")
+    print(f"session: {summary.session or output}")
+    if summary.replaced:
+        print(f"contactid: {summary.replaced}", file=sys.stderr)
     if summary.aborted:
         print(f"contactid: campaign aborted: {summary.aborted} (output off; the lines measured so far are kept)",
               file=sys.stderr)
@@ -165,6 +167,16 @@ def _finish(summary, output) -> int:
               file=sys.stderr)
         return EXIT_INCOMPLETE
     return EXIT_OK
+
+
+MAX_SEED = 2**32 - 1
+
+
+def _check_seed(seed: int) -> int:
+    """A noise seed the simulator takes: a whole number from 0 to MAX_SEED."""
+    if not 0 <= seed <= MAX_SEED:
+        raise InputError(f"must be a whole number from 0 to {MAX_SEED}, got {seed}", field="--seed")
+    return seed
 
 
 def _instrument_roles(args) -> dict[str, str]:
@@ -180,6 +192,7 @@ def cmd_simulate(args) -> int:
 
     from .instruments import emulated_instruments
     from .measure import ProgressBar, run_plan
+    from .outputs import check_output
 
     if args.list:
         for name in builtin_rigs():
@@ -187,8 +200,11 @@ def cmd_simulate(args) -> int:
         return 0
     if not args.rig or not args.output:
         raise InputError("usage: contactid simulate RIG [PLAN] -o SESSION.h5 (or --list)")
+    _check_seed(args.seed)
+    check_output(args.output, inputs=[args.rig, args.plan], overwrite=args.overwrite)
     rig = load_rig(args.rig)
     plan = _load_plan_for(args.rig, args.plan)
+    print(f"plan: {plan.summary()}")
     with emulated_instruments(rig, seed=args.seed) as inst:
         summary = run_plan(plan, inst, args.output, overwrite=args.overwrite, command=" ".join(sys.argv),
                            software_version=software_version(), listener=ProgressBar(quiet=args.quiet))
@@ -199,9 +215,12 @@ def cmd_acquire(args) -> int:
     """Run a plan on real instruments."""
     from .instruments import real_instruments
     from .measure import ProgressBar, run_plan
+    from .outputs import check_output
     from .plan import load_plan
 
+    check_output(args.output, inputs=[args.plan], overwrite=args.overwrite)
     plan = load_plan(args.plan)
+    print(f"plan: {plan.summary()}")
     placement = plan.placement.overridden(args.excitation, args.sensors)
     with real_instruments(args.shaker, args.daq, placement=placement, unguarded=args.unguarded) as inst:
         summary = run_plan(plan, inst, args.output, overwrite=args.overwrite, command=" ".join(sys.argv),
@@ -215,6 +234,7 @@ def cmd_emulate(args) -> int:
     from drivers.serve import parse_tcp_address, serve_emulator
     from drivers.simulation.simulator import RigSimulator
 
+    _check_seed(args.seed)
     rig = load_rig(args.rig)
     if args.tcp:
         host, port = parse_tcp_address(args.tcp)
@@ -301,7 +321,7 @@ def cmd_demo(args) -> int:
     """The main job on the built-in paper-beam rig."""
     from .demo import main_demo
 
-    return main_demo(args.out, args.quick, software_version())
+    return main_demo(args.out, args.quick, software_version(), overwrite=args.overwrite)
 
 
 def cmd_gui(args) -> int:
@@ -365,6 +385,9 @@ def build_parser() -> argparse.ArgumentParser:
                                     "missing effects, report")
     p.add_argument("--out", default="contactid-demo", help="output folder (default ./contactid-demo)")
     p.add_argument("--quick", action="store_true", help="a shorter campaign")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier demo's files in the folder (its session only once the new campaign "
+                        "is complete)")
     p.set_defaults(run=cmd_demo)
 
     p = sub.add_parser("simulate", help="run a plan on an emulated rig through the real drivers",
@@ -479,6 +502,12 @@ def _raised_class(module: str, name: str) -> type[BaseException]:
     return getattr(loaded, name) if loaded is not None else _NeverRaised
 
 
+def _notes(exc: BaseException) -> str:
+    """What was added to an error on its way up (where an interrupted session went), for its one line."""
+    notes = getattr(exc, "__notes__", [])
+    return f"; {'; '.join(notes)}" if notes else ""
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -490,7 +519,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"contactid: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except _raised_class("app.campaign", "CampaignIncomplete") as exc:
-        print(f"contactid: {exc}", file=sys.stderr)
+        print(f"contactid: {exc}{_notes(exc)}", file=sys.stderr)
         return EXIT_INCOMPLETE
     except FileNotFoundError as exc:
         if args.debug:
@@ -503,10 +532,10 @@ def main(argv: list[str] | None = None) -> int:
         from drivers.errors import describe_instrument_error
 
         where = describe_instrument_error(exc, _instrument_roles(args))
-        print(f"contactid: instrument failure: {where}", file=sys.stderr)
+        print(f"contactid: instrument failure: {where}{_notes(exc)}", file=sys.stderr)
         return EXIT_INSTRUMENT
-    except KeyboardInterrupt:
-        print("contactid: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print(f"contactid: interrupted{_notes(exc)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Exception as exc:  # a one-line report for anything unexpected; --debug shows the traceback
         if args.debug:

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from analysis.auto import run_auto
+from analysis.errors import InputError
 from analysis.model import load_model
 from analysis.tables import load_toml
 from analysis.workbench import Workbench
@@ -24,15 +25,39 @@ from .campaign import CampaignIncomplete
 from .instruments import emulated_instruments
 from .measure import ProgressBar, run_plan
 from .models import asset, builtin_plan_path
+from .outputs import atomic_output
 from .plan import load_plan
-from .report import write_report
+from .report import REPORT_FILES, write_report
 from .session import append_model_history, open_session
 from .session_data import measurements_from_session
 
-def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: str = "", say=print) -> Workbench:
-    """Run the demo into ``out``; returns the final workbench."""
+SESSION = "paper-beam.h5"
+FITTED = "paper-beam.fitted.toml"
+ANALYSIS = "report/analysis.txt"
+
+
+def check_demo_outputs(out: Path, overwrite: bool) -> None:
+    """Refuse (InputError, before anything is measured) a folder holding an earlier demo's files unless
+    ``overwrite``; the files an earlier demo wrote are replaced only once their successors are complete."""
+    if out.exists() and not out.is_dir():
+        raise InputError("is not a folder", str(out), "--out")
+    if overwrite:
+        return
+    found = [name for name in (SESSION, FITTED, ANALYSIS, *(f"report/{n}" for n in REPORT_FILES))
+             if (out / name).exists()]
+    if found:
+        raise InputError(f"holds an earlier demo ({', '.join(found)}); pass --overwrite to replace it (the "
+                         f"session only once the new campaign is complete) or choose another folder",
+                         str(out), "--out")
+
+
+def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: str = "", say=print,
+             overwrite: bool = False) -> Workbench:
+    """Run the demo into ``out``; returns the final workbench. An earlier demo there is refused unless
+    ``overwrite`` (:func:`check_demo_outputs`)."""
+    check_demo_outputs(out, overwrite)
     out.mkdir(parents=True, exist_ok=True)
-    session = out / "paper-beam.h5"
+    session = out / SESSION
     rig = load_rig("paper-beam")
     plan = load_plan(asset("paper-beam.quick.plan.toml") if quick else builtin_plan_path("paper-beam"))
     model_path = asset("paper-beam.model.toml")
@@ -44,13 +69,14 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
         f"{', '.join(f'{s.force:g}' for s in plan.sine)} N around the first mode ...")
     t0 = time.monotonic()
     with emulated_instruments(rig, seed=seed) as inst:
-        summary = run_plan(plan, inst, session, overwrite=True, command="contactid demo",
+        summary = run_plan(plan, inst, session, overwrite=overwrite, command="contactid demo",
                            software_version=software_version, listener=ProgressBar())
     say(summary.text())
     say(f"   ({time.monotonic() - t0:.0f} s)\n")
     if not summary.complete:
         raise CampaignIncomplete(f"the campaign is incomplete, nothing is identified from it: "
-                                 f"{summary.aborted or '; '.join(summary.failed.values())}")
+                                 f"{summary.aborted or '; '.join(summary.failed.values())}"
+                                 + (f"; {summary.replaced} ({summary.session})" if summary.replaced else ""))
 
     with open_session(session) as s:
         measurements = measurements_from_session(s)
@@ -81,17 +107,19 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
     say(f"   {result.stopped}")
     say("   error history: " + " -> ".join(f"{h.error:.3g}" for h in wb.history) + "\n")
     append_model_history(session, [h.to_json() for h in wb.history], str(model_path))
-    fitted = out / "paper-beam.fitted.toml"
-    fitted.write_text(wb.model.to_toml(), encoding="utf-8")
-    plots = write_report(wb, out / "report")
-    (out / "report" / "analysis.txt").write_text(report_text(wb, []) + "\n", encoding="utf-8")
+    fitted = out / FITTED
+    with atomic_output(fitted, overwrite=overwrite, field="--out") as temp:
+        temp.write_text(wb.model.to_toml(), encoding="utf-8")
+    plots = write_report(wb, out / "report", overwrite=overwrite)
+    with atomic_output(out / ANALYSIS, overwrite=overwrite, field="--out") as temp:
+        temp.write_text(report_text(wb, []) + "\n", encoding="utf-8")
     say("5. Written:")
-    for p in [session, fitted, *plots, out / "report" / "analysis.txt"]:
+    for p in [session, fitted, *plots, out / ANALYSIS]:
         say(f"   {p}")
     return wb
 
 
-def main_demo(out: str, quick: bool, software_version: str) -> int:
+def main_demo(out: str, quick: bool, software_version: str, overwrite: bool = False) -> int:
     run_demo(Path(out), quick=quick, software_version=software_version,
-             say=lambda text: print(text, flush=True, file=sys.stdout))
+             say=lambda text: print(text, flush=True, file=sys.stdout), overwrite=overwrite)
     return 0

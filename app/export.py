@@ -38,6 +38,7 @@ from analysis.errors import InputError
 from .importers.idlines import RecordTag, encode
 from .outputs import atomic_output, check_output, require_free_space
 from .session import RunData, Session, open_session
+from .session_checks import check_format, check_run, check_run_count
 from .session_data import displacement_distortion
 
 FUNC_GENERAL, FUNC_FRF, FUNC_COHERENCE = 0, 4, 6
@@ -115,20 +116,6 @@ def _abscissa(freq: np.ndarray, run: str, binary: bool, even_allowed: bool) -> d
                              f"UFF58 abscissa ({ASCII_DIGITS % freq[i]}); export binary UFF (--binary)",
                              f"run {run}", "frequency")
     return {"abscissa_spacing": 0, "x": freq}
-
-
-def _check_finite(run: RunData) -> None:
-    """Refuse a run whose frequencies or FRFs are not finite numbers (naming the line)."""
-    f = np.asarray(run.frequency, float)
-    bad = np.flatnonzero(~np.isfinite(f) | (f <= 0))
-    if bad.size:
-        raise InputError(f"line {int(bad[0])}: frequency {float(f[bad[0]])!r} Hz is not a finite positive number; "
-                         "nothing exported", f"run {run.name}", "frequency")
-    for dof, frf in run.frf.items():
-        bad = np.flatnonzero(~np.isfinite(np.asarray(frf, complex)))
-        if bad.size:
-            raise InputError(f"line {int(bad[0])}: FRF {complex(frf[bad[0]])!r} is not finite; nothing exported",
-                             f"run {run.name}", f"frf/{dof}")
 
 
 def _line_quantities(run: RunData) -> list[tuple[str, str, np.ndarray, _Axis, _Axis, int]]:
@@ -218,9 +205,14 @@ def _header(session_path: Path, software: str) -> dict:
 
 
 def _runs_to_export(s: Session) -> list[RunData]:
+    """The runs with lines, after the checks the analysis makes (:mod:`app.session_checks`): a session the
+    analysis would refuse is not exported either (InputError naming the file, run and dataset)."""
+    source = str(s.path)
+    check_format(s.attrs, source)
+    check_run_count(s.run_names(), source)
     runs = [r for r in s.runs() if len(r.frequency)]
     for run in runs:
-        _check_finite(run)
+        check_run(run, source)
     return runs
 
 
@@ -270,6 +262,9 @@ def export_csv(session_path, directory, overwrite: bool = False) -> list[Path]:
     session_path, directory = Path(session_path), Path(directory)
     with open_session(session_path) as s:
         runs = _runs_to_export(s)
+    if directory.exists() and not directory.is_dir():
+        raise InputError("is a file; --csv takes a folder (one CSV per run is written into it)", str(directory),
+                         "--csv")
     directory.mkdir(parents=True, exist_ok=True)
     paths = [directory / f"{run.name}.csv" for run in runs]
     for path in paths:

@@ -95,6 +95,24 @@ def run_plan(plan: Plan, instruments: Instruments, output, *, overwrite: bool = 
                             instruments.sensor_dofs, listener)
         if on_campaign is not None:
             on_campaign(campaign)
-        return campaign.run()
-    finally:
-        writer.close()
+        summary = campaign.run()
+    except BaseException as exc:       # Ctrl-C, a failure: the file is closed, and where it went is said
+        writer.close(complete=False)
+        if _kept_beside(writer):
+            exc.add_note(_kept_note(writer))
+        raise
+    writer.close(complete=summary.complete)
+    summary.session = str(writer.written_to)
+    if _kept_beside(writer):
+        summary.replaced = _kept_note(writer)
+    return summary
+
+
+def _kept_beside(writer: SessionWriter) -> bool:
+    """Whether the new session could not replace the existing file and went beside it."""
+    return writer.written_to != writer.path
+
+
+def _kept_note(writer: SessionWriter) -> str:
+    return (f"{writer.path} is left as it was: the new session is incomplete and was kept beside it as "
+            f"{writer.written_to}")

@@ -33,7 +33,8 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def check_output(path, *, inputs: Iterable = (), overwrite: bool = False, field: str = "-o") -> Path:
+def check_output(path, *, inputs: Iterable = (), overwrite: bool = False, field: str = "-o",
+                 overwrite_flag: str = "--overwrite") -> Path:
     """Validate an output path before anything is measured or computed.
 
     Raises InputError (naming the file and the option) when the output is one of ``inputs``, when it exists and
@@ -46,7 +47,7 @@ def check_output(path, *, inputs: Iterable = (), overwrite: bool = False, field:
     if path.is_dir():
         raise InputError("is a folder; give a file name", str(path), field)
     if path.exists() and not overwrite:
-        raise InputError("exists already; pass --overwrite to overwrite it", str(path), field)
+        raise InputError(f"exists already; pass {overwrite_flag} to overwrite it", str(path), field)
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise InputError("its folder does not exist", str(path), field)
@@ -70,9 +71,12 @@ def require_free_space(path, needed: int, what: str = "write") -> None:
                       str(path))
 
 
-def temporary_path(path) -> Path:
-    """Where :func:`atomic_output` writes ``path`` before moving it into place (same folder: same file system)."""
+def temporary_path(path, keep_suffix: bool = False) -> Path:
+    """Where :func:`atomic_output` writes ``path`` before moving it into place (same folder: same file system).
+    ``keep_suffix``: the name still ends in ``path``'s suffix (for writers that choose the format by it)."""
     path = Path(path)
+    if keep_suffix:
+        return path.with_name(f"{TEMP_PREFIX}{path.stem}.{os.getpid()}{TEMP_SUFFIX}{path.suffix}")
     return path.with_name(f"{TEMP_PREFIX}{path.name}.{os.getpid()}{TEMP_SUFFIX}")
 
 
@@ -86,13 +90,14 @@ def sync_file(path: Path) -> None:
 
 
 @contextmanager
-def atomic_output(path, *, inputs: Iterable = (), overwrite: bool = False, field: str = "-o") -> Iterator[Path]:
+def atomic_output(path, *, inputs: Iterable = (), overwrite: bool = False, field: str = "-o",
+                  keep_suffix: bool = False) -> Iterator[Path]:
     """Write ``path`` all at once: yields a temporary path to write; on success it is synced and renamed onto
     ``path``; on any exception it is removed and ``path`` is left as it was.
 
     The output is checked first (:func:`check_output`)."""
     path = check_output(path, inputs=inputs, overwrite=overwrite, field=field)
-    temp = temporary_path(path)
+    temp = temporary_path(path, keep_suffix)
     try:
         yield temp
         sync_file(temp)

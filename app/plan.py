@@ -15,13 +15,14 @@ them.
 """
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from analysis.errors import InputError
 from analysis.frf_estimation import WelchResolution, auto_resolution, welch_averages
-from analysis.tables import Fields, load_toml
+from analysis.tables import Fields, parse_toml, read_toml_text
 
 
 DEFAULT_EXPECTED_DAMPING = 0.01   # lightest damping ratio a random run is planned to resolve, unless the plan says
@@ -82,6 +83,13 @@ class SineSpec:
 
 
 SETTLE_METHODS = ("steady", "transient")
+MAX_SINE_TABLES = 200           # [[stepped_sine]] tables (force levels) in one plan
+MAX_RANDOM_SECONDS = 3600.0      # [random] duration: one hour of random excitation at most
+MAX_BLOCK_PERIODS = 1000         # [settle] block_periods: periods in one record
+MAX_SETTLE_PERIODS = 100_000     # [settle] max_periods and fixed_periods: periods a line may wait
+MAX_MIN_BLOCKS = 1000            # [settle] min_blocks
+MAX_SHAKER_SECONDS = 24 * 3600.0  # the least shaker time the whole plan takes (PlannedTime.least)
+MAX_RECORD_SAMPLES = 1 << 22     # samples a channel in one record (block_periods at the lowest line)
 DEFAULT_MAX_LINES = 10_000       # planned stepped-sine lines, all runs together, unless [limits] max_lines says
 LARGEST_MAX_LINES = 1_000_000    # what max_lines may be raised to (each line is a record of its own)
 
@@ -131,6 +139,27 @@ class Placement:
         return None if field_name.startswith("--") else self.source
 
 
+@dataclass(frozen=True)
+class PlannedTime:
+    """How long the shaker drives for a plan (s): ``least`` if every line settles at once (``min_blocks``
+    records, or ``fixed_periods``), ``most`` if every line waits to ``max_periods``; the random run counts its
+    duration. Refinement near resonance may add lines beyond both."""
+
+    least: float
+    most: float
+
+    def text(self) -> str:
+        return f"planned shaker time {_duration(self.least)} to {_duration(self.most)}"
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
 @dataclass
 class Plan:
     random: RandomSpec | None
@@ -146,12 +175,28 @@ class Plan:
     def runs(self) -> list[tuple[SineSpec, str]]:
         return [(spec, d) for spec in self.sine for d in spec.directions]
 
+    def summary(self) -> str:
+        """What the plan measures, for the plan check: runs, planned lines and the planned shaker time."""
+        lines = sum(len(spec.lines(d)) for spec, d in self.runs)
+        parts = [f"{len(self.runs)} stepped-sine run(s), {lines} planned lines", self.planned_time().text()]
+        if self.random is not None:
+            parts.insert(0, f"random run {self.random.duration:g} s")
+        return ", ".join(parts)
+
+    def planned_time(self) -> PlannedTime:
+        """The shaker time the plan asks for (:class:`PlannedTime`)."""
+        periods = sum(float(np.sum(1.0 / spec.lines(d))) for spec, d in self.runs)   # s per period, summed
+        s = self.settle
+        least = s.fixed_periods or s.min_blocks * s.block_periods
+        most = max(s.max_periods, s.fixed_periods) + s.block_periods
+        random = self.random.duration if self.random is not None else 0.0
+        return PlannedTime(random + least * periods, random + most * periods)
+
 
 def load_plan(path) -> Plan:
     """Read and validate a plan file."""
-    with open(path, encoding="utf-8") as fh:
-        text = fh.read()
-    return parse_plan(load_toml(path), text, str(path))
+    text = read_toml_text(path)
+    return parse_plan(parse_toml(text, str(path)), text, str(path))
 
 
 def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
@@ -169,9 +214,16 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         if hi <= lo:
             raise f.error("band", f"high end {hi} Hz must exceed the low end {lo} Hz")
         random = RandomSpec(f.number("force_rms", positive=True), (lo, hi), f.number("duration", positive=True))
+        if random.duration > MAX_RANDOM_SECONDS:
+            raise f.error("duration", f"{random.duration:g} s is more than {MAX_RANDOM_SECONDS:g} s of random "
+                                      "excitation (docs/campaigns.md, limits); split it into runs of another plan")
         _random_resolution(f, random)
     sines = []
-    for i, f in enumerate(root.list_of_tables("stepped_sine")):
+    tables = root.list_of_tables("stepped_sine")
+    if len(tables) > MAX_SINE_TABLES:
+        raise InputError(f"{len(tables)} stepped-sine tables: at most {MAX_SINE_TABLES} force levels a plan "
+                         "(docs/campaigns.md, limits)", source, "[[stepped_sine]]")
+    for i, f in enumerate(tables):
         f.where = f"[[stepped_sine]][{i}]"
         f.unknown_keys({"force", "start", "stop", "step", "direction", "refine", "min_step"})
         start, stop, step = f.number("start", positive=True), f.number("stop", positive=True), \
@@ -191,8 +243,8 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
                               f.string("direction", "up", ("up", "down", "both")), refine, min_step))
     if random is None and not sines:
         raise InputError("plans nothing: give [random] and/or [[stepped_sine]] tables", source)
-    names = [spec.run_name(d) for spec in sines for d in spec.directions]
-    dup = {n for n in names if names.count(n) > 1}
+    names = Counter(spec.run_name(d) for spec in sines for d in spec.directions)
+    dup = {n for n, count in names.items() if count > 1}
     if dup:
         raise InputError(f"two stepped-sine tables make the same run {sorted(dup)[0]} (same force and direction)",
                          source, "[[stepped_sine]]")
@@ -215,10 +267,10 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         s.where = "[settle]"
         s.unknown_keys({"tolerance", "max_periods", "block_periods", "min_blocks", "fixed_periods", "method"})
         settle = SettleSpec(s.number("tolerance", settle.tolerance, positive=True),
-                            int(s.number("max_periods", settle.max_periods, positive=True)),
-                            int(s.number("block_periods", settle.block_periods, positive=True)),
-                            int(s.number("min_blocks", settle.min_blocks, positive=True)),
-                            int(s.number("fixed_periods", 0, nonnegative=True)),
+                            _count(s, "max_periods", settle.max_periods, MAX_SETTLE_PERIODS),
+                            _count(s, "block_periods", settle.block_periods, MAX_BLOCK_PERIODS),
+                            _count(s, "min_blocks", settle.min_blocks, MAX_MIN_BLOCKS),
+                            _count(s, "fixed_periods", 0, MAX_SETTLE_PERIODS, least=0),
                             s.string("method", settle.method, SETTLE_METHODS))
         if settle.method == "transient" and settle.fixed_periods:
             raise s.error("method", "\"transient\" estimates the steady state early; it cannot be combined with "
@@ -229,7 +281,21 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         c.where = "[control]"
         c.unknown_keys({"tolerance"})
         control = c.number("tolerance", 0.01, positive=True)
-    return Plan(random, sines, limits, settle, control, text, source, _placement(root))
+    plan = Plan(random, sines, limits, settle, control, text, source, _placement(root))
+    planned = plan.planned_time()
+    if planned.least > MAX_SHAKER_SECONDS:
+        raise InputError(f"{planned.text()}: even if every line settles at once the shaker drives for more than "
+                         f"{MAX_SHAKER_SECONDS / 3600:g} h (docs/campaigns.md, limits); plan fewer lines or shorter "
+                         "records", source)
+    return plan
+
+
+def _count(f: Fields, key: str, default: int, largest: int, least: int = 1) -> int:
+    """A whole number of periods or records from ``least`` to ``largest`` (docs/campaigns.md, limits)."""
+    value = f.number(key, default, nonnegative=True)
+    if value != int(value) or not least <= value <= largest:
+        raise f.error(key, f"must be a whole number from {least} to {largest:,}, got {value:g}")
+    return int(value)
 
 
 def _random_resolution(f: Fields, spec: RandomSpec) -> None:
@@ -308,6 +374,12 @@ def check_against_instruments(plan: Plan, sample_rate: float, frequency_range: t
         if spec.start < lo or spec.stop > hi:
             raise InputError(f"{spec.start}-{spec.stop} Hz is outside the generator's range {lo:g}-{hi:g} Hz",
                              plan.source, where)
+    for i, spec in enumerate(plan.sine):
+        samples = plan.settle.block_periods * sample_rate / spec.start
+        if samples > MAX_RECORD_SAMPLES:
+            raise InputError(f"a record of {plan.settle.block_periods} periods at {spec.start:g} Hz holds "
+                             f"{samples:,.0f} samples a channel at {sample_rate:g} Hz, more than "
+                             f"{MAX_RECORD_SAMPLES:,}: lower block_periods", plan.source, "[settle].block_periods")
     if plan.random is not None and plan.random.band[1] >= nyquist:
         raise InputError(f"band reaches {plan.random.band[1]} Hz, beyond the DAQ's Nyquist frequency "
                          f"({nyquist:g} Hz)", plan.source, "[random].band")

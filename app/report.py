@@ -41,7 +41,10 @@ def _symbols(colour, size: int) -> dict:
 
 
 def _export(layout, path: Path, width: int = 1400, height: int = 900) -> Path:
+    """The layout as a PNG at ``path``, replaced all at once (:func:`write_report` checks for old files)."""
     import pyqtgraph.exporters
+
+    from .outputs import atomic_output
 
     layout.resize(width, height)
     layout.show()                       # off screen: lays the plots out at the export size
@@ -50,7 +53,8 @@ def _export(layout, path: Path, width: int = 1400, height: int = 900) -> Path:
     qt_application().processEvents()    # ... and the layout follows before the picture is taken
     exporter = pyqtgraph.exporters.ImageExporter(layout.scene())
     exporter.parameters()["width"] = width
-    exporter.export(str(path))
+    with atomic_output(path, overwrite=True, field=None, keep_suffix=True) as temp:
+        exporter.export(str(temp))
     layout.close()
     return path
 
@@ -292,11 +296,20 @@ def plot_history(wb: Workbench, path: Path) -> Path:
     return _export(lay, path, height=600)
 
 
-def write_report(wb: Workbench, folder: Path) -> list[Path]:
-    """All report plots into ``folder``; returns their paths."""
+REPORT_FILES = ("frf.png", "kbar.png", "residuals.png", "error_history.png")
+
+
+def write_report(wb: Workbench, folder: Path, overwrite: bool = False) -> list[Path]:
+    """All report plots into ``folder`` (REPORT_FILES); returns their paths. Existing plots are refused
+    (InputError) unless ``overwrite``, before any is drawn."""
+    from .outputs import check_output
+
     folder.mkdir(parents=True, exist_ok=True)
+    for name in REPORT_FILES:
+        check_output(folder / name, overwrite=overwrite, field=None, overwrite_flag="--overwrite")
     sensor = wb.measurements.sine[0].excitation_dof
     if sensor not in wb.measurements.sine[0].sensor_dofs:
         sensor = wb.measurements.sine[0].sensor_dofs[0]
-    return [plot_frfs(wb, folder / "frf.png", sensor), plot_kbar(wb, folder / "kbar.png"),
-            plot_residuals(wb, folder / "residuals.png"), plot_history(wb, folder / "error_history.png")]
+    frf, kbar, residuals, history = (folder / name for name in REPORT_FILES)
+    return [plot_frfs(wb, frf, sensor), plot_kbar(wb, kbar), plot_residuals(wb, residuals),
+            plot_history(wb, history)]

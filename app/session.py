@@ -53,6 +53,17 @@ def _attrs(obj: h5py.HLObject) -> dict:
 
 
 # --------------------------------------------------------------------------- writer
+def kept_beside(path: Path) -> Path:
+    """A free name beside ``path`` for a new session that could not replace it: ``NAME.incomplete.h5``, or
+    ``NAME.incomplete-2.h5`` and so on."""
+    n = 1
+    while True:
+        kept = path.with_name(f"{path.stem}.incomplete{'' if n == 1 else f'-{n}'}{path.suffix}")
+        if not kept.exists():
+            return kept
+        n += 1
+
+
 class SessionWriter:
     """Create a session file and append to it as a campaign runs (through the writer process).
 
@@ -77,6 +88,7 @@ class SessionWriter:
     def __init__(self, path, *, overwrite: bool = False, plan_text: str = "", rig_text: str | None = None,
                  software_version: str = "", command: str = "", instruments: dict | None = None):
         self.path = check_output(path, overwrite=overwrite, field=None)
+        self.kept_path = kept_beside(self.path) if self.path.exists() else None
         try:
             require_free_space(self.path, FREE_SPACE_RESERVE, "start a session")
         except OSError as exc:
@@ -89,7 +101,8 @@ class SessionWriter:
         header = SessionHeader(plan_text, rig_text, software_version, command, instruments or {})
         try:
             self._call("create", path=str(self.path), temporary=str(temporary_path(self.path)),
-                       overwrite=overwrite, header=asdict(header))
+                       overwrite=overwrite, header=asdict(header),
+                       kept=None if self.kept_path is None else str(self.kept_path))
         except BaseException:
             self._stop_process()
             raise
@@ -164,17 +177,26 @@ class SessionWriter:
         """Append an event (fault, operator action, note) with its time since the session started."""
         self._call("log", seconds=self._seconds(), kind=kind, message=message, run=run)
 
-    def close(self) -> None:
+    def close(self, complete: bool = False) -> None:
         """End an open run as aborted (if any) and close the file. A session in which nothing was measured is
-        not kept (an existing file it was to replace stays as it was). Nothing to do after the writer process
-        stopped (that was reported by the call that found it)."""
+        not kept (an existing file it was to replace stays as it was); one that was to replace an existing
+        file does so only when ``complete`` (the campaign measured all it planned), else it is kept beside it
+        at :attr:`kept_path` (:attr:`written_to` says which). Nothing to do after the writer process stopped
+        (that was reported by the call that found it)."""
         if self._proc is None:
             return
         self._run = None
         try:
-            self._call("close", seconds=self._seconds())
+            self._call("close", seconds=self._seconds(), complete=complete)
         finally:
             self._stop_process()
+
+    @property
+    def written_to(self) -> Path:
+        """Where the session is (after :meth:`close`): the output, or beside it when it could not replace it."""
+        if self.kept_path is not None and self.kept_path.exists():
+            return self.kept_path
+        return self.path
 
     def _stop_process(self) -> int | None:
         """End the writer process (it closes the file at the end of its input); its exit status."""
@@ -489,20 +511,33 @@ def needs_recovery(path) -> bool:
     try:
         with h5py.File(path, "r"):
             closed = True
-    except OSError:
+    except OSError as exc:
+        if "truncated file" in str(exc):     # cut short: no repair brings back what is missing
+            raise InputError(f"is truncated, damaged beyond a repair ({exc})", str(path)) from None
         closed = False
     if alive and not closed:
         raise InputError("is still being written by a running process; wait for it to finish", str(path))
     return not closed
 
 
+class DamagedSession(SessionWriteError):
+    """A session whose objects cannot be read back to be copied (a write that needs the copy is not done)."""
+
+    def __init__(self, path: Path, detail: str):
+        super().__init__(f"{path}: {detail}")
+        self.detail = detail
+
+
 def _copy_objects(path: Path, target: Path) -> None:
     """Everything of a session that plain readers refuse, copied (read in SWMR mode) into a new clean file."""
-    with h5py.File(path, "r", libver="latest", swmr=True) as src, h5py.File(target, "w", libver="latest") as dst:
-        for key, value in src.attrs.items():
-            dst.attrs[key] = value
-        for key in src:
-            src.copy(src[key], dst, name=key)
+    with _open_for_reading(path) as src, h5py.File(target, "w", libver="latest") as dst:
+        try:
+            for key, value in src.attrs.items():
+                dst.attrs[key] = value
+            for key in src:
+                src.copy(src[key], dst, name=key)
+        except (RuntimeError, KeyError, ValueError) as exc:   # what HDF5 raises for damaged objects
+            raise DamagedSession(path, f"damaged beyond a repair ({exc}); the file is unchanged") from None
 
 
 def _mark_running_runs(f: h5py.File) -> list[str]:
@@ -547,6 +582,8 @@ def recover_session(path) -> list[str]:
             return marked
     except OSError as exc:
         raise SessionWriteError(f"{path}: cannot recover the session ({exc}); the file is unchanged") from None
+    except DamagedSession as exc:          # the file is damaged, not the disk: bad input
+        raise InputError(exc.detail, str(path)) from None
 
 
 @dataclass

@@ -25,6 +25,17 @@ from .session import FORMAT_VERSION, RunData
 KINDS = ("random", "stepped_sine")
 STATUSES = ("running", "complete", "failed", "aborted")
 DIRECTIONS = {"stepped_sine": ("up", "down"), "random": ("none",)}
+PER_HARMONIC = "harmonics/"
+MAX_RUNS = 500          # runs a session may hold for the analysis and export (plans: at most 200 force levels)
+MIN_FREQUENCY = 1e-3    # Hz: a line below or above these is a damaged dataset, not a vibration measurement
+MAX_FREQUENCY = 1e6
+
+
+def check_run_count(names: list[str], source: str | None) -> None:
+    """Refuse a session of more than MAX_RUNS runs before reading them (their analysis would take hours)."""
+    if len(names) > MAX_RUNS:
+        raise InputError(f"holds {len(names)} runs; contactid reads sessions of at most {MAX_RUNS} runs "
+                         "(docs/session-format.md, limits)", source, "/runs")
 
 
 def check_format(attrs: dict, source: str | None) -> None:
@@ -83,16 +94,39 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
             raise error(f"dataset frf/{d}", "is missing (attribute sensor_dofs names this DOF)")
         if not np.iscomplexobj(run.frf[d]):
             raise error(f"dataset frf/{d}", f"holds real numbers ({run.frf[d].dtype}); receptances are complex")
+        if np.ndim(run.frf[d]) != 1:
+            raise error(f"dataset frf/{d}", f"has shape {np.shape(run.frf[d])}; an FRF holds one value a line")
+    for name, values in run.arrays.items():
+        per_line = 2 if name.startswith(PER_HARMONIC) else 1     # a row of harmonics a line, else one value
+        if np.ndim(values) != per_line:
+            raise error(f"dataset {name}", f"has shape {np.shape(values)}; it holds "
+                                           f"{'a row of harmonics' if per_line == 2 else 'one value'} a line")
     lines = _whole_lines(run, sensors, status == "running" or run.incomplete, error)
-    bad = np.flatnonzero(~np.isfinite(frequency[:lines]) | (frequency[:lines] <= 0))
+    bad = np.flatnonzero(~np.isfinite(frequency[:lines]) | (frequency[:lines] < MIN_FREQUENCY)
+                         | (frequency[:lines] > MAX_FREQUENCY))
     if len(bad):
         raise error("dataset frequency", f"line {bad[0]} is {float(frequency[bad[0]]):g} Hz; frequencies must be "
-                                         "finite and > 0")
+                                         f"finite, from {MIN_FREQUENCY:g} Hz to {MAX_FREQUENCY:g} Hz")
+    _check_order(frequency[:lines], kind, run.attrs.get("direction"), error)
     for d in sensors:
         bad = np.flatnonzero(~np.isfinite(run.frf[d][:lines]))
         if len(bad):
             raise error(f"dataset frf/{d}", f"line {bad[0]} is {complex(run.frf[d][bad[0]])}; FRFs must be finite")
     return CheckedRun(run, lines, sensors)
+
+
+def _check_order(frequency: np.ndarray, kind: str, direction: str, error) -> None:
+    """A sweep measures its lines one after the other in its direction, a random run's lines rise: each
+    frequency strictly beyond the one before. Equal or reversed frequencies are a frequency dataset that does
+    not belong to the run's FRFs."""
+    sign = -1.0 if kind == "stepped_sine" and direction == "down" else 1.0
+    wrong = np.flatnonzero(sign * np.diff(frequency) <= 0)
+    if len(wrong):
+        i = int(wrong[0])
+        order = "falling" if sign < 0 else "rising"
+        raise error("dataset frequency", f"line {i + 1} is {float(frequency[i + 1]):g} Hz after "
+                                         f"{float(frequency[i]):g} Hz; this run's lines must be strictly {order} "
+                                         "(its frequencies do not match its FRFs)")
 
 
 def _choice(attrs: dict, key: str, choices: tuple[str, ...], error) -> str:

@@ -7,7 +7,7 @@ from analysis.frf_noise import smoothness_noise
 from analysis.measurements import Measurements, RandomRun, SineRun
 
 from .session import RunData, Session
-from .session_checks import check_format, check_run
+from .session_checks import check_format, check_run, check_run_count
 
 NOISE_FLOOR = 1e-9     # relative to the largest FRF value of the run
 
@@ -24,6 +24,7 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
     if isinstance(session, Session):
         source = str(session.path)
         check_format(session.attrs, source)
+        check_run_count(session.run_names(), source)
     sine, random, unfinished = [], None, []
     for checked in (check_run(run, source) for run in session.runs()):
         if not checked.lines or (checked.run.incomplete and not include_incomplete):

@@ -28,6 +28,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from .outputs import sync_file
 from .session_wire import receive_call, send_reply
 
 FORMAT = "contactid-session"
@@ -116,10 +117,14 @@ class SessionFile:
     header : SessionHeader
     """
 
-    def __init__(self, path, temporary, overwrite: bool, header: SessionHeader):
+    def __init__(self, path, temporary, overwrite: bool, header: SessionHeader, kept: str | None = None):
         self.path, self.temporary = Path(path), Path(temporary)
         self.overwrite = overwrite
+        self.kept = None if kept is None else Path(kept)  # where a session that could not replace ``path`` goes
         self.in_place = False                          # moved to ``path`` yet?
+        self.measured = False                          # holds measured data?
+        self.replacing = False                         # to replace an existing file once it is complete
+        self.all_complete = True                       # every run ended "complete" so far
         self._file: h5py.File | None = None
         self._run: str | None = None
         self._datasets: dict[str, h5py.Dataset] = {}     # the open run's datasets, by path in the run
@@ -186,14 +191,28 @@ class SessionFile:
         return _WriteGuard(self, what)
 
     def _measured(self) -> None:
-        """Data is in: move the file into place (the first time)."""
-        if self.in_place:
+        """Data is in: move the file into place (the first time) -- unless it is to replace an existing file,
+        which it does only when it closes complete (:meth:`_settle_replacement`)."""
+        if self.measured:
             return
         if self.path.exists() and not self.overwrite:
             raise SessionWriteError(f"{self.path}: another program created this file while the session was "
                                     f"starting; it is left as it is")
+        self.measured = True
+        if self.path.exists():
+            self.replacing = True
+            return
         os.replace(self.temporary, self.path)
         self.in_place = True
+
+    def _settle_replacement(self) -> None:
+        """The file is closed: a session that was to replace an existing one does so if every run is complete;
+        otherwise the old file stays and this one is kept beside it (``kept``), so that neither is lost."""
+        if not self.replacing:
+            return
+        target = self.path if self.all_complete or self.kept is None else self.kept
+        sync_file(self.temporary)
+        os.replace(self.temporary, target)
 
     # -- runs -----------------------------------------------------------------
     def begin_run(self, spec: RunSpec, seconds: float) -> None:
@@ -287,6 +306,7 @@ class SessionFile:
         if run is None:
             return
         self._close()
+        self.all_complete = self.all_complete and status == "complete"
         with self._guard(f"closing run {run}"):
             f = self._open(swmr=False)
             g = f["runs"][run]
@@ -308,22 +328,31 @@ class SessionFile:
             if opened_here:
                 self._close()
 
-    def close(self, seconds: float) -> None:
-        """End an open run as aborted (if any) and close the file; a file with no measured data is removed."""
+    def close(self, seconds: float, complete: bool = False) -> None:
+        """End an open run as aborted (if any) and close the file; a file with no measured data is removed.
+        ``complete``: the campaign measured everything it planned (a replacement needs it)."""
+        self.all_complete = self.all_complete and complete
         try:
             if self._run is not None:
                 self.end_run("aborted", "session closed while the run was open", seconds)
         finally:
             self._close()
-            if not self.in_place:
-                self.temporary.unlink(missing_ok=True)
+            self._leave_temporary()
+
+    def _leave_temporary(self) -> None:
+        """The file is closed: settle a replacement, or remove a temporary file that holds no measurement."""
+        if self.replacing:
+            self._settle_replacement()
+        elif not self.in_place:
+            self.temporary.unlink(missing_ok=True)
 
     def abandon(self, seconds: float) -> None:
         """The acquiring process is gone: mark the open run incomplete and close the file cleanly."""
         run, self._run = self._run, None
+        self.all_complete = False
         try:
             self._close()
-            if run is not None and self.in_place:
+            if run is not None and self.measured:
                 with self._guard("closing the session after the acquiring process stopped"):
                     f = self._open(swmr=False)
                     mark_incomplete(f["runs"][run], CRASH_REASON)
@@ -331,8 +360,7 @@ class SessionFile:
                                  f"run {run} closed by the session writer: {CRASH_REASON}")
         finally:
             self._close()
-            if not self.in_place:
-                self.temporary.unlink(missing_ok=True)
+            self._leave_temporary()
 
 
 class _WriteGuard:
@@ -373,7 +401,7 @@ def _calls(file: SessionFile | None, method: str, kwargs: dict) -> SessionFile |
     """Execute one call; returns the session file (created by the first call)."""
     if method == "create":
         return SessionFile(kwargs["path"], kwargs["temporary"], kwargs["overwrite"],
-                           SessionHeader(**kwargs["header"]))
+                           SessionHeader(**kwargs["header"]), kwargs.get("kept"))
     if method == "begin_run":
         spec = dict(kwargs["spec"])
         spec["extras"] = {k: (u, tuple(s), d) for k, (u, s, d) in spec["extras"].items()}

@@ -17,9 +17,8 @@ from __future__ import annotations
 import collections
 import re
 import threading
-import time
 from dataclasses import dataclass, field
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 import serial
@@ -153,19 +152,20 @@ class _BlockQueue:
             self.error = error
             self._ready.notify_all()
 
-    def get(self, timeout: float, url: str) -> Block | None:
-        """The next block; None when the stream has ended and nothing is left."""
-        deadline = time.monotonic() + timeout
+    def get(self, timeout: float, url: str, clock: Callable[[], float]) -> Block | None:
+        """The next block; None when the stream has ended and nothing is left. ``timeout`` counts on
+        ``clock`` (the port's: an in-process emulator's idle time)."""
+        deadline = clock() + timeout
         with self._ready:
             while not self._blocks:
                 if self.finished:
                     if self.error is not None:
                         raise self.error
                     return None
-                left = deadline - time.monotonic()
+                left = deadline - clock()
                 if left <= 0:
                     raise LinkTimeout(url, f"no block from the DAQ stream within {timeout:.3g} s")
-                self._ready.wait(left)
+                self._ready.wait(min(left, POLL * 5))
             block = self._blocks.popleft()
             self._ready.notify_all()
             return block
@@ -210,7 +210,7 @@ class DaqStream:
             if io.desynced or io.rx:
                 io.discard_input()
             self.daq._scpi.send(io, "INIT")
-            last = time.monotonic()
+            last = io.clock()
             while not self._stopping.is_set():
                 data = io.read_some(chunk, POLL)
                 if len(data) < chunk:
@@ -219,8 +219,8 @@ class DaqStream:
                     self._deliver(data)
                     if self._decoder.ended:
                         self._ended_by_instrument(io)
-                    last = time.monotonic()
-                elif time.monotonic() - last > self._no_data_timeout:
+                    last = io.clock()
+                elif io.clock() - last > self._no_data_timeout:
                     raise LinkTimeout(self.url, f"no stream data for {self._no_data_timeout:.3g} s")
             self._finish(io, chunk)
         except StreamFormatError as exc:
@@ -252,10 +252,10 @@ class DaqStream:
 
     def _finish(self, io: PortIO, chunk: int) -> None:
         self.daq._scpi.send(io, "ABOR")
-        start = last = time.monotonic()
+        start = last = io.clock()
         while not self._decoder.ended:
             data = io.read_some(chunk, POLL)
-            now = time.monotonic()
+            now = io.clock()
             if data:
                 self._deliver(data)
                 last = now
@@ -323,7 +323,7 @@ class DaqStream:
         InstrumentError
             The stream failed (link lost, protocol error); raised on every later read too.
         """
-        block = self._queue.get(self.timeout if timeout is None else timeout, self.url)
+        block = self._queue.get(self.timeout if timeout is None else timeout, self.url, self.daq._link.io.clock)
         if block is None:
             raise EOFError(f"{self.url}: stream stopped")
         return block
@@ -352,7 +352,12 @@ class DaqStream:
         self._caught_up.clear()
         if self._queue.finished:   # (the reader sets the event after it finishes)
             return True
-        return self._caught_up.wait(timeout)
+        clock = self.daq._link.io.clock    # an in-process emulator's idle time: a busy machine is no reason
+        deadline = clock() + timeout
+        while not self._caught_up.wait(POLL * 5):
+            if clock() >= deadline:
+                return False
+        return True
 
     def stop(self, timeout: float = END_LIMIT + 5.0) -> StreamStats:
         """End the acquisition and wait until the instrument confirmed it; the final stats.
@@ -362,7 +367,7 @@ class DaqStream:
         """
         self.sync()
         self._stopping.set()
-        self._request.wait(self.url, timeout)
+        self._request.wait(self.url, timeout, self.daq._link.io.clock)
         if self._queue.error is not None:
             raise self._queue.error
         return self.stats
@@ -496,7 +501,7 @@ class SerialDaq:
                 self._scpi.execute(io, command)
             self._read_setup(io)
 
-        self._link.call(apply, self._scpi.timeout * (len(commands) + 10) + 1)
+        self._link.call(apply, self._scpi.reply_wait(len(commands) + 10))
 
     def _number(self, name: str) -> int:
         try:

@@ -67,7 +67,7 @@ def probe(url: str, *, baudrate: int = 115200, timeout: float = 0.5, description
         return Probe(url, None, None, exc.message)
     try:
         scpi = ScpiInstrument(link, timeout)
-        reply = link.call(lambda io: scpi.ask(io, "*IDN?", timeout), timeout + 1.0)
+        reply = link.call(lambda io: scpi.ask(io, "*IDN?", timeout), scpi.reply_wait(1, timeout))
     except InstrumentError as exc:
         return Probe(url, None, None, exc.message)
     finally:

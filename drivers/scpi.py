@@ -18,6 +18,7 @@ come back joined by ``;``. Binary replies use IEEE 488.2 definite-length block d
 from __future__ import annotations
 
 import collections
+import logging
 import queue
 import re
 import threading
@@ -30,6 +31,8 @@ from .errors import (DeviceError, InstrumentError, LinkLost, LinkTimeout, Protoc
                      WrongDevice)
 from .interfaces import Identity
 
+log = logging.getLogger("contactid.drivers")
+
 POLL = 0.02
 """Slice of a blocking read (s): the longest an emergency write waits for the owner thread."""
 MAX_LINE = 1 << 16
@@ -40,6 +43,9 @@ CLEAR_QUIET = 0.1
 """Device clear on a byte link: the line must stay silent this long (s) before the first command..."""
 CLEAR_LIMIT = 10.0
 """...waiting at most this long (s) for a previous client's late replies or stream to end."""
+LATE_REPLIES = 1
+"""Replies to a query that may miss their deadline once: waited for one more timeout (logged) before the
+request fails. A loaded host can delay one reply past a real instrument's 1 s; two in a row is a failure."""
 _ERROR_REPLY = re.compile(r'^\s*([+-]?\d+)\s*,\s*"(.*)"\s*$')
 
 
@@ -78,6 +84,8 @@ class PortIO:
         self.rx = bytearray()
         self.last_activity = time.monotonic()
         self.desynced = False
+        # what reply deadlines count: the wall clock, or for an in-process emulator its idle time
+        self.clock: Callable[[], float] = getattr(port, "deadline_clock", time.monotonic)
         self._service = service
         self._timeout = port.timeout
 
@@ -104,18 +112,18 @@ class PortIO:
             raise LinkLost(self.url, f"port lost while writing: {exc}") from None
         self.last_activity = time.monotonic()
 
-    def _fill(self, deadline: float, what: str) -> None:
+    def _fill(self, deadline: "Deadline", what: str) -> None:
         """Append at least one byte to ``rx`` or raise LinkTimeout at the deadline."""
         chunk = self._receive(MAX_LINE, 0)
         while not chunk:
-            left = deadline - time.monotonic()
+            left = deadline.left()
             if left <= 0:
                 self.desynced = True
-                raise LinkTimeout(self.url, f"no complete reply to {what}")
+                raise LinkTimeout(self.url, f"no complete reply to {what}{deadline.extended()}")
             chunk = self._receive(1, min(POLL, left))
         self.rx += chunk
 
-    def read_line(self, deadline: float, what: str) -> bytes:
+    def read_line(self, deadline: "Deadline", what: str) -> bytes:
         """The next LF-terminated line (terminator and a trailing CR removed)."""
         while True:
             end = self.rx.find(b"\n")
@@ -129,13 +137,14 @@ class PortIO:
                 raise ProtocolError(self.url, f"reply to {what} exceeds {MAX_LINE} bytes without a line end")
             self._fill(deadline, what)
 
-    def read_exact(self, count: int, deadline: float, what: str) -> bytes:
+    def read_exact(self, count: int, deadline: "Deadline", what: str) -> bytes:
         """Exactly ``count`` bytes, or LinkTimeout at the deadline."""
         while len(self.rx) < count:
-            left = deadline - time.monotonic()
+            left = deadline.left()
             if left <= 0:
                 self.desynced = True
-                raise LinkTimeout(self.url, f"reply to {what} incomplete: {len(self.rx)} of {count} bytes")
+                raise LinkTimeout(self.url, f"reply to {what} incomplete: {len(self.rx)} of {count} bytes"
+                                            f"{deadline.extended()}")
             self.rx += self._receive(count - len(self.rx), min(POLL, left))
         data = bytes(self.rx[:count])
         del self.rx[:count]
@@ -174,6 +183,37 @@ class PortIO:
                 last = time.monotonic()
 
 
+class Deadline:
+    """When a reply is due, on the port's clock (:attr:`PortIO.clock`).
+
+    ``late_replies`` = 1 gives a reply that misses the deadline one more timeout before the read fails: a busy
+    host (or a busy instrument) can make one reply late without losing the run; the extension is logged."""
+
+    def __init__(self, io: PortIO, timeout: float, what: str, late_replies: int = 0):
+        self.io = io
+        self.timeout = timeout
+        self.what = what
+        self.at = io.clock() + timeout
+        self._late_left = late_replies
+        self.extensions = 0
+
+    def left(self) -> float:
+        """Seconds left (<= 0: expired, after any extension)."""
+        left = self.at - self.io.clock()
+        if left <= 0 and self._late_left > 0:
+            self._late_left -= 1
+            self.extensions += 1
+            log.warning("%s: reply to %s is late; waiting %.3g s more before giving up", self.io.url, self.what,
+                        self.timeout)
+            self.at = self.io.clock() + self.timeout
+            left = self.timeout
+        return left
+
+    def extended(self) -> str:
+        """A message's note of the extension: `` (and again 1 s after it was late)``."""
+        return f" (and {self.timeout:.3g} s more after it was late)" if self.extensions else ""
+
+
 class _Request:
     __slots__ = ("fn", "done", "result", "error")
 
@@ -183,9 +223,12 @@ class _Request:
         self.result: Any = None
         self.error: BaseException | None = None
 
-    def wait(self, url: str, timeout: float) -> Any:
-        if not self.done.wait(timeout):
-            raise LinkTimeout(url, f"port owner did not finish the request within {timeout:.3g} s")
+    def wait(self, url: str, timeout: float, clock: Callable[[], float] = time.monotonic) -> Any:
+        """The request's result, waiting at most ``timeout`` s on ``clock`` (the port's)."""
+        deadline = clock() + timeout
+        while not self.done.wait(min(POLL * 5, max(deadline - clock(), 0.0))):
+            if clock() >= deadline:
+                raise LinkTimeout(url, f"port owner did not finish the request within {timeout:.3g} s")
         if self.error is not None:
             raise self.error
         return self.result
@@ -303,7 +346,7 @@ class SerialLink:
         if threading.current_thread() is self._thread:
             self._check_usable()
             return fn(self.io)
-        return self.submit(fn).wait(self.url, timeout)
+        return self.submit(fn).wait(self.url, timeout, self.io.clock)
 
     def set_idle_hook(self, hook: Callable[[PortIO], None] | None, interval: float) -> None:
         """Run ``hook(io)`` on the owner thread whenever the port was silent ``interval`` s."""
@@ -352,11 +395,16 @@ class ScpiInstrument:
         self.url = link.url
         self.timeout = timeout
 
-    def _deadline(self, timeout: float | None) -> float:
-        return time.monotonic() + (self.timeout if timeout is None else timeout)
+    def _deadline(self, io: PortIO, timeout: float | None, what: str, late_replies: int = 0) -> Deadline:
+        return Deadline(io, self.timeout if timeout is None else timeout, what, late_replies)
 
     def _wait(self, timeout: float | None) -> float:
-        return (self.timeout if timeout is None else timeout) + 1.0
+        return self.reply_wait(1, timeout)
+
+    def reply_wait(self, replies: int, timeout: float | None = None) -> float:
+        """How long a caller waits for the owner thread to get ``replies`` replies: each one's deadline and
+        its extension when it is late (LATE_REPLIES), plus a second."""
+        return replies * (LATE_REPLIES + 1) * (self.timeout if timeout is None else timeout) + 1.0
 
     # ----- functions that run on the owner thread -------------------------------------------
     def send(self, io: PortIO, command: str) -> None:
@@ -372,9 +420,9 @@ class ScpiInstrument:
         """
         io.discard_input()
         self.send(io, "*IDN?")
-        deadline = self._deadline(timeout)
+        deadline = self._deadline(io, timeout, "'*IDN?' (resynchronising)")
         while True:
-            line = io.read_line(deadline, "'*IDN?' (resynchronising)")
+            line = io.read_line(deadline, deadline.what)
             if line.count(b",") == 3:
                 return
 
@@ -383,7 +431,8 @@ class ScpiInstrument:
         if io.desynced:
             self.resync(io, timeout)
         self.send(io, command)
-        line = io.read_line(self._deadline(timeout), self._what(command, timeout))
+        what = self._what(command, timeout)
+        line = io.read_line(self._deadline(io, timeout, what, LATE_REPLIES), what)
         return line.decode("ascii", errors="replace")
 
     def _what(self, command: str, timeout: float | None) -> str:
@@ -395,8 +444,8 @@ class ScpiInstrument:
         if io.desynced:
             self.resync(io, timeout)
         self.send(io, command)
-        deadline = self._deadline(timeout)
         what = self._what(command, timeout)
+        deadline = self._deadline(io, timeout, what, LATE_REPLIES)
         head = io.read_exact(2, deadline, what)
         if head[:1] != b"#" or not head[1:2].isdigit() or head[1:2] == b"0":
             io.desynced = True
@@ -471,7 +520,7 @@ class ScpiInstrument:
 
     def errors(self) -> list[ScpiErrorEntry]:
         """Empty the instrument's error queue; its entries, oldest first."""
-        return self.link.call(self.drain_errors, self._wait(None) * 4)
+        return self.link.call(self.drain_errors, self.reply_wait(4))
 
     def query_float(self, command: str) -> float:
         reply = self.query(command)
@@ -486,7 +535,7 @@ class ScpiInstrument:
         if io.desynced:
             self.resync(io, timeout)
         self.send(io, "*IDN?")
-        deadline = self._deadline(timeout)
+        deadline = self._deadline(io, timeout, "'*IDN?'")
         reply = None
         while True:      # a late reply to a previous client's query may come first: skip non-identities
             try:

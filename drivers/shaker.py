@@ -180,7 +180,7 @@ class SerialShaker:
             self._scpi.execute(io, "OUTP OFF")
             return self._scpi.ask(io, "OUTP?")
 
-        if output_state(self.url, self._link.call(off, self._scpi.timeout * 2 + 1)):
+        if output_state(self.url, self._link.call(off, self._scpi.reply_wait(2))):
             raise InstrumentError(self.url, "output still on after OUTP OFF")
 
     @property

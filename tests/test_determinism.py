@@ -1,7 +1,7 @@
 """A fast in-process run is a function of the plan and the seed only: not of the load on the machine.
 
 The same short plan (a random run with its drive calibration, then stepped-sine lines with force control) runs
-twice on paper-2dof, the second time beside busy processes; every dataset of every run must be the same bit for
+twice on paper-2dof, the second time beside four busy processes; every dataset of every run must be the same bit for
 bit -- the FRFs, the settling times, the raw samples. What made runs differ: wall-clock timers in the emulator,
 a DAQ reader running ahead of the campaign by however far the scheduler let it when a generator command went
 out, and reads of the in-process port ending on a timeout.
@@ -56,7 +56,7 @@ def datasets(path):
 @pytest.mark.slow
 def test_the_same_plan_gives_the_same_session_on_an_idle_and_a_loaded_machine(tmp_path):
     first = campaign(tmp_path / "idle.h5")
-    busy = [subprocess.Popen([sys.executable, "-c", BUSY]) for _ in range(3)]
+    busy = [subprocess.Popen([sys.executable, "-c", BUSY]) for _ in range(4)]
     try:
         second = campaign(tmp_path / "loaded.h5")
     finally:

@@ -57,3 +57,74 @@ def test_a_file_changed_in_place_is_whole_or_untouched(tmp_path):
         temp.write_text("new")
     assert target.read_text() == "new" and target.stat().st_mode & 0o777 == 0o640
     assert list(tmp_path.iterdir()) == [target]
+
+
+# ----- commands that write sessions: never over an input, never over an earlier demo ---------------------------
+def _cli(argv):
+    from app.cli import main
+    return main(argv)
+
+
+@pytest.mark.parametrize("flags", [[], ["--overwrite"], ["--force"]])
+def test_simulate_refuses_to_write_its_session_over_its_own_plan(tmp_path, capsys, flags):
+    plan = tmp_path / "p.toml"
+    plan.write_text("[random]\nforce_rms = 0.05\nband = [0.5, 5.0]\nduration = 8.0\n"
+                    "[limits]\nmax_force = 5.0\nmax_acceleration = 50.0\n", encoding="utf-8")
+    before = plan.read_bytes()
+    assert _cli(["simulate", "paper-2dof", str(plan), "-o", str(plan), *flags]) == 2
+    # one line of error (the old spelling --force adds its own note before it)
+    err = [line for line in capsys.readouterr().err.splitlines() if "old spelling" not in line]
+    assert len(err) == 1 and "p.toml" in err[0] and "also an input" in err[0]
+    assert plan.read_bytes() == before
+
+
+def test_acquire_refuses_to_write_its_session_over_its_plan_before_opening_a_port(tmp_path, capsys):
+    plan = tmp_path / "p.toml"
+    plan.write_text("not even TOML", encoding="utf-8")
+    assert _cli(["acquire", str(plan), "-o", str(plan), "--force", "--shaker", "sim://nowhere/shaker",
+                 "--daq", "sim://nowhere/daq"]) == 2
+    assert "also an input" in capsys.readouterr().err
+    assert plan.read_text(encoding="utf-8") == "not even TOML"
+
+
+@pytest.mark.parametrize("earlier", ["paper-beam.h5", "paper-beam.fitted.toml", "report/kbar.png"])
+def test_the_demo_refuses_a_folder_holding_an_earlier_demo_without_overwrite(tmp_path, capsys, earlier):
+    out = tmp_path / "demo"
+    (out / "report").mkdir(parents=True)
+    (out / earlier).write_bytes(b"an earlier demo")
+    assert _cli(["demo", "--quick", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert earlier in err and "--overwrite" in err and len(err.strip().splitlines()) == 1
+    assert (out / earlier).read_bytes() == b"an earlier demo"
+    assert sorted(p.name for p in out.rglob("*")) == sorted({"report", earlier.split("/")[-1]})
+
+
+@pytest.mark.slow
+def test_an_interrupted_demo_with_overwrite_leaves_the_earlier_session_and_keeps_the_new_one_beside_it(tmp_path):
+    """The demo interrupted (Ctrl-C) while it measures: the earlier session is untouched, the lines measured
+    are kept beside it as paper-beam.incomplete.h5, and the command says so."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import h5py
+
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "paper-beam.h5").write_bytes(b"a complete earlier session")
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "demo", "--quick", "--overwrite", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(out.glob(".paper-beam.h5.*.partial")) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(3)                                   # some lines in
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode != 0
+    assert (out / "paper-beam.h5").read_bytes() == b"a complete earlier session"
+    kept = out / "paper-beam.incomplete.h5"
+    assert "left as it was" in err and str(kept) in err
+    with h5py.File(kept, "r") as f:
+        assert len(f["runs"]) >= 1
+    assert not list(out.glob(".*partial"))

@@ -81,17 +81,43 @@ def test_existing_file_is_not_overwritten_without_force(tmp_path):
     assert path.read_bytes() == b"precious"
 
 
-def test_a_forced_session_replaces_the_old_file_only_once_its_first_line_is_in(tmp_path):
+def test_a_forced_session_replaces_the_old_file_only_once_it_closes_complete(tmp_path):
     path = tmp_path / "s.h5"
     path.write_bytes(b"precious")
     w = SessionWriter(path, overwrite=True)
     w.begin_run(spec())
     w.log("note", "armed")
-    assert path.read_bytes() == b"precious"              # nothing measured yet: the old file stands
     line(w, 0)
-    assert h5py.is_hdf5(path)
-    w.close()
+    assert path.read_bytes() == b"precious"              # measuring: the old file stands until the end
+    w.end_run("complete")
+    w.close(complete=True)
+    assert h5py.is_hdf5(path) and w.written_to == path
     assert [p.name for p in tmp_path.iterdir()] == ["s.h5"]
+
+
+@pytest.mark.parametrize("ending", ["aborted run", "campaign incomplete", "acquirer killed"])
+def test_a_forced_session_that_ends_incomplete_leaves_the_old_file_and_is_kept_beside_it(tmp_path, ending):
+    path = tmp_path / "s.h5"
+    path.write_bytes(b"precious")
+    (tmp_path / "s.incomplete.h5").write_bytes(b"an older one")
+    w = SessionWriter(path, overwrite=True)
+    w.begin_run(spec())
+    line(w, 0)
+    if ending == "aborted run":
+        w.end_run("aborted", "operator")
+        w.close(complete=False)
+    elif ending == "campaign incomplete":
+        w.end_run("complete")
+        w.close(complete=False)
+    else:
+        w._stop_process()                                # the writer process sees its input end
+    assert path.read_bytes() == b"precious"
+    assert (tmp_path / "s.incomplete.h5").read_bytes() == b"an older one"
+    kept = tmp_path / "s.incomplete-2.h5"
+    assert w.written_to == kept and h5py.is_hdf5(kept)
+    with h5py.File(kept, "r") as f:
+        assert f["runs/sine_0.8N_up/frequency"].shape == (1,)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5", "s.incomplete-2.h5", "s.incomplete.h5"]
 
 
 def test_a_start_that_fails_before_the_first_line_leaves_the_old_file_or_none(tmp_path):

@@ -19,7 +19,7 @@ from app.models import builtin_plan_path
 from drivers.simulation.rig import builtin_rigs
 
 from ..plan import load_plan
-from .lab import Lab
+from .lab import Lab, save_text
 from .live import ALARM_COLOR, CampaignFeed, is_alarm
 from .plan_doc import plan_document, plan_toml
 from .plots import (CHANNEL_COLORS, FrameClock, LevelPalette, Redraw, configure_plot, finite_log, random_pen,
@@ -210,8 +210,8 @@ class PlanEditor(QGroupBox):
     def _save_clicked(self) -> None:
         doc = self.lab.full_plan_document()
         path, _ = QFileDialog.getSaveFileName(self, "Save plan", "plan.toml", "Plan files (*.toml)")
-        if path and doc is not None:
-            Path(path).write_text(plan_toml(doc), encoding="utf-8")
+        if path and doc is not None:     # the dialog asked before replacing a file
+            self.lab.act(save_text, path, plan_toml(doc))
 
     def _show_check(self, ok: bool, message: str) -> None:
         self.validation.setText(message)

@@ -29,6 +29,7 @@ from drivers.simulation.rig import Rig, load_rig
 
 from ..campaign import CampaignSummary
 from ..export import export_csv, export_uff
+from ..outputs import atomic_output
 from ..importers.store import ImportRequest, ImportResult, import_files
 from ..instruments import Instruments, emulated_instruments, real_instruments
 from ..plan import Plan, check_against_instruments, parse_plan
@@ -40,6 +41,13 @@ from .results import AnalysisView, IdentificationView, analysis_view, identifica
 from .workers import CampaignThread, TaskRunner
 
 log = logging.getLogger("contactid.gui")
+
+
+def save_text(path, text: str) -> None:
+    """Write a text file the operator chose in a save dialog (which asked before replacing one), all at once:
+    an error leaves the old file as it was."""
+    with atomic_output(path, overwrite=True, field=None) as temp:
+        temp.write_text(text, encoding="utf-8")
 
 IDENTIFY_INTERVAL_MS = 1500
 """Least time between two live identifications (they run while lines arrive)."""
@@ -280,11 +288,7 @@ class Lab(QObject):
             self.planChecked.emit(False, self.plan_message)
             return
         self.plan = plan
-        lines = sum(len(spec.lines(d)) for spec, d in plan.runs)
-        parts = [f"{len(plan.runs)} stepped-sine run(s), {lines} planned lines"]
-        if plan.random is not None:
-            parts.insert(0, f"random run {plan.random.duration:g} s")
-        self.plan_message = "plan valid: " + ", ".join(parts) + \
+        self.plan_message = "plan valid: " + plan.summary() + \
             ("" if self.instruments is not None else " (not yet checked against instruments)")
         self.planChecked.emit(True, self.plan_message)
 

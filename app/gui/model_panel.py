@@ -5,8 +5,6 @@ button for their non-parametric part (docs/nonparametric.md), the error history 
 are added) and undo."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt
@@ -17,7 +15,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxL
 from analysis.comparison import gain_phrase
 from analysis.nonparametric import NAME as NONPARAMETRIC
 
-from .lab import Lab
+from .lab import Lab, save_text
 from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol
 from .results import AnalysisView
 
@@ -157,8 +155,8 @@ class ModelPanel(QWidget):
         if self.view is None:
             return
         path, _ = QFileDialog.getSaveFileName(self, "Save fitted model", "fitted-model.toml", "Model files (*.toml)")
-        if path:
-            Path(path).write_text(self.view.model_toml, encoding="utf-8")
+        if path:            # the dialog asked before replacing a file
+            self.lab.act(save_text, path, self.view.model_toml)
 
     def add_candidate(self, row: int) -> None:
         """The Add button of candidate ``row``: add its law to its element, refit, rank again."""

@@ -15,6 +15,8 @@ import pyqtgraph as pg
 from pyqtgraph.exporters import ImageExporter
 from PySide6.QtCore import QObject, Qt, QTimer, Signal
 
+from ..outputs import atomic_output
+
 MAX_FPS = 30
 """Upper bound of live redraws per second."""
 
@@ -119,12 +121,14 @@ def finite_log(values: np.ndarray) -> np.ndarray:
     return out
 
 
-def export_png(item: pg.GraphicsItem, path, width: int = 1600) -> Path:
-    """Write a plot (or a whole plot layout) as a PNG of ``width`` pixels with pyqtgraph's ImageExporter."""
+def export_png(item: pg.GraphicsItem, path, width: int = 1600, overwrite: bool = False) -> Path:
+    """Write a plot (or a whole plot layout) as a PNG of ``width`` pixels with pyqtgraph's ImageExporter, all
+    at once; an existing file is refused (InputError) unless ``overwrite``."""
     path = Path(path)
     exporter = ImageExporter(item)
     exporter.parameters()["width"] = int(width)
-    exporter.export(str(path))
+    with atomic_output(path, overwrite=overwrite, field=None, keep_suffix=True) as temp:
+        exporter.export(str(temp))
     return path
 
 

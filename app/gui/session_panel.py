@@ -15,6 +15,8 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxL
                                QListWidget, QPushButton, QSplitter, QTableWidget, QTableWidgetItem, QTextBrowser,
                                QVBoxLayout, QWidget)
 
+from analysis.errors import InputError
+
 from .lab import Lab
 from .live import ALARM_COLOR, is_alarm
 from .plots import (LevelPalette, configure_plot, export_png, finite_log, random_pen, safe_file_name,
@@ -154,18 +156,20 @@ class SessionPanel(QWidget):
     def _export_png(self) -> None:
         folder = QFileDialog.getExistingDirectory(self, "Save every plot as PNG into folder")
         if folder:
-            written = self.export_plots(folder)
-            self.export_label.setText(f"wrote {len(written)} PNG files to {folder}")
+            self.lab.act(lambda: self.export_label.setText(
+                f"wrote {len(self.export_plots(folder))} PNG files to {folder}"))
 
     def export_plots(self, folder) -> list[Path]:
-        """Every plot of the window as ``<name>.png`` in ``folder`` (plots with nothing drawn are skipped)."""
+        """Every plot of the window as ``<name>.png`` in ``folder`` (plots with nothing drawn are skipped).
+        A folder already holding one of those files is refused (InputError) before anything is written."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        written = []
-        for name, plot in self.all_plots().items():
-            if plot.listDataItems():
-                written.append(export_png(plot, folder / f"{safe_file_name(name)}.png"))
-        return written
+        plots = {folder / f"{safe_file_name(name)}.png": plot for name, plot in self.all_plots().items()
+                 if plot.listDataItems()}
+        there = [path.name for path in plots if path.exists()]
+        if there:
+            raise InputError(f"holds {', '.join(there)} already; choose an empty folder", str(folder))
+        return [export_png(plot, path) for path, plot in plots.items()]
 
     # ------------------------------------------------------------------ views
     def _show_session(self) -> None:

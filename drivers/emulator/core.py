@@ -41,7 +41,7 @@ import numpy as np
 
 from ..faults import ROLES, FaultInjector, LinkFaults, parse_faults
 from .daq import DaqFirmware
-from .link import InstrumentLink
+from .link import IdleClock, InstrumentLink
 from .scpi_server import ScpiError
 from .generator import GeneratorFirmware
 from .shaker import ShakerFirmware
@@ -114,6 +114,7 @@ class EmulatedRig:
             raise ValueError("rig backend: sample_rate and every lsb must be > 0")
         self.default_faults = parse_faults(faults)
         self.lock = threading.RLock()
+        self.idle_clock = IdleClock()
         self.changed = threading.Condition(self.lock)
         self.events: list[EmulatorEvent] = []
         self.samples = 0

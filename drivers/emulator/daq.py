@@ -135,7 +135,7 @@ class DaqFirmware(Firmware):
         self.acquired += counts.shape[0]
 
     def produce(self) -> bool:
-        with self.rig.lock:
+        with self.rig.idle_clock.working(), self.rig.lock:
             self.rig.hold_for_commands()   # the host's commands come first, then more physics
             if not self.acquiring:
                 return False

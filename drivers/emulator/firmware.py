@@ -74,6 +74,7 @@ class Firmware:
             self.message_received()
         with self._count_lock:
             self._unprocessed += 1
+            self.rig.idle_clock.begin()
             self._input.put((self.generation, bytes(data)))
 
     def device_clear(self) -> None:
@@ -106,6 +107,7 @@ class Firmware:
             finally:
                 with self._count_lock:
                     self._unprocessed -= 1
+                    self.rig.idle_clock.end()
                 self.rig.notify()
 
     def _process(self, generation: int, data: bytes) -> None:

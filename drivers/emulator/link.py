@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import TYPE_CHECKING, Callable
+from contextlib import contextmanager
+from typing import TYPE_CHECKING, Callable, Iterator
 
 from ..faults import FaultInjector
 
@@ -20,6 +21,48 @@ if TYPE_CHECKING:
 
 POLL = 0.02
 """Longest a waiting read sleeps before it re-checks stalls and production (s)."""
+
+
+class IdleClock:
+    """Wall time that passes while an emulated rig has nothing to do for its hosts (s, monotonic).
+
+    The host's reply deadlines for an in-process instrument run on this clock: it stands still while a host
+    command waits or executes and while the physics runs for a reader, so a machine busy with other work
+    slows an emulated instrument's replies down but never makes them late. An instrument that really stays
+    silent -- an injected stall or lost reply -- still times out after the host's timeout of idle time."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._busy = 0
+        self._since = 0.0
+        self._worked = 0.0
+
+    def begin(self) -> None:
+        """Some work for a host started."""
+        with self._lock:
+            if self._busy == 0:
+                self._since = time.monotonic()
+            self._busy += 1
+
+    def end(self) -> None:
+        """That work is done."""
+        with self._lock:
+            self._busy -= 1
+            if self._busy == 0:
+                self._worked += time.monotonic() - self._since
+
+    @contextmanager
+    def working(self) -> Iterator[None]:
+        self.begin()
+        try:
+            yield
+        finally:
+            self.end()
+
+    def __call__(self) -> float:
+        with self._lock:
+            now = time.monotonic()
+            return now - self._worked - (now - self._since if self._busy else 0.0)
 
 
 class LinkDropped(ConnectionError):
@@ -137,6 +180,10 @@ class InstrumentLink:
                 return b""
             wait = POLL if deadline is None else min(POLL, deadline - now)
             fifo.wait(wait)
+
+    def clock(self) -> float:
+        """The rig's :class:`IdleClock`: what the host's reply deadlines count on this link."""
+        return self.firmware.rig.idle_clock()
 
     def available(self) -> int:
         """Bytes the instrument has queued for the host."""

@@ -10,7 +10,6 @@ documented in docs/rig-simulator.md.
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -20,12 +19,13 @@ from analysis.elements import Element, load_elements
 from analysis.errors import InputError
 from analysis.model import RIG_TABLES
 from analysis.structures import Structure, load_structure
-from analysis.tables import Fields
+from analysis.tables import Fields, parse_toml, read_toml_text
 
 from .linear_model import LinearModel, build_linear_model
 
 REDUCTIONS = ("craig-bampton", "none")
 DEFAULT_SAMPLE_RATE = 1024.0  # Hz, when a rig has no [daq].sample_rate
+MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 1.0, 1e6   # Hz: what a rig's DAQ may sample at
 
 
 @dataclass(frozen=True)
@@ -234,19 +234,12 @@ def load_rig(path_or_name: str | Path) -> Rig:
             return parse_rig(builtin_rig_path(name).read_text(encoding="utf-8"), f"builtin:{name}")
         raise InputError(f"no such rig file, and no built-in rig of that name "
                          f"(built-in rigs: {', '.join(builtin_rigs())})", str(path_or_name))
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"not UTF-8 text (byte offset {exc.start})", str(path)) from None
-    return parse_rig(text, str(path))
+    return parse_rig(read_toml_text(path), str(path))
 
 
 def parse_rig(text: str, source: str = "<rig>") -> Rig:
     """Build and validate a :class:`Rig` from rig-file text (e.g. a session's provenance)."""
-    try:
-        document = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"not valid TOML: {exc}", source) from None
+    document = parse_toml(text, source)
     root = Fields(document, source, "")
     root.unknown_keys(set(RIG_TABLES))
     name = root.string("name")
@@ -330,7 +323,11 @@ def _daq(f: Fields) -> DaqSpec:
     passband = f.number("passband", 0.4, positive=True)
     if passband >= 0.5:
         raise f.error("passband", f"must be below 0.5 (the Nyquist frequency), got {passband}")
-    return DaqSpec(f.number("sample_rate", DEFAULT_SAMPLE_RATE, positive=True), whole["resolution"],
+    rate = f.number("sample_rate", DEFAULT_SAMPLE_RATE, positive=True)
+    if not MIN_SAMPLE_RATE <= rate <= MAX_SAMPLE_RATE:
+        raise f.error("sample_rate", f"{rate:g} Hz is not a DAQ's sample rate ({MIN_SAMPLE_RATE:g} to "
+                                     f"{MAX_SAMPLE_RATE:g} Hz)")
+    return DaqSpec(rate, whole["resolution"],
                    f.number("force_range", 10.0, positive=True), f.number("acceleration_range", 500.0, positive=True),
                    ppm, whole["oversample"], passband)
 

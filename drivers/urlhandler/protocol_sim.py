@@ -8,6 +8,8 @@ as fast as the emulated instrument produces them.
 """
 from __future__ import annotations
 
+import time
+
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout, to_bytes
 
 from analysis.errors import InputError
@@ -48,6 +50,12 @@ class Serial(SerialBase):
         if not self.is_open or self._link is None:
             raise PortNotOpenError()
         return self._link
+
+    def deadline_clock(self) -> float:
+        """What the host's reply deadlines count (drivers/scpi.py): the emulated rig's idle time, so that a
+        loaded machine slows the in-process instrument down without making its replies late."""
+        link = self._link
+        return link.clock() if link is not None else time.monotonic()
 
     @property
     def in_waiting(self) -> int:
