@@ -11,6 +11,7 @@ readable by any tool with those runs marked ``status = "aborted"``, ``incomplete
 from __future__ import annotations
 
 import json
+import io
 import os
 import socket
 import subprocess
@@ -27,6 +28,7 @@ import numpy as np
 
 from analysis.errors import InputError
 
+from .hdf5_superblock import clear_write_flags, write_flags
 from .outputs import atomic_replace, check_output, require_free_space, temporary_path
 from .session_file import (FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError, append_event,
                            mark_incomplete, now_iso)
@@ -39,6 +41,8 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "RunData", "RunSpec", "Session", "Session
 # Bytes that must stay free beyond each write, so that a run can still be closed (status, end time, event) and
 # the file closed cleanly when the disk is about to fill.
 FREE_SPACE_RESERVE = 1 << 20
+# Room ``recover`` wants beyond the size of the session it copies (the new event, the copy's own metadata).
+RECOVERY_MARGIN = 64 << 10
 _WRITER_STOPPED = ("the session writer process stopped ({how}); the lines written before are kept (if other "
                    "HDF5 tools refuse the file, `contactid recover {path}` repairs it)")
 
@@ -439,6 +443,9 @@ def _open_for_reading(path: Path) -> h5py.File:
                             fapl=_swmr_read_access())
         return h5py.File(fid)
     except (OSError, KeyError, RuntimeError, ValueError) as exc:
+        if _left_open(path):
+            raise InputError(f"was left open for writing by a process that stopped (a crash, or a write that "
+                             f"failed on a full disk); `contactid recover {path}` repairs it", str(path)) from None
         raise InputError(f"not a readable HDF5 session ({exc})", str(path)) from None
 
 
@@ -479,11 +486,37 @@ def open_session(path) -> Session:
 
 
 # --------------------------------------------------------------------------- repair and model history
+def _left_open(path: Path) -> bool:
+    """Whether the file's superblock says it is open for writing outside SWMR mode (a writer that stopped in the
+    middle of a non-SWMR write: no HDF5 reader, SWMR or not, opens it before the flags are cleared)."""
+    flags = write_flags(path)
+    return flags is not None and bool(flags & 1) and not flags & 4
+
+
+def _locked_by_a_writer(path: Path) -> bool:
+    """Whether a live process holds the file's HDF5 write lock."""
+    import fcntl
+
+    with open(path, "rb") as fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            return True
+        fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    return False
+
+
 def needs_recovery(path) -> bool:
-    """Whether plain HDF5 readers refuse the session because its writer died with it open (SWMR).
+    """Whether plain HDF5 readers refuse the session because its writer died with it open.
 
     InputError when the file is missing, not a session, or being written by a live process."""
     path = Path(path)
+    if not path.exists():
+        raise InputError("file not found", str(path))
+    if _left_open(path):
+        if _locked_by_a_writer(path):
+            raise InputError("is still being written by a running process; wait for it to finish", str(path))
+        return True
     with Session(path) as s:
         alive = s.writer_alive
     try:
@@ -496,41 +529,73 @@ def needs_recovery(path) -> bool:
     return not closed
 
 
-def _copy_objects(path: Path, target: Path) -> None:
-    """Everything of a session that plain readers refuse, copied (read in SWMR mode) into a new clean file."""
-    with h5py.File(path, "r", libver="latest", swmr=True) as src, h5py.File(target, "w", libver="latest") as dst:
-        for key, value in src.attrs.items():
-            dst.attrs[key] = value
-        for key in src:
-            src.copy(src[key], dst, name=key)
+def _salvage(src: h5py.Group, dst: h5py.Group, lost: list[str]) -> None:
+    """Copy ``src`` into ``dst`` object by object; what cannot be read (a write cut short by a full disk) is
+    left out and its path added to ``lost``."""
+    for key in src.attrs:
+        try:
+            dst.attrs[key] = src.attrs[key]
+        except (OSError, KeyError, RuntimeError, ValueError, TypeError):
+            lost.append(f"{src.name}@{key}")
+    for key in src:
+        try:
+            obj = src[key]
+            if isinstance(obj, h5py.Group):
+                _salvage(obj, dst.create_group(key), lost)
+            else:
+                src.copy(obj, dst, name=key)
+        except (OSError, KeyError, RuntimeError, ValueError, TypeError):
+            if key in dst:
+                del dst[key]
+            lost.append(f"{src.name.rstrip('/')}/{key}")
 
 
-def _mark_running_runs(f: h5py.File) -> list[str]:
-    """Runs a dead writer left "running": marked aborted and incomplete, with a recovery event."""
+def _copy_objects(path: Path, target: Path) -> list[str]:
+    """Everything of a session that plain readers refuse that can still be read, copied into a new clean file;
+    returns what could not be read. A file left open outside SWMR mode is read from an image in memory whose
+    superblock flags are cleared (as ``h5clear`` does); one left open in SWMR mode is read as a SWMR reader."""
+    lost: list[str] = []
+    if not _left_open(path):
+        with h5py.File(path, "r", libver="latest", swmr=True) as src, h5py.File(target, "w", libver="latest") as dst:
+            _salvage(src, dst, lost)
+        return lost
+    with open(path, "rb") as fh:
+        image = io.BytesIO(fh.read())
+    clear_write_flags(image)
+    with h5py.File(image, "r") as src, h5py.File(target, "w", libver="latest") as dst:
+        _salvage(src, dst, lost)
+    return lost
+
+
+def _mark_running_runs(f: h5py.File, lost: list[str]) -> list[str]:
+    """Runs a dead writer left "running" (or whose status it was writing when it stopped): marked aborted and
+    incomplete, with a recovery event that also names what could not be read."""
     marked = []
     for name, g in f["runs"].items():
-        if _text(g.attrs.get("status", "")) == "running":
-            mark_incomplete(g, "the writing process stopped without closing the run (crash or kill)")
+        if _text(g.attrs.get("status", "running")) == "running":
+            mark_incomplete(g, "the writing process stopped without closing the run (crash, kill or full disk)")
             marked.append(name)
-    append_event(f["events"], 0.0, "", "recovery",
-                 f"recovered after the writer stopped; incomplete runs: {', '.join(marked) or 'none'}")
+    message = f"recovered after the writer stopped; incomplete runs: {', '.join(marked) or 'none'}"
+    if lost:
+        message += f"; unreadable, left out: {', '.join(lost)}"
+    append_event(f["events"], 0.0, "", "recovery", message)
     return marked
 
 
 @contextmanager
-def _rewritten(path: Path, extra_bytes: int, what: str):
+def _rewritten(path: Path, extra_bytes: int, what: str, reserve: int = FREE_SPACE_RESERVE):
     """The session opened for writing as a new version beside itself (repaired first if a dead writer left it
     open), renamed over the old one when the ``with`` body succeeds: a failure, a full disk or a crash leaves
     the old file as it was. Yields ``(file, runs marked incomplete by the repair)``."""
     repair = needs_recovery(path)
-    with atomic_replace(path, extra_bytes + FREE_SPACE_RESERVE, what) as temp:
+    with atomic_replace(path, extra_bytes + reserve, what) as temp:
         if repair:
-            _copy_objects(path, temp)
+            lost = _copy_objects(path, temp)
         else:
             with open(path, "rb") as src, open(temp, "wb") as dst:
                 os.sendfile(dst.fileno(), src.fileno(), 0, os.fstat(src.fileno()).st_size)
         with h5py.File(temp, "r+", libver="latest") as f:
-            yield f, (_mark_running_runs(f) if repair else [])
+            yield f, (_mark_running_runs(f, lost) if repair else [])
 
 
 def recover_session(path) -> list[str]:
@@ -543,7 +608,8 @@ def recover_session(path) -> list[str]:
     if not needs_recovery(path):
         return []
     try:
-        with _rewritten(path, 0, "recover the session") as (_, marked):
+        # no reserve beyond the copy: a copy that does not fit is removed, the original stays as it is
+        with _rewritten(path, 0, "recover the session", reserve=RECOVERY_MARGIN) as (_, marked):
             return marked
     except OSError as exc:
         raise SessionWriteError(f"{path}: cannot recover the session ({exc}); the file is unchanged") from None

@@ -120,6 +120,7 @@ class SessionFile:
         self.path, self.temporary = Path(path), Path(temporary)
         self.overwrite = overwrite
         self.in_place = False                          # moved to ``path`` yet?
+        self.failed = False                            # a write failed: the file is no longer written to
         self._file: h5py.File | None = None
         self._run: str | None = None
         self._datasets: dict[str, h5py.Dataset] = {}     # the open run's datasets, by path in the run
@@ -335,6 +336,15 @@ class SessionFile:
                 self.temporary.unlink(missing_ok=True)
 
 
+    def leave(self) -> None:
+        """After a failed write: end the writer process without closing the file. HDF5 would flush its cache on
+        close, on a disk that is full; the file keeps the state of its last whole flush, marked as open for SWMR
+        writing, which SWMR readers (``open_session``) read and ``contactid recover`` closes."""
+        if not self.in_place:
+            self.temporary.unlink(missing_ok=True)
+        os._exit(0)
+
+
 class _WriteGuard:
     """Turns any failure to write into SessionWriteError, leaving what was flushed intact."""
 
@@ -347,8 +357,21 @@ class _WriteGuard:
     def __exit__(self, exc_type, exc, tb):
         if exc_type is not None and issubclass(exc_type, (OSError, KeyError, ValueError, RuntimeError)) \
                 and not issubclass(exc_type, SessionWriteError):
+            if issubclass(exc_type, (OSError, RuntimeError)):
+                # the file on disk is as the last whole flush left it: any further write (closing the run)
+                # could only damage that, so the writer stops here (see serve)
+                self.writer.failed = True
+                raise SessionWriteError(
+                    f"{self.writer.path}: failed while {self.what}: {_reason(exc)}; the lines written before are "
+                    f"kept; `contactid recover {self.writer.path}` closes the run once there is room") from exc
             raise SessionWriteError(f"{self.writer.path}: failed while {self.what}: {exc}") from exc
         return False
+
+
+def _reason(exc: BaseException) -> str:
+    """An I/O failure in one line: the system's words for its errno, else HDF5's first line."""
+    code = getattr(exc, "errno", None)
+    return os.strerror(code) if code else " ".join(str(exc).split("(")[0].split()) or type(exc).__name__
 
 
 def _grow(parent: h5py.Group, name: str, shape: tuple, dtype: str, units: str) -> h5py.Dataset:
@@ -423,6 +446,8 @@ def serve(calls, replies) -> int:
             send_reply(replies, error)
         except OSError:
             break                                   # the sender died waiting for this reply
+        if file is not None and file.failed:
+            file.leave()
         if method == "close" and error is None:
             return 0
     if file is not None:
