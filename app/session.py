@@ -352,8 +352,7 @@ class Session:
                     lines[rel] = ds.shape[0] if ds.shape else 0
                 if rel.startswith(("frf/", "raw/")) or rel == "frequency":
                     continue
-                with self._reading(ds.name):
-                    arrays[rel] = ds[:n]
+                arrays[rel] = self._lines(ds, n)
             frf = {dof: self._read(f"{where}/frf/{dof}", n) for dof in dofs}
             frequency = self._read(f"{where}/frequency", n)
         incomplete = attrs["status"] == "running" and not self.writer_alive or bool(attrs.get("incomplete", False))
@@ -361,9 +360,20 @@ class Session:
 
     def _read(self, where: str, n: int) -> np.ndarray:
         """The first ``n`` entries of the dataset at ``where``."""
-        ds = self._object(where)
-        with self._reading(where):
-            return ds[:n]
+        return self._lines(self._object(where), n)
+
+    def _lines(self, ds: h5py.Dataset, n: int) -> np.ndarray:
+        """The first ``n`` lines of ``ds``; a chunk whose checksum fails is an InputError naming the dataset and
+        the lines it holds."""
+        with self._reading(ds.name):
+            try:
+                return ds[:n]
+            except OSError:
+                damaged = _damaged_lines(ds, n)
+                if not damaged:
+                    raise
+        raise InputError(f"checksum failure: the stored data of line(s) {damaged} of {n} are damaged (the file "
+                         f"changed after it was written)", str(self.path), ds.name)
 
     def _parsed(self, where: str, attrs: dict, key: str, parse):
         """``parse(attrs[key])``, or InputError naming the attribute."""
@@ -447,6 +457,20 @@ def _open_for_reading(path: Path) -> h5py.File:
             raise InputError(f"was left open for writing by a process that stopped (a crash, or a write that "
                              f"failed on a full disk); `contactid recover {path}` repairs it", str(path)) from None
         raise InputError(f"not a readable HDF5 session ({exc})", str(path)) from None
+
+
+def _damaged_lines(ds: h5py.Dataset, n: int) -> str:
+    """The lines (1-based ranges, "65-128, 193-200") of the first ``n`` of ``ds`` in chunks that cannot be read
+    (a Fletcher-32 checksum failure); "" when every chunk reads."""
+    step = ds.chunks[0] if ds.chunks else max(n, 1)
+    ranges = []
+    for start in range(0, n, step):
+        stop = min(start + step, n)
+        try:
+            ds[start:stop]
+        except OSError:
+            ranges.append(f"{start + 1}-{stop}" if stop > start + 1 else f"{stop}")
+    return ", ".join(ranges)
 
 
 def _datasets(group: h5py.Group) -> Iterable[h5py.Dataset]:

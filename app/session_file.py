@@ -36,6 +36,8 @@ EVENT_DTYPE = np.dtype([("time", "f8"), ("iso_time", "S32"), ("run", "S64"), ("k
                         ("message", "S400")])
 REOPEN_WAIT = 30.0
 """How long the writer waits for a reader that holds the file's lock before it reports a write failure (s)."""
+LINES_PER_CHUNK = 64
+"""Lines per chunk of the per-line datasets; each chunk carries a Fletcher-32 checksum that HDF5 checks on read."""
 CRASH_REASON = "the acquiring process stopped without closing the run (crash or kill)"
 
 
@@ -229,7 +231,7 @@ class SessionFile:
             raw.attrs["sample_rate"] = float(spec.sample_rate)
             raw.create_dataset("data", shape=(0, len(spec.raw_channels)), maxshape=(None, len(spec.raw_channels)),
                                dtype="f4", chunks=(8192, len(spec.raw_channels)), compression="gzip",
-                               compression_opts=4, shuffle=True)
+                               compression_opts=4, shuffle=True, fletcher32=True)
             raw["data"].attrs["units"] = json.dumps(spec.raw_units)
             _grow(raw, "line_start", (), "i8", "sample")
             _grow(raw, "line_count", (), "i8", "sample")
@@ -376,7 +378,7 @@ def _reason(exc: BaseException) -> str:
 
 def _grow(parent: h5py.Group, name: str, shape: tuple, dtype: str, units: str) -> h5py.Dataset:
     ds = parent.create_dataset(name, shape=(0,) + shape, maxshape=(None,) + shape, dtype=dtype,
-                               chunks=(64,) + shape)
+                               chunks=(LINES_PER_CHUNK,) + shape, fletcher32=True)
     ds.attrs["units"] = units
     return ds
 

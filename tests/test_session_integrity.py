@@ -296,3 +296,57 @@ def test_a_session_left_open_outside_swmr_mode_is_named_and_recover_repairs_it(c
         assert f[f"runs/{RUN}/frequency"].shape == (25,)
         assert f[f"runs/{RUN}"].attrs["status"] == "complete"   # closed before: not marked
         assert f["events"][-1]["kind"] == b"recovery"
+
+
+# ----------------------------------------------------------------------------- checksums
+def _flip_a_bit(path, dataset, chunk=0, byte=3):
+    """Flip one bit of a stored chunk of ``dataset``, behind HDF5's back (a disk or a copy going wrong)."""
+    with h5py.File(path, "r") as f:
+        info = f[dataset].id.get_chunk_info(chunk)
+    with open(path, "r+b") as fh:
+        fh.seek(info.byte_offset + byte)
+        value = fh.read(1)[0]
+        fh.seek(info.byte_offset + byte)
+        fh.write(bytes([value ^ 0x10]))
+
+
+@pytest.mark.parametrize("dataset", [f"/runs/{RUN}/frf/x1", f"/runs/{RUN}/frequency",
+                                     f"/runs/{RUN}/force_amplitude"])
+def test_a_flipped_bit_in_measured_data_is_refused_naming_the_dataset_and_lines(copies, capsys, dataset):
+    session, model = copies
+    with h5py.File(session, "r") as f:
+        assert f[dataset].fletcher32 and f[dataset].chunks
+    _flip_a_bit(session, dataset)
+    assert main(["analyze", str(session), str(model), "--no-history"]) == 2
+    err = one_line_error(capsys, session, dataset)
+    assert "checksum failure" in err and "line(s) 1-25 of 25" in err
+
+
+def test_a_checksum_failure_names_only_the_damaged_chunk(tmp_path):
+    from app.session_file import LINES_PER_CHUNK
+
+    session = tmp_path / "long.h5"
+    w = SessionWriter(session, software_version="test")
+    w.begin_run(RunSpec(RUN, "stepped_sine", 0.8, "up", "x2", ["x1"], 100.0, ["force"], ["N"]))
+    for f in np.linspace(1.0, 2.0, 2 * LINES_PER_CHUNK + 10):
+        w.append_line(f, {"x1": 1e-3 + 1e-4j})
+    w.end_run("complete")
+    w.close()
+    _flip_a_bit(session, f"/runs/{RUN}/frf/x1", chunk=1)
+    with open_session(session) as s, pytest.raises(Exception) as caught:
+        s.run(RUN)
+    assert f"line(s) {LINES_PER_CHUNK + 1}-{2 * LINES_PER_CHUNK} of {2 * LINES_PER_CHUNK + 10}" in str(caught.value)
+
+
+def test_a_session_written_without_checksums_is_still_read(copies, capsys):
+    session, model = copies
+    with h5py.File(session, "r+") as f:                  # as sessions were written before checksums
+        run = f[f"runs/{RUN}"]
+        for name in ("frequency", "frf/x1", "frf/x2", "force_amplitude"):
+            data, attrs = run[name][()], dict(run[name].attrs)
+            del run[name]
+            run.create_dataset(name, data=data, maxshape=(None,), chunks=(64,))
+            run[name].attrs.update(attrs)
+            assert not run[name].fletcher32
+    assert main(["analyze", str(session), str(model), "--no-history"]) == 0
+    assert "FRF error of the model" in capsys.readouterr().out
