@@ -16,6 +16,7 @@ Exit status (docs/campaigns.md, "Exit status"):
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from importlib.metadata import PackageNotFoundError, version
 
@@ -93,7 +94,7 @@ def cmd_import(args) -> int:
     from .importers.runs import SourceOptions, parse_dof_map
     from .importers.store import ImportRequest, import_files
 
-    if args.force is not None and not args.force > 0:
+    if args.force is not None and not (math.isfinite(args.force) and args.force > 0):
         raise InputError(f"--force must be a force amplitude > 0 N, got {args.force:g}", field="--force")
     options = SourceOptions(args.kind, args.force, args.direction, [parse_dof_map(t) for t in args.dof or []],
                             args.excitation)
