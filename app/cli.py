@@ -408,6 +408,7 @@ def main(argv: list[str] | None = None) -> int:
     from drivers.errors import InstrumentError, describe_instrument_error
 
     from .campaign import CampaignIncomplete
+    from .outputs import WRITE_ERRNOS, write_failure
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -425,6 +426,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         print(f"contactid: error: {exc.filename}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        # an output that cannot be written (full disk, read-only medium): nothing was written, as for bad input
+        if args.debug or exc.errno not in WRITE_ERRNOS:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"contactid: error: {where}{write_failure(exc)}; nothing was written", file=sys.stderr)
         return EXIT_BAD_INPUT
     except InstrumentError as exc:
         if args.debug:

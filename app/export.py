@@ -272,15 +272,21 @@ def export_csv(session_path, directory, overwrite: bool = False) -> list[Path]:
     session_path, directory = Path(session_path), Path(directory)
     with open_session(session_path) as s:
         runs = _runs_to_export(s)
+    created = not directory.exists()
     directory.mkdir(parents=True, exist_ok=True)
-    paths = [directory / f"{run.name}.csv" for run in runs]
-    for path in paths:
-        check_output(path, inputs=[session_path], overwrite=overwrite, field="--csv")
-    with ExitStack() as stack:
-        for path, run in zip(paths, runs):
-            temp = stack.enter_context(atomic_output(path, inputs=[session_path], overwrite=overwrite,
-                                                     field="--csv"))
-            _write_run_csv(temp, run)
+    try:
+        paths = [directory / f"{run.name}.csv" for run in runs]
+        for path in paths:
+            check_output(path, inputs=[session_path], overwrite=overwrite, field="--csv")
+        with ExitStack() as stack:
+            for path, run in zip(paths, runs):
+                temp = stack.enter_context(atomic_output(path, inputs=[session_path], overwrite=overwrite,
+                                                         field="--csv"))
+                _write_run_csv(temp, run)
+    except BaseException:
+        if created and not any(directory.iterdir()):
+            directory.rmdir()                          # a failed export leaves no empty folder behind
+        raise
     return paths
 
 

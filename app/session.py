@@ -29,7 +29,7 @@ import numpy as np
 from analysis.errors import InputError
 
 from .hdf5_superblock import clear_write_flags, write_flags
-from .outputs import atomic_replace, check_output, require_free_space, temporary_path
+from .outputs import NotWritten, atomic_replace, check_output, require_free_space, temporary_path, write_failure
 from .session_file import (FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError, append_event,
                            mark_incomplete, now_iso)
 from .session_wire import receive_reply, send_call
@@ -636,7 +636,8 @@ def recover_session(path) -> list[str]:
         with _rewritten(path, 0, "recover the session", reserve=RECOVERY_MARGIN) as (_, marked):
             return marked
     except OSError as exc:
-        raise SessionWriteError(f"{path}: cannot recover the session ({exc}); the file is unchanged") from None
+        raise NotWritten(f"cannot recover the session: {write_failure(exc)}; the file is unchanged",
+                         str(path)) from None
 
 
 @dataclass

@@ -1,6 +1,7 @@
 """Hostile input to `contactid import`: every value the analysis checks is checked at import, so an import never
 stores what `analyze` would later refuse; cut or edited files are refused with one line naming the file, the
 record or line and the field, exit status 2, and no session is written."""
+import errno
 import glob
 from pathlib import Path
 
@@ -277,3 +278,32 @@ def test_conflicting_dof_maps_are_refused(exported, tmp_path, capsys, maps):
     for m in maps:
         args += ["--dof", m]
     refused(capsys, args, "--dof", "mapped twice")
+
+
+# ----------------------------------------------------------------------------- writing the session
+def test_the_free_space_wanted_is_estimated_from_the_data(tmp_path):
+    from app.importers.runs import SourceOptions
+    from app.importers.store import estimated_bytes, read_source
+
+    freqs = np.linspace(1.0, 100.0, 3000)
+    rows = [f"{float(f)!r},{level},{dof},1e-3,-2e-3,1e-6\n" for level in ("0.2", "0.4", "0.8") for dof in ("x1", "x2")
+            for f in freqs]
+    path = tmp_path / "big.csv"
+    path.write_text("frequency_hz,force_n,dof,re,im,std\n" + "".join(rows))
+    out = tmp_path / "big.h5"
+    assert main(["import", str(path), "-o", str(out), "--excitation", "x2"]) == 0
+    estimate, written = estimated_bytes([read_source(str(path), SourceOptions(excitation="x2"))]), out.stat().st_size
+    assert written <= estimate <= 2 * written
+
+
+def test_a_write_that_fails_on_a_full_disk_is_one_line_naming_the_session(exported, tmp_path, capsys, monkeypatch):
+    import app.importers.store as store
+
+    def full(*_):
+        raise OSError(errno.ENOSPC, "Can't write data (file write failed: time = Thu\n, errno = 28, error message = "
+                                    "'No space left on device')")
+    monkeypatch.setattr(store, "_write_runs", full)
+    out = tmp_path / "o.h5"
+    refused(capsys, ["import", str(exported / "a.uff"), "-o", str(out)], out,
+            "not written: No space left on device; no file was left")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

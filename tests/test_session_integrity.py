@@ -201,7 +201,7 @@ def test_analyze_on_a_full_disk_reports_and_leaves_the_session_whole(copies, tmp
     assert "FRF error of the model" in out                                  # the analysis is there
     assert "model history NOT stored" in out and "free space" in out
     assert "not enough free space to write the fitted model" in err
-    assert (tmp_path / "rc").read_text().strip() == "1"
+    assert (tmp_path / "rc").read_text().strip() == "2"
     assert (tmp_path / "after.h5").read_bytes() == before                   # not a byte changed
     assert (tmp_path / "listing").read_text().split() == ["fill", "model.toml", "s.h5"]   # no 0-byte output
 
