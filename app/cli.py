@@ -200,13 +200,21 @@ def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
 
-    from .analyze import reference_only, report_text, run_workbench, run_workbench_auto, session_notes, store_history
+    from .analyze import (read_measurements, reference_only, report_text, run_workbench, run_workbench_auto,
+                          session_notes, store_history)
     from .outputs import check_output
+    from .progress import Progress
 
     inputs = [args.session, args.model]
     if args.output:                       # refused before any work: never an input, never silently replaced
         check_output(args.output, inputs=inputs, overwrite=args.force)
-    reference = reference_only(args.session, args.model, args.add or [])
+    with Progress("analyze") as progress:
+        progress.phase("reading the session")
+        measurements = read_measurements(args.session)
+        reference = reference_only(args.session, args.model, args.add or [], measurements)
+        if reference is None and not args.auto:
+            wb, candidates = run_workbench(args.session, args.model, args.add or [], measurements=measurements,
+                                           progress=progress)
     if reference is not None:             # a random run only: its modes and the updated reference
         print(json.dumps(reference.to_json(), indent=1, default=float) if args.json else reference.text())
         if args.output:
@@ -217,10 +225,9 @@ def cmd_analyze(args) -> int:
     auto = None
     if args.auto:
         wb, auto = run_workbench_auto(args.session, args.model, args.add or [],
-                                      progress=lambda step: print(f"auto: {step.line()}", file=step_out, flush=True))
+                                      progress=lambda step: print(f"auto: {step.line()}", file=step_out, flush=True),
+                                      measurements=measurements)
         candidates = auto.candidates
-    else:
-        wb, candidates = run_workbench(args.session, args.model, args.add or [])
     notes = session_notes(args.session)
     if not args.no_history:
         store_history(args.session, wb, args.model, notes)
