@@ -102,9 +102,15 @@ def _residual_jacobian(y, w, G, kbar_fns, floor) -> np.ndarray:
     du_i/dIm y_i = j k_i + y_i k_i' Im y_i / |y_i|, and k_i' = dk_i/dX by one difference in X.
     """
     X = np.maximum(np.abs(y), floor[:, None])
-    k = _kbar(kbar_fns, y, w, floor)
     h = 1e-6
-    dk = (np.stack([fn(X[:, i] * (1 + h), w) for i, fn in enumerate(kbar_fns)], axis=1) - k) / (X * h)
+    # kbar at X and at X (1 + h) in one call per element (the calls, not the arithmetic, cost here)
+    B = len(w)
+    both = np.concatenate([X, X * (1 + h)])
+    ww = np.concatenate([w, w])
+    kk = np.stack([fn(both[:, i], ww) for i, fn in enumerate(kbar_fns)], axis=1) if kbar_fns else \
+        np.zeros(both.shape, complex)
+    k = kk[:B]
+    dk = (kk[B:] - k) / (X * h)
     du_re = k + y * dk * (y.real / X)
     du_im = 1j * k + y * dk * (y.imag / X)
     r = y.shape[1]
@@ -295,8 +301,11 @@ def _sweep(sys_: CondensedSystem, fns, F, orders) -> tuple[np.ndarray, np.ndarra
             todo = np.flatnonzero(~ok & ~(hopeless & (attempt > 1)))
             if not len(todo):
                 break
-            z, conv = _newton(lambda zz, t=todo: fun(_pad(zz, t, B))[t], _to_real(start[todo] / scale[todo, None]),
-                              jac=lambda zz, t=todo: jac(_pad(zz, t, B))[t])
+            if len(todo) == B:                  # every item (the usual first attempt): no padding needed
+                z, conv = _newton(fun, _to_real(start / scale[:, None]), jac=jac)
+            else:
+                z, conv = _newton(lambda zz, t=todo: fun(_pad(zz, t, B))[t],
+                                  _to_real(start[todo] / scale[todo, None]), jac=lambda zz, t=todo: jac(_pad(zz, t, B))[t])
             sol = _to_complex(z) * scale[todo, None]
             if attempt == 0:
                 y[line[todo], todo] = sol  # kept, flagged, if no start converges

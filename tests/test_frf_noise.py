@@ -21,3 +21,14 @@ def test_a_down_sweep_gets_the_noise_of_its_lines():
     f = np.linspace(1.0, 5.0, 200)
     H = (1 / (9 - f ** 2 + 0.1j * f))[:, None] * (1 + 1e-3 * (rng.normal(size=(200, 1)) + 1j * rng.normal(size=(200, 1))))
     np.testing.assert_allclose(smoothness_noise(f[::-1], H[::-1])[::-1], smoothness_noise(f, H), rtol=1e-9)
+
+
+def test_the_stacked_least_squares_is_lstsq_also_where_a_system_is_rank_deficient():
+    from analysis.frf_noise import _least_squares
+
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(3, 15, 6)) + 1j * rng.normal(size=(3, 15, 6))
+    A[1, :, 5] = A[1, :, 4]                                  # two equal columns: rank 5
+    b = rng.normal(size=(3, 15)) + 1j * rng.normal(size=(3, 15))
+    expected = np.array([np.linalg.lstsq(A[i], b[i], rcond=None)[0] for i in range(3)])
+    np.testing.assert_allclose(_least_squares(A, b), expected, atol=1e-12)
