@@ -88,7 +88,15 @@ def element_kbar_functions(elements: Sequence[Element]) -> list[KbarFunction]:
 def _kbar(kbar_fns: Sequence[KbarFunction], y: np.ndarray, w: np.ndarray, floor: np.ndarray) -> np.ndarray:
     """kbar of every element at amplitudes |y| (B, r), lines w (B,); ``floor`` keeps X > 0 (1/X laws)."""
     X = np.maximum(np.abs(y), floor[:, None])
-    return np.stack([fn(X[:, i], w) for i, fn in enumerate(kbar_fns)], axis=1) if kbar_fns else np.zeros_like(y)
+    return _each_element(kbar_fns, X, w)
+
+
+def _each_element(kbar_fns: Sequence[KbarFunction], X: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """kbar of element i at amplitudes X[:, i] and lines w, shape of X (complex)."""
+    k = np.zeros(X.shape, complex)
+    for i, fn in enumerate(kbar_fns):
+        k[:, i] = fn(X[:, i], w)
+    return k
 
 
 def _residual(y, w, G, gF, kbar_fns, floor):
@@ -106,9 +114,7 @@ def _residual_jacobian(y, w, G, kbar_fns, floor) -> np.ndarray:
     # kbar at X and at X (1 + h) in one call per element (the calls, not the arithmetic, cost here)
     B = len(w)
     both = np.concatenate([X, X * (1 + h)])
-    ww = np.concatenate([w, w])
-    kk = np.stack([fn(both[:, i], ww) for i, fn in enumerate(kbar_fns)], axis=1) if kbar_fns else \
-        np.zeros(both.shape, complex)
+    kk = _each_element(kbar_fns, both, np.concatenate([w, w]))
     k = kk[:B]
     dk = (kk[B:] - k) / (X * h)
     du_re = k + y * dk * (y.real / X)
@@ -319,8 +325,13 @@ def _restarts(previous, linear):
     """Starting points for one line of a sweep: the previous line's solution first (stay on the branch);
     then, for a jump off a fold where that branch ends, the linear solution and the previous one scaled and
     turned through the quadrants (the other branch has another amplitude and phase)."""
-    turned = [previous * a * np.exp(1j * phi) for a in (1.0, 3.0) for phi in (np.pi / 2, np.pi, -np.pi / 2)]
-    return [previous, linear, 3.0 * previous, *turned]
+    # made one at a time: almost every line converges from the first
+    yield previous
+    yield linear
+    yield 3.0 * previous
+    for a in (1.0, 3.0):
+        for phi in (np.pi / 2, np.pi, -np.pi / 2):
+            yield previous * a * np.exp(1j * phi)
 
 
 def _pad(z_subset, idx, batch):
