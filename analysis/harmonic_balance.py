@@ -100,7 +100,7 @@ def _each_element(kbar_fns: Sequence[KbarFunction], X: np.ndarray, w: np.ndarray
 
 
 def _residual(y, w, G, gF, kbar_fns, floor):
-    return y + np.einsum("bij,bj->bi", G, _kbar(kbar_fns, y, w, floor) * y) - gF
+    return y + (G @ (_kbar(kbar_fns, y, w, floor) * y)[..., None])[..., 0] - gF   # matmul: less overhead
 
 
 def _residual_jacobian(y, w, G, kbar_fns, floor) -> np.ndarray:
