@@ -311,7 +311,8 @@ def _sweep(sys_: CondensedSystem, fns, F, orders) -> tuple[np.ndarray, np.ndarra
                 z, conv = _newton(fun, _to_real(start / scale[:, None]), jac=jac)
             else:
                 z, conv = _newton(lambda zz, t=todo: fun(_pad(zz, t, B))[t],
-                                  _to_real(start[todo] / scale[todo, None]), jac=lambda zz, t=todo: jac(_pad(zz, t, B))[t])
+                                  _to_real(start[todo] / scale[todo, None]),
+                                  jac=lambda zz, t=todo: jac(_pad(zz, t, B))[t])
             sol = _to_complex(z) * scale[todo, None]
             if attempt == 0:
                 y[line[todo], todo] = sol  # kept, flagged, if no start converges

@@ -366,12 +366,17 @@ class Session:
         """The first ``n`` lines of ``ds``; a chunk whose checksum fails is an InputError naming the dataset and
         the lines it holds."""
         with self._reading(ds.name):
-            try:
+            # a live writer rewrites the chunk of its last line in place: a read that meets it half-written fails
+            # its checksum once, and reads whole a moment later
+            for _ in range(LIVE_READ_ATTEMPTS if self.writer_alive else 1):
+                try:
+                    return ds[:n]
+                except OSError:
+                    time.sleep(0.05)
+                    ds.refresh()
+            damaged = _damaged_lines(ds, n)
+            if not damaged:
                 return ds[:n]
-            except OSError:
-                damaged = _damaged_lines(ds, n)
-                if not damaged:
-                    raise
         raise InputError(f"checksum failure: the stored data of line(s) {damaged} of {n} are damaged (the file "
                          f"changed after it was written)", str(self.path), ds.name)
 
@@ -419,6 +424,7 @@ class Session:
 # by default 100 times, hours in all, so a truncated or damaged file would hang the reader. 20 attempts wait
 # about a second in all: ample for a writer's flush, and a damaged file is reported at once.
 SWMR_READ_ATTEMPTS = 20
+LIVE_READ_ATTEMPTS = 5        # reads of a chunk a live writer may be rewriting, before it is called damaged
 
 
 def _hdf5_library():

@@ -118,7 +118,8 @@ def main_(argv=None) -> None:
         for runs in args.runs:
             for lines in args.lines:
                 cpu = base if (lines, runs) == (base_lines, base_runs) else analyze_cpu(folder, lines, runs)
-                print(f"{lines:6d} {runs:5d} {cpu:8.2f} {cpu / base:7.2f} {lines * runs / base_lines / base_runs:10.1f}")
+                work = lines * runs / base_lines / base_runs
+                print(f"{lines:6d} {runs:5d} {cpu:8.2f} {cpu / base:7.2f} {work:10.1f}")
 
 
 if __name__ == "__main__":

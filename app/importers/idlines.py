@@ -9,8 +9,8 @@ Every record contactid exports carries, as ``key=value`` words (values without s
     id5  software=contactid-<version> convention=exp(+jwt) records=<records of the run in the file>
 
 so ``contactid import`` needs no flags for contactid's own files, and knows when a file cut short lost whole
-records of a run (``records=`` is absent from files written before it was added). Records of other systems have free-text id
-lines; they are kept in the session's provenance but not interpreted.
+records of a run (``records=`` is absent from files written before it was added). Records of other systems have
+free-text id lines; they are kept in the session's provenance but not interpreted.
 """
 from __future__ import annotations
 
