@@ -40,20 +40,36 @@ def _degree(n: int) -> int:
     return max(1, min(DEGREE, (n - 3) // 2))
 
 
-def _relative_variance(f: np.ndarray, H: np.ndarray) -> float:
-    """``E|n / H|^2`` of one window from the residual of a rational fit."""
-    x = (f - f.mean()) / max(np.ptp(f) / 2, 1e-300)
-    nd = _degree(len(f))
+def _least_squares(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least-squares solutions of the stacked systems ``A[i] x = b[i]``: by QR, six times faster than the
+    pseudo-inverse; systems whose R is (nearly) singular -- an exact fit of lower degree, noise-free data -- by
+    the pseudo-inverse, which cuts singular values as ``lstsq`` does."""
+    Q, R = np.linalg.qr(A)
+    d = np.abs(np.diagonal(R, axis1=1, axis2=2))
+    full = d.min(axis=1) > max(A.shape[1:]) * np.finfo(float).eps * d.max(axis=1)
+    x = np.empty(A.shape[::2], complex)
+    rhs = np.conj(np.swapaxes(Q[full], 1, 2)) @ b[full][..., None]
+    x[full] = np.linalg.solve(R[full], rhs)[..., 0]
+    if not full.all():
+        x[~full] = (np.linalg.pinv(A[~full]) @ b[~full][..., None])[..., 0]
+    return x
+
+
+def _relative_variances(f: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """``E|n / H|^2`` of each window (rows of ``f`` and ``H``, all of one width) from the residual of its
+    rational fit; every window is fitted at once (:func:`_least_squares`)."""
+    x = (f - f.mean(axis=1, keepdims=True)) / np.maximum(np.ptp(f, axis=1, keepdims=True) / 2, 1e-300)
+    nd = _degree(f.shape[1])
     scale = 1 / np.maximum(np.abs(H), 1e-300)
     weight = scale
-    powers = np.vander(x, nd + 1, increasing=True)                  # x^0 .. x^nd
+    powers = x[..., None] ** np.arange(nd + 1)                       # x^0 .. x^nd
     for _ in range(ITERATIONS):
-        A = np.hstack([powers[:, :nd], -H[:, None] * powers[:, 1:]]) * weight[:, None]
-        coef = np.linalg.lstsq(A.astype(complex), H * weight, rcond=None)[0]
-        D = 1 + powers[:, 1:] @ coef[nd:]
+        A = np.concatenate([powers[..., :nd], -H[..., None] * powers[..., 1:]], axis=2) * weight[..., None]
+        coef = _least_squares(A.astype(complex), H * weight)
+        D = 1 + np.einsum("wnk,wk->wn", powers[..., 1:], coef[:, nd:])
         weight = scale / np.maximum(np.abs(D), 1e-300)
-    e = (H - (powers[:, :nd] @ coef[:nd]) / D) * scale
-    return float(np.sum(np.abs(e) ** 2) / (len(f) - 2 * nd))
+    e = (H - np.einsum("wnk,wk->wn", powers[..., :nd], coef[:, :nd]) / D) * scale
+    return np.sum(np.abs(e) ** 2, axis=1) / (f.shape[1] - 2 * nd)
 
 
 def smoothness_noise(frequency_hz, receptance) -> np.ndarray | None:
@@ -69,10 +85,10 @@ def smoothness_noise(frequency_hz, receptance) -> np.ndarray | None:
     fs, Hs = f[order], H[order]
     width = min(WINDOW, L)
     starts = np.clip(np.arange(L) - width // 2, 0, L - width)
-    rel = np.empty((L, H.shape[1]))
-    for p in range(H.shape[1]):
-        by_start = {s: _relative_variance(fs[s:s + width], Hs[s:s + width, p]) for s in set(starts.tolist())}
-        rel[:, p] = [by_start[s] for s in starts]
+    distinct, window_of_line = np.unique(starts, return_inverse=True)
+    rows = distinct[:, None] + np.arange(width)                      # (windows, width) line indices
+    rel = np.stack([_relative_variances(fs[rows], Hs[rows, p])[window_of_line] for p in range(H.shape[1])],
+                   axis=1)
     rel = np.minimum(rel, LOCAL_CAP ** 2 * np.median(rel, axis=0))      # variances: the cap squared
     std = np.empty_like(rel)
     std[order] = np.sqrt(rel) * np.abs(Hs)

@@ -88,11 +88,19 @@ def element_kbar_functions(elements: Sequence[Element]) -> list[KbarFunction]:
 def _kbar(kbar_fns: Sequence[KbarFunction], y: np.ndarray, w: np.ndarray, floor: np.ndarray) -> np.ndarray:
     """kbar of every element at amplitudes |y| (B, r), lines w (B,); ``floor`` keeps X > 0 (1/X laws)."""
     X = np.maximum(np.abs(y), floor[:, None])
-    return np.stack([fn(X[:, i], w) for i, fn in enumerate(kbar_fns)], axis=1) if kbar_fns else np.zeros_like(y)
+    return _each_element(kbar_fns, X, w)
+
+
+def _each_element(kbar_fns: Sequence[KbarFunction], X: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """kbar of element i at amplitudes X[:, i] and lines w, shape of X (complex)."""
+    k = np.zeros(X.shape, complex)
+    for i, fn in enumerate(kbar_fns):
+        k[:, i] = fn(X[:, i], w)
+    return k
 
 
 def _residual(y, w, G, gF, kbar_fns, floor):
-    return y + np.einsum("bij,bj->bi", G, _kbar(kbar_fns, y, w, floor) * y) - gF
+    return y + (G @ (_kbar(kbar_fns, y, w, floor) * y)[..., None])[..., 0] - gF   # matmul: less overhead
 
 
 def _residual_jacobian(y, w, G, kbar_fns, floor) -> np.ndarray:
@@ -102,9 +110,13 @@ def _residual_jacobian(y, w, G, kbar_fns, floor) -> np.ndarray:
     du_i/dIm y_i = j k_i + y_i k_i' Im y_i / |y_i|, and k_i' = dk_i/dX by one difference in X.
     """
     X = np.maximum(np.abs(y), floor[:, None])
-    k = _kbar(kbar_fns, y, w, floor)
     h = 1e-6
-    dk = (np.stack([fn(X[:, i] * (1 + h), w) for i, fn in enumerate(kbar_fns)], axis=1) - k) / (X * h)
+    # kbar at X and at X (1 + h) in one call per element (the calls, not the arithmetic, cost here)
+    B = len(w)
+    both = np.concatenate([X, X * (1 + h)])
+    kk = _each_element(kbar_fns, both, np.concatenate([w, w]))
+    k = kk[:B]
+    dk = (kk[B:] - k) / (X * h)
     du_re = k + y * dk * (y.real / X)
     du_im = 1j * k + y * dk * (y.imag / X)
     r = y.shape[1]
@@ -295,8 +307,12 @@ def _sweep(sys_: CondensedSystem, fns, F, orders) -> tuple[np.ndarray, np.ndarra
             todo = np.flatnonzero(~ok & ~(hopeless & (attempt > 1)))
             if not len(todo):
                 break
-            z, conv = _newton(lambda zz, t=todo: fun(_pad(zz, t, B))[t], _to_real(start[todo] / scale[todo, None]),
-                              jac=lambda zz, t=todo: jac(_pad(zz, t, B))[t])
+            if len(todo) == B:                  # every item (the usual first attempt): no padding needed
+                z, conv = _newton(fun, _to_real(start / scale[:, None]), jac=jac)
+            else:
+                z, conv = _newton(lambda zz, t=todo: fun(_pad(zz, t, B))[t],
+                                  _to_real(start[todo] / scale[todo, None]),
+                                  jac=lambda zz, t=todo: jac(_pad(zz, t, B))[t])
             sol = _to_complex(z) * scale[todo, None]
             if attempt == 0:
                 y[line[todo], todo] = sol  # kept, flagged, if no start converges
@@ -310,8 +326,13 @@ def _restarts(previous, linear):
     """Starting points for one line of a sweep: the previous line's solution first (stay on the branch);
     then, for a jump off a fold where that branch ends, the linear solution and the previous one scaled and
     turned through the quadrants (the other branch has another amplitude and phase)."""
-    turned = [previous * a * np.exp(1j * phi) for a in (1.0, 3.0) for phi in (np.pi / 2, np.pi, -np.pi / 2)]
-    return [previous, linear, 3.0 * previous, *turned]
+    # made one at a time: almost every line converges from the first
+    yield previous
+    yield linear
+    yield 3.0 * previous
+    for a in (1.0, 3.0):
+        for phi in (np.pi / 2, np.pi, -np.pi / 2):
+            yield previous * a * np.exp(1j * phi)
 
 
 def _pad(z_subset, idx, batch):

@@ -177,9 +177,7 @@ def linearity_verdict(X, w, kbar, kbar_std=None, *, level=None, false_alarm: flo
 
     if model == "per_line":
         used = shared
-        shared_lines, group = np.unique(line[used], return_inverse=True)
-        indicators = np.eye(shared_lines.size)[group]
-        base = {"real": indicators, "imag": indicators}
+        group = np.unique(line[used], return_inverse=True)[1]
     else:
         used = np.ones(X.size, bool)
         w_unit = w / w.max()     # scaled so the design is well conditioned
@@ -189,7 +187,8 @@ def linearity_verdict(X, w, kbar, kbar_std=None, *, level=None, false_alarm: flo
     log_X = np.log(X_used)
     fits = {}
     for part, values in (("real", k_used.real), ("imag", k_used.imag)):
-        fits[part] = _component(base[part], values, sigma, log_X)
+        fits[part] = (_per_line_component(group, values, sigma, log_X) if model == "per_line"
+                      else _component(base[part], values, sigma, log_X))
     dof = fits["real"][0].dof + fits["imag"][0].dof
     if dof < 1:
         raise InputError(f"{used.sum()} usable samples leave no degrees of freedom for the {model} model: "
@@ -322,6 +321,32 @@ def _component(base: np.ndarray, values: np.ndarray, sigma: np.ndarray, log_X: n
         slope, slope_se = ext_coef[-1], np.sqrt(covariance[-1, -1])
         change, sigma_count = float(slope * span), float(abs(slope) / slope_se)
     return ComponentTrend(change, sigma_count, chi2, int(dof)), coef
+
+
+def _per_line_component(group: np.ndarray, values: np.ndarray, sigma: np.ndarray, log_X: np.ndarray):
+    """:func:`_component` for the per-line base (one indicator column per line), in closed form: the fit is
+    the weighted mean of each line, and the ln X trend beside it the weighted regression of what is left on
+    ln X less its own line means (Frisch-Waugh-Lovell). Linear in the samples, where the dense least squares on
+    a samples x lines design grows with the cube of the lines."""
+    weight = sigma ** -2.0
+    totals = np.bincount(group, weight)
+
+    def line_means(v: np.ndarray) -> np.ndarray:
+        return np.bincount(group, weight * v) / totals
+
+    coef = line_means(values)
+    residual = values - coef[group]
+    chi2 = float(np.sum(weight * residual ** 2))
+    rank = totals.size
+    dof = values.size - rank
+    centred = log_X - line_means(log_X)[group]
+    spread = float(np.sum(weight * centred ** 2))
+    change = sigma_count = 0.0
+    # the extended design has a larger rank when ln X varies within some line (as matrix_rank would decide)
+    if dof >= 2 and spread > (values.size * np.finfo(float).eps) ** 2 * float(np.sum(weight * log_X ** 2)):
+        slope = float(np.sum(weight * centred * residual)) / spread
+        change, sigma_count = slope * float(log_X.max() - log_X.min()), abs(slope) * np.sqrt(spread)
+    return ComponentTrend(float(change), float(sigma_count), chi2, int(dof)), coef
 
 
 def _evidence(v: LinearityVerdict, k_unit: str, x_unit: str, n_lines: int) -> str:

@@ -11,11 +11,13 @@ from analysis.comparison import gain_phrase
 from analysis.errors import InputError
 from analysis.frf_noise import METHOD as NOISE_METHOD
 from analysis.misfit import Misfit, systematic_misfits
+from analysis.measurements import Measurements
 from analysis.model import Model, load_model
 from analysis.reference import ReferenceReport, reference_from_random
 from analysis.tables import load_toml
 from analysis.workbench import Workbench
 
+from .progress import Progress
 from .session import SessionWriteError, append_model_history, open_session, read_model_history
 from .session_data import measurements_from_session
 
@@ -64,28 +66,42 @@ class SessionNotes:
                 "history_stored_as": self.stored_as, "history_not_stored": self.not_stored}
 
 
-def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = True):
+def read_measurements(session_path) -> Measurements:
+    """The session's measurements, checked (read once per analysis: the noise of imported FRFs is estimated on
+    the way)."""
+    with open_session(session_path) as s:
+        return measurements_from_session(s)
+
+
+def run_workbench(session_path, model_path, adds: list[str] = (), rank: bool = True,
+                  measurements: Measurements | None = None, progress: Progress | None = None):
     """The workbench taken through start, the requested additions and (optionally) the candidate ranking.
 
     Returns (workbench, candidates)."""
-    wb = _started_workbench(session_path, model_path, adds)
+    wb = _started_workbench(session_path, model_path, adds, measurements, progress)
+    if progress is not None and rank:
+        progress.phase("ranking the missing effects")
     return wb, (wb.candidates() if rank else [])
 
 
 def run_workbench_auto(session_path, model_path, adds: list[str] = (),
                        progress: Callable[[AutoStep], None] | None = None,
-                       note: Callable[[str], None] | None = None) -> tuple[Workbench, AutoResult]:
+                       note: Callable[[str], None] | None = None,
+                       measurements: Measurements | None = None) -> tuple[Workbench, AutoResult]:
     """The workbench taken through start and the requested additions, then the automatic loop
     (:func:`analysis.auto.run_auto`, each step reported to ``progress`` as it is taken, discovery's search
     lines to ``note``)."""
-    wb = _started_workbench(session_path, model_path, adds)
+    wb = _started_workbench(session_path, model_path, adds, measurements)
     return wb, run_auto(wb, progress=progress, note=note)
 
 
-def _started_workbench(session_path, model_path, adds) -> Workbench:
+def _started_workbench(session_path, model_path, adds, measurements: Measurements | None = None,
+                       progress: Progress | None = None) -> Workbench:
     model = load_model(load_toml(model_path), str(model_path))
-    with open_session(session_path) as s:
-        measurements = measurements_from_session(s)
+    if measurements is None:
+        measurements = read_measurements(session_path)
+    if progress is not None:
+        progress.phase("identifying the elements")
     wb = Workbench(model, measurements)
     wb.start()
     for add in adds:
@@ -114,11 +130,12 @@ class ReferenceAnalysis:
                 "model": self.model.to_toml()}
 
 
-def reference_only(session_path, model_path, adds: list[str] = ()) -> ReferenceAnalysis | None:
+def reference_only(session_path, model_path, adds: list[str] = (),
+                   measurements: Measurements | None = None) -> ReferenceAnalysis | None:
     """The reference analysis of a session that has a random run and no stepped sine (None if it has a
     stepped-sine run: the workbench analyses it)."""
-    with open_session(session_path) as s:
-        measurements = measurements_from_session(s)
+    if measurements is None:
+        measurements = read_measurements(session_path)
     if measurements.sine or measurements.random is None:
         return None
     if adds:

@@ -16,6 +16,7 @@ Exit status (docs/campaigns.md, "Exit status"):
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from importlib.metadata import PackageNotFoundError, version
 
@@ -122,7 +123,8 @@ def cmd_import(args) -> int:
     from .importers.runs import SourceOptions, parse_dof_map
     from .importers.store import ImportRequest, import_files
 
-    if args.force_amplitude is not None and not args.force_amplitude > 0:
+    if args.force_amplitude is not None and not (math.isfinite(args.force_amplitude)
+                                                 and args.force_amplitude > 0):
         raise InputError(f"--force-amplitude must be a force amplitude > 0 N, got {args.force_amplitude:g}",
                          field="--force-amplitude")
     options = SourceOptions(args.kind, args.force_amplitude, args.direction,
@@ -250,14 +252,22 @@ def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
 
-    from .analyze import (misfits_json, reference_only, report_text, run_workbench, run_workbench_auto,
+    from .analyze import (misfits_json, read_measurements, reference_only, report_text, run_workbench,
+                          run_workbench_auto,
                           session_notes, store_history)
     from .outputs import check_output
+    from .progress import Progress
 
     inputs = [args.session, args.model]
     if args.output:                       # refused before any work: never an input, never silently replaced
         check_output(args.output, inputs=inputs, overwrite=args.overwrite)
-    reference = reference_only(args.session, args.model, args.add or [])
+    with Progress("analyze") as progress:
+        progress.phase("reading the session")
+        measurements = read_measurements(args.session)
+        reference = reference_only(args.session, args.model, args.add or [], measurements)
+        if reference is None and not args.auto:
+            wb, candidates = run_workbench(args.session, args.model, args.add or [], measurements=measurements,
+                                           progress=progress)
     if reference is not None:             # a random run only: its modes and the updated reference
         print(json.dumps(reference.to_json(), indent=1, default=float) if args.json else reference.text())
         if args.output:
@@ -269,10 +279,9 @@ def cmd_analyze(args) -> int:
     if args.auto:
         wb, auto = run_workbench_auto(args.session, args.model, args.add or [],
                                       progress=lambda step: print(f"auto: {step.line()}", file=step_out, flush=True),
-                                      note=lambda line: print(f"auto: {line}", file=step_out, flush=True))
+                                      note=lambda line: print(f"auto: {line}", file=step_out, flush=True),
+                                      measurements=measurements)
         candidates = auto.candidates
-    else:
-        wb, candidates = run_workbench(args.session, args.model, args.add or [])
     notes = session_notes(args.session)
     if not args.no_history:
         store_history(args.session, wb, args.model, notes)
@@ -509,6 +518,8 @@ def _notes(exc: BaseException) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from .outputs import WRITE_ERRNOS, write_failure
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -525,6 +536,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         print(f"contactid: error: {exc.filename}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:
+        # an output that cannot be written (full disk, read-only medium): nothing was written, as for bad input
+        if args.debug or exc.errno not in WRITE_ERRNOS:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"contactid: error: {where}{write_failure(exc)}; nothing was written", file=sys.stderr)
         return EXIT_BAD_INPUT
     except _raised_class("drivers.errors", "InstrumentError") as exc:
         if args.debug:

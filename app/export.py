@@ -157,12 +157,14 @@ class _RecordContext:
     created: str
     software: str
     binary: bool
+    records: int | None = None          # records of the run (set when they are made)
 
 
 def _record(ctx: _RecordContext, quantity: str, dof: str, values, ordinate: _Axis, denominator: _Axis,
             func_type: int) -> dict:
     run = ctx.run
-    tag = RecordTag(run.name, quantity, dof, run.excitation_dof, run.kind, run.force, run.direction, run.status)
+    tag = RecordTag(run.name, quantity, dof, run.excitation_dof, run.kind, run.force, run.direction, run.status,
+                    ctx.records)
     freq = np.asarray(run.frequency, float)
     values = np.asarray(values)
     bad = np.flatnonzero(~np.isfinite(values))
@@ -191,10 +193,10 @@ def _record(ctx: _RecordContext, quantity: str, dof: str, values, ordinate: _Axi
 
 def _run_records(ctx: _RecordContext, frf_only: bool) -> list[dict]:
     run = ctx.run
+    quantities = [] if frf_only else _line_quantities(run)
+    ctx.records = len(run.sensor_dofs) + len(quantities)       # in every record's id5: a cut file is noticed
     records = [_record(ctx, "frf", d, run.frf[d], _response_axis(d), FORCE_AXIS, FUNC_FRF) for d in run.sensor_dofs]
-    if not frf_only:
-        records += [_record(ctx, *q) for q in _line_quantities(run)]
-    return records
+    return records + [_record(ctx, *q) for q in quantities]
 
 
 def _header(session_path: Path, software: str) -> dict:
@@ -265,15 +267,21 @@ def export_csv(session_path, directory, overwrite: bool = False) -> list[Path]:
     if directory.exists() and not directory.is_dir():
         raise InputError("is a file; --csv takes a folder (one CSV per run is written into it)", str(directory),
                          "--csv")
+    created = not directory.exists()
     directory.mkdir(parents=True, exist_ok=True)
-    paths = [directory / f"{run.name}.csv" for run in runs]
-    for path in paths:
-        check_output(path, inputs=[session_path], overwrite=overwrite, field="--csv")
-    with ExitStack() as stack:
-        for path, run in zip(paths, runs):
-            temp = stack.enter_context(atomic_output(path, inputs=[session_path], overwrite=overwrite,
-                                                     field="--csv"))
-            _write_run_csv(temp, run)
+    try:
+        paths = [directory / f"{run.name}.csv" for run in runs]
+        for path in paths:
+            check_output(path, inputs=[session_path], overwrite=overwrite, field="--csv")
+        with ExitStack() as stack:
+            for path, run in zip(paths, runs):
+                temp = stack.enter_context(atomic_output(path, inputs=[session_path], overwrite=overwrite,
+                                                         field="--csv"))
+                _write_run_csv(temp, run)
+    except BaseException:
+        if created and not any(directory.iterdir()):
+            directory.rmdir()                          # a failed export leaves no empty folder behind
+        raise
     return paths
 
 

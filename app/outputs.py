@@ -22,8 +22,33 @@ from typing import Iterable, Iterator
 
 from analysis.errors import InputError
 
+from .session_file import SessionWriteError
+
 TEMP_PREFIX = "."
 TEMP_SUFFIX = ".partial"
+FREE_SPACE_CHECK = "not enough free space to"
+# failures to write that say nothing about the command's input: the output, not the program, is at fault
+WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG, errno.EIO)
+
+
+class NotWritten(InputError):
+    """An output could not be written (full disk, read-only medium, a write that failed); nothing of it was left
+    and a file it was to replace is unchanged. One line, exit status 2, like bad input: nothing was written."""
+
+
+def write_failure(exc: BaseException) -> str:
+    """Why a write failed, in one line: the system's words (or those of a free-space check)."""
+    if isinstance(exc, OSError) and exc.strerror and exc.strerror.startswith(FREE_SPACE_CHECK):
+        return exc.strerror
+    if isinstance(exc, OSError) and exc.errno:
+        return os.strerror(exc.errno)           # not HDF5's many lines about the same thing
+    text = " ".join(str(exc).split())
+    return "No space left on device" if "No space left on device" in text else text
+
+
+def _not_written(path: Path, existed: bool, exc: BaseException) -> NotWritten:
+    kept = "the file there is unchanged" if existed else "no file was left"
+    return NotWritten(f"not written: {write_failure(exc)}; {kept}", str(path))
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -67,7 +92,7 @@ def require_free_space(path, needed: int, what: str = "write") -> None:
     """OSError(ENOSPC) naming ``path`` when fewer than ``needed`` bytes are free where it lives."""
     free = free_bytes(path)
     if free < needed:
-        raise OSError(errno.ENOSPC, f"not enough free space to {what}: {free} bytes free, {needed} needed",
+        raise OSError(errno.ENOSPC, f"{FREE_SPACE_CHECK} {what}: {free} bytes free, {needed} needed",
                       str(path))
 
 
@@ -97,14 +122,25 @@ def atomic_output(path, *, inputs: Iterable = (), overwrite: bool = False, field
 
     The output is checked first (:func:`check_output`)."""
     path = check_output(path, inputs=inputs, overwrite=overwrite, field=field)
+    existed = path.exists()
     temp = temporary_path(path, keep_suffix)
     try:
         yield temp
         sync_file(temp)
         os.replace(temp, path)
-    except BaseException:
+    except BaseException as exc:
         temp.unlink(missing_ok=True)
+        if _is_write_failure(exc):
+            raise _not_written(path, existed, exc) from exc
         raise
+
+
+def _is_write_failure(exc: BaseException) -> bool:
+    """A failure of the medium (full, read-only, I/O error) rather than of the data or the program: plain
+    OSErrors carrying such an errno, and the session writer's reports of one."""
+    if isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError):
+        return exc.errno in WRITE_ERRNOS or exc.errno is None
+    return isinstance(exc, SessionWriteError) and "No space left on device" in str(exc)
 
 
 @contextmanager

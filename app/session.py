@@ -11,6 +11,7 @@ readable by any tool with those runs marked ``status = "aborted"``, ``incomplete
 from __future__ import annotations
 
 import json
+import io
 import os
 import socket
 import subprocess
@@ -27,7 +28,8 @@ import numpy as np
 
 from analysis.errors import InputError
 
-from .outputs import atomic_replace, check_output, require_free_space, temporary_path
+from .hdf5_superblock import clear_write_flags, write_flags
+from .outputs import NotWritten, atomic_replace, check_output, require_free_space, temporary_path, write_failure
 from .session_file import (FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError, append_event,
                            mark_incomplete, now_iso)
 from .session_wire import receive_reply, send_call
@@ -39,6 +41,8 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "RunData", "RunSpec", "Session", "Session
 # Bytes that must stay free beyond each write, so that a run can still be closed (status, end time, event) and
 # the file closed cleanly when the disk is about to fill.
 FREE_SPACE_RESERVE = 1 << 20
+# Room ``recover`` wants beyond the size of the session it copies (the new event, the copy's own metadata).
+RECOVERY_MARGIN = 64 << 10
 _WRITER_STOPPED = ("the session writer process stopped ({how}); the lines written before are kept (if other "
                    "HDF5 tools refuse the file, `contactid recover {path}` repairs it)")
 
@@ -370,8 +374,7 @@ class Session:
                     lines[rel] = ds.shape[0] if ds.shape else 0
                 if rel.startswith(("frf/", "raw/")) or rel == "frequency":
                     continue
-                with self._reading(ds.name):
-                    arrays[rel] = ds[:n]
+                arrays[rel] = self._lines(ds, n)
             frf = {dof: self._read(f"{where}/frf/{dof}", n) for dof in dofs}
             frequency = self._read(f"{where}/frequency", n)
         incomplete = attrs["status"] == "running" and not self.writer_alive or bool(attrs.get("incomplete", False))
@@ -379,9 +382,25 @@ class Session:
 
     def _read(self, where: str, n: int) -> np.ndarray:
         """The first ``n`` entries of the dataset at ``where``."""
-        ds = self._object(where)
-        with self._reading(where):
-            return ds[:n]
+        return self._lines(self._object(where), n)
+
+    def _lines(self, ds: h5py.Dataset, n: int) -> np.ndarray:
+        """The first ``n`` lines of ``ds``; a chunk whose checksum fails is an InputError naming the dataset and
+        the lines it holds."""
+        with self._reading(ds.name):
+            # a live writer rewrites the chunk of its last line in place: a read that meets it half-written fails
+            # its checksum once, and reads whole a moment later
+            for _ in range(LIVE_READ_ATTEMPTS if self.writer_alive else 1):
+                try:
+                    return ds[:n]
+                except OSError:
+                    time.sleep(0.05)
+                    ds.refresh()
+            damaged = _damaged_lines(ds, n)
+            if not damaged:
+                return ds[:n]
+        raise InputError(f"checksum failure: the stored data of line(s) {damaged} of {n} are damaged (the file "
+                         f"changed after it was written)", str(self.path), ds.name)
 
     def _parsed(self, where: str, attrs: dict, key: str, parse):
         """``parse(attrs[key])``, or InputError naming the attribute."""
@@ -427,6 +446,7 @@ class Session:
 # by default 100 times, hours in all, so a truncated or damaged file would hang the reader. 20 attempts wait
 # about a second in all: ample for a writer's flush, and a damaged file is reported at once.
 SWMR_READ_ATTEMPTS = 20
+LIVE_READ_ATTEMPTS = 5        # reads of a chunk a live writer may be rewriting, before it is called damaged
 
 
 def _hdf5_library():
@@ -461,7 +481,24 @@ def _open_for_reading(path: Path) -> h5py.File:
                             fapl=_swmr_read_access())
         return h5py.File(fid)
     except (OSError, KeyError, RuntimeError, ValueError) as exc:
+        if _left_open(path):
+            raise InputError(f"was left open for writing by a process that stopped (a crash, or a write that "
+                             f"failed on a full disk); `contactid recover {path}` repairs it", str(path)) from None
         raise InputError(f"not a readable HDF5 session ({exc})", str(path)) from None
+
+
+def _damaged_lines(ds: h5py.Dataset, n: int) -> str:
+    """The lines (1-based ranges, "65-128, 193-200") of the first ``n`` of ``ds`` in chunks that cannot be read
+    (a Fletcher-32 checksum failure); "" when every chunk reads."""
+    step = ds.chunks[0] if ds.chunks else max(n, 1)
+    ranges = []
+    for start in range(0, n, step):
+        stop = min(start + step, n)
+        try:
+            ds[start:stop]
+        except OSError:
+            ranges.append(f"{start + 1}-{stop}" if stop > start + 1 else f"{stop}")
+    return ", ".join(ranges)
 
 
 def _datasets(group: h5py.Group) -> Iterable[h5py.Dataset]:
@@ -501,11 +538,37 @@ def open_session(path) -> Session:
 
 
 # --------------------------------------------------------------------------- repair and model history
+def _left_open(path: Path) -> bool:
+    """Whether the file's superblock says it is open for writing outside SWMR mode (a writer that stopped in the
+    middle of a non-SWMR write: no HDF5 reader, SWMR or not, opens it before the flags are cleared)."""
+    flags = write_flags(path)
+    return flags is not None and bool(flags & 1) and not flags & 4
+
+
+def _locked_by_a_writer(path: Path) -> bool:
+    """Whether a live process holds the file's HDF5 write lock."""
+    import fcntl
+
+    with open(path, "rb") as fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            return True
+        fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    return False
+
+
 def needs_recovery(path) -> bool:
-    """Whether plain HDF5 readers refuse the session because its writer died with it open (SWMR).
+    """Whether plain HDF5 readers refuse the session because its writer died with it open.
 
     InputError when the file is missing, not a session, or being written by a live process."""
     path = Path(path)
+    if not path.exists():
+        raise InputError("file not found", str(path))
+    if _left_open(path):
+        if _locked_by_a_writer(path):
+            raise InputError("is still being written by a running process; wait for it to finish", str(path))
+        return True
     with Session(path) as s:
         alive = s.writer_alive
     try:
@@ -520,52 +583,74 @@ def needs_recovery(path) -> bool:
     return not closed
 
 
-class DamagedSession(SessionWriteError):
-    """A session whose objects cannot be read back to be copied (a write that needs the copy is not done)."""
-
-    def __init__(self, path: Path, detail: str):
-        super().__init__(f"{path}: {detail}")
-        self.detail = detail
-
-
-def _copy_objects(path: Path, target: Path) -> None:
-    """Everything of a session that plain readers refuse, copied (read in SWMR mode) into a new clean file."""
-    with _open_for_reading(path) as src, h5py.File(target, "w", libver="latest") as dst:
+def _salvage(src: h5py.Group, dst: h5py.Group, lost: list[str]) -> None:
+    """Copy ``src`` into ``dst`` object by object; what cannot be read (a write cut short by a full disk) is
+    left out and its path added to ``lost``."""
+    for key in src.attrs:
         try:
-            for key, value in src.attrs.items():
-                dst.attrs[key] = value
-            for key in src:
-                src.copy(src[key], dst, name=key)
-        except (RuntimeError, KeyError, ValueError) as exc:   # what HDF5 raises for damaged objects
-            raise DamagedSession(path, f"damaged beyond a repair ({exc}); the file is unchanged") from None
+            dst.attrs[key] = src.attrs[key]
+        except (OSError, KeyError, RuntimeError, ValueError, TypeError):
+            lost.append(f"{src.name}@{key}")
+    for key in src:
+        try:
+            obj = src[key]
+            if isinstance(obj, h5py.Group):
+                _salvage(obj, dst.create_group(key), lost)
+            else:
+                src.copy(obj, dst, name=key)
+        except (OSError, KeyError, RuntimeError, ValueError, TypeError):
+            if key in dst:
+                del dst[key]
+            lost.append(f"{src.name.rstrip('/')}/{key}")
 
 
-def _mark_running_runs(f: h5py.File) -> list[str]:
-    """Runs a dead writer left "running": marked aborted and incomplete, with a recovery event."""
+def _copy_objects(path: Path, target: Path) -> list[str]:
+    """Everything of a session that plain readers refuse that can still be read, copied into a new clean file;
+    returns what could not be read. A file left open outside SWMR mode is read from an image in memory whose
+    superblock flags are cleared (as ``h5clear`` does); one left open in SWMR mode is read as a SWMR reader."""
+    lost: list[str] = []
+    if not _left_open(path):
+        # with the reader's bounded metadata retries: a truncated file is refused, not waited on
+        with _open_for_reading(path) as src, h5py.File(target, "w", libver="latest") as dst:
+            _salvage(src, dst, lost)
+        return lost
+    with open(path, "rb") as fh:
+        image = io.BytesIO(fh.read())
+    clear_write_flags(image)
+    with h5py.File(image, "r") as src, h5py.File(target, "w", libver="latest") as dst:
+        _salvage(src, dst, lost)
+    return lost
+
+
+def _mark_running_runs(f: h5py.File, lost: list[str]) -> list[str]:
+    """Runs a dead writer left "running" (or whose status it was writing when it stopped): marked aborted and
+    incomplete, with a recovery event that also names what could not be read."""
     marked = []
     for name, g in f["runs"].items():
-        if _text(g.attrs.get("status", "")) == "running":
-            mark_incomplete(g, "the writing process stopped without closing the run (crash or kill)")
+        if _text(g.attrs.get("status", "running")) == "running":
+            mark_incomplete(g, "the writing process stopped without closing the run (crash, kill or full disk)")
             marked.append(name)
-    append_event(f["events"], 0.0, "", "recovery",
-                 f"recovered after the writer stopped; incomplete runs: {', '.join(marked) or 'none'}")
+    message = f"recovered after the writer stopped; incomplete runs: {', '.join(marked) or 'none'}"
+    if lost:
+        message += f"; unreadable, left out: {', '.join(lost)}"
+    append_event(f["events"], 0.0, "", "recovery", message)
     return marked
 
 
 @contextmanager
-def _rewritten(path: Path, extra_bytes: int, what: str):
+def _rewritten(path: Path, extra_bytes: int, what: str, reserve: int = FREE_SPACE_RESERVE):
     """The session opened for writing as a new version beside itself (repaired first if a dead writer left it
     open), renamed over the old one when the ``with`` body succeeds: a failure, a full disk or a crash leaves
     the old file as it was. Yields ``(file, runs marked incomplete by the repair)``."""
     repair = needs_recovery(path)
-    with atomic_replace(path, extra_bytes + FREE_SPACE_RESERVE, what) as temp:
+    with atomic_replace(path, extra_bytes + reserve, what) as temp:
         if repair:
-            _copy_objects(path, temp)
+            lost = _copy_objects(path, temp)
         else:
             with open(path, "rb") as src, open(temp, "wb") as dst:
                 os.sendfile(dst.fileno(), src.fileno(), 0, os.fstat(src.fileno()).st_size)
         with h5py.File(temp, "r+", libver="latest") as f:
-            yield f, (_mark_running_runs(f) if repair else [])
+            yield f, (_mark_running_runs(f, lost) if repair else [])
 
 
 def recover_session(path) -> list[str]:
@@ -578,12 +663,12 @@ def recover_session(path) -> list[str]:
     if not needs_recovery(path):
         return []
     try:
-        with _rewritten(path, 0, "recover the session") as (_, marked):
+        # no reserve beyond the copy: a copy that does not fit is removed, the original stays as it is
+        with _rewritten(path, 0, "recover the session", reserve=RECOVERY_MARGIN) as (_, marked):
             return marked
     except OSError as exc:
-        raise SessionWriteError(f"{path}: cannot recover the session ({exc}); the file is unchanged") from None
-    except DamagedSession as exc:          # the file is damaged, not the disk: bad input
-        raise InputError(exc.detail, str(path)) from None
+        raise NotWritten(f"cannot recover the session: {write_failure(exc)}; the file is unchanged",
+                         str(path)) from None
 
 
 @dataclass

@@ -112,6 +112,11 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
         bad = np.flatnonzero(~np.isfinite(run.frf[d][:lines]))
         if len(bad):
             raise error(f"dataset frf/{d}", f"line {bad[0]} is {complex(run.frf[d][bad[0]])}; FRFs must be finite")
+    for name, values in sorted(run.arrays.items()):
+        rule = _line_rule(name)
+        if rule is not None:
+            _check_lines(np.asarray(values)[:lines], rule, lambda message, name=name: error(f"dataset {name}",
+                                                                                            message))
     return CheckedRun(run, lines, sensors)
 
 
@@ -127,6 +132,40 @@ def _check_order(frequency: np.ndarray, kind: str, direction: str, error) -> Non
         raise error("dataset frequency", f"line {i + 1} is {float(frequency[i + 1]):g} Hz after "
                                          f"{float(frequency[i]):g} Hz; this run's lines must be strictly {order} "
                                          "(its frequencies do not match its FRFs)")
+
+
+@dataclass(frozen=True)
+class LineRule:
+    """What every line of a per-line quantity the analysis uses must be: finite, and above (or at) a bound."""
+
+    quantity: str
+    above: float
+    inclusive: bool
+
+    def wrong(self, values: np.ndarray) -> np.ndarray:
+        low = values < self.above if self.inclusive else values <= self.above
+        return ~np.isfinite(values) | low
+
+    def text(self) -> str:
+        return f"{self.quantity} must be finite and {'>=' if self.inclusive else '>'} {self.above:g}"
+
+
+# the per-line quantities the analysis reads besides the FRFs (app/session_data.py)
+LINE_RULES = {"force_amplitude": LineRule("a force amplitude", 0.0, False),
+              "frf_std": LineRule("a standard deviation", 0.0, True),
+              "distortion": LineRule("a distortion", 0.0, True)}
+
+
+def _line_rule(name: str) -> LineRule | None:
+    return LINE_RULES.get(name.split("/")[0])
+
+
+def _check_lines(values: np.ndarray, rule: LineRule, error) -> None:
+    if values.dtype.kind not in "fiu":
+        raise error(f"holds {values.dtype} values; {rule.text()}")
+    bad = np.flatnonzero(rule.wrong(values.astype(float)))
+    if len(bad):
+        raise error(f"line {bad[0]} is {float(values[bad[0]])!r}; {rule.text()}")
 
 
 def _choice(attrs: dict, key: str, choices: tuple[str, ...], error) -> str:

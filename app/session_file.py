@@ -37,6 +37,8 @@ EVENT_DTYPE = np.dtype([("time", "f8"), ("iso_time", "S32"), ("run", "S64"), ("k
                         ("message", "S400")])
 REOPEN_WAIT = 30.0
 """How long the writer waits for a reader that holds the file's lock before it reports a write failure (s)."""
+LINES_PER_CHUNK = 64
+"""Lines per chunk of the per-line datasets; each chunk carries a Fletcher-32 checksum that HDF5 checks on read."""
 CRASH_REASON = "the acquiring process stopped without closing the run (crash or kill)"
 
 
@@ -125,6 +127,7 @@ class SessionFile:
         self.measured = False                          # holds measured data?
         self.replacing = False                         # to replace an existing file once it is complete
         self.all_complete = True                       # every run ended "complete" so far
+        self.failed = False                            # a write failed: the file is no longer written to
         self._file: h5py.File | None = None
         self._run: str | None = None
         self._datasets: dict[str, h5py.Dataset] = {}     # the open run's datasets, by path in the run
@@ -247,7 +250,7 @@ class SessionFile:
             raw.attrs["sample_rate"] = float(spec.sample_rate)
             raw.create_dataset("data", shape=(0, len(spec.raw_channels)), maxshape=(None, len(spec.raw_channels)),
                                dtype="f4", chunks=(8192, len(spec.raw_channels)), compression="gzip",
-                               compression_opts=4, shuffle=True)
+                               compression_opts=4, shuffle=True, fletcher32=True)
             raw["data"].attrs["units"] = json.dumps(spec.raw_units)
             _grow(raw, "line_start", (), "i8", "sample")
             _grow(raw, "line_count", (), "i8", "sample")
@@ -363,6 +366,15 @@ class SessionFile:
             self._leave_temporary()
 
 
+    def leave(self) -> None:
+        """After a failed write: end the writer process without closing the file. HDF5 would flush its cache on
+        close, on a disk that is full; the file keeps the state of its last whole flush, marked as open for SWMR
+        writing, which SWMR readers (``open_session``) read and ``contactid recover`` closes."""
+        if not self.in_place:
+            self.temporary.unlink(missing_ok=True)
+        os._exit(0)
+
+
 class _WriteGuard:
     """Turns any failure to write into SessionWriteError, leaving what was flushed intact."""
 
@@ -375,13 +387,26 @@ class _WriteGuard:
     def __exit__(self, exc_type, exc, tb):
         if exc_type is not None and issubclass(exc_type, (OSError, KeyError, ValueError, RuntimeError)) \
                 and not issubclass(exc_type, SessionWriteError):
+            if issubclass(exc_type, (OSError, RuntimeError)):
+                # the file on disk is as the last whole flush left it: any further write (closing the run)
+                # could only damage that, so the writer stops here (see serve)
+                self.writer.failed = True
+                raise SessionWriteError(
+                    f"{self.writer.path}: failed while {self.what}: {_reason(exc)}; the lines written before are "
+                    f"kept; `contactid recover {self.writer.path}` closes the run once there is room") from exc
             raise SessionWriteError(f"{self.writer.path}: failed while {self.what}: {exc}") from exc
         return False
 
 
+def _reason(exc: BaseException) -> str:
+    """An I/O failure in one line: the system's words for its errno, else HDF5's first line."""
+    code = getattr(exc, "errno", None)
+    return os.strerror(code) if code else " ".join(str(exc).split("(")[0].split()) or type(exc).__name__
+
+
 def _grow(parent: h5py.Group, name: str, shape: tuple, dtype: str, units: str) -> h5py.Dataset:
     ds = parent.create_dataset(name, shape=(0,) + shape, maxshape=(None,) + shape, dtype=dtype,
-                               chunks=(64,) + shape)
+                               chunks=(LINES_PER_CHUNK,) + shape, fletcher32=True)
     ds.attrs["units"] = units
     return ds
 
@@ -451,6 +476,8 @@ def serve(calls, replies) -> int:
             send_reply(replies, error)
         except OSError:
             break                                   # the sender died waiting for this reply
+        if file is not None and file.failed:
+            file.leave()
         if method == "close" and error is None:
             return 0
     if file is not None:

@@ -135,7 +135,7 @@ def test_a_failed_write_leaves_no_file(session, tmp_path, monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(pyuff.UFF, "write_sets", fail_midway)
-    with pytest.raises(OSError, match="writing the UFF file failed"):
+    with pytest.raises(InputError, match="o.uff: not written: No space left on device; no file was left"):
         export_uff(path, tmp_path / "o.uff")
     assert [p.name for p in tmp_path.iterdir()] == ["s.h5"]
 
@@ -150,8 +150,8 @@ def test_full_disk_gives_an_error_and_no_file(session, tmp_path):
               f"{sys.executable} -m app.cli export {path} --uff {disk}/o.uff; echo rc=$?; ls -A {disk}")
     out = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True,
                          env={**os.environ, "PYTHONPATH": os.getcwd()}, timeout=120)
-    assert "rc=1" in out.stdout and "not enough free space" in out.stderr
-    assert out.stdout.split("rc=1")[1].split() == ["filler"]
+    assert "rc=2" in out.stdout and "not enough free space" in out.stderr and "--debug" not in out.stderr
+    assert out.stdout.split("rc=2")[1].split() == ["filler"]
 
 
 def test_csv_has_units_and_all_lines(session, tmp_path):

@@ -167,3 +167,23 @@ def test_scatter_noise_on_a_level_shorter_than_its_window():
     std = scatter_std(w, kbar)
     assert std.shape == (n,) and np.all(np.isfinite(std)) and np.all(std > 0)
     assert np.allclose(std, std[0])             # every combination lies in every line's window
+
+
+def test_the_per_line_fit_in_closed_form_is_the_dense_least_squares():
+    """The per-line component against the dense weighted least squares on the indicator design (and its ln X
+    extension with pinv's standard error) it replaces."""
+    from analysis.linearity import _component, _per_line_component
+
+    rng = np.random.default_rng(5)
+    group = np.repeat(np.arange(40), 3)[rng.permutation(120)]
+    values = rng.normal(size=120) + 0.3 * group
+    sigma = rng.uniform(0.5, 2.0, size=120)
+    log_X = np.log(rng.uniform(1e-4, 1e-2, size=120))
+    fast, coef = _per_line_component(group, values, sigma, log_X)
+    dense, dense_coef = _component(np.eye(40)[group], values, sigma, log_X)
+    np.testing.assert_allclose(coef, dense_coef, rtol=1e-10)
+    assert fast.dof == dense.dof == 80
+    np.testing.assert_allclose([fast.chi2, fast.change, fast.sigma], [dense.chi2, dense.change, dense.sigma],
+                               rtol=1e-9)
+    flat, _ = _per_line_component(group, values, sigma, np.log(np.full(120, 1e-3)))
+    assert flat.sigma == flat.change == 0.0                 # no amplitude spread: no trend, as the dense rank says

@@ -201,7 +201,7 @@ def test_analyze_on_a_full_disk_reports_and_leaves_the_session_whole(copies, tmp
     assert "FRF error of the model" in out                                  # the analysis is there
     assert "model history NOT stored" in out and "free space" in out
     assert "not enough free space to write the fitted model" in err
-    assert (tmp_path / "rc").read_text().strip() == "1"
+    assert (tmp_path / "rc").read_text().strip() == "2"
     assert (tmp_path / "after.h5").read_bytes() == before                   # not a byte changed
     assert (tmp_path / "listing").read_text().split() == ["fill", "model.toml", "s.h5"]   # no 0-byte output
 
@@ -235,3 +235,118 @@ def test_simulate_on_a_disk_that_fills_ends_the_run_cleanly(tmp_path):
     with open_session(tmp_path / "after.h5") as s:
         assert not s.run(RUN).incomplete
     assert (tmp_path / "listing").read_text().split() == ["s.h5"]
+
+
+@pytest.mark.slow
+@needs_private_mount
+def test_a_disk_filled_by_another_program_during_simulate_leaves_a_session_recover_repairs(tmp_path):
+    """Another program fills the disk while a run is measured: the campaign ends aborted with one line, and once
+    there is room `contactid recover` makes the file readable by any tool with the lines written before."""
+    plan = tmp_path / "p.toml"
+    plan.write_text("[[stepped_sine]]\nforce = 0.8\nstart = 0.8\nstop = 3.2\nstep = 0.002\n[limits]\n"
+                    "max_force = 5.0\nmax_acceleration = 50.0\n")
+    on_small_disk(tmp_path, "3m",
+                  '$PY -m app.cli simulate paper-2dof "$OUT/p.toml" -o "$DISK/s.h5" --quiet > "$OUT/stdout" '
+                  '2> "$OUT/stderr" & P=$!; '
+                  'while [ "$(stat -c %s "$DISK/s.h5" 2>/dev/null || echo 0)" -lt 600000 ]; do sleep 0.1; done; '
+                  + FILL + 'wait $P; echo $? > "$OUT/rc"; rm "$DISK/fill"; '
+                  '$PY -m app.cli recover "$DISK/s.h5" > "$OUT/recover" 2>&1; echo $? > "$OUT/recover_rc"; '
+                  'cp "$DISK/s.h5" "$OUT/after.h5"; ls -A "$DISK" > "$OUT/listing"')
+    err = (tmp_path / "stderr").read_text()
+    assert (tmp_path / "rc").read_text().strip() == "3", err                # aborted, not a crash
+    assert err.count("campaign aborted") == 1 and "Traceback" not in err and "file write failed" not in err
+    assert (tmp_path / "recover_rc").read_text().strip() == "0", (tmp_path / "recover").read_text()
+    with plain_open(tmp_path / "after.h5", timeout=0) as f:                 # any HDF5 reader opens it
+        g = f[f"runs/{RUN}"]
+        assert g.attrs["status"] == "aborted"
+        assert min(g["frequency"].shape[0], g["frf/x1"].shape[0]) > 0
+        assert f["events"][-1]["kind"] == b"recovery"
+    assert main(["export", str(tmp_path / "after.h5"), "--csv", str(tmp_path / "csv")]) == 0
+    assert (tmp_path / "listing").read_text().split() == ["s.h5"]
+
+
+def _mark_open_for_writing(path):
+    """Set the superblock's "open for writing" flag, as a writer that stopped outside SWMR mode leaves it."""
+    from app.hdf5_superblock import lookup3
+
+    with open(path, "r+b") as fh:
+        block = bytearray(fh.read(48))
+        block[11] = 1
+        block[44:48] = lookup3(bytes(block[:44])).to_bytes(4, "little")
+        fh.seek(0)
+        fh.write(block)
+
+
+def test_the_superblock_checksum_is_hdf5s(copies):
+    from app.hdf5_superblock import lookup3
+
+    block = copies[0].read_bytes()[:48]                          # written by HDF5 itself
+    assert block[8] == 3 and int.from_bytes(block[44:48], "little") == lookup3(block[:44])
+
+
+def test_a_session_left_open_outside_swmr_mode_is_named_and_recover_repairs_it(copies, capsys):
+    session, model = copies
+    _mark_open_for_writing(session)
+    with pytest.raises(OSError, match="already open for write"):
+        h5py.File(session, "r")
+    assert main(["analyze", str(session), str(model), "--no-history"]) == 2
+    assert "contactid recover" in one_line_error(capsys, session)
+    assert main(["recover", str(session)]) == 0
+    with plain_open(session, timeout=0) as f:
+        assert f[f"runs/{RUN}/frequency"].shape == (25,)
+        assert f[f"runs/{RUN}"].attrs["status"] == "complete"   # closed before: not marked
+        assert f["events"][-1]["kind"] == b"recovery"
+
+
+# ----------------------------------------------------------------------------- checksums
+def _flip_a_bit(path, dataset, chunk=0, byte=3):
+    """Flip one bit of a stored chunk of ``dataset``, behind HDF5's back (a disk or a copy going wrong)."""
+    with h5py.File(path, "r") as f:
+        info = f[dataset].id.get_chunk_info(chunk)
+    with open(path, "r+b") as fh:
+        fh.seek(info.byte_offset + byte)
+        value = fh.read(1)[0]
+        fh.seek(info.byte_offset + byte)
+        fh.write(bytes([value ^ 0x10]))
+
+
+@pytest.mark.parametrize("dataset", [f"/runs/{RUN}/frf/x1", f"/runs/{RUN}/frequency",
+                                     f"/runs/{RUN}/force_amplitude"])
+def test_a_flipped_bit_in_measured_data_is_refused_naming_the_dataset_and_lines(copies, capsys, dataset):
+    session, model = copies
+    with h5py.File(session, "r") as f:
+        assert f[dataset].fletcher32 and f[dataset].chunks
+    _flip_a_bit(session, dataset)
+    assert main(["analyze", str(session), str(model), "--no-history"]) == 2
+    err = one_line_error(capsys, session, dataset)
+    assert "checksum failure" in err and "line(s) 1-25 of 25" in err
+
+
+def test_a_checksum_failure_names_only_the_damaged_chunk(tmp_path):
+    from app.session_file import LINES_PER_CHUNK
+
+    session = tmp_path / "long.h5"
+    w = SessionWriter(session, software_version="test")
+    w.begin_run(RunSpec(RUN, "stepped_sine", 0.8, "up", "x2", ["x1"], 100.0, ["force"], ["N"]))
+    for f in np.linspace(1.0, 2.0, 2 * LINES_PER_CHUNK + 10):
+        w.append_line(f, {"x1": 1e-3 + 1e-4j})
+    w.end_run("complete")
+    w.close()
+    _flip_a_bit(session, f"/runs/{RUN}/frf/x1", chunk=1)
+    with open_session(session) as s, pytest.raises(Exception) as caught:
+        s.run(RUN)
+    assert f"line(s) {LINES_PER_CHUNK + 1}-{2 * LINES_PER_CHUNK} of {2 * LINES_PER_CHUNK + 10}" in str(caught.value)
+
+
+def test_a_session_written_without_checksums_is_still_read(copies, capsys):
+    session, model = copies
+    with h5py.File(session, "r+") as f:                  # as sessions were written before checksums
+        run = f[f"runs/{RUN}"]
+        for name in ("frequency", "frf/x1", "frf/x2", "force_amplitude"):
+            data, attrs = run[name][()], dict(run[name].attrs)
+            del run[name]
+            run.create_dataset(name, data=data, maxshape=(None,), chunks=(64,))
+            run[name].attrs.update(attrs)
+            assert not run[name].fletcher32
+    assert main(["analyze", str(session), str(model), "--no-history"]) == 0
+    assert "FRF error of the model" in capsys.readouterr().out

@@ -32,6 +32,8 @@ class _Lines:
 
 def _number(text: str, path: str, row: int, column: str) -> float:
     try:
+        if "_" in text:                      # Python reads 1_000 as 1000; no CSV writer means that
+            raise ValueError
         value = float(text)
     except ValueError:
         raise InputError(f"{text!r} is not a number", path, f"line {row}: {column}") from None
@@ -44,6 +46,9 @@ def _header(rows, path: str) -> tuple[int, list[str]]:
     for number, row in rows:
         if row and not row[0].lstrip().startswith("#"):
             columns = [c.strip().lower() for c in row]
+            twice = sorted({c for c in columns if columns.count(c) > 1})
+            if twice:
+                raise InputError(f"column {', '.join(twice)} is named twice", path, f"line {number}: header")
             missing = [c for c in REQUIRED if c not in columns]
             unknown = [c for c in columns if c not in REQUIRED + OPTIONAL]
             if missing or unknown:
@@ -58,7 +63,7 @@ def _header(rows, path: str) -> tuple[int, list[str]]:
 def read_csv_long(path: str, options: SourceOptions) -> tuple[list[ImportedRun], list[str], list[str]]:
     """The runs of one CSV file, its header row and notes."""
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:     # Excel's "CSV UTF-8" starts with a BOM
             rows = list(enumerate(csv.reader(fh), start=1))
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise InputError(f"cannot be read as CSV ({exc})", path) from None
@@ -75,6 +80,8 @@ def read_csv_long(path: str, options: SourceOptions) -> tuple[list[ImportedRun],
         if not cell["force_n"]:
             raise InputError("no force level", path, f"line {number}: force_n")
         force = _number(cell["force_n"], path, number, "force_n")
+        if force <= 0:
+            raise InputError(f"{cell['force_n']!r} is not a force amplitude > 0 N", path, f"line {number}: force_n")
         direction = cell.get("direction") or None
         if direction not in (None, "up", "down"):
             raise InputError(f"{direction!r} is not up or down", path, f"line {number}: direction")

@@ -6,13 +6,15 @@ Every record contactid exports carries, as ``key=value`` words (values without s
     id2  rsp=<response DOF name> ref=<excitation DOF name>
     id3  <ISO 8601 time the session was created>
     id4  kind=<stepped_sine | random> force=<N, exact decimal> direction=<up | down | none> status=<status>
-    id5  software=contactid-<version> convention=exp(+jwt)
+    id5  software=contactid-<version> convention=exp(+jwt) records=<records of the run in the file>
 
-so ``contactid import`` needs no flags for contactid's own files. Records of other systems have free-text id
-lines; they are kept in the session's provenance but not interpreted.
+so ``contactid import`` needs no flags for contactid's own files, and knows when a file cut short lost whole
+records of a run (``records=`` is absent from files written before it was added). Records of other systems have
+free-text id lines; they are kept in the session's provenance but not interpreted.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from analysis.errors import InputError
@@ -20,6 +22,8 @@ from analysis.errors import InputError
 MARK = "contactid"
 CONVENTION = "exp(+jwt)"
 ID_WIDTH = 80
+KINDS = ("stepped_sine", "random")
+DIRECTIONS = ("up", "down", "none")
 QUANTITIES = ("frf", "frf_std", "force_amplitude", "distortion", "coherence", "random_error")
 
 
@@ -35,6 +39,7 @@ class RecordTag:
     force: float
     direction: str
     status: str
+    records: int | None = None       # records the run has in its file (None: not stated)
 
 
 def _word(key: str, value: str, where: str) -> str:
@@ -60,7 +65,8 @@ def encode(tag: RecordTag, created: str, software: str, where: str) -> dict[str,
         "id4": _line([_word("kind", tag.kind, where), f"force={float(tag.force)!r}",
                       _word("direction", tag.direction, where), _word("status", tag.status, where)], where, "id4"),
         "id5": _line([_word("software", f"contactid-{software or 'unknown'}", where),
-                      f"convention={CONVENTION}"], where, "id5"),
+                      f"convention={CONVENTION}"] + ([f"records={tag.records}"] if tag.records else []),
+                     where, "id5"),
     }
 
 
@@ -86,5 +92,13 @@ def decode(ids: dict[str, str], where: str) -> RecordTag | None:
         force = float(values["force"])
     except ValueError:
         raise InputError(f"force={values['force']!r} is not a number", where, "id4") from None
+    if not (math.isfinite(force) and force > 0):
+        raise InputError(f"force={values['force']} is not a force amplitude > 0 N", where, "id4")
+    for key, allowed in (("kind", KINDS), ("direction", DIRECTIONS)):
+        if values[key] not in allowed:
+            raise InputError(f"{key}={values[key]} is not one of {', '.join(allowed)}", where, "id4")
+    records = _words(ids.get("id5", "")).get("records")
+    if records is not None and not (records.isdigit() and int(records) > 0):
+        raise InputError(f"records={records} is not a count of records", where, "id5")
     return RecordTag(values["run"], values["quantity"], values["rsp"], values["ref"], values["kind"], force,
-                     values["direction"], values["status"])
+                     values["direction"], values["status"], int(records) if records else None)

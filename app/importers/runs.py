@@ -53,6 +53,15 @@ class SourceOptions:
     dofs: list[DofMap] = field(default_factory=list)
     excitation: str | None = None
 
+    def __post_init__(self):
+        named: dict[tuple[int, int | None], str] = {}
+        for m in self.dofs:
+            earlier = named.setdefault((m.node, m.direction), m.name)
+            if earlier != m.name:
+                where = f"{m.node}" + ("" if m.direction is None else f"{'-' if m.direction < 0 else '+'}"
+                                                                       f"{abs(m.direction)}")
+                raise InputError(f"node {where} is mapped twice, to {earlier} and to {m.name}", field="--dof")
+
     def dof_name(self, node: int, direction: int) -> tuple[str, float] | None:
         """The mapped DOF name and the sign of a file's node and direction (None when not mapped)."""
         for m in self.dofs:

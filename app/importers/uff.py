@@ -18,7 +18,7 @@ from .idlines import RecordTag, decode
 from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, check_values, in_sweep_order, sine_run_name,
                    sweep_direction)
 from .time_history import random_run_from_time_histories
-from .units import FORCES, RESPONSES, FileUnits, file_default, to_receptance, unit_factor
+from .units import DISPLACEMENT, FORCES, RESPONSES, FileUnits, Scaled, file_default, to_receptance, unit_factor
 
 FUNC_TIME, FUNC_FRF = 1, 4
 UNITS = 164
@@ -61,6 +61,7 @@ def read_records(path: str) -> tuple[list[Record], FileUnits | None, list[str]]:
         raise InputError(f"not a readable universal file ({exc})", path) from None
     if not types:
         raise InputError("holds no universal-file dataset (not a UFF file?)", path)
+    _check_whole(uff, path)
     records, others, units = [], [], None
     for i, kind in enumerate(types):
         if kind == UNITS:
@@ -73,11 +74,52 @@ def read_records(path: str) -> tuple[list[Record], FileUnits | None, list[str]]:
         except Exception as exc:
             raise InputError(f"cannot be read as dataset 58 ({exc}; a binary file from another system may need "
                              "pyuff.fix_58b)", path, f"record {i + 1}") from None
+        _check_points(fields, path, i + 1)
         ids = {k: str(fields.get(k, "")).strip() for k in ID_KEYS}
         records.append(Record(i + 1, fields, decode(ids, f"{path}: record {i + 1}")))
     notes = [f"skipped datasets {', '.join(str(n) for n in others)} (types "
              f"{', '.join(sorted({str(types[n - 1]) for n in others}))}: not function records)"] if others else []
     return records, units, notes
+
+
+def _check_whole(uff, path: str) -> None:
+    """Refuse a file that ends inside a dataset (cut short: a copy or download that stopped). pyuff drops such a
+    last dataset without a word; after the last whole dataset only its closing ``-1`` may follow."""
+    blocks = getattr(uff, "_block_ind", None)          # pyuff's (start, end) byte offsets of the whole datasets
+    if blocks is None or not len(blocks):
+        return
+    end = int(blocks[-1][1])
+    with open(path, "rb") as fh:
+        fh.seek(end)
+        lines = [line.strip() for line in fh.read().splitlines()]
+    # the closing -1 (in a binary record it follows the data on the same line), then nothing but blank lines
+    closing = next((i for i, line in enumerate(lines) if line.endswith(b"-1")), len(lines))
+    if any(lines[closing + 1:]):
+        raise InputError(f"the file ends inside this dataset: it is cut short after byte {end} (copied or written "
+                         "incompletely?); nothing imported", path, f"record {len(blocks) + 1}")
+
+
+def _check_points(fields: dict, path: str, number: int) -> None:
+    """The record header's number of points is the number of points the record holds."""
+    claimed, held = fields.get("num_pts"), len(fields.get("data", ()))
+    if claimed is None or int(claimed) != held:
+        raise InputError(f"the header says {claimed} points, the record holds {held}", path,
+                         f"record {number}: num_pts")
+
+
+def _check_records_complete(path: str, records: list[Record]) -> None:
+    """A contactid run whose tags state how many records it has must have them all (a file cut at a record
+    boundary loses whole records without a trace otherwise)."""
+    by_run: dict[str, list[Record]] = {}
+    for r in records:
+        if r.tag is not None:
+            by_run.setdefault(r.tag.run, []).append(r)
+    for run, held in by_run.items():
+        stated = held[0].tag.records
+        if stated is not None and len(held) != stated:
+            raise InputError(f"run {run} has {len(held)} of the {stated} records its id lines state (records= in "
+                             "id5): records are missing (a file cut short?); nothing imported", path,
+                             held[-1].where("id5"))
 
 
 def _units(uff, index: int, path: str) -> FileUnits:
@@ -94,6 +136,7 @@ def _units(uff, index: int, path: str) -> FileUnits:
 def read_uff(path: str, options: SourceOptions) -> tuple[list[ImportedRun], list[Record], list[str]]:
     """The runs of one UFF58 file, its dataset 58 records and notes (skipped records, assumed units)."""
     records, units, notes = read_records(path)
+    _check_records_complete(path, records)
     frf = [r for r in records if r.fields.get("func_type") == FUNC_FRF and (r.tag is None or r.tag.quantity == "frf")]
     time = [r for r in records if r.fields.get("func_type") == FUNC_TIME and r.tag is None]
     extra = [r for r in records if r.tag is not None and r.tag.quantity != "frf"]
@@ -112,7 +155,7 @@ def read_uff(path: str, options: SourceOptions) -> tuple[list[ImportedRun], list
     if time:
         runs.append(random_run_from_time_histories(path, [(r.number, r.fields) for r in time], options, units,
                                                    notes))
-    _attach_line_quantities(path, runs, extra)
+    _attach_line_quantities(path, runs, extra, units)
     return [in_sweep_order(r) for r in runs], records, notes
 
 
@@ -130,6 +173,41 @@ def _dof(path: str, record: Record, node_field: str, dir_field: str, options: So
                      (" or --excitation NAME)" if node_field == "ref_node" else ")"), path, record.where(node_field))
 
 
+FORCE_TYPES = {t: "force" for t in FORCES}
+AXIS_TYPES = {"ordinate": "displacement (8), velocity (11) or acceleration (12)", "orddenom": "a force (13 or 9)"}
+AXIS_NAMES = {"ordinate": "ordinate", "orddenom": "ordinate denominator"}
+
+
+def _axis(path: str, record: Record, axis: str, allowed: dict, units: FileUnits | None) -> tuple[int, Scaled]:
+    """A record axis's specific data type (one of ``allowed``) and the factor of its unit label to SI."""
+    f = record.fields
+    kind = int(f.get(f"{axis}_spec_data_type", 0))
+    if kind not in allowed:
+        what = AXIS_TYPES[axis] if axis == "orddenom" or allowed is RESPONSES else " or ".join(
+            f"{name} ({t})" for t, name in allowed.items())
+        raise InputError(f"{AXIS_NAMES[axis]} specific data type {kind} is not {what}", path,
+                         record.where(f"{axis}_spec_data_type"))
+    return kind, unit_factor(kind, f.get(f"{axis}_axis_units_lab", ""), path, record.where(f"{axis}_axis_units_lab"),
+                             file_default(units, f, axis))
+
+
+def _line_factor(path: str, record: Record, units: FileUnits | None) -> float:
+    """The factor to SI of a contactid per-line record, after checking its types and unit labels are those
+    export writes for its quantity (a standard deviation of receptance, a force, or a ratio)."""
+    quantity = record.tag.quantity
+    if quantity == "frf_std":
+        _, num = _axis(path, record, "ordinate", {DISPLACEMENT: "displacement"}, units)
+        _, den = _axis(path, record, "orddenom", FORCE_TYPES, units)
+        return num.factor / den.factor
+    if quantity == "force_amplitude":
+        return _axis(path, record, "ordinate", FORCE_TYPES, units)[1].factor
+    label = str(record.fields.get("ordinate_axis_units_lab", "")).strip()
+    if label.upper() not in ("", "NONE", "1"):
+        raise InputError(f"unit {label!r} is not a ratio (1) for {quantity}", path,
+                         record.where("ordinate_axis_units_lab"))
+    return 1.0
+
+
 def _frf_entry(path: str, record: Record, options: SourceOptions, units: FileUnits | None,
                notes: list[str]) -> FrfEntry:
     f = record.fields
@@ -140,27 +218,19 @@ def _frf_entry(path: str, record: Record, options: SourceOptions, units: FileUni
     if int(f.get("abscissa_spec_data_type", 0)) not in FREQUENCY_TYPES or \
             str(f.get("abscissa_axis_units_lab", "")).strip().upper() not in ("", "NONE", "HZ"):
         raise InputError("the abscissa must be frequency in Hz", path, record.where("abscissa_axis_units_lab"))
+    # the types and unit labels are checked in contactid's own records too: the tags name the run and the DOFs,
+    # never what the numbers are
+    kind, num = _axis(path, record, "ordinate", RESPONSES, units)
+    _, den = _axis(path, record, "orddenom", FORCE_TYPES, units)
+    if num.assumed or den.assumed:
+        notes.append(f"record {record.number}: no unit label and no units dataset 164; SI assumed")
     if record.tag is not None:
         response, excitation, sign = record.tag.response, record.tag.reference, 1.0
-        scale, kind = 1.0, 8
     else:
-        kind = int(f.get("ordinate_spec_data_type", 0))
-        if kind not in RESPONSES:
-            raise InputError(f"ordinate specific data type {kind} is not displacement (8), velocity (11) or "
-                             "acceleration (12)", path, record.where("ordinate_spec_data_type"))
-        denominator = int(f.get("orddenom_spec_data_type", 0))
-        if denominator not in FORCES:
-            raise InputError(f"ordinate denominator specific data type {denominator} is not a force (13 or 9)",
-                             path, record.where("orddenom_spec_data_type"))
-        num = unit_factor(kind, f.get("ordinate_axis_units_lab", ""), path, record.where("ordinate_axis_units_lab"),
-                          file_default(units, f, "ordinate"))
-        den = unit_factor(denominator, f.get("orddenom_axis_units_lab", ""), path,
-                          record.where("orddenom_axis_units_lab"), file_default(units, f, "orddenom"))
-        if num.assumed or den.assumed:
-            notes.append(f"record {record.number}: no unit label and no units dataset 164; SI assumed")
         response, s1 = _dof(path, record, "rsp_node", "rsp_dir", options, None)
         excitation, s2 = _dof(path, record, "ref_node", "ref_dir", options, options.excitation)
-        sign, scale = s1 * s2, num.factor / den.factor
+        sign = s1 * s2
+    scale = num.factor / den.factor
     check_axis(x, path, record.where("x"))
     check_values(data, path, record.where("data"))
     keep = x > 0
@@ -201,11 +271,9 @@ def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions
         kind = KINDS[options.kind or "sine"]
         force = options.force
         if force is None:
-            if kind == "stepped_sine":
-                raise InputError("the file does not say the force level of its stepped-sine FRFs: give it "
-                                 "(--force-amplitude N)",
-                                 path, first.record.where("force"))
-            force = 0.0
+            what = "force level of its stepped-sine" if kind == "stepped_sine" else "rms force of its random"
+            raise InputError(f"the file does not say the {what} FRFs: give it (--force-amplitude N)", path,
+                             first.record.where("force"))
         direction = "none" if kind == "random" else sweep_direction(first.frequency, options.direction)
         name = "random" if kind == "random" else sine_run_name(force, direction)
         status = "complete"
@@ -213,7 +281,8 @@ def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions
                        source=path, records=[e.record.number for e in entries])
 
 
-def _attach_line_quantities(path: str, runs: list[ImportedRun], extra: list[Record]) -> None:
+def _attach_line_quantities(path: str, runs: list[ImportedRun], extra: list[Record],
+                            units: FileUnits | None) -> None:
     by_name = {r.name: r for r in runs}
     for record in extra:
         tag = record.tag
@@ -221,11 +290,11 @@ def _attach_line_quantities(path: str, runs: list[ImportedRun], extra: list[Reco
         if run is None:
             raise InputError(f"{tag.quantity} of run {tag.run}, which has no FRF record in the file", path,
                              record.where("id1"))
-        values = np.asarray(record.fields["data"], float)
+        values = np.asarray(record.fields["data"], float) * _line_factor(path, record, units)
         if len(values) != len(run.frequency):
             raise InputError(f"{len(values)} lines, but run {tag.run} has {len(run.frequency)}", path,
                              record.where("num_pts"))
         check_values(values, path, record.where("data"))
-        key, units = LINE_QUANTITIES[tag.quantity]
-        run.arrays[key.format(dof=tag.response)] = (units, values)
+        key, stored_units = LINE_QUANTITIES[tag.quantity]
+        run.arrays[key.format(dof=tag.response)] = (stored_units, values)
         run.records.append(record.number)
