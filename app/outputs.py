@@ -22,7 +22,7 @@ from typing import Iterable, Iterator
 
 from analysis.errors import InputError
 
-from .session_file import SessionWriteError
+from .session_file import SessionWriteError, sync_file
 
 TEMP_PREFIX = "."
 TEMP_SUFFIX = ".partial"
@@ -103,15 +103,6 @@ def temporary_path(path, keep_suffix: bool = False) -> Path:
     if keep_suffix:
         return path.with_name(f"{TEMP_PREFIX}{path.stem}.{os.getpid()}{TEMP_SUFFIX}{path.suffix}")
     return path.with_name(f"{TEMP_PREFIX}{path.name}.{os.getpid()}{TEMP_SUFFIX}")
-
-
-def sync_file(path: Path) -> None:
-    """Flush a file's data to the disk (before it is renamed into place)."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 @contextmanager

@@ -28,7 +28,6 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .outputs import sync_file
 from .session_wire import receive_call, send_reply
 
 FORMAT = "contactid-session"
@@ -41,6 +40,15 @@ LINES_PER_CHUNK = 64
 """Lines per chunk of the per-line datasets; each chunk carries a Fletcher-32 checksum that HDF5 checks on read."""
 CRASH_REASON = "the acquiring process stopped without closing the run (crash or kill)"
 
+
+
+def sync_file(path) -> None:
+    """Flush a file's data to the disk (before it is renamed into place)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def _locked(exc: OSError) -> bool:
