@@ -518,8 +518,6 @@ def _notes(exc: BaseException) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .outputs import WRITE_ERRNOS, write_failure
-
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -539,6 +537,8 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except OSError as exc:
         # an output that cannot be written (full disk, read-only medium): nothing was written, as for bad input
+        from .outputs import WRITE_ERRNOS, write_failure
+
         if args.debug or exc.errno not in WRITE_ERRNOS:
             raise
         where = f"{exc.filename}: " if exc.filename else ""

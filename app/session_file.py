@@ -41,7 +41,6 @@ LINES_PER_CHUNK = 64
 CRASH_REASON = "the acquiring process stopped without closing the run (crash or kill)"
 
 
-
 def sync_file(path) -> None:
     """Flush a file's data to the disk (before it is renamed into place)."""
     fd = os.open(path, os.O_RDONLY)

@@ -227,14 +227,14 @@ CASES: tuple[Case, ...] = (
     _case("rk4 2dof nothing missing (cubic known)", LUMPED2, [_law("a", "cubic", k3=2.0e5)], hidden=[],
           noise=0.01, source="rk4"),
     # two laws on each of two elements, none known: the paper's own example is of this kind
-    _case("2dof two joints: cubic + damping, cubic + friction", LUMPED2,
+    _case("2dof two joints: cubic + damping at a and cubic + friction at b", LUMPED2,
           [A_CUBIC, A_QUAD, _law("b", "cubic", k3=-2.0e4), _law("b", "coulomb", fs=0.08)], noise=0.003),
-    _case("2dof two joints: cubic + friction, gap + damping", LUMPED2,
+    _case("2dof two joints: cubic + friction at a and gap + damping at b", LUMPED2,
           [A_CUBIC, A_COULOMB, _law("b", "gap", k=2000.0, gap=0.003), B_QUAD], noise=0.005),
-    _case("3dof two joints: cubic + friction between, damping + cubic at x3", CHAIN3,
+    _case("3dof two joints: cubic + friction between and damping + cubic at x3", CHAIN3,
           [J_CUBIC, J_COULOMB, _law("g", "quadratic_damping", c2=3.0), _law("g", "cubic", k3=1.0e5)],
           noise=0.003),
-    _case("rk4 2dof two joints: cubic + damping, gap + damping", LUMPED2,
+    _case("rk4 2dof two joints: cubic + damping at a and gap + damping at b", LUMPED2,
           [A_CUBIC, A_QUAD, _law("b", "gap", k=2000.0, gap=0.003), B_QUAD], noise=0.003, source="rk4"),
 )
 # every case with a known law again from a model with none

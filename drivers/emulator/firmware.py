@@ -42,6 +42,7 @@ class Firmware:
     """
 
     model = ""
+    manufacturer = MANUFACTURER
 
     def __init__(self, rig: "EmulatedRig", role: str):
         self.rig = rig
@@ -177,7 +178,9 @@ class Firmware:
 
     # ----- common commands ----------------------------------------------------------------
     def identity(self) -> str:
-        return f"{MANUFACTURER},{self.model},{self.rig.name},{FIRMWARE_VERSION}"
+        # the rig's name is the serial-number field: a comma or a semicolon there would split the IEEE 488.2 reply
+        serial = self.rig.name.replace(",", " ").replace(";", " ").replace("\n", " ")
+        return f"{self.manufacturer},{self.model},{serial},{FIRMWARE_VERSION}"
 
     def _add_common_commands(self) -> None:
         add = self.scpi.add

@@ -13,7 +13,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from ..settings import GENERATOR, Dialect
-from .firmware import FIRMWARE_VERSION
 from .scpi_server import ScpiError, expect_one, format_number, match_keyword, parse_number, reply_with
 from .shaker import ShakerFirmware
 
@@ -34,6 +33,7 @@ class GeneratorFirmware(ShakerFirmware):
     """A 33500B-series generator: source settings and output switch, nothing that protects the shaker."""
 
     model = MODEL
+    manufacturer = MANUFACTURER
     min_frequency = GENERATOR.frequency.low
     min_peak = AMPLITUDE_VPP[0] / 2
     max_peak = AMPLITUDE_VPP[1] / 2
@@ -43,9 +43,6 @@ class GeneratorFirmware(ShakerFirmware):
         super().__init__(rig)
         self.max_frequency = min(BANDWIDTH, 0.45 * rig.sample_rate)
         self.band = (NOISE_LOW_EDGE, self.max_frequency)
-
-    def identity(self) -> str:
-        return f"{MANUFACTURER},{self.model},{self.rig.name},{FIRMWARE_VERSION}"
 
     def _defaults(self) -> None:
         super()._defaults()
