@@ -161,11 +161,18 @@ def _stop_reason(ranked: list[Candidate], pairs_tried: bool, min_gain: float) ->
             f"({gain_phrase(top.gain)}), not significant because {why}{pairs}")
 
 
-def _discovery_reason(found: ElementDiscovery) -> str:
+def _discovery_reason(found: ElementDiscovery, still_empty: list[str]) -> str:
+    """Why discovery's step was taken; where elements are still empty, the step's own error says little (the
+    FRF gains judged it with them represented by their measured kbar)."""
     taken = [s for s in found.walk if s.taken]
     judged = "; ".join(s.text() for s in taken)
-    return (f"the set of laws its kbar chooses ({found.sets_fitted} sets fitted), judged by the FRFs: {judged}"
-            if judged else f"the set of laws its kbar chooses ({found.sets_fitted} sets fitted)")
+    reason = (f"the set of laws its kbar chooses ({found.sets_fitted} sets fitted), judged by the FRFs with the "
+              f"other elements as measured: {judged}" if judged else
+              f"the set of laws its kbar chooses ({found.sets_fitted} sets fitted)")
+    if still_empty:
+        reason += (f"; the error recorded here still has {', '.join(still_empty)} without laws, which dominates it "
+                   "until added")
+    return reason
 
 
 STOPPED_BY_USER = "stopped by the user"
@@ -193,14 +200,15 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
     if rules.discovery is not None:
         found = wb.discover(rules.discovery, note)
         searched = frozenset(e.element for e in found.elements)
-        for element in found.elements:
-            if not element.laws:
-                continue
+        pending = [e for e in found.elements if e.laws]
+        for k, element in enumerate(pending):
             if stopping():
                 return AutoResult(steps, STOPPED_BY_USER, [], found)
             before = wb.history[-1].error
             after = wb.add_laws(element.element, element.laws, action="discover").error
-            take(AutoStep("discover", element.element, element.laws, before, after, _discovery_reason(element)))
+            still_empty = [e.element for e in pending[k + 1:]]
+            take(AutoStep("discover", element.element, element.laws, before, after,
+                          _discovery_reason(element, still_empty)))
     if rules.linear_corrections:
         names = wb.linear_corrections()
         if names:

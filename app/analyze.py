@@ -252,6 +252,11 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
             out += [f"  {o.finding.text()}", f"    {o.text()}"]
     if candidates:
         out += ["", f"what is missing (best first; single-harmonic FRF error, the model's {single:.4g}):"]
+        empty = [el.name for el in wb.model.elements if not el.laws and el.nonparametric is None]
+        if len(empty) > 1:
+            out.append(f"  (one law at a time, the other elements as they are: {', '.join(empty)} have no laws yet, "
+                       "so a right law at one can gain little while another is still empty; --auto first chooses "
+                       "every element's laws from its own kbar -- model discovery, docs/discovery.md)")
         for c in candidates[:top]:
             mark = "significant" if c.significant else "not significant"
             out.append(f"  {c.name}  single-harmonic error {c.error:.4g} ({gain_phrase(c.gain)}, {mark})")
