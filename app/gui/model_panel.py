@@ -354,11 +354,14 @@ class ModelPanel(QWidget):
         errors = np.array([h.error for h in view.history], float)
         self.history.plot(steps, finite_log(errors), pen=pg.mkPen("#1f77b4", width=2), symbol="o", symbolSize=8,
                           symbolBrush=pg.mkBrush("#1f77b4"))
+        last = len(view.history) - 1
         for h in view.history:
             action = h.action.replace("add ", "+ ", 1)
-            # labels alternate above and below the line so neighbours with close errors do not overlap
+            # labels alternate above and below the line so neighbours with close errors do not overlap; the last
+            # one ends at its point, the first starts there, so neither leaves the plot
+            x_anchor = 1.0 if h.step == last and last > 0 else 0.0 if h.step == 0 else 0.5
             label = pg.TextItem(f"{action}\n{h.error:.3g}", color="#333",
-                                anchor=(0.5, 1.15) if h.step % 2 == 0 else (0.5, -0.15))
+                                anchor=(x_anchor, 1.15) if h.step % 2 == 0 else (x_anchor, -0.15))
             self.history.addItem(label)
             label.setPos(h.step, np.log10(h.error) if h.error > 0 else 0.0)
         self.history.setXRange(-0.5, max(len(view.history) - 0.5, 1.5), padding=0.05)
