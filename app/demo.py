@@ -101,7 +101,8 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
         k = normal.verdict.mean_kbar.real
         say(f"   The normal kbar is constant and {'negative' if k < 0 else 'positive'}: the reference normal "
             f"stiffness is {'too high' if k < 0 else 'too low'}; the contact behaves as k_w + kbar = "
-            f"{1e7 + k:.3g} N/m.")
+            f"{1e7 + k:.3g} N/m. Its imaginary part, {normal.verdict.mean_kbar.imag:.3g} N/m, takes back the "
+            "damping the reference gives the handbook spring (C = 1e-5 K, springs included: 1e-5 x k_w x w).")
     say(f"\n4. What is missing, starting from no laws at all (FRF error {wb.history[-1].error:.3g}):")
     result = run_auto(wb, progress=lambda step: say(f"   {step.text()}"), note=lambda line: say(f"   {line}"))
     say(f"   {result.stopped}")
