@@ -120,3 +120,31 @@ def test_the_left_out_lines_are_reported_in_the_text_and_the_json(clean):
     right = next(e for e in doc["elements"] if e["name"] == "right")
     assert right["lines_excluded_hz"] == pytest.approx(wb.reports["right"].excluded_hz())
     assert all(law["undetermined"] == [] for law in right["laws"])
+
+
+@pytest.mark.slow
+def test_table_1_from_receptances_alone_and_an_empty_model(clean):
+    """The same data, a model with no law at either element: discovery finds the four laws (docs/discovery.md),
+    within 1.5 % and with intervals that cover, as with the laws known."""
+    import copy
+
+    from analysis.auto import run_auto
+
+    rng = np.random.default_rng(0)
+    H = clean + NOISE * np.abs(clean) / np.sqrt(2) * (rng.normal(size=clean.shape) + 1j * rng.normal(size=clean.shape))
+    run = SineRun("sine_0.8N_up", FORCE, "up", "x2", ["x1", "x2"], FREQS, H, smoothness_noise(FREQS, H),
+                  noise_estimated=True)
+    empty = copy.deepcopy(MODEL)
+    for element in empty["element"]:
+        element["laws"] = []
+    wb = Workbench(load_model(empty), Measurements([run]))
+    wb.start()
+    result = run_auto(wb)
+    assert {e.element: set(e.laws) for e in result.discovery.elements} == \
+        {"left": {"cubic", "quadratic_damping"}, "right": {"cubic", "coulomb"}}, result.text()
+    got = fitted(wb)
+    for key, true in TABLE_1.items():
+        value, stderr, undetermined = got[key]
+        assert value == pytest.approx(true, rel=0.015), (key, value)
+        assert abs(value - true) <= 1.96 * stderr, (key, value, stderr)
+        assert not undetermined, key
