@@ -16,7 +16,6 @@ import argparse
 import sys
 import tempfile
 import time
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,25 +32,7 @@ from app.models import asset  # noqa: E402
 from app.plan import load_plan  # noqa: E402
 from app.session import open_session  # noqa: E402
 from app.session_data import measurements_from_session  # noqa: E402
-from drivers.simulation.rig import load_rig  # noqa: E402
-
-
-PAPER_2DOF_MODEL = """[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-
-[[element]]
-name = "left"
-dof = "x1"
-laws = []
-
-[[element]]
-name = "right"
-dof = "x2"
-laws = []
-"""
+from drivers.simulation.rig import builtin_rig_path, load_rig  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -74,8 +55,12 @@ def simulated(bench: Bench, folder: Path) -> Path:
 
 
 def model_of(bench: Bench):
+    """paper-beam: the demo's model; paper-2dof: the rig's own structure and elements, every law taken away."""
     if bench.rig == "paper-2dof":
-        return load_model(tomllib.loads(PAPER_2DOF_MODEL), "paper-2dof, no laws")
+        doc = load_toml(builtin_rig_path("paper-2dof"))
+        for element in doc["element"]:
+            element["laws"] = []
+        return load_model(doc, "paper-2dof, no laws")
     path = asset("paper-beam.model.toml")
     return load_model(load_toml(path), str(path))
 
