@@ -26,3 +26,22 @@ def plain_open(path, timeout=120.0) -> h5py.File:
             return f
         f.close()
         time.sleep(0.05)
+
+
+# the paper's 2-DOF structure with a cubic at each element: a model file the session tests analyse with
+MODEL = """[structure]
+type = "lumped"
+dofs = ["x1", "x2"]
+mass = [[1.0, 0.0], [0.0, 2.0]]
+stiffness = [[200.0, -100.0], [-100.0, 200.0]]
+
+[[element]]
+name = "left"
+dof = "x1"
+laws = ["cubic"]
+
+[[element]]
+name = "right"
+dof = "x2"
+laws = ["cubic"]
+"""

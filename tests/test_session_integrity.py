@@ -11,24 +11,8 @@ import pytest
 
 from app.cli import main
 from app.session import RunSpec, SessionWriter, open_session
-from session_helpers import ROOT, plain_open
+from session_helpers import MODEL, ROOT, plain_open
 
-MODEL = """[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-
-[[element]]
-name = "left"
-dof = "x1"
-laws = ["cubic"]
-
-[[element]]
-name = "right"
-dof = "x2"
-laws = ["cubic"]
-"""
 RUN = "sine_0.8N_up"
 
 

@@ -7,6 +7,7 @@ from app.instruments import emulated_instruments
 from app.measure import run_plan
 from app.plan import parse_plan
 from drivers.simulation.rig import builtin_rig_path, load_rig
+from session_helpers import MODEL  # noqa: F401  (the valid model the corpus mutates)
 
 PLAN = """[[stepped_sine]]
 force = 0.8
@@ -27,22 +28,6 @@ max_force = 5.0
 max_acceleration = 50.0
 """
 
-MODEL = """[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-
-[[element]]
-name = "left"
-dof = "x1"
-laws = ["cubic"]
-
-[[element]]
-name = "right"
-dof = "x2"
-laws = ["cubic"]
-"""
 
 
 @pytest.fixture(scope="session")
