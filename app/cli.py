@@ -45,7 +45,6 @@ def cmd_modes(args) -> int:
     """Print the DOFs and natural frequencies of a rig or model file, or of a built-in rig: by default with the
     elements' small-amplitude stiffness (the contact as a low-level test sees it), with --bare the structure
     alone."""
-    import tomllib
     from pathlib import Path
 
     from analysis.model import load_model

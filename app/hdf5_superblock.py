@@ -13,7 +13,6 @@ an in-memory image of a session, never on the file itself.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _MASK = 0xFFFFFFFF

@@ -1,6 +1,5 @@
 """A full disk while `import`, `import --append`, `export` or `analyze -o` writes: one line saying what was not
 written and why, exit status 2, the originals intact and nothing left behind (no partial file, no empty folder)."""
-import errno
 import shutil
 
 import pytest

@@ -1,6 +1,5 @@
 """The Identify tab draws kbar by the plot rules of kbar.png: the identified dots above the fitted laws' line per
 level, a legend in every plot, an element judged linear on an axis that shows it flat."""
-import numpy as np
 from PySide6.QtCore import QObject, Signal
 
 from app.gui.identify_panel import IdentifyPanel
