@@ -7,18 +7,19 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
 1. **Sets of laws, fitted to the element's kbar.** Every set of one to ``max_laws`` laws of the library, at most
    one of each kind (:data:`analysis.laws.base.KINDS`: one joint has one stiffness mechanism, one damping, one
    friction...), is fitted to the element's kbar samples (pairs all; triples extend the ``triple_pool`` best pairs).
-   A set whose laws the fit cannot tell apart (an exact degeneracy across two laws, or parameters of two laws
-   correlated beyond ``max_correlation``) is not a set of separate effects and is dropped. Where the element's
-   verdict is linear, only laws without amplitude dependence enter.
+   A set in which one law adds no direction of its own (every parameter of it tied to another law's, by an exact
+   degeneracy or a correlation beyond ``max_correlation``) is not a set of separate effects and is dropped. Where
+   the element's verdict is linear, only laws without amplitude dependence enter. Data without harmonics: the
+   fits leave out the lines that do not follow them, and sets are judged by :func:`capped_chi_square`.
 2. **A criterion that charges for parameters.** ``chi2 / s^2 + p ln(2N)`` (BIC in the kbar noise), with ``s^2``
    the reduced chi-square of the best-fitting set where it exceeds 1: no law of the library fits a kbar the
    single-harmonic describing function cannot represent (friction that sticks for part of the cycle), and that
-   remainder is noise to every set alike, not evidence for a richer one. Per number of laws the best set by the
-   criterion is that size's *representative*.
-3. **Equivalent sets are named.** Sets that fit the kbar neither better nor worse than the chosen one by more than
-   the noise explains (``|chi2 - chi2_chosen| <= s^2 q``, ``q`` the chi-square quantile at ``false_alarm``) are
-   *indistinguishable on these data*; the one with the fewest parameters is taken, the others listed with the
-   test that would separate them (where their describing functions part: a lower or higher level, another band).
+   remainder is noise to every set alike, not evidence for a richer one.
+3. **Equivalent sets are named.** Sets of as many laws that fit the kbar neither better nor worse than each other
+   by more than the noise explains (``|chi2_a - chi2_b| <= s^2 q``, ``q`` the chi-square quantile at
+   ``false_alarm``) are alike (:func:`_alike`). Of those alike the FRFs' choice, the simplest is taken
+   (:func:`_simplest`); the others are listed as *indistinguishable on these data* with the test that would
+   separate them (where their describing functions part: a lower or higher level, another band).
 4. **The FRFs judge the size.** Each element's shortlists (:func:`_shortlists`) are walked from no law upward,
    every other searched element represented meanwhile by its own measured kbar (a stand-in, :func:`_standins`),
    so that no element's choice waits on another's: of each size the set the kbar criterion prefers among those
