@@ -31,7 +31,9 @@ GUARDIAN_LATENCY = 1.0
 """Longest a bench generator's output may stay on after its host is killed (its guardian switches it off)."""
 
 CHILD = """
-import sys, threading, time
+import signal, sys, threading, time
+# Ctrl-C as a user's shell delivers it: a test worker may have started this process with SIGINT ignored
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from drivers import OutputGuard, open_daq, open_shaker
 mode, shaker_url, daq_url, model = sys.argv[1:5]
 shaker = open_shaker(shaker_url, **({"watchdog": 0.08 if mode == "kill" else 1.0} if model == "SC-1" else {}))
