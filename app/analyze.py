@@ -17,9 +17,9 @@ from analysis.reference import ReferenceReport, reference_from_random
 from analysis.tables import load_toml
 from analysis.workbench import Workbench
 
-from .progress import Progress
-from .session import SessionWriteError, append_model_history, open_session, read_model_history
-from .session_data import measurements_from_session
+from app.progress import Progress
+from app.session import (SessionWriteError, append_model_history, measurements_from_session, open_session,
+                         read_model_history)
 
 EARLIER_SHOWN = 3          # earlier analyses listed in the report
 
@@ -38,7 +38,7 @@ class SessionNotes:
     histories earlier analyses stored in it, and whether this analysis's history was stored."""
 
     incomplete_runs: list[str] = field(default_factory=list)
-    earlier: list[dict] = field(default_factory=list)          # app.session.read_model_history
+    earlier: list[dict] = field(default_factory=list)          # app.session.writer.read_model_history
     stored_as: str | None = None
     not_stored: str = ""                                       # why the history was not stored
 

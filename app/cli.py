@@ -105,7 +105,7 @@ def cmd_laws(args) -> int:
 
 def cmd_export(args) -> int:
     """Write a session's FRFs as UFF58 or CSV."""
-    from .export import export_csv, export_uff
+    from app.export import export_csv, export_uff
 
     if args.uff:
         done = export_uff(args.session, args.uff, overwrite=args.overwrite, per_run=args.per_run,
@@ -142,8 +142,8 @@ def cmd_import(args) -> int:
 def _load_plan_for(rig_name: str | None, plan_arg: str | None):
     from drivers.simulation.rig import builtin_rigs
 
-    from .models import builtin_plan_path
-    from .plan import load_plan
+    from app.models import builtin_plan_path
+    from app.campaign.plan import load_plan
 
     if plan_arg is None:
         if rig_name in builtin_rigs():
@@ -191,9 +191,9 @@ def cmd_simulate(args) -> int:
     """Run a plan on an emulated rig through the real drivers."""
     from drivers.simulation.rig import builtin_rigs, load_rig
 
-    from .instruments import emulated_instruments
-    from .measure import ProgressBar, run_plan
-    from .outputs import check_output
+    from app.campaign.instruments import emulated_instruments
+    from app.campaign.measure import ProgressBar, run_plan
+    from app.session.outputs import check_output
 
     if args.list:
         for name in builtin_rigs():
@@ -214,10 +214,10 @@ def cmd_simulate(args) -> int:
 
 def cmd_acquire(args) -> int:
     """Run a plan on real instruments."""
-    from .instruments import real_instruments
-    from .measure import ProgressBar, run_plan
-    from .outputs import check_output
-    from .plan import load_plan
+    from app.campaign.instruments import real_instruments
+    from app.campaign.measure import ProgressBar, run_plan
+    from app.session.outputs import check_output
+    from app.campaign.plan import load_plan
 
     check_output(args.output, inputs=[args.plan], overwrite=args.overwrite)
     plan = load_plan(args.plan)
@@ -251,11 +251,11 @@ def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
 
-    from .analyze import (misfits_json, read_measurements, reference_only, report_text, run_workbench,
+    from app.analyze import (misfits_json, read_measurements, reference_only, report_text, run_workbench,
                           run_workbench_auto,
                           session_notes, store_history)
-    from .outputs import check_output
-    from .progress import Progress
+    from app.session.outputs import check_output
+    from app.progress import Progress
 
     inputs = [args.session, args.model]
     if args.output:                       # refused before any work: never an input, never silently replaced
@@ -303,7 +303,7 @@ def cmd_analyze(args) -> int:
 
 def _write_model(args, text: str, inputs: list) -> None:
     """Write the analysed model to ``-o``, never over an input nor silently over a file."""
-    from .outputs import atomic_output, require_free_space
+    from app.session.outputs import atomic_output, require_free_space
 
     require_free_space(args.output, len(text.encode()) + 4096, "write the fitted model")
     with atomic_output(args.output, inputs=inputs, overwrite=args.overwrite) as temp:
@@ -314,7 +314,7 @@ def _write_model(args, text: str, inputs: list) -> None:
 
 def cmd_recover(args) -> int:
     """Make a session whose writer process was killed readable by any HDF5 tool."""
-    from .session import needs_recovery, recover_session
+    from app.session.writer import needs_recovery, recover_session
 
     if not needs_recovery(args.session):
         print(f"{args.session}: closed normally, nothing to recover")
@@ -327,7 +327,7 @@ def cmd_recover(args) -> int:
 
 def cmd_demo(args) -> int:
     """The main job on the built-in paper-beam rig."""
-    from .demo import main_demo
+    from app.demo import main_demo
 
     return main_demo(args.out, args.quick, software_version(), overwrite=args.overwrite)
 
@@ -338,7 +338,7 @@ def cmd_gui(args) -> int:
         raise InputError("real instruments need both --shaker URL and --daq URL")
     if args.shaker and args.rig:
         raise InputError("give either --rig or --shaker/--daq, not both")
-    from .gui import run
+    from app.gui import run
 
     return run(session=args.session, rig=args.rig, shaker=args.shaker, daq=args.daq, excitation=args.excitation,
                model=args.model, software_version=software_version())
@@ -526,7 +526,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"contactid: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except _raised_class("app.campaign", "CampaignIncomplete") as exc:
+    except _raised_class("app.campaign.engine", "CampaignIncomplete") as exc:
         print(f"contactid: {exc}{_notes(exc)}", file=sys.stderr)
         return EXIT_INCOMPLETE
     except FileNotFoundError as exc:
@@ -536,7 +536,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except OSError as exc:
         # an output that cannot be written (full disk, read-only medium): nothing was written, as for bad input
-        from .outputs import WRITE_ERRNOS, write_failure
+        from app.session.outputs import WRITE_ERRNOS, write_failure
 
         if args.debug or exc.errno not in WRITE_ERRNOS:
             raise

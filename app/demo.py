@@ -20,16 +20,11 @@ from analysis.tables import load_toml
 from analysis.workbench import Workbench
 from drivers.simulation.rig import load_rig
 
-from .analyze import report_text
-from .campaign import CampaignIncomplete
-from .instruments import emulated_instruments
-from .measure import ProgressBar, run_plan
-from .models import asset, builtin_plan_path
-from .outputs import atomic_output
-from .plan import load_plan
-from .report import REPORT_FILES, write_report
-from .session import append_model_history, open_session
-from .session_data import measurements_from_session
+from app.analyze import report_text
+from app.campaign import CampaignIncomplete, ProgressBar, emulated_instruments, load_plan, run_plan
+from app.models import asset, builtin_plan_path
+from app.session import append_model_history, atomic_output, measurements_from_session, open_session
+from app.report import REPORT_FILES, write_report
 
 SESSION = "paper-beam.h5"
 FITTED = "paper-beam.fitted.toml"

@@ -36,10 +36,8 @@ import pyuff
 from analysis.errors import InputError
 
 from .importers.idlines import RecordTag, encode
-from .outputs import atomic_output, check_output, require_free_space
-from .session import RunData, Session, open_session
-from .session_checks import check_format, check_run, check_run_count
-from .session_data import displacement_distortion
+from app.session import (RunData, Session, atomic_output, check_format, check_output, check_run, check_run_count,
+                         displacement_distortion, open_session, require_free_space)
 
 FUNC_GENERAL, FUNC_FRF, FUNC_COHERENCE = 0, 4, 6
 DATA_UNKNOWN, DATA_DISPLACEMENT, DATA_FORCE, DATA_FREQUENCY = 0, 8, 13, 18
@@ -207,7 +205,7 @@ def _header(session_path: Path, software: str) -> dict:
 
 
 def _runs_to_export(s: Session) -> list[RunData]:
-    """The runs with lines, after the checks the analysis makes (:mod:`app.session_checks`): a session the
+    """The runs with lines, after the checks the analysis makes (:mod:`app.session.checks`): a session the
     analysis would refuse is not exported either (InputError naming the file, run and dataset)."""
     source = str(s.path)
     check_format(s.attrs, source)

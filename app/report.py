@@ -15,8 +15,8 @@ import numpy as np
 from analysis.numbers import engineering
 from analysis.workbench import Workbench
 
-from .analyze import element_misfits
-from .kbar_view import LEGEND_OFFSETS, emptiest_corner, linear_axis, model_paths
+from app.analyze import element_misfits
+from app.kbar_view import LEGEND_OFFSETS, emptiest_corner, linear_axis, model_paths
 
 LEVEL_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
                  (140, 86, 75), (227, 119, 194), (127, 127, 127)]
@@ -44,7 +44,7 @@ def _export(layout, path: Path, width: int = 1400, height: int = 900) -> Path:
     """The layout as a PNG at ``path``, replaced all at once (:func:`write_report` checks for old files)."""
     import pyqtgraph.exporters
 
-    from .outputs import atomic_output
+    from app.session.outputs import atomic_output
 
     layout.resize(width, height)
     layout.show()                       # off screen: lays the plots out at the export size
@@ -302,7 +302,7 @@ REPORT_FILES = ("frf.png", "kbar.png", "residuals.png", "error_history.png")
 def write_report(wb: Workbench, folder: Path, overwrite: bool = False) -> list[Path]:
     """All report plots into ``folder`` (REPORT_FILES); returns their paths. Existing plots are refused
     (InputError) unless ``overwrite``, before any is drawn."""
-    from .outputs import check_output
+    from app.session.outputs import check_output
 
     folder.mkdir(parents=True, exist_ok=True)
     for name in REPORT_FILES:

@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 from analysis import load_elements, load_structure  # noqa: E402
 from analysis.harmonic_balance import predict_sweep  # noqa: E402
 from app.cli import main  # noqa: E402
-from app.session import RunSpec, SessionWriter  # noqa: E402
+from app.session.writer import RunSpec, SessionWriter  # noqa: E402
 
 STRUCTURE = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
              "stiffness": [[200.0, -100.0], [-100.0, 200.0]], "rayleigh": [0.05, 0.002]}

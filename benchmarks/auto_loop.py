@@ -26,12 +26,12 @@ from analysis.auto import run_auto  # noqa: E402
 from analysis.model import load_model  # noqa: E402
 from analysis.tables import load_toml  # noqa: E402
 from analysis.workbench import Workbench  # noqa: E402
-from app.instruments import emulated_instruments  # noqa: E402
-from app.measure import run_plan  # noqa: E402
+from app.campaign.instruments import emulated_instruments  # noqa: E402
+from app.campaign.measure import run_plan  # noqa: E402
 from app.models import asset  # noqa: E402
-from app.plan import load_plan  # noqa: E402
-from app.session import open_session  # noqa: E402
-from app.session_data import measurements_from_session  # noqa: E402
+from app.campaign.plan import load_plan  # noqa: E402
+from app.session.writer import open_session  # noqa: E402
+from app.session.data import measurements_from_session  # noqa: E402
 from drivers.simulation.rig import builtin_rig_path, load_rig  # noqa: E402
 
 

@@ -20,10 +20,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.instruments import emulated_instruments  # noqa: E402
-from app.measure import run_plan  # noqa: E402
-from app.plan import load_plan, parse_plan  # noqa: E402
-from app.session import open_session  # noqa: E402
+from app.campaign.instruments import emulated_instruments  # noqa: E402
+from app.campaign.measure import run_plan  # noqa: E402
+from app.campaign.plan import load_plan, parse_plan  # noqa: E402
+from app.session.writer import open_session  # noqa: E402
 from app.models import builtin_plan_path  # noqa: E402
 from drivers.simulation.rig import load_rig  # noqa: E402
 

@@ -33,11 +33,11 @@ os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 from PySide6.QtCore import QEvent, QObject, QTimer  # noqa: E402
 from PySide6.QtWidgets import QApplication  # noqa: E402
 
-from app.campaign import CampaignListener  # noqa: E402
+from app.campaign.engine import CampaignListener  # noqa: E402
 from app.gui.main_window import MainWindow  # noqa: E402
-from app.instruments import emulated_instruments  # noqa: E402
-from app.measure import run_plan  # noqa: E402
-from app.plan import parse_plan  # noqa: E402
+from app.campaign.instruments import emulated_instruments  # noqa: E402
+from app.campaign.measure import run_plan  # noqa: E402
+from app.campaign.plan import parse_plan  # noqa: E402
 from drivers.simulation.rig import load_rig  # noqa: E402
 
 RIG = """

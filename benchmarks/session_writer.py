@@ -1,9 +1,9 @@
 """Cost of writing sessions through the writer process against writing in the acquiring process.
 
 Writes the same stepped-sine run -- the per-line quantities a campaign stores (2 sensor DOFs, harmonics, THD,
-control data) and a raw block per line -- once with :class:`app.session_file.SessionFile` in this process (the
+control data) and a raw block per line -- once with :class:`app.session.file.SessionFile` in this process (the
 baseline: how sessions were written before the writer process, SWMR, flush per line) and once through
-:class:`app.session.SessionWriter` (every call sent to the writer process, returning when the line is flushed).
+:class:`app.session.writer.SessionWriter` (every call sent to the writer process, returning when the line is flushed).
 Prints the time per line of each, their ratio, and the writer process's start-up (once per session).
 
 Run: ``python benchmarks/session_writer.py [--lines 300] [--raw 2048] [--repeats 3]``
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from app.outputs import temporary_path
-from app.session import SessionWriter
-from app.session_file import RunSpec, SessionFile, SessionHeader
+from app.session.outputs import temporary_path
+from app.session.writer import SessionWriter
+from app.session.file import RunSpec, SessionFile, SessionHeader
 
 DOFS = ["x1", "x2"]
 CHANNELS = ["force", "acc:x1", "acc:x2"]

@@ -40,10 +40,10 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.instruments import emulated_instruments  # noqa: E402
-from app.measure import run_plan  # noqa: E402
-from app.plan import parse_plan  # noqa: E402
-from app.session import open_session  # noqa: E402
+from app.campaign.instruments import emulated_instruments  # noqa: E402
+from app.campaign.measure import run_plan  # noqa: E402
+from app.campaign.plan import parse_plan  # noqa: E402
+from app.session.writer import open_session  # noqa: E402
 from drivers.simulation.rig import load_rig  # noqa: E402
 
 BRANCH = 0.25

@@ -91,11 +91,11 @@ def ranking_benchmark(session: Path | None):
     from analysis.model import load_model
     from analysis.tables import load_toml
     from analysis.workbench import Workbench
-    from app.instruments import emulated_instruments
-    from app.measure import run_plan
-    from app.plan import load_plan
-    from app.session import open_session
-    from app.session_data import measurements_from_session
+    from app.campaign.instruments import emulated_instruments
+    from app.campaign.measure import run_plan
+    from app.campaign.plan import load_plan
+    from app.session.writer import open_session
+    from app.session.data import measurements_from_session
     from app.models import builtin_plan_path
     from drivers.simulation.rig import load_rig
 

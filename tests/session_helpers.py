@@ -4,7 +4,7 @@ from pathlib import Path
 
 import h5py
 
-from app.session import _process_alive
+from app.session.writer import _process_alive
 
 ROOT = Path(__file__).resolve().parents[1]
 

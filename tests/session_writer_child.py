@@ -4,7 +4,7 @@ import sys
 
 import numpy as np
 
-from app.session import RunSpec, SessionWriter
+from app.session.writer import RunSpec, SessionWriter
 
 path = sys.argv[1]
 w = SessionWriter(path, plan_text="[[stepped_sine]]\nforce = 0.8\n", software_version="test")

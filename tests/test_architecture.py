@@ -130,11 +130,56 @@ def test_imports_follow_the_layering():
     assert wrong == []
 
 
+COMMANDS = {"app.cli", "app.analyze", "app.demo", "app.export", "app.report"}
+
+
+def _room(module: str) -> str:
+    """app's packages are rooms (docs/architecture.md): the campaign, the session, the GUI, the importers."""
+    parts = module.split(".")
+    return ".".join(parts[:2]) if parts[0] == "app" and len(parts) > 1 else parts[0]
+
+
+def _room_rule_broken(module: str, target: str) -> bool:
+    """The campaign and the importers reach the session only through the session package's public names; the GUI
+    reaches both only through their packages' names; the session knows nothing above it; no room but the GUI
+    imports a command."""
+    src, dst = _room(module), _room(target)
+    if src == dst:
+        return False
+    inside = target not in ("app.session", "app.campaign")        # a module inside a room, not its front door
+    if src in ("app.campaign", "app.importers") and dst == "app.session":
+        return inside
+    if src == "app.gui" and dst in ("app.session", "app.campaign"):
+        return inside
+    if src == "app.session" and (dst in ("app.campaign", "app.gui", "app.importers") or target in COMMANDS):
+        return True
+    if src == "app.importers":
+        return dst.startswith("app")          # other systems' files need only the analysis and the session
+    return src == "app.campaign" and (dst in ("app.gui", "app.importers") or target in COMMANDS)
+
+
+def test_app_rooms_talk_through_their_front_doors():
+    wrong = [f"{m} imports {t}" for m in MODULES if m.startswith("app.")
+             for t in sorted(_imports(m, runtime_only=False)) if _room_rule_broken(m, t)]
+    assert wrong == []
+
+
+def test_the_room_rules_bite():
+    assert _room_rule_broken("app.campaign.engine", "app.session.writer")
+    assert not _room_rule_broken("app.campaign.engine", "app.session")
+    assert _room_rule_broken("app.gui.lab", "app.campaign.plan")
+    assert _room_rule_broken("app.session.writer", "app.campaign")
+    assert _room_rule_broken("app.session.data", "app.analyze")
+    assert not _room_rule_broken("app.session.writer", "app.session.file")
+    assert _room_rule_broken("app.importers.store", "app.campaign")
+    assert "app.session" in _imports("app.campaign.engine", False)
+
+
 def test_the_checks_see_the_imports():
     # guards against a checker that finds nothing: known edges of each kind are seen
     assert "analysis.laws" in _imports("analysis.elements", runtime_only=False)           # absolute
     assert "drivers.simulation.kernels" in _imports("drivers.simulation.simulator", False)  # from . import x
-    assert "drivers" in _imports("app.campaign", False)                                   # a name from __init__
+    assert "drivers" in _imports("app.campaign.engine", False)                            # a name from __init__
     assert "drivers.simulation.simulator" in _imports("app.cli", False)                   # inside a function
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _layer("drivers.emulator.core") == "drivers.emulator" and _layer("drivers.scpi") == "drivers"
@@ -166,8 +211,16 @@ def test_every_cited_document_exists(path):
 
 
 def test_citations_are_found():
-    cited = _cited(ROOT / "app" / "session.py")
+    cited = _cited(ROOT / "app" / "session" / "writer.py")
     assert "docs/session-format.md" in cited
     md = ".md"   # kept apart so that this file cites nothing itself
     text = f"see SPEC{md} §3, (docs/x{md}) and https://example.org/y{md}"
     assert CITATION.findall(URL.sub("", text)) == [f"SPEC{md}", f"docs/x{md}"]
+
+
+def test_todays_performance_table_names_real_benchmarks():
+    text = (ROOT / "docs/performance.md").read_text(encoding="utf-8")
+    table = text.split("## Today's figures", 1)[1].split("\n## ", 1)[0]
+    scripts = re.findall(r"python (benchmarks/\w+\.py)", table)
+    assert len(scripts) >= 10
+    assert [s for s in scripts if not (ROOT / s).is_file()] == []

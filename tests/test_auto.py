@@ -281,12 +281,12 @@ def test_the_jump_rig_adds_coulomb_and_no_quintic(tmp_path):
 def test_the_paper_beam_loop_ends_on_iwan(tmp_path):
     """The demo's rig and quick plan: the tangential contact is an Iwan element and nothing else."""
     from analysis.tables import load_toml
-    from app.instruments import emulated_instruments
-    from app.measure import run_plan
+    from app.campaign.instruments import emulated_instruments
+    from app.campaign.measure import run_plan
     from app.models import asset
-    from app.plan import load_plan
-    from app.session import open_session
-    from app.session_data import measurements_from_session
+    from app.campaign.plan import load_plan
+    from app.session.writer import open_session
+    from app.session.data import measurements_from_session
     from drivers.simulation.rig import builtin_rig_path, load_rig
 
     with emulated_instruments(load_rig("paper-beam")) as inst:

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from app.instruments import emulated_instruments
+from app.campaign.instruments import emulated_instruments
 from drivers.emulator.shaker import ShakerFirmware
 from drivers.errors import LinkTimeout
 from drivers.scpi import PortIO, ScpiInstrument

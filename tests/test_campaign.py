@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from analysis import InputError
-from app.campaign import CampaignListener
-from app.instruments import emulated_instruments
-from app.measure import run_plan
-from app.plan import parse_plan
-from app.session import SessionWriteError, SessionWriter, open_session
+from app.campaign.engine import CampaignListener
+from app.campaign.instruments import emulated_instruments
+from app.campaign.measure import run_plan
+from app.campaign.plan import parse_plan
+from app.session.writer import SessionWriteError, SessionWriter, open_session
 from drivers.simulation.rig import load_rig
 
 RIGS = Path(__file__).parent / "rigs"
@@ -237,7 +237,7 @@ def test_paper_2dof_campaign_reproduces_table_1(tmp_path):
 
     from analysis.model import load_model
     from analysis.workbench import Workbench
-    from app.session_data import measurements_from_session
+    from app.session.data import measurements_from_session
     from drivers.simulation.rig import builtin_rig_path
 
     rig = load_rig("paper-2dof")

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 import drivers
-from app.campaign import CampaignListener, _added, stored_frf
-from app.instruments import emulated_instruments, real_instruments
-from app.measure import ProgressBar, run_plan
-from app.plan import parse_plan
-from app.session import open_session
+from app.campaign.engine import CampaignListener, _added, stored_frf
+from app.campaign.instruments import emulated_instruments, real_instruments
+from app.campaign.measure import ProgressBar, run_plan
+from app.campaign.plan import parse_plan
+from app.session.writer import open_session
 from drivers.interfaces import Block
 from drivers.serve import serve_emulator
 from drivers.simulation.rig import load_rig
@@ -240,7 +240,7 @@ def test_a_link_lost_mid_run_names_the_instrument_and_is_an_instrument_failure(t
 
 def test_the_demo_stops_with_3_on_an_incomplete_campaign(monkeypatch, tmp_path, capsys):
     import app.demo
-    from app.campaign import CampaignSummary
+    from app.campaign.engine import CampaignSummary
     from app.cli import main
 
     summary = CampaignSummary(runs={"sine_1N_up": "failed"}, failed={"sine_1N_up": "force missed"})
@@ -331,9 +331,9 @@ def test_the_line_meter_measures_only_data_that_show_the_last_generator_change(f
     settled, corrected the force on them and doubled the drive past its target (5.2 N at a 5 N limit). Each
     line must be measured on data after its last change: the approach from below never passes the target,
     and the next line holds its force with no correction at all."""
-    from app.acquisition import RecordFeed
-    from app.plan import SettleSpec
-    from app.stepped_sine import LineMeter
+    from app.campaign.acquisition import RecordFeed
+    from app.campaign.plan import SettleSpec
+    from app.campaign.stepped_sine import LineMeter
 
     bench = LaggingBench(backlog=47 * 256, frequency=1.0, drive=0.05)
     feed = RecordFeed(bench, check=lambda block: None, on_gap=lambda gap: None)
@@ -350,7 +350,7 @@ def test_the_line_meter_measures_only_data_that_show_the_last_generator_change(f
 
 
 def test_a_change_shows_only_in_the_direction_of_the_drive_and_the_wait_needs_both_clocks():
-    from app.stepped_sine import MAX_LATENCY_S, ChangeWait, LineMeter
+    from app.campaign.stepped_sine import MAX_LATENCY_S, ChangeWait, LineMeter
     assert LineMeter._moved(0.1, 0.15, 2.0) and LineMeter._moved(0.2, 0.1, 0.5) and LineMeter._moved(0.0, 0.1, 2.0)
     assert not LineMeter._moved(0.1, 0.05, 2.0)          # a stale record reading low is no larger drive
     assert not LineMeter._moved(0.2, 0.4, 0.5) and not LineMeter._moved(0.1, 0.12, 2.0)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from analysis import InputError
-from app.session import open_session, recover_session
+from app.session.writer import open_session, recover_session
 from session_helpers import ROOT, plain_open
 
 RUN = "sine_0.8N_up"

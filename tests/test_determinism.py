@@ -14,9 +14,9 @@ import h5py
 import numpy as np
 import pytest
 
-from app.instruments import emulated_instruments
-from app.measure import run_plan
-from app.plan import parse_plan
+from app.campaign.instruments import emulated_instruments
+from app.campaign.measure import run_plan
+from app.campaign.plan import parse_plan
 from drivers.simulation.rig import load_rig
 
 PLAN = """

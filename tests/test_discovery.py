@@ -192,11 +192,11 @@ def test_the_paper_2dof_from_an_empty_model(levels, tmp_path):
     laws of Table 1, within 1.5 %, and an error within 2 x the four-law model's."""
     from analysis.model import load_model
     from analysis.workbench import Workbench
-    from app.instruments import emulated_instruments
-    from app.measure import run_plan
-    from app.plan import parse_plan
-    from app.session import open_session
-    from app.session_data import measurements_from_session
+    from app.campaign.instruments import emulated_instruments
+    from app.campaign.measure import run_plan
+    from app.campaign.plan import parse_plan
+    from app.session.writer import open_session
+    from app.session.data import measurements_from_session
     from drivers.simulation.rig import load_rig
 
     plan = "".join(f"[[stepped_sine]]\nforce = {F}\nstart = 0.8\nstop = 3.2\nstep = 0.025\ndirection = \"up\"\n"

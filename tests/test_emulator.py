@@ -11,7 +11,7 @@ import drivers  # noqa: F401  (registers sim://)
 from drivers.daq import SerialDaq
 from drivers.discovery import find_instruments
 from drivers.emulator import EmulatedRig, register, set_backend_factory
-from app.instruments import builtin_backend
+from app.campaign.instruments import builtin_backend
 from drivers.emulator.registry import find_rig
 from drivers.emulator.shaker import RAMP_STEP
 from drivers.errors import DeviceError, LinkLost, LinkTimeout, WrongDevice

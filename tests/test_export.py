@@ -11,7 +11,7 @@ import pyuff
 
 from analysis import InputError
 from app.export import export_csv, export_uff, run_file
-from app.session import RunSpec, SessionWriter
+from app.session.writer import RunSpec, SessionWriter
 
 RUN = "sine_0.5N_up"
 

@@ -6,9 +6,9 @@ import pytest
 import serial
 
 import drivers
-from app.instruments import emulated_instruments
-from app.measure import run_plan
-from app.session import open_session
+from app.campaign.instruments import emulated_instruments
+from app.campaign.measure import run_plan
+from app.session.writer import open_session
 from drivers import ArmingRefused, GeneratorShaker, InstrumentError, OutputGuard, SerialShaker, WrongDevice
 from drivers.emulator import EmulatedRig, register
 from drivers.generator import RAMP_STEP, Family, generator_family

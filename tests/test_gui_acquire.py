@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from app.gui.main_window import MainWindow
-from app.session import open_session
-from app.session_data import measurements_from_session
+from app.session.writer import open_session
+from app.session.data import measurements_from_session
 
 LEVEL = {"force": 0.8, "start": 0.9, "stop": 2.9, "step": 0.125, "direction": "up", "refine": False}
 LONG_LEVEL = {**LEVEL, "start": 0.8, "stop": 3.2, "step": 0.025}          # 97 lines: time to abort mid-run

@@ -5,7 +5,7 @@ import pytest
 import pyuff
 
 from app.gui.main_window import MainWindow
-from app.session import open_session
+from app.session.writer import open_session
 
 M, K = np.diag([1.0, 2.0]), np.array([[200.0, -100.0], [-100.0, 200.0]])
 FREQS = np.linspace(0.9, 3.0, 30)

@@ -11,9 +11,9 @@ from analysis.model import load_model
 from analysis.tables import load_toml
 from app.analyze import run_workbench
 from app.gui.main_window import MainWindow
-from app.instruments import emulated_instruments
-from app.measure import run_plan
-from app.plan import parse_plan
+from app.campaign.instruments import emulated_instruments
+from app.campaign.measure import run_plan
+from app.campaign.plan import parse_plan
 from drivers.simulation.rig import load_rig
 
 LINEAR_MODEL = """

@@ -12,14 +12,14 @@ from PySide6.QtGui import QImage
 
 import app.gui.session_panel as session_panel
 from app.gui.main_window import MainWindow
-from app.session import open_session
+from app.session.writer import open_session
 
 ROOT = Path(__file__).resolve().parents[1]
 RUN = "sine_0.8N_up"
 # a writer in another process: one line every 50 ms until killed
 WRITER = f"""
 import sys, time
-from app.session import RunSpec, SessionWriter
+from app.session.writer import RunSpec, SessionWriter
 w = SessionWriter(sys.argv[1], plan_text="[[stepped_sine]]", software_version="test")
 w.begin_run(RunSpec("{RUN}", "stepped_sine", 0.8, "up", "x2", ["x1", "x2"], 100.0, ["force", "acc:x1", "acc:x2"],
                     ["N", "m/s^2", "m/s^2"]))
@@ -72,7 +72,7 @@ def test_a_session_being_written_by_another_process_is_followed(window, qtbot, t
 @pytest.fixture
 def finished_session(tmp_path):
     """A closed session with one complete stepped-sine run (written in this process, then closed)."""
-    from app.session import RunSpec, SessionWriter
+    from app.session.writer import RunSpec, SessionWriter
     path = tmp_path / "done.h5"
     w = SessionWriter(path, software_version="test")
     w.begin_run(RunSpec(RUN, "stepped_sine", 0.8, "up", "x2", ["x1", "x2"], 100.0, ["force", "acc:x1", "acc:x2"],

@@ -7,11 +7,11 @@ import pytest
 
 from analysis.model import load_model
 from analysis.workbench import Workbench
-from app.instruments import emulated_instruments
-from app.measure import run_plan
-from app.plan import parse_plan
-from app.session import open_session
-from app.session_data import measurements_from_session
+from app.campaign.instruments import emulated_instruments
+from app.campaign.measure import run_plan
+from app.campaign.plan import parse_plan
+from app.session.writer import open_session
+from app.session.data import measurements_from_session
 from drivers.simulation.rig import parse_rig
 
 LUMPED = """

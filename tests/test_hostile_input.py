@@ -8,7 +8,7 @@ import pytest
 from analysis.errors import InputError
 from analysis.tables import load_toml
 from app.cli import main
-from app.plan import MAX_SHAKER_SECONDS, load_plan, parse_plan
+from app.campaign.plan import MAX_SHAKER_SECONDS, load_plan, parse_plan
 from drivers.simulation.rig import builtin_rig_path, load_rig
 
 PLAN = """[random]

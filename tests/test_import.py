@@ -23,8 +23,8 @@ from app.cli import main
 from app.importers.idlines import RecordTag, encode
 from app.importers.runs import SourceOptions, parse_dof_map
 from app.importers.store import ImportRequest, import_files
-from app.session import RunSpec, SessionWriter, open_session
-from app.session_data import measurements_from_session
+from app.session.writer import RunSpec, SessionWriter, open_session
+from app.session.data import measurements_from_session
 
 G = 9.80665
 M = np.diag([1.0, 2.0])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from app.session import RunSpec, SessionWriter
+from app.session.writer import RunSpec, SessionWriter
 
 RUN = "sine_0.8N_up"
 M, K = np.diag([1.0, 2.0]), np.array([[200.0, -100.0], [-100.0, 200.0]])

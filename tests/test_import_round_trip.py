@@ -10,12 +10,12 @@ from app.cli import main
 from app.export import export_uff
 from app.importers.runs import SourceOptions
 from app.importers.store import ImportRequest, import_files
-from app.instruments import emulated_instruments
-from app.measure import run_plan
+from app.campaign.instruments import emulated_instruments
+from app.campaign.measure import run_plan
 from app.models import asset
-from app.plan import load_plan
-from app.session import RunSpec, SessionWriter, open_session
-from app.session_data import measurements_from_session
+from app.campaign.plan import load_plan
+from app.session.writer import RunSpec, SessionWriter, open_session
+from app.session.data import measurements_from_session
 from drivers.simulation.rig import builtin_rig_path, load_rig
 
 PAPER_2DOF_LAWS = {"left": ["cubic", "quadratic_damping"], "right": ["cubic", "coulomb"]}

@@ -12,8 +12,8 @@ from analysis import InputError
 from analysis.model import load_model
 from analysis.tables import load_toml
 from app.cli import main
-from app.instruments import check_placement
-from app.plan import LARGEST_MAX_LINES, load_plan, parse_plan
+from app.campaign.instruments import check_placement
+from app.campaign.plan import LARGEST_MAX_LINES, load_plan, parse_plan
 from drivers.simulation.rig import builtin_rig_path, load_rig
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -317,7 +317,7 @@ def test_bad_nonparametric_tables_and_the_missing_time_domain_are_clear_errors()
 
 # ---------------------------------------------------------------------- the command line
 def write_session(path, data: Measurements):
-    from app.session import RunSpec, SessionWriter
+    from app.session.writer import RunSpec, SessionWriter
     writer = SessionWriter(path, software_version="test")
     for run in data.sine:
         extras = {f"frf_std/{d}": ("m/N", (), "f8") for d in run.sensor_dofs}
@@ -334,7 +334,7 @@ def write_session(path, data: Measurements):
 
 def test_analyze_adds_the_nonparametric_part_from_the_command_line(tmp_path, capsys):
     from app.cli import main
-    from app.session import open_session, read_model_history
+    from app.session.writer import open_session, read_model_history
     session = tmp_path / "s.h5"
     write_session(session, measured(outside_force))
     model = tmp_path / "model.toml"

@@ -2,7 +2,7 @@
 import pytest
 
 from analysis.errors import InputError
-from app.outputs import atomic_output, atomic_replace, check_output, require_free_space, temporary_path
+from app.session.outputs import atomic_output, atomic_replace, check_output, require_free_space, temporary_path
 
 
 def test_an_existing_output_is_refused_without_force(tmp_path):

@@ -16,8 +16,8 @@ from analysis.modal_fit import LOW_COHERENCE, fit_modes, hann_damping_bias, leak
 from analysis.model import load_model
 from analysis.reference import held_frequencies, reference_from_random
 from app.cli import main
-from app.plan import parse_plan
-from app.session import RunSpec, SessionWriter
+from app.campaign.plan import parse_plan
+from app.session.writer import RunSpec, SessionWriter
 from drivers.simulation.rig import builtin_rig_path
 
 # a linear 2-DOF with modes near 12.7 and 24.5 Hz, force at x2

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from analysis import InputError
-from app.outputs import temporary_path
-from app.session import RunSpec, SessionWriteError, SessionWriter, open_session, recover_session
-from app.session_file import SessionFile, SessionHeader
+from app.session.outputs import temporary_path
+from app.session.writer import RunSpec, SessionWriteError, SessionWriter, open_session, recover_session
+from app.session.file import SessionFile, SessionHeader
 from session_helpers import plain_open
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -270,7 +270,7 @@ def test_writer_errors_come_back_to_the_acquiring_process(tmp_path, monkeypatch)
     line(w, 0)
     with pytest.raises(SessionWriteError, match="frf/x9"):      # the writer refuses a DOF the run lacks
         w.append_line(2.0, {"x9": 1j})
-    monkeypatch.setattr("app.session.FREE_SPACE_RESERVE", 1 << 62)
+    monkeypatch.setattr("app.session.writer.FREE_SPACE_RESERVE", 1 << 62)
     with pytest.raises(SessionWriteError, match="not enough free space.*measured before is kept"):
         line(w, 1)
     monkeypatch.undo()

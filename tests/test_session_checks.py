@@ -7,7 +7,7 @@ import pytest
 
 from analysis import load_structure
 from app.cli import main
-from app.session import RunSpec, SessionWriter
+from app.session.writer import RunSpec, SessionWriter
 
 STRUCTURE = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
              "stiffness": [[200.0, -100.0], [-100.0, 200.0]]}

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from app.session import RunSpec, SessionWriter, open_session
+from app.session.writer import RunSpec, SessionWriter, open_session
 from session_helpers import MODEL, ROOT, plain_open
 
 RUN = "sine_0.8N_up"
@@ -253,7 +253,7 @@ def test_a_disk_filled_by_another_program_during_simulate_leaves_a_session_recov
 
 def _mark_open_for_writing(path):
     """Set the superblock's "open for writing" flag, as a writer that stopped outside SWMR mode leaves it."""
-    from app.hdf5_superblock import lookup3
+    from app.session.superblock import lookup3
 
     with open(path, "r+b") as fh:
         block = bytearray(fh.read(48))
@@ -264,7 +264,7 @@ def _mark_open_for_writing(path):
 
 
 def test_the_superblock_checksum_is_hdf5s(copies):
-    from app.hdf5_superblock import lookup3
+    from app.session.superblock import lookup3
 
     block = copies[0].read_bytes()[:48]                          # written by HDF5 itself
     assert block[8] == 3 and int.from_bytes(block[44:48], "little") == lookup3(block[:44])
@@ -309,7 +309,7 @@ def test_a_flipped_bit_in_measured_data_is_refused_naming_the_dataset_and_lines(
 
 
 def test_a_checksum_failure_names_only_the_damaged_chunk(tmp_path):
-    from app.session_file import LINES_PER_CHUNK
+    from app.session.file import LINES_PER_CHUNK
 
     session = tmp_path / "long.h5"
     w = SessionWriter(session, software_version="test")

@@ -7,10 +7,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from app.instruments import emulated_instruments
-from app.measure import run_plan
-from app.plan import parse_plan
-from app.session import open_session
+from app.campaign.instruments import emulated_instruments
+from app.campaign.measure import run_plan
+from app.campaign.plan import parse_plan
+from app.session.writer import open_session
 from drivers.simulation.rig import load_rig
 
 RIGS = Path(__file__).parent / "rigs"
@@ -121,7 +121,7 @@ def test_friction_rig_waits_where_it_should_and_no_line_leaves_the_settled_value
 
 
 def test_start_drive_follows_the_predicted_gain_within_one_correction_step():
-    from app.campaign import Campaign
+    from app.campaign.engine import Campaign
     from test_drive_prediction import shaker_on_structure
     gain_of, poles = shaker_on_structure()
     campaign = SimpleNamespace(_transient=SimpleNamespace(poles=poles),
@@ -140,8 +140,8 @@ def test_start_drive_follows_the_predicted_gain_within_one_correction_step():
 
 
 def test_after_an_amplitude_change_only_a_line_that_waits_skips_periods_beyond_the_ramp():
-    from app.stepped_sine import CHANGE_MARGIN_PERIODS, LineMeter
-    from app.transient_line import TransientLines
+    from app.campaign.stepped_sine import CHANGE_MARGIN_PERIODS, LineMeter
+    from app.campaign.transient_line import TransientLines
     meter = object.__new__(LineMeter)
     meter.transient = None                                       # method "steady"
     assert meter._margin_periods() == CHANGE_MARGIN_PERIODS

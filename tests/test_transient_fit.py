@@ -5,8 +5,8 @@ import pytest
 import scipy.integrate
 
 from analysis.transient_fit import fit_transient, free_response_poles
-from app.acquisition import Record
-from app.transient_line import TransientLines
+from app.campaign.acquisition import Record
+from app.campaign.transient_line import TransientLines
 
 FS = 512.0
 F_LINE = 7.0
@@ -152,7 +152,7 @@ def test_no_poles_no_fit():
 def test_plan_refuses_a_bad_settle_method_naming_the_field(value, message):
     import tomllib
     from analysis.errors import InputError
-    from app.plan import parse_plan
+    from app.campaign.plan import parse_plan
     text = (f"[settle]\nmethod = {value}\n[[stepped_sine]]\nforce = 0.5\nstart = 5.0\nstop = 6.0\nstep = 0.5\n"
             "[limits]\nmax_force = 5.0\nmax_acceleration = 100.0\n")
     with pytest.raises(InputError) as err:

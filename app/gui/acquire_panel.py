@@ -18,7 +18,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QDoubleSpinBox, QFi
 from app.models import builtin_plan_path
 from drivers.simulation.rig import builtin_rigs
 
-from ..plan import load_plan
+from app.campaign import load_plan
 from .lab import Lab, save_text
 from .live import ALARM_COLOR, CampaignFeed, is_alarm
 from .plan_doc import plan_document, plan_toml

@@ -12,7 +12,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QLabel, QSplitter, QTextBrowser, QVBoxLayout, QWidget
 
 from .lab import Lab
-from ..kbar_view import emptiest_corner, legend_to, linear_axis, model_paths
+from app.kbar_view import emptiest_corner, legend_to, linear_axis, model_paths
 from .plots import FrameClock, LevelPalette, Redraw, configure_plot, scatter
 from .results import IdentificationView
 

@@ -1,6 +1,6 @@
 """The window's state and actions: instruments, plan and arming, the campaign, the session, the model and the
 analysis. The tabs are views of one :class:`Lab`; it calls the application layer (app/, drivers/ through
-app.instruments) and never computes anything itself.
+app.campaign.instruments) and never computes anything itself.
 
 Threads: everything here runs in the GUI thread except the campaign thread and the tasks handed to three
 runners -- instruments (connecting, probing ports, polling the output state), analysis (live identification,
@@ -27,14 +27,11 @@ from drivers import InstrumentError
 from drivers.discovery import find_instruments
 from drivers.simulation.rig import Rig, load_rig
 
-from ..campaign import CampaignSummary
-from ..export import export_csv, export_uff
-from ..outputs import atomic_output
+from app.campaign import (CampaignSummary, Instruments, Plan, check_against_instruments, emulated_instruments,
+                          parse_plan, real_instruments)
+from app.export import export_csv, export_uff
+from app.session import Session, atomic_output, measurements_from_session, open_session
 from ..importers.store import ImportRequest, ImportResult, import_files
-from ..instruments import Instruments, emulated_instruments, real_instruments
-from ..plan import Plan, check_against_instruments, parse_plan
-from ..session import Session, open_session
-from ..session_data import measurements_from_session
 from .live import CampaignFeed, LinkCounters, LiveSession, SignalRing
 from .plan_doc import plan_toml
 from .results import AnalysisView, IdentificationView, analysis_view, identification_of, identification_view

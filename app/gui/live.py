@@ -6,8 +6,8 @@
 - :class:`CampaignFeed`: the campaign's listener. Blocks go to the ring; lines, runs, events and progress
   (a few per second at most) become Qt signals, queued to the GUI thread.
 - :class:`LiveSession`: the lines received so far, kept in the GUI thread and readable like a session file
-  (``runs()`` gives :class:`app.session.RunData`), so the live identification goes through the same
-  :func:`app.session_data.measurements_from_session` as a file does. The window never opens the file its own
+  (``runs()`` gives :class:`app.session.writer.RunData`), so the live identification goes through the same
+  :func:`app.session.data.measurements_from_session` as a file does. The window never opens the file its own
   campaign is writing: HDF5 refuses the writer's reopen while a reader in the same process holds the file.
 """
 from __future__ import annotations
@@ -21,9 +21,8 @@ from PySide6.QtCore import QObject, Signal
 
 from drivers.interfaces import Block
 
-from ..campaign import CampaignListener, line_extras
-from ..session import RunData, RunSpec
-from ..stepped_sine import LineMeasurement
+from app.campaign import CampaignListener, LineMeasurement, line_extras
+from app.session import RunData, RunSpec
 
 
 ALARM_COLOR = "#d62728"
@@ -180,7 +179,7 @@ class LiveRun:
 class LiveSession:
     """The campaign's runs as they arrive, readable like a session (``runs()``, ``run_names()``).
 
-    Each line is recorded as the campaign stores it (:func:`app.campaign.line_extras`), so the per-line
+    Each line is recorded as the campaign stores it (:func:`app.campaign.engine.line_extras`), so the per-line
     quantities carry the session file's names (docs/session-format.md).
 
     Parameters

@@ -1,6 +1,6 @@
 """Plan documents for the editor: the TOML tables of docs/contracts.md §5 as a dict, to and from files.
 
-The editor builds the document, :func:`app.plan.parse_plan` validates it (the same checks as a plan file),
+The editor builds the document, :func:`app.campaign.plan.parse_plan` validates it (the same checks as a plan file),
 and :func:`plan_toml` writes the text stored in the session's provenance and in a saved plan file.
 """
 from __future__ import annotations
@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict
 
-from ..plan import Plan
+from app.campaign import Plan
 
 TABLE_ORDER = ("random", "settle", "control", "limits")
 

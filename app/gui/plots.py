@@ -15,7 +15,7 @@ import pyqtgraph as pg
 from pyqtgraph.exporters import ImageExporter
 from PySide6.QtCore import QObject, Qt, QTimer, Signal
 
-from ..outputs import atomic_output
+from app.session import atomic_output
 
 MAX_FPS = 30
 """Upper bound of live redraws per second."""

@@ -14,11 +14,8 @@ from PySide6.QtCore import QObject, Qt, QThread, Signal
 from analysis.errors import InputError
 from drivers import InstrumentError
 
-from ..campaign import Campaign, CampaignListener
-from ..instruments import Instruments
-from ..measure import run_plan
-from ..plan import Plan
-from ..session import SessionWriteError
+from app.campaign import Campaign, CampaignListener, Instruments, Plan, run_plan
+from app.session import SessionWriteError
 
 log = logging.getLogger("contactid.gui")
 
@@ -88,7 +85,7 @@ class TaskRunner(QObject):
 
 
 class CampaignThread(QThread):
-    """Runs :func:`app.measure.run_plan` and lets the GUI pause, resume and abort it.
+    """Runs :func:`app.campaign.measure.run_plan` and lets the GUI pause, resume and abort it.
 
     An abort asked for before the campaign object exists is applied the moment it does, so the output is
     never switched on after the operator pressed Abort.

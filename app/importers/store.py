@@ -1,6 +1,6 @@
 """Imported runs into a session: read every file first, then write the session in one piece.
 
-The runs go through :class:`app.session.SessionWriter`, so an imported session has the schema of an acquired one.
+The runs go through :class:`app.session.writer.SessionWriter`, so an imported session has the schema of an acquired one.
 Each run is marked (attributes ``imported = true``, ``source_file``, ``source_format``, ``source_records``) and
 ``/provenance/import/source_<k>`` keeps each file's name, size, sha256, format, id lines and the import's notes.
 A new session is written under a temporary name and moved into place when complete; ``append`` writes a copy of
@@ -22,10 +22,8 @@ import numpy as np
 
 from analysis.errors import InputError
 
-from ..outputs import atomic_output, check_output, require_free_space
-from ..session import RunData, RunSpec, SessionWriter, open_session
-from ..session_checks import check_run
-from ..session_file import LINES_PER_CHUNK
+from app.session import (LINES_PER_CHUNK, RunData, RunSpec, SessionWriter, atomic_output, check_output, check_run,
+                         open_session, require_free_space)
 from .csv_long import read_csv_long
 from .runs import ImportedRun, SourceFile, SourceOptions
 from .uff import ID_KEYS, read_uff

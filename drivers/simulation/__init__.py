@@ -3,5 +3,5 @@ sensor models, the numba integration kernels and the built-in rigs.
 
 It depends on :mod:`analysis` only (laws <- simulation <- emulator <- app): the emulator in
 :mod:`drivers.emulator` never imports it and is handed a :class:`~drivers.simulation.simulator.RigSimulator`
-as its physics backend by the app (:mod:`app.instruments`).
+as its physics backend by the app (:mod:`app.campaign.instruments`).
 """

@@ -3,9 +3,9 @@ import tomllib
 
 import pytest
 
-from app.instruments import emulated_instruments
-from app.measure import run_plan
-from app.plan import parse_plan
+from app.campaign.instruments import emulated_instruments
+from app.campaign.measure import run_plan
+from app.campaign.plan import parse_plan
 from drivers.simulation.rig import builtin_rig_path, load_rig
 from session_helpers import MODEL  # noqa: F401  (the valid model the corpus mutates)
 

@@ -1,7 +1,7 @@
 """Writing a session file (docs/session-format.md): the HDF5 side, and the writer process that runs it.
 
 :class:`SessionFile` does the HDF5 work. It is run by a writer process of its own (``python -m
-app.session_file``, started by :class:`app.session.SessionWriter`) that outlives the acquiring process: when
+app.session.file``, started by :class:`app.session.writer.SessionWriter`) that outlives the acquiring process: when
 the acquiring process dies (SIGKILL, a crash of the GUI), its end of the pipe closes, and the writer marks the
 open run as aborted and incomplete and closes the file cleanly, so any HDF5 reader opens it with every completed
 line. While a run is measured the file is in SWMR mode and every line is flushed whole, so readers (the GUI's
@@ -28,7 +28,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .session_wire import receive_call, send_reply
+from app.session.wire import receive_call, send_reply
 
 FORMAT = "contactid-session"
 FORMAT_VERSION = 1

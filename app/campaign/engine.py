@@ -1,7 +1,7 @@
 """A campaign: a plan turned into measured FRFs through the driver interfaces, written to a session.
 
 The runner talks only to a ``ShakerController`` and a ``Daq`` (drivers/interfaces.py) and a
-:class:`~app.session.SessionWriter`. The whole campaign runs inside one :class:`drivers.OutputGuard`: the output
+:class:`~app.session.writer.SessionWriter`. The whole campaign runs inside one :class:`drivers.OutputGuard`: the output
 starts off, is armed explicitly for each run, and is switched off on every way out -- end of run, abort, limit
 breach, lost link, exception, signal. Every completed line is in the session before the next one starts;
 every fault and operator action is in the session's event log.
@@ -26,11 +26,11 @@ from drivers import AbortLimits, InstrumentError, LimitExceeded, OutputGuard
 from drivers.errors import describe_instrument_error
 from drivers.interfaces import Block
 
-from .acquisition import RecordFeed
-from .plan import Plan, RandomSpec, SineSpec
-from .session import RunSpec, SessionWriteError, SessionWriter
-from .stepped_sine import N_HARMONICS, LineMeasurement, LineMeter, frf_change, next_step
-from .transient_line import TransientLines
+from app.campaign.acquisition import RecordFeed
+from app.campaign.plan import Plan, RandomSpec, SineSpec
+from app.session import RunSpec, SessionWriteError, SessionWriter
+from app.campaign.stepped_sine import N_HARMONICS, LineMeasurement, LineMeter, frf_change, next_step
+from app.campaign.transient_line import TransientLines
 
 BLOCK_SECONDS = 0.5           # longest DAQ frame/block: the abort limits are checked at least this often
 BLOCK_POINTS = (64, 256)      # ...within these sizes (small frames cost throughput, large ones latency)

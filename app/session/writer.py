@@ -1,7 +1,7 @@
 """Session files (docs/contracts.md §7, docs/session-format.md): writing one as a campaign runs, reading one
 (also while it is written), repairing one whose writer was killed, storing model histories.
 
-:class:`SessionWriter` hands every write to a writer process of its own (:mod:`app.session_file`) that outlives
+:class:`SessionWriter` hands every write to a writer process of its own (:mod:`app.session.file`) that outlives
 the acquiring process: after a SIGKILL of ``simulate`` or ``acquire`` or a crash of the GUI the writer closes
 the file cleanly, with every completed line, and any HDF5 reader opens it. Only if the writer process itself
 dies (SIGKILL of it, power cut) is the file left marked as open for writing; :func:`open_session` reads it
@@ -28,11 +28,11 @@ import numpy as np
 
 from analysis.errors import InputError
 
-from .hdf5_superblock import clear_write_flags, write_flags
-from .outputs import NotWritten, atomic_replace, check_output, require_free_space, temporary_path, write_failure
-from .session_file import (FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError, append_event,
+from app.session.superblock import clear_write_flags, write_flags
+from app.session.outputs import NotWritten, atomic_replace, check_output, require_free_space, temporary_path, write_failure
+from app.session.file import (FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError, append_event,
                            mark_incomplete, now_iso)
-from .session_wire import receive_reply, send_call
+from app.session.wire import receive_reply, send_call
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "RunData", "RunSpec", "Session", "SessionWriteError", "SessionWriter",
            "StoredHistory", "append_model_history", "needs_recovery", "open_session", "read_model_history",
@@ -216,11 +216,11 @@ class SessionWriter:
 
 
 def _start_writer_process() -> subprocess.Popen:
-    """``python -m app.session_file`` in a session of its own: Ctrl-C or a kill of the acquiring process's group
+    """``python -m app.session.file`` in a session of its own: Ctrl-C or a kill of the acquiring process's group
     does not reach it, so it can close the file after the acquiring process is gone."""
     root = str(Path(__file__).resolve().parents[1])
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p))
-    return subprocess.Popen([sys.executable, "-m", "app.session_file"], stdin=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "app.session.file"], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, env=env, start_new_session=True, close_fds=True)
 
 

@@ -38,9 +38,9 @@ import numpy as np
 
 from analysis.harmonics import HarmonicProjector, harmonics_at, sine_fit, total_harmonic_distortion
 
-from .acquisition import RecordFeed
-from .plan import SettleSpec
-from .transient_line import TransientEstimate, TransientLines
+from app.campaign.acquisition import RecordFeed
+from app.campaign.plan import SettleSpec
+from app.campaign.transient_line import TransientEstimate, TransientLines
 
 N_HARMONICS = 5
 MAX_LATENCY_S = 10.0     # a generator change not seen in the data after this long (stream and wall time) is a

@@ -20,7 +20,7 @@ import numpy as np
 from analysis.errors import InputError
 from analysis.measurements import RunNote
 
-from .session import FORMAT_VERSION, RunData
+from app.session.writer import FORMAT_VERSION, RunData
 
 KINDS = ("random", "stepped_sine")
 STATUSES = ("running", "complete", "failed", "aborted")
