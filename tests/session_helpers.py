@@ -5,6 +5,7 @@ from pathlib import Path
 import h5py
 
 from app.session.writer import _process_alive
+from paper_structure import PAPER_STRUCTURE
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,12 +30,7 @@ def plain_open(path, timeout=120.0) -> h5py.File:
 
 
 # the paper's 2-DOF structure with a cubic at each element: a model file the session tests analyse with
-MODEL = """[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-
+MODEL = PAPER_STRUCTURE + """
 [[element]]
 name = "left"
 dof = "x1"

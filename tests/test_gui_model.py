@@ -15,14 +15,9 @@ from app.campaign.instruments import emulated_instruments
 from app.campaign.measure import run_plan
 from app.campaign.plan import parse_plan
 from drivers.simulation.rig import load_rig
+from paper_structure import PAPER_STRUCTURE
 
-LINEAR_MODEL = """
-[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-
+LINEAR_MODEL = PAPER_STRUCTURE + """
 [[element]]
 name = "left"
 dof = "x1"

@@ -11,18 +11,14 @@ import pytest
 
 from app.cli import main
 from app.session.writer import RunSpec, SessionWriter
+from paper_structure import PAPER_STRUCTURE
 
 RUN = "sine_0.8N_up"
 M, K = np.diag([1.0, 2.0]), np.array([[200.0, -100.0], [-100.0, 200.0]])
 FREQS = np.linspace(0.8, 3.2, 6)
 REALDATA = sorted(glob.glob(str(Path(__file__).resolve().parents[2] / "shared" / "realdata" / "uff" / "*.uff")))
 UNTAGGED = ["--dof", "1=x1", "--dof", "2=x2", "--force-amplitude", "0.8"]
-MODEL = """[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-
+MODEL = PAPER_STRUCTURE + """
 [[element]]
 name = "right"
 dof = "x2"

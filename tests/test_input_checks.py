@@ -15,6 +15,7 @@ from app.cli import main
 from app.campaign.instruments import check_placement
 from app.campaign.plan import LARGEST_MAX_LINES, load_plan, parse_plan
 from drivers.simulation.rig import builtin_rig_path, load_rig
+from paper_structure import PAPER_STRUCTURE
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG = builtin_rig_path("paper-2dof").read_text()
@@ -111,13 +112,7 @@ def test_modes_accepts_built_in_rig_names_as_simulate_does(capsys):
     assert "no such file, and no built-in rig of that name" in capsys.readouterr().err
 
 
-TWO_DOF_WITH_CONTACT = """
-[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-
+TWO_DOF_WITH_CONTACT = PAPER_STRUCTURE + """
 [[element]]
 name = "contact"
 dof = "x1"

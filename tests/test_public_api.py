@@ -15,6 +15,7 @@ import pytest
 from analysis import LAWS
 from app.cli import build_parser, main
 from test_workbench import PAPER_LAWS, synthesise
+from paper_structure import PAPER_STRUCTURE
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -202,13 +203,7 @@ def test_law_vocabulary_matches_the_contract_table():
 
 
 # --- analyze --json and the session layout, through the command line ---------------------------------------
-MODEL = """
-[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-rayleigh = [0.0, 0.002]
+MODEL = PAPER_STRUCTURE + """rayleigh = [0.0, 0.002]
 
 [[element]]
 name = "left"

@@ -7,15 +7,11 @@ import pytest
 from analysis.errors import InputError
 from app.models import builtin_plan_path
 from drivers.simulation.rig import builtin_rigs, load_rig, parse_rig
+from paper_structure import PAPER_STRUCTURE
 
 SMALL = """
 name = "small"
-[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-
+""" + PAPER_STRUCTURE + """
 [[element]]
 name = "joint"
 dof = "x1"

@@ -16,6 +16,7 @@ from drivers.simulation.rig import load_rig, parse_rig
 from drivers.simulation import simulator
 from drivers.simulation.simulator import RigSimulator, SimulationError, _anti_alias_taps, _sine_samples
 from test_laws import iwan_lipschitz_excess
+from paper_structure import PAPER_STRUCTURE
 
 TWO_PI = 2 * math.pi
 
@@ -58,12 +59,7 @@ def steady_harmonics(sim, frequency, amplitude, settle, periods=10, n_harmonics=
 # --- linear response --------------------------------------------------------------
 LINEAR_2DOF = """
 name = "linear"
-[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-rayleigh = [0.5, 0.005]
+""" + PAPER_STRUCTURE + """rayleigh = [0.5, 0.005]
 [[element]]
 name = "spring"
 between = ["x1", "x2"]

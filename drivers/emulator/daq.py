@@ -78,10 +78,6 @@ class DaqFirmware(Firmware):
         self._defaults()
         self._add_commands()
 
-    def reset(self) -> None:
-        self._defaults()
-        self.rig.recover()
-
     def _defaults(self) -> None:
         if self.acquiring:
             self.stop_acquisition()

@@ -171,7 +171,12 @@ class Firmware:
         return False
 
     def reset(self) -> None:
-        """``*RST``: the power-on state."""
+        """``*RST``: the power-on settings, and the rig back from any fault."""
+        self._defaults()
+        self.rig.recover()
+
+    def _defaults(self) -> None:
+        """The power-on settings of this instrument."""
 
     def clear_operations(self) -> None:
         """Device clear: end what runs for the host (rig lock held)."""

@@ -71,10 +71,6 @@ class ShakerFirmware(Firmware):
         self._defaults()
         self._add_commands()
 
-    def reset(self) -> None:
-        self._defaults()
-        self.rig.recover()
-
     def _defaults(self) -> None:
         if self.output_on:
             self.switch_off("*RST")
