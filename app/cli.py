@@ -457,7 +457,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="export a session's FRFs (UFF58 or CSV)")
     p.add_argument("session", help="session file (.h5)")
     target = p.add_mutually_exclusive_group(required=True)
-    target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records, one file per run named after FILE (see --one-file)")
+    target.add_argument("--uff", metavar="FILE",
+                        help="write UFF dataset 58 records, one file per run named after FILE (see --one-file)")
     target.add_argument("--csv", metavar="DIR", help="write one CSV per run into DIR")
     files = p.add_mutually_exclusive_group()
     files.add_argument("--per-run", dest="per_run", action="store_true", default=True,

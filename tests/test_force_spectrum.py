@@ -29,8 +29,8 @@ def _spectrum(values, func_type=12, label="N", id1="Force spectrum", x=None):
     """The force channel's record (node 2, the FRFs' reference), with one more line than the FRFs. pyuff
     writes no function type 12: it is written as 3 (cross spectrum) and set in the file (:func:`_write`)."""
     x = np.append(LINES, 12.0) if x is None else x
-    return _record(func_type=3 if func_type == 12 else func_type, rsp_node=2, ref_node=0, ref_dir=0, ordinate_spec_data_type=13,
-                   ordinate_axis_units_lab=label, orddenom_spec_data_type=0, orddenom_axis_units_lab="NONE",
+    return _record(func_type=3 if func_type == 12 else func_type, rsp_node=2, ref_node=0, ref_dir=0,
+                   ordinate_spec_data_type=13, ordinate_axis_units_lab=label, orddenom_spec_data_type=0, orddenom_axis_units_lab="NONE",
                    x=x, data=np.resize(values, len(x)).astype(complex), id1=id1)
 
 

@@ -273,7 +273,8 @@ def _time(node, kind):
 
 BAD_UFF = {
     "not an FRF": ([_frf(func_type=6, data=np.ones(4))], [],
-                   r"b.uff: record 1: func_type: function type 6 is a coherence, not an FRF \(4\) or a time history \(1\)"),
+                   r"b.uff: record 1: func_type: function type 6 is a coherence, not an FRF \(4\) "
+                   r"or a time history \(1\)"),
     "no force channel": ([_time(1, 12), _time(2, 12)], DOFS,
                          r"b.uff: record 1: ordinate_spec_data_type: no force channel"),
     "DOF not mapped": ([_frf()], ["--dof", "2+Z=x2"],

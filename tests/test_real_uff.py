@@ -128,3 +128,8 @@ def test_records_of_two_references_are_refused_again_and_unknown_records_named(t
     assert f"{ROVING}: --records: record 7 is not a dataset 58 record of the file" in err, err
     err = one_line_error(capsys, args + ["--records", "1;3"])
     assert "--records" in err and "'1;3'" in err, err
+    csv_file = tmp_path / "c.csv"
+    csv_file.write_text("frequency_hz,force_n,dof,re,im\n1.0,1.0,x1,1e-3,-1e-3\n")
+    err = one_line_error(capsys, ["import", str(csv_file), "-o", str(tmp_path / "s.h5"), "--excitation", "x1",
+                                  "--records", "1"])
+    assert f"{csv_file}: --records: only a UFF file has records to pick; this is a CSV file" in err, err

@@ -17,13 +17,13 @@ import numpy as np
 
 from analysis.errors import InputError
 
+from .idlines import ID_KEYS
 from .runs import ImportedRun, check_values, sine_run_name
 from .units import FORCES, FileUnits, file_default, unit_factor
 
 FUNC_AUTO_SPECTRUM, FUNC_SPECTRUM = 2, 12
 NO_DENOMINATOR = (0,)
 _RMS = re.compile(r"\brms\b", re.IGNORECASE)
-ID_KEYS = ("id1", "id2", "id3", "id4", "id5")
 
 
 def is_force_spectrum(fields: dict) -> bool:

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 from analysis.errors import InputError
 
+ID_KEYS = ("id1", "id2", "id3", "id4", "id5")     # pyuff's names of a record's five id lines
 MARK = "contactid"
 CONVENTION = "exp(+jwt)"
 ID_WIDTH = 80

@@ -28,8 +28,9 @@ from ..session_checks import check_run
 from ..session_file import LINES_PER_CHUNK
 from .csv_long import read_csv_long
 from .csv_runs import is_run_csv, read_csv_run
+from .idlines import ID_KEYS
 from .runs import ImportedRun, SourceFile, SourceOptions
-from .uff import ID_KEYS, read_uff
+from .uff import read_uff
 
 # What an imported session takes on the disk, estimated from the data (measured on imports of 1 to 50 runs of
 # 6 to 20000 lines: the estimate is 1.3 to 1.9 times the file written): a session's fixed part, each run's
@@ -73,6 +74,8 @@ def read_source(path: str, options: SourceOptions) -> SourceFile:
     if not p.is_file():
         raise InputError("file not found", path)
     size, sha = _digest(p)
+    if p.suffix.lower() == ".csv" and options.records:
+        raise InputError("only a UFF file has records to pick; this is a CSV file", path, "--records")
     if p.suffix.lower() == ".csv" and is_run_csv(path):
         runs, header, notes = read_csv_run(path)
         return SourceFile(path, "csv-run", size, sha, [header], runs, notes)

@@ -15,10 +15,10 @@ import pyuff
 
 from analysis.errors import InputError
 
-from .idlines import RecordTag, decode
+from .force_spectrum import attach_force_spectra, is_force_spectrum
+from .idlines import ID_KEYS, RecordTag, decode
 from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, check_values, in_sweep_order, sine_run_name,
                    sweep_direction)
-from .force_spectrum import attach_force_spectra, is_force_spectrum
 from .time_history import random_run_from_time_histories
 from .uff_codes import data_type_name, function_name
 from .units import DISPLACEMENT, FORCES, RESPONSES, FileUnits, Scaled, file_default, to_receptance, unit_factor
@@ -29,7 +29,6 @@ FREQUENCY_TYPES = (0, 18)          # unknown or frequency
 LINE_QUANTITIES = {"frf_std": ("frf_std/{dof}", "m/N"), "coherence": ("coherence/{dof}", "1"),
                    "random_error": ("random_error/{dof}", "1"), "force_amplitude": ("force_amplitude", "N"),
                    "distortion": ("distortion", "1")}
-ID_KEYS = ("id1", "id2", "id3", "id4", "id5")
 
 
 @dataclass
@@ -186,9 +185,8 @@ def _chosen(path: str, records: list[Record], wanted: list[int] | None, notes: l
 
 
 def _refuse_no_function(path: str, records: list[Record]) -> None:
-    """No FRF and no time history: say what the file holds instead, in a whole sentence."""
-    if not records:
-        raise InputError("holds no dataset 58 record, so no FRF and no time history: nothing to import", path)
+    """No FRF and no time history among the (chosen) dataset 58 records -- there is one at least (read_records):
+    say what the first is instead, in a whole sentence."""
     first = records[0]
     code = int(first.fields.get("func_type", 0))
     why = {9: "a PSD has neither phase nor a force to divide by, so it gives no receptance",
@@ -322,7 +320,7 @@ def _frf_runs(path: str, frf: list[Record], options: SourceOptions, units: FileU
 
 
 def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions,
-                      measured_force: set = frozenset()) -> ImportedRun:
+                      measured_force: set) -> ImportedRun:
     first = entries[0]
     frf: dict[str, np.ndarray] = {}
     for e in entries:
