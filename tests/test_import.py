@@ -241,6 +241,10 @@ def test_time_histories_become_a_random_run_through_the_projects_estimator(tmp_p
     assert run.force == pytest.approx(np.std(force))
     f = run.frequency
     assert f[0] > 0 and f[-1] == pytest.approx(6.0, abs=0.2)
+    # the Welch segment is kept: the analysis's leakage allowance is the line spacing fs / segment_length
+    assert run.attrs["segment_length"] == 512 and np.allclose(np.diff(f), fs / 512)
+    with open_session(tmp_path / "s.h5") as s:
+        assert measurements_from_session(s).random.resolution == fs / 512
     truth = np.array([np.linalg.solve(K - w ** 2 * M + 1j * w * C, [0.0, 1.0]) for w in 2 * np.pi * f])
     for p, dof in enumerate(["x1", "x2"]):
         good = run.arrays[f"coherence/{dof}"] > 0.99          # 8 s segments blur the first mode
