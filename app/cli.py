@@ -119,7 +119,7 @@ def cmd_export(args) -> int:
 
 def cmd_import(args) -> int:
     """Read FRFs or time histories of other systems (UFF58, CSV) into a session."""
-    from .importers.runs import SourceOptions, parse_dof_map
+    from .importers.runs import SourceOptions, parse_dof_map, parse_records
     from .importers.store import ImportRequest, import_files
 
     if args.force_amplitude is not None and not (math.isfinite(args.force_amplitude)
@@ -128,7 +128,7 @@ def cmd_import(args) -> int:
                          field="--force-amplitude")
     options = SourceOptions(args.kind, args.force_amplitude, args.direction,
                             [parse_dof_map(t) for t in args.dof or []],
-                            args.excitation)
+                            args.excitation, parse_records(args.records) if args.records else None)
     result = import_files(ImportRequest([(f, options) for f in args.files], args.output, args.append,
                                         args.overwrite, " ".join(sys.argv), software_version()))
     for note in result.notes:
@@ -457,11 +457,20 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="export a session's FRFs (UFF58 or CSV)")
     p.add_argument("session", help="session file (.h5)")
     target = p.add_mutually_exclusive_group(required=True)
-    target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records into FILE (see --per-run)")
+    target.add_argument("--uff", metavar="FILE",
+                        help="write UFF dataset 58 records, one file per run named after FILE (see --one-file)")
     target.add_argument("--csv", metavar="DIR", help="write one CSV per run into DIR")
-    p.add_argument("--per-run", action="store_true",
-                   help="UFF: one file per run, FILE's stem + _<run> (for tools that need one frequency axis a file)")
-    p.add_argument("--binary", action="store_true", help="UFF: binary records (58b; abscissae kept exact)")
+    files = p.add_mutually_exclusive_group()
+    files.add_argument("--per-run", dest="per_run", action="store_true", default=True,
+                       help="UFF: one file per run, FILE's stem + _<run> (the default: modal tools read one "
+                            "frequency axis a file)")
+    files.add_argument("--one-file", dest="per_run", action="store_false", help="UFF: every run in FILE")
+    encoding = p.add_mutually_exclusive_group()
+    encoding.add_argument("--binary", dest="binary", action="store_true", default=True,
+                          help="UFF: binary records (58b, doubles: every frequency kept exact; the default)")
+    encoding.add_argument("--ascii", dest="binary", action="store_false",
+                          help="UFF: ASCII records (six significant digits: a frequency they would round is "
+                               "refused)")
     p.add_argument("--frf-only", action="store_true",
                    help="UFF: only the FRF records, without contactid's per-line quantities")
     _overwrite_option(p, "existing output files")
@@ -483,6 +492,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dof", action="append", metavar="NODE[+DIR]=NAME",
                    help="map a UFF node (and direction) to a model DOF, e.g. 3+Z=A.w (repeatable)")
     p.add_argument("--excitation", metavar="NAME", help="DOF of the force (reference) where no --dof maps it")
+    p.add_argument("--records", metavar="N,M,...",
+                   help="UFF: import only these records (numbered from 1 in file order), e.g. the FRFs of one "
+                        "reference of a roving-hammer file")
     p.set_defaults(run=cmd_import)
 
     p = sub.add_parser("gui", help="the lab window: rig, acquisition, identification, model, session")

@@ -68,3 +68,15 @@ def test_a_bad_file_is_a_message_and_writes_nothing(window, qtbot, tmp_path):
         dialog._accept()
     assert "bad.uff: holds no universal-file dataset" in blocker.args[0]
     assert not (tmp_path / "bad.h5").exists()
+
+
+def test_the_records_of_one_reference_are_picked_per_file(window, tmp_path):
+    """A roving-hammer file: the Records cell is ``--records`` of the command line."""
+    dialog = window.import_dialog()
+    dialog.add_files([controller_file(tmp_path / "hammer.uff")])
+    dialog.files.item(0, 4).setText("1, 2")
+    [(_, options)] = dialog.request().sources
+    assert options.records == [1, 2]
+    dialog.files.item(0, 4).setText("first")
+    dialog._accept()
+    assert dialog.isVisible() and "--records takes record numbers" in dialog.message.text()

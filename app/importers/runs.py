@@ -52,6 +52,7 @@ class SourceOptions:
     direction: str | None = None         # "up" | "down"
     dofs: list[DofMap] = field(default_factory=list)
     excitation: str | None = None
+    records: list[int] | None = None     # UFF records to import (numbers from 1 in file order); None: all
 
     def __post_init__(self):
         named: dict[tuple[int, int | None], str] = {}
@@ -92,7 +93,9 @@ class ImportedRun:
     source: str = ""
     records: list[int] = field(default_factory=list)
     raw: "RawRecord | None" = None
-    sample_rate: float = 0.0
+    sample_rate: float = 0.0             # Hz; with segment_length, a random run's Welch resolution
+    segment_length: int = 0              # samples per Welch segment (0: not known)
+    load_case: int | None = None         # the UFF load case of another system's FRFs (None: tagged or CSV)
 
 
 @dataclass
@@ -159,6 +162,15 @@ def in_sweep_order(run: ImportedRun) -> ImportedRun:
     run.frf = {d: v[::-1].copy() for d, v in run.frf.items()}
     run.arrays = {k: (u, v[::-1].copy()) for k, (u, v) in run.arrays.items()}
     return run
+
+
+def parse_records(text: str) -> list[int]:
+    """``--records 1,3`` (record numbers from 1, in file order)."""
+    words = [w.strip() for w in text.split(",")]
+    if not words or not all(w.isdigit() and int(w) > 0 for w in words):
+        raise InputError(f"--records takes record numbers from 1 separated by commas (e.g. 1,3), got {text!r}",
+                         field="--records")
+    return [int(w) for w in words]
 
 
 def sine_run_name(force: float, direction: str) -> str:

@@ -25,8 +25,10 @@ from analysis.errors import InputError
 from app.session import (LINES_PER_CHUNK, RunData, RunSpec, SessionWriter, atomic_output, check_output, check_run,
                          open_session, require_free_space)
 from .csv_long import read_csv_long
+from .csv_runs import is_run_csv, read_csv_run
+from .idlines import ID_KEYS
 from .runs import ImportedRun, SourceFile, SourceOptions
-from .uff import ID_KEYS, read_uff
+from .uff import read_uff
 
 # What an imported session takes on the disk, estimated from the data (measured on imports of 1 to 50 runs of
 # 6 to 20000 lines: the estimate is 1.3 to 1.9 times the file written): a session's fixed part, each run's
@@ -70,6 +72,11 @@ def read_source(path: str, options: SourceOptions) -> SourceFile:
     if not p.is_file():
         raise InputError("file not found", path)
     size, sha = _digest(p)
+    if p.suffix.lower() == ".csv" and options.records:
+        raise InputError("only a UFF file has records to pick; this is a CSV file", path, "--records")
+    if p.suffix.lower() == ".csv" and is_run_csv(path):
+        runs, header, notes = read_csv_run(path)
+        return SourceFile(path, "csv-run", size, sha, [header], runs, notes)
     if p.suffix.lower() == ".csv":
         runs, header, notes = read_csv_long(path, options)
         return SourceFile(path, "csv-long", size, sha, [header], runs, notes)
@@ -211,10 +218,13 @@ def _write_run(writer: SessionWriter, run: ImportedRun, source: SourceFile) -> N
     extras = {name: (units, (), "c16" if np.iscomplexobj(values) else "f8")
               for name, (units, values) in run.arrays.items()}
     raw = run.raw
+    attrs = {"imported": True, "source_file": Path(source.path).name, "source_format": source.format,
+             "source_records": json.dumps(run.records)}
+    if run.segment_length:
+        attrs["segment_length"] = int(run.segment_length)      # as a campaign's random run has it
     writer.begin_run(RunSpec(run.name, run.kind, run.force, run.direction, run.excitation_dof, list(run.frf),
                              run.sample_rate, raw.channels if raw else ["force"], raw.units if raw else ["N"],
-                             extras, {"imported": True, "source_file": Path(source.path).name,
-                                      "source_format": source.format, "source_records": json.dumps(run.records)}))
+                             extras, attrs))
     arrays = {"frequency": run.frequency, **{f"frf/{d}": v for d, v in run.frf.items()},
               **{name: values for name, (_, values) in run.arrays.items()}}
     if run.kind == "stepped_sine":                     # no raw samples for any line
