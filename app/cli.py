@@ -252,14 +252,15 @@ def cmd_analyze(args) -> int:
     import json
 
     from app.analyze import (misfits_json, read_measurements, reference_only, report_text, run_workbench,
-                          run_workbench_auto,
-                          session_notes, store_history)
-    from app.session.outputs import check_output
+                             run_workbench_auto, session_notes, store_history)
     from app.progress import Progress
+    from app.session.outputs import check_output, require_free_space
 
     inputs = [args.session, args.model]
-    if args.output:                       # refused before any work: never an input, never silently replaced
+    if args.output:                       # refused before any work: never an input, never silently replaced,
         check_output(args.output, inputs=inputs, overwrite=args.overwrite)
+        # and never on a disk that cannot take it: a minute of analysis is not spent for nothing
+        require_free_space(args.output, FITTED_MODEL_ALLOWANCE, "write the fitted model")
     with Progress("analyze") as progress:
         progress.phase("reading the session")
         measurements = read_measurements(args.session)
@@ -299,6 +300,9 @@ def cmd_analyze(args) -> int:
     if args.output:                       # last: a failure here leaves the report printed and no partial file
         _write_model(args, wb.model.to_toml(), inputs)
     return 0
+
+
+FITTED_MODEL_ALLOWANCE = 64 * 1024      # bytes: a fitted model file is a few kB of TOML
 
 
 def _write_model(args, text: str, inputs: list) -> None:
