@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.errors import InputError
-from analysis.measurements import RunNote
+from analysis.measurements import CONTROL_MODES, CONTROL_UNITS, Control, RunNote
 
 from .session import FORMAT_VERSION, RunData
 
@@ -57,6 +57,7 @@ class CheckedRun:
     run: RunData
     lines: int
     sensor_dofs: list[str]
+    control: Control
 
     @property
     def unfinished(self) -> bool:
@@ -117,7 +118,26 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
         if rule is not None:
             _check_lines(np.asarray(values)[:lines], rule, lambda message, name=name: error(f"dataset {name}",
                                                                                             message))
-    return CheckedRun(run, lines, sensors)
+    return CheckedRun(run, lines, sensors, run_control(attrs, float(force), excitation, error))
+
+
+def run_control(attrs: dict, force: float, excitation: str, error) -> Control:
+    """How the run's level was held (attributes ``control``, ``control_dof``, ``control_quantity``,
+    ``control_target``); a run without them (older sessions) was force-controlled at its ``force``."""
+    mode = attrs.get("control", "force")
+    if mode not in CONTROL_MODES:
+        raise error("attribute control", f"must be one of {', '.join(CONTROL_MODES)}; got {mode!r}")
+    if mode != "response":
+        return Control(mode, excitation, "force", force)
+    dof = attrs.get("control_dof")
+    if not isinstance(dof, str) or not dof:
+        raise error("attribute control_dof", f"must name the DOF whose response is held, got {dof!r}")
+    quantity = _choice(attrs, "control_quantity", tuple(q for q in CONTROL_UNITS if q != "force"), error)
+    target = attrs.get("control_target")
+    if isinstance(target, bool) or not isinstance(target, (int, float, np.number)) or not math.isfinite(target) \
+            or target <= 0:
+        raise error("attribute control_target", f"must be a finite amplitude > 0, got {target!r}")
+    return Control(mode, dof, quantity, float(target))
 
 
 def _check_order(frequency: np.ndarray, kind: str, direction: str, error) -> None:

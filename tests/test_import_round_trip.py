@@ -78,7 +78,9 @@ def test_what_the_analysis_reads_survives_export_and_import(tmp_path):
         w.begin_run(RunSpec(f"sine_0.5N_{direction}", "stepped_sine", 0.5, direction, "A.w", ["A.w", "B.theta"],
                             1e3, ["force"], ["N"], extras))
         for f in freqs:
-            frf = {"A.w": complex(*rng.normal(size=2)) * 1e-5, "B.theta": complex(*rng.normal(size=2)) * 1e-4}
+            # the drive point passive (Im < 0): an import refuses energy flowing out (app/importers/conventions.py)
+            frf = {"A.w": complex(rng.normal(), -abs(rng.normal())) * 1e-5,
+                   "B.theta": complex(*rng.normal(size=2)) * 1e-4}
             w.append_line(f, frf, {"force_amplitude": 0.5 + rng.normal() * 1e-3,
                                    "frf_std/A.w": 1e-8 * (1 + rng.random()), "frf_std/B.theta": 1e-7,
                                    "harmonics/acc:A.w": rng.normal(size=4) + 1j * rng.normal(size=4),

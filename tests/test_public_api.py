@@ -75,7 +75,8 @@ COMMANDS = {
                 "--overwrite"],
     "export": ["session", "--uff", "--csv", "--force", "--overwrite"],
     "import": ["files", "-o", "--output", "--append", "--overwrite", "--kind", "--force", "--force-amplitude",
-               "--direction", "--dof", "--excitation"],
+               "--direction", "--dof", "--excitation", "--force-sign"],
+    "reference": ["session", "-o", "--output", "--run", "--band", "--overwrite"],
     "modes": ["file", "-n", "--count", "--all-dofs", "--bare"],
     "laws": [],
 }

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from analysis.errors import InputError
+from analysis.measurements import Control
 
 KINDS = {"sine": "stepped_sine", "random": "random"}
 DIRECTION_CODES = {"X": 1, "Y": 2, "Z": 3, "RX": 4, "RY": 5, "RZ": 6}
@@ -52,6 +53,7 @@ class SourceOptions:
     direction: str | None = None         # "up" | "down"
     dofs: list[DofMap] = field(default_factory=list)
     excitation: str | None = None
+    force_sign: float = 1.0              # -1: the file's force is reversed against exp(+jwt) (docs/import.md)
 
     def __post_init__(self):
         named: dict[tuple[int, int | None], str] = {}
@@ -93,6 +95,7 @@ class ImportedRun:
     records: list[int] = field(default_factory=list)
     raw: "RawRecord | None" = None
     sample_rate: float = 0.0
+    control: Control | None = None       # None: force control at ``force``
 
 
 @dataclass
@@ -115,6 +118,7 @@ class SourceFile:
     id_lines: list[list[str]]
     runs: list[ImportedRun]
     notes: list[str]
+    force_sign: float = 1.0              # applied to every FRF of the file (--force-sign)
 
 
 def check_axis(x: np.ndarray, where: str, field_name: str) -> None:
@@ -164,3 +168,11 @@ def in_sweep_order(run: ImportedRun) -> ImportedRun:
 def sine_run_name(force: float, direction: str) -> str:
     """The name an acquired session gives a stepped-sine run (docs/session-format.md)."""
     return f"sine_{force:g}N_{direction}"
+
+
+UNIT_TOKENS = {"displacement": "m", "velocity": "mps", "acceleration": "mps2"}
+
+
+def response_run_name(control: Control, direction: str) -> str:
+    """The name of a response-controlled stepped-sine level: ``sine_x1_20mps2_up`` (docs/session-format.md)."""
+    return f"sine_{control.dof}_{control.target:g}{UNIT_TOKENS[control.quantity]}_{direction}"
