@@ -111,6 +111,11 @@ def cmd_export(args) -> int:
         done = export_uff(args.session, args.uff, overwrite=args.overwrite, per_run=args.per_run,
                           binary=args.binary, frf_only=args.frf_only)
         print(f"wrote {done.records} records to {', '.join(str(p) for p in done.files)}")
+    elif args.csv_long:
+        from .export_csv_long import export_csv_long
+        long = export_csv_long(args.session, args.csv_long, overwrite=args.overwrite)
+        print(f"wrote {len(long.runs)} stepped-sine runs to {long.path}"
+              + (f" (left out, not stepped sine: {', '.join(long.left_out)})" if long.left_out else ""))
     else:
         paths = export_csv(args.session, args.csv, overwrite=args.overwrite)
         print(f"wrote {len(paths)} CSV files to {args.csv}")
@@ -476,6 +481,8 @@ def build_parser() -> argparse.ArgumentParser:
     target = p.add_mutually_exclusive_group(required=True)
     target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records into FILE (see --per-run)")
     target.add_argument("--csv", metavar="DIR", help="write one CSV per run into DIR")
+    target.add_argument("--csv-long", metavar="FILE", help="write the stepped-sine runs into FILE in the CSV long "
+                                                           "format that import reads (force per line, control)")
     p.add_argument("--per-run", action="store_true",
                    help="UFF: one file per run, FILE's stem + _<run> (for tools that need one frequency axis a file)")
     p.add_argument("--binary", action="store_true", help="UFF: binary records (58b; abscissae kept exact)")

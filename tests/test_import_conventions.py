@@ -103,3 +103,38 @@ def test_bad_control_and_force_columns_name_the_line(tmp_path, capsys, column, v
     assert main(["import", str(csv), "-o", str(tmp_path / "s.h5"), "--excitation", "x1"]) == 2
     err = capsys.readouterr().err
     assert "b.csv: line 5: " + message in err
+
+
+def test_export_csv_long_carries_the_force_per_line_and_the_control_back(tmp_path, capsys):
+    session = tmp_path / "s.h5"
+    w = SessionWriter(session, software_version="t")
+    extras = {"force_amplitude": ("N", (), "f8"), "force_phase": ("rad", (), "f8"), "frf_std/x1": ("m/N", (), "f8"),
+              "frf_std/x2": ("m/N", (), "f8")}
+    control = {"control": "response", "control_dof": "x1", "control_quantity": "acceleration",
+               "control_target": 20.0, "control_units": "m/s^2"}
+    rng = np.random.default_rng(3)
+    held = 0.7 * (1 + 0.2 * rng.random(len(F)))
+    for name, force, measured, direction, attrs in (
+            ("sine_0.5N_down", 0.5, 0.5 * (1 + 0.2 * rng.random(len(F))), "down", {}),
+            ("sine_x1_20mps2_up", float(np.median(held)), held, "up", control)):   # the median: the vocabulary's
+        w.begin_run(RunSpec(name, "stepped_sine", force, direction, "x1", ["x1", "x2"], 1e3, ["force"], ["N"],
+                            extras, attrs))
+        for i, f in enumerate(F[::-1] if direction == "down" else F):
+            h = sdof()[np.argmin(np.abs(F - f))]
+            w.append_line(f, {"x1": h, "x2": 0.3 * h}, {"force_amplitude": measured[i],
+                                                        "force_phase": rng.normal(), "frf_std/x1": 1e-9 * rng.random()
+                                                        + 1e-10, "frf_std/x2": 2e-10})
+        w.end_run("complete")
+    w.close()
+    long = tmp_path / "long.csv"
+    assert main(["export", str(session), "--csv-long", str(long)]) == 0
+    imported = tmp_path / "i.h5"
+    assert main(["import", str(long), "-o", str(imported), "--excitation", "x1"]) == 0
+    with open_session(session) as a, open_session(imported) as b:
+        before, after = measurements_from_session(a), measurements_from_session(b)
+    assert [r.name for r in after.sine] == [r.name for r in before.sine]
+    for r0, r1 in zip(before.sine, after.sine):
+        assert (r1.force, r1.direction, r1.control, r1.sensor_dofs) == (r0.force, r0.direction, r0.control,
+                                                                        r0.sensor_dofs)
+        for name in ("frequency_hz", "receptance", "receptance_std", "force_per_line"):
+            np.testing.assert_array_equal(getattr(r1, name), getattr(r0, name), err_msg=name)

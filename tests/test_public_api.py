@@ -73,7 +73,7 @@ COMMANDS = {
     "emulate": ["rig", "--pty", "--tcp", "--fast", "--seed"],
     "analyze": ["session", "model", "--add", "--auto", "--json", "-o", "--output", "--no-history", "--force",
                 "--overwrite"],
-    "export": ["session", "--uff", "--csv", "--force", "--overwrite"],
+    "export": ["session", "--uff", "--csv", "--csv-long", "--force", "--overwrite"],
     "import": ["files", "-o", "--output", "--append", "--overwrite", "--kind", "--force", "--force-amplitude",
                "--direction", "--dof", "--excitation", "--force-sign"],
     "reference": ["session", "-o", "--output", "--run", "--band", "--overwrite"],
