@@ -86,13 +86,43 @@ def campaign(nominal_forces, frequency_hz, drift: float = 0.0, periods: int = 10
     return out
 
 
-def write_csv(path, levels: list[Level], nominal_forces, per_line_force: bool = True) -> None:
-    """The CSV long format (docs/import.md), DOF x1, with or without the force measured at each line."""
+def response_controlled(targets, frequency_hz, iterations: int = 7, periods: int = 100) -> list[Level]:
+    """Levels holding the displacement amplitude at x1 (m) as a response controller does: at each line the force
+    is corrected from the linear guess by secant steps on log |X| against log F (|X| grows with F), ``iterations``
+    times; what is recorded is the last force and its response."""
+    f = np.asarray(frequency_hz, float)
+    w = 2 * np.pi * f
+    linear = np.abs(1.0 / (K + KT - M * w ** 2 + 1j * C * w))
+    out = []
+    for target in targets:
+        log_f = np.log(target / linear)
+        log_x = np.log(np.abs(measure(f, np.exp(log_f), periods)) * np.exp(log_f))
+        slope = np.ones_like(f)
+        for _ in range(iterations - 1):
+            step = (np.log(target) - log_x) / slope
+            new_f = log_f + step
+            new_x = np.log(np.abs(measure(f, np.exp(new_f), periods)) * np.exp(new_f))
+            moved = np.abs(step) > 1e-9
+            slope = np.where(moved, np.clip((new_x - log_x) / np.where(moved, step, 1.0), 0.2, 5.0), slope)
+            log_f, log_x = new_f, new_x
+        force = np.exp(log_f)
+        out.append(Level(f, force, measure(f, force, periods)))
+    return out
+
+
+def write_csv(path, levels: list[Level], nominal_forces, per_line_force: bool = True,
+              response_targets=None) -> None:
+    """The CSV long format (docs/import.md), DOF x1, with or without the force measured at each line; with
+    ``response_targets`` (m) the levels are response-controlled (``nominal_forces`` unused)."""
     columns = ["frequency_hz", "force_n", "dof", "re", "im"] + (["force_amplitude_n"] if per_line_force else [])
+    if response_targets is not None:
+        columns += ["control_dof", "control_quantity", "control_target"]
     with open(path, "w", newline="") as fh:
         out = csv.writer(fh)
         out.writerow(columns)
-        for level, F0 in zip(levels, nominal_forces):
+        for i, level in enumerate(levels):
+            level_columns = [repr(float(nominal_forces[i]))] if response_targets is None else [""]
+            held = [] if response_targets is None else ["x1", "displacement", repr(float(response_targets[i]))]
             for f, h, force in zip(level.frequency_hz, level.receptance, level.force):
-                row = [repr(float(f)), repr(float(F0)), "x1", repr(float(h.real)), repr(float(h.imag))]
-                out.writerow(row + ([repr(float(force))] if per_line_force else []))
+                row = [repr(float(f)), *level_columns, "x1", repr(float(h.real)), repr(float(h.imag))]
+                out.writerow(row + ([repr(float(force))] if per_line_force else []) + held)

@@ -138,3 +138,45 @@ def test_export_csv_long_carries_the_force_per_line_and_the_control_back(tmp_pat
                                                                         r0.sensor_dofs)
         for name in ("frequency_hz", "receptance", "receptance_std", "force_per_line"):
             np.testing.assert_array_equal(getattr(r1, name), getattr(r0, name), err_msg=name)
+
+
+def test_error_by_level_names_a_response_controlled_level_by_its_target(tmp_path):
+    """Two sweeps held at 5 m/s^2 are one level, named by the response held; the error per level is the
+    closed-form one of a model whose receptance is off by a known factor, and the stored history keeps the
+    labels."""
+    from analysis.measurements import Control, Measurements, SineRun
+    from analysis.model import load_model
+    from analysis.workbench import Workbench
+    from app.session import append_model_history, read_model_history
+
+    h = sdof()[:, None]
+    held = Control("response", "x1", "acceleration", 5.0)
+    runs = [SineRun("sine_0.5N_up", 0.5, "up", "x1", ["x1"], F, 1.1 * h),
+            SineRun("sine_x1_5mps2_up", 0.4, "up", "x1", ["x1"], F, h, force_achieved=np.full(len(F), 0.4),
+                    control=held),
+            SineRun("sine_x1_5mps2_down", 0.4, "down", "x1", ["x1"], F[::-1], h[::-1] * 1.2,
+                    force_achieved=np.full(len(F), 0.4), control=held)]
+    model = load_model({"structure": {"type": "lumped", "dofs": ["x1"], "mass": [[1.0]],
+                                      "stiffness": [[(2 * np.pi * 20.0) ** 2]],
+                                      "damping": [[2 * 0.01 * 2 * np.pi * 20.0]]},
+                        "element": [{"name": "e", "dof": "x1", "laws": [{"law": "linear", "k": 0.0, "c": 0.0}]}]})
+    wb = Workbench(model, Measurements(runs))
+    levels = wb.compare().error_by_level
+    assert [e.label() for e in levels] == ["0.5 N", "5 m/s^2 at x1"]
+    assert levels[0].error == pytest.approx(0.1 / 1.1, rel=1e-9)
+    assert levels[1].error == pytest.approx(np.sqrt(0.2 ** 2 / (1 + 1.2 ** 2)), rel=1e-9)   # both sweeps
+    assert levels[1].to_json() == {"force": 0.4, "error": levels[1].error, "control": "response",
+                                   "control_dof": "x1", "control_quantity": "acceleration", "control_target": 5.0,
+                                   "control_units": "m/s^2", "label": "5 m/s^2 at x1"}
+    session = tmp_path / "s.h5"
+    w = SessionWriter(session, software_version="t")
+    w.begin_run(RunSpec("sine_0.5N_up", "stepped_sine", 0.5, "up", "x1", ["x1"], 1e3, ["force"], ["N"], {}))
+    w.append_line(20.0, {"x1": complex(h[0, 0])}, {})
+    w.end_run("complete")
+    w.close()
+    wb.record("start")
+    append_model_history(session, [step.to_json() for step in wb.history], "m.toml")
+    with open_session(session) as s:
+        step = read_model_history(s)[0]["steps"][0]
+    assert step["error_by_level"] == [[0.5, levels[0].error], [0.4, levels[1].error]]
+    assert [lv["label"] for lv in step["levels"]] == ["0.5 N", "5 m/s^2 at x1"]
