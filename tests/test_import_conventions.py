@@ -1,6 +1,5 @@
 """Imports: the force measured per line and response-controlled levels in the CSV long format, and the sign
 convention of the drive point checked where the CSV and UFF paths meet (app/importers/conventions.py)."""
-import json
 
 import h5py
 import numpy as np

@@ -153,3 +153,27 @@ def test_response_controlled_levels_give_the_law_of_the_force_controlled_ones(tm
         assert values[name] == pytest.approx(truth, rel=0.05)
         assert values[name] == pytest.approx(forced[name], rel=0.02)
     assert error < 0.01
+
+
+@pytest.mark.slow
+def test_reference_from_an_emulated_campaigns_lowest_level(tmp_path, capsys):
+    """The same rig emulated (tests/rigs/jenkins-sdof.toml) and measured through the drivers, no random run:
+    the reference command recovers the stuck frequency and damping."""
+    import tomllib as toml
+    from pathlib import Path
+
+    from app.instruments import emulated_instruments
+    from app.measure import run_plan
+    from app.plan import parse_plan
+    from drivers.simulation.rig import load_rig
+
+    text = "".join(f"[[stepped_sine]]\nforce = {f}\nstart = 21.0\nstop = 25.0\nstep = 0.2\nrefine = false\n"
+                   for f in (0.002, 0.01)) + "[limits]\nmax_force = 1.0\nmax_acceleration = 150.0\n"
+    session, model = tmp_path / "emulated.h5", tmp_path / "reference.toml"
+    with emulated_instruments(load_rig(Path(__file__).parent / "rigs" / "jenkins-sdof.toml"), seed=3) as inst:
+        run_plan(parse_plan(toml.loads(text), text, "plan.toml"), inst, session)
+    assert main(["reference", str(session), "-o", str(model)]) == 0
+    s = tomllib.loads(model.read_text())["structure"]
+    assert s["frequencies"][0] == pytest.approx(rk4_rig.stuck_frequency_hz(), rel=1e-3)
+    assert s["damping"][0] == pytest.approx(rk4_rig.stuck_damping(), rel=0.05)
+    assert "NONLINEAR already between the two lowest levels" in capsys.readouterr().out

@@ -61,7 +61,8 @@ def check_drive_point(run: ImportedRun, path: str, force_sign: float) -> None:
     if s > OUTWARD:
         raise InputError(f"Im of the drive-point receptance is > 0 (at its peak {at_peak}; about -pi/2 expected): "
                          f"energy would flow out of the structure under exp(+jwt); the force sign is reversed "
-                         f"({flip}), or an accelerance is labelled as a receptance", path, where)
+                         f"({flip}), or the FRF is not the quantity its label says (an accelerance read as a "
+                         f"receptance, or the reverse)", path, where)
     if s > -MIXED:
         raise InputError(f"Im of the drive-point receptance changes sign across the lines (sum Im / sum |Im| = "
                          f"{s:+.2f}, -1 expected; at its peak {at_peak}): not a receptance -- a mobility "

@@ -99,7 +99,7 @@ def read_csv_long(path: str, options: SourceOptions) -> tuple[list[ImportedRun],
             if std <= 0:
                 raise InputError(f"{std!r} is not a standard deviation > 0", path, f"line {number}: std")
             lines.std.append(std)
-        _measured_force(cell, lines, path, number, control)
+        _measured_force(cell, lines, path, number)
     if not runs:
         raise InputError("no data rows after the header", path, f"line {header_row}")
     out = [_run(path, control, direction, dofs, options) for (control, direction), dofs in runs.items()]
@@ -131,7 +131,7 @@ def _control(cell: dict, path: str, row: int, excitation: str) -> Control:
     return Control("response", dof, quantity, target)
 
 
-def _measured_force(cell: dict, lines: _Lines, path: str, row: int, control: Control) -> None:
+def _measured_force(cell: dict, lines: _Lines, path: str, row: int) -> None:
     """The force measured at the row's line (optional columns): amplitude > 0 N and its phase."""
     if cell.get("force_amplitude_n"):
         amplitude = _number(cell["force_amplitude_n"], path, row, "force_amplitude_n")
