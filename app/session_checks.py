@@ -78,8 +78,7 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
     status = _choice(attrs, "status", STATUSES, error)
     _choice(attrs, "direction", DIRECTIONS[kind], error)
     force = attrs.get("force")
-    if isinstance(force, bool) or not isinstance(force, (int, float, np.number)) or not math.isfinite(force) \
-            or force <= 0:
+    if not _positive_number(force):
         raise error("attribute force", f"must be a finite force > 0 N, got {force!r}")
     excitation = attrs.get("excitation_dof")
     if not isinstance(excitation, str) or not excitation:
@@ -134,10 +133,16 @@ def run_control(attrs: dict, force: float, excitation: str, error) -> Control:
         raise error("attribute control_dof", f"must name the DOF whose response is held, got {dof!r}")
     quantity = _choice(attrs, "control_quantity", tuple(q for q in CONTROL_UNITS if q != "force"), error)
     target = attrs.get("control_target")
-    if isinstance(target, bool) or not isinstance(target, (int, float, np.number)) or not math.isfinite(target) \
-            or target <= 0:
-        raise error("attribute control_target", f"must be a finite amplitude > 0, got {target!r}")
+    if not _positive_number(target):
+        shown = target.item() if isinstance(target, np.generic) else target      # -5.0, not np.float64(-5.0)
+        raise error("attribute control_target", f"must be a finite amplitude > 0, got {shown!r}")
     return Control(mode, dof, quantity, float(target))
+
+
+def _positive_number(value) -> bool:
+    """A finite number > 0 (an attribute read back from HDF5: a numpy scalar, never a bool)."""
+    return not isinstance(value, bool) and isinstance(value, (int, float, np.number)) and math.isfinite(value) \
+        and value > 0
 
 
 def _check_order(frequency: np.ndarray, kind: str, direction: str, error) -> None:

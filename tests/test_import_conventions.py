@@ -179,3 +179,20 @@ def test_error_by_level_names_a_response_controlled_level_by_its_target(tmp_path
         step = read_model_history(s)[0]["steps"][0]
     assert step["error_by_level"] == [[0.5, levels[0].error], [0.4, levels[1].error]]
     assert [lv["label"] for lv in step["levels"]] == ["0.5 N", "5 m/s^2 at x1"]
+
+
+@pytest.mark.parametrize("attrs, message", [
+    ({"control": "sideways"}, "attribute control: must be one of force, response, open_loop; got 'sideways'"),
+    ({"control": "response", "control_dof": "x1", "control_quantity": "acceleration", "control_target": -5.0},
+     "attribute control_target: must be a finite amplitude > 0, got -5.0"),
+])
+def test_impossible_control_attributes_are_refused_naming_the_run(tmp_path, attrs, message):
+    from analysis import InputError
+    session = tmp_path / "s.h5"
+    w = SessionWriter(session, software_version="t")
+    w.begin_run(RunSpec("sine_0.5N_up", "stepped_sine", 0.5, "up", "x1", ["x1"], 1e3, ["force"], ["N"], {}, attrs))
+    w.append_line(20.0, {"x1": complex(sdof()[10])}, {})
+    w.end_run("complete")
+    w.close()
+    with open_session(session) as s, pytest.raises(InputError, match="run sine_0.5N_up, " + message):
+        measurements_from_session(s)
