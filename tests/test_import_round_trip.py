@@ -82,7 +82,8 @@ def _random_run(w: SessionWriter, rng) -> None:
                         {"coherence/A.w": ("1", (), "f8"), "coherence/B.theta": ("1", (), "f8"),
                          "random_error/A.w": ("1", (), "f8"), "random_error/B.theta": ("1", (), "f8")},
                         {"segment_length": SEGMENT, "band": [20.0, 200.0], "duration": 60.0}))
-    w.write_arrays({"frequency": f, "frf/A.w": (rng.normal(size=30) + 1j * rng.normal(size=30)) * 1e-5,
+    # a drive point takes energy in: Im < 0 (the import checks it, docs/import.md "Conventions")
+    w.write_arrays({"frequency": f, "frf/A.w": (rng.normal(size=30) - 1j * np.abs(rng.normal(size=30))) * 1e-5,
                     "frf/B.theta": (rng.normal(size=30) + 1j * rng.normal(size=30)) * 1e-4,
                     "coherence/A.w": rng.random(30), "coherence/B.theta": rng.random(30),
                     "random_error/A.w": rng.random(30) * 0.1, "random_error/B.theta": rng.random(30) * 0.1})
@@ -148,7 +149,9 @@ def test_what_the_analysis_reads_survives_export_and_import(tmp_path, route):
         w.begin_run(RunSpec(f"sine_0.5N_{direction}", "stepped_sine", 0.5, direction, "A.w", ["A.w", "B.theta"],
                             1e3, ["force"], ["N"], extras))
         for f in freqs:
-            frf = {"A.w": complex(*rng.normal(size=2)) * 1e-5, "B.theta": complex(*rng.normal(size=2)) * 1e-4}
+            # the drive point passive (Im < 0): an import refuses energy flowing out (app/importers/conventions.py)
+            frf = {"A.w": complex(rng.normal(), -abs(rng.normal())) * 1e-5,
+                   "B.theta": complex(*rng.normal(size=2)) * 1e-4}
             w.append_line(f, frf, {"force_amplitude": 0.5 + rng.normal() * 1e-3,
                                    "frf_std/A.w": 1e-8 * (1 + rng.random()), "frf_std/B.theta": 1e-7,
                                    "harmonics/acc:A.w": rng.normal(size=4) + 1j * rng.normal(size=4),

@@ -399,11 +399,11 @@ class Campaign:
                                   self.plan.settle, self.plan.control_tolerance, lambda: self._interrupt(guard),
                                   self._transient)
                 while True:
-                    m = self._measure(meter, f, spec.force, drive)
+                    m = self._measure(meter, f, spec.line_target(index), drive)
                     drive = self._carry_drive(m)
                     self._gain = abs(m.force) / m.drive
                     gains.append((m.frequency, self._gain))
-                    self._store_line(name, index, m, spec.force)
+                    self._store_line(name, index, m, spec.line_target(index))
                     index += 1
                     self._progress(name, added_before + _added(planned, f, sign, index))
                     if sign * (f - stop) >= -1e-9 * abs(stop):
@@ -413,7 +413,7 @@ class Campaign:
                     previous = m
                     f_next = f + sign * step
                     f = stop if sign * (f_next - stop) > 0 else f_next
-                    drive = self._predicted_drive(gains, f, spec.force, drive)
+                    drive = self._predicted_drive(gains, f, spec.line_target(index), drive)
                 meter.ramp_out(f, m.drive, RAMP_OUT_PERIODS)
             self.shaker.disarm()
             self._judge(name, spec.force)

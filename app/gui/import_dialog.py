@@ -49,9 +49,12 @@ class ImportDialog(QDialog):
         out_row.addWidget(self.output, 1)
         out_row.addWidget(browse)
         self.append = QCheckBox("add the runs to this existing session")
+        # the command line's --force-sign -1: a file refused because its drive point gives energy out
+        self.reversed_force = QCheckBox("the force's sign is reversed (--force-sign -1: every FRF changes sign)")
         form = QFormLayout()
         form.addRow("DOF map", self.dof_map)
         form.addRow("Excitation", self.excitation)
+        form.addRow("", self.reversed_force)
         form.addRow("Session", out_row)
         form.addRow("", self.append)
         self.message = QLabel()
@@ -118,7 +121,8 @@ class ImportDialog(QDialog):
         records = self.files.item(row, 4).text().strip()
         return SourceOptions(None if kind == FROM_FILE else kind, force,
                              None if direction == FROM_FILE else direction, dofs, excitation,
-                             parse_records(records) if records else None)
+                             parse_records(records) if records else None,
+                             -1.0 if self.reversed_force.isChecked() else 1.0)
 
     def request(self) -> ImportRequest:
         """The import as entered; InputError naming the field when something is missing or malformed."""

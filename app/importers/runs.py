@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from analysis.errors import InputError
+from analysis.measurements import Control
 
 KINDS = {"sine": "stepped_sine", "random": "random"}
 DIRECTION_CODES = {"X": 1, "Y": 2, "Z": 3, "RX": 4, "RY": 5, "RZ": 6}
@@ -53,6 +54,7 @@ class SourceOptions:
     dofs: list[DofMap] = field(default_factory=list)
     excitation: str | None = None
     records: list[int] | None = None     # UFF records to import (numbers from 1 in file order); None: all
+    force_sign: float = 1.0              # -1: the file's force is reversed against exp(+jwt) (docs/import.md)
 
     def __post_init__(self):
         named: dict[tuple[int, int | None], str] = {}
@@ -96,6 +98,7 @@ class ImportedRun:
     sample_rate: float = 0.0             # Hz; with segment_length, a random run's Welch resolution
     segment_length: int = 0              # samples per Welch segment (0: not known)
     load_case: int | None = None         # the UFF load case of another system's FRFs (None: tagged or CSV)
+    control: Control | None = None       # None: force control at ``force``
 
 
 @dataclass
@@ -118,6 +121,7 @@ class SourceFile:
     id_lines: list[list[str]]
     runs: list[ImportedRun]
     notes: list[str]
+    force_sign: float = 1.0              # applied to every FRF of the file (--force-sign)
 
 
 def check_axis(x: np.ndarray, where: str, field_name: str) -> None:
@@ -176,3 +180,11 @@ def parse_records(text: str) -> list[int]:
 def sine_run_name(force: float, direction: str) -> str:
     """The name an acquired session gives a stepped-sine run (docs/session-format.md)."""
     return f"sine_{force:g}N_{direction}"
+
+
+UNIT_TOKENS = {"displacement": "m", "velocity": "mps", "acceleration": "mps2"}
+
+
+def response_run_name(control: Control, direction: str) -> str:
+    """The name of a response-controlled stepped-sine level: ``sine_x1_20mps2_up`` (docs/session-format.md)."""
+    return f"sine_{control.dof}_{control.target:g}{UNIT_TOKENS[control.quantity]}_{direction}"

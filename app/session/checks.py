@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.errors import InputError
-from analysis.measurements import RunNote
+from analysis.measurements import CONTROL_MODES, CONTROL_UNITS, Control, RunNote
 
 from app.session.writer import FORMAT_VERSION, RunData
 
@@ -57,6 +57,7 @@ class CheckedRun:
     run: RunData
     lines: int
     sensor_dofs: list[str]
+    control: Control
 
     @property
     def unfinished(self) -> bool:
@@ -77,8 +78,7 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
     status = _choice(attrs, "status", STATUSES, error)
     _choice(attrs, "direction", DIRECTIONS[kind], error)
     force = attrs.get("force")
-    if isinstance(force, bool) or not isinstance(force, (int, float, np.number)) or not math.isfinite(force) \
-            or force <= 0:
+    if not _positive_number(force):
         raise error("attribute force", f"must be a finite force > 0 N, got {force!r}")
     excitation = attrs.get("excitation_dof")
     if not isinstance(excitation, str) or not excitation:
@@ -117,7 +117,32 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
         if rule is not None:
             _check_lines(np.asarray(values)[:lines], rule, lambda message, name=name: error(f"dataset {name}",
                                                                                             message))
-    return CheckedRun(run, lines, sensors)
+    return CheckedRun(run, lines, sensors, run_control(attrs, float(force), excitation, error))
+
+
+def run_control(attrs: dict, force: float, excitation: str, error) -> Control:
+    """How the run's level was held (attributes ``control``, ``control_dof``, ``control_quantity``,
+    ``control_target``); a run without them (older sessions) was force-controlled at its ``force``."""
+    mode = attrs.get("control", "force")
+    if mode not in CONTROL_MODES:
+        raise error("attribute control", f"must be one of {', '.join(CONTROL_MODES)}; got {mode!r}")
+    if mode != "response":
+        return Control(mode, excitation, "force", force)
+    dof = attrs.get("control_dof")
+    if not isinstance(dof, str) or not dof:
+        raise error("attribute control_dof", f"must name the DOF whose response is held, got {dof!r}")
+    quantity = _choice(attrs, "control_quantity", tuple(q for q in CONTROL_UNITS if q != "force"), error)
+    target = attrs.get("control_target")
+    if not _positive_number(target):
+        shown = target.item() if isinstance(target, np.generic) else target      # -5.0, not np.float64(-5.0)
+        raise error("attribute control_target", f"must be a finite amplitude > 0, got {shown!r}")
+    return Control(mode, dof, quantity, float(target))
+
+
+def _positive_number(value) -> bool:
+    """A finite number > 0 (an attribute read back from HDF5: a numpy scalar, never a bool)."""
+    return not isinstance(value, bool) and isinstance(value, (int, float, np.number)) and math.isfinite(value) \
+        and value > 0
 
 
 def _check_order(frequency: np.ndarray, kind: str, direction: str, error) -> None:
