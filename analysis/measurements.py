@@ -10,6 +10,39 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+CONTROL_MODES = ("force", "response", "open_loop")
+# what a level holds -> its SI unit (docs/session-format.md, run attributes control_*)
+CONTROL_UNITS = {"force": "N", "displacement": "m", "velocity": "m/s", "acceleration": "m/s^2"}
+# ...and the unit token of a response-controlled run's name (sine_<dof>_<target><token>_<direction>)
+NAME_UNITS = {"displacement": "m", "velocity": "mps", "acceleration": "mps2"}
+
+
+@dataclass(frozen=True)
+class Control:
+    """How a level was controlled: ``mode`` "force" (the force amplitude held), "response" (the amplitude of
+    ``quantity`` at ``dof`` held) or "open_loop"; ``target`` the held amplitude in SI units (N, m, m/s,
+    m/s^2). Sessions written before the control was recorded read as force control."""
+
+    mode: str = "force"
+    dof: str = ""
+    quantity: str = "force"
+    target: float = float("nan")
+
+    @property
+    def units(self) -> str:
+        return CONTROL_UNITS[self.quantity]
+
+    @property
+    def response(self) -> bool:
+        return self.mode == "response"
+
+
+def response_amplitude(acceleration: np.ndarray, w: np.ndarray, quantity: str) -> np.ndarray:
+    """The amplitude of ``quantity`` from the fundamental of an acceleration (harmonic motion: a velocity is
+    the acceleration over w, a displacement over w^2)."""
+    power = {"acceleration": 0, "velocity": 1, "displacement": 2}[quantity]
+    return np.abs(acceleration) / np.asarray(w, float) ** power
+
 
 @dataclass
 class SineRun:
@@ -38,6 +71,8 @@ class SineRun:
         of the identification. None when the harmonics were not measured (imported FRFs).
     noise_estimated : bool
         ``receptance_std`` was not measured but estimated from the FRFs themselves (:mod:`analysis.frf_noise`).
+    control : Control
+        What the level held; force control at ``force`` unless the run says otherwise.
     """
 
     name: str
@@ -51,6 +86,11 @@ class SineRun:
     force_achieved: np.ndarray | None = None
     distortion: np.ndarray | None = None
     noise_estimated: bool = False
+    control: Control | None = None
+
+    def __post_init__(self):
+        if self.control is None:
+            self.control = Control("force", self.excitation_dof, "force", float(self.force))
 
     @property
     def w(self) -> np.ndarray:

@@ -22,6 +22,7 @@ import numpy as np
 
 from analysis.drive_prediction import predicted_gain
 from analysis.frf_estimation import FRFEstimator
+from analysis.measurements import CONTROL_UNITS
 from drivers import AbortLimits, InstrumentError, LimitExceeded, OutputGuard
 from drivers.errors import describe_instrument_error
 from drivers.interfaces import Block
@@ -29,14 +30,14 @@ from drivers.interfaces import Block
 from app.campaign.acquisition import RecordFeed
 from app.campaign.plan import Plan, RandomSpec, SineSpec
 from app.session import RunSpec, SessionWriteError, SessionWriter
-from app.campaign.stepped_sine import N_HARMONICS, LineMeasurement, LineMeter, frf_change, next_step
+from app.campaign.stepped_sine import N_HARMONICS, HeldLevel, LineMeasurement, LineMeter, frf_change, next_step
 from app.campaign.transient_line import TransientLines
 
 BLOCK_SECONDS = 0.5           # longest DAQ frame/block: the abort limits are checked at least this often
 BLOCK_POINTS = (64, 256)      # ...within these sizes (small frames cost throughput, large ones latency)
 START_DRIVE = 0.05            # V peak: the first line of every sine run starts at most here...
 START_FRACTION = 0.5          # ...or at this fraction of the drive the last gain predicts, if less
-MISSED_FORCE = 0.05           # a line this far (relative) from its target force fails its run
+MISSED_FORCE = 0.05           # a line this far (relative) from its target (force or response) fails its run
 UNSETTLED_SHARE = 0.5         # ...and so does a run with at least this share of lines at the settling limit
 RAMP_OUT_PERIODS = 10         # the drive ramps to zero over this many periods of the last line before OFF
 
@@ -66,9 +67,10 @@ class CampaignListener:
 class CampaignSummary:
     runs: dict[str, str] = field(default_factory=dict)          # name -> status
     lines: int = 0
-    worst_force_error: float = 0.0                              # relative, over all lines
-    control_tolerance: float = 0.01                             # relative: what the force loop holds
-    lines_off_target: int = 0                                   # lines whose force is outside the tolerance
+    worst_force_error: float = 0.0                              # relative, over all lines (force or response)
+    control_tolerance: float = 0.01                             # relative: what the control loop holds
+    lines_off_target: int = 0                                   # lines whose held level is outside the tolerance
+    response_lines: int = 0                                     # lines that held a response amplitude
     unsteady_lines: int = 0
     transient_lines: int = 0                                    # measured from their transient fit
     shaker_seconds: float = 0.0                                 # DAQ time spent driving
@@ -87,9 +89,10 @@ class CampaignSummary:
 
     def force_text(self) -> str:
         tolerance = f"{100 * self.control_tolerance:g} %"
+        held = "force" if not self.response_lines else "force or response"
         if not self.lines_off_target:
-            return f"force within {tolerance} of target at every line (worst {100 * self.worst_force_error:.2f} %)"
-        return (f"force OFF TARGET at {self.lines_off_target} of {self.lines} line(s) (worst "
+            return f"{held} within {tolerance} of target at every line (worst {100 * self.worst_force_error:.2f} %)"
+        return (f"{held} OFF TARGET at {self.lines_off_target} of {self.lines} line(s) (worst "
                 f"{100 * self.worst_force_error:.2f} % from target, tolerance {tolerance})")
 
     def text(self) -> str:
@@ -362,7 +365,7 @@ class Campaign:
                                     {d: coh[:, p] for p, d in enumerate(self.sensor_dofs)})
 
     # ------------------------------------------------------------------ stepped sine
-    def _sine_extras(self) -> dict:
+    def _sine_extras(self, spec: SineSpec) -> dict:
         extras = {"force_amplitude": ("N", (), "f8"), "force_target": ("N", (), "f8"),
                   "force_phasor": ("N", (), "c16"), "measured_frequency": ("Hz", (), "f8"),
                   "drive": ("V", (), "f8"), "settle_time": ("s", (), "f8"), "settle_periods": ("1", (), "f8"),
@@ -374,14 +377,29 @@ class Campaign:
         for c, u in zip(self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs)):
             extras[f"harmonics/{c}"] = (u, (N_HARMONICS + 1,), "c16")
             extras[f"thd/{c}"] = ("1", (), "f8")
+        if spec.response is not None:
+            units = CONTROL_UNITS[spec.response.quantity]
+            extras["response_amplitude"] = (units, (), "f8")
+            extras["response_target"] = (units, (), "f8")
         return extras
+
+    def _control_attrs(self, spec: SineSpec) -> dict:
+        """The run's control in the session's vocabulary (docs/session-format.md)."""
+        control = spec.control(self.excitation_dof)
+        return {"control": control.mode, "control_dof": control.dof, "control_quantity": control.quantity,
+                "control_target": float(control.target), "control_units": control.units}
 
     def _sine_run(self, guard: OutputGuard, spec: SineSpec, direction: str) -> None:
         name = spec.run_name(direction)
         fs = self.daq.sample_rate
+        # a response level's force is not known before it is measured: the force limit until the run closes
+        # with the median of its lines' forces (_RunLines.closing_attrs)
         run_spec = RunSpec(name, "stepped_sine", spec.force, direction, self.excitation_dof, self.sensor_dofs, fs,
-                           self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._sine_extras(),
-                           {"start": spec.start, "stop": spec.stop, "step": spec.step, "refine": spec.refine})
+                           self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._sine_extras(spec),
+                           {"start": spec.start, "stop": spec.stop, "step": spec.step, "refine": spec.refine,
+                            **self._control_attrs(spec)})
+        held = HeldLevel(spec.force) if spec.response is None else \
+            HeldLevel(spec.response.target, spec.response.quantity, spec.response.dof, spec.response.force_limit)
         with self._run(run_spec):
             planned = spec.lines(direction)
             f, stop = planned[0], planned[-1]
@@ -392,6 +410,7 @@ class Campaign:
             self._log("operator", f"armed: {name}")
             step, previous, index = spec.step, None, 0
             gains: list[tuple[float, float]] = []     # (Hz, N/V) of this run's lines
+            lines_drive: list[tuple[float, float]] = []   # (Hz, V) of this run's lines on target
             added_before = self._added_lines
             with self.daq.stream(self.block) as stream:
                 feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
@@ -399,11 +418,13 @@ class Campaign:
                                   self.plan.settle, self.plan.control_tolerance, lambda: self._interrupt(guard),
                                   self._transient)
                 while True:
-                    m = self._measure(meter, f, spec.force, drive)
+                    m = self._measure(meter, f, held, drive)
                     drive = self._carry_drive(m)
                     self._gain = abs(m.force) / m.drive
                     gains.append((m.frequency, self._gain))
-                    self._store_line(name, index, m, spec.force)
+                    if m.on_target:
+                        lines_drive.append((m.frequency, m.drive))
+                    self._store_line(name, index, m)
                     index += 1
                     self._progress(name, added_before + _added(planned, f, sign, index))
                     if sign * (f - stop) >= -1e-9 * abs(stop):
@@ -413,10 +434,11 @@ class Campaign:
                     previous = m
                     f_next = f + sign * step
                     f = stop if sign * (f_next - stop) > 0 else f_next
-                    drive = self._predicted_drive(gains, f, spec.force, drive)
+                    drive = self._response_drive(lines_drive, f, drive) if held.response else \
+                        self._predicted_drive(gains, f, spec.force, drive)
                 meter.ramp_out(f, m.drive, RAMP_OUT_PERIODS)
             self.shaker.disarm()
-            self._judge(name, spec.force)
+            self._judge(name, spec)
 
     def _transient_lines(self) -> TransientLines | None:
         """The transient-aware path's state for the whole campaign (``[settle] method = "transient"``)."""
@@ -436,10 +458,12 @@ class Campaign:
         return drive
 
     def _carry_drive(self, m: LineMeasurement) -> float:
-        """The next line starts from this line's drive, rescaled when its force ended off target (x0.5..x2)."""
-        if m.on_target or abs(m.force) == 0:
+        """The next line starts from this line's drive, rescaled when its held level (force or response)
+        ended off target (x0.5..x2; a response level within its force limit)."""
+        if m.on_target or abs(m.force) == 0 or m.level == 0:
             return m.drive
-        ratio = float(np.clip(m.target_force / abs(m.force), 0.5, 2.0))
+        ratio = float(np.clip(m.held.target / m.level, 0.5, 2.0))
+        ratio = min(ratio, m.held.force_limit / abs(m.force))
         return min(m.drive * ratio, self.shaker.amplitude_range[1])
 
     def _predicted_drive(self, gains: list[tuple[float, float]], f: float, force: float, carried: float) -> float:
@@ -457,31 +481,50 @@ class Campaign:
         gain = float(np.clip(gain, 0.5 * last, 2.0 * last))
         return float(min(force / gain, self.shaker.amplitude_range[1]))
 
-    def _judge(self, name: str, force: float) -> None:
+    def _response_drive(self, lines: list[tuple[float, float]], f: float, carried: float) -> float:
+        """A response level's start drive at ``f``: extrapolated from the drives its last lines on target
+        needed. At one response amplitude the structure is quasi-linear, so the force it needs is |Z(w)| times
+        the amplitude, smooth in frequency: the square of the drive is taken as quadratic in frequency through
+        the last three lines (linear through two). Starting from the last line's drive instead, a hardening
+        structure past its resonance fell to the low branch, the loop doubled the drive, the response jumped
+        to the high branch, and the loop swung between the two. Within x0.5..x2 of the carried drive."""
+        if len(lines) < 2:
+            return carried
+        f_k, v_k = np.array(lines[-3:]).T
+        squared = float(np.polyval(np.polyfit(f_k, v_k ** 2, len(f_k) - 1), f))
+        if not np.isfinite(squared) or squared <= 0:
+            return carried
+        return float(min(np.clip(np.sqrt(squared), 0.5 * carried, 2.0 * carried), self.shaker.amplitude_range[1]))
+
+    def _judge(self, name: str, spec: SineSpec) -> None:
         """Fail a run whose data missed the plan (docs/campaigns.md, "Complete or failed")."""
         judge = self._run_lines
         reasons = []
         if judge.missed:
-            reasons.append(f"force missed its {force:g} N target by more than {100 * MISSED_FORCE:g} % at "
+            what = f"force missed its {spec.force:g} N" if spec.response is None else \
+                f"response missed its {spec.response.text()}"
+            reasons.append(f"{what} target by more than {100 * MISSED_FORCE:g} % at "
                            f"{judge.missed} of {judge.lines} line(s)")
         if judge.lines and judge.unsteady >= UNSETTLED_SHARE * judge.lines:
             reasons.append(f"{judge.unsteady} of {judge.lines} line(s) hit the settling limit")
         if reasons:
             raise RunFailed("; ".join(reasons))
 
-    def _measure(self, meter: LineMeter, f: float, force: float, drive: float) -> LineMeasurement:
+    def _measure(self, meter: LineMeter, f: float, held: HeldLevel, drive: float) -> LineMeasurement:
         while True:
             try:
-                return meter.measure(f, force, drive)
+                return meter.measure(f, held, drive)
             except _Restart:
                 continue
 
-    def _store_line(self, name: str, index: int, m: LineMeasurement, target: float) -> None:
+    def _store_line(self, name: str, index: int, m: LineMeasurement) -> None:
+        target = m.target_force
         extras = line_extras(m, target, list(self.daq.channels), self.channels, self.sensor_dofs)
         raw = m.raw[:, [self.daq.channels.index(c) for c in self.channels]].astype(np.float32)
         self.writer.append_line(m.frequency, stored_frf(m.frf), extras, raw)
-        error = abs(abs(m.force) / target - 1)
+        error = abs(m.level / m.held.target - 1)
         self.summary.lines += 1
+        self.summary.response_lines += int(m.held.response)
         self.summary.worst_force_error = max(self.summary.worst_force_error, error)
         self.summary.lines_off_target += int(not m.on_target)
         self.summary.unsteady_lines += int(not m.steady)
@@ -494,13 +537,14 @@ class Campaign:
         if m.transient_reason:
             self._log("settle", f"{name}: {m.frequency:.4f} Hz waited for the transient: {m.transient_reason}")
         if not m.on_target:
-            self._log("control", f"{name}: {m.frequency:.4f} Hz: force {abs(m.force):.4g} N, target {target:g} N "
-                                 f"({100 * (abs(m.force) / target - 1):+.2f} %, tolerance "
+            self._log("control", f"{name}: {m.frequency:.4f} Hz: {_held_text(m)} "
+                                 f"({100 * (m.level / m.held.target - 1):+.2f} %, tolerance "
                                  f"{100 * self.plan.control_tolerance:g} %)")
         for dof in unresolved(m.frf):
             self._log("settle", f"{name}: {m.frequency:.4f} Hz: no signal on acc:{dof} (below one count): "
                                 f"its FRF is stored as NaN, not as 0")
         self.listener.line(name, index, m, target)
+
 
     # ------------------------------------------------------------------ runs
     @contextmanager
@@ -525,9 +569,19 @@ class Campaign:
             raise
         finally:
             self._drain_events()
-            self.writer.end_run(status, reason)
+            self.writer.end_run(status, reason, self._run_lines.closing_attrs(spec))
             self.summary.runs[spec.name] = status
             self.listener.run_ended(spec.name, status)
+
+
+def _held_text(m: LineMeasurement) -> str:
+    """A line's held level against its target, for the event log."""
+    if not m.held.response:
+        return f"force {abs(m.force):.4g} N, target {m.held.target:g} N"
+    units = CONTROL_UNITS[m.held.quantity]
+    limit = " (at the force limit)" if abs(m.force) >= 0.999 * m.held.force_limit else ""
+    return (f"{m.held.quantity} at {m.held.dof} {m.level:.4g} {units}, target {m.held.target:g} {units}; "
+            f"force {abs(m.force):.4g} N{limit}")
 
 
 def line_extras(m: LineMeasurement, target: float, daq_channels: list[str], channels: list[str],
@@ -545,6 +599,9 @@ def line_extras(m: LineMeasurement, target: float, daq_channels: list[str], chan
         if c in channels:
             extras[f"harmonics/{c}"] = m.harmonics[:, i]
             extras[f"thd/{c}"] = m.thd[i]
+    if m.held.response:
+        extras["response_amplitude"] = m.level
+        extras["response_target"] = m.held.target
     return extras
 
 
@@ -569,13 +626,22 @@ class _RunLines:
     """What the lines of the run in progress say about it."""
 
     lines: int = 0
-    missed: int = 0          # force off target by more than MISSED_FORCE
+    missed: int = 0          # held level off target by more than MISSED_FORCE
     unsteady: int = 0        # at the settling limit
+    forces: list[float] = field(default_factory=list)    # N, measured at each line
 
     def add(self, m: LineMeasurement, missed: bool) -> None:
         self.lines += 1
         self.missed += int(missed)
         self.unsteady += int(not m.steady)
+        self.forces.append(abs(m.force))
+
+    def closing_attrs(self, spec: RunSpec) -> dict:
+        """Run attributes set when the run closes: a response-controlled run's ``force`` becomes the median of
+        its lines' measured forces (older readers get a sensible level)."""
+        if spec.attrs.get("control") != "response" or not self.forces:
+            return {}
+        return {"force": float(np.median(self.forces))}
 
 
 class RunFailed(Exception):

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from analysis.errors import InputError
+from analysis.measurements import CONTROL_UNITS, NAME_UNITS, Control
 from analysis.frf_estimation import WelchResolution, auto_resolution, welch_averages
 from analysis.tables import Fields, parse_toml, read_toml_text
 
@@ -45,17 +46,51 @@ class RandomSpec:
                                False)
 
 
+RESPONSE_QUANTITIES = ("displacement", "velocity", "acceleration")
+DEFAULT_FORCE_LIMIT_SHARE = 0.5   # a response level's force_limit, unless it says: this share of max_force
+
+
+@dataclass(frozen=True)
+class ResponseLevel:
+    """A level that holds the amplitude of ``quantity`` at ``dof`` (SI units) instead of a force; the loop
+    never drives the force beyond ``force_limit`` N."""
+
+    dof: str
+    quantity: str
+    target: float
+    force_limit: float
+
+    @property
+    def name_token(self) -> str:
+        return f"{self.dof}_{self.target:g}{NAME_UNITS[self.quantity]}"
+
+    def text(self) -> str:
+        return f"{self.target:g} {CONTROL_UNITS[self.quantity]} {self.quantity} at {self.dof}"
+
+
 @dataclass
 class SineSpec:
-    """One force level of stepped sine (one table of the plan)."""
+    """One level of stepped sine (one table of the plan): a force amplitude, or a response amplitude held at a
+    DOF (``response``; ``force`` is then its force limit)."""
 
-    force: float                # N amplitude
+    force: float                # N amplitude (response control: the force limit)
     start: float                # Hz
     stop: float                 # Hz
     step: float                 # Hz
     direction: str              # up | down | both
     refine: bool = True
     min_step: float = 0.0
+    response: ResponseLevel | None = None
+
+    def control(self, excitation_dof: str) -> Control:
+        """The level's control in the session's vocabulary (docs/session-format.md)."""
+        if self.response is None:
+            return Control("force", excitation_dof, "force", self.force)
+        r = self.response
+        return Control("response", r.dof, r.quantity, r.target)
+
+    def level_text(self) -> str:
+        return f"{self.force:g} N" if self.response is None else self.response.text()
 
     @property
     def directions(self) -> list[str]:
@@ -79,6 +114,8 @@ class SineSpec:
         return f if direction == "up" else f[::-1]
 
     def run_name(self, direction: str) -> str:
+        if self.response is not None:
+            return f"sine_{self.response.name_token}_{direction}"
         return f"sine_{self.force:g}N_{direction}"
 
 
@@ -225,7 +262,7 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
                          "(docs/campaigns.md, limits)", source, "[[stepped_sine]]")
     for i, f in enumerate(tables):
         f.where = f"[[stepped_sine]][{i}]"
-        f.unknown_keys({"force", "start", "stop", "step", "direction", "refine", "min_step"})
+        f.unknown_keys({"force", "start", "stop", "step", "direction", "refine", "min_step", *RESPONSE_KEYS})
         start, stop, step = f.number("start", positive=True), f.number("stop", positive=True), \
             f.number("step", positive=True)
         if stop <= start:
@@ -239,25 +276,29 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         min_step = f.number("min_step", step / 4, positive=True)
         if min_step > step:
             raise f.error("min_step", f"must not exceed step ({step} Hz)")
-        sines.append(SineSpec(f.number("force", positive=True), start, stop, step,
-                              f.string("direction", "up", ("up", "down", "both")), refine, min_step))
+        response = _response_level(f)
+        force = response.force_limit if response is not None else f.number("force", positive=True)
+        sines.append(SineSpec(force, start, stop, step, f.string("direction", "up", ("up", "down", "both")),
+                              refine, min_step, response))
     if random is None and not sines:
         raise InputError("plans nothing: give [random] and/or [[stepped_sine]] tables", source)
     names = Counter(spec.run_name(d) for spec in sines for d in spec.directions)
     dup = {n for n, count in names.items() if count > 1}
     if dup:
-        raise InputError(f"two stepped-sine tables make the same run {sorted(dup)[0]} (same force and direction)",
-                         source, "[[stepped_sine]]")
+        raise InputError(f"two stepped-sine tables make the same run {sorted(dup)[0]} (same level and "
+                         "direction)", source, "[[stepped_sine]]")
     lim = root.sub("limits")
     lim.where = "[limits]"
     lim.unknown_keys({"max_force", "max_acceleration", "max_lines"})
     limits = Limits(lim.number("max_force", positive=True), lim.number("max_acceleration", positive=True),
                     _max_lines(lim))
+    sines = [_default_force_limit(spec, limits) for spec in sines]
     _check_line_count(sines, limits.max_lines, source)
     for i, spec in enumerate(sines):
         if spec.force >= limits.max_force:
-            raise InputError(f"force {spec.force} N is not below the abort limit max_force = {limits.max_force} N",
-                             source, f"[[stepped_sine]][{i}].force")
+            key = "force" if spec.response is None else "force_limit"
+            raise InputError(f"{key} {spec.force} N is not below the abort limit max_force = {limits.max_force} N",
+                             source, f"[[stepped_sine]][{i}].{key}")
     if random is not None and 3 * random.force_rms >= limits.max_force:
         raise InputError(f"force_rms {random.force_rms} N: its peaks (~3 x rms) would reach max_force = "
                          f"{limits.max_force} N", source, "[random].force_rms")
@@ -288,6 +329,33 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
                          f"{MAX_SHAKER_SECONDS / 3600:g} h (docs/campaigns.md, limits); plan fewer lines or shorter "
                          "records", source)
     return plan
+
+
+RESPONSE_KEYS = ("response", "quantity", "dof", "force_limit")
+
+
+def _response_level(f: Fields) -> ResponseLevel | None:
+    """A table's response control (``response``, ``quantity``, ``dof``, ``force_limit``), or None for a force
+    level. A level holds one of the two: a force, or a response amplitude. A force limit not given is NaN
+    here and :func:`_default_force_limit` sets it once ``[limits]`` is read."""
+    if not f.has("response"):
+        extra = [k for k in RESPONSE_KEYS if f.has(k)]
+        if extra:
+            raise f.error(extra[0], "belongs to a response-controlled level: give response = <amplitude> too")
+        return None
+    if f.has("force"):
+        raise f.error("force", "a level holds either a force or a response amplitude (response), not both")
+    quantity = f.string("quantity", "acceleration", RESPONSE_QUANTITIES)
+    dof = _dof_name(f, f.string("dof"), "dof")
+    limit = f.number("force_limit", positive=True) if f.has("force_limit") else float("nan")
+    return ResponseLevel(dof, quantity, f.number("response", positive=True), limit)
+
+
+def _default_force_limit(spec: SineSpec, limits: "Limits") -> SineSpec:
+    if spec.response is None or not np.isnan(spec.force):
+        return spec
+    limit = DEFAULT_FORCE_LIMIT_SHARE * limits.max_force
+    return replace(spec, force=limit, response=replace(spec.response, force_limit=limit))
 
 
 def _count(f: Fields, key: str, default: int, largest: int, least: int = 1) -> int:

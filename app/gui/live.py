@@ -220,7 +220,7 @@ class LiveSession:
     def run(self, name: str) -> RunData:
         live = self._runs[name]
         spec = live.spec
-        attrs = {"kind": spec.kind, "force": float(spec.force), "direction": spec.direction,
+        attrs = {**spec.attrs, "kind": spec.kind, "force": float(spec.force), "direction": spec.direction,
                  "status": live.status, "excitation_dof": spec.excitation_dof,
                  "sensor_dofs": json.dumps(list(spec.sensor_dofs)), "sample_rate": float(spec.sample_rate)}
         return RunData(name, attrs, np.asarray(live.frequency, float),

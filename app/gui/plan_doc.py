@@ -8,16 +8,14 @@ from __future__ import annotations
 import json
 from dataclasses import asdict
 
-from app.campaign import Plan
+from app.campaign import Plan, SineSpec
 
 TABLE_ORDER = ("random", "settle", "control", "limits")
 
 
 def plan_document(plan: Plan) -> dict:
     """The document of a validated plan (every table explicit, defaults included)."""
-    doc: dict = {"stepped_sine": [{"force": s.force, "start": s.start, "stop": s.stop, "step": s.step,
-                                   "direction": s.direction, "refine": s.refine, "min_step": s.min_step}
-                                  for s in plan.sine],
+    doc: dict = {"stepped_sine": [_level(s) for s in plan.sine],
                  "settle": asdict(plan.settle), "control": {"tolerance": plan.control_tolerance},
                  "limits": {"max_force": plan.limits.max_force,
                             "max_acceleration": plan.limits.max_acceleration}}
@@ -25,6 +23,15 @@ def plan_document(plan: Plan) -> dict:
         doc["random"] = {"force_rms": plan.random.force_rms, "band": list(plan.random.band),
                          "duration": plan.random.duration}
     return doc
+
+
+def _level(s: SineSpec) -> dict:
+    """One ``[[stepped_sine]]`` table: a force level, or a response level with its force limit."""
+    held = {"force": s.force} if s.response is None else \
+        {"response": s.response.target, "quantity": s.response.quantity, "dof": s.response.dof,
+         "force_limit": s.response.force_limit}
+    return {**held, "start": s.start, "stop": s.stop, "step": s.step, "direction": s.direction, "refine": s.refine,
+            "min_step": s.min_step}
 
 
 def _value(v) -> str:

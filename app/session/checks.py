@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.errors import InputError
-from analysis.measurements import RunNote
+from analysis.measurements import CONTROL_MODES, CONTROL_UNITS, Control, RunNote
 
 from app.session.writer import FORMAT_VERSION, RunData
 
@@ -52,11 +52,12 @@ def check_format(attrs: dict, source: str | None) -> None:
 
 @dataclass
 class CheckedRun:
-    """A run whose contents passed the checks, and how many of its lines are whole."""
+    """A run whose contents passed the checks, how many of its lines are whole, and how it was controlled."""
 
     run: RunData
     lines: int
     sensor_dofs: list[str]
+    control: Control | None = None
 
     @property
     def unfinished(self) -> bool:
@@ -84,6 +85,7 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
     if not isinstance(excitation, str) or not excitation:
         raise error("attribute excitation_dof", f"must name a DOF, got {excitation!r}")
     sensors = _sensor_dofs(attrs.get("sensor_dofs"), error)
+    control = check_control(attrs, excitation, float(force), error)
 
     frequency = np.asarray(run.frequency)
     if frequency.ndim != 1 or frequency.dtype.kind not in "fi":
@@ -117,7 +119,28 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
         if rule is not None:
             _check_lines(np.asarray(values)[:lines], rule, lambda message, name=name: error(f"dataset {name}",
                                                                                             message))
-    return CheckedRun(run, lines, sensors)
+    return CheckedRun(run, lines, sensors, control)
+
+
+def check_control(attrs: dict, excitation_dof: str, force: float, error) -> Control:
+    """A run's control from its ``control*`` attributes (docs/session-format.md); force control at the run's
+    force where they are absent (sessions written before they were recorded)."""
+    mode = attrs.get("control", "force")
+    if mode not in CONTROL_MODES:
+        raise error("attribute control", f"must be one of {', '.join(CONTROL_MODES)}, got {mode!r}")
+    dof = attrs.get("control_dof", excitation_dof)
+    if not isinstance(dof, str) or not dof:
+        raise error("attribute control_dof", f"must name a DOF, got {dof!r}")
+    if mode != "response":
+        return Control(mode, dof, "force", force)
+    quantity, target = attrs.get("control_quantity"), attrs.get("control_target")
+    if quantity not in CONTROL_UNITS or quantity == "force":
+        raise error("attribute control_quantity", "must be displacement, velocity or acceleration for a "
+                                                  f"response-controlled run, got {quantity!r}")
+    if isinstance(target, bool) or not isinstance(target, (int, float, np.number)) or not math.isfinite(target) \
+            or target <= 0:
+        raise error("attribute control_target", f"must be a finite amplitude > 0, got {target!r}")
+    return Control("response", dof, quantity, float(target))
 
 
 def _check_order(frequency: np.ndarray, kind: str, direction: str, error) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from analysis.frf_noise import smoothness_noise
-from analysis.measurements import Measurements, RandomRun, SineRun
+from analysis.measurements import Control, Measurements, RandomRun, SineRun
 
 from app.session.writer import RunData, Session
 from app.session.checks import check_format, check_run, check_run_count
@@ -39,11 +39,12 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
                                _stack(arrays, "coherence", dofs), _stack(arrays, "random_error", dofs),
                                run.force, _welch_resolution(run.attrs))
             continue
-        sine.append(_sine_run(run, dofs, run.frequency[:n], H, arrays))
+        sine.append(_sine_run(run, dofs, run.frequency[:n], H, arrays, checked.control))
     return Measurements(sine, random, unfinished)
 
 
-def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarray, arrays: dict) -> SineRun:
+def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarray, arrays: dict,
+              control: Control) -> SineRun:
     thd = [displacement_distortion(arrays[f"harmonics/acc:{d}"]) for d in dofs if f"harmonics/acc:{d}" in arrays]
     std = _stack(arrays, "frf_std", dofs)
     if std is not None:
@@ -52,7 +53,8 @@ def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarra
     distortion = np.max(np.stack(thd), axis=0) if thd else arrays.get("distortion")   # imported: as stored
     return SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, frequency, H,
                    std if std is not None else smoothness_noise(frequency, H),
-                   arrays.get("force_amplitude"), distortion, noise_estimated=std is None)
+                   arrays.get("force_amplitude"), distortion, noise_estimated=std is None,
+                   control=control)
 
 
 def _welch_resolution(attrs: dict) -> float | None:
