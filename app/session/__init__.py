@@ -17,6 +17,5 @@ from app.session.writer import (RunData, RunSpec, Session, SessionWriteError, Se
 
 __all__ = ["LINES_PER_CHUNK", "RunData", "RunSpec", "Session", "SessionWriteError", "SessionWriter",
            "WRITE_ERRNOS", "append_model_history", "atomic_output", "check_control", "check_format", "check_output",
-           "check_run",
-           "check_run_count", "displacement_distortion", "measurements_from_session", "needs_recovery",
+           "check_run", "check_run_count", "displacement_distortion", "measurements_from_session", "needs_recovery",
            "open_session", "read_model_history", "recover_session", "require_free_space", "write_failure"]
