@@ -28,7 +28,7 @@ import scipy.linalg
 
 from .elements import Element
 from .errors import InputError
-from .measurements import CONTROL_UNITS, SineRun, response_amplitude
+from .measurements import CONTROL_UNITS, PhaseRun, SineRun, response_amplitude
 from .modal_fit import fit_modes
 from .structures import Structure
 
@@ -75,8 +75,14 @@ class Backbone:
     def to_json(self) -> dict:
         return {"dof": self.dof, "quantity": self.quantity, "units": self.units, "source": self.source,
                 "method": self.method, "runs": list(self.runs),
-                "points": [{"amplitude": p.amplitude, "frequency_hz": p.frequency, "damping_ratio": p.damping,
-                            "converged": p.converged} for p in sorted(self.points, key=lambda p: p.amplitude)]}
+                "points": [{"amplitude": p.amplitude, "frequency_hz": p.frequency,
+                            "damping_ratio": _number(p.damping), "converged": p.converged}
+                           for p in sorted(self.points, key=lambda p: p.amplitude)]}
+
+
+def _number(x: float) -> float | None:
+    """A value for JSON: None where it is not known (a phase lock measures no damping ratio)."""
+    return None if not np.isfinite(x) else float(x)
 
 
 # --------------------------------------------------------------------------- measured
@@ -120,6 +126,16 @@ def level_modal_point(run: SineRun) -> ModalPoint | None:
     held = response_amplitude(H[near, p] * -(2 * np.pi * f[near]) ** 2 * force[near],
                               2 * np.pi * f[near], run.control.quantity)
     return ModalPoint(float(np.median(held)), float(fit.frequency[0]), float(fit.damping[0]))
+
+
+def phase_resonance_backbone(run: PhaseRun) -> Backbone:
+    """A phase-resonance run's points as a measured curve: the locked frequency against the displacement
+    amplitude at the locked DOF. A lock at 90 deg is the natural frequency of an isolated mode; it measures no
+    damping ratio (NaN)."""
+    points = [ModalPoint(float(a), float(f), float("nan"), bool(c))
+              for a, f, c in zip(run.amplitude, run.frequency_hz, run.converged)]
+    return Backbone(run.dof, "displacement", points, "measured", f"phase resonance ({run.target_phase:g} deg)",
+                    (run.name,))
 
 
 # --------------------------------------------------------------------------- predicted
@@ -201,28 +217,32 @@ class BackboneComparison:
 
     def text(self) -> list[str]:
         m = self.measured
-        out = [f"  {m.quantity} at {m.dof} ({len(m.points)} response level(s)); predicted by the "
-               f"{self.predicted.method}:",
+        what = "response level(s)" if m.method.startswith("single-mode") else f"point(s) of {m.runs[0]}, {m.method}"
+        out = [f"  {m.quantity} at {m.dof} ({len(m.points)} {what}); predicted by the {self.predicted.method}:",
                f"    {'amplitude [' + m.units + ']':>18} {'f meas [Hz]':>12} {'f model':>10} {'error':>8} "
                f"{'zeta meas':>10} {'zeta model':>10} {'error':>8}"]
         for pm, pp, ef, ez in zip(sorted(m.points, key=lambda p: p.amplitude), self.predicted.points,
                                   self.frequency_error, self.damping_error):
             flag = "" if pp.converged else "  (prediction not converged)"
+            flag += "" if pm.converged else "  (lock not converged)"
+            damping = f"{pm.damping:10.5f} {pp.damping:10.5f} {100 * ez:+7.2f}%" if np.isfinite(pm.damping) else \
+                f"{'-':>10} {pp.damping:10.5f} {'-':>8}"
             out.append(f"    {pm.amplitude:18.4g} {pm.frequency:12.5f} {pp.frequency:10.5f} {100 * ef:+7.3f}% "
-                       f"{pm.damping:10.5f} {pp.damping:10.5f} {100 * ez:+7.2f}%{flag}")
+                       f"{damping}{flag}")
         return out
 
     def to_json(self) -> dict:
         return {"measured": self.measured.to_json(), "predicted": self.predicted.to_json(),
                 "curve": self.curve.to_json(), "frequency_error": [float(e) for e in self.frequency_error],
-                "damping_error": [float(e) for e in self.damping_error]}
+                "damping_error": [_number(e) for e in self.damping_error]}
 
 
-def compare_backbones(structure: Structure, elements: Sequence[Element], runs: Sequence[SineRun]
-                      ) -> list[BackboneComparison]:
-    """Measured natural frequency and damping of the response levels against the model's prediction."""
+def compare_backbones(structure: Structure, elements: Sequence[Element], runs: Sequence[SineRun],
+                      phase_runs: Sequence[PhaseRun] = ()) -> list[BackboneComparison]:
+    """Measured natural frequency and damping -- of the response levels, and of the phase-resonance runs'
+    points -- against the model's prediction."""
     out = []
-    for measured in measured_backbone(runs):
+    for measured in measured_backbone(runs) + [phase_resonance_backbone(r) for r in phase_runs]:
         a, f, _ = measured.arrays()
         predicted = predict_backbone(structure, elements, measured.dof, measured.quantity, a, float(f[0]))
         grid = np.geomspace(a.min(), a.max(), CURVE_POINTS) if a.max() > a.min() else a

@@ -36,6 +36,10 @@ class Control:
     def response(self) -> bool:
         return self.mode == "response"
 
+    def text(self) -> str:
+        """The level in a legend: ``0.8 N``, or ``20 m/s^2 at x1``."""
+        return f"{self.target:g} {self.units}" + (f" at {self.dof}" if self.response else "")
+
 
 def response_amplitude(acceleration: np.ndarray, w: np.ndarray, quantity: str) -> np.ndarray:
     """The amplitude of ``quantity`` from the fundamental of an acceleration (harmonic motion: a velocity is
@@ -158,13 +162,29 @@ class RunNote:
 
 
 @dataclass
+class PhaseRun:
+    """A phase-resonance run: at each force level the point its lock ended at -- frequency (Hz), force amplitude
+    (N), the fundamental displacement amplitude at ``dof`` (m), the lag it locked to (deg) and whether the lock
+    converged."""
+
+    name: str
+    dof: str
+    target_phase: float
+    frequency_hz: np.ndarray
+    force: np.ndarray
+    amplitude: np.ndarray
+    converged: np.ndarray
+
+
+@dataclass
 class Measurements:
     """Everything measured in a session, ready for the workbench; ``unfinished`` lists the runs that did not
-    finish as planned."""
+    finish as planned; ``phase`` the phase-resonance runs (not sweeps: not identified from)."""
 
     sine: list[SineRun] = field(default_factory=list)
     random: RandomRun | None = None
     unfinished: list[RunNote] = field(default_factory=list)
+    phase: list[PhaseRun] = field(default_factory=list)
 
     @property
     def levels(self) -> list[float]:

@@ -202,9 +202,10 @@ def misfits_json(wb: Workbench) -> dict:
 
 
 def backbones(wb: Workbench) -> list[BackboneComparison]:
-    """Natural frequency and damping against response amplitude: measured on the response-controlled levels,
-    predicted from the workbench's (fitted) model (analysis/backbone.py; none without response levels)."""
-    return compare_backbones(wb.model.structure, wb.model.elements, wb.measurements.sine)
+    """Natural frequency and damping against response amplitude: measured on the response-controlled levels and
+    the phase-resonance runs, predicted from the workbench's (fitted) model (analysis/backbone.py; none without
+    either)."""
+    return compare_backbones(wb.model.structure, wb.model.elements, wb.measurements.sine, wb.measurements.phase)
 
 
 def backbones_json(comparisons: list[BackboneComparison]) -> dict:
@@ -216,7 +217,7 @@ def backbone_text(comparisons: list[BackboneComparison]) -> list[str]:
     if not comparisons:
         return []
     out = ["", "natural frequency and damping against response amplitude (measured: a single-mode fit per "
-               "response level):"]
+               "response level, or the points of a phase-resonance run):"]
     for c in comparisons:
         out += c.text()
     return out

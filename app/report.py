@@ -323,12 +323,15 @@ def backbone_layout(comparisons: list[BackboneComparison]):
         plot.addLegend(labelTextSize="8pt")
     for i, c in enumerate(comparisons):
         colour = LEVEL_COLOURS[i % len(LEVEL_COLOURS)]
-        name = f"{c.measured.quantity} at {c.measured.dof}"
+        name = f"{c.measured.quantity} at {c.measured.dof}" + \
+            (f" ({c.measured.method})" if c.measured.method.startswith("phase") else "")
         a, f, z = c.measured.arrays()
         ca, cf, cz = c.curve.arrays()
         for plot, measured, predicted in ((freq, f, cf), (damp, z, cz)):
             plot.plot(ca, predicted, pen={"color": colour, "width": 2}, name=f"{name}: model")
-            plot.plot(a, measured, name=f"{name}: measured", **_symbols(colour, 9))
+            known = np.isfinite(measured)              # a phase lock measures no damping ratio
+            if known.any():
+                plot.plot(a[known], measured[known], name=f"{name}: measured", **_symbols(colour, 9))
     return lay
 
 

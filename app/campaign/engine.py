@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from analysis.drive_prediction import predicted_gain
+from analysis.errors import InputError
 from analysis.frf_estimation import FRFEstimator
 from analysis.measurements import CONTROL_UNITS
 from drivers import AbortLimits, InstrumentError, LimitExceeded, OutputGuard
@@ -28,7 +29,8 @@ from drivers.errors import describe_instrument_error
 from drivers.interfaces import Block
 
 from app.campaign.acquisition import RecordFeed
-from app.campaign.plan import Plan, RandomSpec, SineSpec
+from app.campaign.phase_resonance import LockedPoint, PhaseTrack, lock
+from app.campaign.plan import PhaseSpec, Plan, RandomSpec, ResponseLevel, SineSpec
 from app.session import RunSpec, SessionWriteError, SessionWriter
 from app.campaign.stepped_sine import N_HARMONICS, HeldLevel, LineMeasurement, LineMeter, frf_change, next_step
 from app.campaign.transient_line import TransientLines
@@ -61,6 +63,7 @@ class CampaignListener:
     def event(self, kind: str, message: str) -> None: ...
     def progress(self, done: int, total: int, eta_s: float | None, run: str) -> None: ...
     def lines_added(self, planned: int, added: int) -> None: ...   # refinement: total = planned + added
+    def phase_point(self, run: str, index: int, point) -> None: ...   # a phase-resonance level locked
 
 
 @dataclass
@@ -140,6 +143,7 @@ class Campaign:
         if missing:
             raise ValueError(f"the DAQ at {daq.url} has no channel(s) {', '.join(missing)} "
                              f"(it has {', '.join(daq.channels)})")
+        self._check_held_dofs()
         fs = daq.sample_rate
         self.block = int(np.clip(2 ** np.floor(np.log2(BLOCK_SECONDS * fs)), *BLOCK_POINTS))
         daq.configure(frame_points=self.block)
@@ -153,10 +157,22 @@ class Campaign:
         self._gain = None              # N per V, learnt as the campaign runs
         self._transient = self._transient_lines()   # poles carry over from run to run
         self._run_lines = _RunLines()
-        self._total_lines = sum(len(spec.lines(d)) for spec, d in plan.runs) + (1 if plan.random else 0)
+        self._total_lines = sum(len(spec.lines(d)) for spec, d in plan.runs) + (1 if plan.random else 0) \
+            + sum(len(p.forces) for p in plan.phase)
         self._done_lines = 0
         self._added_lines = 0          # lines refinement added to the plan so far (runs before this one)
         self._t_start = 0.0
+
+    def _check_held_dofs(self) -> None:
+        """A response level or a phase lock at a DOF no accelerometer measures is refused before anything is
+        armed, naming the plan's field."""
+        held = [(f"[[stepped_sine]][{i}].dof", s.response.dof) for i, s in enumerate(self.plan.sine)
+                if s.response is not None]
+        held += [(f"[[phase_resonance]][{i}].dof", p.dof) for i, p in enumerate(self.plan.phase)]
+        for where, dof in held:
+            if dof not in self.sensor_dofs:
+                raise InputError(f"DOF {dof!r} carries no accelerometer (sensors: {', '.join(self.sensor_dofs)})",
+                                 self.plan.source, where)
 
     # ------------------------------------------------------------------ control (any thread)
     def abort(self, reason: str = "operator abort") -> None:
@@ -197,6 +213,8 @@ class Campaign:
                     self._random_run(guard, self.plan.random)
                 for spec, direction in self.plan.runs:
                     self._sine_run(guard, spec, direction)
+                for phase in self.plan.phase:
+                    self._phase_run(guard, phase)
         except (CampaignAborted, LimitExceeded, InstrumentError, SessionWriteError) as exc:
             # the guard has switched the output off; the lines measured so far are in the session
             self.summary.aborted = self._describe(exc)
@@ -365,7 +383,7 @@ class Campaign:
                                     {d: coh[:, p] for p, d in enumerate(self.sensor_dofs)})
 
     # ------------------------------------------------------------------ stepped sine
-    def _sine_extras(self, spec: SineSpec) -> dict:
+    def _sine_extras(self, response: ResponseLevel | None = None) -> dict:
         extras = {"force_amplitude": ("N", (), "f8"), "force_target": ("N", (), "f8"),
                   "force_phasor": ("N", (), "c16"), "measured_frequency": ("Hz", (), "f8"),
                   "drive": ("V", (), "f8"), "settle_time": ("s", (), "f8"), "settle_periods": ("1", (), "f8"),
@@ -377,8 +395,8 @@ class Campaign:
         for c, u in zip(self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs)):
             extras[f"harmonics/{c}"] = (u, (N_HARMONICS + 1,), "c16")
             extras[f"thd/{c}"] = ("1", (), "f8")
-        if spec.response is not None:
-            units = CONTROL_UNITS[spec.response.quantity]
+        if response is not None:
+            units = CONTROL_UNITS[response.quantity]
             extras["response_amplitude"] = (units, (), "f8")
             extras["response_target"] = (units, (), "f8")
         return extras
@@ -395,7 +413,7 @@ class Campaign:
         # a response level's force is not known before it is measured: the force limit until the run closes
         # with the median of its lines' forces (_RunLines.closing_attrs)
         run_spec = RunSpec(name, "stepped_sine", spec.force, direction, self.excitation_dof, self.sensor_dofs, fs,
-                           self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._sine_extras(spec),
+                           self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._sine_extras(spec.response),
                            {"start": spec.start, "stop": spec.stop, "step": spec.step, "refine": spec.refine,
                             **self._control_attrs(spec)})
         held = HeldLevel(spec.force) if spec.response is None else \
@@ -439,6 +457,76 @@ class Campaign:
                 meter.ramp_out(f, m.drive, RAMP_OUT_PERIODS)
             self.shaker.disarm()
             self._judge(name, spec)
+
+    # ------------------------------------------------------------------ phase resonance
+    def _phase_extras(self) -> dict:
+        """A phase-resonance point's quantities: a stepped-sine line's, and the lock's (docs/session-format.md)."""
+        return {**self._sine_extras(),
+                "phase_lag": ("deg", (), "f8"), "phase_error": ("deg", (), "f8"),
+                "lock_iterations": ("1", (), "i4"), "lock_converged": ("bool", (), "?"),
+                "shaker_time": ("s", (), "f8")}
+
+    def _phase_run(self, guard: OutputGuard, spec: PhaseSpec) -> None:
+        """Lock each force level of ``spec`` to its phase (app/campaign/phase_resonance.py), one point a level,
+        within the same guard, settling and force control as a stepped-sine run."""
+        name = spec.run_name()
+        fs = self.daq.sample_rate
+        run_spec = RunSpec(name, "phase_resonance", spec.forces[0], "up", self.excitation_dof, self.sensor_dofs, fs,
+                           self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._phase_extras(),
+                           {"start": spec.start, "phase_dof": spec.dof, "target_phase": spec.phase,
+                            "phase_tolerance": spec.tolerance, "forces": list(spec.forces),
+                            "control": "force", "control_dof": self.excitation_dof, "control_quantity": "force",
+                            "control_target": float(spec.forces[0]), "control_units": "N"})
+        with self._run(run_spec):
+            f, drive = spec.start, self._start_drive(spec.forces[0])
+            self.shaker.set_sine(f, drive)
+            guard.arm()
+            self._log("operator", f"armed: {name}")
+            with self.daq.stream(self.block) as stream:
+                feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
+                meter = LineMeter(self.shaker, feed, list(self.daq.channels), self.sensor_dofs, fs,
+                                  self.plan.settle, self.plan.control_tolerance, lambda: self._interrupt(guard))
+                track = PhaseTrack()
+                for index, force in enumerate(spec.forces):
+                    point = lock(meter, spec, track, force, f, drive)
+                    self._store_point(name, index, point)
+                    f, drive = point.line.frequency, self._carry_drive(point.line)
+                    drive = min(drive * spec.forces[min(index + 1, len(spec.forces) - 1)] / force,
+                                self.shaker.amplitude_range[1])      # the next level's force, at the same N/V
+                    self._progress(name, self._added_lines)
+                meter.ramp_out(f, point.line.drive, RAMP_OUT_PERIODS)
+            self.shaker.disarm()
+            self._judge_locks(spec)
+
+    def _judge_locks(self, spec: PhaseSpec) -> None:
+        """Fail a phase-resonance run whose lock did not converge at a level, or whose force missed its target
+        (docs/campaigns.md, "Complete or failed")."""
+        judge = self._run_lines
+        reasons = []
+        unlocked = [f for f, locked in zip(spec.forces, judge.locked) if not locked]
+        if unlocked:
+            reasons.append(f"the phase lock did not converge at {len(unlocked)} of {len(spec.forces)} force "
+                           f"level(s) ({', '.join(f'{x:g}' for x in unlocked)} N)")
+        if judge.missed:
+            reasons.append(f"force missed its target by more than {100 * MISSED_FORCE:g} % at {judge.missed} of "
+                           f"{judge.lines} level(s)")
+        if reasons:
+            raise RunFailed("; ".join(reasons))
+
+    def _store_point(self, name: str, index: int, point: LockedPoint) -> None:
+        """A locked point as a line of the run, with the lock's convergence and the shaker time it took."""
+        m = point.line
+        self._write_line(m, {"phase_lag": point.lag, "phase_error": point.error, "lock_iterations": point.iterations,
+                             "lock_converged": point.converged, "shaker_time": point.shaker_seconds})
+        self.summary.lines += 1
+        self.summary.shaker_seconds += point.shaker_seconds
+        self._run_lines.add(m, abs(m.level / m.held.target - 1) > MISSED_FORCE)
+        self._run_lines.locked.append(point.converged)
+        self._log("lock", f"{name}: {m.target_force:g} N locked at {m.frequency:.5g} Hz, lag {point.lag:.2f} deg "
+                          f"(error {point.error:+.2f}) after {point.iterations} line(s), {point.shaker_seconds:.1f} s"
+                          + ("" if point.converged else " -- NOT CONVERGED"))
+        self.listener.phase_point(name, index, point)
+        self.listener.line(name, index, m, m.target_force)
 
     def _transient_lines(self) -> TransientLines | None:
         """The transient-aware path's state for the whole campaign (``[settle] method = "transient"``)."""
@@ -517,11 +605,15 @@ class Campaign:
             except _Restart:
                 continue
 
+    def _write_line(self, m: LineMeasurement, more: dict | None = None) -> None:
+        """A line into the session: frequency, FRFs, its per-line quantities (and ``more`` of them), raw samples."""
+        extras = line_extras(m, m.target_force, list(self.daq.channels), self.channels, self.sensor_dofs)
+        raw = m.raw[:, [self.daq.channels.index(c) for c in self.channels]].astype(np.float32)
+        self.writer.append_line(m.frequency, stored_frf(m.frf), {**extras, **(more or {})}, raw)
+
     def _store_line(self, name: str, index: int, m: LineMeasurement) -> None:
         target = m.target_force
-        extras = line_extras(m, target, list(self.daq.channels), self.channels, self.sensor_dofs)
-        raw = m.raw[:, [self.daq.channels.index(c) for c in self.channels]].astype(np.float32)
-        self.writer.append_line(m.frequency, stored_frf(m.frf), extras, raw)
+        self._write_line(m)
         error = abs(m.level / m.held.target - 1)
         self.summary.lines += 1
         self.summary.response_lines += int(m.held.response)
@@ -629,6 +721,7 @@ class _RunLines:
     missed: int = 0          # held level off target by more than MISSED_FORCE
     unsteady: int = 0        # at the settling limit
     forces: list[float] = field(default_factory=list)    # N, measured at each line
+    locked: list[bool] = field(default_factory=list)     # phase resonance: whether each level's lock converged
 
     def add(self, m: LineMeasurement, missed: bool) -> None:
         self.lines += 1

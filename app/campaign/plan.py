@@ -176,6 +176,23 @@ class Placement:
         return None if field_name.startswith("--") else self.source
 
 
+@dataclass
+class PhaseSpec:
+    """A phase-resonance run (one ``[[phase_resonance]]`` table): at each force level (N, ascending) the frequency
+    is tracked until the fundamental displacement at ``dof`` lags the force by ``phase`` degrees within
+    ``tolerance``, starting near ``start`` Hz; ``max_iterations`` lines per level at most."""
+
+    dof: str
+    forces: list[float]
+    start: float
+    phase: float = 90.0
+    tolerance: float = 1.0
+    max_iterations: int = 30
+
+    def run_name(self) -> str:
+        return f"phase_{self.dof}_{self.phase:g}deg"
+
+
 @dataclass(frozen=True)
 class PlannedTime:
     """How long the shaker drives for a plan (s): ``least`` if every line settles at once (``min_blocks``
@@ -207,6 +224,7 @@ class Plan:
     text: str = ""
     source: str | None = None
     placement: Placement = field(default_factory=Placement)
+    phase: list[PhaseSpec] = field(default_factory=list)
 
     @property
     def runs(self) -> list[tuple[SineSpec, str]]:
@@ -218,6 +236,9 @@ class Plan:
         parts = [f"{len(self.runs)} stepped-sine run(s), {lines} planned lines", self.planned_time().text()]
         if self.random is not None:
             parts.insert(0, f"random run {self.random.duration:g} s")
+        if self.phase:
+            parts.insert(-1, f"{len(self.phase)} phase-resonance run(s), "
+                             f"{sum(len(p.forces) for p in self.phase)} force level(s)")
         return ", ".join(parts)
 
     def planned_time(self) -> PlannedTime:
@@ -227,7 +248,10 @@ class Plan:
         least = s.fixed_periods or s.min_blocks * s.block_periods
         most = max(s.max_periods, s.fixed_periods) + s.block_periods
         random = self.random.duration if self.random is not None else 0.0
-        return PlannedTime(random + least * periods, random + most * periods)
+        # a phase-resonance level takes one line when its start is already in phase, max_iterations at most
+        locked = sum(len(p.forces) / p.start for p in self.phase)
+        tracked = sum(len(p.forces) * p.max_iterations / p.start for p in self.phase)
+        return PlannedTime(random + least * (periods + locked), random + most * (periods + tracked))
 
 
 def load_plan(path) -> Plan:
@@ -238,7 +262,8 @@ def load_plan(path) -> Plan:
 
 def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
     root = Fields(doc, source, "")
-    root.unknown_keys({"random", "stepped_sine", "limits", "settle", "control", "excitation", "sensors"})
+    root.unknown_keys({"random", "stepped_sine", "phase_resonance", "limits", "settle", "control", "excitation",
+                       "sensors"})
     random = None
     if root.has("random"):
         f = root.sub("random")
@@ -280,8 +305,9 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         force = response.force_limit if response is not None else f.number("force", positive=True)
         sines.append(SineSpec(force, start, stop, step, f.string("direction", "up", ("up", "down", "both")),
                               refine, min_step, response))
-    if random is None and not sines:
-        raise InputError("plans nothing: give [random] and/or [[stepped_sine]] tables", source)
+    phases = [_phase_table(f, i) for i, f in enumerate(root.list_of_tables("phase_resonance"))]
+    if random is None and not sines and not phases:
+        raise InputError("plans nothing: give [random], [[stepped_sine]] and/or [[phase_resonance]] tables", source)
     names = Counter(spec.run_name(d) for spec in sines for d in spec.directions)
     dup = {n for n, count in names.items() if count > 1}
     if dup:
@@ -322,7 +348,8 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         c.where = "[control]"
         c.unknown_keys({"tolerance"})
         control = c.number("tolerance", 0.01, positive=True)
-    plan = Plan(random, sines, limits, settle, control, text, source, _placement(root))
+    _check_phase_forces(phases, limits, source)
+    plan = Plan(random, sines, limits, settle, control, text, source, _placement(root), phases)
     planned = plan.planned_time()
     if planned.least > MAX_SHAKER_SECONDS:
         raise InputError(f"{planned.text()}: even if every line settles at once the shaker drives for more than "
@@ -349,6 +376,43 @@ def _response_level(f: Fields) -> ResponseLevel | None:
     dof = _dof_name(f, f.string("dof"), "dof")
     limit = f.number("force_limit", positive=True) if f.has("force_limit") else float("nan")
     return ResponseLevel(dof, quantity, f.number("response", positive=True), limit)
+
+
+PHASE_KEYS = {"dof", "forces", "start", "phase", "tolerance", "max_iterations"}
+MAX_PHASE_LEVELS = 200          # force levels of one phase-resonance run
+
+
+def _phase_table(f: Fields, i: int) -> PhaseSpec:
+    """One ``[[phase_resonance]]`` table (docs/campaigns.md, "Phase resonance")."""
+    f.where = f"[[phase_resonance]][{i}]"
+    f.unknown_keys(PHASE_KEYS)
+    forces = f.table.get("forces")
+    if not isinstance(forces, list) or not forces or len(forces) > MAX_PHASE_LEVELS:
+        raise f.error("forces", f"must be a list of 1 to {MAX_PHASE_LEVELS} force amplitudes in N")
+    forces = [f.check_number("forces", v, positive=True) for v in forces]
+    if any(b <= a for a, b in zip(forces, forces[1:])):
+        raise f.error("forces", "must rise from level to level (the lock follows the mode up in amplitude)")
+    phase = f.number("phase", 90.0, positive=True)
+    if phase >= 180.0:
+        raise f.error("phase", f"a phase lag from 0 to 180 degrees, got {phase:g}")
+    tolerance = f.number("tolerance", 1.0, positive=True)
+    if tolerance > 10.0:
+        raise f.error("tolerance", f"at most 10 degrees, got {tolerance:g}")
+    iterations = _count(f, "max_iterations", 30, 200)
+    return PhaseSpec(_dof_name(f, f.string("dof"), "dof"), forces, f.number("start", positive=True), phase,
+                     tolerance, iterations)
+
+
+def _check_phase_forces(phases: list[PhaseSpec], limits: "Limits", source: str | None) -> None:
+    for i, spec in enumerate(phases):
+        if spec.forces[-1] >= limits.max_force:
+            raise InputError(f"force {spec.forces[-1]:g} N is not below the abort limit max_force = "
+                             f"{limits.max_force:g} N", source, f"[[phase_resonance]][{i}].forces")
+    names = Counter(p.run_name() for p in phases)
+    dup = sorted(n for n, count in names.items() if count > 1)
+    if dup:
+        raise InputError(f"two phase-resonance tables make the same run {dup[0]} (same DOF and phase)", source,
+                         "[[phase_resonance]]")
 
 
 def _default_force_limit(spec: SineSpec, limits: "Limits") -> SineSpec:
@@ -448,6 +512,11 @@ def check_against_instruments(plan: Plan, sample_rate: float, frequency_range: t
             raise InputError(f"a record of {plan.settle.block_periods} periods at {spec.start:g} Hz holds "
                              f"{samples:,.0f} samples a channel at {sample_rate:g} Hz, more than "
                              f"{MAX_RECORD_SAMPLES:,}: lower block_periods", plan.source, "[settle].block_periods")
+    for i, spec in enumerate(plan.phase):
+        if not lo <= spec.start <= hi or spec.start >= nyquist / 2:
+            raise InputError(f"{spec.start:g} Hz is outside the generator's range {lo:g}-{hi:g} Hz or too near "
+                             f"the DAQ's Nyquist frequency ({nyquist:g} Hz) for the lock to move around it",
+                             plan.source, f"[[phase_resonance]][{i}].start")
     if plan.random is not None and plan.random.band[1] >= nyquist:
         raise InputError(f"band reaches {plan.random.band[1]} Hz, beyond the DAQ's Nyquist frequency "
                          f"({nyquist:g} Hz)", plan.source, "[random].band")

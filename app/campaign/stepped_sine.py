@@ -388,16 +388,26 @@ class LineMeter:
         A response level scales by the secant (:meth:`_drive_ratio`) within its force limit.
         """
         level, force = self._level(history[-1]), abs(history[-1].force)
-        if self._on_target(level, held.target) or level == 0.0 or force == 0.0 \
-                or wait.control_steps >= MAX_CONTROL_STEPS:
+        if self._on_target(level, held.target) or force == 0.0 or wait.control_steps >= MAX_CONTROL_STEPS:
             return None
         if at_limit and wait.limit_retries >= LIMIT_RETRIES:
             return None
+        if level == 0.0:
+            return self._stuck(held, force, steady or at_limit)
         coarse = self._coarse(level, held) and self._force_known(frequency, history)
         if not (steady or coarse or at_limit):
             return None
         ratio = float(np.clip(self._drive_ratio(level, held.target, wait.drive), 0.5, 2.0))
         return self._within_force_limit(ratio, force, held.force_limit)
+
+    @staticmethod
+    def _stuck(held: HeldLevel, force: float, settled: bool) -> float | None:
+        """A response level whose DOF does not move at all (below one count: a joint held by friction below its
+        slip force) once the line settled: double the drive, within the force limit -- no ratio to the target
+        exists. A force level with no force has nothing to scale."""
+        if not held.response or not settled:
+            return None
+        return LineMeter._within_force_limit(2.0, force, held.force_limit)
 
     @staticmethod
     def _coarse(level: float, held: HeldLevel) -> bool:

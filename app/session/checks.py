@@ -22,9 +22,9 @@ from analysis.measurements import CONTROL_MODES, CONTROL_UNITS, Control, RunNote
 
 from app.session.writer import FORMAT_VERSION, RunData
 
-KINDS = ("random", "stepped_sine")
+KINDS = ("random", "stepped_sine", "phase_resonance")
 STATUSES = ("running", "complete", "failed", "aborted")
-DIRECTIONS = {"stepped_sine": ("up", "down"), "random": ("none",)}
+DIRECTIONS = {"stepped_sine": ("up", "down"), "random": ("none",), "phase_resonance": ("up",)}
 PER_HARMONIC = "harmonics/"
 MAX_RUNS = 500          # runs a session may hold for the analysis and export (plans: at most 200 force levels)
 MIN_FREQUENCY = 1e-3    # Hz: a line below or above these is a damaged dataset, not a vibration measurement
@@ -119,7 +119,22 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
         if rule is not None:
             _check_lines(np.asarray(values)[:lines], rule, lambda message, name=name: error(f"dataset {name}",
                                                                                             message))
+    if kind == "phase_resonance":
+        _check_lock(run, sensors, error)
     return CheckedRun(run, lines, sensors, control)
+
+
+def _check_lock(run: RunData, sensors: list[str], error) -> None:
+    """What a phase-resonance run's points are read by: the locked DOF among the sensors, its target phase, its
+    acceleration harmonics and the lock's convergence per point."""
+    dof, phase = run.attrs.get("phase_dof"), run.attrs.get("target_phase")
+    if dof not in sensors:
+        raise error("attribute phase_dof", f"must name one of the sensor DOFs {sensors}, got {dof!r}")
+    if isinstance(phase, bool) or not isinstance(phase, (int, float, np.number)) or not 0 < phase < 180:
+        raise error("attribute target_phase", f"must be a lag from 0 to 180 degrees, got {phase!r}")
+    for name in (f"harmonics/acc:{dof}", "lock_converged"):
+        if name not in run.arrays:
+            raise error(f"dataset {name}", "is missing (a phase-resonance run reads its points from it)")
 
 
 def check_control(attrs: dict, excitation_dof: str, force: float, error) -> Control:
@@ -146,7 +161,9 @@ def check_control(attrs: dict, excitation_dof: str, force: float, error) -> Cont
 def _check_order(frequency: np.ndarray, kind: str, direction: str, error) -> None:
     """A sweep measures its lines one after the other in its direction, a random run's lines rise: each
     frequency strictly beyond the one before. Equal or reversed frequencies are a frequency dataset that does
-    not belong to the run's FRFs."""
+    not belong to the run's FRFs. A phase-resonance run's points follow its mode, not a sweep: any order."""
+    if kind == "phase_resonance":
+        return
     sign = -1.0 if kind == "stepped_sine" and direction == "down" else 1.0
     wrong = np.flatnonzero(sign * np.diff(frequency) <= 0)
     if len(wrong):
