@@ -328,7 +328,7 @@ class ModelPanel(QWidget):
             for p, dof in enumerate(run.sensor_dofs):
                 self.frf.plot(f, finite_log(np.abs(run.receptance[order, p])), pen=None, symbol=sensor_symbol(p),
                               symbolSize=5, symbolBrush=pg.mkBrush(color), symbolPen=None,
-                              name=f"{run.force:g} N {run.direction} · {dof}")
+                              name=f"{run.control.text()} {run.direction} · {dof}")
                 self.frf.plot(f, finite_log(np.abs(predicted[:, p])), pen=pg.mkPen(color, width=1.5))
             self.residual.plot(f, finite_log(view.residual_map[run.name][order]), pen=pg.mkPen(color, width=1),
                                symbol="o", symbolSize=4, symbolBrush=pg.mkBrush(color), symbolPen=None)

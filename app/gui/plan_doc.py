@@ -22,6 +22,8 @@ def plan_document(plan: Plan) -> dict:
     if plan.random is not None:
         doc["random"] = {"force_rms": plan.random.force_rms, "band": list(plan.random.band),
                          "duration": plan.random.duration}
+    if plan.phase:
+        doc["phase_resonance"] = [asdict(p) for p in plan.phase]
     return doc
 
 
@@ -52,6 +54,7 @@ def plan_toml(doc: dict) -> str:
     for name in TABLE_ORDER:
         if name in doc:
             out += ["", f"[{name}]"] + [f"{k} = {_value(v)}" for k, v in doc[name].items()]
-    for level in doc.get("stepped_sine", []):
-        out += ["", "[[stepped_sine]]"] + [f"{k} = {_value(v)}" for k, v in level.items()]
+    for table in ("stepped_sine", "phase_resonance"):
+        for level in doc.get(table, []):
+            out += ["", f"[[{table}]]"] + [f"{k} = {_value(v)}" for k, v in level.items()]
     return "\n".join(out) + "\n"
