@@ -208,7 +208,8 @@ def test_frequency_and_damping_against_amplitude_grow_point_by_point(window, qtb
     rig.arm_button.click()
     window.acquire.output.setText(str(tmp_path / "gui.h5"))
     live = window.acquire.live
-    locked = []
+    locked, errors = [], []
+    window.lab.error.connect(errors.append)           # the live identification reads the locked points too
 
     def sample():
         if window.lab.campaign_running:
@@ -219,5 +220,8 @@ def test_frequency_and_damping_against_amplitude_grow_point_by_point(window, qtb
     assert not done.args[1], done.args[0]
     qtbot.waitUntil(lambda: len(live.shown(live.natural, "phase_x2_90deg", "locked")[0]) == 3, timeout=10000)
     assert {1, 2} <= set(locked)                                    # grew point by point while it ran
+    qtbot.waitUntil(lambda: window.lab.identification is not None and not window.lab.identification.live,
+                    timeout=60000)
+    assert not errors, errors
     f, zeta = (live.shown(plot, "response levels", "acceleration at x2")[1] for plot in (live.natural, live.damping))
     assert len(f) == 1 and 1.1 < f[0] < 1.3 and 0 < zeta[0] < 0.2   # the response level's modal fit

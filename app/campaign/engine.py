@@ -516,8 +516,7 @@ class Campaign:
     def _store_point(self, name: str, index: int, point: LockedPoint) -> None:
         """A locked point as a line of the run, with the lock's convergence and the shaker time it took."""
         m = point.line
-        self._write_line(m, {"phase_lag": point.lag, "phase_error": point.error, "lock_iterations": point.iterations,
-                             "lock_converged": point.converged, "shaker_time": point.shaker_seconds})
+        self._write_line(m, lock_extras(point))
         self.summary.lines += 1
         self.summary.shaker_seconds += point.shaker_seconds
         self._run_lines.add(m, abs(m.level / m.held.target - 1) > MISSED_FORCE)
@@ -664,6 +663,13 @@ class Campaign:
             self.writer.end_run(status, reason, self._run_lines.closing_attrs(spec))
             self.summary.runs[spec.name] = status
             self.listener.run_ended(spec.name, status)
+
+
+def lock_extras(point: LockedPoint) -> dict:
+    """What a phase-resonance point stores beside its line's quantities (docs/session-format.md); the GUI's live
+    view records the same."""
+    return {"phase_lag": point.lag, "phase_error": point.error, "lock_iterations": point.iterations,
+            "lock_converged": point.converged, "shaker_time": point.shaker_seconds}
 
 
 def _held_text(m: LineMeasurement) -> str:

@@ -11,8 +11,9 @@ the slope at phase resonance, (180/pi) / (zeta f) deg/Hz for a lone mode: a quar
 Small steps keep the lock on the branch it follows: a hardening mode's peak ends at a fold just above the
 phase-resonance point, and a secant step across it (the lag changes slowly on the way up the branch) dropped
 the response to the low branch, where the secant sent it back below (measured on tests/rigs/hardening.toml at
-0.4 N: 12 lines between the branches, no lock; with the bound the lock walks up the branch). The next level starts at the frequency the last one locked at: the mode moves little from one
-force to the next, and the structure's state carries over as in a sweep.
+0.4 N: 12 lines between the branches, no lock; with the bound the lock walks up the branch). The next level
+starts at the frequency the last one locked at: the mode moves little from one force to the next, and the
+structure's state carries over as in a sweep.
 
 The locked line is the point: its frequency, force, FRFs, harmonics, the measured lag, the lock's error, its
 iterations and whether it converged, and the shaker time the level took (all its lines).

@@ -285,7 +285,8 @@ class LivePlots(pg.GraphicsLayoutWidget):
         self.settle = configure_plot(bottom.addPlot(0, 2), "Settling: waited ●, from the transient ◆, limit ×",
                                      "frequency", "Hz", "periods waited", None)
         modal = self.addLayout(3, 0, colspan=2)
-        self.natural = configure_plot(modal.addPlot(0, 0), "Natural frequency: phase resonance ●, response levels ◆",
+        self.natural = configure_plot(modal.addPlot(0, 0),
+                                      "Natural frequency: phase resonance ●, response levels ◆",
                                       "displacement amplitude", "m", "frequency", "Hz", log_x=True, legend=True)
         self.damping = configure_plot(modal.addPlot(0, 1), "Damping ratio: response levels ◆",
                                       "displacement amplitude", "m", "damping ratio", None, log_x=True, log_y=True)
