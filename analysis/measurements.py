@@ -11,7 +11,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 CONTROL_MODES = ("force", "response", "open_loop")
+# what a level holds -> its SI unit (docs/session-format.md, run attributes control_*)
 CONTROL_UNITS = {"force": "N", "displacement": "m", "velocity": "m/s", "acceleration": "m/s^2"}
+# ...and the unit token of a response-controlled run's name (sine_<dof>_<target><token>_<direction>)
+NAME_UNITS = {"displacement": "m", "velocity": "mps", "acceleration": "mps2"}
 
 
 @dataclass(frozen=True)
@@ -31,6 +34,10 @@ class Control:
     def units(self) -> str:
         return CONTROL_UNITS[self.quantity]
 
+    @property
+    def response(self) -> bool:
+        return self.mode == "response"
+
     def label(self) -> str:
         """How a test engineer names the level: ``0.8 N`` or ``20 m/s^2 at x1``."""
         if self.mode == "response":
@@ -44,6 +51,13 @@ class Control:
     def to_json(self) -> dict:
         return {"control": self.mode, "control_dof": self.dof, "control_quantity": self.quantity,
                 "control_target": self.target, "control_units": self.units, "label": self.label()}
+
+
+def response_amplitude(acceleration: np.ndarray, w: np.ndarray, quantity: str) -> np.ndarray:
+    """The amplitude of ``quantity`` from the fundamental of an acceleration (harmonic motion: a velocity is
+    the acceleration over w, a displacement over w^2)."""
+    power = {"acceleration": 0, "velocity": 1, "displacement": 2}[quantity]
+    return np.abs(acceleration) / np.asarray(w, float) ** power
 
 
 @dataclass
@@ -162,13 +176,29 @@ class RunNote:
 
 
 @dataclass
+class PhaseRun:
+    """A phase-resonance run: at each force level the point its lock ended at -- frequency (Hz), force amplitude
+    (N), the fundamental displacement amplitude at ``dof`` (m), the lag it locked to (deg) and whether the lock
+    converged."""
+
+    name: str
+    dof: str
+    target_phase: float
+    frequency_hz: np.ndarray
+    force: np.ndarray
+    amplitude: np.ndarray
+    converged: np.ndarray
+
+
+@dataclass
 class Measurements:
     """Everything measured in a session, ready for the workbench; ``unfinished`` lists the runs that did not
-    finish as planned."""
+    finish as planned; ``phase`` the phase-resonance runs (not sweeps: not identified from)."""
 
     sine: list[SineRun] = field(default_factory=list)
     random: RandomRun | None = None
     unfinished: list[RunNote] = field(default_factory=list)
+    phase: list[PhaseRun] = field(default_factory=list)
 
     @property
     def levels(self) -> list[float]:

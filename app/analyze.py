@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from analysis.auto import AutoResult, AutoStep, run_auto
+from analysis.backbone import BackboneComparison, compare_backbones
 from analysis.comparison import gain_phrase
 from analysis.errors import InputError
 from analysis.frf_noise import METHOD as NOISE_METHOD
@@ -200,8 +201,32 @@ def misfits_json(wb: Workbench) -> dict:
     return {"misfits": [m.to_json() for el in wb.model.elements for m in element_misfits(wb, el)]}
 
 
-def report_text(wb: Workbench, candidates, top: int = 5) -> str:
-    """The analysis as a test engineer reads it."""
+def backbones(wb: Workbench) -> list[BackboneComparison]:
+    """Natural frequency and damping against response amplitude: measured on the response-controlled levels and
+    the phase-resonance runs, predicted from the workbench's (fitted) model (analysis/backbone.py; none without
+    either)."""
+    return compare_backbones(wb.model.structure, wb.model.elements, wb.measurements.sine, wb.measurements.phase)
+
+
+def backbones_json(comparisons: list[BackboneComparison]) -> dict:
+    """The ``backbones`` entry of ``analyze --json`` (docs/contracts.md §6)."""
+    return {"backbones": [c.to_json() for c in comparisons]}
+
+
+def backbone_text(comparisons: list[BackboneComparison]) -> list[str]:
+    if not comparisons:
+        return []
+    out = ["", "natural frequency and damping against response amplitude (measured: a single-mode fit per "
+               "response level, or the points of a phase-resonance run):"]
+    for c in comparisons:
+        out += c.text()
+    return out
+
+
+def report_text(wb: Workbench, candidates, top: int = 5,
+                comparisons: list[BackboneComparison] | None = None) -> str:
+    """The analysis as a test engineer reads it (``comparisons``: :func:`backbones`, computed here if not
+    given)."""
     out = [f"note: {note.text()}" for note in wb.measurements.unfinished]
     if out:
         out.append("")
@@ -243,6 +268,7 @@ def report_text(wb: Workbench, candidates, top: int = 5) -> str:
     out.append(f"largest misfit: run {worst} at {run.frequency_hz[i]:.4g} Hz (relative error "
                f"{comp.residual_map[worst][i]:.3g})")
     out += _jump_lines(comp, wb.measurements.sine)
+    out += backbone_text(backbones(wb) if comparisons is None else comparisons)
     if len(wb.history) > 1:
         out.append("history: " + " -> ".join(f"{h.action} {h.error:.3g}" for h in wb.history))
     offers = wb.unexplained()

@@ -257,8 +257,8 @@ def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
 
-    from app.analyze import (misfits_json, read_measurements, reference_only, report_text, run_workbench,
-                             run_workbench_auto, session_notes, store_history)
+    from app.analyze import (backbones, backbones_json, misfits_json, read_measurements, reference_only,
+                             report_text, run_workbench, run_workbench_auto, session_notes, store_history)
     from app.progress import Progress
     from app.session.outputs import check_output, require_free_space
 
@@ -291,18 +291,25 @@ def cmd_analyze(args) -> int:
     notes = session_notes(args.session)
     if not args.no_history:
         store_history(args.session, wb, args.model, notes)
+    modal = backbones(wb)
     if args.json:
         extra = {"auto": auto.to_json()} if auto is not None else {}
-        print(json.dumps({**wb.to_json(candidates), **misfits_json(wb), **notes.to_json(), **extra}, indent=1,
-                         default=float))
+        print(json.dumps({**wb.to_json(candidates), **misfits_json(wb), **backbones_json(modal), **notes.to_json(),
+                          **extra}, indent=1, default=float))
     else:
         if auto is not None:
             print(auto.text() + "\n")
-        print(report_text(wb, candidates))
+        print(report_text(wb, candidates, comparisons=modal))
         if notes.text():
             print(notes.text())
     if notes.not_stored:
         print(f"contactid: warning: model history not stored: {notes.not_stored}", file=sys.stderr)
+    if args.report:
+        from pathlib import Path
+
+        from app.report import write_report
+        for path in write_report(wb, Path(args.report), args.overwrite, modal):
+            print(f"plot written: {path}", file=sys.stderr if args.json else sys.stdout)
     if args.output:                       # last: a failure here leaves the report printed and no partial file
         _write_model(args, wb.model.to_toml(), inputs)
     return 0
@@ -473,8 +480,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "refit and rank again until nothing significant is left (each step printed)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-o", "--output", metavar="FITTED.toml", help="write the fitted model (never one of the inputs)")
-    _overwrite_option(p, "an existing FITTED.toml")
+    _overwrite_option(p, "an existing FITTED.toml or report plots")
     p.add_argument("--no-history", action="store_true", help="do not append the model history to the session")
+    p.add_argument("--report", metavar="DIR", help="write the report plots (PNG) into DIR: FRFs, kbar, residuals, "
+                                                   "error history, and natural frequency and damping against "
+                                                   "response amplitude where the session has response levels")
     p.set_defaults(run=cmd_analyze)
 
     p = sub.add_parser("recover", help="repair a session whose writer was killed so that any HDF5 tool opens it")

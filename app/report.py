@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.backbone import BackboneComparison
 from analysis.numbers import engineering
 from analysis.workbench import Workbench
 
-from app.analyze import element_misfits
+from app.analyze import backbones, element_misfits
 from app.kbar_view import LEGEND_OFFSETS, emptiest_corner, linear_axis, model_paths
 
 LEVEL_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
@@ -298,19 +299,61 @@ def plot_history(wb: Workbench, path: Path) -> Path:
 
 
 REPORT_FILES = ("frf.png", "kbar.png", "residuals.png", "error_history.png")
+BACKBONE_FILE = "backbone.png"     # with the report files where the session has response-controlled levels
 
 
-def write_report(wb: Workbench, folder: Path, overwrite: bool = False) -> list[Path]:
-    """All report plots into ``folder`` (REPORT_FILES); returns their paths. Existing plots are refused
-    (InputError) unless ``overwrite``, before any is drawn."""
+def plot_backbones(comparisons: list[BackboneComparison], path: Path) -> Path:
+    """Natural frequency and damping ratio against response amplitude: measured (a single-mode fit per response
+    level, dots) and predicted from the model (line), one colour per held DOF and quantity."""
+    return _export(backbone_layout(comparisons), path, height=700)
+
+
+def backbone_layout(comparisons: list[BackboneComparison]):
+    """The two panels of :func:`plot_backbones` (frequency above, damping below, amplitude axes linked)."""
+    lay = _layout()
+    lay.addLabel("Natural frequency and damping ratio against response amplitude: measured (dots, a modal fit per "
+                 "response-controlled level) and predicted by the model (line)", row=0, col=0, size="11pt")
+    units = comparisons[0].measured.units if comparisons else ""
+    freq = _log_plot(lay, 1, 0, x_unit=units)
+    damp = _log_plot(lay, 2, 0, x_unit=units)
+    damp.setXLink(freq)
+    freq.setLabel("left", "natural frequency", units="Hz")
+    damp.setLabel("left", "damping ratio")
+    damp.setLabel("bottom", "response amplitude")
+    for plot in (freq, damp):
+        plot.addLegend(labelTextSize="8pt")
+    for i, c in enumerate(comparisons):
+        colour = LEVEL_COLOURS[i % len(LEVEL_COLOURS)]
+        name = f"{c.measured.quantity} at {c.measured.dof}" + \
+            (f" ({c.measured.method})" if c.measured.method.startswith("phase") else "")
+        a, f, z = c.measured.arrays()
+        ca, cf, cz = c.curve.arrays()
+        for plot, measured, predicted in ((freq, f, cf), (damp, z, cz)):
+            plot.plot(ca, predicted, pen={"color": colour, "width": 2}, name=f"{name}: model")
+            known = np.isfinite(measured)              # a phase lock measures no damping ratio
+            if known.any():
+                plot.plot(a[known], measured[known], name=f"{name}: measured", **_symbols(colour, 9))
+    return lay
+
+
+def write_report(wb: Workbench, folder: Path, overwrite: bool = False,
+                 comparisons: list[BackboneComparison] | None = None) -> list[Path]:
+    """All report plots into ``folder`` (REPORT_FILES, and BACKBONE_FILE where the session has response levels:
+    ``comparisons``, computed here if not given); returns their paths. Existing plots are refused (InputError)
+    unless ``overwrite``, before any is drawn."""
     from app.session.outputs import check_output
 
+    comparisons = backbones(wb) if comparisons is None else comparisons
+    names = REPORT_FILES + ((BACKBONE_FILE,) if comparisons else ())
     folder.mkdir(parents=True, exist_ok=True)
-    for name in REPORT_FILES:
+    for name in names:
         check_output(folder / name, overwrite=overwrite, field=None, overwrite_flag="--overwrite")
     sensor = wb.measurements.sine[0].excitation_dof
     if sensor not in wb.measurements.sine[0].sensor_dofs:
         sensor = wb.measurements.sine[0].sensor_dofs[0]
     frf, kbar, residuals, history = (folder / name for name in REPORT_FILES)
-    return [plot_frfs(wb, frf, sensor), plot_kbar(wb, kbar), plot_residuals(wb, residuals),
-            plot_history(wb, history)]
+    plots = [plot_frfs(wb, frf, sensor), plot_kbar(wb, kbar), plot_residuals(wb, residuals),
+             plot_history(wb, history)]
+    if comparisons:
+        plots.append(plot_backbones(comparisons, folder / BACKBONE_FILE))
+    return plots

@@ -159,3 +159,69 @@ def test_last_line_says_which_path_it_took():
     assert _line_path(SimpleNamespace(**{**line, "transient": False})) == "last line 7.25 Hz: steady after 10 periods"
     assert _line_path(SimpleNamespace(**{**line, "transient": False, "steady": False})) == \
         "last line 7.25 Hz: measured at the settling limit (10 periods)"
+
+
+def test_a_response_level_is_edited_and_kept_as_the_plan_spells_it(window):
+    editor = window.acquire.editor
+    level = {"response": 5.0, "quantity": "acceleration", "dof": "x2", "force_limit": 2.0, "start": 1.0,
+             "stop": 1.5, "step": 0.1, "direction": "up", "refine": False}
+    editor.set_levels([LEVEL, level])
+    kept = editor.levels()
+    assert kept[0] == LEVEL
+    assert {k: kept[1][k] for k in level} == level
+    editor.table.cellWidget(1, 6).setCurrentText("velocity")
+    assert editor.levels()[1]["quantity"] == "velocity"
+    editor.table.cellWidget(1, 6).setCurrentText("force")        # back to a force level: the amplitude is N
+    assert editor.levels()[1]["force"] == 5.0 and "response" not in editor.levels()[1]
+
+
+PHASE_PLAN = """
+[limits]
+max_force = 4.0
+max_acceleration = 40.0
+
+[[stepped_sine]]
+response = 2.0
+dof = "x2"
+start = 1.1
+stop = 1.4
+step = 0.03
+refine = false
+
+[[phase_resonance]]
+dof = "x2"
+forces = [0.3, 0.6, 0.9]
+start = 1.25
+"""
+
+
+@pytest.mark.slow
+def test_frequency_and_damping_against_amplitude_grow_point_by_point(window, qtbot, tmp_path):
+    rig = window.rig
+    rig.use_builtin.setChecked(True)
+    rig.builtin_rig.setCurrentText("paper-2dof")
+    rig.connect_button.click()
+    qtbot.waitUntil(lambda: window.lab.connected, timeout=30000)
+    (tmp_path / "plan.toml").write_text(PHASE_PLAN, encoding="utf-8")
+    window.acquire.editor.load(tmp_path / "plan.toml")
+    assert window.lab.plan is not None and window.lab.plan.phase, window.lab.plan_message
+    rig.arm_button.click()
+    window.acquire.output.setText(str(tmp_path / "gui.h5"))
+    live = window.acquire.live
+    locked, errors = [], []
+    window.lab.error.connect(errors.append)           # the live identification reads the locked points too
+
+    def sample():
+        if window.lab.campaign_running:
+            locked.append(len(live.shown(live.natural, "phase_x2_90deg", "locked")[0]))
+    window.clock.tick.connect(sample)
+    with qtbot.waitSignal(window.lab.campaignFinished, timeout=300000) as done:
+        window.acquire.start_button.click()
+    assert not done.args[1], done.args[0]
+    qtbot.waitUntil(lambda: len(live.shown(live.natural, "phase_x2_90deg", "locked")[0]) == 3, timeout=10000)
+    assert {1, 2} <= set(locked)                                    # grew point by point while it ran
+    qtbot.waitUntil(lambda: window.lab.identification is not None and not window.lab.identification.live,
+                    timeout=60000)
+    assert not errors, errors
+    f, zeta = (live.shown(plot, "response levels", "acceleration at x2")[1] for plot in (live.natural, live.damping))
+    assert len(f) == 1 and 1.1 < f[0] < 1.3 and 0 < zeta[0] < 0.2   # the response level's modal fit

@@ -182,7 +182,7 @@ def test_error_by_level_names_a_response_controlled_level_by_its_target(tmp_path
 
 
 @pytest.mark.parametrize("attrs, message", [
-    ({"control": "sideways"}, "attribute control: must be one of force, response, open_loop; got 'sideways'"),
+    ({"control": "sideways"}, "attribute control: must be one of force, response, open_loop, got 'sideways'"),
     ({"control": "response", "control_dof": "x1", "control_quantity": "acceleration", "control_target": -5.0},
      "attribute control_target: must be a finite amplitude > 0, got -5.0"),
 ])

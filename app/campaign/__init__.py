@@ -9,12 +9,13 @@ It may import :mod:`analysis`, :mod:`drivers` and the session writer's public na
 (never a module inside it); it never imports the commands or the GUI. Other code uses the names below.
 """
 from app.campaign.engine import (Campaign, CampaignAborted, CampaignIncomplete, CampaignListener, CampaignSummary,
-                                 line_extras)
+                                 line_extras, lock_extras)
 from app.campaign.instruments import Instruments, emulated_instruments, real_instruments
 from app.campaign.measure import ProgressBar, run_plan
-from app.campaign.plan import Plan, check_against_instruments, load_plan, parse_plan
+from app.campaign.plan import Plan, SineSpec, check_against_instruments, load_plan, parse_plan
 from app.campaign.stepped_sine import LineMeasurement
 
 __all__ = ["Campaign", "CampaignAborted", "CampaignIncomplete", "CampaignListener", "CampaignSummary",
-           "Instruments", "LineMeasurement", "Plan", "ProgressBar", "check_against_instruments",
-           "emulated_instruments", "line_extras", "load_plan", "parse_plan", "real_instruments", "run_plan"]
+           "Instruments", "LineMeasurement", "Plan", "ProgressBar", "SineSpec", "check_against_instruments",
+           "emulated_instruments", "line_extras", "lock_extras", "load_plan", "parse_plan", "real_instruments",
+           "run_plan"]

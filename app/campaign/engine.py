@@ -21,22 +21,25 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from analysis.drive_prediction import predicted_gain
+from analysis.errors import InputError
 from analysis.frf_estimation import FRFEstimator
+from analysis.measurements import CONTROL_UNITS
 from drivers import AbortLimits, InstrumentError, LimitExceeded, OutputGuard
 from drivers.errors import describe_instrument_error
 from drivers.interfaces import Block
 
 from app.campaign.acquisition import RecordFeed
-from app.campaign.plan import Plan, RandomSpec, SineSpec
+from app.campaign.phase_resonance import LockedPoint, PhaseTrack, lock
+from app.campaign.plan import PhaseSpec, Plan, RandomSpec, ResponseLevel, SineSpec
 from app.session import RunSpec, SessionWriteError, SessionWriter
-from app.campaign.stepped_sine import N_HARMONICS, LineMeasurement, LineMeter, frf_change, next_step
+from app.campaign.stepped_sine import N_HARMONICS, HeldLevel, LineMeasurement, LineMeter, frf_change, next_step
 from app.campaign.transient_line import TransientLines
 
 BLOCK_SECONDS = 0.5           # longest DAQ frame/block: the abort limits are checked at least this often
 BLOCK_POINTS = (64, 256)      # ...within these sizes (small frames cost throughput, large ones latency)
 START_DRIVE = 0.05            # V peak: the first line of every sine run starts at most here...
 START_FRACTION = 0.5          # ...or at this fraction of the drive the last gain predicts, if less
-MISSED_FORCE = 0.05           # a line this far (relative) from its target force fails its run
+MISSED_FORCE = 0.05           # a line this far (relative) from its target (force or response) fails its run
 UNSETTLED_SHARE = 0.5         # ...and so does a run with at least this share of lines at the settling limit
 RAMP_OUT_PERIODS = 10         # the drive ramps to zero over this many periods of the last line before OFF
 
@@ -60,15 +63,17 @@ class CampaignListener:
     def event(self, kind: str, message: str) -> None: ...
     def progress(self, done: int, total: int, eta_s: float | None, run: str) -> None: ...
     def lines_added(self, planned: int, added: int) -> None: ...   # refinement: total = planned + added
+    def phase_point(self, run: str, index: int, point) -> None: ...   # a phase-resonance level locked
 
 
 @dataclass
 class CampaignSummary:
     runs: dict[str, str] = field(default_factory=dict)          # name -> status
     lines: int = 0
-    worst_force_error: float = 0.0                              # relative, over all lines
-    control_tolerance: float = 0.01                             # relative: what the force loop holds
-    lines_off_target: int = 0                                   # lines whose force is outside the tolerance
+    worst_force_error: float = 0.0                              # relative, over all lines (force or response)
+    control_tolerance: float = 0.01                             # relative: what the control loop holds
+    lines_off_target: int = 0                                   # lines whose held level is outside the tolerance
+    response_lines: int = 0                                     # lines that held a response amplitude
     unsteady_lines: int = 0
     transient_lines: int = 0                                    # measured from their transient fit
     shaker_seconds: float = 0.0                                 # DAQ time spent driving
@@ -87,9 +92,10 @@ class CampaignSummary:
 
     def force_text(self) -> str:
         tolerance = f"{100 * self.control_tolerance:g} %"
+        held = "force" if not self.response_lines else "force or response"
         if not self.lines_off_target:
-            return f"force within {tolerance} of target at every line (worst {100 * self.worst_force_error:.2f} %)"
-        return (f"force OFF TARGET at {self.lines_off_target} of {self.lines} line(s) (worst "
+            return f"{held} within {tolerance} of target at every line (worst {100 * self.worst_force_error:.2f} %)"
+        return (f"{held} OFF TARGET at {self.lines_off_target} of {self.lines} line(s) (worst "
                 f"{100 * self.worst_force_error:.2f} % from target, tolerance {tolerance})")
 
     def text(self) -> str:
@@ -137,6 +143,7 @@ class Campaign:
         if missing:
             raise ValueError(f"the DAQ at {daq.url} has no channel(s) {', '.join(missing)} "
                              f"(it has {', '.join(daq.channels)})")
+        self._check_held_dofs()
         fs = daq.sample_rate
         self.block = int(np.clip(2 ** np.floor(np.log2(BLOCK_SECONDS * fs)), *BLOCK_POINTS))
         daq.configure(frame_points=self.block)
@@ -150,10 +157,22 @@ class Campaign:
         self._gain = None              # N per V, learnt as the campaign runs
         self._transient = self._transient_lines()   # poles carry over from run to run
         self._run_lines = _RunLines()
-        self._total_lines = sum(len(spec.lines(d)) for spec, d in plan.runs) + (1 if plan.random else 0)
+        self._total_lines = sum(len(spec.lines(d)) for spec, d in plan.runs) + (1 if plan.random else 0) \
+            + sum(len(p.forces) for p in plan.phase)
         self._done_lines = 0
         self._added_lines = 0          # lines refinement added to the plan so far (runs before this one)
         self._t_start = 0.0
+
+    def _check_held_dofs(self) -> None:
+        """A response level or a phase lock at a DOF no accelerometer measures is refused before anything is
+        armed, naming the plan's field."""
+        held = [(f"[[stepped_sine]][{i}].dof", s.response.dof) for i, s in enumerate(self.plan.sine)
+                if s.response is not None]
+        held += [(f"[[phase_resonance]][{i}].dof", p.dof) for i, p in enumerate(self.plan.phase)]
+        for where, dof in held:
+            if dof not in self.sensor_dofs:
+                raise InputError(f"DOF {dof!r} carries no accelerometer (sensors: {', '.join(self.sensor_dofs)})",
+                                 self.plan.source, where)
 
     # ------------------------------------------------------------------ control (any thread)
     def abort(self, reason: str = "operator abort") -> None:
@@ -194,6 +213,8 @@ class Campaign:
                     self._random_run(guard, self.plan.random)
                 for spec, direction in self.plan.runs:
                     self._sine_run(guard, spec, direction)
+                for phase in self.plan.phase:
+                    self._phase_run(guard, phase)
         except (CampaignAborted, LimitExceeded, InstrumentError, SessionWriteError) as exc:
             # the guard has switched the output off; the lines measured so far are in the session
             self.summary.aborted = self._describe(exc)
@@ -362,7 +383,7 @@ class Campaign:
                                     {d: coh[:, p] for p, d in enumerate(self.sensor_dofs)})
 
     # ------------------------------------------------------------------ stepped sine
-    def _sine_extras(self) -> dict:
+    def _sine_extras(self, response: ResponseLevel | None = None) -> dict:
         extras = {"force_amplitude": ("N", (), "f8"), "force_target": ("N", (), "f8"),
                   "force_phasor": ("N", (), "c16"), "measured_frequency": ("Hz", (), "f8"),
                   "drive": ("V", (), "f8"), "settle_time": ("s", (), "f8"), "settle_periods": ("1", (), "f8"),
@@ -374,14 +395,27 @@ class Campaign:
         for c, u in zip(self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs)):
             extras[f"harmonics/{c}"] = (u, (N_HARMONICS + 1,), "c16")
             extras[f"thd/{c}"] = ("1", (), "f8")
+        if response is not None:
+            units = CONTROL_UNITS[response.quantity]
+            extras["response_amplitude"] = (units, (), "f8")
+            extras["response_target"] = (units, (), "f8")
         return extras
+
+    def _control_attrs(self, spec: SineSpec) -> dict:
+        """The run's control in the session's vocabulary (docs/session-format.md)."""
+        control = spec.control(self.excitation_dof)
+        return {"control": control.mode, "control_dof": control.dof, "control_quantity": control.quantity,
+                "control_target": float(control.target), "control_units": control.units}
 
     def _sine_run(self, guard: OutputGuard, spec: SineSpec, direction: str) -> None:
         name = spec.run_name(direction)
         fs = self.daq.sample_rate
+        # a response level's force is not known before it is measured: the force limit until the run closes
+        # with the median of its lines' forces (_RunLines.closing_attrs)
         run_spec = RunSpec(name, "stepped_sine", spec.force, direction, self.excitation_dof, self.sensor_dofs, fs,
-                           self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._sine_extras(),
-                           {"start": spec.start, "stop": spec.stop, "step": spec.step, "refine": spec.refine})
+                           self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._sine_extras(spec.response),
+                           {"start": spec.start, "stop": spec.stop, "step": spec.step, "refine": spec.refine,
+                            **self._control_attrs(spec)})
         with self._run(run_spec):
             planned = spec.lines(direction)
             f, stop = planned[0], planned[-1]
@@ -392,6 +426,7 @@ class Campaign:
             self._log("operator", f"armed: {name}")
             step, previous, index = spec.step, None, 0
             gains: list[tuple[float, float]] = []     # (Hz, N/V) of this run's lines
+            lines_drive: list[tuple[float, float]] = []   # (Hz, V) of this run's lines on target
             added_before = self._added_lines
             with self.daq.stream(self.block) as stream:
                 feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
@@ -399,11 +434,13 @@ class Campaign:
                                   self.plan.settle, self.plan.control_tolerance, lambda: self._interrupt(guard),
                                   self._transient)
                 while True:
-                    m = self._measure(meter, f, spec.line_target(index), drive)
+                    m = self._measure(meter, f, _held(spec, index), drive)
                     drive = self._carry_drive(m)
                     self._gain = abs(m.force) / m.drive
                     gains.append((m.frequency, self._gain))
-                    self._store_line(name, index, m, spec.line_target(index))
+                    if m.on_target:
+                        lines_drive.append((m.frequency, m.drive))
+                    self._store_line(name, index, m)
                     index += 1
                     self._progress(name, added_before + _added(planned, f, sign, index))
                     if sign * (f - stop) >= -1e-9 * abs(stop):
@@ -413,10 +450,80 @@ class Campaign:
                     previous = m
                     f_next = f + sign * step
                     f = stop if sign * (f_next - stop) > 0 else f_next
-                    drive = self._predicted_drive(gains, f, spec.line_target(index), drive)
+                    drive = self._response_drive(lines_drive, f, drive) if spec.response is not None else \
+                        self._predicted_drive(gains, f, spec.line_target(index), drive)
                 meter.ramp_out(f, m.drive, RAMP_OUT_PERIODS)
             self.shaker.disarm()
-            self._judge(name, spec.force)
+            self._judge(name, spec)
+
+    # ------------------------------------------------------------------ phase resonance
+    def _phase_extras(self) -> dict:
+        """A phase-resonance point's quantities: a stepped-sine line's, and the lock's (docs/session-format.md)."""
+        return {**self._sine_extras(),
+                "phase_lag": ("deg", (), "f8"), "phase_error": ("deg", (), "f8"),
+                "lock_iterations": ("1", (), "i4"), "lock_converged": ("bool", (), "?"),
+                "shaker_time": ("s", (), "f8")}
+
+    def _phase_run(self, guard: OutputGuard, spec: PhaseSpec) -> None:
+        """Lock each force level of ``spec`` to its phase (app/campaign/phase_resonance.py), one point a level,
+        within the same guard, settling and force control as a stepped-sine run."""
+        name = spec.run_name()
+        fs = self.daq.sample_rate
+        run_spec = RunSpec(name, "phase_resonance", spec.forces[0], "up", self.excitation_dof, self.sensor_dofs, fs,
+                           self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._phase_extras(),
+                           {"start": spec.start, "phase_dof": spec.dof, "target_phase": spec.phase,
+                            "phase_tolerance": spec.tolerance, "forces": list(spec.forces),
+                            "control": "force", "control_dof": self.excitation_dof, "control_quantity": "force",
+                            "control_target": float(spec.forces[0]), "control_units": "N"})
+        with self._run(run_spec):
+            f, drive = spec.start, self._start_drive(spec.forces[0])
+            self.shaker.set_sine(f, drive)
+            guard.arm()
+            self._log("operator", f"armed: {name}")
+            with self.daq.stream(self.block) as stream:
+                feed = RecordFeed(stream, self._check(guard), self._on_gap, self.listener.block)
+                meter = LineMeter(self.shaker, feed, list(self.daq.channels), self.sensor_dofs, fs,
+                                  self.plan.settle, self.plan.control_tolerance, lambda: self._interrupt(guard))
+                track = PhaseTrack()
+                for index, force in enumerate(spec.forces):
+                    point = lock(meter, spec, track, force, f, drive)
+                    self._store_point(name, index, point)
+                    f, drive = point.line.frequency, self._carry_drive(point.line)
+                    drive = min(drive * spec.forces[min(index + 1, len(spec.forces) - 1)] / force,
+                                self.shaker.amplitude_range[1])      # the next level's force, at the same N/V
+                    self._progress(name, self._added_lines)
+                meter.ramp_out(f, point.line.drive, RAMP_OUT_PERIODS)
+            self.shaker.disarm()
+            self._judge_locks(spec)
+
+    def _judge_locks(self, spec: PhaseSpec) -> None:
+        """Fail a phase-resonance run whose lock did not converge at a level, or whose force missed its target
+        (docs/campaigns.md, "Complete or failed")."""
+        judge = self._run_lines
+        reasons = []
+        unlocked = [f for f, locked in zip(spec.forces, judge.locked) if not locked]
+        if unlocked:
+            reasons.append(f"the phase lock did not converge at {len(unlocked)} of {len(spec.forces)} force "
+                           f"level(s) ({', '.join(f'{x:g}' for x in unlocked)} N)")
+        if judge.missed:
+            reasons.append(f"force missed its target by more than {100 * MISSED_FORCE:g} % at {judge.missed} of "
+                           f"{judge.lines} level(s)")
+        if reasons:
+            raise RunFailed("; ".join(reasons))
+
+    def _store_point(self, name: str, index: int, point: LockedPoint) -> None:
+        """A locked point as a line of the run, with the lock's convergence and the shaker time it took."""
+        m = point.line
+        self._write_line(m, lock_extras(point))
+        self.summary.lines += 1
+        self.summary.shaker_seconds += point.shaker_seconds
+        self._run_lines.add(m, abs(m.level / m.held.target - 1) > MISSED_FORCE)
+        self._run_lines.locked.append(point.converged)
+        self._log("lock", f"{name}: {m.target_force:g} N locked at {m.frequency:.5g} Hz, lag {point.lag:.2f} deg "
+                          f"(error {point.error:+.2f}) after {point.iterations} line(s), {point.shaker_seconds:.1f} s"
+                          + ("" if point.converged else " -- NOT CONVERGED"))
+        self.listener.phase_point(name, index, point)
+        self.listener.line(name, index, m, m.target_force)
 
     def _transient_lines(self) -> TransientLines | None:
         """The transient-aware path's state for the whole campaign (``[settle] method = "transient"``)."""
@@ -436,10 +543,12 @@ class Campaign:
         return drive
 
     def _carry_drive(self, m: LineMeasurement) -> float:
-        """The next line starts from this line's drive, rescaled when its force ended off target (x0.5..x2)."""
-        if m.on_target or abs(m.force) == 0:
+        """The next line starts from this line's drive, rescaled when its held level (force or response)
+        ended off target (x0.5..x2; a response level within its force limit)."""
+        if m.on_target or abs(m.force) == 0 or m.level == 0:
             return m.drive
-        ratio = float(np.clip(m.target_force / abs(m.force), 0.5, 2.0))
+        ratio = float(np.clip(m.held.target / m.level, 0.5, 2.0))
+        ratio = min(ratio, m.held.force_limit / abs(m.force))
         return min(m.drive * ratio, self.shaker.amplitude_range[1])
 
     def _predicted_drive(self, gains: list[tuple[float, float]], f: float, force: float, carried: float) -> float:
@@ -457,31 +566,54 @@ class Campaign:
         gain = float(np.clip(gain, 0.5 * last, 2.0 * last))
         return float(min(force / gain, self.shaker.amplitude_range[1]))
 
-    def _judge(self, name: str, force: float) -> None:
+    def _response_drive(self, lines: list[tuple[float, float]], f: float, carried: float) -> float:
+        """A response level's start drive at ``f``: extrapolated from the drives its last lines on target
+        needed. At one response amplitude the structure is quasi-linear, so the force it needs is |Z(w)| times
+        the amplitude, smooth in frequency: the square of the drive is taken as quadratic in frequency through
+        the last three lines (linear through two). Starting from the last line's drive instead, a hardening
+        structure past its resonance fell to the low branch, the loop doubled the drive, the response jumped
+        to the high branch, and the loop swung between the two. Within x0.5..x2 of the carried drive."""
+        if len(lines) < 2:
+            return carried
+        f_k, v_k = np.array(lines[-3:]).T
+        squared = float(np.polyval(np.polyfit(f_k, v_k ** 2, len(f_k) - 1), f))
+        if not np.isfinite(squared) or squared <= 0:
+            return carried
+        return float(min(np.clip(np.sqrt(squared), 0.5 * carried, 2.0 * carried), self.shaker.amplitude_range[1]))
+
+    def _judge(self, name: str, spec: SineSpec) -> None:
         """Fail a run whose data missed the plan (docs/campaigns.md, "Complete or failed")."""
         judge = self._run_lines
         reasons = []
         if judge.missed:
-            reasons.append(f"force missed its {force:g} N target by more than {100 * MISSED_FORCE:g} % at "
+            what = f"force missed its {spec.force:g} N" if spec.response is None else \
+                f"response missed its {spec.response.text()}"
+            reasons.append(f"{what} target by more than {100 * MISSED_FORCE:g} % at "
                            f"{judge.missed} of {judge.lines} line(s)")
         if judge.lines and judge.unsteady >= UNSETTLED_SHARE * judge.lines:
             reasons.append(f"{judge.unsteady} of {judge.lines} line(s) hit the settling limit")
         if reasons:
             raise RunFailed("; ".join(reasons))
 
-    def _measure(self, meter: LineMeter, f: float, force: float, drive: float) -> LineMeasurement:
+    def _measure(self, meter: LineMeter, f: float, held: HeldLevel, drive: float) -> LineMeasurement:
         while True:
             try:
-                return meter.measure(f, force, drive)
+                return meter.measure(f, held, drive)
             except _Restart:
                 continue
 
-    def _store_line(self, name: str, index: int, m: LineMeasurement, target: float) -> None:
-        extras = line_extras(m, target, list(self.daq.channels), self.channels, self.sensor_dofs)
+    def _write_line(self, m: LineMeasurement, more: dict | None = None) -> None:
+        """A line into the session: frequency, FRFs, its per-line quantities (and ``more`` of them), raw samples."""
+        extras = line_extras(m, m.target_force, list(self.daq.channels), self.channels, self.sensor_dofs)
         raw = m.raw[:, [self.daq.channels.index(c) for c in self.channels]].astype(np.float32)
-        self.writer.append_line(m.frequency, stored_frf(m.frf), extras, raw)
-        error = abs(abs(m.force) / target - 1)
+        self.writer.append_line(m.frequency, stored_frf(m.frf), {**extras, **(more or {})}, raw)
+
+    def _store_line(self, name: str, index: int, m: LineMeasurement) -> None:
+        target = m.target_force
+        self._write_line(m)
+        error = abs(m.level / m.held.target - 1)
         self.summary.lines += 1
+        self.summary.response_lines += int(m.held.response)
         self.summary.worst_force_error = max(self.summary.worst_force_error, error)
         self.summary.lines_off_target += int(not m.on_target)
         self.summary.unsteady_lines += int(not m.steady)
@@ -494,8 +626,8 @@ class Campaign:
         if m.transient_reason:
             self._log("settle", f"{name}: {m.frequency:.4f} Hz waited for the transient: {m.transient_reason}")
         if not m.on_target:
-            self._log("control", f"{name}: {m.frequency:.4f} Hz: force {abs(m.force):.4g} N, target {target:g} N "
-                                 f"({100 * (abs(m.force) / target - 1):+.2f} %, tolerance "
+            self._log("control", f"{name}: {m.frequency:.4f} Hz: {_held_text(m)} "
+                                 f"({100 * (m.level / m.held.target - 1):+.2f} %, tolerance "
                                  f"{100 * self.plan.control_tolerance:g} %)")
         for dof in unresolved(m.frf):
             self._log("settle", f"{name}: {m.frequency:.4f} Hz: no signal on acc:{dof} (below one count): "
@@ -525,9 +657,35 @@ class Campaign:
             raise
         finally:
             self._drain_events()
-            self.writer.end_run(status, reason)
+            self.writer.end_run(status, reason, self._run_lines.closing_attrs(spec))
             self.summary.runs[spec.name] = status
             self.listener.run_ended(spec.name, status)
+
+
+def lock_extras(point: LockedPoint) -> dict:
+    """What a phase-resonance point stores beside its line's quantities (docs/session-format.md); the GUI's live
+    view records the same."""
+    return {"phase_lag": point.lag, "phase_error": point.error, "lock_iterations": point.iterations,
+            "lock_converged": point.converged, "shaker_time": point.shaker_seconds}
+
+
+def _held_text(m: LineMeasurement) -> str:
+    """A line's held level against its target, for the event log."""
+    if not m.held.response:
+        return f"force {abs(m.force):.4g} N, target {m.held.target:g} N"
+    units = CONTROL_UNITS[m.held.quantity]
+    limit = " (at the force limit)" if abs(m.force) >= 0.999 * m.held.force_limit else ""
+    return (f"{m.held.quantity} at {m.held.dof} {m.level:.4g} {units}, target {m.held.target:g} {units}; "
+            f"force {abs(m.force):.4g} N{limit}")
+
+
+def _held(spec: SineSpec, index: int) -> HeldLevel:
+    """What line ``index`` of a stepped-sine run holds: the force (drifting around its level where the plan asks,
+    ``SineSpec.line_target``), or a response amplitude within a force limit."""
+    if spec.response is None:
+        return HeldLevel(spec.line_target(index))
+    r = spec.response
+    return HeldLevel(r.target, r.quantity, r.dof, r.force_limit)
 
 
 def line_extras(m: LineMeasurement, target: float, daq_channels: list[str], channels: list[str],
@@ -545,6 +703,9 @@ def line_extras(m: LineMeasurement, target: float, daq_channels: list[str], chan
         if c in channels:
             extras[f"harmonics/{c}"] = m.harmonics[:, i]
             extras[f"thd/{c}"] = m.thd[i]
+    if m.held.response:
+        extras["response_amplitude"] = m.level
+        extras["response_target"] = m.held.target
     return extras
 
 
@@ -569,13 +730,23 @@ class _RunLines:
     """What the lines of the run in progress say about it."""
 
     lines: int = 0
-    missed: int = 0          # force off target by more than MISSED_FORCE
+    missed: int = 0          # held level off target by more than MISSED_FORCE
     unsteady: int = 0        # at the settling limit
+    forces: list[float] = field(default_factory=list)    # N, measured at each line
+    locked: list[bool] = field(default_factory=list)     # phase resonance: whether each level's lock converged
 
     def add(self, m: LineMeasurement, missed: bool) -> None:
         self.lines += 1
         self.missed += int(missed)
         self.unsteady += int(not m.steady)
+        self.forces.append(abs(m.force))
+
+    def closing_attrs(self, spec: RunSpec) -> dict:
+        """Run attributes set when the run closes: a response-controlled run's ``force`` becomes the median of
+        its lines' measured forces (older readers get a sensible level)."""
+        if spec.attrs.get("control") != "response" or not self.forces:
+            return {}
+        return {"force": float(np.median(self.forces))}
 
 
 class RunFailed(Exception):

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from analysis.errors import InputError
+from analysis.measurements import CONTROL_UNITS, NAME_UNITS, Control
 from analysis.frf_estimation import WelchResolution, auto_resolution, welch_averages
 from analysis.tables import Fields, parse_toml, read_toml_text
 
@@ -46,11 +47,34 @@ class RandomSpec:
                                False)
 
 
+RESPONSE_QUANTITIES = ("displacement", "velocity", "acceleration")
+DEFAULT_FORCE_LIMIT_SHARE = 0.5   # a response level's force_limit, unless it says: this share of max_force
+
+
+@dataclass(frozen=True)
+class ResponseLevel:
+    """A level that holds the amplitude of ``quantity`` at ``dof`` (SI units) instead of a force; the loop
+    never drives the force beyond ``force_limit`` N."""
+
+    dof: str
+    quantity: str
+    target: float
+    force_limit: float
+
+    @property
+    def name_token(self) -> str:
+        return f"{self.dof}_{self.target:g}{NAME_UNITS[self.quantity]}"
+
+    def text(self) -> str:
+        return f"{self.target:g} {CONTROL_UNITS[self.quantity]} {self.quantity} at {self.dof}"
+
+
 @dataclass
 class SineSpec:
-    """One force level of stepped sine (one table of the plan)."""
+    """One level of stepped sine (one table of the plan): a force amplitude, or a response amplitude held at a
+    DOF (``response``; ``force`` is then its force limit)."""
 
-    force: float                # N amplitude
+    force: float                # N amplitude (response control: the force limit)
     start: float                # Hz
     stop: float                 # Hz
     step: float                 # Hz
@@ -64,6 +88,17 @@ class SineSpec:
         smoothly around it line by line, within +-force_drift, as a real controller's achieved force does
         across a resonance (docs/campaigns.md)."""
         return self.force * (1.0 + self.force_drift * np.sin(2 * np.pi * index / DRIFT_LINES))
+    response: ResponseLevel | None = None
+
+    def control(self, excitation_dof: str) -> Control:
+        """The level's control in the session's vocabulary (docs/session-format.md)."""
+        if self.response is None:
+            return Control("force", excitation_dof, "force", self.force)
+        r = self.response
+        return Control("response", r.dof, r.quantity, r.target)
+
+    def level_text(self) -> str:
+        return f"{self.force:g} N" if self.response is None else self.response.text()
 
     @property
     def directions(self) -> list[str]:
@@ -87,6 +122,8 @@ class SineSpec:
         return f if direction == "up" else f[::-1]
 
     def run_name(self, direction: str) -> str:
+        if self.response is not None:
+            return f"sine_{self.response.name_token}_{direction}"
         return f"sine_{self.force:g}N_{direction}"
 
 
@@ -148,6 +185,23 @@ class Placement:
         return None if field_name.startswith("--") else self.source
 
 
+@dataclass
+class PhaseSpec:
+    """A phase-resonance run (one ``[[phase_resonance]]`` table): at each force level (N, ascending) the frequency
+    is tracked until the fundamental displacement at ``dof`` lags the force by ``phase`` degrees within
+    ``tolerance``, starting near ``start`` Hz; ``max_iterations`` lines per level at most."""
+
+    dof: str
+    forces: list[float]
+    start: float
+    phase: float = 90.0
+    tolerance: float = 1.0
+    max_iterations: int = 30
+
+    def run_name(self) -> str:
+        return f"phase_{self.dof}_{self.phase:g}deg"
+
+
 @dataclass(frozen=True)
 class PlannedTime:
     """How long the shaker drives for a plan (s): ``least`` if every line settles at once (``min_blocks``
@@ -179,6 +233,7 @@ class Plan:
     text: str = ""
     source: str | None = None
     placement: Placement = field(default_factory=Placement)
+    phase: list[PhaseSpec] = field(default_factory=list)
 
     @property
     def runs(self) -> list[tuple[SineSpec, str]]:
@@ -190,6 +245,9 @@ class Plan:
         parts = [f"{len(self.runs)} stepped-sine run(s), {lines} planned lines", self.planned_time().text()]
         if self.random is not None:
             parts.insert(0, f"random run {self.random.duration:g} s")
+        if self.phase:
+            parts.insert(-1, f"{len(self.phase)} phase-resonance run(s), "
+                             f"{sum(len(p.forces) for p in self.phase)} force level(s)")
         return ", ".join(parts)
 
     def planned_time(self) -> PlannedTime:
@@ -199,7 +257,10 @@ class Plan:
         least = s.fixed_periods or s.min_blocks * s.block_periods
         most = max(s.max_periods, s.fixed_periods) + s.block_periods
         random = self.random.duration if self.random is not None else 0.0
-        return PlannedTime(random + least * periods, random + most * periods)
+        # a phase-resonance level takes one line when its start is already in phase, max_iterations at most
+        locked = sum(len(p.forces) / p.start for p in self.phase)
+        tracked = sum(len(p.forces) * p.max_iterations / p.start for p in self.phase)
+        return PlannedTime(random + least * (periods + locked), random + most * (periods + tracked))
 
 
 def load_plan(path) -> Plan:
@@ -210,7 +271,8 @@ def load_plan(path) -> Plan:
 
 def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
     root = Fields(doc, source, "")
-    root.unknown_keys({"random", "stepped_sine", "limits", "settle", "control", "excitation", "sensors"})
+    root.unknown_keys({"random", "stepped_sine", "phase_resonance", "limits", "settle", "control", "excitation",
+                       "sensors"})
     random = None
     if root.has("random"):
         f = root.sub("random")
@@ -234,7 +296,8 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
                          "(docs/campaigns.md, limits)", source, "[[stepped_sine]]")
     for i, f in enumerate(tables):
         f.where = f"[[stepped_sine]][{i}]"
-        f.unknown_keys({"force", "start", "stop", "step", "direction", "refine", "min_step", "force_drift"})
+        f.unknown_keys({"force", "start", "stop", "step", "direction", "refine", "min_step", "force_drift",
+                        *RESPONSE_KEYS})
         start, stop, step = f.number("start", positive=True), f.number("stop", positive=True), \
             f.number("step", positive=True)
         if stop <= start:
@@ -251,26 +314,34 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         drift = f.number("force_drift", 0.0, nonnegative=True)
         if drift >= 1:
             raise f.error("force_drift", f"must be a fraction below 1 (0.25: +-25 % around force), got {drift:g}")
-        sines.append(SineSpec(f.number("force", positive=True), start, stop, step,
-                              f.string("direction", "up", ("up", "down", "both")), refine, min_step, drift))
-    if random is None and not sines:
-        raise InputError("plans nothing: give [random] and/or [[stepped_sine]] tables", source)
+        response = _response_level(f)
+        if response is not None and drift:
+            raise f.error("force_drift", "drifts a held force: a response-controlled level lets its force vary "
+                                         "already")
+        force = response.force_limit if response is not None else f.number("force", positive=True)
+        sines.append(SineSpec(force, start, stop, step, f.string("direction", "up", ("up", "down", "both")),
+                              refine, min_step, force_drift=drift, response=response))
+    phases = [_phase_table(f, i) for i, f in enumerate(root.list_of_tables("phase_resonance"))]
+    if random is None and not sines and not phases:
+        raise InputError("plans nothing: give [random], [[stepped_sine]] and/or [[phase_resonance]] tables", source)
     names = Counter(spec.run_name(d) for spec in sines for d in spec.directions)
     dup = {n for n, count in names.items() if count > 1}
     if dup:
-        raise InputError(f"two stepped-sine tables make the same run {sorted(dup)[0]} (same force and direction)",
-                         source, "[[stepped_sine]]")
+        raise InputError(f"two stepped-sine tables make the same run {sorted(dup)[0]} (same level and "
+                         "direction)", source, "[[stepped_sine]]")
     lim = root.sub("limits")
     lim.where = "[limits]"
     lim.unknown_keys({"max_force", "max_acceleration", "max_lines"})
     limits = Limits(lim.number("max_force", positive=True), lim.number("max_acceleration", positive=True),
                     _max_lines(lim))
+    sines = [_default_force_limit(spec, limits) for spec in sines]
     _check_line_count(sines, limits.max_lines, source)
     for i, spec in enumerate(sines):
         if spec.force * (1 + spec.force_drift) >= limits.max_force:
+            key = "force" if spec.response is None else "force_limit"
             drifted = f" (drifting to {spec.force * (1 + spec.force_drift):g} N)" if spec.force_drift else ""
-            raise InputError(f"force {spec.force} N{drifted} is not below the abort limit max_force = "
-                             f"{limits.max_force} N", source, f"[[stepped_sine]][{i}].force")
+            raise InputError(f"{key} {spec.force} N{drifted} is not below the abort limit max_force = "
+                             f"{limits.max_force} N", source, f"[[stepped_sine]][{i}].{key}")
     if random is not None and 3 * random.force_rms >= limits.max_force:
         raise InputError(f"force_rms {random.force_rms} N: its peaks (~3 x rms) would reach max_force = "
                          f"{limits.max_force} N", source, "[random].force_rms")
@@ -294,13 +365,78 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         c.where = "[control]"
         c.unknown_keys({"tolerance"})
         control = c.number("tolerance", 0.01, positive=True)
-    plan = Plan(random, sines, limits, settle, control, text, source, _placement(root))
+    _check_phase_forces(phases, limits, source)
+    plan = Plan(random, sines, limits, settle, control, text, source, _placement(root), phases)
     planned = plan.planned_time()
     if planned.least > MAX_SHAKER_SECONDS:
         raise InputError(f"{planned.text()}: even if every line settles at once the shaker drives for more than "
                          f"{MAX_SHAKER_SECONDS / 3600:g} h (docs/campaigns.md, limits); plan fewer lines or shorter "
                          "records", source)
     return plan
+
+
+RESPONSE_KEYS = ("response", "quantity", "dof", "force_limit")
+
+
+def _response_level(f: Fields) -> ResponseLevel | None:
+    """A table's response control (``response``, ``quantity``, ``dof``, ``force_limit``), or None for a force
+    level. A level holds one of the two: a force, or a response amplitude. A force limit not given is NaN
+    here and :func:`_default_force_limit` sets it once ``[limits]`` is read."""
+    if not f.has("response"):
+        extra = [k for k in RESPONSE_KEYS if f.has(k)]
+        if extra:
+            raise f.error(extra[0], "belongs to a response-controlled level: give response = <amplitude> too")
+        return None
+    if f.has("force"):
+        raise f.error("force", "a level holds either a force or a response amplitude (response), not both")
+    quantity = f.string("quantity", "acceleration", RESPONSE_QUANTITIES)
+    dof = _dof_name(f, f.string("dof"), "dof")
+    limit = f.number("force_limit", positive=True) if f.has("force_limit") else float("nan")
+    return ResponseLevel(dof, quantity, f.number("response", positive=True), limit)
+
+
+PHASE_KEYS = {"dof", "forces", "start", "phase", "tolerance", "max_iterations"}
+MAX_PHASE_LEVELS = 200          # force levels of one phase-resonance run
+
+
+def _phase_table(f: Fields, i: int) -> PhaseSpec:
+    """One ``[[phase_resonance]]`` table (docs/campaigns.md, "Phase resonance")."""
+    f.where = f"[[phase_resonance]][{i}]"
+    f.unknown_keys(PHASE_KEYS)
+    forces = f.table.get("forces")
+    if not isinstance(forces, list) or not forces or len(forces) > MAX_PHASE_LEVELS:
+        raise f.error("forces", f"must be a list of 1 to {MAX_PHASE_LEVELS} force amplitudes in N")
+    forces = [f.check_number("forces", v, positive=True) for v in forces]
+    if any(b <= a for a, b in zip(forces, forces[1:])):
+        raise f.error("forces", "must rise from level to level (the lock follows the mode up in amplitude)")
+    phase = f.number("phase", 90.0, positive=True)
+    if phase >= 180.0:
+        raise f.error("phase", f"a phase lag from 0 to 180 degrees, got {phase:g}")
+    tolerance = f.number("tolerance", 1.0, positive=True)
+    if tolerance > 10.0:
+        raise f.error("tolerance", f"at most 10 degrees, got {tolerance:g}")
+    iterations = _count(f, "max_iterations", 30, 200)
+    return PhaseSpec(_dof_name(f, f.string("dof"), "dof"), forces, f.number("start", positive=True), phase,
+                     tolerance, iterations)
+
+
+def _check_phase_forces(phases: list[PhaseSpec], limits: "Limits", source: str | None) -> None:
+    for i, spec in enumerate(phases):
+        if spec.forces[-1] >= limits.max_force:
+            raise InputError(f"force {spec.forces[-1]:g} N is not below the abort limit max_force = "
+                             f"{limits.max_force:g} N", source, f"[[phase_resonance]][{i}].forces")
+    names = Counter(p.run_name() for p in phases)
+    dup = sorted(n for n, count in names.items() if count > 1)
+    if dup:
+        raise InputError(f"two phase-resonance tables make the same run {dup[0]} (same DOF and phase)", source,
+                         "[[phase_resonance]]")
+
+
+def _default_force_limit(spec: SineSpec, limits: "Limits") -> SineSpec:
+    if spec.response is None or not np.isnan(spec.force):
+        return spec
+    limit = DEFAULT_FORCE_LIMIT_SHARE * limits.max_force
+    return replace(spec, force=limit, response=replace(spec.response, force_limit=limit))
 
 
 def _count(f: Fields, key: str, default: int, largest: int, least: int = 1) -> int:
@@ -393,6 +529,11 @@ def check_against_instruments(plan: Plan, sample_rate: float, frequency_range: t
             raise InputError(f"a record of {plan.settle.block_periods} periods at {spec.start:g} Hz holds "
                              f"{samples:,.0f} samples a channel at {sample_rate:g} Hz, more than "
                              f"{MAX_RECORD_SAMPLES:,}: lower block_periods", plan.source, "[settle].block_periods")
+    for i, spec in enumerate(plan.phase):
+        if not lo <= spec.start <= hi or spec.start >= nyquist / 2:
+            raise InputError(f"{spec.start:g} Hz is outside the generator's range {lo:g}-{hi:g} Hz or too near "
+                             f"the DAQ's Nyquist frequency ({nyquist:g} Hz) for the lock to move around it",
+                             plan.source, f"[[phase_resonance]][{i}].start")
     if plan.random is not None and plan.random.band[1] >= nyquist:
         raise InputError(f"band reaches {plan.random.band[1]} Hz, beyond the DAQ's Nyquist frequency "
                          f"({nyquist:g} Hz)", plan.source, "[random].band")

@@ -22,6 +22,12 @@ ppm). Then:
   fixed-count practice, corrected on by the loop -- only from after the one that shows it. A voltage-driven
   shaker loses force at resonance, and kbar only means something at a stated force. The instrument ramps the
   amplitude, so the drive never jumps.
+- **response control** (a :class:`HeldLevel` of a response quantity): the same loop, settling and safety rules
+  hold the fundamental amplitude of a displacement, velocity or acceleration at a sensor DOF. The drive is
+  scaled by (target / measured)^(1/s), ``s`` the secant slope d log(response) / d log(drive) between the
+  line's last two levels (1 before there are two: the response is proportional to the drive on a linear
+  structure), which converges where the structure's |X/F| moves with the amplitude (a joint that softens),
+  and never beyond the level's force limit (predicted from the measured N/V).
 
 The FRF is the receptance ``h_p = A_p / (-(2 pi f)^2 F)`` from the accelerometer and force fundamentals; its
 standard deviation combines the residual noise of the fit (a complex amplitude from N samples with white
@@ -38,6 +44,8 @@ import numpy as np
 
 from analysis.harmonics import HarmonicProjector, harmonics_at, sine_fit, total_harmonic_distortion
 
+from analysis.measurements import response_amplitude
+
 from app.campaign.acquisition import RecordFeed
 from app.campaign.plan import SettleSpec
 from app.campaign.transient_line import TransientEstimate, TransientLines
@@ -52,6 +60,24 @@ LIMIT_RETRIES = 2        # corrections of a force still off target at the settli
 MIN_RAMP_RATE = 1e-3     # V/s: the slowest ramp asked of a generator (SCPI instruments' usual lower limit)
 MAX_CONTROL_STEPS = 20   # drive corrections per line at most (a loop that cannot converge must still end)
 CHANGE_MARGIN_PERIODS = 3.0   # skipped after an amplitude change has shown and its ramp, before a line waits
+SECANT_SLOPES = (0.25, 4.0)   # d log(response) / d log(drive) the response loop believes (a noisy secant
+                              # outside them would send the drive far off)
+
+
+@dataclass(frozen=True)
+class HeldLevel:
+    """What the control loop holds at a line: the force amplitude (``quantity`` "force", N) or the fundamental
+    amplitude of a response ``quantity`` at the sensor ``dof`` (m, m/s or m/s^2), with a force limit (N) the
+    response loop never drives beyond."""
+
+    target: float
+    quantity: str = "force"
+    dof: str = ""
+    force_limit: float = float("inf")
+
+    @property
+    def response(self) -> bool:
+        return self.quantity != "force"
 
 
 @dataclass
@@ -81,15 +107,19 @@ class LineMeasurement:
     raw : ndarray, shape (n, channels)
         The samples of the two records that agreed (the measurement and the one before it).
     target_force : float
-        N, what the line was to hold.
+        N, the force the line was to hold (NaN where it held a response amplitude).
     on_target : bool
-        Whether the force is within the control tolerance of its target.
+        Whether the held amplitude (force or response) is within the control tolerance of its target.
     transient : bool
         Measured by the transient-aware estimate (``[settle] method = "transient"``), not by waiting.
     transient_std : float
         Largest relative standard deviation of the FRFs by the line's last transient fit (NaN: none made).
     transient_reason : str
         Why a line of the transient-aware method waited ("" where it did not, or the method is "steady").
+    held : HeldLevel or None
+        What the loop held (None: the force ``target_force``).
+    level : float
+        The held amplitude as measured (the force's for force control), in the held quantity's units.
     """
 
     frequency: float
@@ -110,6 +140,14 @@ class LineMeasurement:
     transient: bool = False
     transient_std: float = float("nan")
     transient_reason: str = ""
+    held: HeldLevel | None = None
+    level: float = float("nan")
+
+    def __post_init__(self):
+        if self.held is None:
+            self.held = HeldLevel(self.target_force)
+        if np.isnan(self.level):
+            self.level = abs(self.force)
 
 
 class LineMeter:
@@ -132,6 +170,9 @@ class LineMeter:
         self._frequency: float | None = None   # generator frequency of the last line
         self._projector = None                 # ((frequency, n), HarmonicProjector) of the current line
         self.transient = transient             # the transient-aware path's state, None: wait (method "steady")
+        self._channels = channels
+        self._held = HeldLevel(0.0)            # what the line in progress holds
+        self._levels: list[tuple[float, float]] = []   # (drive, held amplitude) of the line's known levels
 
     def _set_drive(self, frequency: float, drive: float, previous: float | None) -> None:
         """Change the generator amplitude, then drop the samples taken before it acted (the learnt latency of
@@ -248,8 +289,14 @@ class LineMeter:
         fitted = self._fitted_frequency(data, frequency)
         return fitted is not None and abs(fitted / frequency - 1) <= tolerance
 
-    def measure(self, frequency: float, target_force: float, drive: float) -> LineMeasurement:
-        """Hold ``target_force`` N at ``frequency`` Hz starting from ``drive`` V and measure the line."""
+    def measure(self, frequency: float, target: "float | HeldLevel", drive: float) -> LineMeasurement:
+        """Hold ``target`` (a force in N, or a :class:`HeldLevel`) at ``frequency`` Hz starting from ``drive`` V
+        and measure the line."""
+        held = target if isinstance(target, HeldLevel) else HeldLevel(float(target))
+        if held.response and f"acc:{held.dof}" not in self._channels:
+            raise ValueError(f"the response to hold is at {held.dof}, which carries no accelerometer")
+        self._held, self._levels = held, []
+        target_force = float("nan") if held.response else held.target
         fs = self.sample_rate
         n_rec = max(int(round(self.settle.block_periods * fs / frequency)), 32)
         self._new_line(frequency, drive, n_rec)
@@ -266,7 +313,7 @@ class LineMeter:
                 history[-1] = early            # the force loop acts on the estimated steady force
             steady = early is not None or self._steady(history)
             at_limit = wait.at_limit(self.settle.max_periods)
-            ratio = self._correction(frequency, history, steady, at_limit, target_force, wait)
+            ratio = self._correction(frequency, history, steady, at_limit, held, wait)
             if ratio is not None:
                 new_drive = float(min(wait.drive * ratio, self.v_max))
                 if new_drive != wait.drive:
@@ -291,24 +338,41 @@ class LineMeter:
             wait.steady = steady
             return self._transient_line(self._line(frequency, target_force, out, wait, rec, before))
 
-    # ----- force control: the decisions, one function each ---------------------------------------
-    def _on_target(self, force: complex, target: float) -> bool:
-        return abs(abs(force) / target - 1.0) <= self.control_tolerance
+    # ----- force and response control: the decisions, one function each ----------------------------
+    def _level(self, rec: "RecordAnalysis") -> float:
+        """The held amplitude of a record: the force's, or the response quantity's at the held DOF."""
+        if not self._held.response:
+            return abs(rec.force)
+        a = rec.harmonics[1, self._channels.index(f"acc:{self._held.dof}")]
+        return float(response_amplitude(a, 2 * np.pi * rec.frequency, self._held.quantity))
+
+    def _on_target(self, level: float, target: float) -> bool:
+        return abs(level / target - 1.0) <= self.control_tolerance
 
     def _force_known(self, frequency: float, history: list["RecordAnalysis"]) -> bool:
-        """The force level is known, although the FRFs may still be settling (a structure ringing from before
-        moves the accelerations far more than the force): the last three records agree on the force within
-        FORCE_AGREEMENT and the last one holds a tone at the line's frequency (samples taken before the
+        """The held level is known, although the FRFs may still be settling (a structure ringing from before
+        moves the accelerations far more than the force): the last three records agree on the held amplitude
+        within FORCE_AGREEMENT and the last one holds a tone at the line's frequency (samples taken before the
         generator moved, still in the queues, hold none there and would read as almost no force)."""
         if len(history) < 3:
             return False
-        forces = [abs(h.force) for h in history[-3:]]
+        forces = [self._level(h) for h in history[-3:]]
         if min(forces) <= 0 or max(forces) / min(forces) - 1.0 > FORCE_AGREEMENT:
+            return False
+        if self._held.response and not self._ringing_out(history):
             return False
         return self._shows(history[-1].raw, frequency, TONE_TOLERANCE)
 
+    @staticmethod
+    def _ringing_out(history: list["RecordAnalysis"]) -> bool:
+        """A response level is known only once the structure no longer rings from the last change: the FRFs
+        of the last three records agree within FORCE_AGREEMENT. Near a lightly damped resonance the response
+        builds up or decays over many records while three of them agree on its level (the force follows the
+        drive at once), and correcting on it set the loop swinging between x0.5 and x2."""
+        return all(frf_change(history[-k].frf, history[-k - 1].frf) <= FORCE_AGREEMENT for k in (1, 2))
+
     def _correction(self, frequency: float, history: list["RecordAnalysis"], steady: bool, at_limit: bool,
-                    target: float, wait: "LineWait") -> float | None:
+                    held: HeldLevel, wait: "LineWait") -> float | None:
         """The factor to scale the drive by now, or None.
 
         - force on target: none;
@@ -321,16 +385,62 @@ class LineMeter:
         Correcting an unsettled force within COARSE_ERROR chases the transient (measured: 20 corrections per
         line and a limit breach), so that is left to the settled case. Every factor is clipped to
         x0.5 .. x2 per step: the force approaches its target from where it was measured, never by a jump.
+        A response level scales by the secant (:meth:`_drive_ratio`) within its force limit.
         """
-        force = history[-1].force
-        if self._on_target(force, target) or abs(force) == 0.0 or wait.control_steps >= MAX_CONTROL_STEPS:
+        level, force = self._level(history[-1]), abs(history[-1].force)
+        if self._on_target(level, held.target) or force == 0.0 or wait.control_steps >= MAX_CONTROL_STEPS:
             return None
         if at_limit and wait.limit_retries >= LIMIT_RETRIES:
             return None
-        coarse = abs(abs(force) / target - 1.0) > COARSE_ERROR and self._force_known(frequency, history)
+        if level == 0.0:
+            return self._stuck(held, force, steady or at_limit)
+        coarse = self._coarse(level, held) and self._force_known(frequency, history)
         if not (steady or coarse or at_limit):
             return None
-        return float(np.clip(target / abs(force), 0.5, 2.0))
+        ratio = float(np.clip(self._drive_ratio(level, held.target, wait.drive), 0.5, 2.0))
+        return self._within_force_limit(ratio, force, held.force_limit)
+
+    @staticmethod
+    def _stuck(held: HeldLevel, force: float, settled: bool) -> float | None:
+        """A response level whose DOF does not move at all (below one count: a joint held by friction below its
+        slip force) once the line settled: double the drive, within the force limit -- no ratio to the target
+        exists. A force level with no force has nothing to scale."""
+        if not held.response or not settled:
+            return None
+        return LineMeter._within_force_limit(2.0, force, held.force_limit)
+
+    @staticmethod
+    def _coarse(level: float, held: HeldLevel) -> bool:
+        """Far enough off target to correct before the line settles: by more than COARSE_ERROR -- for a
+        response level only from below (the approach from the low start). Near a lightly damped resonance a
+        response that overshot decays for many records; lowering the drive on it undershot, raising it again
+        overshot, and the loop swung between x0.5 and x2 without end."""
+        error = level / held.target - 1.0
+        return error < -COARSE_ERROR if held.response else abs(error) > COARSE_ERROR
+
+    def _drive_ratio(self, level: float, target: float, drive: float) -> float:
+        """The factor that takes the held amplitude to its target. Force: target / measured (the N/V holds over
+        one correction). Response: (target / measured)^(1/s) with ``s`` the secant slope of log(response)
+        over log(drive) between this and the line's previous level, 1 before there is one."""
+        ratio = target / level
+        if not self._held.response:
+            return ratio
+        slope = 1.0
+        if self._levels:
+            d0, y0 = self._levels[-1]
+            if d0 > 0 and y0 > 0 and abs(np.log(drive / d0)) > 1e-3:
+                slope = float(np.clip(np.log(level / y0) / np.log(drive / d0), *SECANT_SLOPES))
+        self._levels.append((drive, level))
+        return ratio ** (1.0 / slope)
+
+    @staticmethod
+    def _within_force_limit(ratio: float, force: float, limit: float) -> float | None:
+        """The drive factor clipped so that the force (proportional to the drive over one correction) stays
+        within ``limit``; None where the force already sits at the limit and the factor would raise it."""
+        if force * ratio <= limit:
+            return ratio
+        capped = limit / force
+        return capped if capped < 1.0 - 1e-3 or capped > 1.0 + 1e-3 else None
 
     def _steady(self, history: list["RecordAnalysis"]) -> bool:
         """Whether the last records show a settled response.
@@ -429,10 +539,11 @@ class LineMeter:
 
     def _line(self, frequency: float, target: float, out: "RecordAnalysis", wait: "LineWait", rec,
               before: np.ndarray) -> LineMeasurement:
+        level = self._level(out)
         return LineMeasurement(frequency, out.frequency, out.force, out.frf, out.frf_std, out.harmonics, out.thd,
                                wait.drive, (rec.first_sample + len(rec.data) - wait.first_sample) / self.sample_rate,
                                wait.periods, wait.steady, wait.control_steps, np.concatenate([before, rec.data]),
-                               target, self._on_target(out.force, target))
+                               target, self._on_target(level, self._held.target), held=self._held, level=level)
 
 
 @dataclass

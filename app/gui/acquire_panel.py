@@ -1,7 +1,8 @@
-"""Acquire tab: the plan editor (force levels, span, step, direction; optional random run) validated as it is
-edited, Start / Pause / Abort, and the live view of the campaign: time signals, FRF magnitude and phase growing
-line by line per force level, achieved against target force, distortion, steady-state waiting, progress and
-ETA, and the event log."""
+"""Acquire tab: the plan editor (force or response levels, span, step, direction; optional random run) validated
+as it is edited, Start / Pause / Abort, and the live view of the campaign: time signals, FRF magnitude and phase
+growing line by line per level, achieved against target force, distortion, steady-state waiting, natural frequency
+and damping against amplitude (a point per locked phase-resonance level as it locks, a point per response level
+as it ends), progress and ETA, and the event log."""
 from __future__ import annotations
 
 import datetime as _dt
@@ -15,7 +16,11 @@ from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QDoubleSpinBox, QFi
                                QHBoxLayout, QHeaderView, QLabel, QLineEdit, QListWidget, QProgressBar,
                                QPushButton, QSplitter, QTableWidget, QVBoxLayout, QWidget)
 
+from analysis.backbone import POWER, measured_backbone
+from analysis.errors import InputError
+from analysis.measurements import Control
 from app.models import builtin_plan_path
+from app.session import measurements_from_session
 from drivers.simulation.rig import builtin_rigs
 
 from app.campaign import load_plan
@@ -25,7 +30,11 @@ from .plan_doc import plan_document, plan_toml
 from .plots import (CHANNEL_COLORS, FrameClock, LevelPalette, Redraw, configure_plot, finite_log, random_pen,
                     sensor_symbol)
 
-COLUMNS = ("Force [N]", "Start [Hz]", "Stop [Hz]", "Step [Hz]", "Direction", "Refine")
+COLUMNS = ("Level", "Start", "Stop", "Step", "Dir", "Refine", "Holds", "DOF")
+COLUMN_TIPS = ("N for a force level; m/s², m/s or m for a response level (SI units)", "Hz", "Hz", "Hz",
+               "sweep direction", "adaptive refinement near resonance", "what the level holds",
+               "the sensor DOF whose response amplitude is held")
+HOLDS = ("force", "acceleration", "velocity", "displacement")    # what a level holds (docs/campaigns.md)
 DEFAULT_LEVEL = {"force": 0.8, "start": 0.8, "stop": 3.2, "step": 0.025, "direction": "up", "refine": True}
 TIME_PERIODS = 5            # periods of the current line shown in the time plots
 TIME_WINDOW_DEFAULT = 1.0   # s shown before the first line (and during the random run)
@@ -45,6 +54,14 @@ def _line_path(m) -> str:
     if m.steady:
         return head + f"steady after {m.settle_periods:.0f} periods"
     return head + f"measured at the settling limit ({m.settle_periods:.0f} periods)"
+
+
+def _level(run) -> str:
+    """A live run's level for a legend: its force, or the response amplitude it holds and where."""
+    a = run.attrs
+    if a.get("control") != "response":
+        return f"{run.force:g} N"
+    return Control("response", a["control_dof"], a["control_quantity"], float(a["control_target"])).label()
 
 
 def _spin(value: float, decimals: int = 4, minimum: float = 0.0, maximum: float = 1e5) -> QDoubleSpinBox:
@@ -70,9 +87,12 @@ class PlanEditor(QGroupBox):
         self.lab = lab
         self.touched = False            # the operator loaded or edited a plan (do not replace it)
         self._extra: dict = {}          # [settle] / [control] of a loaded plan, kept as they were
+        self._limits: dict[int, float | None] = {}     # row -> force limit of a loaded response level
         layout = QVBoxLayout(self)
         self.table = QTableWidget(0, len(COLUMNS))
         self.table.setHorizontalHeaderLabels(COLUMNS)
+        for col, tip in enumerate(COLUMN_TIPS):
+            self.table.horizontalHeaderItem(col).setToolTip(tip)
         self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
         self.table.verticalHeader().setVisible(False)
         self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
@@ -118,7 +138,8 @@ class PlanEditor(QGroupBox):
         row = self.table.rowCount()
         self.table.insertRow(row)
         for col, key in enumerate(("force", "start", "stop", "step")):
-            spin = _spin(level[key], 4 if key != "force" else 3)
+            value = level["response"] if key == "force" and "response" in level else level[key]
+            spin = _spin(value, 4 if key != "force" else 3)
             spin.valueChanged.connect(self._edited)
             self.table.setCellWidget(row, col, spin)
         direction = QComboBox()
@@ -132,9 +153,20 @@ class PlanEditor(QGroupBox):
         refine.setToolTip("Adaptive refinement: extra lines where the FRF changes fast (near resonance)")
         refine.currentTextChanged.connect(self._edited)
         self.table.setCellWidget(row, 5, refine)
-
+        holds = QComboBox()
+        holds.addItems(HOLDS)
+        holds.setCurrentText(level.get("quantity", "acceleration") if "response" in level else "force")
+        holds.setToolTip("What the level holds: the force, or a response amplitude at a DOF (SI units: m/s², m/s, m)")
+        holds.currentTextChanged.connect(self._edited)
+        self.table.setCellWidget(row, 6, holds)
+        dof = QLineEdit(level.get("dof", ""))
+        dof.setPlaceholderText("sensor DOF")
+        dof.textChanged.connect(self._edited)
+        self.table.setCellWidget(row, 7, dof)
+        self._limits[row] = level.get("force_limit")     # a loaded response level's force limit, kept
     def set_levels(self, levels: list[dict]) -> None:
         self.table.setRowCount(0)
+        self._limits = {}
         for level in levels:
             self._add_row(level)
         self._edited()
@@ -146,8 +178,18 @@ class PlanEditor(QGroupBox):
             level = {key: cell(row, col).value() for col, key in enumerate(("force", "start", "stop", "step"))}
             level["direction"] = cell(row, 4).currentText()
             level["refine"] = cell(row, 5).currentText() == "yes"
-            out.append(level)
+            out.append(self._held(row, level))
         return out
+
+    def _held(self, row: int, level: dict) -> dict:
+        """A row's level as the plan spells it: a force, or ``response`` with its quantity, DOF and force limit."""
+        holds = self.table.cellWidget(row, 6).currentText()
+        if holds == "force":
+            return level
+        held = {"response": level.pop("force"), "quantity": holds, "dof": self.table.cellWidget(row, 7).text()}
+        if self._limits.get(row) is not None:
+            held["force_limit"] = self._limits[row]
+        return {**held, **level}
 
     def document(self) -> dict:
         """The plan document without limits (the Lab adds them)."""
@@ -168,7 +210,8 @@ class PlanEditor(QGroupBox):
     def _add_clicked(self) -> None:
         levels = self.levels()
         last = dict(levels[-1]) if levels else dict(DEFAULT_LEVEL)
-        last["force"] = round(last["force"] * 2, 6)          # the next level: twice the force
+        key = "response" if "response" in last else "force"
+        last[key] = round(last[key] * 2, 6)                  # the next level: twice the amplitude
         self._add_row(last)
         self._edited()
 
@@ -187,7 +230,7 @@ class PlanEditor(QGroupBox):
     def load(self, path) -> None:
         """Fill the editor from a plan file (its limits go to the Rig tab)."""
         doc = plan_document(load_plan(path))
-        self._extra = {k: doc[k] for k in ("settle", "control")}
+        self._extra = {k: doc[k] for k in ("settle", "control", "phase_resonance") if k in doc}
         self.random.blockSignals(True)
         self.random.setChecked("random" in doc)
         if "random" in doc:
@@ -241,6 +284,14 @@ class LivePlots(pg.GraphicsLayoutWidget):
                                   "frequency", "Hz", "THD", "%")
         self.settle = configure_plot(bottom.addPlot(0, 2), "Settling: waited ●, from the transient ◆, limit ×",
                                      "frequency", "Hz", "periods waited", None)
+        modal = self.addLayout(3, 0, colspan=2)
+        self.natural = configure_plot(modal.addPlot(0, 0),
+                                      "Natural frequency: phase resonance ●, response levels ◆",
+                                      "displacement amplitude", "m", "frequency", "Hz", log_x=True, legend=True)
+        self.damping = configure_plot(modal.addPlot(0, 1), "Damping ratio: response levels ◆",
+                                      "displacement amplitude", "m", "damping ratio", None, log_x=True, log_y=True)
+        self.damping.setXLink(self.natural)
+        self._modal_runs: tuple = ()                     # the finished response levels fitted so far
         self.phase.setXLink(self.magnitude)
         self.ci.layout.setRowStretchFactor(1, 2)
         self._time_curves: list[pg.PlotDataItem] = []
@@ -252,11 +303,13 @@ class LivePlots(pg.GraphicsLayoutWidget):
     def plots(self) -> dict[str, pg.PlotItem]:
         return {"force_time": self.force_time, "acceleration_time": self.acc_time, "frf_magnitude": self.magnitude,
                 "frf_phase": self.phase, "force_achieved": self.force_level, "thd": self.thd,
-                "settling": self.settle}
+                "settling": self.settle, "natural_frequency": self.natural, "damping": self.damping}
 
     def shown(self, plot: pg.PlotItem, run: str, what: str) -> tuple[np.ndarray, np.ndarray]:
         """The points a run's curve on ``plot`` shows now (``what``: a sensor DOF on the FRF plots; "achieved",
-        "target", "response", "force", "steady", "transient" or "limit" on the others); empty before its first line."""
+        "target", "response", "force", "steady", "transient" or "limit" on the others; "locked" for a
+        phase-resonance run on the natural-frequency plot, whose response levels are ``run`` "response levels",
+        ``what`` e.g. "acceleration at x2"); empty before its first line."""
         curve = self._run_curves.get((id(plot), run, what))
         x, y = (None, None) if curve is None else curve.getOriginalDataset()
         return (np.empty(0), np.empty(0)) if x is None else (np.asarray(x), np.asarray(y))
@@ -276,6 +329,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
             if plot.legend is not None:
                 plot.legend.clear()
         self._run_curves.clear()
+        self._modal_runs = ()
         ring = feed.ring
         self._time_curves = []
         for i, channel in enumerate(ring.channels):
@@ -336,6 +390,41 @@ class LivePlots(pg.GraphicsLayoutWidget):
                 self._draw_random(run)
             else:
                 self._draw_sine(run)
+            if run.kind == "phase_resonance":
+                self._draw_locked(run)
+        self._draw_response_levels(live)
+
+    def _draw_locked(self, run) -> None:
+        """A phase-resonance run's locked points, natural frequency against displacement amplitude, one more as
+        each force level locks."""
+        dof = run.attrs["phase_dof"]
+        w = 2 * np.pi * run.frequency
+        X = np.abs(run.arrays[f"harmonics/acc:{dof}"][:, 1]) / w ** 2
+        color = self.palette.color(run.force)
+        self._curve(self.natural, (run.name, "locked"), pen=pg.mkPen(color, width=1.2), symbol="o", symbolSize=7,
+                    symbolBrush=pg.mkBrush(color), symbolPen=None,
+                    name=f"phase resonance at {dof}").setData(X, run.frequency)
+
+    def _draw_response_levels(self, live) -> None:
+        """The modal fit of every finished response-controlled level (analysis/backbone.py), one point per level:
+        refitted only when another level finishes."""
+        done = tuple(r.name for r in live.runs() if r.attrs.get("control") == "response" and r.status != "running")
+        if done == self._modal_runs:
+            return
+        self._modal_runs = done
+        try:
+            finished = [r for r in measurements_from_session(live).sine if r.name in done]
+        except InputError:           # lines the analysis refuses (a sensor that saw nothing): no points, no crash
+            return
+        for bb in measured_backbone(finished):
+            _, f, zeta = bb.arrays()
+            amplitude = bb.arrays()[0] / (2 * np.pi * f) ** POWER[bb.quantity]     # as a displacement
+            style = {"pen": pg.mkPen("#444444", width=1.2), "symbol": "d", "symbolSize": 9,
+                     "symbolBrush": pg.mkBrush("#444444"), "symbolPen": None}
+            name = f"response levels at {bb.dof}"
+            key = ("response levels", f"{bb.quantity} at {bb.dof}")
+            self._curve(self.natural, key, name=name, **style).setData(amplitude, f)
+            self._curve(self.damping, key, **style).setData(amplitude, zeta)
 
     def _draw_random(self, run) -> None:
         for p, dof in enumerate(run.sensor_dofs):
@@ -352,7 +441,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
             h = run.frf[dof][order]
             style = {"pen": pg.mkPen(color, width=1.2), "symbol": sensor_symbol(p), "symbolSize": 5,
                      "symbolBrush": pg.mkBrush(color), "symbolPen": None}
-            self._curve(self.magnitude, (run.name, dof), name=f"{run.force:g} N {run.direction} · {dof}",
+            self._curve(self.magnitude, (run.name, dof), name=f"{_level(run)} {run.direction} · {dof}",
                         **style).setData(f[order], finite_log(np.abs(h)))
             self._curve(self.phase, (run.name, dof), **style).setData(f[order], np.degrees(np.angle(h)))
         a = run.arrays

@@ -327,6 +327,7 @@ class Lab(QObject):
         signals.runStarted.connect(self.live.begin)
         signals.lineMeasured.connect(self._on_line)
         signals.randomMeasured.connect(self.live.add_random)
+        signals.pointLocked.connect(self.live.add_point)
         signals.runEnded.connect(self.live.end)
         plan, self.armed_plan = self.armed_plan, None
         self.armedChanged.emit(False, "not armed (the arm was used by the campaign)")

@@ -21,7 +21,7 @@ from PySide6.QtCore import QObject, Signal
 
 from drivers.interfaces import Block
 
-from app.campaign import CampaignListener, LineMeasurement, line_extras
+from app.campaign import CampaignListener, LineMeasurement, line_extras, lock_extras
 from app.session import RunData, RunSpec
 
 
@@ -121,6 +121,7 @@ class FeedSignals(QObject):
 
     runStarted = Signal(str, object)                      # run name, RunSpec
     lineMeasured = Signal(str, int, object, float)        # run, index, LineMeasurement, target force N
+    pointLocked = Signal(str, int, object)                # run, index, LockedPoint (phase resonance)
     randomMeasured = Signal(str, object, object, object)  # run, frequency Hz, {dof: H1}, {dof: coherence}
     runEnded = Signal(str, str)                           # run, status
     eventLogged = Signal(str, str)                        # kind, message
@@ -146,6 +147,9 @@ class CampaignFeed(CampaignListener):
 
     def line(self, run, index, m, target_force):
         self.signals.lineMeasured.emit(run, index, m, float(target_force))
+
+    def phase_point(self, run, index, point):
+        self.signals.pointLocked.emit(run, index, point)
 
     def random_result(self, run, frequency, frf, coherence):
         self.signals.randomMeasured.emit(run, frequency, frf, coherence)
@@ -204,6 +208,11 @@ class LiveSession:
                                       run.spec.sensor_dofs).items():
             run.add(key, value)
 
+    def add_point(self, name: str, index: int, point) -> None:
+        """A phase-resonance point's lock quantities (its line comes as any line, :meth:`add_line`)."""
+        for key, value in lock_extras(point).items():
+            self._runs[name].add(key, value)
+
     def add_random(self, name: str, frequency, frf: dict, coherence: dict) -> None:
         run = self._runs[name]
         run.frequency = list(frequency)
@@ -220,7 +229,7 @@ class LiveSession:
     def run(self, name: str) -> RunData:
         live = self._runs[name]
         spec = live.spec
-        attrs = {"kind": spec.kind, "force": float(spec.force), "direction": spec.direction,
+        attrs = {**spec.attrs, "kind": spec.kind, "force": float(spec.force), "direction": spec.direction,
                  "status": live.status, "excitation_dof": spec.excitation_dof,
                  "sensor_dofs": json.dumps(list(spec.sensor_dofs)), "sample_rate": float(spec.sample_rate)}
         return RunData(name, attrs, np.asarray(live.frequency, float),

@@ -1,8 +1,9 @@
 """Regenerate the GUI screenshots of docs/gui.md (``python -m app.gui.screenshots [--out DIR]``).
 
-A real session, not a mock-up: the window connects to the emulated paper-2dof rig, runs a short campaign (a
-random run and two force levels) through its widgets -- the Acquire and Rig tabs are taken while the second
-level is being measured -- then analyses the session with the model that knows the structure but no law, presses Auto
+A real session, not a mock-up: the window connects to the emulated paper-2dof rig, loads a short plan (a random
+run, two force levels, a response-controlled level and a phase-resonance run at four forces) and runs it through
+its widgets -- the Acquire and Rig tabs are taken while the phase-resonance run locks its last level, its
+natural-frequency plot grown point by point -- then analyses the session with the model that knows the structure but no law, presses Auto
 (the missing-effect loop, as ``contactid analyze --auto``), and grabs every tab. Runs offscreen unless a display is asked
 for with ``QT_QPA_PLATFORM``.
 """
@@ -16,10 +17,42 @@ from pathlib import Path
 
 TABS = ("rig", "acquire", "identify", "model", "session")
 SIZE = (1500, 950)
-PLAN_LEVELS = [{"force": 0.4, "start": 0.8, "stop": 3.2, "step": 0.05, "direction": "up", "refine": True},
-               {"force": 0.8, "start": 0.8, "stop": 3.2, "step": 0.05, "direction": "up", "refine": True}]
-RANDOM_SECONDS = 32.0
-RANDOM_FORCE_RMS = 0.3      # N: above the Coulomb slip force of paper-2dof (0.1 N), so its joint moves
+# the random run's rms force (0.3 N) is above the Coulomb slip force of paper-2dof (0.1 N), so its joint moves
+PLAN = """
+[random]
+force_rms = 0.3
+band = [0.5, 5.0]
+duration = 32.0
+
+[[stepped_sine]]
+force = 0.4
+start = 0.8
+stop = 3.2
+step = 0.05
+
+[[stepped_sine]]
+force = 0.8
+start = 0.8
+stop = 3.2
+step = 0.05
+
+[[stepped_sine]]
+response = 2.0
+dof = "x2"
+start = 1.05
+stop = 1.45
+step = 0.025
+refine = false
+
+[[phase_resonance]]
+dof = "x2"
+forces = [0.2, 0.4, 0.8, 1.2]
+start = 1.27
+
+[limits]
+max_force = 5.0
+max_acceleration = 50.0
+"""
 AUTO_TIMEOUT_S = 900
 
 
@@ -68,17 +101,15 @@ def take(out: Path) -> list[Path]:
         window.rig.builtin_rig.setCurrentText("paper-2dof")
         window.rig.connect_selected()
         _wait(app, lambda: lab.connected, 60, "the emulated instruments")
-        editor = window.acquire.editor
-        editor.random.setChecked(True)
-        editor.random_duration.setValue(RANDOM_SECONDS)
-        editor.random_rms.setValue(RANDOM_FORCE_RMS)
-        editor.set_levels(PLAN_LEVELS)
+        plan = Path(tmp) / "plan.toml"
+        plan.write_text(PLAN, encoding="utf-8")
+        window.acquire.editor.load(plan)
         window.rig.arm_button.click()
         window.acquire.output.setText(str(Path(tmp) / "paper-2dof.h5"))
         window.acquire.start_button.click()
         _wait(app, lambda: lab.live is not None and any(
-            r.force == 0.8 and len(r.frequency) >= 40 for r in lab.live.runs()) or not lab.campaign_running,
-            300, "the second force level")
+            r.kind == "phase_resonance" and len(r.frequency) >= 3 for r in lab.live.runs())
+            or not lab.campaign_running, 900, "the phase-resonance run's third point")
         grab("acquire")
         _settle(app, 1.5)             # one poll of the output state and the link health
         grab("rig")

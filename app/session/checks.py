@@ -22,9 +22,9 @@ from analysis.measurements import CONTROL_MODES, CONTROL_UNITS, Control, RunNote
 
 from app.session.writer import FORMAT_VERSION, RunData
 
-KINDS = ("random", "stepped_sine")
+KINDS = ("random", "stepped_sine", "phase_resonance")
 STATUSES = ("running", "complete", "failed", "aborted")
-DIRECTIONS = {"stepped_sine": ("up", "down"), "random": ("none",)}
+DIRECTIONS = {"stepped_sine": ("up", "down"), "random": ("none",), "phase_resonance": ("up",)}
 PER_HARMONIC = "harmonics/"
 MAX_RUNS = 500          # runs a session may hold for the analysis and export (plans: at most 200 force levels)
 MIN_FREQUENCY = 1e-3    # Hz: a line below or above these is a damaged dataset, not a vibration measurement
@@ -52,7 +52,7 @@ def check_format(attrs: dict, source: str | None) -> None:
 
 @dataclass
 class CheckedRun:
-    """A run whose contents passed the checks, and how many of its lines are whole."""
+    """A run whose contents passed the checks, how many of its lines are whole, and how it was controlled."""
 
     run: RunData
     lines: int
@@ -84,6 +84,7 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
     if not isinstance(excitation, str) or not excitation:
         raise error("attribute excitation_dof", f"must name a DOF, got {excitation!r}")
     sensors = _sensor_dofs(attrs.get("sensor_dofs"), error)
+    control = check_control(attrs, excitation, float(force), error)
 
     frequency = np.asarray(run.frequency)
     if frequency.ndim != 1 or frequency.dtype.kind not in "fi":
@@ -117,26 +118,44 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
         if rule is not None:
             _check_lines(np.asarray(values)[:lines], rule, lambda message, name=name: error(f"dataset {name}",
                                                                                             message))
-    return CheckedRun(run, lines, sensors, run_control(attrs, float(force), excitation, error))
+    if kind == "phase_resonance":
+        _check_lock(run, sensors, error)
+    return CheckedRun(run, lines, sensors, control)
 
 
-def run_control(attrs: dict, force: float, excitation: str, error) -> Control:
-    """How the run's level was held (attributes ``control``, ``control_dof``, ``control_quantity``,
-    ``control_target``); a run without them (older sessions) was force-controlled at its ``force``."""
+def _check_lock(run: RunData, sensors: list[str], error) -> None:
+    """What a phase-resonance run's points are read by: the locked DOF among the sensors, its target phase, its
+    acceleration harmonics and the lock's convergence per point."""
+    dof, phase = run.attrs.get("phase_dof"), run.attrs.get("target_phase")
+    if dof not in sensors:
+        raise error("attribute phase_dof", f"must name one of the sensor DOFs {sensors}, got {dof!r}")
+    if isinstance(phase, bool) or not isinstance(phase, (int, float, np.number)) or not 0 < phase < 180:
+        raise error("attribute target_phase", f"must be a lag from 0 to 180 degrees, got {phase!r}")
+    for name in (f"harmonics/acc:{dof}", "lock_converged"):
+        if name not in run.arrays:
+            raise error(f"dataset {name}", "is missing (a phase-resonance run reads its points from it)")
+
+
+def check_control(attrs: dict, excitation_dof: str, force: float, error) -> Control:
+    """A run's control from its ``control*`` attributes (docs/session-format.md); force control at the run's
+    force where they are absent (sessions written before they were recorded)."""
     mode = attrs.get("control", "force")
     if mode not in CONTROL_MODES:
-        raise error("attribute control", f"must be one of {', '.join(CONTROL_MODES)}; got {mode!r}")
-    if mode != "response":
-        return Control(mode, excitation, "force", force)
-    dof = attrs.get("control_dof")
+        raise error("attribute control", f"must be one of {', '.join(CONTROL_MODES)}, got {mode!r}")
+    dof = attrs.get("control_dof", excitation_dof)
     if not isinstance(dof, str) or not dof:
-        raise error("attribute control_dof", f"must name the DOF whose response is held, got {dof!r}")
-    quantity = _choice(attrs, "control_quantity", tuple(q for q in CONTROL_UNITS if q != "force"), error)
-    target = attrs.get("control_target")
-    if not _positive_number(target):
+        raise error("attribute control_dof", f"must name a DOF, got {dof!r}")
+    if mode != "response":
+        return Control(mode, dof, "force", force)
+    quantity, target = attrs.get("control_quantity"), attrs.get("control_target")
+    if quantity not in CONTROL_UNITS or quantity == "force":
+        raise error("attribute control_quantity", "must be displacement, velocity or acceleration for a "
+                                                  f"response-controlled run, got {quantity!r}")
+    if isinstance(target, bool) or not isinstance(target, (int, float, np.number)) or not math.isfinite(target) \
+            or target <= 0:
         shown = target.item() if isinstance(target, np.generic) else target      # -5.0, not np.float64(-5.0)
         raise error("attribute control_target", f"must be a finite amplitude > 0, got {shown!r}")
-    return Control(mode, dof, quantity, float(target))
+    return Control("response", dof, quantity, float(target))
 
 
 def _positive_number(value) -> bool:
@@ -148,7 +167,9 @@ def _positive_number(value) -> bool:
 def _check_order(frequency: np.ndarray, kind: str, direction: str, error) -> None:
     """A sweep measures its lines one after the other in its direction, a random run's lines rise: each
     frequency strictly beyond the one before. Equal or reversed frequencies are a frequency dataset that does
-    not belong to the run's FRFs."""
+    not belong to the run's FRFs. A phase-resonance run's points follow its mode, not a sweep: any order."""
+    if kind == "phase_resonance":
+        return
     sign = -1.0 if kind == "stepped_sine" and direction == "down" else 1.0
     wrong = np.flatnonzero(sign * np.diff(frequency) <= 0)
     if len(wrong):

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from analysis.frf_noise import smoothness_noise
-from analysis.measurements import Control, Measurements, RandomRun, SineRun
+from analysis.measurements import Control, Measurements, PhaseRun, RandomRun, SineRun
 
 from app.session.writer import RunData, Session
 from app.session.checks import check_format, check_run, check_run_count
@@ -25,7 +25,7 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
         source = str(session.path)
         check_format(session.attrs, source)
         check_run_count(session.run_names(), source)
-    sine, random, unfinished = [], None, []
+    sine, random, unfinished, phase = [], None, [], []
     for checked in (check_run(run, source) for run in session.runs()):
         if not checked.lines or (checked.run.incomplete and not include_incomplete):
             continue
@@ -34,13 +34,16 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
         run, dofs, n = checked.run, checked.sensor_dofs, checked.lines
         arrays = {k: v[:n] for k, v in run.arrays.items()}
         H = np.stack([run.frf[d][:n] for d in dofs], axis=1)
+        if run.kind == "phase_resonance":
+            phase.append(_phase_run(run, run.frequency[:n], arrays))
+            continue
         if run.kind == "random":
             random = RandomRun(run.excitation_dof, dofs, run.frequency[:n], H,
                                _stack(arrays, "coherence", dofs), _stack(arrays, "random_error", dofs),
                                run.force, _welch_resolution(run.attrs))
             continue
         sine.append(_sine_run(run, dofs, run.frequency[:n], H, arrays, checked.control))
-    return Measurements(sine, random, unfinished)
+    return Measurements(sine, random, unfinished, phase)
 
 
 def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarray, arrays: dict,
@@ -53,7 +56,17 @@ def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarra
     distortion = np.max(np.stack(thd), axis=0) if thd else arrays.get("distortion")   # imported: as stored
     return SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, frequency, H,
                    std if std is not None else smoothness_noise(frequency, H),
-                   arrays.get("force_amplitude"), distortion, noise_estimated=std is None, control=control)
+                   arrays.get("force_amplitude"), distortion, noise_estimated=std is None,
+                   control=control)
+
+
+def _phase_run(run: RunData, frequency: np.ndarray, arrays: dict) -> PhaseRun:
+    """A phase-resonance run's locked points, the displacement at the locked DOF from its acceleration's
+    fundamental."""
+    dof = str(run.attrs["phase_dof"])
+    displacement = np.abs(arrays[f"harmonics/acc:{dof}"][:, 1]) / (2 * np.pi * frequency) ** 2
+    return PhaseRun(run.name, dof, float(run.attrs["target_phase"]), frequency, arrays["force_amplitude"],
+                    displacement, arrays["lock_converged"].astype(bool))
 
 
 def _welch_resolution(attrs: dict) -> float | None:

@@ -310,8 +310,8 @@ class SessionFile:
             self._file.flush()
             self._measured()
 
-    def end_run(self, status: str, reason: str, seconds: float) -> None:
-        """Leave SWMR mode and record the run's status ("complete", "failed" or "aborted")."""
+    def end_run(self, status: str, reason: str, seconds: float, attrs: dict | None = None) -> None:
+        """Leave SWMR mode and record the run's status ("complete", "failed" or "aborted") and ``attrs``."""
         run, self._run = self._run, None
         if run is None:
             return
@@ -322,6 +322,8 @@ class SessionFile:
             g = f["runs"][run]
             g.attrs["status"] = status
             g.attrs["ended"] = now_iso()
+            for key, value in (attrs or {}).items():
+                g.attrs[key] = value
             if reason:
                 g.attrs["end_reason"] = reason
             append_event(f["events"], seconds, run, "run", f"run ended: {status}" + (f" ({reason})" if reason else ""))

@@ -167,14 +167,15 @@ class SessionWriter:
         self._require_space(samples.nbytes)
         self._call("append_raw", samples=samples)
 
-    def end_run(self, status: str, reason: str = "") -> None:
+    def end_run(self, status: str, reason: str = "", attrs: dict | None = None) -> None:
         """Leave SWMR mode and record the run's status ("complete", "failed": ended but its data missed the
-        plan, or "aborted")."""
+        plan, or "aborted") and ``attrs``, run attributes known only at its end (a response-controlled run's
+        measured force)."""
         if status not in ("complete", "failed", "aborted"):
             raise ValueError(f"status must be 'complete', 'failed' or 'aborted', got {status!r}")
         run, self._run = self._run, None
         if run is not None:
-            self._call("end_run", status=status, reason=reason, seconds=self._seconds())
+            self._call("end_run", status=status, reason=reason, seconds=self._seconds(), attrs=attrs or {})
 
     # -- events ---------------------------------------------------------------
     def log(self, kind: str, message: str, run: str | None = None) -> None:

@@ -1,0 +1,251 @@
+"""Amplitude-dependent natural frequency and damping: measured per response level, predicted from a model.
+
+**Measured.** A response-controlled stepped-sine level holds one response amplitude at every line, so the joint
+sits at (nearly) one amplitude and the FRF is that of a linear structure: a single-mode fit around its peak
+(:func:`analysis.modal_fit.fit_modes`) gives the natural frequency and damping ratio at that amplitude.
+
+**Predicted: the describing-function eigenproblem** (docs/method.md section 7). At a response amplitude ``a`` of
+``quantity`` at the DOF ``p`` the nonlinear mode is taken as the linear mode of the structure with each element
+replaced by its describing function at the amplitude the mode gives it::
+
+    (K + sum_i kbar_i(X_i, w) e_i e_i^T + lambda C + lambda^2 M) phi = 0,
+    phi scaled so that |phi_p| w^k = a     (k = 0, 1, 2: displacement, velocity, acceleration),
+    X_i = |e_i^T phi|,   w = Im lambda,
+
+solved by fixed-point iteration from the linear mode nearest the requested frequency (the mode is followed by
+its shape: the eigenvector most parallel to the last one). The natural frequency is ``|lambda| / 2 pi`` and the
+damping ratio ``-Re lambda / |lambda|`` -- the pole a single-mode fit of a measured FRF at that amplitude
+estimates. It is the single-harmonic, single-nonlinear-mode limit of the extended periodic motion concept:
+exact for the first harmonic of an isolated mode, blind to harmonics and to the coupling of close modes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.linalg
+
+from .elements import Element
+from .errors import InputError
+from .measurements import CONTROL_UNITS, PhaseRun, SineRun, response_amplitude
+from .modal_fit import fit_modes
+from .structures import Structure
+
+METHOD = "describing-function eigenproblem (single nonlinear mode, first harmonic)"
+POWER = {"displacement": 0, "velocity": 1, "acceleration": 2}    # response = displacement x w^k
+TOLERANCE = 1e-10        # relative change of the eigenvalue that ends the fixed-point iteration
+MAX_ITERATIONS = 200
+FIT_BAND = 0.03          # the single-mode fit of a level uses the lines within this share of its peak frequency...
+MIN_FIT_LINES = 8        # ...and at least this many lines nearest the peak (what the fit needs)
+
+
+@dataclass(frozen=True)
+class ModalPoint:
+    """The natural frequency (Hz) and damping ratio of one mode at one response amplitude (in the units of the
+    curve's quantity); ``converged`` says whether the iteration (prediction) or the fit (measurement) did."""
+
+    amplitude: float
+    frequency: float
+    damping: float
+    converged: bool = True
+
+
+@dataclass
+class Backbone:
+    """Natural frequency and damping against response amplitude at ``dof``: ``source`` "measured" (a modal fit
+    per response level, ``runs`` naming them) or "predicted" (``method``)."""
+
+    dof: str
+    quantity: str
+    points: list[ModalPoint]
+    source: str
+    method: str = ""
+    runs: tuple[str, ...] = ()
+
+    @property
+    def units(self) -> str:
+        return CONTROL_UNITS[self.quantity]
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(amplitude, frequency Hz, damping ratio), ascending in amplitude."""
+        pts = sorted(self.points, key=lambda p: p.amplitude)
+        return tuple(np.array([getattr(p, k) for p in pts], float) for k in ("amplitude", "frequency", "damping"))
+
+    def to_json(self) -> dict:
+        return {"dof": self.dof, "quantity": self.quantity, "units": self.units, "source": self.source,
+                "method": self.method, "runs": list(self.runs),
+                "points": [{"amplitude": p.amplitude, "frequency_hz": p.frequency,
+                            "damping_ratio": _number(p.damping), "converged": p.converged}
+                           for p in sorted(self.points, key=lambda p: p.amplitude)]}
+
+
+def _number(x: float) -> float | None:
+    """A value for JSON: None where it is not known (a phase lock measures no damping ratio)."""
+    return None if not np.isfinite(x) else float(x)
+
+
+# --------------------------------------------------------------------------- measured
+def measured_backbone(runs: Sequence[SineRun]) -> list[Backbone]:
+    """One measured curve per (DOF, quantity) held by response-controlled runs: a single-mode fit of each run's
+    FRF at the held DOF around its peak. Runs whose fit finds no mode are left out."""
+    groups: dict[tuple[str, str], list[SineRun]] = {}
+    for run in runs:
+        if run.control.response and run.control.dof in run.sensor_dofs:
+            groups.setdefault((run.control.dof, run.control.quantity), []).append(run)
+    out = []
+    for (dof, quantity), members in groups.items():
+        points, names = [], []
+        for run in members:
+            point = level_modal_point(run)
+            if point is not None:
+                points.append(point)
+                names.append(run.name)
+        if points:
+            out.append(Backbone(dof, quantity, points, "measured", "single-mode fit per response level",
+                                tuple(names)))
+    return out
+
+
+def level_modal_point(run: SineRun) -> ModalPoint | None:
+    """The natural frequency and damping of a response level: the single-mode fit of its FRFs on the lines within
+    FIT_BAND of the peak at the held DOF (at least MIN_FIT_LINES of them; None for a shorter run), at the
+    amplitude the level held (the median measured)."""
+    p = run.sensor_dofs.index(run.control.dof)
+    order = np.argsort(run.frequency_hz)          # a down sweep too: the fit wants its band low to high
+    f = np.asarray(run.frequency_hz, float)[order]
+    H = np.asarray(run.receptance)[order]
+    force = run.force_per_line[order]
+    if len(f) < MIN_FIT_LINES:
+        return None
+    distance = np.abs(f / f[np.argmax(np.abs(H[:, p]))] - 1.0)
+    near = (distance <= FIT_BAND) | (distance <= np.sort(distance)[MIN_FIT_LINES - 1])
+    fit = fit_modes(f[near], H[near], n_modes=1)
+    if not len(fit.frequency):
+        return None
+    held = response_amplitude(H[near, p] * -(2 * np.pi * f[near]) ** 2 * force[near],
+                              2 * np.pi * f[near], run.control.quantity)
+    return ModalPoint(float(np.median(held)), float(fit.frequency[0]), float(fit.damping[0]))
+
+
+def phase_resonance_backbone(run: PhaseRun) -> Backbone:
+    """A phase-resonance run's points as a measured curve: the locked frequency against the displacement
+    amplitude at the locked DOF. A lock at 90 deg is the natural frequency of an isolated mode; it measures no
+    damping ratio (NaN)."""
+    points = [ModalPoint(float(a), float(f), float("nan"), bool(c))
+              for a, f, c in zip(run.amplitude, run.frequency_hz, run.converged)]
+    return Backbone(run.dof, "displacement", points, "measured", f"phase resonance ({run.target_phase:g} deg)",
+                    (run.name,))
+
+
+# --------------------------------------------------------------------------- predicted
+def predict_backbone(structure: Structure, elements: Sequence[Element], dof: str, quantity: str,
+                     amplitudes, near_hz: float) -> Backbone:
+    """Natural frequency and damping of the mode nearest ``near_hz`` at each response ``amplitude`` of ``quantity``
+    at ``dof`` (SI units), by the describing-function eigenproblem (module docstring). Amplitudes are followed
+    in ascending order, each iteration starting from the mode found at the one before."""
+    if quantity not in POWER:
+        raise InputError(f"a backbone is predicted for a displacement, velocity or acceleration, not {quantity!r}")
+    p = structure.index(dof)
+    E = np.stack([el.vector(structure) for el in elements], axis=1) if elements else np.zeros((structure.n, 0))
+    fns = [el.describing_function for el in elements]
+    lam, phi = _linear_mode(structure, 2 * np.pi * near_hz)
+    points = []
+    for a in np.sort(np.asarray(amplitudes, float)):
+        lam, phi, converged = _nonlinear_mode(structure, E, fns, p, POWER[quantity], float(a), lam, phi)
+        points.append(ModalPoint(float(a), float(abs(lam) / (2 * np.pi)), float(-lam.real / abs(lam)), converged))
+    return Backbone(dof, quantity, points, "predicted", METHOD)
+
+
+def _linear_mode(structure: Structure, w_near: float) -> tuple[complex, np.ndarray]:
+    """The pole (Im > 0) of the linear structure nearest ``w_near`` (rad/s) and its shape."""
+    lam, vec = _poles(structure.K.astype(complex), structure.C, structure.M)
+    i = int(np.argmin(np.abs(lam.imag - w_near)))
+    return lam[i], vec[:, i]
+
+
+def _poles(K: np.ndarray, C: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues with Im > 0 of ``(K + lambda C + lambda^2 M) phi = 0`` and their DOF shapes (state-space
+    form: a complex K from the describing functions has no conjugate pairs to rely on)."""
+    n = K.shape[0]
+    # M is positive definite: the standard problem of M^-1 [K C] is many times faster than the generalised one
+    MK, MC = np.split(scipy.linalg.solve(M, np.concatenate([K, C], axis=1), assume_a="pos"), 2, axis=1)
+    lam, vec = scipy.linalg.eig(np.block([[np.zeros((n, n)), np.eye(n)], [-MK, -MC]]))
+    keep = lam.imag > 0
+    return lam[keep], vec[:n, keep]
+
+
+def _nonlinear_mode(structure: Structure, E: np.ndarray, fns, p: int, power: int, amplitude: float,
+                    lam: complex, phi: np.ndarray) -> tuple[complex, np.ndarray, bool]:
+    """Fixed point of the describing-function eigenproblem at one amplitude, from the pole ``lam`` and shape
+    ``phi`` of a neighbouring amplitude."""
+    for _ in range(MAX_ITERATIONS):
+        w = lam.imag
+        scaled = phi * (amplitude / (abs(phi[p]) * w ** power))
+        X = np.abs(E.T @ scaled)
+        kbar = np.array([fn(np.array([x]), np.array([w]))[0] for fn, x in zip(fns, X)], complex)
+        K = structure.K + (E * kbar) @ E.T
+        poles, shapes = _poles(K, structure.C, structure.M)
+        i = int(np.argmax(np.abs(shapes.conj().T @ phi) / np.linalg.norm(shapes, axis=0)))  # the same mode
+        new, phi = poles[i], shapes[:, i]
+        if abs(new - lam) <= TOLERANCE * abs(lam):
+            return new, phi, True
+        lam = new
+    return lam, phi, False
+
+
+# --------------------------------------------------------------------------- measured against predicted
+CURVE_POINTS = 24        # predicted points drawn between the smallest and the largest measured amplitude
+
+
+@dataclass
+class BackboneComparison:
+    """A measured curve, the model's prediction at its amplitudes (``predicted``) and on a finer grid
+    (``curve``, for plots), with the relative errors of the prediction at each measured point."""
+
+    measured: Backbone
+    predicted: Backbone
+    curve: Backbone
+
+    @property
+    def frequency_error(self) -> np.ndarray:
+        return self.predicted.arrays()[1] / self.measured.arrays()[1] - 1.0
+
+    @property
+    def damping_error(self) -> np.ndarray:
+        return self.predicted.arrays()[2] / self.measured.arrays()[2] - 1.0
+
+    def text(self) -> list[str]:
+        m = self.measured
+        what = "response level(s)" if m.method.startswith("single-mode") else f"point(s) of {m.runs[0]}, {m.method}"
+        out = [f"  {m.quantity} at {m.dof} ({len(m.points)} {what}); predicted by the {self.predicted.method}:",
+               f"    {'amplitude [' + m.units + ']':>18} {'f meas [Hz]':>12} {'f model':>10} {'error':>8} "
+               f"{'zeta meas':>10} {'zeta model':>10} {'error':>8}"]
+        for pm, pp, ef, ez in zip(sorted(m.points, key=lambda p: p.amplitude), self.predicted.points,
+                                  self.frequency_error, self.damping_error):
+            flag = "" if pp.converged else "  (prediction not converged)"
+            flag += "" if pm.converged else "  (lock not converged)"
+            damping = f"{pm.damping:10.5f} {pp.damping:10.5f} {100 * ez:+7.2f}%" if np.isfinite(pm.damping) else \
+                f"{'-':>10} {pp.damping:10.5f} {'-':>8}"
+            out.append(f"    {pm.amplitude:18.4g} {pm.frequency:12.5f} {pp.frequency:10.5f} {100 * ef:+7.3f}% "
+                       f"{damping}{flag}")
+        return out
+
+    def to_json(self) -> dict:
+        return {"measured": self.measured.to_json(), "predicted": self.predicted.to_json(),
+                "curve": self.curve.to_json(), "frequency_error": [float(e) for e in self.frequency_error],
+                "damping_error": [_number(e) for e in self.damping_error]}
+
+
+def compare_backbones(structure: Structure, elements: Sequence[Element], runs: Sequence[SineRun],
+                      phase_runs: Sequence[PhaseRun] = ()) -> list[BackboneComparison]:
+    """Measured natural frequency and damping -- of the response levels, and of the phase-resonance runs'
+    points -- against the model's prediction."""
+    out = []
+    for measured in measured_backbone(runs) + [phase_resonance_backbone(r) for r in phase_runs]:
+        a, f, _ = measured.arrays()
+        predicted = predict_backbone(structure, elements, measured.dof, measured.quantity, a, float(f[0]))
+        grid = np.geomspace(a.min(), a.max(), CURVE_POINTS) if a.max() > a.min() else a
+        curve = predict_backbone(structure, elements, measured.dof, measured.quantity, grid, float(f[0]))
+        out.append(BackboneComparison(measured, predicted, curve))
+    return out
