@@ -124,10 +124,15 @@ def _open_source(path: Path, image: bool) -> h5py.File:
 def _child(source: str, target: str, image: bool, skip: list[str]) -> int:
     lost: list[str] = []
     try:
-        with _open_source(Path(source), image) as src, h5py.File(target, "w", libver="latest") as dst:
-            _salvage(src, dst, set(skip), lost)
+        src = _open_source(Path(source), image)
     except _ERRORS as exc:
         print(json.dumps({"failed": " ".join(str(exc).split())}), flush=True)
+        return 0
+    try:
+        with src, h5py.File(target, "w", libver="latest") as dst:
+            _salvage(src, dst, set(skip), lost)
+    except OSError as exc:                         # the copy could not be written (a full disk): not the source
+        print(json.dumps({"unwritten": exc.errno or 0, "why": " ".join(str(exc).split())}), flush=True)
         return 0
     print(json.dumps({"lost": lost}), flush=True)
     return 0
@@ -142,6 +147,7 @@ class _Attempt:
     lost: list[str] | None = None
     stalled_on: str | None = None
     failed: str = ""
+    unwritten: OSError | None = None
 
 
 @dataclass
@@ -186,6 +192,9 @@ def _attempt(source: Path, target: Path, image: bool, skip: list[str]) -> _Attem
                 item, deadline = report["item"], time.monotonic() + _allowed_seconds(report["bytes"])
             elif "lost" in report:
                 return _Attempt(lost=report["lost"])
+            elif "unwritten" in report:
+                errno = report["unwritten"]
+                return _Attempt(unwritten=OSError(errno, report["why"]) if errno else OSError(report["why"]))
             else:
                 return _Attempt(failed=report["failed"])
     finally:
@@ -199,10 +208,13 @@ def salvage(source: Path, target: Path, image: bool) -> list[str]:
     what was left out (``/path`` of an object, ``/path@name`` of an attribute). ``image``: read it as an
     in-memory image with its write flags cleared (left open outside SWMR mode), else as a SWMR reader.
 
-    SalvageError when the file cannot be opened at all or more than :data:`MAX_STALLS` reads do not finish."""
+    SalvageError when the file cannot be opened at all or more than :data:`MAX_STALLS` reads do not finish;
+    OSError when the copy cannot be written."""
     stalled: list[str] = []
     while True:
         outcome = _attempt(source, target, image, stalled)
+        if outcome.unwritten is not None:
+            raise outcome.unwritten
         if outcome.failed:
             raise SalvageError(f"not a readable HDF5 session ({outcome.failed})")
         if outcome.lost is not None:

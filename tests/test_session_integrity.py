@@ -300,6 +300,47 @@ def test_recover_gives_up_in_one_line_when_too_many_reads_do_not_finish(tmp_path
     assert session.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
 
 
+CLOSE_ON_A_DISK_FULL_PAST = """
+import ctypes, os, sys
+import numpy as np
+from app.session_file import RunSpec, SessionFile, SessionHeader, SessionWriteError
+path = sys.argv[1]
+f = SessionFile(path, path + ".tmp", False, SessionHeader(plan_text="x", software_version="t"))
+f.begin_run(RunSpec("sine_0", "stepped_sine", 0.8, "up", "x2", ["x1", "x2"], 100.0, ["force", "acc:x1", "acc:x2"],
+                    ["N", "m/s^2", "m/s^2"], extras={"force_amplitude": ("N", (), "f8")}), 0.0)
+for i in range(5):
+    f.append_line(1.0 + 0.01 * i, {"x1": complex(i, 1), "x2": complex(i, 2)}, {"force_amplitude": 0.8},
+                  raw=np.full((50, 3), i, dtype=np.float32))
+ctypes.CDLL(None).enospc_limit(ctypes.c_longlong(os.path.getsize(path) + 32))
+try:
+    f.end_run("complete", "", 1.0)
+except SessionWriteError:
+    os._exit(3)                                  # as the writer process ends after a failed write
+"""
+
+
+@pytest.mark.slow
+@needs_private_mount
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="builds tests/data/full_past_offset.c")
+def test_a_run_closed_while_the_disk_fills_is_recovered_without_hanging(tmp_path):
+    """The fixture's case made afresh on a private tmpfs: the writer closes its run while every write past 32
+    bytes beyond the file's end fails with ENOSPC; recover then repairs the file within its time bounds."""
+    shim = tmp_path / "full.so"
+    subprocess.run(["gcc", "-shared", "-fPIC", "-o", str(shim), str(ROOT / "tests" / "data" / "full_past_offset.c"),
+                    "-ldl"], check=True)
+    (tmp_path / "close.py").write_text(CLOSE_ON_A_DISK_FULL_PAST)
+    on_small_disk(tmp_path, "4m", f'LD_PRELOAD={shim} $PY "$OUT/close.py" "$DISK/s.h5"; echo $? > "$OUT/rc"; '
+                  'timeout 300 $PY -m app.cli recover "$DISK/s.h5" > "$OUT/recover" 2>&1; '
+                  'echo $? > "$OUT/recover_rc"; cp "$DISK/s.h5" "$OUT/after.h5"')
+    assert (tmp_path / "rc").read_text().strip() == "3"                     # the close failed
+    out = (tmp_path / "recover").read_text()
+    assert (tmp_path / "recover_rc").read_text().strip() == "0", out
+    assert "did not finish" in out and out.count("\n") == 1
+    with plain_open(tmp_path / "after.h5", timeout=0) as f:
+        g = f["runs/sine_0"]
+        assert g.attrs["status"] == "aborted" and g["frequency"].shape == (5,)
+
+
 def _mark_open_for_writing(path):
     """Set the superblock's "open for writing" flag, as a writer that stopped outside SWMR mode leaves it."""
     from app.hdf5_superblock import lookup3
