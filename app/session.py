@@ -532,7 +532,9 @@ def _locked_by_a_writer(path: Path) -> bool:
 
 
 def needs_recovery(path) -> bool:
-    """Whether plain HDF5 readers refuse the session because its writer died with it open.
+    """Whether plain HDF5 readers refuse the session because its writer died with it open, or its writer is gone
+    and left a run "running" (a write that failed while the run was being closed, after the file's flags were
+    cleared).
 
     InputError when the file is missing, not a session, or being written by a live process."""
     path = Path(path)
@@ -544,16 +546,19 @@ def needs_recovery(path) -> bool:
         return True
     with Session(path) as s:
         alive = s.writer_alive
+    left_running = False
     try:
-        with h5py.File(path, "r"):
+        with h5py.File(path, "r") as f:
             closed = True
+            left_running = not alive and any(_text(g.attrs.get("status", "running")) == "running"
+                                             for g in f.get("runs", {}).values())
     except OSError as exc:
         if "truncated file" in str(exc):     # cut short: no repair brings back what is missing
             raise InputError(f"is truncated, damaged beyond a repair ({exc})", str(path)) from None
         closed = False
     if alive and not closed:
         raise InputError("is still being written by a running process; wait for it to finish", str(path))
-    return not closed
+    return not closed or left_running
 
 
 def _copy_objects(path: Path, target: Path) -> list[str]:

@@ -37,6 +37,8 @@ a second on a loaded machine; a read that takes this long has gone round in circ
 COPY_BYTES_PER_SECOND = 10e6
 """Slowest copy rate allowed for a dataset's stored bytes (gzip-compressed raw data on a slow medium) on top of
 :data:`ITEM_SECONDS`."""
+START_SECONDS = 60.0
+"""Time allowed for the child's start (Python, NumPy and h5py imported on a loaded machine) before its first read."""
 MAX_STALLS = 8
 """Items whose read did not finish that a salvage leaves out before it gives up on the file."""
 STALLED = "reading it did not finish"
@@ -181,7 +183,7 @@ def _attempt(source: Path, target: Path, image: bool, skip: list[str]) -> _Attem
                              "image" if image else "swmr", json.dumps(skip)],
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, env=env)
     reader, item = _Reader(proc), "the file's superblock"
-    deadline = time.monotonic() + _allowed_seconds() + 20.0        # the child's own start (imports) first
+    deadline = time.monotonic() + START_SECONDS + _allowed_seconds()
     try:
         while True:
             line = reader.next_line(deadline)

@@ -341,6 +341,20 @@ def test_a_run_closed_while_the_disk_fills_is_recovered_without_hanging(tmp_path
         assert g.attrs["status"] == "aborted" and g["frequency"].shape == (5,)
 
 
+def test_a_run_left_running_in_a_file_its_writer_closed_is_marked_aborted_by_recover(copies, capsys):
+    """The write that failed was the run's status, the file's flags were cleared: every reader opens it, and
+    recover closes the run as aborted."""
+    session, _ = copies
+    with h5py.File(session, "r+") as f:
+        f[f"runs/{RUN}"].attrs["status"] = "running"
+    assert main(["recover", str(session)]) == 0
+    assert f"run(s) marked aborted and incomplete: {RUN}" in capsys.readouterr().out
+    with plain_open(session, timeout=0) as f:
+        assert f[f"runs/{RUN}"].attrs["status"] == "aborted" and f[f"runs/{RUN}"].attrs["incomplete"]
+        assert f[f"runs/{RUN}/frequency"].shape == (25,)
+    assert main(["recover", str(session)]) == 0 and "nothing to recover" in capsys.readouterr().out
+
+
 def _mark_open_for_writing(path):
     """Set the superblock's "open for writing" flag, as a writer that stopped outside SWMR mode leaves it."""
     from app.hdf5_superblock import lookup3
