@@ -15,7 +15,8 @@ Phasors follow docs/contracts.md §1: a signal ``Im(Y e^{jwt})``, so ``x = X sin
 Three solvers work on the condensed system:
 - :func:`predict_sweep` -- what a stepped-sine sweep measures: Newton at each line starting from the previous
   line's solution, for all force levels at once. Past a fold the old branch ends and the solver lands on the
-  remaining one, as the structure jumps.
+  remaining one, as the structure jumps. A long sweep is solved at all its lines at once and checked to be that
+  march, line by line (:func:`_speculative_sweep`): the march's result without a Python step per line.
 - :func:`predict_sweeps` -- the same in several directions over the same lines in one batch: where the
   response is multivalued the up and down sweeps give its two stable branches (the jump-robust error).
 - :func:`continue_response` -- pseudo-arclength continuation in (y, w) that passes folds and returns the
@@ -138,50 +139,43 @@ def _to_complex(z):
     return z[..., :r] + 1j * z[..., r:]
 
 
-def _newton(fun: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, tol: float = 1e-11,
-            max_iter: int = 30, jac: Callable[[np.ndarray], np.ndarray] | None = None
-            ) -> tuple[np.ndarray, np.ndarray]:
+def _newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray], jac: Callable[[np.ndarray, np.ndarray], np.ndarray],
+            z0: np.ndarray, tol: float = 1e-11, max_iter: int = 30) -> tuple[np.ndarray, np.ndarray]:
     """Damped Newton for a batch of independent real systems ``fun(z) = 0``, z of shape (B, m).
 
-    The Jacobian is ``jac(z)`` (B, m, m) when given, else forward differences (the residual is not analytic
-    in z); a backtracking line search keeps each item's residual norm decreasing. Returns (z, converged).
+    ``fun(z, idx)`` and ``jac(z, idx)`` (shape (len(idx), m, m)) evaluate the items ``idx`` of the batch at
+    their unknowns ``z``: only the items still iterating are evaluated, so a batch of many lines costs what its
+    slowest items cost, not that times the batch. A backtracking line search keeps each item's residual norm
+    decreasing. Returns (z, converged).
     """
     z = z0.copy()
-    B, m = z.shape
-    R = fun(z)
+    R = fun(z, np.arange(len(z)))
     norm = np.linalg.norm(R, axis=1)
     for _ in range(max_iter):
-        active = norm > tol
-        if not active.any():
+        active = np.flatnonzero(norm > tol)
+        if not len(active):
             break
-        if jac is not None:
-            J = jac(z)
-        else:
-            J = np.empty((B, m, m))
-            h = 1e-7 * np.maximum(np.abs(z), 1e-3)
-            for j in range(m):
-                zp = z.copy()
-                zp[:, j] += h[:, j]
-                J[:, :, j] = (fun(zp) - R) / h[:, j, None]
+        J = jac(z[active], active)
         try:
-            dz = np.linalg.solve(J, -R[..., None])[..., 0]
+            dz = np.linalg.solve(J, -R[active][..., None])[..., 0]
         except np.linalg.LinAlgError:  # a singular Jacobian (exactly at a fold): least-norm step
-            dz = np.einsum("bij,bj->bi", np.linalg.pinv(J), -R)
-        dz[~active] = 0.0
-        alpha = np.ones(B)
-        improved = np.zeros(B, bool)
+            dz = np.einsum("bij,bj->bi", np.linalg.pinv(J), -R[active])
+        alpha = np.ones(len(active))
+        improved = np.zeros(len(active), bool)
         for _ in range(12):
-            z_try = z + alpha[:, None] * dz
-            R_try = fun(z_try)
+            left = np.flatnonzero(~improved)
+            items = active[left]
+            z_try = z[items] + alpha[left, None] * dz[left]
+            R_try = fun(z_try, items)
             n_try = np.linalg.norm(R_try, axis=1)
-            ok = (n_try < norm) | ~active
-            take = ok & ~improved
-            z[take], R[take], norm[take] = z_try[take], R_try[take], n_try[take]
-            improved |= ok
+            ok = n_try < norm[items]
+            take = items[ok]
+            z[take], R[take], norm[take] = z_try[ok], R_try[ok], n_try[ok]
+            improved[left[ok]] = True
             if improved.all():
                 break
-            alpha[~improved] *= 0.5
-        if not improved[active].any():
+            alpha[left[~ok]] *= 0.5
+        if not improved.any():
             break
     return z, norm <= tol
 
@@ -288,51 +282,85 @@ def line_forces(force, n_lines: int) -> np.ndarray:
     return F
 
 
+
+MARCHED_STEPS = 64     # a sweep of at most this many lines is marched line by line: batch solves would not pay
+COARSENING = 8        # the guess of a speculative sweep comes from the sweep over every so many lines
+SPECULATIVE_ITERATIONS = 8   # a line of the batch solves not converged in as many is left to the march
+IN_STEP = 1e-8         # two solutions of a line closer than this (relative to its linear response) are one
+
+
+@dataclass
+class _LineBalances:
+    """The balance at a batch of (line, force) items, each scaled by its linear response ``max |g F|`` so that
+    Newton's tolerance is relative: ``residual(z, idx)`` and ``jacobian(z, idx)`` of the items ``idx``."""
+
+    G: np.ndarray        # (N, r, r)
+    gF: np.ndarray       # (N, r)
+    w: np.ndarray        # (N,)
+    scale: np.ndarray    # (N,)
+    fns: Sequence[KbarFunction]
+
+    @classmethod
+    def at(cls, sys_: CondensedSystem, fns, lines: np.ndarray, force: np.ndarray) -> "_LineBalances":
+        gF = sys_.g[lines] * force[:, None]
+        return cls(sys_.G[lines], gF, sys_.w[lines], np.maximum(np.abs(gF).max(axis=1), 1e-300), fns)
+
+    def residual(self, z, idx):
+        scale = self.scale[idx, None]
+        y = _to_complex(z) * scale
+        return _to_real(_residual(y, self.w[idx], self.G[idx], self.gF[idx], self.fns, 1e-9 * scale[:, 0]) / scale)
+
+    def jacobian(self, z, idx):
+        scale = self.scale[idx]
+        return _residual_jacobian(_to_complex(z) * scale[:, None], self.w[idx], self.G[idx], self.fns, 1e-9 * scale)
+
+    def solve(self, start: np.ndarray, items: np.ndarray, max_iter: int = 30) -> tuple[np.ndarray, np.ndarray]:
+        """Newton for the items ``items`` from the phasors ``start`` (len(items), r): (phasors, converged)."""
+        scale = self.scale[items, None]
+        z, conv = _newton(lambda zz, i: self.residual(zz, items[i]), lambda zz, i: self.jacobian(zz, items[i]),
+                          _to_real(start / scale), max_iter=max_iter)
+        return _to_complex(z) * scale, conv
+
+
 def _sweep(sys_: CondensedSystem, fns, F, orders) -> tuple[np.ndarray, np.ndarray]:
-    """Newton along each batch item's own line order ``orders[b]`` (B, L), each line at its force ``F`` (L, B):
-    the element phasors (L, B, r) and convergence flags (L, B)."""
-    B, L = orders.shape
-    r = len(fns)
-    items = np.arange(B)
-    y = np.zeros((L, B, r), complex)
-    converged = np.zeros((L, B), bool)
-    for step in range(L):
-        line = orders[:, step]                                                      # (B,)
-        gF = sys_.g[line] * F[line, items][:, None]                                 # (B, r)
-        scale = np.maximum(np.abs(gF).max(axis=1), 1e-300)                          # (B,)
-        G = sys_.G[line]
-        wl = sys_.w[line]
+    """Newton along each batch item's own line order ``orders[b]`` (B, S), each line at its force ``F`` (L, B) and
+    started from the previous line's solution: the element phasors (L, B, r) and convergence flags (L, B), at the
+    lines of ``orders``.
 
-        def fun(z, G=G, gF=gF, wl=wl, scale=scale):
-            yy = _to_complex(z) * scale[:, None]
-            return _to_real(_residual(yy, wl, G, gF, fns, 1e-9 * scale) / scale[:, None])
-
-        def jac(z, G=G, wl=wl, scale=scale):
-            return _residual_jacobian(_to_complex(z) * scale[:, None], wl, G, fns, 1e-9 * scale)
-
-        # where the previous line had no solution either (e.g. friction holding), one more attempt from the
-        # linear response is all that is worth trying
-        prev = None if step == 0 else orders[:, step - 1]
-        starts = [gF] if prev is None else _restarts(y[prev, items], gF)
-        ok = np.zeros(B, bool)
-        hopeless = np.zeros(B, bool) if prev is None else ~converged[prev, items]
-        for attempt, start in enumerate(starts):
-            todo = np.flatnonzero(~ok & ~(hopeless & (attempt > 1)))
-            if not len(todo):
-                break
-            if len(todo) == B:                  # every item (the usual first attempt): no padding needed
-                z, conv = _newton(fun, _to_real(start / scale[:, None]), jac=jac)
-            else:
-                z, conv = _newton(lambda zz, t=todo: fun(_pad(zz, t, B))[t],
-                                  _to_real(start[todo] / scale[todo, None]),
-                                  jac=lambda zz, t=todo: jac(_pad(zz, t, B))[t])
-            sol = _to_complex(z) * scale[todo, None]
-            if attempt == 0:
-                y[line[todo], todo] = sol  # kept, flagged, if no start converges
-            y[line[todo[conv]], todo[conv]] = sol[conv]
-            ok[todo[conv]] = True
-        converged[line, items] = ok
+    A short sweep is marched line by line. A long one is solved at all its lines at once and then checked to be
+    what the march gives (:func:`_speculative_sweep`): the same solutions, without a Python step per line."""
+    B, S = orders.shape
+    y = np.zeros((len(sys_.w), B, len(fns)), complex)
+    converged = np.zeros((len(sys_.w), B), bool)
+    if S <= MARCHED_STEPS:
+        for step in range(S):
+            _march_step(sys_, fns, F, orders, step, np.arange(B), y, converged)
+    else:
+        _speculative_sweep(sys_, fns, F, orders, y, converged)
     return y, converged
+
+
+def _march_step(sys_: CondensedSystem, fns, F, orders, step: int, items: np.ndarray, y, converged) -> None:
+    """One line of the march for the batch items ``items``: Newton from the previous line's solution, then
+    from the restarts of :func:`_restarts` for those that did not converge; ``y`` and ``converged`` are set."""
+    line = orders[items, step]
+    balances = _LineBalances.at(sys_, fns, line, F[line, items])
+    prev = None if step == 0 else orders[items, step - 1]
+    starts = [balances.gF] if prev is None else _restarts(y[prev, items], balances.gF)
+    ok = np.zeros(len(items), bool)
+    # where the previous line had no solution either (e.g. friction holding), one more attempt from the
+    # linear response is all that is worth trying
+    hopeless = np.zeros(len(items), bool) if prev is None else ~converged[prev, items]
+    for attempt, start in enumerate(starts):
+        todo = np.flatnonzero(~ok & ~(hopeless & (attempt > 1)))
+        if not len(todo):
+            break
+        sol, conv = balances.solve(start[todo], todo)
+        if attempt == 0:
+            y[line[todo], items[todo]] = sol  # kept, flagged, if no start converges
+        y[line[todo[conv]], items[todo[conv]]] = sol[conv]
+        ok[todo[conv]] = True
+    converged[line, items] = ok
 
 
 def _restarts(previous, linear):
@@ -348,11 +376,80 @@ def _restarts(previous, linear):
             yield previous * a * np.exp(1j * phi)
 
 
-def _pad(z_subset, idx, batch):
-    """A full batch with the items ``idx`` set (the others zero), for evaluating a subset."""
-    full = np.zeros((batch, z_subset.shape[1]))
-    full[idx] = z_subset
-    return full
+def _speculative_sweep(sys_: CondensedSystem, fns, F, orders, y, converged) -> None:
+    """The march of :func:`_sweep`, its lines solved all at once.
+
+    The sweep over every other line (recursively) gives a guess at every line, by interpolation in w. Newton
+    at every line from the guess at the line before gives ``first``; Newton at every line from ``first`` at
+    the line before gives ``second``. Where the march's solution at a line is ``first`` there (within
+    :data:`IN_STEP`), its next line is Newton from the same start as ``second``'s, so the march takes ``second``
+    there if it converged; elsewhere -- past a jump the guess put on another branch, lines with no solution --
+    it is marched line by line until it is back in step with ``first``.
+    """
+    B, S = orders.shape
+    coarse = np.unique(np.r_[np.arange(0, S, COARSENING), S - 1])
+    y_coarse, _ = _sweep(sys_, fns, F, orders[:, coarse])
+    guess = _interpolated(sys_.w, orders, coarse, y_coarse)
+    balances = _LineBalances.at(sys_, fns, orders.reshape(-1),
+                                F[orders, np.arange(B)[:, None]].reshape(-1))        # item b S + s
+    first, _ = _from_line_before(balances, guess)
+    second, conv = _from_line_before(balances, first)
+    scale = balances.scale.reshape(B, S)
+    close = np.abs(second - first).max(axis=2) <= IN_STEP * scale
+    _reconcile(sys_, fns, F, orders, first, second, conv, close, scale, y, converged)
+
+
+def _interpolated(w, orders, coarse, y_coarse) -> np.ndarray:
+    """Guesses (B, S, r) at every step of the sweeps ``orders`` from their solutions ``y_coarse`` (by line)
+    at the steps ``coarse``: linear in w between the coarse steps on either side."""
+    B, S = orders.shape
+    steps = np.arange(S)
+    hi = np.searchsorted(coarse, steps)                         # the coarse step at or after each step
+    lo = hi - (coarse[hi] != steps)
+    a, c = coarse[lo], coarse[hi]
+    ws = w[orders]                                              # (B, S)
+    span = ws[:, c] - ws[:, a]
+    t = np.where(span != 0, (ws - ws[:, a]) / np.where(span != 0, span, 1.0), 0.5)
+    ys = y_coarse[orders, np.arange(B)[:, None]]               # (B, S, r); set at the coarse steps only
+    return ys[:, a] + t[..., None] * (ys[:, c] - ys[:, a])
+
+
+def _from_line_before(balances: _LineBalances, before: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Newton at every step from ``before`` (B, S, r) at the step before (the first step from the linear
+    response, as the march starts): (phasors (B, S, r), converged (B, S))."""
+    B, S, r = before.shape
+    start = np.concatenate([balances.gF.reshape(B, S, r)[:, :1], before[:, :-1]], axis=1)
+    sol, conv = balances.solve(start.reshape(B * S, r), np.arange(B * S), SPECULATIVE_ITERATIONS)
+    return sol.reshape(B, S, r), conv.reshape(B, S)
+
+
+def _reconcile(sys_, fns, F, orders, first, second, conv, close, scale, y, converged) -> None:
+    """The march over the steps of ``orders``, taking ``second`` wherever it is what the march computes
+    (:func:`_speculative_sweep`): an item in step at step s - 1 (its solution is ``first`` there) takes
+    ``second`` at step s if that converged, and stays in step if it is ``close`` to ``first``."""
+    B, S = orders.shape
+    items = np.arange(B)
+    leaves = ~conv
+    leaves[:, 1:] |= ~close[:, :-1]
+    events = np.flatnonzero(leaves.any(axis=0))             # the steps where some item may leave the batch's
+    in_step = np.ones(B, bool)
+    s = 0
+    while s < S:
+        if in_step.all() and conv[:, s].all():              # every item takes the batch's solutions up to the next event
+            end = events[np.searchsorted(events, s, side="right")] if events.size and events[-1] > s else S
+            lines = orders[:, s:end].T
+            y[lines, items] = second[:, s:end].transpose(1, 0, 2)
+            converged[lines, items] = True
+            in_step = close[:, end - 1].copy()
+            s = end
+            continue
+        take = in_step & conv[:, s]
+        y[orders[take, s], items[take]] = second[take, s]
+        converged[orders[take, s], items[take]] = True
+        if not take.all():
+            _march_step(sys_, fns, F, orders, s, np.flatnonzero(~take), y, converged)
+        in_step = np.abs(y[orders[:, s], items] - first[:, s]).max(axis=1) <= IN_STEP * scale[:, s]
+        s += 1
 
 
 # --------------------------------------------------------------------------- continuation

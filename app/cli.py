@@ -348,14 +348,16 @@ def _write_model(args, text: str, inputs: list, what: str = "fitted model") -> N
 
 def cmd_recover(args) -> int:
     """Make a session whose writer process was killed readable by any HDF5 tool."""
-    from app.session.writer import needs_recovery, recover_session
+    from app.session.writer import needs_recovery, open_session, recover_session
 
     if not needs_recovery(args.session):
         print(f"{args.session}: closed normally, nothing to recover")
         return 0
     marked = recover_session(args.session)
+    with open_session(args.session) as s:                # the recovery event names what could not be read
+        left_out = s.events()[-1]["message"].partition("; unreadable, left out: ")[2]
     print(f"{args.session}: recovered; every HDF5 tool opens it now; run(s) marked aborted and incomplete: "
-          f"{', '.join(marked) or 'none'}")
+          f"{', '.join(marked) or 'none'}" + (f"; unreadable, left out: {left_out}" if left_out else ""))
     return 0
 
 

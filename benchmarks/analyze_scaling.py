@@ -1,6 +1,7 @@
 """How the cost of ``contactid analyze`` grows with the number of lines and of runs.
 
     python benchmarks/analyze_scaling.py [--lines 250 500 1000 2000] [--runs 2 4 8] [--profile LINES RUNS]
+                                         [--against-march LINES RUNS]
 
 Sessions as an imported controller export gives them: stepped-sine runs of the paper's 2-DOF structure (K = 100
 [[2, -1], [-1, 2]] N/m, M = diag(1, 2) kg, Rayleigh damping, a hardening cubic k3 = 400 N/m^3 at x2, force on
@@ -13,6 +14,11 @@ Each figure is the CPU time of one ``analyze --no-history`` in this process (tim
 thread), after one warm-up call that compiles and caches the kernels. The baseline of every ratio is the
 smallest case in the same process, so the figures compare across machines: a cost linear in the lines gives
 a ratio equal to the ratio of the lines.
+
+``--against-march`` analyzes one case twice in the same process: with the sweeps solved as they are
+(analysis.harmonic_balance: a long sweep solved at all its lines at once, checked against the march) and with
+every sweep marched line by line; it prints both CPU times, their ratio, and the largest relative difference
+between the numbers of the two ``analyze --json`` outputs.
 """
 from __future__ import annotations
 
@@ -73,7 +79,8 @@ def write_session(path: Path, lines: int, runs: int, seed: int = 1) -> None:
     w.close()
 
 
-def analyze_cpu(folder: Path, lines: int, runs: int) -> float:
+def analyze_cpu(folder: Path, lines: int, runs: int, extra: tuple[str, ...] = ()) -> tuple[float, str]:
+    """CPU time of one ``analyze`` and what it printed."""
     session = folder / f"s_{lines}_{runs}.h5"
     if not session.exists():
         write_session(session, lines, runs)
@@ -82,11 +89,41 @@ def analyze_cpu(folder: Path, lines: int, runs: int) -> float:
     out = io.StringIO()
     start = time.process_time()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
-        code = main(["analyze", str(session), str(model), "--no-history"])
+        code = main(["analyze", str(session), str(model), "--no-history", *extra])
     cpu = time.process_time() - start
     if code != 0:
         raise SystemExit(f"analyze failed on {lines} lines x {runs} runs (exit {code})")
-    return cpu
+    return cpu, out.getvalue()
+
+
+def _numbers(value) -> list[float]:
+    """Every number of a JSON value, in order."""
+    if isinstance(value, dict):
+        return [x for v in value.values() for x in _numbers(v)]
+    if isinstance(value, list):
+        return [x for v in value for x in _numbers(v)]
+    return [float(value)] if isinstance(value, (int, float)) and not isinstance(value, bool) else []
+
+
+def against_march(folder: Path, lines: int, runs: int) -> None:
+    import json
+
+    from analysis import harmonic_balance
+
+    batch, out_batch = analyze_cpu(folder, lines, runs, ("--json",))
+    marched_steps = harmonic_balance.MARCHED_STEPS
+    harmonic_balance.MARCHED_STEPS = 10 ** 9
+    try:
+        march, out_march = analyze_cpu(folder, lines, runs, ("--json",))
+    finally:
+        harmonic_balance.MARCHED_STEPS = marched_steps
+    a, b = np.array(_numbers(json.loads(out_batch))), np.array(_numbers(json.loads(out_march)))
+    if a.shape != b.shape:
+        raise SystemExit("the two analyses differ in what they report")
+    scale = np.maximum(np.abs(b), 1e-300)
+    print(f"{lines} lines x {runs} runs: sweeps solved at once {batch:.2f} s CPU, marched line by line "
+          f"{march:.2f} s CPU, ratio {march / batch:.2f}; {len(a)} numbers of analyze --json, largest relative "
+          f"difference {np.max(np.abs(a - b) / scale):.1e}")
 
 
 def main_(argv=None) -> None:
@@ -95,10 +132,15 @@ def main_(argv=None) -> None:
     parser.add_argument("--runs", type=int, nargs="+", default=[2, 4, 8])
     parser.add_argument("--profile", type=int, nargs=2, metavar=("LINES", "RUNS"),
                         help="print a cProfile of one analyze instead")
+    parser.add_argument("--against-march", type=int, nargs=2, metavar=("LINES", "RUNS"),
+                        help="compare one analyze with every sweep marched line by line instead")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         analyze_cpu(folder, 100, 2)                              # warm-up: kernels compiled and cached
+        if args.against_march:
+            against_march(folder, *args.against_march)
+            return
         if args.profile:
             import cProfile
             import pstats
@@ -112,12 +154,12 @@ def main_(argv=None) -> None:
             pstats.Stats(profile).sort_stats("cumulative").print_stats(40)
             return
         base_lines, base_runs = args.lines[0], args.runs[0]
-        base = analyze_cpu(folder, base_lines, base_runs)
+        base = analyze_cpu(folder, base_lines, base_runs)[0]
         print(f"baseline {base_lines} lines x {base_runs} runs: {base:.2f} s CPU")
         print("lines   runs   CPU s   ratio   lines x runs ratio")
         for runs in args.runs:
             for lines in args.lines:
-                cpu = base if (lines, runs) == (base_lines, base_runs) else analyze_cpu(folder, lines, runs)
+                cpu = base if (lines, runs) == (base_lines, base_runs) else analyze_cpu(folder, lines, runs)[0]
                 work = lines * runs / base_lines / base_runs
                 print(f"{lines:6d} {runs:5d} {cpu:8.2f} {cpu / base:7.2f} {work:10.1f}")
 

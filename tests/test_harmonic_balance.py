@@ -417,12 +417,13 @@ def test_multiharmonic_converges_on_anderson_ferri_friction_and_matches_its_peri
         assert off < 0.3 * single_off, (w[i] / HZ, single_off, off)
 
 
-def test_each_line_is_predicted_at_its_own_measured_force():
+@pytest.mark.parametrize("lines", [25, 200])      # marched, and solved all at once (long sweeps)
+def test_each_line_is_predicted_at_its_own_measured_force(lines):
     """A force per line (L, B): every line solves the explicit single-element relation at its own force, and a
     sweep at a constant force per line is the sweep at that force."""
     s, els = sdof([{"law": "cubic", "k3": 1e3}])
-    w = np.linspace(6.0, 14.0, 25)
-    force = np.stack([0.2 * (1 + 0.25 * np.sin(np.arange(25))), np.full(25, 0.5)], axis=1)    # (L, 2)
+    w = np.linspace(6.0, 14.0, lines)
+    force = np.stack([0.2 * (1 + 0.25 * np.sin(np.arange(lines))), np.full(lines, 0.5)], axis=1)    # (L, 2)
     pred = predict_sweep(s, els, "x", w, force)
     assert pred.converged.all()
     h = s.frf(w)[:, 0, 0]
@@ -431,3 +432,55 @@ def test_each_line_is_predicted_at_its_own_measured_force():
     np.testing.assert_allclose(implied, force, rtol=1e-8)
     held = predict_sweep(s, els, "x", w, [0.5])
     np.testing.assert_allclose(pred.receptance[:, 1], held.receptance[:, 0], rtol=1e-10)
+
+
+# ----------------------------------------------------------------------------- long sweeps (batch-solved)
+def _duffing_amplitudes(w, force, k=100.0, m=1.0, c=0.2, k3=1e4):
+    """Every real single-harmonic amplitude of m x'' + c x' + k x + k3 x^3 = F sin(wt) at each w: the real
+    positive roots u = X^2 of (9/16) k3^2 u^3 + (3/2) k3 (k - m w^2) u^2 + ((k - m w^2)^2 + (c w)^2) u - F^2."""
+    out = []
+    for wl in w:
+        d = k - m * wl**2
+        u = np.roots([9 / 16 * k3**2, 1.5 * k3 * d, d**2 + (c * wl) ** 2, -force**2])
+        real = u[(np.abs(u.imag) < 1e-9 * np.abs(u)) & (u.real > 0)].real
+        out.append(np.sqrt(np.sort(real)))
+    return out
+
+
+def test_a_long_sweep_follows_the_branch_a_stepped_sine_measures_by_the_analytic_relation():
+    """2000 lines (solved all at once and checked against the march, harmonic_balance._speculative_sweep): a
+    hardening Duffing oscillator's up sweep stays on the largest amplitude until its fold, the down sweep on the
+    smallest, at every line and level -- the roots of the amplitude cubic, independently of the solver."""
+    s, els = sdof([{"law": "cubic", "k3": 1e4}])
+    w = np.linspace(5.0, 25.0, 2000)
+    forces = [0.3, 1.0, 2.0]
+    up, down = predict_sweeps(s, els, "x", w, forces, ("up", "down"))
+    assert up.converged.all() and down.converged.all()
+    for b, force in enumerate(forces):
+        roots = _duffing_amplitudes(w, force)
+        assert max(len(r) for r in roots) == 3                     # the response is multivalued somewhere
+        np.testing.assert_allclose(np.abs(up.y[:, b, 0]), [r[-1] for r in roots], rtol=1e-7)
+        np.testing.assert_allclose(np.abs(down.y[:, b, 0]), [r[0] for r in roots], rtol=1e-7)
+
+
+@pytest.mark.parametrize("laws", [
+    [{"law": "cubic", "k3": -3e3}],                                          # softening: jumps the other way
+    pytest.param([{"law": "coulomb", "fs": 0.6}], marks=pytest.mark.slow),   # sticks at 0.5 N: no solution
+    [{"law": "cubic", "k3": 1e4}, {"law": "quadratic_damping", "c2": 0.05}],
+])
+def test_a_long_sweep_solved_at_once_is_the_line_by_line_march(laws, monkeypatch):
+    """The batch solution of a long sweep and the march line by line give the same phasors, convergence and
+    stability flags (to Newton's tolerance), also where lines have no solution and across jumps."""
+    import analysis.harmonic_balance as hb
+
+    s, els = sdof(laws)
+    w = np.linspace(5.0, 25.0, 120)                 # > MARCHED_STEPS: batch-solved
+    forces = [0.5, 2.0]
+    fast = predict_sweeps(s, els, "x", w, forces)
+    monkeypatch.setattr(hb, "MARCHED_STEPS", len(w))
+    marched = predict_sweeps(s, els, "x", w, forces)
+    for a, b in zip(fast, marched):
+        assert (a.converged == b.converged).all() and (a.stable == b.stable).all()
+        scale = np.abs(b.y).max(axis=0, keepdims=True)
+        assert np.abs(a.y - b.y).max() <= 1e-9 * scale.max()
+        assert (np.abs(a.y - b.y) <= 1e-9 * scale).all()

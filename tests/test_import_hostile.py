@@ -281,6 +281,15 @@ def test_conflicting_dof_maps_are_refused(exported, tmp_path, capsys, maps):
 
 
 # ----------------------------------------------------------------------------- writing the session
+def test_an_existing_output_is_refused_naming_imports_own_flag(exported, tmp_path, capsys):
+    existing = tmp_path / "o.h5"
+    existing.write_bytes(b"kept")
+    assert main(["import", str(exported / "a.uff"), "-o", str(existing)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(existing) in err and "pass --overwrite" in err and "--force" not in err
+    assert existing.read_bytes() == b"kept"
+
+
 def test_the_free_space_wanted_is_estimated_from_the_data(tmp_path):
     from app.importers.runs import SourceOptions
     from app.importers.store import estimated_bytes, read_source

@@ -42,3 +42,19 @@ def test_a_short_command_prints_nothing():
     with Progress("analyze", stream=log, interval=60.0) as progress:
         progress.phase("reading the session")
     assert log.getvalue() == ""
+
+
+def test_analyze_writes_plain_progress_lines_in_a_log(tmp_path, capsys, monkeypatch):
+    """``analyze`` with stderr not a terminal: plain lines naming its phases, and the report on stdout."""
+    import app.progress
+    from app.cli import main
+    from test_session_integrity import MODEL, write_session
+
+    write_session(tmp_path / "s.h5")
+    (tmp_path / "m.toml").write_text(MODEL)
+    monkeypatch.setattr(app.progress, "LOG_INTERVAL", 0.02)
+    assert main(["analyze", str(tmp_path / "s.h5"), str(tmp_path / "m.toml"), "--no-history"]) == 0
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert lines and all(line.startswith("analyze: ") and line.endswith(" s)") for line in lines)
+    assert "\r" not in err and "FRF error of the model" in out

@@ -315,9 +315,9 @@ class SessionFile:
         run, self._run = self._run, None
         if run is None:
             return
-        self._close()
         self.all_complete = self.all_complete and status == "complete"
         with self._guard(f"closing run {run}"):
+            self._close()                   # the SWMR file's last flush: a full disk may fail it too
             f = self._open(swmr=False)
             g = f["runs"][run]
             g.attrs["status"] = status

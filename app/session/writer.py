@@ -11,7 +11,6 @@ readable by any tool with those runs marked ``status = "aborted"``, ``incomplete
 from __future__ import annotations
 
 import json
-import io
 import os
 import socket
 import subprocess
@@ -28,10 +27,11 @@ import numpy as np
 
 from analysis.errors import InputError
 
-from app.session.superblock import clear_write_flags, write_flags
+from app.session.file import (EVENT_DTYPE, FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError,
+                              append_event, mark_incomplete, now_iso)
 from app.session.outputs import NotWritten, atomic_replace, check_output, require_free_space, temporary_path, write_failure
-from app.session.file import (FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError, append_event,
-                           mark_incomplete, now_iso)
+from app.session.salvage import SalvageError, salvage, swmr_read_access
+from app.session.superblock import write_flags
 from app.session.wire import receive_reply, send_call
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "RunData", "RunSpec", "Session", "SessionWriteError", "SessionWriter",
@@ -444,34 +444,7 @@ class Session:
         return [r for r in out if kind is None or r.kind == kind]
 
 
-# A SWMR reader retries a metadata read whose checksum fails (it may race the writer) with a doubling pause --
-# by default 100 times, hours in all, so a truncated or damaged file would hang the reader. 20 attempts wait
-# about a second in all: ample for a writer's flush, and a damaged file is reported at once.
-SWMR_READ_ATTEMPTS = 20
 LIVE_READ_ATTEMPTS = 5        # reads of a chunk a live writer may be rewriting, before it is called damaged
-
-
-def _hdf5_library():
-    """The HDF5 library h5py runs on (to reach a file-access setting h5py does not wrap), or None."""
-    import ctypes
-
-    try:
-        with open("/proc/self/maps") as maps:
-            paths = {line.split()[-1] for line in maps if "libhdf5" in line and "libhdf5_hl" not in line}
-        return ctypes.CDLL(sorted(paths)[0]) if paths else None
-    except (OSError, IndexError):
-        return None
-
-
-def _swmr_read_access() -> h5py.h5p.PropFAID:
-    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
-    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
-    library = _hdf5_library()
-    if library is not None and hasattr(library, "H5Pset_metadata_read_attempts"):
-        import ctypes
-
-        library.H5Pset_metadata_read_attempts(ctypes.c_int64(fapl.id), ctypes.c_uint(SWMR_READ_ATTEMPTS))
-    return fapl
 
 
 def _open_for_reading(path: Path) -> h5py.File:
@@ -480,7 +453,7 @@ def _open_for_reading(path: Path) -> h5py.File:
         raise InputError("file not found", str(path))
     try:
         fid = h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ,
-                            fapl=_swmr_read_access())
+                            fapl=swmr_read_access())
         return h5py.File(fid)
     except (OSError, KeyError, RuntimeError, ValueError) as exc:
         if _left_open(path):
@@ -561,7 +534,9 @@ def _locked_by_a_writer(path: Path) -> bool:
 
 
 def needs_recovery(path) -> bool:
-    """Whether plain HDF5 readers refuse the session because its writer died with it open.
+    """Whether plain HDF5 readers refuse the session because its writer died with it open, or its writer is gone
+    and left a run "running" (a write that failed while the run was being closed, after the file's flags were
+    cleared).
 
     InputError when the file is missing, not a session, or being written by a live process."""
     path = Path(path)
@@ -573,55 +548,30 @@ def needs_recovery(path) -> bool:
         return True
     with Session(path) as s:
         alive = s.writer_alive
+    left_running = False
     try:
-        with h5py.File(path, "r"):
+        with h5py.File(path, "r") as f:
             closed = True
+            left_running = not alive and any(_text(g.attrs.get("status", "running")) == "running"
+                                             for g in f.get("runs", {}).values())
     except OSError as exc:
         if "truncated file" in str(exc):     # cut short: no repair brings back what is missing
             raise InputError(f"is truncated, damaged beyond a repair ({exc})", str(path)) from None
         closed = False
     if alive and not closed:
         raise InputError("is still being written by a running process; wait for it to finish", str(path))
-    return not closed
-
-
-def _salvage(src: h5py.Group, dst: h5py.Group, lost: list[str]) -> None:
-    """Copy ``src`` into ``dst`` object by object; what cannot be read (a write cut short by a full disk) is
-    left out and its path added to ``lost``."""
-    for key in src.attrs:
-        try:
-            dst.attrs[key] = src.attrs[key]
-        except (OSError, KeyError, RuntimeError, ValueError, TypeError):
-            lost.append(f"{src.name}@{key}")
-    for key in src:
-        try:
-            obj = src[key]
-            if isinstance(obj, h5py.Group):
-                _salvage(obj, dst.create_group(key), lost)
-            else:
-                src.copy(obj, dst, name=key)
-        except (OSError, KeyError, RuntimeError, ValueError, TypeError):
-            if key in dst:
-                del dst[key]
-            lost.append(f"{src.name.rstrip('/')}/{key}")
+    return not closed or left_running
 
 
 def _copy_objects(path: Path, target: Path) -> list[str]:
     """Everything of a session that plain readers refuse that can still be read, copied into a new clean file;
     returns what could not be read. A file left open outside SWMR mode is read from an image in memory whose
-    superblock flags are cleared (as ``h5clear`` does); one left open in SWMR mode is read as a SWMR reader."""
-    lost: list[str] = []
-    if not _left_open(path):
-        # with the reader's bounded metadata retries: a truncated file is refused, not waited on
-        with _open_for_reading(path) as src, h5py.File(target, "w", libver="latest") as dst:
-            _salvage(src, dst, lost)
-        return lost
-    with open(path, "rb") as fh:
-        image = io.BytesIO(fh.read())
-    clear_write_flags(image)
-    with h5py.File(image, "r") as src, h5py.File(target, "w", libver="latest") as dst:
-        _salvage(src, dst, lost)
-    return lost
+    superblock flags are cleared (as ``h5clear`` does); one left open in SWMR mode is read as a SWMR reader. The
+    reads run in a child process, each bounded in time (:mod:`app.session.salvage`)."""
+    try:
+        return salvage(path, target, image=_left_open(path))
+    except SalvageError as exc:
+        raise InputError(f"cannot recover the session: {exc}; the file is unchanged", str(path)) from None
 
 
 def _mark_running_runs(f: h5py.File, lost: list[str]) -> list[str]:
@@ -635,6 +585,8 @@ def _mark_running_runs(f: h5py.File, lost: list[str]) -> list[str]:
     message = f"recovered after the writer stopped; incomplete runs: {', '.join(marked) or 'none'}"
     if lost:
         message += f"; unreadable, left out: {', '.join(lost)}"
+    if "events" not in f:                               # the log itself was lost: a new one records the recovery
+        f.create_dataset("events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(256,))
     append_event(f["events"], 0.0, "", "recovery", message)
     return marked
 
