@@ -18,7 +18,8 @@ UFF58 (docs/import.md has the full description):
 * node numbers: the session's stations (a DOF name up to its dot: ``A`` of ``A.w``, ``x1``) in natural sort
   order, numbered from 1; direction 3 (+Z) for ``*.w``, 5 (+Y rotation) for ``*.theta``, 1 (+X) otherwise;
   the DOF names themselves, the run name, force level and sweep direction (and a random run's sample rate and
-  Welch segment length) are in the id lines (:mod:`app.importers.idlines`);
+  Welch segment length, and how a level not held at its force was held) are in the id lines
+  (:mod:`app.importers.idlines`);
 * the phase convention is exp(+jwt): a driving-point receptance has Im < 0.
 
 An ASCII record writes uneven abscissae with 6 significant digits (E13.5) and even spacing's start and step
@@ -38,11 +39,13 @@ import numpy as np
 import pyuff
 
 from analysis.errors import InputError
+from analysis.measurements import Control
 
 from .importers.csv_runs import MARK as CSV_RUN_MARK
-from .importers.idlines import RecordTag, encode
+from .importers.idlines import RecordTag, control_words, encode
 from app.session import (RunData, Session, atomic_output, check_format, check_output, check_run, check_run_count,
                          displacement_distortion, open_session, require_free_space)
+from app.session.checks import CheckedRun
 
 FUNC_GENERAL, FUNC_FRF, FUNC_COHERENCE = 0, 4, 6
 DATA_UNKNOWN, DATA_DISPLACEMENT, DATA_FORCE, DATA_FREQUENCY = 0, 8, 13, 18
@@ -164,6 +167,7 @@ class _RecordContext:
     """What every record of one run shares."""
 
     run: RunData
+    control: Control
     load_case: int
     nodes: dict[str, int]
     created: str
@@ -176,7 +180,7 @@ def _record(ctx: _RecordContext, quantity: str, dof: str, values, ordinate: _Axi
             func_type: int) -> dict:
     run = ctx.run
     tag = RecordTag(run.name, quantity, dof, run.excitation_dof, run.kind, run.force, run.direction, run.status,
-                    ctx.records, *welch_segment(run))
+                    ctx.records, *welch_segment(run), ctx.control)
     freq = np.asarray(run.frequency, float)
     values = np.asarray(values)
     bad = np.flatnonzero(~np.isfinite(values))
@@ -218,16 +222,13 @@ def _header(session_path: Path, software: str) -> dict:
         db_app="contactid", program=f"contactid {software}"[:80])
 
 
-def _runs_to_export(s: Session) -> list[RunData]:
+def _runs_to_export(s: Session) -> list[CheckedRun]:
     """The runs with lines, after the checks the analysis makes (:mod:`app.session.checks`): a session the
     analysis would refuse is not exported either (InputError naming the file, run and dataset)."""
     source = str(s.path)
     check_format(s.attrs, source)
     check_run_count(s.run_names(), source)
-    runs = [r for r in s.runs() if len(r.frequency)]
-    for run in runs:
-        check_run(run, source)
-    return runs
+    return [check_run(r, source) for r in s.runs() if len(r.frequency)]
 
 
 def rising(run: RunData) -> RunData:
@@ -258,10 +259,10 @@ def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool
         runs = _runs_to_export(s)
         if not runs:
             raise InputError("has no measured FRF to export", str(session_path))
-        nodes = node_numbers({d for r in runs for d in (r.excitation_dof, *r.sensor_dofs)})
-        for load_case, run in enumerate(runs, start=1):
-            target = run_file(uff_path, run.name) if per_run else uff_path
-            ctx = _RecordContext(rising(run), load_case, nodes, created, software, binary)
+        nodes = node_numbers({d for c in runs for d in (c.run.excitation_dof, *c.run.sensor_dofs)})
+        for load_case, checked in enumerate(runs, start=1):
+            target = run_file(uff_path, checked.run.name) if per_run else uff_path
+            ctx = _RecordContext(rising(checked.run), checked.control, load_case, nodes, created, software, binary)
             files.setdefault(target, []).extend(_run_records(ctx, frf_only))
     for target in files:
         check_output(target, inputs=[session_path], overwrite=overwrite, field="--uff")
@@ -294,14 +295,14 @@ def export_csv(session_path, directory, overwrite: bool = False) -> list[Path]:
     created = not directory.exists()
     directory.mkdir(parents=True, exist_ok=True)
     try:
-        paths = [directory / f"{run.name}.csv" for run in runs]
+        paths = [directory / f"{c.run.name}.csv" for c in runs]
         for path in paths:
             check_output(path, inputs=[session_path], overwrite=overwrite, field="--csv")
         with ExitStack() as stack:
-            for path, run in zip(paths, runs):
+            for path, checked in zip(paths, runs):
                 temp = stack.enter_context(atomic_output(path, inputs=[session_path], overwrite=overwrite,
                                                          field="--csv"))
-                _write_run_csv(temp, run)
+                _write_run_csv(temp, checked)
     except BaseException:
         if created and not any(directory.iterdir()):
             directory.rmdir()                          # a failed export leaves no empty folder behind
@@ -309,18 +310,21 @@ def export_csv(session_path, directory, overwrite: bool = False) -> list[Path]:
     return paths
 
 
-def run_line(run: RunData) -> str:
+def run_line(run: RunData, control: Control) -> str:
     """The CSV's machine-readable second row: what ``import`` needs to make the run again (exact force, a random
-    run's sample rate and Welch segment length), as ``key=value`` words like the UFF id lines."""
+    run's sample rate and Welch segment length, how the level was held), as ``key=value`` words like the UFF id
+    lines."""
     words = [f"run={run.name}", f"kind={run.kind}", f"force={float(run.force)!r}", f"direction={run.direction}",
              f"status={run.status}", f"excitation={run.excitation_dof}"]
     fs, segment = welch_segment(run)
     if fs:
         words += [f"sample_rate={fs!r}", f"segment_length={segment}"]
+    words += control_words(control, f"run {run.name}")
     return f"{CSV_RUN_MARK} " + " ".join(words)
 
 
-def _write_run_csv(path: Path, run: RunData) -> None:
+def _write_run_csv(path: Path, checked: CheckedRun) -> None:
+    run = checked.run
     columns = [("frequency [Hz]", run.frequency)]
     for dof, frf in run.frf.items():
         columns += [(f"Re frf {dof} [m/N]", frf.real), (f"Im frf {dof} [m/N]", frf.imag)]
@@ -337,9 +341,10 @@ def _write_run_csv(path: Path, run: RunData) -> None:
         columns.append(("distortion [1]", distortion))
     with path.open("w", newline="") as fh:
         out = csv.writer(fh)
-        out.writerow([f"# contactid run {run.name}: {run.kind}, force {run.force:g} N, direction {run.direction}, "
-                      f"status {run.status}, excitation {run.excitation_dof}"])
-        out.writerow([run_line(run)])
+        held = "" if checked.control.mode == "force" else f" (level {checked.control.label()})"
+        out.writerow([f"# contactid run {run.name}: {run.kind}, force {run.force:g} N{held}, direction "
+                      f"{run.direction}, status {run.status}, excitation {run.excitation_dof}"])
+        out.writerow([run_line(run, checked.control)])
         out.writerow([name for name, _ in columns])
         for row in zip(*(values for _, values in columns)):
             out.writerow([repr(float(v)) for v in row])

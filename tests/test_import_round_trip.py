@@ -1,13 +1,16 @@
 """export then import needs no flags and gives the analysis the same numbers as the session it came from."""
+import json
 import tomllib
 
 import numpy as np
 import pytest
 import pyuff
 
+from analysis.measurements import Control
 from analysis.model import load_model
 from app.analyze import run_workbench
 from app.cli import main
+from app.importers.idlines import RecordTag, decode, encode
 from app.importers.runs import SourceOptions
 from app.importers.store import ImportRequest, import_files
 from app.campaign.instruments import emulated_instruments
@@ -179,3 +182,133 @@ def test_what_the_analysis_reads_survives_export_and_import(tmp_path, route):
         assert not r1.noise_estimated
         for field in ("frequency_hz", "receptance", "receptance_std", "force_achieved", "distortion"):
             np.testing.assert_array_equal(getattr(r1, field), getattr(r0, field), err_msg=field)
+
+
+K2 = np.array([[11000.0, -6000.0], [-6000.0, 12500.0]])      # x1, x2 of 1 kg each: modes at 12.0 and 21.2 Hz
+LINES = np.linspace(11.0, 13.0, 11)
+HELD = {"control": "response", "control_dof": "x1", "control_quantity": "acceleration", "control_target": 20.0,
+        "control_units": "m/s^2"}
+MODEL_2DOF = ('[structure]\ntype = "lumped"\ndofs = ["x1", "x2"]\nmass = [[1.0, 0.0], [0.0, 1.0]]\n'
+              'stiffness = [[11000.0, -6000.0], [-6000.0, 12500.0]]\ndamping = [[1.1, -0.6], [-0.6, 1.25]]\n'
+              '[[element]]\nname = "j"\ndof = "x2"\nlaws = ["linear"]\n')
+
+
+def _driven_at_x1(f: np.ndarray, kbar: complex) -> np.ndarray:
+    """Receptances x1/F, x2/F of the 2-DOF structure with a joint kbar at x2, driven at x1 (lines x DOFs)."""
+    w = 2 * np.pi * f[:, None, None]
+    dynamic = K2 + np.diag([0.0, 1.0]) * kbar - w ** 2 * np.eye(2) + 1j * w * 1e-4 * K2
+    return np.linalg.solve(dynamic, np.broadcast_to([1.0, 0.0], (len(f), 2))[..., None])[..., 0]
+
+
+def _held_levels_session(path) -> None:
+    """A force-controlled sweep down (the force measured at each line drifting around 0.5 N) and a sweep up
+    holding 20 m/s^2 at x1 (the force per line what holds it, the run's force their median)."""
+    w = SessionWriter(path, software_version="t")
+    extras = {"force_amplitude": ("N", (), "f8"), "frf_std/x1": ("m/N", (), "f8"), "frf_std/x2": ("m/N", (), "f8")}
+    drift = 0.5 * (1 + 0.2 * np.random.default_rng(5).random(len(LINES)))
+    for name, direction, kbar, attrs in (("sine_0.5N_down", "down", 300.0 + 20j, {}),
+                                         ("sine_x1_20mps2_up", "up", 150.0 + 40j, HELD)):
+        f = LINES[::-1] if direction == "down" else LINES
+        h = _driven_at_x1(f, kbar)
+        force = 20.0 / ((2 * np.pi * f) ** 2 * np.abs(h[:, 0])) if attrs else drift
+        w.begin_run(RunSpec(name, "stepped_sine", float(np.median(force)) if attrs else 0.5, direction, "x1",
+                            ["x1", "x2"], 1e3, ["force"], ["N"], extras, attrs))
+        for line, x, fl in zip(f, h, force):
+            w.append_line(line, {"x1": x[0], "x2": x[1]}, {"force_amplitude": fl, "frf_std/x1": 1e-3 * abs(x[0]),
+                                                            "frf_std/x2": 1e-3 * abs(x[1])})
+        w.end_run("complete")
+    w.close()
+
+
+def _analysis(session, model, capsys) -> dict:
+    capsys.readouterr()
+    assert main(["analyze", str(session), str(model), "--json", "--no-history"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def _assert_same(a, b, where="analysis"):
+    """Every number of two analyze --json outputs equal to 1e-6, every other value equal."""
+    assert type(a) is type(b) or {type(a), type(b)} <= {int, float}, where
+    if isinstance(a, dict):
+        assert list(a) == list(b), where
+        for key in a:
+            _assert_same(a[key], b[key], f"{where}.{key}")
+    elif isinstance(a, list):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _assert_same(x, y, f"{where}[{i}]")
+    elif isinstance(a, float):
+        assert b == pytest.approx(a, rel=1e-6, abs=1e-12), where
+    else:
+        assert a == b, where
+
+
+def test_how_each_level_was_held_survives_every_export_and_import(tmp_path, capsys):
+    """A force-controlled and a response-controlled level, exported by UFF (default flags), per-run CSV and
+    the long CSV, imported back: the same runs (names, control, FRFs, force per line) and the same analysis."""
+    session, model = tmp_path / "s.h5", tmp_path / "m.toml"
+    _held_levels_session(session)
+    model.write_text(MODEL_2DOF)
+    assert main(["export", str(session), "--uff", str(tmp_path / "e.uff")]) == 0
+    assert main(["export", str(session), "--csv", str(tmp_path / "csv")]) == 0
+    assert main(["export", str(session), "--csv-long", str(tmp_path / "long.csv")]) == 0
+    routes = {"uff": [*map(str, sorted(tmp_path.glob("e_*.uff")))],
+              "csv": [*map(str, sorted((tmp_path / "csv").glob("*.csv")))],
+              "csv-long": [str(tmp_path / "long.csv"), "--excitation", "x1"]}
+    original = _analysis(session, model, capsys)
+    assert [e["label"] for e in original["history"][0]["error_by_level"]] == ["0.5 N", "20 m/s^2 at x1"]
+    with open_session(session) as s:
+        before = measurements_from_session(s).sine
+    for route, args in routes.items():
+        imported = tmp_path / f"{route}.h5"
+        assert main(["import", *args, "-o", str(imported)]) == 0, route
+        capsys.readouterr()
+        with open_session(imported) as s:
+            after = measurements_from_session(s).sine
+        assert [r.name for r in after] == [r.name for r in before], route
+        for r0, r1 in zip(before, after):
+            assert (r1.control, r1.force, r1.direction, r1.sensor_dofs) == \
+                (r0.control, r0.force, r0.direction, r0.sensor_dofs), route
+            for name in ("frequency_hz", "receptance", "receptance_std", "force_per_line"):
+                np.testing.assert_array_equal(getattr(r1, name), getattr(r0, name), err_msg=f"{route} {name}")
+        _assert_same(original, _analysis(imported, model, capsys), route)
+
+
+@pytest.mark.parametrize("route, wrong, message", [
+    ("uff", "held=acceleration", "record 2: id3: held= must be displacement, velocity or acceleration"),
+    ("uff", "target=20.0", "record 2: id3: target='twenty' is not a number"),
+    ("csv", "control=response", "line 2: control= must be one of force, response, open_loop"),
+    ("csv", "target=20.0", "line 2: target= must be a finite amplitude > 0, got -20.0"),
+])
+def test_an_impossible_control_tag_is_refused_naming_file_record_and_tag(tmp_path, capsys, route, wrong, message):
+    session = tmp_path / "s.h5"
+    _held_levels_session(session)
+    bad = {"held=acceleration": "held=jerk0000000", "target=20.0": "target=twenty" if route == "uff" else
+           "target=-20.0", "control=response": "control=sideways"}[wrong]
+    if route == "uff":
+        assert main(["export", str(session), "--uff", str(tmp_path / "e.uff"), "--ascii"]) == 0
+        path = tmp_path / "e_sine_x1_20mps2_up.uff"
+        text = path.read_text()
+        assert wrong in text
+        path.write_text(text.replace(wrong, bad.ljust(len(wrong))))    # the 80-column lines kept
+    else:
+        assert main(["export", str(session), "--csv", str(tmp_path / "csv")]) == 0
+        path = tmp_path / "csv" / "sine_x1_20mps2_up.csv"
+        path.write_text(path.read_text().replace(wrong, bad))
+    out = tmp_path / "i.h5"
+    assert main(["import", str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{path}: {message}" in err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("control", [Control("open_loop", "x1", "force", 0.7),
+                                     Control("response", "B.theta", "velocity", 0.30000000000000004)])
+def test_a_held_level_is_read_back_from_its_id_lines_exactly(control):
+    """Every mode's words fit the 80 columns (the time shortened beside a long target) and give the same control
+    back (an open-loop level's target is its force); without them a level was held at its force."""
+    tag = RecordTag("r", "frf", "A.w", "A.w", "stepped_sine", 0.7, "up", "complete", 3, control=control)
+    ids = encode(tag, "2026-11-23T10:00:00+00:00", "1.0", "run r")
+    assert ids["id3"].startswith("2026-11-23T") and " control=" in ids["id3"] and len(ids["id3"]) <= 80
+    assert decode(ids, "f.uff: record 2").control == control
+    assert decode({**ids, "id3": "2026-11-23T10:00:00+00:00"}, "f").control == Control("force", "A.w", "force", 0.7)

@@ -2,7 +2,8 @@
 same numbers (docs/import.md, "CSV export, read back").
 
 Row 1 is a sentence for people; row 2 (``MARK``) holds ``key=value`` words -- run, kind, exact force, direction,
-status, excitation and, for a random run, sample_rate and segment_length; row 3 names the columns
+status, excitation, for a random run sample_rate and segment_length, and for a level not held at its force the
+control words of the UFF id lines (:data:`.idlines.CONTROL_TAGS`); row 3 names the columns
 ``frequency [Hz]``, ``Re frf <dof> [m/N]`` / ``Im frf <dof> [m/N]`` and ``<quantity> [<unit>]`` (``Re``/``Im``
 for complex ones). The FRFs and the per-line quantities a UFF export carries (:data:`.uff.LINE_QUANTITIES`)
 are read; the other columns (the controller's own records) stay in the CSV, and the import lists them.
@@ -17,7 +18,7 @@ import numpy as np
 
 from analysis.errors import InputError
 
-from .idlines import DIRECTIONS, KINDS
+from .idlines import DIRECTIONS, KINDS, read_control
 from .runs import ImportedRun, check_axis, check_values
 
 MARK = "# contactid-run"
@@ -107,7 +108,8 @@ def read_csv_run(path: str) -> tuple[list[ImportedRun], list[str], list[str]]:
     if not frf:
         raise InputError("no FRF column ('Re frf <dof> [m/N]', 'Im frf <dof> [m/N]')", path, "line 3")
     run = ImportedRun(words["run"], words["kind"], force, words["direction"], words["excitation"], frequency, frf,
-                      arrays, status=words["status"], source=path, records=[])
+                      arrays, status=words["status"], source=path, records=[],
+                      control=read_control(words, words["excitation"], force, path, "line 2"))
     if "sample_rate" in words or "segment_length" in words:
         run.sample_rate = _positive(words, "sample_rate", path)
         run.segment_length = int(_positive(words, "segment_length", path, whole=True))

@@ -5,13 +5,16 @@ Every record contactid exports carries, as ``key=value`` words (values without s
     id1  contactid run=<run name> quantity=<frf | frf_std | force_amplitude | distortion | coherence | random_error>
     id2  rsp=<response DOF name> ref=<excitation DOF name>
     id3  <ISO 8601 time the session was created> [sample_rate=<Hz> segment_length=<samples>]
+         [control=<response | open_loop> at=<DOF> [held=<displacement | velocity | acceleration> target=<SI>]]
     id4  kind=<stepped_sine | random> force=<N, exact decimal> direction=<up | down | none> status=<status>
     id5  software=contactid-<version> convention=exp(+jwt) records=<records of the run in the file>
 
-(id3's words only on a random run with a Welch segment: the analysis takes its leakage allowance from them),
-so ``contactid import`` needs no flags for contactid's own files, and knows when a file cut short lost whole
-records of a run (``records=`` is absent from files written before it was added). Records of other systems have
-free-text id lines; they are kept in the session's provenance but not interpreted.
+(id3's Welch words only on a random run with a Welch segment: the analysis takes its leakage allowance from
+them; its control words only on a level not held at its force -- the run attributes ``control*`` of
+docs/session-format.md by :data:`CONTROL_TAGS`; without them the level was held at ``force``), so ``contactid
+import`` needs no flags for contactid's own files, and knows when a file cut short lost whole records of a run
+(``records=`` is absent from files written before it was added). Records of other systems have free-text id
+lines; they are kept in the session's provenance but not interpreted.
 """
 from __future__ import annotations
 
@@ -19,6 +22,9 @@ import math
 from dataclasses import dataclass
 
 from analysis.errors import InputError
+from analysis.measurements import Control
+
+from app.session import check_control
 
 ID_KEYS = ("id1", "id2", "id3", "id4", "id5")     # pyuff's names of a record's five id lines
 MARK = "contactid"
@@ -26,6 +32,8 @@ CONVENTION = "exp(+jwt)"
 ID_WIDTH = 80
 KINDS = ("stepped_sine", "random")
 DIRECTIONS = ("up", "down", "none")
+# id-line tag -> the run attribute it carries (shorter than the attribute: an id line holds 80 characters)
+CONTROL_TAGS = {"control": "control", "at": "control_dof", "held": "control_quantity", "target": "control_target"}
 QUANTITIES = ("frf", "frf_std", "force_amplitude", "distortion", "coherence", "random_error")
 
 
@@ -44,6 +52,7 @@ class RecordTag:
     records: int | None = None       # records the run has in its file (None: not stated)
     sample_rate: float | None = None     # Hz, and samples per Welch segment: a random run's resolution
     segment_length: int | None = None
+    control: Control | None = None       # how the level was held (None: at ``force``)
 
 
 def _word(key: str, value: str, where: str) -> str:
@@ -65,7 +74,7 @@ def encode(tag: RecordTag, created: str, software: str, where: str) -> dict[str,
     return {
         "id1": _line([MARK, _word("run", tag.run, where), _word("quantity", tag.quantity, where)], where, "id1"),
         "id2": _line([_word("rsp", tag.response, where), _word("ref", tag.reference, where)], where, "id2"),
-        "id3": _id3(tag, created),
+        "id3": _id3(tag, created, where),
         "id4": _line([_word("kind", tag.kind, where), f"force={float(tag.force)!r}",
                       _word("direction", tag.direction, where), _word("status", tag.status, where)], where, "id4"),
         "id5": _line([_word("software", f"contactid-{software or 'unknown'}", where),
@@ -74,13 +83,43 @@ def encode(tag: RecordTag, created: str, software: str, where: str) -> dict[str,
     }
 
 
-def _id3(tag: RecordTag, created: str) -> str:
-    """The creation time, then a random run's sample rate and segment length (the time is shortened, never
-    they: they decide the analysis's leakage allowance)."""
-    if not (tag.sample_rate and tag.segment_length):
+def _id3(tag: RecordTag, created: str, where: str) -> str:
+    """The creation time, then a random run's sample rate and segment length and a level's control (the time
+    is shortened, never they: they decide the analysis's leakage allowance and the level's label)."""
+    words = control_words(tag.control, where) if tag.control else []
+    if tag.sample_rate and tag.segment_length:
+        words = [f"sample_rate={float(tag.sample_rate)!r}", f"segment_length={int(tag.segment_length)}", *words]
+    if not words:
         return created[:ID_WIDTH]
-    tail = f"sample_rate={float(tag.sample_rate)!r} segment_length={int(tag.segment_length)}"
-    return f"{created[:ID_WIDTH - len(tail) - 1]} {tail}".strip()
+    tail = _line(words, where, "id3")
+    return f"{created[:max(ID_WIDTH - len(tail) - 1, 0)]} {tail}".strip()
+
+
+def control_words(control: Control, where: str) -> list[str]:
+    """The ``key=value`` words of how a level was held; none for force control (what their absence means)."""
+    if control.mode == "force":
+        return []
+    words = [_word("control", control.mode, where), _word("at", control.dof, where)]
+    if control.response:
+        words += [_word("held", control.quantity, where), f"target={float(control.target)!r}"]
+    return words
+
+
+def read_control(words: dict[str, str], excitation: str, force: float, where: str, line: str) -> Control:
+    """A level's control from its words, by the rules of a session's run attributes (``check_control``);
+    errors name ``where``, ``line`` and the tag."""
+    attrs = {attr: words[tag] for tag, attr in CONTROL_TAGS.items() if tag in words}
+    if "control_target" in attrs:
+        try:
+            attrs["control_target"] = float(attrs["control_target"])
+        except ValueError:
+            raise InputError(f"target={words['target']!r} is not a number", where, line) from None
+    tags = {attr: tag for tag, attr in CONTROL_TAGS.items()}
+
+    def error(what: str, message: str) -> InputError:
+        return InputError(f"{tags[what.removeprefix('attribute ')]}= {message}", where, line)
+
+    return check_control(attrs, excitation, force, error)
 
 
 def _welch(ids: dict[str, str], where: str) -> tuple[float | None, int | None]:
@@ -131,5 +170,7 @@ def decode(ids: dict[str, str], where: str) -> RecordTag | None:
     if records is not None and not (records.isdigit() and int(records) > 0):
         raise InputError(f"records={records} is not a count of records", where, "id5")
     fs, segment = _welch(ids, where)
+    control = read_control(_words(ids.get("id3", "")), values["ref"], force, where, "id3")
     return RecordTag(values["run"], values["quantity"], values["rsp"], values["ref"], values["kind"], force,
-                     values["direction"], values["status"], int(records) if records else None, fs, segment)
+                     values["direction"], values["status"], int(records) if records else None, fs, segment,
+                     control)

@@ -354,6 +354,8 @@ def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions
                       source=path, records=[e.record.number for e in entries], load_case=load_case)
     if tag is not None and tag.sample_rate:
         run.sample_rate, run.segment_length = tag.sample_rate, tag.segment_length
+    if tag is not None:
+        run.control = tag.control
     return run
 
 
