@@ -5,10 +5,15 @@ The error of a model is the relative FRF error over every measured stepped-sine 
     error = sqrt( sum |h_pred - h_meas|^2 / sum |h_meas|^2 )
 
 summed over runs r, lines l and sensors p (0 = perfect). ``error_by_level`` restricts both sums to the runs at
-one force level (both sweep directions), and the residual map gives the same ratio per run and line (sum over
+one level (both sweep directions): a force level, or a response-controlled level named by its target response
+(:class:`analysis.measurements.Control`), and the residual map gives the same ratio per run and line (sum over
 sensors only), so where the model fails is visible, not only how much. When the measured receptances carry a
 standard deviation, the chi-square ``sum |h_pred - h_meas|^2 / std^2`` is returned too; it decides whether an
 improvement is larger than the noise explains.
+
+Every line is predicted at the force measured there (``SineRun.force_per_line``), not the level's nominal
+force: a controller holding "0.2 N" measures 0.14-0.23 N across a resonance, and a response-controlled level
+lets the force vary tenfold.
 
 Jumps do not dominate it: every run is predicted by a sweep in its own direction and one the other way over the
 same lines. Where both give stable solutions that differ, the response is multivalued there, and
@@ -25,8 +30,29 @@ import numpy as np
 
 from .harmonic_balance import (CondensedSystem, KbarFunction, condense, continue_response, predict_multiharmonic,
                                predict_sweeps, single_harmonic_distortion)
-from .measurements import Measurements, SineRun
+from .measurements import Control, Measurements, SineRun
 from .model import Model
+
+
+@dataclass(frozen=True)
+class LevelError:
+    """The error of the runs at one level: ``force`` the level's force (N; for a response-controlled level the
+    median measured force), ``control`` how it was held (its label names the level)."""
+
+    force: float
+    error: float
+    control: Control
+
+    def label(self) -> str:
+        return self.control.label()
+
+    def to_json(self) -> dict:
+        out = {"force": self.force, "error": self.error}
+        if self.control.mode != "force":
+            out.update(self.control.to_json())
+        else:
+            out["label"] = self.label()
+        return out
 
 
 @dataclass(frozen=True)
@@ -131,7 +157,7 @@ class Comparison:
     ----------
     error : float
         Relative FRF error over all runs (module docstring).
-    error_by_level : list of (force N, error)
+    error_by_level : list of LevelError
     residual_map : dict run name -> ndarray (L,)
         Relative error per line.
     predicted : dict run name -> ndarray (L, P) complex
@@ -152,7 +178,7 @@ class Comparison:
     """
 
     error: float
-    error_by_level: list[tuple[float, float]]
+    error_by_level: list[LevelError]
     residual_map: dict[str, np.ndarray]
     predicted: dict[str, np.ndarray]
     converged: dict[str, np.ndarray]
@@ -170,7 +196,7 @@ class Comparison:
 
     def to_json(self) -> dict:
         return {"error": self.error,
-                "error_by_level": [{"force": f, "error": e} for f, e in self.error_by_level],
+                "error_by_level": [e.to_json() for e in self.error_by_level],
                 "jumps": [j.to_json() for j in self.jumps],
                 "multiharmonic_lines": int(sum(m.sum() for m in self.multiharmonic.values()))}
 
@@ -224,7 +250,8 @@ class Predictor:
             system = self._system(key)
             other = "down" if direction == "up" else "up"
             swept, opposite = predict_sweeps(self.model.structure, self.model.elements, exc, system.w,
-                                             [r.force for r in runs], (direction, other), fns, system)
+                                             np.stack([r.force_per_line for r in runs], axis=1), (direction, other),
+                                             fns, system)
             for b, run in enumerate(runs):
                 rows = self._rows[run.name]
                 out[run.name] = RunPrediction(swept.receptance[:, b, rows], opposite.receptance[:, b, rows],
@@ -255,16 +282,18 @@ class Predictor:
         for run in self.runs:
             pred, rows = predictions[run.name], self._rows[run.name]
             y = np.where(comp.other_branch[run.name][:, None], pred.opposite_y, pred.y)
-            implied = single_harmonic_distortion(structure, elements, run.excitation_dof, run.w, run.force, y,
+            force = run.force_per_line
+            implied = single_harmonic_distortion(structure, elements, run.excitation_dof, run.w, force, y,
                                                  criterion.n_harmonics)[:, rows].max(axis=1)
             lines = np.flatnonzero(criterion.selects(run.distortion, implied, pred.multivalued()))
             mask = np.zeros(len(run.w), bool)
             if len(lines):
-                mh = predict_multiharmonic(structure, elements, run.excitation_dof, run.w[lines], run.force,
+                mh = predict_multiharmonic(structure, elements, run.excitation_dof, run.w[lines], force[lines],
                                            criterion.n_harmonics, criterion.n_time, y_start=y[lines])
+                fundamental = mh.receptance(force[lines])[mh.converged][:, rows]
                 lines = lines[mh.converged]
                 compared[run.name] = compared[run.name].copy()
-                compared[run.name][lines] = mh.receptance(run.force)[mh.converged][:, rows]
+                compared[run.name][lines] = fundamental
                 mask[lines] = True
             selected[run.name] = mask
         return _scored(self.runs, comp.predicted, comp.converged, compared, comp.other_branch, comp.jumps, selected)
@@ -278,7 +307,9 @@ class Predictor:
             run = runs[jump.run]
             f_a, f_b = jump.predicted_between
             a = int(np.argmin(np.abs(np.asarray(run.frequency_hz, float) - f_a)))
-            curve = continue_response(self.model.structure, self.model.elements, run.excitation_dof, run.force,
+            # one force along the continuation: the one measured at the line before the jump
+            curve = continue_response(self.model.structure, self.model.elements, run.excitation_dof,
+                                      float(run.force_per_line[a]),
                                       2 * np.pi * f_a, 2 * np.pi * f_b, kbar_fns=fns,
                                       y_start=predictions[run.name].y[a])
             if len(curve.folds):
@@ -305,7 +336,7 @@ def _scored(runs, predicted, converged, compared, other_branch, jumps, multiharm
     num = den = 0.0
     chi2 = 0.0
     have_std = all(r.receptance_std is not None for r in runs)
-    by_level: dict[float, list[float]] = {}
+    by_level: dict[tuple, list] = {}
     residual_map = {}
     n_obs = 0
     for run in runs:
@@ -315,16 +346,24 @@ def _scored(runs, predicted, converged, compared, other_branch, jumps, multiharm
         residual_map[run.name] = np.sqrt(line_num / line_den)
         rn, rd = float(line_num.sum()), float(line_den.sum())
         num, den = num + rn, den + rd
-        acc = by_level.setdefault(round(run.force, 12), [0.0, 0.0])
+        acc = by_level.setdefault(run.control.key(), [0.0, 0.0, run])
         acc[0] += rn
         acc[1] += rd
         n_obs += 2 * diff.size
         if have_std:
             chi2 += float(np.sum(np.abs(diff) ** 2 / np.asarray(run.receptance_std) ** 2))
     return Comparison(float(np.sqrt(num / den)) if den else float("nan"),
-                      [(f, float(np.sqrt(a / b))) for f, (a, b) in sorted(by_level.items())],
+                      _level_errors(by_level.values()),
                       residual_map, predicted, converged, chi2 if have_std else None, n_obs,
                       compared, other_branch, jumps, multiharmonic or {})
+
+
+def _level_errors(levels) -> list[LevelError]:
+    """One LevelError per level from its sums [numerator, denominator, a run of it]: force-controlled levels
+    first by force, then the others by their control DOF, quantity and target."""
+    out = [LevelError(float(run.force) if run.control.mode != "force" else run.control.target,
+                      float(np.sqrt(num / den)), run.control) for num, den, run in levels]
+    return sorted(out, key=lambda e: (e.control.mode != "force", e.control.key()))
 
 
 def _jumps(run: SineRun, pred: RunPrediction, other: np.ndarray) -> list[Jump]:

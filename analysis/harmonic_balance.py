@@ -195,8 +195,8 @@ class SweepPrediction:
     ----------
     w : ndarray, shape (L,)
         Lines, rad/s (in the caller's order, whatever the sweep direction).
-    force : ndarray, shape (B,)
-        Force amplitudes, N.
+    force : ndarray, shape (B,) or (L, B)
+        Force amplitudes, N, as given: one per level, or one per line and level (the measured force).
     y : ndarray, shape (L, B, r)
         Element displacement phasors, m or rad.
     receptance : ndarray, shape (L, B, n)
@@ -233,8 +233,9 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
         Where the force acts.
     w : array_like, shape (L,)
         Lines in rad/s.
-    force : float or array_like, shape (B,)
-        Force amplitude(s), N; every level is swept independently (batched).
+    force : float or array_like, shape (B,) or (L, B)
+        Force amplitude(s), N; every level is swept independently (batched). Shape (L, B): each line at its own
+        force (a controller's measured force per line, which is not the nominal level).
     direction : {"up", "down"}
         Sweep direction: decides which branch is followed where the response is multivalued.
     kbar_fns : optional, one ``f(X, w) -> kbar`` per element (default: the elements' laws).
@@ -256,28 +257,40 @@ def predict_sweeps(structure: Structure, elements: Sequence[Element], excitation
         if direction not in ("up", "down"):
             raise ValueError(f"direction must be 'up' or 'down', got {direction!r}")
     w = np.atleast_1d(np.asarray(w, float))
-    F1 = np.atleast_1d(np.asarray(force, float))
+    F1 = np.asarray(force, float)
+    per_line = line_forces(F1, len(w))                                               # (L, B)
     sys_ = system if system is not None else condense(structure, elements, excitation_dof, w)
     fns = list(kbar_fns) if kbar_fns is not None else element_kbar_functions(elements)
     D = len(directions)
-    F = np.tile(F1, D)
+    F = np.tile(per_line, (1, D))                                                    # (L, D B)
     orders = np.repeat(np.stack([np.argsort(w) if d == "up" else np.argsort(-w) for d in directions]),
-                       len(F1), axis=0)                                              # (D B, L)
+                       per_line.shape[1], axis=0)                                    # (D B, L)
     y, converged = _sweep(sys_, fns, F, orders)
-    L, B, r = len(w), len(F), len(fns)
-    floor = 1e-9 * np.abs(sys_.g[:, None, :] * F[None, :, None]).max(axis=2).reshape(-1)
+    L, B, r = len(w), F.shape[1], len(fns)
+    floor = 1e-9 * np.abs(sys_.g[:, None, :] * F[:, :, None]).max(axis=2).reshape(-1)
     kb = _kbar(fns, y.reshape(L * B, r), np.repeat(w, B), floor).reshape(L, B, r)
-    x = (sys_.Hq[:, None, :] * F[None, :, None] - np.einsum("lnr,lbr->lbn", sys_.HE, kb * y)) / F[None, :, None]
+    x = (sys_.Hq[:, None, :] * F[:, :, None] - np.einsum("lnr,lbr->lbn", sys_.HE, kb * y)) / F[:, :, None]
     J = _residual_jacobian(y.reshape(L * B, r), np.repeat(w, B), np.repeat(sys_.G, B, axis=0), fns, floor)
     stable = (np.linalg.det(J) > 0).reshape(L, B) if r else np.ones((L, B), bool)
-    n = len(F1)
+    n = per_line.shape[1]
+    F1 = np.atleast_1d(F1)
     part = [slice(k * n, (k + 1) * n) for k in range(D)]
     return [SweepPrediction(w, F1, y[:, p], x[:, p], converged[:, p], stable[:, p]) for p in part]
 
 
+def line_forces(force, n_lines: int) -> np.ndarray:
+    """Force amplitudes (L, B) of every line and level from one per level (B,) or one per line (L, B)."""
+    F = np.asarray(force, float)
+    if F.ndim < 2:
+        return np.broadcast_to(np.atleast_1d(F)[None, :], (n_lines, np.atleast_1d(F).size)).copy()
+    if F.shape[0] != n_lines:
+        raise ValueError(f"a force per line needs shape (lines, levels) = ({n_lines}, B), got {F.shape}")
+    return F
+
+
 def _sweep(sys_: CondensedSystem, fns, F, orders) -> tuple[np.ndarray, np.ndarray]:
-    """Newton along each batch item's own line order ``orders[b]`` (B, L): the element phasors (L, B, r) and
-    convergence flags (L, B)."""
+    """Newton along each batch item's own line order ``orders[b]`` (B, L), each line at its force ``F`` (L, B):
+    the element phasors (L, B, r) and convergence flags (L, B)."""
     B, L = orders.shape
     r = len(fns)
     items = np.arange(B)
@@ -285,7 +298,7 @@ def _sweep(sys_: CondensedSystem, fns, F, orders) -> tuple[np.ndarray, np.ndarra
     converged = np.zeros((L, B), bool)
     for step in range(L):
         line = orders[:, step]                                                      # (B,)
-        gF = sys_.g[line] * F[:, None]                                              # (B, r)
+        gF = sys_.g[line] * F[line, items][:, None]                                 # (B, r)
         scale = np.maximum(np.abs(gF).max(axis=1), 1e-300)                          # (B,)
         G = sys_.G[line]
         wl = sys_.w[line]
@@ -574,9 +587,9 @@ class MultiharmonicResponse:
     harmonics: np.ndarray
     converged: np.ndarray
 
-    def receptance(self, force: float) -> np.ndarray:
-        """Fundamental receptance ``X_1 / F``, shape (L, n)."""
-        return self.harmonics[:, 1, :] / force
+    def receptance(self, force) -> np.ndarray:
+        """Fundamental receptance ``X_1 / F``, shape (L, n); ``force`` one amplitude or one per line (L,)."""
+        return self.harmonics[:, 1, :] / np.reshape(np.asarray(force, float), (-1, 1))
 
 
 def element_force_history(element: Element, y: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -659,9 +672,10 @@ def _jump_correction(f: np.ndarray, y: np.ndarray, v: np.ndarray, theta: np.ndar
 
 
 def single_harmonic_distortion(structure: Structure, elements: Sequence[Element], excitation_dof: str, w,
-                               force: float, y, n_harmonics: int = 5, n_time: int = 64) -> np.ndarray:
+                               force, y, n_harmonics: int = 5, n_time: int = 64) -> np.ndarray:
     """The harmonics a single-harmonic solution implies: the elements' forces along the harmonic motion ``y``
-    (L, r) at lines ``w`` (L,) put through the structure at 0 and 2..H times w. Returns the total harmonic
+    (L, r) at lines ``w`` (L,) (``force``: one amplitude or one per line) put through the structure at 0 and 2..H
+    times w. Returns the total harmonic
     distortion of every DOF's displacement, shape (L, n): ``sqrt(sum_{k != 1} |X_k|^2) / |X_1|``.
 
     All lines at once: their two-period motions are marched one after another in one call per element (the
@@ -682,15 +696,16 @@ def single_harmonic_distortion(structure: Structure, elements: Sequence[Element]
     Fk[:, 0] = f.mean(axis=1)
     resp = structure.response((aft.k[None, :] * w[:, None]).ravel(), loads).reshape(L, H + 1, structure.n, -1)
     Xk = -np.einsum("lknr,lkr->lkn", resp[..., :-1], Fk)
-    X1 = resp[:, 1, :, -1] * force + Xk[:, 1]
+    X1 = resp[:, 1, :, -1] * np.broadcast_to(np.asarray(force, float), w.shape)[:, None] + Xk[:, 1]
     Xk[:, 1] = 0.0
     return np.sqrt(np.sum(np.abs(Xk) ** 2, axis=1)) / np.maximum(np.abs(X1), 1e-300)
 
 
-def predict_multiharmonic(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, force: float,
+def predict_multiharmonic(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, force,
                           n_harmonics: int = 5, n_time: int = 256, direction: str = "up",
                           y_start=None) -> MultiharmonicResponse:
-    """Harmonic balance with ``n_harmonics`` harmonics and the mean, forces by AFT (:class:`_AFT`).
+    """Harmonic balance with ``n_harmonics`` harmonics and the mean, forces by AFT (:class:`_AFT`), at one
+    force amplitude or one per line (``force`` shape (L,)).
 
     Newton (scipy ``hybr``) runs at each line from the previous line's solution, starting from the
     single-harmonic solution; with ``y_start`` (single-harmonic element phasors, (L, r)) every line starts from
@@ -704,15 +719,17 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     E, loads = _element_loads(structure, elements, excitation_dof)
     aft = _AFT(elements, H, n_time)
     k = aft.k
+    forces = np.broadcast_to(np.asarray(force, float), w.shape)
     order = np.argsort(w) if direction == "up" else np.argsort(-w)
     # the single-harmonic solution starts the first line; later lines start from the previous one
     if y_start is None:
-        single = predict_sweep(structure, elements, excitation_dof, w[order[:1]], force, direction).y[0, 0]
+        single = predict_sweep(structure, elements, excitation_dof, w[order[:1]], forces[order[0]],
+                               direction).y[0, 0]
     out = np.zeros((len(w), H + 1, structure.n), complex)
     converged = np.zeros(len(w), bool)
     previous = None
     for line in order:
-        wl = w[line]
+        wl, force = w[line], forces[line]
         resp = [structure.response([kk * wl], loads)[0] for kk in k]
         HE = np.stack([rsp[:, :-1] for rsp in resp])        # (H+1, n, r)
         Hq = np.stack([rsp[:, -1] for rsp in resp])          # (H+1, n)

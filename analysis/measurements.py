@@ -19,14 +19,16 @@ NAME_UNITS = {"displacement": "m", "velocity": "mps", "acceleration": "mps2"}
 
 @dataclass(frozen=True)
 class Control:
-    """How a level was controlled: ``mode`` "force" (the force amplitude held), "response" (the amplitude of
-    ``quantity`` at ``dof`` held) or "open_loop"; ``target`` the held amplitude in SI units (N, m, m/s,
-    m/s^2). Sessions written before the control was recorded read as force control."""
+    """How a stepped-sine level was held (docs/session-format.md, run attributes ``control*``).
+
+    ``mode`` is "force" (the force amplitude held at ``target`` N), "response" (the amplitude of ``quantity`` at
+    ``dof`` held at ``target`` in SI units, the force left to vary) or "open_loop" (the drive held, ``target`` the
+    nominal force)."""
 
     mode: str = "force"
     dof: str = ""
     quantity: str = "force"
-    target: float = float("nan")
+    target: float = 0.0
 
     @property
     def units(self) -> str:
@@ -36,9 +38,19 @@ class Control:
     def response(self) -> bool:
         return self.mode == "response"
 
-    def text(self) -> str:
-        """The level in a legend: ``0.8 N``, or ``20 m/s^2 at x1``."""
-        return f"{self.target:g} {self.units}" + (f" at {self.dof}" if self.response else "")
+    def label(self) -> str:
+        """How a test engineer names the level: ``0.8 N`` or ``20 m/s^2 at x1``."""
+        if self.mode == "response":
+            return f"{self.target:g} {self.units} at {self.dof}"
+        return f"{self.target:g} N" + (" (open loop)" if self.mode == "open_loop" else "")
+
+    def key(self) -> tuple:
+        """Runs of one level (both sweep directions) share this key."""
+        return (self.mode, self.dof if self.mode == "response" else "", self.quantity, round(self.target, 12))
+
+    def to_json(self) -> dict:
+        return {"control": self.mode, "control_dof": self.dof, "control_quantity": self.quantity,
+                "control_target": self.target, "control_units": self.units, "label": self.label()}
 
 
 def response_amplitude(acceleration: np.ndarray, w: np.ndarray, quantity: str) -> np.ndarray:
@@ -56,7 +68,8 @@ class SineRun:
     ----------
     name : str
     force : float
-        Force amplitude held at every line, N.
+        Force amplitude of the level, N: the one held, or for a response-controlled level the median of the
+        measured force per line.
     direction : str
         "up" or "down".
     excitation_dof : str
@@ -68,15 +81,16 @@ class SineRun:
     receptance_std : ndarray, shape (L, P), optional
         Its standard deviation ``sqrt(E|n|^2)``, m/N.
     force_achieved : ndarray, shape (L,), optional
-        Force amplitude actually held, N.
+        Force amplitude measured at each line, N: every amplitude is computed with it (identification, fit,
+        prediction, error).
     distortion : ndarray, shape (L,), optional
         Largest total harmonic distortion of the measured displacements at each line: a describing function
         describes a harmonic motion, so lines far from harmonic (stick-slip with stops, impacts) are left out
         of the identification. None when the harmonics were not measured (imported FRFs).
     noise_estimated : bool
         ``receptance_std`` was not measured but estimated from the FRFs themselves (:mod:`analysis.frf_noise`).
-    control : Control
-        What the level held; force control at ``force`` unless the run says otherwise.
+    control : Control, optional
+        How the level was held; default force control at ``force``.
     """
 
     name: str

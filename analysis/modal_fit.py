@@ -66,6 +66,8 @@ class ModalFit:
         the Welch resolution (Hann leakage alone; 1 where the resolution is not known).
     rejected : list of RejectedPeak
         Peaks whose pole ended on a bound or outside its band.
+    residuals : ndarray, shape (m, 2, p), complex, or None
+        Each mode's residual terms ``B_p`` (m/N) and ``D_p`` (m/N (rad/s)^2) fitted on its band.
     """
 
     frequency: np.ndarray
@@ -76,6 +78,7 @@ class ModalFit:
     coherence: np.ndarray | None = None
     rejected: list[RejectedPeak] = field(default_factory=list)
     leakage_coherence: np.ndarray | None = None
+    residuals: np.ndarray | None = None
 
     @property
     def low_coherence(self) -> np.ndarray:
@@ -91,7 +94,8 @@ class ModalFit:
         return ModalFit(self.frequency[keep], self.damping[keep], self.residues[keep], self.band[keep],
                         self.fit_error[keep], None if self.coherence is None else self.coherence[keep],
                         list(self.rejected),
-                        None if self.leakage_coherence is None else self.leakage_coherence[keep])
+                        None if self.leakage_coherence is None else self.leakage_coherence[keep],
+                        None if self.residuals is None else self.residuals[keep])
 
     def shapes(self) -> np.ndarray:
         """Real mode shapes (m, p) from the residues, each scaled so its largest entry is +1."""
@@ -176,7 +180,8 @@ def fit_modes(frequency_hz, H, n_modes: int | None = None, band=None, min_promin
     fit = ModalFit(np.array([m.frequency for m in modes]), np.array([m.damping for m in modes]),
                    np.array([m.residue for m in modes]).reshape(len(modes), H.shape[1]),
                    np.array([m.band for m in modes]).reshape(len(modes), 2),
-                   np.array([m.fit_error for m in modes]), None, rejected)
+                   np.array([m.fit_error for m in modes]), None, rejected,
+                   residuals=np.array([m.residuals for m in modes]).reshape(len(modes), 2, H.shape[1]))
     if coh is not None:
         fit.coherence = np.array([coh[_half_power_lines(f, m), int(np.abs(m.residue).argmax())].mean()
                                   for m in modes])
@@ -195,6 +200,7 @@ class _Pole:
     band: tuple[float, float]
     fit_error: float
     on_bound: str             # "" or which bound
+    residuals: np.ndarray     # (2, p): B_p and D_p
 
 
 def _fit_peak(f, H, i, sel) -> _Pole:
@@ -217,7 +223,7 @@ def _fit_peak(f, H, i, sel) -> _Pole:
     elif sol.active_mask[1]:
         bound = f"damping at its {'floor' if sol.active_mask[1] < 0 else 'ceiling'} {sol.x[1]:.2g}"
     return _Pole(wr / (2 * np.pi), zeta, coef[0], (f[sel][0], f[sel][-1]),
-                 np.linalg.norm(R) / np.linalg.norm(Hs), bound)
+                 np.linalg.norm(R) / np.linalg.norm(Hs), bound, coef[1:])
 
 
 def _not_a_mode(pole: _Pole) -> str:

@@ -171,10 +171,77 @@ def load_structure(table: dict, source: str | None = None) -> Structure:
     unknown type, non-symmetric or indefinite matrices, or a singular structure.
     """
     f = Fields(table, source, "[structure]")
-    kind = f.string("type", choices=("lumped", "beam"))
+    kind = f.string("type", choices=("lumped", "beam", "modal"))
+    if kind == "modal":
+        return _modal(f)
     s = _lumped(f) if kind == "lumped" else _beam(f)
     _check_physical(s, f)
     return s
+
+
+@dataclass
+class ModalStructure(Structure):
+    """A structure known by its modes at the measured DOFs (``type = "modal"``, docs/structures.md):
+
+        H(w) = sum_r phi_r phi_r^T / (w_r^2 - w^2 + 2 j zeta_r w_r w) + B + D / w^2
+
+    with mass-normalised shape entries ``phi_r`` (1/sqrt(kg)), the residual flexibility ``B`` (m/N, the modes
+    above the band) and the residual inertia term ``D`` (the modes below it; a rigid mass m gives -1/m).
+    ``M, K, C`` are the modes' own realisation ``Phi^-T diag(.) Phi^-1`` (as many modes as DOFs), which is what
+    the natural frequencies and the eigenvalue checks use; receptances include the residual terms."""
+
+    frequency_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    damping: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    shapes: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))         # (modes, dofs)
+    residual_flexibility: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    residual_inertia: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+
+    def response(self, w, loads) -> np.ndarray:
+        w = np.atleast_1d(np.asarray(w, float))
+        loads = np.asarray(loads)
+        wr = 2 * np.pi * self.frequency_hz
+        q = 1.0 / (wr[None, :] ** 2 - w[:, None] ** 2 + 2j * self.damping[None, :] * wr[None, :] * w[:, None])
+        # at w = 0 (the mean of a multi-harmonic balance) the residual inertia is left out: it stands for modes
+        # below the band, whose static flexibility is not known (a free-free structure has none)
+        inverse_w2 = np.divide(1.0, w ** 2, out=np.zeros_like(w), where=w > 0)
+        H = np.einsum("rp,lr,rq->lpq", self.shapes, q, self.shapes) + self.residual_flexibility[None] \
+            + self.residual_inertia[None] * inverse_w2[:, None, None]
+        return H @ loads
+
+    def modes(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.frequency_hz.copy(), self.shapes.T.copy()
+
+
+def _modal(f: Fields) -> ModalStructure:
+    f.unknown_keys({"type", "dofs", "frequencies", "damping", "shapes", "residual_flexibility", "residual_inertia"})
+    dofs = f.strings("dofs")
+    if not dofs or len(set(dofs)) != len(dofs):
+        raise f.error("dofs", "must name at least one DOF, each once")
+    n = len(dofs)
+    freqs = _positive_list(f, "frequencies", n, positive=True)
+    zeta = _positive_list(f, "damping", n, positive=False)
+    if (zeta >= 1).any():
+        raise f.error("damping", "damping ratios must be below 1")
+    raw = f.require("shapes")
+    if not isinstance(raw, list) or len(raw) != n or not all(isinstance(r, list) and len(r) == n for r in raw):
+        raise f.error("shapes", f"must be {n} modes of {n} entries (one per DOF, 1/sqrt(kg)): as many modes as DOFs")
+    shapes = np.array([[f.check_number("shapes", x) for x in r] for r in raw], float)
+    if np.linalg.matrix_rank(shapes) < n:
+        raise f.error("shapes", "the mode shapes are not independent at the DOFs")
+    B = f.matrix("residual_flexibility", n) if f.has("residual_flexibility") else np.zeros((n, n))
+    D = f.matrix("residual_inertia", n) if f.has("residual_inertia") else np.zeros((n, n))
+    inv = np.linalg.inv(shapes)                                   # Phi^-T with Phi = shapes^T
+    wr = 2 * np.pi * freqs
+    M, K, C = (inv @ np.diag(d) @ inv.T for d in (np.ones(n), wr ** 2, 2 * zeta * wr))
+    return ModalStructure(dofs, M, K, C, set(), f"modal, {n} mode{'s' * (n > 1)}", f.source, freqs, zeta, shapes,
+                          B, D)
+
+
+def _positive_list(f: Fields, key: str, n: int, positive: bool) -> np.ndarray:
+    raw = f.require(key)
+    if not isinstance(raw, list) or len(raw) != n:
+        raise f.error(key, f"must be a list of {n} numbers (one per mode, as many modes as DOFs)")
+    return np.array([f.check_number(key, x, positive=positive, nonnegative=not positive) for x in raw], float)
 
 
 def _lumped(f: Fields) -> Structure:

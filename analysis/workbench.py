@@ -26,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from .comparison import Comparison, HarmonicCriterion, Predictor
+from .comparison import Comparison, HarmonicCriterion, LevelError, Predictor
 from .diagnosis import Candidate, ElementSamples, RankingRules, check_model_form, rank_candidates, rank_pairs
 from .discovery import Discovery, DiscoveryRules, discover
 from .elements import LawTerm
@@ -91,12 +91,12 @@ class HistoryStep:
     action: str
     model_toml: str
     error: float
-    error_by_level: list[tuple[float, float]]
+    error_by_level: list[LevelError]
     laws: dict[str, list[dict]]
 
     def to_json(self) -> dict:
         return {"step": self.step, "action": self.action, "error": self.error,
-                "error_by_level": [{"force": f, "error": e} for f, e in self.error_by_level],
+                "error_by_level": [e.to_json() for e in self.error_by_level],
                 "laws": self.laws, "model": self.model_toml}
 
 

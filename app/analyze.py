@@ -259,7 +259,7 @@ def report_text(wb: Workbench, candidates, top: int = 5,
     out.append("")
     single = wb.single_harmonic_comparison().error
     out.append(f"FRF error of the model: {comp.error:.4g}  (" +
-               ", ".join(f"{f:g} N: {e:.3g}" for f, e in comp.error_by_level) + ")" +
+               ", ".join(f"{e.label()}: {e.error:.3g}" for e in comp.error_by_level) + ")" +
                ("" if single == comp.error else
                 f"; single-harmonic {single:.4g}, the measure the candidates below are judged by"))
     worst = max(comp.residual_map, key=lambda n: comp.residual_map[n].max())

@@ -111,6 +111,11 @@ def cmd_export(args) -> int:
         done = export_uff(args.session, args.uff, overwrite=args.overwrite, per_run=args.per_run,
                           binary=args.binary, frf_only=args.frf_only)
         print(f"wrote {done.records} records to {', '.join(str(p) for p in done.files)}")
+    elif args.csv_long:
+        from app.export_csv_long import export_csv_long
+        long = export_csv_long(args.session, args.csv_long, overwrite=args.overwrite)
+        print(f"wrote {len(long.runs)} stepped-sine runs to {long.path}"
+              + (f" (left out, not stepped sine: {', '.join(long.left_out)})" if long.left_out else ""))
     else:
         paths = export_csv(args.session, args.csv, overwrite=args.overwrite)
         print(f"wrote {len(paths)} CSV files to {args.csv}")
@@ -119,7 +124,7 @@ def cmd_export(args) -> int:
 
 def cmd_import(args) -> int:
     """Read FRFs or time histories of other systems (UFF58, CSV) into a session."""
-    from .importers.runs import SourceOptions, parse_dof_map
+    from .importers.runs import SourceOptions, parse_dof_map, parse_records
     from .importers.store import ImportRequest, import_files
 
     if args.force_amplitude is not None and not (math.isfinite(args.force_amplitude)
@@ -128,7 +133,8 @@ def cmd_import(args) -> int:
                          field="--force-amplitude")
     options = SourceOptions(args.kind, args.force_amplitude, args.direction,
                             [parse_dof_map(t) for t in args.dof or []],
-                            args.excitation)
+                            args.excitation, parse_records(args.records) if args.records else None,
+                            float(args.force_sign))
     result = import_files(ImportRequest([(f, options) for f in args.files], args.output, args.append,
                                         args.overwrite, " ".join(sys.argv), software_version()))
     for note in result.notes:
@@ -253,12 +259,14 @@ def cmd_analyze(args) -> int:
 
     from app.analyze import (backbones, backbones_json, misfits_json, read_measurements, reference_only,
                              report_text, run_workbench, run_workbench_auto, session_notes, store_history)
-    from app.session.outputs import check_output
     from app.progress import Progress
+    from app.session.outputs import check_output, require_free_space
 
     inputs = [args.session, args.model]
-    if args.output:                       # refused before any work: never an input, never silently replaced
+    if args.output:                       # refused before any work: never an input, never silently replaced,
         check_output(args.output, inputs=inputs, overwrite=args.overwrite)
+        # and never on a disk that cannot take it: a minute of analysis is not spent for nothing
+        require_free_space(args.output, FITTED_MODEL_ALLOWANCE, "write the fitted model")
     with Progress("analyze") as progress:
         progress.phase("reading the session")
         measurements = read_measurements(args.session)
@@ -307,15 +315,35 @@ def cmd_analyze(args) -> int:
     return 0
 
 
-def _write_model(args, text: str, inputs: list) -> None:
+def cmd_reference(args) -> int:
+    """A modal reference structure from the lowest stepped-sine level, written as a model file."""
+    from analysis.level_reference import reference_from_level
+
+    from app.analyze import read_measurements
+    from app.session.outputs import check_output
+
+    check_output(args.output, inputs=[args.session], overwrite=args.overwrite)
+    if args.band is not None and not (0 < args.band[0] < args.band[1] and all(map(math.isfinite, args.band))):
+        raise InputError(f"--band takes F1 F2 in Hz with 0 < F1 < F2, got {args.band[0]:g} {args.band[1]:g}",
+                         field="--band")
+    reference = reference_from_level(read_measurements(args.session), args.run_name, args.band)
+    print(reference.text())
+    _write_model(args, reference.model().to_toml(), [args.session], "reference model")
+    return 0
+
+
+FITTED_MODEL_ALLOWANCE = 64 * 1024      # bytes: a fitted model file is a few kB of TOML
+
+
+def _write_model(args, text: str, inputs: list, what: str = "fitted model") -> None:
     """Write the analysed model to ``-o``, never over an input nor silently over a file."""
     from app.session.outputs import atomic_output, require_free_space
 
     require_free_space(args.output, len(text.encode()) + 4096, "write the fitted model")
     with atomic_output(args.output, inputs=inputs, overwrite=args.overwrite) as temp:
         temp.write_text(text, encoding="utf-8")
-    if not args.json:
-        print(f"fitted model written to {args.output}")
+    if not getattr(args, "json", False):
+        print(f"{what} written to {args.output}")
 
 
 def cmd_recover(args) -> int:
@@ -466,11 +494,22 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="export a session's FRFs (UFF58 or CSV)")
     p.add_argument("session", help="session file (.h5)")
     target = p.add_mutually_exclusive_group(required=True)
-    target.add_argument("--uff", metavar="FILE", help="write UFF dataset 58 records into FILE (see --per-run)")
+    target.add_argument("--uff", metavar="FILE",
+                        help="write UFF dataset 58 records, one file per run named after FILE (see --one-file)")
     target.add_argument("--csv", metavar="DIR", help="write one CSV per run into DIR")
-    p.add_argument("--per-run", action="store_true",
-                   help="UFF: one file per run, FILE's stem + _<run> (for tools that need one frequency axis a file)")
-    p.add_argument("--binary", action="store_true", help="UFF: binary records (58b; abscissae kept exact)")
+    target.add_argument("--csv-long", metavar="FILE", help="write the stepped-sine runs into FILE in the CSV long "
+                                                           "format that import reads (force per line, control)")
+    files = p.add_mutually_exclusive_group()
+    files.add_argument("--per-run", dest="per_run", action="store_true", default=True,
+                       help="UFF: one file per run, FILE's stem + _<run> (the default: modal tools read one "
+                            "frequency axis a file)")
+    files.add_argument("--one-file", dest="per_run", action="store_false", help="UFF: every run in FILE")
+    encoding = p.add_mutually_exclusive_group()
+    encoding.add_argument("--binary", dest="binary", action="store_true", default=True,
+                          help="UFF: binary records (58b, doubles: every frequency kept exact; the default)")
+    encoding.add_argument("--ascii", dest="binary", action="store_false",
+                          help="UFF: ASCII records (six significant digits: a frequency they would round is "
+                               "refused)")
     p.add_argument("--frf-only", action="store_true",
                    help="UFF: only the FRF records, without contactid's per-line quantities")
     _overwrite_option(p, "existing output files")
@@ -492,7 +531,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dof", action="append", metavar="NODE[+DIR]=NAME",
                    help="map a UFF node (and direction) to a model DOF, e.g. 3+Z=A.w (repeatable)")
     p.add_argument("--excitation", metavar="NAME", help="DOF of the force (reference) where no --dof maps it")
+    p.add_argument("--records", metavar="N,M,...",
+                   help="UFF: import only these records (numbered from 1 in file order), e.g. the FRFs of one "
+                        "reference of a roving-hammer file")
+    p.add_argument("--force-sign", type=int, choices=[1, -1], default=1, metavar="{1,-1}",
+                   help="-1: the files' force is reversed against exp(+jwt) (a drive-point accelerance with phase "
+                        "-pi/2 at resonance); every FRF changes sign. Recorded in the import provenance")
     p.set_defaults(run=cmd_import)
+
+    p = sub.add_parser("reference", help="a modal reference structure fitted to the lowest stepped-sine level, "
+                                         "written as a model file (for sessions without a random run)")
+    p.add_argument("session", help="session file (.h5)")
+    p.add_argument("-o", "--output", required=True, metavar="MODEL.toml", help="model file to write")
+    p.add_argument("--run", dest="run_name", metavar="NAME",
+                   help="the run to fit (default: the level with the smallest response)")
+    p.add_argument("--band", nargs=2, type=float, metavar=("F1", "F2"), help="fit on the lines from F1 to F2 Hz")
+    p.add_argument("--overwrite", action="store_true", help="overwrite an existing model file")
+    p.set_defaults(run=cmd_reference)
 
     p = sub.add_parser("gui", help="the lab window: rig, acquisition, identification, model, session")
     p.add_argument("session", nargs="?", help="session file to open")

@@ -2,19 +2,23 @@
 
 UFF58 (docs/import.md has the full description):
 
-* every run in the named file, or (``per_run``, ``--per-run``) one file per run, ``<stem>_<run><suffix>``
-  beside it -- what modal software that stacks a file's records into one array needs when runs differ in
-  length; each file is opened by a dataset 151 header that states the quantity and the phase convention;
+* one file per run, ``<stem>_<run><suffix>`` beside the named file (the default) -- what modal software that
+  stacks a file's FRF records into one array (sdypy-EMA's ``read_uff``) needs when runs differ in length -- or
+  every run in the named file (``per_run=False``, ``--one-file``); each file is opened by a dataset 151 header
+  that states the quantity and the phase convention;
+* binary records (58b, doubles) by default: an ASCII record's six digits do not hold every frequency a
+  session measures (a random run's 0.150004 Hz spacing); ``binary=False`` (``--ascii``) writes ASCII;
 * one FRF record (function type 4) per sensor DOF: receptance, ordinate displacement (specific data type 8,
   length exponent 1, "m"; "rad" with exponent 0 on a rotation) over excitation force (type 13, force exponent 1,
-  "N"), abscissa in Hz; evenly spaced lines (a random run) are written as even, others as x/y pairs;
+  "N"), abscissa in Hz, lines in rising frequency (a down sweep too); evenly spaced lines (a random run) are
+  written as even, others as x/y pairs;
 * contactid's per-line quantities after the FRFs as tagged records -- ``frf_std`` and ``random_error`` and the
   held ``force_amplitude`` and displacement ``distortion`` as general functions (type 0), ``coherence`` as
   type 6 -- so an import gives the analysis the same numbers (``frf_only`` leaves them out);
 * node numbers: the session's stations (a DOF name up to its dot: ``A`` of ``A.w``, ``x1``) in natural sort
   order, numbered from 1; direction 3 (+Z) for ``*.w``, 5 (+Y rotation) for ``*.theta``, 1 (+X) otherwise;
-  the DOF names themselves, the run name, force level and sweep direction are in the id lines
-  (:mod:`app.importers.idlines`);
+  the DOF names themselves, the run name, force level and sweep direction (and a random run's sample rate and
+  Welch segment length) are in the id lines (:mod:`app.importers.idlines`);
 * the phase convention is exp(+jwt): a driving-point receptance has Im < 0.
 
 An ASCII record writes uneven abscissae with 6 significant digits (E13.5) and even spacing's start and step
@@ -27,7 +31,7 @@ from __future__ import annotations
 import csv
 import re
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +39,7 @@ import pyuff
 
 from analysis.errors import InputError
 
+from .importers.csv_runs import MARK as CSV_RUN_MARK
 from .importers.idlines import RecordTag, encode
 from app.session import (RunData, Session, atomic_output, check_format, check_output, check_run, check_run_count,
                          displacement_distortion, open_session, require_free_space)
@@ -111,7 +116,7 @@ def _abscissa(freq: np.ndarray, run: str, binary: bool, even_allowed: bool) -> d
         if bad.size:
             i = int(bad[0])
             raise InputError(f"line {i} at {float(freq[i])!r} Hz does not survive the 6 significant digits of an ASCII "
-                             f"UFF58 abscissa ({ASCII_DIGITS % freq[i]}); export binary UFF (--binary)",
+                             f"UFF58 abscissa ({ASCII_DIGITS % freq[i]}); export binary UFF (the default, or --binary)",
                              f"run {run}", "frequency")
     return {"abscissa_spacing": 0, "x": freq}
 
@@ -134,6 +139,15 @@ def _line_quantities(run: RunData) -> list[tuple[str, str, np.ndarray, _Axis, _A
     if distortion is not None:
         out.append(("distortion", run.excitation_dof, distortion, ONE_AXIS, NO_AXIS, FUNC_GENERAL))
     return out
+
+
+def welch_segment(run: RunData) -> tuple[float | None, int | None]:
+    """A random run's sample rate (Hz) and Welch segment length (samples), which set the resolution the
+    analysis allows for leakage; (None, None) for other runs or where the session does not hold them."""
+    fs, segment = run.attrs.get("sample_rate", 0), run.attrs.get("segment_length", 0)
+    if run.kind != "random" or not (fs and fs > 0 and segment and segment > 0):
+        return None, None
+    return float(fs), int(segment)
 
 
 def _distortion(run: RunData) -> np.ndarray | None:
@@ -162,7 +176,7 @@ def _record(ctx: _RecordContext, quantity: str, dof: str, values, ordinate: _Axi
             func_type: int) -> dict:
     run = ctx.run
     tag = RecordTag(run.name, quantity, dof, run.excitation_dof, run.kind, run.force, run.direction, run.status,
-                    ctx.records)
+                    ctx.records, *welch_segment(run))
     freq = np.asarray(run.frequency, float)
     values = np.asarray(values)
     bad = np.flatnonzero(~np.isfinite(values))
@@ -216,15 +230,27 @@ def _runs_to_export(s: Session) -> list[RunData]:
     return runs
 
 
+def rising(run: RunData) -> RunData:
+    """The run with its lines in rising frequency: modal tools take a record's abscissa as rising (sdypy-EMA's
+    band cut finds no line in a falling one). A down sweep's measured order comes back on import, from its
+    direction (app/importers/runs.py, ``in_sweep_order``)."""
+    if len(run.frequency) < 2 or run.frequency[1] > run.frequency[0]:
+        return run
+    n = len(run.frequency)
+    flip = {k: (v[::-1] if len(v) == n else v) for k, v in run.arrays.items()}
+    return replace(run, frequency=run.frequency[::-1], frf={d: v[::-1] for d, v in run.frf.items()}, arrays=flip)
+
+
 def run_file(uff_path: Path, run: str) -> Path:
     """Where the per-run export of ``run`` goes: ``<stem>_<run><suffix>`` beside ``uff_path``."""
     return uff_path.with_name(f"{uff_path.stem}_{run}{uff_path.suffix or '.uff'}")
 
 
-def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool = False,
-               binary: bool = False, frf_only: bool = False) -> UffExport:
-    """Write the session's runs as UFF58: all in ``uff_path`` or, with ``per_run``, one file per run (see
-    :func:`run_file`). Nothing is written unless every record could be prepared."""
+def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool = True,
+               binary: bool = True, frf_only: bool = False) -> UffExport:
+    """Write the session's runs as UFF58: one file per run (see :func:`run_file`) or, with ``per_run=False``,
+    all in ``uff_path``; binary records (58b, doubles) unless ``binary=False``. Nothing is written unless every
+    record could be prepared."""
     session_path, uff_path = Path(session_path), Path(uff_path)
     files: dict[Path, list[dict]] = {}
     with open_session(session_path) as s:
@@ -235,7 +261,7 @@ def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool
         nodes = node_numbers({d for r in runs for d in (r.excitation_dof, *r.sensor_dofs)})
         for load_case, run in enumerate(runs, start=1):
             target = run_file(uff_path, run.name) if per_run else uff_path
-            ctx = _RecordContext(run, load_case, nodes, created, software, binary)
+            ctx = _RecordContext(rising(run), load_case, nodes, created, software, binary)
             files.setdefault(target, []).extend(_run_records(ctx, frf_only))
     for target in files:
         check_output(target, inputs=[session_path], overwrite=overwrite, field="--uff")
@@ -283,6 +309,17 @@ def export_csv(session_path, directory, overwrite: bool = False) -> list[Path]:
     return paths
 
 
+def run_line(run: RunData) -> str:
+    """The CSV's machine-readable second row: what ``import`` needs to make the run again (exact force, a random
+    run's sample rate and Welch segment length), as ``key=value`` words like the UFF id lines."""
+    words = [f"run={run.name}", f"kind={run.kind}", f"force={float(run.force)!r}", f"direction={run.direction}",
+             f"status={run.status}", f"excitation={run.excitation_dof}"]
+    fs, segment = welch_segment(run)
+    if fs:
+        words += [f"sample_rate={fs!r}", f"segment_length={segment}"]
+    return f"{CSV_RUN_MARK} " + " ".join(words)
+
+
 def _write_run_csv(path: Path, run: RunData) -> None:
     columns = [("frequency [Hz]", run.frequency)]
     for dof, frf in run.frf.items():
@@ -295,10 +332,14 @@ def _write_run_csv(path: Path, run: RunData) -> None:
             columns += [(f"Re {name} [{unit}]", values.real), (f"Im {name} [{unit}]", values.imag)]
         else:
             columns.append((f"{name} [{unit}]", values.astype(float)))
+    distortion = _distortion(run)
+    if distortion is not None and "distortion" not in run.arrays:     # the THD the analysis uses, from harmonics
+        columns.append(("distortion [1]", distortion))
     with path.open("w", newline="") as fh:
         out = csv.writer(fh)
         out.writerow([f"# contactid run {run.name}: {run.kind}, force {run.force:g} N, direction {run.direction}, "
                       f"status {run.status}, excitation {run.excitation_dof}"])
+        out.writerow([run_line(run)])
         out.writerow([name for name, _ in columns])
         for row in zip(*(values for _, values in columns)):
             out.writerow([repr(float(v)) for v in row])

@@ -154,7 +154,7 @@ def plot_frfs(wb: Workbench, path: Path, sensor: str | None = None) -> Path:
         pred = comp.predicted[run.name][order, p]
         c = _colour(levels, run.force)
         measured, model = _symbols(c, 5), {"pen": {"color": c, "width": 2}}
-        mag.plot(f, np.abs(meas), name=f"{run.force:g} N {run.direction}", **measured)
+        mag.plot(f, np.abs(meas), name=f"{run.control.label()} {run.direction}", **measured)
         mag.plot(f, np.abs(pred), **model)
         ph.plot(f, np.degrees(np.angle(meas)), **measured)
         ph.plot(f, np.degrees(np.angle(pred)), **model)
@@ -239,7 +239,8 @@ def plot_residuals(wb: Workbench, path: Path) -> Path:
         residual = np.maximum(comp.residual_map[run.name][order], 1e-6)
         shown.append(residual)
         p.plot(run.frequency_hz[order], residual,
-               pen={"color": _colour(levels, run.force), "width": 2}, name=f"{run.force:g} N {run.direction}")
+               pen={"color": _colour(levels, run.force), "width": 2},
+               name=f"{run.control.label()} {run.direction}")
         other = comp.other_branch.get(run.name, np.zeros(len(order), bool))
         if other.any():                    # measured on another branch than the swept prediction (a jump)
             p.plot(run.frequency_hz[other], np.maximum(comp.residual_map[run.name][other], 1e-6), pen=None,

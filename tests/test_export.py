@@ -80,7 +80,7 @@ def test_random_run_is_evenly_spaced_and_the_default_file_holds_every_run(sessio
     np.testing.assert_allclose(rnd["x"], 0.25 * np.arange(1, 9), rtol=1e-14)
     coherence = [s for s in _records(run_file(tmp_path / "o.uff", "random")) if s.get("func_type") == 6]
     assert len(coherence) == 2
-    one = export_uff(path, tmp_path / "all.uff", frf_only=True)
+    one = export_uff(path, tmp_path / "all.uff", per_run=False, frf_only=True)
     assert one.files == [tmp_path / "all.uff"] and one.records == 4
     runs = {s["id1"].split()[1] for s in _records(tmp_path / "all.uff")[1:]}
     assert runs == {f"run={RUN}", "run=random"}
@@ -91,9 +91,9 @@ def test_an_abscissa_ascii_would_round_is_refused_and_binary_keeps_it(tmp_path):
     path = tmp_path / "s.h5"
     _sine_session(path, freqs).close()
     with pytest.raises(InputError, match=r"run sine_0.5N_up: frequency: line 1 at 100.0125 Hz .*--binary"):
-        export_uff(path, tmp_path / "o.uff")
+        export_uff(path, tmp_path / "o.uff", binary=False)
     assert list(tmp_path.glob("*.uff")) == [] and list(tmp_path.glob(".*partial")) == []
-    done = export_uff(path, tmp_path / "o.uff", binary=True)
+    done = export_uff(path, tmp_path / "o.uff")              # the default: binary
     [a] = [s for s in _records(done.files[0]) if s.get("rsp_ent_name", "").strip() == "A.w" and s["func_type"] == 4]
     assert a["binary"] == 1
     np.testing.assert_array_equal(a["x"], freqs)
@@ -123,7 +123,7 @@ def test_existing_output_and_the_input_are_refused(session, tmp_path):
     with pytest.raises(InputError, match="exists already"):
         export_uff(path, tmp_path / "o.uff")
     with pytest.raises(InputError, match="also an input"):
-        export_uff(path, path, overwrite=True)
+        export_uff(path, path, overwrite=True, per_run=False)
 
 
 def test_a_failed_write_leaves_no_file(session, tmp_path, monkeypatch):
@@ -136,7 +136,7 @@ def test_a_failed_write_leaves_no_file(session, tmp_path, monkeypatch):
 
     monkeypatch.setattr(pyuff.UFF, "write_sets", fail_midway)
     with pytest.raises(InputError, match="o.uff: not written: No space left on device; no file was left"):
-        export_uff(path, tmp_path / "o.uff")
+        export_uff(path, tmp_path / "o.uff", per_run=False)
     assert [p.name for p in tmp_path.iterdir()] == ["s.h5"]
 
 
@@ -158,8 +158,10 @@ def test_csv_has_units_and_all_lines(session, tmp_path):
     path, freqs = session
     export_csv(path, tmp_path / "csv")
     rows = list(csv.reader((tmp_path / "csv" / f"{RUN}.csv").open()))
-    header = rows[1]
+    assert rows[1] == [f"# contactid-run run={RUN} kind=stepped_sine force=0.5 direction=up status=complete "
+                       "excitation=B.w"]                    # what import reads back (app/importers/csv_runs.py)
+    header = rows[2]
     assert header[0] == "frequency [Hz]" and "Re frf A.w [m/N]" in header and "force_amplitude [N]" in header
-    data = np.array(rows[2:], float)
+    data = np.array(rows[3:], float)
     np.testing.assert_allclose(data[:, 0], freqs)
     np.testing.assert_allclose(data[:, header.index("Im frf B.theta [m/N]")], -2e-4 * np.arange(1, 6))

@@ -15,7 +15,7 @@ def originals(tmp_path_factory):
     folder = tmp_path_factory.mktemp("full")
     write_session(folder / "s.h5")
     (folder / "model.toml").write_text(MODEL)
-    assert main(["export", str(folder / "s.h5"), "--uff", str(folder / "a.uff")]) == 0
+    assert main(["export", str(folder / "s.h5"), "--uff", str(folder / "a.uff"), "--one-file"]) == 0
     return folder
 
 

@@ -68,3 +68,38 @@ def test_a_bad_file_is_a_message_and_writes_nothing(window, qtbot, tmp_path):
         dialog._accept()
     assert "bad.uff: holds no universal-file dataset" in blocker.args[0]
     assert not (tmp_path / "bad.h5").exists()
+
+
+def test_the_records_of_one_reference_are_picked_per_file(window, tmp_path):
+    """A roving-hammer file: the Records cell is ``--records`` of the command line."""
+    dialog = window.import_dialog()
+    dialog.add_files([controller_file(tmp_path / "hammer.uff")])
+    dialog.files.item(0, 4).setText("1, 2")
+    [(_, options)] = dialog.request().sources
+    assert options.records == [1, 2]
+    dialog.files.item(0, 4).setText("first")
+    dialog._accept()
+    assert dialog.isVisible() and "--records takes record numbers" in dialog.message.text()
+
+
+def test_a_reversed_force_is_refused_until_the_dialog_says_so(window, qtbot, tmp_path):
+    reversed_path = tmp_path / "rev.uff"                # the controller's force sign reversed: every FRF negated
+    sets = pyuff.UFF(controller_file(tmp_path / "low.uff")).read_sets()
+    for s in sets:
+        s["data"] = -s["data"]
+    pyuff.UFF(str(reversed_path)).write_sets(sets, mode="add")
+    dialog = window.import_dialog()
+    dialog.add_files([str(reversed_path)])
+    dialog.files.item(0, 1).setText("0.2")
+    dialog.dof_map.setPlainText("1+Z=x1\n2+Z=x2")
+    with qtbot.waitSignal(window.lab.error, timeout=30000) as blocker:
+        dialog._accept()
+    assert "give --force-sign -1" in blocker.args[0]
+    dialog = window.import_dialog()
+    dialog.add_files([str(reversed_path)])
+    dialog.files.item(0, 1).setText("0.2")
+    dialog.dof_map.setPlainText("1+Z=x1\n2+Z=x2")
+    dialog.reversed_force.setChecked(True)
+    with qtbot.waitSignal(window.lab.sessionChanged, timeout=30000):
+        dialog._accept()
+    assert (tmp_path / "rev.h5").exists()

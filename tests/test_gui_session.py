@@ -11,6 +11,7 @@ import pyuff
 from PySide6.QtGui import QImage
 
 import app.gui.session_panel as session_panel
+from app.export import run_file
 from app.gui.main_window import MainWindow
 from app.session.writer import open_session
 
@@ -92,7 +93,8 @@ def test_exports_through_the_buttons(window, qtbot, tmp_path, monkeypatch, finis
     monkeypatch.setattr(session_panel.QFileDialog, "getSaveFileName", lambda *a, **k: (str(uff), ""))
     with qtbot.waitSignal(window.lab.file_tasks.busyChanged, check_params_cb=lambda busy: not busy, timeout=30000):
         window.session.uff_button.click()
-    records = [r for r in pyuff.UFF(str(uff)).read_sets() if r.get("func_type") == 4]
+    run_uff = run_file(uff, RUN)                       # one file per run, named after the dialog's file
+    records = [r for r in pyuff.UFF(str(run_uff)).read_sets() if r.get("func_type") == 4]
     assert len(records) == 2
     with open_session(path) as s:
         stored = s.run(RUN)
@@ -100,14 +102,14 @@ def test_exports_through_the_buttons(window, qtbot, tmp_path, monkeypatch, finis
         dof = record["rsp_ent_name"].strip()
         np.testing.assert_allclose(record["x"], f, rtol=1e-6)
         np.testing.assert_allclose(record["data"], stored.frf[dof], rtol=1e-6)
-    assert f"records to {uff.name}" in window.session.export_label.text()
+    assert f"records to {run_uff.name}" in window.session.export_label.text()
 
     monkeypatch.setattr(session_panel.QFileDialog, "getExistingDirectory", lambda *a, **k: str(csv_dir))
     with qtbot.waitSignal(window.lab.file_tasks.busyChanged, check_params_cb=lambda busy: not busy, timeout=30000):
         window.session.csv_button.click()
     with open(csv_dir / f"{RUN}.csv", newline="") as fh:
         rows = list(csv.reader(fh))
-    assert len(rows) == 2 + len(f) and float(rows[2][0]) == pytest.approx(f[0])
+    assert len(rows) == 3 + len(f) and float(rows[3][0]) == pytest.approx(f[0])      # sentence, run line, columns
 
     written = window.session.export_plots(png_dir)
     names = {p.name for p in written}

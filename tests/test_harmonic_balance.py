@@ -415,3 +415,19 @@ def test_multiharmonic_converges_on_anderson_ferri_friction_and_matches_its_peri
         single_off = np.linalg.norm(single.receptance[i, 0] * 0.5 - ref) / np.linalg.norm(ref)
         off = np.linalg.norm(mh.harmonics[i, 1] - ref) / np.linalg.norm(ref)
         assert off < 0.3 * single_off, (w[i] / HZ, single_off, off)
+
+
+def test_each_line_is_predicted_at_its_own_measured_force():
+    """A force per line (L, B): every line solves the explicit single-element relation at its own force, and a
+    sweep at a constant force per line is the sweep at that force."""
+    s, els = sdof([{"law": "cubic", "k3": 1e3}])
+    w = np.linspace(6.0, 14.0, 25)
+    force = np.stack([0.2 * (1 + 0.25 * np.sin(np.arange(25))), np.full(25, 0.5)], axis=1)    # (L, 2)
+    pred = predict_sweep(s, els, "x", w, force)
+    assert pred.converged.all()
+    h = s.frf(w)[:, 0, 0]
+    X = np.abs(pred.y[:, :, 0])
+    implied = X * np.abs(1.0 + h[:, None] * els[0].describing_function(X, w[:, None])) / np.abs(h)[:, None]
+    np.testing.assert_allclose(implied, force, rtol=1e-8)
+    held = predict_sweep(s, els, "x", w, [0.5])
+    np.testing.assert_allclose(pred.receptance[:, 1], held.receptance[:, 0], rtol=1e-10)

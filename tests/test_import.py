@@ -241,6 +241,10 @@ def test_time_histories_become_a_random_run_through_the_projects_estimator(tmp_p
     assert run.force == pytest.approx(np.std(force))
     f = run.frequency
     assert f[0] > 0 and f[-1] == pytest.approx(6.0, abs=0.2)
+    # the Welch segment is kept: the analysis's leakage allowance is the line spacing fs / segment_length
+    assert run.attrs["segment_length"] == 512 and np.allclose(np.diff(f), fs / 512)
+    with open_session(tmp_path / "s.h5") as s:
+        assert measurements_from_session(s).random.resolution == fs / 512
     truth = np.array([np.linalg.solve(K - w ** 2 * M + 1j * w * C, [0.0, 1.0]) for w in 2 * np.pi * f])
     for p, dof in enumerate(["x1", "x2"]):
         good = run.arrays[f"coherence/{dof}"] > 0.99          # 8 s segments blur the first mode
@@ -273,7 +277,8 @@ def _time(node, kind):
 
 BAD_UFF = {
     "not an FRF": ([_frf(func_type=6, data=np.ones(4))], [],
-                   r"b.uff: record 1: func_type: function type 6 is not an FRF \(4\) or a time history \(1\)"),
+                   r"b.uff: record 1: func_type: function type 6 is a coherence, not an FRF \(4\) "
+                   r"or a time history \(1\)"),
     "no force channel": ([_time(1, 12), _time(2, 12)], DOFS,
                          r"b.uff: record 1: ordinate_spec_data_type: no force channel"),
     "DOF not mapped": ([_frf()], ["--dof", "2+Z=x2"],
@@ -288,7 +293,7 @@ BAD_UFF = {
     "unknown unit": ([_frf(ordinate_axis_units_lab="furlong")], DOFS,
                      r"b.uff: record 1: ordinate_axis_units_lab: unit 'furlong' not known"),
     "not a force over": ([_frf(orddenom_spec_data_type=12)], DOFS,
-                         r"b.uff: record 1: orddenom_spec_data_type: .* 12 is not a force"),
+                         r"b.uff: record 1: orddenom_spec_data_type: .* 12 \(acceleration\) is not a force"),
 }
 
 

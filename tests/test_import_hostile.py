@@ -52,8 +52,8 @@ def exported(tmp_path_factory):
     """contactid's own export of the session, ASCII and binary."""
     folder = tmp_path_factory.mktemp("hostile")
     write_session(folder / "s.h5")
-    assert main(["export", str(folder / "s.h5"), "--uff", str(folder / "a.uff")]) == 0
-    assert main(["export", str(folder / "s.h5"), "--uff", str(folder / "b.uff"), "--binary"]) == 0
+    assert main(["export", str(folder / "s.h5"), "--uff", str(folder / "a.uff"), "--one-file", "--ascii"]) == 0
+    assert main(["export", str(folder / "s.h5"), "--uff", str(folder / "b.uff"), "--one-file"]) == 0
     return folder
 
 
@@ -188,7 +188,9 @@ def test_a_file_cut_at_a_record_boundary_is_refused_by_the_record_count(exported
 def test_a_record_header_claiming_another_number_of_points_is_refused(exported, tmp_path, capsys, claimed):
     path = edited(exported, tmp_path, first(b"         6         6         0",
                                             b"         6" + claimed + b"         0"))
+    more = int(claimed) > 6                    # a header promising more than follows: the record is truncated
     refused(capsys, ["import", str(path), "-o", str(tmp_path / "o.h5")], path, "record 2: num_pts",
+            f"the record is truncated: its header promises {int(claimed)} points but only 6 follow" if more else
             f"the header says {int(claimed)} points, the record holds 6")
 
 
@@ -305,3 +307,22 @@ def test_a_write_that_fails_on_a_full_disk_is_one_line_naming_the_session(export
     refused(capsys, ["import", str(exported / "a.uff"), "-o", str(out)], out,
             "not written: No space left on device; no file was left")
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- contactid's own CSV, edited
+@pytest.mark.parametrize("old, new, names", [
+    (b"force=0.8 ", b"force=-0.8 ", ["line 2", "force=-0.8 is not a number > 0"]),
+    (b" excitation=x2", b"", ["line 2", "the run line has no excitation="]),
+    (b"kind=stepped_sine", b"kind=sweep", ["line 2", "kind=sweep"]),
+    (b",Im frf x2 [m/N]", b",Im frf x2", ["line 3: column", "'Im frf x2' is not 'name [unit]'"]),
+    (b",Im frf x2 [m/N]", b",Imag frf x2 [m/N]", ["line 3", "frf x2 has Re but not both Re and Im"]),
+    (b"\n0.8,", b"\n0.8x,", ["line 4: column 1", "'0.8x' is not a number"]),
+])
+def test_an_edited_csv_export_is_refused_naming_line_and_field(tmp_path, capsys, old, new, names):
+    write_session(tmp_path / "s.h5")
+    assert main(["export", str(tmp_path / "s.h5"), "--csv", str(tmp_path / "csv")]) == 0
+    path = tmp_path / "csv" / f"{RUN}.csv"
+    text = path.read_bytes()
+    assert old in text
+    path.write_bytes(text.replace(old, new, 1))
+    refused(capsys, ["import", str(path), "-o", str(tmp_path / "o.h5")], path, *names)

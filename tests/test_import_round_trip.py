@@ -3,11 +3,11 @@ import tomllib
 
 import numpy as np
 import pytest
+import pyuff
 
 from analysis.model import load_model
 from app.analyze import run_workbench
 from app.cli import main
-from app.export import export_uff
 from app.importers.runs import SourceOptions
 from app.importers.store import ImportRequest, import_files
 from app.campaign.instruments import emulated_instruments
@@ -50,11 +50,17 @@ def test_simulate_export_import_analyze_gives_the_same_laws_and_error(rig, tmp_p
         model.write_text(load_model({"structure": structure, "element": elements}).to_toml())
     else:
         model = asset("paper-beam.model.toml")
-    files = export_uff(session, tmp_path / "e.uff", binary=True).files
-    imported = tmp_path / "imported.h5"
-    assert main(["import", *map(str, files), "-o", str(imported)]) == 0      # no flags
-    original, again = (run_workbench(p, model) for p in (session, imported))
-    (wb0, ranked0), (wb1, ranked1) = original, again
+    assert main(["export", str(session), "--uff", str(tmp_path / "e.uff")]) == 0       # the default flags
+    assert main(["export", str(session), "--csv", str(tmp_path / "csv")]) == 0
+    imported, from_csv = tmp_path / "imported.h5", tmp_path / "from_csv.h5"
+    assert main(["import", *map(str, sorted(tmp_path.glob("e_*.uff"))), "-o", str(imported)]) == 0   # no flags
+    assert main(["import", *map(str, sorted((tmp_path / "csv").glob("*.csv"))), "-o", str(from_csv)]) == 0
+    wb0, ranked0 = run_workbench(session, model)
+    for again in (imported, from_csv):
+        _same_analysis(wb0, ranked0, *run_workbench(again, model))
+
+
+def _same_analysis(wb0, ranked0, wb1, ranked1):
     assert wb1.compare().error == pytest.approx(wb0.compare().error, rel=1e-6)
     for (name, terms0), terms1 in zip(_laws(wb0).items(), _laws(wb1).values()):
         assert [t for t, _ in terms0] == [t for t, _ in terms1]
@@ -66,8 +72,73 @@ def test_simulate_export_import_analyze_gives_the_same_laws_and_error(rig, tmp_p
         assert c1.error == pytest.approx(c0.error, rel=1e-6)
 
 
-def test_what_the_analysis_reads_survives_export_and_import(tmp_path):
-    """A short session with everything the analysis uses: FRFs, their noise, the force held, harmonics."""
+FS, SEGMENT = 2048.0, 27307          # the demo's random run: lines 0.0749991... Hz apart (not six digits)
+
+
+def _random_run(w: SessionWriter, rng) -> None:
+    """A random run as a campaign writes it: Welch lines of 2048 Hz / 27307 samples, coherence, random error."""
+    f = FS / SEGMENT * np.arange(300, 330)
+    w.begin_run(RunSpec("random", "random", 0.01, "none", "A.w", ["A.w", "B.theta"], FS, ["force"], ["N"],
+                        {"coherence/A.w": ("1", (), "f8"), "coherence/B.theta": ("1", (), "f8"),
+                         "random_error/A.w": ("1", (), "f8"), "random_error/B.theta": ("1", (), "f8")},
+                        {"segment_length": SEGMENT, "band": [20.0, 200.0], "duration": 60.0}))
+    # a drive point takes energy in: Im < 0 (the import checks it, docs/import.md "Conventions")
+    w.write_arrays({"frequency": f, "frf/A.w": (rng.normal(size=30) - 1j * np.abs(rng.normal(size=30))) * 1e-5,
+                    "frf/B.theta": (rng.normal(size=30) + 1j * rng.normal(size=30)) * 1e-4,
+                    "coherence/A.w": rng.random(30), "coherence/B.theta": rng.random(30),
+                    "random_error/A.w": rng.random(30) * 0.1, "random_error/B.theta": rng.random(30) * 0.1})
+    w.end_run("complete")
+
+
+def _sdypy_reads(path) -> np.ndarray:
+    """What sdypy-EMA's ``Model.read_uff`` does with a file (sdypy/EMA/EMA.py, 0.31): every set read by pyuff,
+    the function-type-4 records stacked into one array, the abscissa of the first, the FRF form from the first
+    dataset 58's ordinate type. Returns the (records, lines) array."""
+    uff = pyuff.UFF(str(path))
+    types = uff.get_set_types()
+    assert 58 in types
+    ind58 = np.argwhere(types == 58)[:, 0]
+    data = uff.read_sets()
+    frf = np.asarray([data[i]["data"] for i in ind58 if data[i]["func_type"] == 4])
+    freq = np.asarray([data[i]["x"] for i in ind58 if data[i]["func_type"] == 4])[0]
+    assert frf.dtype == complex and frf.ndim == 2 and frf.shape[1] == len(freq)      # not ragged
+    assert np.all(np.diff(freq) > 0)                 # its band cut (_freq_to_index) finds lines in a rising axis
+    assert data[ind58[0]]["ordinate_spec_data_type"] == 8                            # receptance
+    return frf
+
+
+def test_the_default_export_holds_every_line_exactly_and_modal_tools_read_each_file(tmp_path):
+    """Runs of different lengths, a random run's spacing that six digits cannot hold: the default export (one
+    binary file per run) works, keeps every frequency exact and reads as sdypy-EMA reads it."""
+    session = tmp_path / "s.h5"
+    w = SessionWriter(session, software_version="t")
+    _random_run(w, np.random.default_rng(3))
+    for direction, lines in (("up", (50.0, 50.0125, 50.5)), ("down", (50.5, 50.25, 50.0125, 50.0))):
+        w.begin_run(RunSpec(f"sine_0.5N_{direction}", "stepped_sine", 0.5, direction, "A.w", ["A.w", "B.theta"],
+                            1e3, ["force"], ["N"]))
+        for k, f in enumerate(lines):
+            w.append_line(f, {"A.w": 1e-5 * (1 - 1j) * (k + 1), "B.theta": 1e-4j * (k + 1)})
+        w.end_run("complete")
+    w.close()
+    assert main(["export", str(session), "--uff", str(tmp_path / "e.uff")]) == 0
+    files = sorted(tmp_path.glob("e_*.uff"))
+    assert [p.name for p in files] == ["e_random.uff", "e_sine_0.5N_down.uff", "e_sine_0.5N_up.uff"]
+    with open_session(session) as s:
+        for path in files:
+            run = s.run(path.stem[2:])
+            order = np.argsort(run.frequency)                 # a down sweep is written rising
+            frf = _sdypy_reads(path)
+            np.testing.assert_array_equal(frf, np.stack([run.frf[d][order] for d in run.sensor_dofs]))
+            [x] = {tuple(r["x"]) for r in pyuff.UFF(str(path)).read_sets() if r.get("func_type") == 4}
+            np.testing.assert_array_equal(x, run.frequency[order])
+    assert main(["export", str(session), "--uff", str(tmp_path / "a.uff"), "--ascii"]) == 2    # six digits
+
+
+@pytest.mark.parametrize("route", ["uff", "csv"])
+def test_what_the_analysis_reads_survives_export_and_import(tmp_path, route):
+    """A short session with everything the analysis uses: FRFs, their noise, the force held, harmonics, and a
+    random run's coherence, random error and Welch resolution; exported with the default flags (UFF) or as CSV,
+    imported with none."""
     session = tmp_path / "s.h5"
     w = SessionWriter(session, software_version="t")
     extras = {"force_amplitude": ("N", (), "f8"), "frf_std/A.w": ("m/N", (), "f8"),
@@ -78,18 +149,30 @@ def test_what_the_analysis_reads_survives_export_and_import(tmp_path):
         w.begin_run(RunSpec(f"sine_0.5N_{direction}", "stepped_sine", 0.5, direction, "A.w", ["A.w", "B.theta"],
                             1e3, ["force"], ["N"], extras))
         for f in freqs:
-            frf = {"A.w": complex(*rng.normal(size=2)) * 1e-5, "B.theta": complex(*rng.normal(size=2)) * 1e-4}
+            # the drive point passive (Im < 0): an import refuses energy flowing out (app/importers/conventions.py)
+            frf = {"A.w": complex(rng.normal(), -abs(rng.normal())) * 1e-5,
+                   "B.theta": complex(*rng.normal(size=2)) * 1e-4}
             w.append_line(f, frf, {"force_amplitude": 0.5 + rng.normal() * 1e-3,
                                    "frf_std/A.w": 1e-8 * (1 + rng.random()), "frf_std/B.theta": 1e-7,
                                    "harmonics/acc:A.w": rng.normal(size=4) + 1j * rng.normal(size=4),
                                    "harmonics/acc:B.theta": rng.normal(size=4) + 0j})
         w.end_run("complete")
+    _random_run(w, rng)
     w.close()
-    files = export_uff(session, tmp_path / "e.uff", binary=True).files
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["export", str(session), f"--{route}", str(out / "e.uff" if route == "uff" else out)]) == 0
+    files = sorted(out.glob(f"*.{route}"))
+    assert len(files) == 3
     import_files(ImportRequest([(str(p), SourceOptions()) for p in files], str(tmp_path / "i.h5")))
     with open_session(session) as a, open_session(tmp_path / "i.h5") as b:
         before, after = measurements_from_session(a), measurements_from_session(b)
         assert b.run("sine_0.5N_down").attrs["imported"]
+    r0, r1 = before.random, after.random
+    assert r0.resolution == FS / SEGMENT and r1.resolution == r0.resolution      # the leakage allowance kept
+    assert (r1.excitation_dof, r1.sensor_dofs, r1.force_rms) == (r0.excitation_dof, r0.sensor_dofs, r0.force_rms)
+    for field in ("frequency_hz", "receptance", "coherence", "random_error"):
+        np.testing.assert_array_equal(getattr(r1, field), getattr(r0, field), err_msg=field)
     for r0, r1 in zip(before.sine, after.sine):
         assert (r1.name, r1.force, r1.direction, r1.excitation_dof, r1.sensor_dofs) == \
             (r0.name, r0.force, r0.direction, r0.excitation_dof, r0.sensor_dofs)

@@ -113,8 +113,11 @@ def test_an_interrupted_demo_with_overwrite_leaves_the_earlier_session_and_keeps
     out = tmp_path / "demo"
     out.mkdir()
     (out / "paper-beam.h5").write_bytes(b"a complete earlier session")
+    # Ctrl-C as a shell delivers it: a test run started in the background has SIGINT ignored, and a child
+    # inherits that (Python then installs no KeyboardInterrupt handler)
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "demo", "--quick", "--overwrite", "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 300            # a generous guard: a loaded machine starts slowly
     while not list(out.glob(".paper-beam.h5.*.partial")) and time.monotonic() < deadline:
         time.sleep(0.2)

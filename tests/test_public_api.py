@@ -77,9 +77,11 @@ COMMANDS = {
     "emulate": ["rig", "--pty", "--tcp", "--fast", "--seed"],
     "analyze": ["session", "model", "--add", "--auto", "--json", "-o", "--output", "--no-history", "--force",
                 "--overwrite"],
-    "export": ["session", "--uff", "--csv", "--force", "--overwrite"],
+    "export": ["session", "--uff", "--csv", "--csv-long", "--force", "--overwrite", "--per-run", "--one-file",
+               "--binary", "--ascii", "--frf-only"],
     "import": ["files", "-o", "--output", "--append", "--overwrite", "--kind", "--force", "--force-amplitude",
-               "--direction", "--dof", "--excitation"],
+               "--direction", "--dof", "--excitation", "--records", "--force-sign"],
+    "reference": ["session", "-o", "--output", "--run", "--band", "--overwrite"],
     "modes": ["file", "-n", "--count", "--all-dofs", "--bare"],
     "laws": [],
 }

@@ -13,7 +13,8 @@ from analysis import InputError
 from analysis.identify import identify_complex_stiffness
 from analysis.measurements import Control
 from app.campaign import emulated_instruments, parse_plan, run_plan
-from app.session import check_control, measurements_from_session, open_session
+from app.session import measurements_from_session, open_session
+from app.session.checks import run_control
 from drivers.simulation.rig import load_rig
 
 RIGS = Path(__file__).parent / "rigs"
@@ -75,12 +76,12 @@ def test_control_attributes_absent_read_as_force_and_wrong_ones_are_refused():
     def error(what, message):
         return InputError(message, "s.h5", f"run r, {what}")
 
-    assert check_control({}, "x1", 0.8, error) == Control("force", "x1", "force", 0.8)
+    assert run_control({}, 0.8, "x1", error) == Control("force", "x1", "force", 0.8)
     with pytest.raises(InputError, match="attribute control_target"):
-        check_control({"control": "response", "control_quantity": "velocity", "control_target": -1.0}, "x1", 0.8,
-                      error)
+        run_control({"control": "response", "control_dof": "x1", "control_quantity": "velocity",
+                     "control_target": -1.0}, 0.8, "x1", error)
     with pytest.raises(InputError, match="attribute control: must be one of"):
-        check_control({"control": "position"}, "x1", 0.8, error)
+        run_control({"control": "position"}, 0.8, "x1", error)
 
 
 # ----------------------------------------------------------------------------- hardening rig, against truth

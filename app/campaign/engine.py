@@ -416,8 +416,6 @@ class Campaign:
                            self.channels, ["N"] + ["m/s^2"] * len(self.sensor_dofs), self._sine_extras(spec.response),
                            {"start": spec.start, "stop": spec.stop, "step": spec.step, "refine": spec.refine,
                             **self._control_attrs(spec)})
-        held = HeldLevel(spec.force) if spec.response is None else \
-            HeldLevel(spec.response.target, spec.response.quantity, spec.response.dof, spec.response.force_limit)
         with self._run(run_spec):
             planned = spec.lines(direction)
             f, stop = planned[0], planned[-1]
@@ -436,7 +434,7 @@ class Campaign:
                                   self.plan.settle, self.plan.control_tolerance, lambda: self._interrupt(guard),
                                   self._transient)
                 while True:
-                    m = self._measure(meter, f, held, drive)
+                    m = self._measure(meter, f, _held(spec, index), drive)
                     drive = self._carry_drive(m)
                     self._gain = abs(m.force) / m.drive
                     gains.append((m.frequency, self._gain))
@@ -452,8 +450,8 @@ class Campaign:
                     previous = m
                     f_next = f + sign * step
                     f = stop if sign * (f_next - stop) > 0 else f_next
-                    drive = self._response_drive(lines_drive, f, drive) if held.response else \
-                        self._predicted_drive(gains, f, spec.force, drive)
+                    drive = self._response_drive(lines_drive, f, drive) if spec.response is not None else \
+                        self._predicted_drive(gains, f, spec.line_target(index), drive)
                 meter.ramp_out(f, m.drive, RAMP_OUT_PERIODS)
             self.shaker.disarm()
             self._judge(name, spec)
@@ -663,6 +661,14 @@ class Campaign:
             self.writer.end_run(status, reason, self._run_lines.closing_attrs(spec))
             self.summary.runs[spec.name] = status
             self.listener.run_ended(spec.name, status)
+
+
+def _held(spec: SineSpec, index: int) -> HeldLevel:
+    """What the loop holds at a run's line ``index``: the (possibly drifting) force, or the response level."""
+    if spec.response is None:
+        return HeldLevel(spec.line_target(index))
+    r = spec.response
+    return HeldLevel(r.target, r.quantity, r.dof, r.force_limit)
 
 
 def lock_extras(point: LockedPoint) -> dict:

@@ -1,7 +1,8 @@
 """Plan files (docs/contracts.md §5): what a campaign runs, checked before the shaker is armed.
 
 Beyond the contract's keys, each ``[[stepped_sine]]`` table may set ``refine`` (adaptive refinement near
-resonance, default true) and ``min_step`` (Hz, default step / 4); ``[settle]`` tunes steady-state detection
+resonance, default true), ``min_step`` (Hz, default step / 4) and ``force_drift`` (the force target wandering
++-that fraction around ``force`` line by line, as a real controller's does; default 0); ``[settle]`` tunes steady-state detection
 (``tolerance`` relative change between successive blocks, default 2e-3; ``max_periods`` before a line is
 measured anyway, default 600; ``block_periods``, default 5; ``fixed_periods`` replaces the detection by the
 fixed-count practice, waiting that many periods after every change; ``method`` = ``"steady"`` waits for the
@@ -80,7 +81,14 @@ class SineSpec:
     direction: str              # up | down | both
     refine: bool = True
     min_step: float = 0.0
+    force_drift: float = 0.0    # the force target drifts by up to this fraction around ``force`` (emulated rigs)
     response: ResponseLevel | None = None
+
+    def line_target(self, index: int) -> float:
+        """The force held at the run's line ``index``, N: ``force``, or with ``force_drift`` a target that wanders
+        smoothly around it line by line, within +-force_drift, as a real controller's achieved force does
+        across a resonance (docs/campaigns.md)."""
+        return self.force * (1.0 + self.force_drift * np.sin(2 * np.pi * index / DRIFT_LINES))
 
     def control(self, excitation_dof: str) -> Control:
         """The level's control in the session's vocabulary (docs/session-format.md)."""
@@ -88,9 +96,6 @@ class SineSpec:
             return Control("force", excitation_dof, "force", self.force)
         r = self.response
         return Control("response", r.dof, r.quantity, r.target)
-
-    def level_text(self) -> str:
-        return f"{self.force:g} N" if self.response is None else self.response.text()
 
     @property
     def directions(self) -> list[str]:
@@ -120,6 +125,7 @@ class SineSpec:
 
 
 SETTLE_METHODS = ("steady", "transient")
+DRIFT_LINES = 17.0              # lines per cycle of a drifting force target (SineSpec.line_target)
 MAX_SINE_TABLES = 200           # [[stepped_sine]] tables (force levels) in one plan
 MAX_RANDOM_SECONDS = 3600.0      # [random] duration: one hour of random excitation at most
 MAX_BLOCK_PERIODS = 1000         # [settle] block_periods: periods in one record
@@ -287,7 +293,8 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
                          "(docs/campaigns.md, limits)", source, "[[stepped_sine]]")
     for i, f in enumerate(tables):
         f.where = f"[[stepped_sine]][{i}]"
-        f.unknown_keys({"force", "start", "stop", "step", "direction", "refine", "min_step", *RESPONSE_KEYS})
+        f.unknown_keys({"force", "start", "stop", "step", "direction", "refine", "min_step", "force_drift",
+                        *RESPONSE_KEYS})
         start, stop, step = f.number("start", positive=True), f.number("stop", positive=True), \
             f.number("step", positive=True)
         if stop <= start:
@@ -301,10 +308,15 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         min_step = f.number("min_step", step / 4, positive=True)
         if min_step > step:
             raise f.error("min_step", f"must not exceed step ({step} Hz)")
+        drift = f.number("force_drift", 0.0, nonnegative=True)
+        if drift >= 1:
+            raise f.error("force_drift", f"must be a fraction below 1 (0.25: +-25 % around force), got {drift:g}")
         response = _response_level(f)
+        if response is not None and drift:
+            raise f.error("force_drift", "drifts a force level's target; a response level holds no force")
         force = response.force_limit if response is not None else f.number("force", positive=True)
         sines.append(SineSpec(force, start, stop, step, f.string("direction", "up", ("up", "down", "both")),
-                              refine, min_step, response))
+                              refine, min_step, drift, response))
     phases = [_phase_table(f, i) for i, f in enumerate(root.list_of_tables("phase_resonance"))]
     if random is None and not sines and not phases:
         raise InputError("plans nothing: give [random], [[stepped_sine]] and/or [[phase_resonance]] tables", source)
@@ -321,10 +333,13 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
     sines = [_default_force_limit(spec, limits) for spec in sines]
     _check_line_count(sines, limits.max_lines, source)
     for i, spec in enumerate(sines):
-        if spec.force >= limits.max_force:
-            key = "force" if spec.response is None else "force_limit"
-            raise InputError(f"{key} {spec.force} N is not below the abort limit max_force = {limits.max_force} N",
-                             source, f"[[stepped_sine]][{i}].{key}")
+        if spec.response is not None and spec.force >= limits.max_force:
+            raise InputError(f"force_limit {spec.force} N is not below the abort limit max_force = "
+                             f"{limits.max_force} N", source, f"[[stepped_sine]][{i}].force_limit")
+        if spec.force * (1 + spec.force_drift) >= limits.max_force:
+            drifted = f" (drifting to {spec.force * (1 + spec.force_drift):g} N)" if spec.force_drift else ""
+            raise InputError(f"force {spec.force} N{drifted} is not below the abort limit max_force = "
+                             f"{limits.max_force} N", source, f"[[stepped_sine]][{i}].force")
     if random is not None and 3 * random.force_rms >= limits.max_force:
         raise InputError(f"force_rms {random.force_rms} N: its peaks (~3 x rms) would reach max_force = "
                          f"{limits.max_force} N", source, "[random].force_rms")

@@ -61,7 +61,7 @@ def _level(run) -> str:
     a = run.attrs
     if a.get("control") != "response":
         return f"{run.force:g} N"
-    return Control("response", a["control_dof"], a["control_quantity"], float(a["control_target"])).text()
+    return Control("response", a["control_dof"], a["control_quantity"], float(a["control_target"])).label()
 
 
 def _spin(value: float, decimals: int = 4, minimum: float = 0.0, maximum: float = 1e5) -> QDoubleSpinBox:

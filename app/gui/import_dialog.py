@@ -1,5 +1,6 @@
 """File > Import…: other systems' UFF58 or CSV files into a session, with the options of ``contactid import``
--- a force level, sweep direction and kind per file, one DOF map and excitation for all (docs/import.md)."""
+-- a force level, sweep direction, kind and UFF records per file, one DOF map and excitation for all
+(docs/import.md)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,11 +11,11 @@ from PySide6.QtWidgets import (QAbstractItemView, QCheckBox, QComboBox, QDialog,
 
 from analysis.errors import InputError
 
-from ..importers.runs import SourceOptions, parse_dof_map
+from ..importers.runs import SourceOptions, parse_dof_map, parse_records
 from ..importers.store import ImportRequest
 
 FROM_FILE = "from the file"
-COLUMNS = ("File", "Force [N]", "Direction", "Kind")
+COLUMNS = ("File", "Force [N]", "Direction", "Kind", "Records")
 FILE_FILTER = "Measurements (*.uff *.unv *.uff58 *.bin *.csv);;All files (*)"
 
 
@@ -48,9 +49,12 @@ class ImportDialog(QDialog):
         out_row.addWidget(self.output, 1)
         out_row.addWidget(browse)
         self.append = QCheckBox("add the runs to this existing session")
+        # the command line's --force-sign -1: a file refused because its drive point gives energy out
+        self.reversed_force = QCheckBox("the force's sign is reversed (--force-sign -1: every FRF changes sign)")
         form = QFormLayout()
         form.addRow("DOF map", self.dof_map)
         form.addRow("Excitation", self.excitation)
+        form.addRow("", self.reversed_force)
         form.addRow("Session", out_row)
         form.addRow("", self.append)
         self.message = QLabel()
@@ -81,6 +85,9 @@ class ImportDialog(QDialog):
             self.files.setItem(row, 1, QTableWidgetItem(""))
             self.files.setCellWidget(row, 2, _combo([FROM_FILE, "up", "down"]))
             self.files.setCellWidget(row, 3, _combo([FROM_FILE, "sine", "random"]))
+            records = QTableWidgetItem("")
+            records.setToolTip("UFF records to import, e.g. 1,3 (one reference of a roving-hammer file); empty: all")
+            self.files.setItem(row, 4, records)
         if paths and not self.output.text():
             self.output.setText(str(Path(paths[0]).with_suffix(".h5")))
 
@@ -111,8 +118,11 @@ class ImportDialog(QDialog):
                 raise InputError(f"force {force_text!r} is not a number > 0 N", self.files.item(row, 0).text(),
                                  "Force [N]")
         direction, kind = (self.files.cellWidget(row, c).currentText() for c in (2, 3))
+        records = self.files.item(row, 4).text().strip()
         return SourceOptions(None if kind == FROM_FILE else kind, force,
-                             None if direction == FROM_FILE else direction, dofs, excitation)
+                             None if direction == FROM_FILE else direction, dofs, excitation,
+                             parse_records(records) if records else None,
+                             -1.0 if self.reversed_force.isChecked() else 1.0)
 
     def request(self) -> ImportRequest:
         """The import as entered; InputError naming the field when something is missing or malformed."""

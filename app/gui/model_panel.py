@@ -238,7 +238,7 @@ class ModelPanel(QWidget):
         view = self.view
         if view is None:
             return
-        by_level = ", ".join(f"{f:g} N: {e:.3g}" for f, e in view.error_by_level)
+        by_level = ", ".join(f"{e.label()}: {e.error:.3g}" for e in view.error_by_level)
         single = "" if view.single_harmonic_error == view.error else \
             f"; single-harmonic {view.single_harmonic_error:.4g}, as the candidates' errors"
         self.error_label.setText(f"FRF error {view.error:.4g}   ({by_level}{single})")
@@ -328,7 +328,7 @@ class ModelPanel(QWidget):
             for p, dof in enumerate(run.sensor_dofs):
                 self.frf.plot(f, finite_log(np.abs(run.receptance[order, p])), pen=None, symbol=sensor_symbol(p),
                               symbolSize=5, symbolBrush=pg.mkBrush(color), symbolPen=None,
-                              name=f"{run.control.text()} {run.direction} · {dof}")
+                              name=f"{run.control.label()} {run.direction} · {dof}")
                 self.frf.plot(f, finite_log(np.abs(predicted[:, p])), pen=pg.mkPen(color, width=1.5))
             self.residual.plot(f, finite_log(view.residual_map[run.name][order]), pen=pg.mkPen(color, width=1),
                                symbol="o", symbolSize=4, symbolBrush=pg.mkBrush(color), symbolPen=None)

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from analysis.auto import AutoResult
+from analysis.comparison import LevelError
 from analysis.diagnosis import Candidate, ElementSamples
 from analysis.measurements import SineRun
 from analysis.workbench import Workbench
@@ -98,7 +99,7 @@ class AnalysisView:
 
     elements: list[ElementView]
     error: float
-    error_by_level: list[tuple[float, float]]
+    error_by_level: list[LevelError]
     runs: list[SineRun]
     predicted: dict[str, np.ndarray]
     residual_map: dict[str, np.ndarray]

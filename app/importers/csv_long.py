@@ -1,9 +1,11 @@
 """The CSV long format: one row per line, force level and DOF (docs/import.md).
 
 A header row names the columns ``frequency_hz, force_n, dof, re, im`` (receptance X/F, m/N, exp(+jwt)) and
-optionally ``std`` (its standard deviation sqrt(E|n|^2), m/N) and ``direction`` (up/down); lines starting with
-``#`` before the header are comments. Rows of one force level (and direction) form one run, in the order given;
-every DOF of a run must have the same lines.
+optionally ``std`` (its standard deviation sqrt(E|n|^2), m/N), ``direction`` (up/down), the force measured at
+each line (``force_amplitude_n``, N; ``force_phase_rad``) and, for a response-controlled level, the response
+held (``control_dof``, ``control_quantity``, ``control_target`` in SI units; ``force_n`` may then be empty).
+Lines starting with ``#`` before the header are comments. Rows of one level (and direction) form one run, in
+the order given; every DOF of a run must have the same lines.
 """
 from __future__ import annotations
 
@@ -13,11 +15,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from analysis.errors import InputError
+from analysis.measurements import CONTROL_UNITS, Control
 
-from .runs import KINDS, ImportedRun, SourceOptions, check_axis, in_sweep_order, sine_run_name, sweep_direction
+from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, in_sweep_order, response_run_name, sine_run_name,
+                   sweep_direction)
 
 REQUIRED = ("frequency_hz", "force_n", "dof", "re", "im")
-OPTIONAL = ("std", "direction")
+OPTIONAL = ("std", "direction", "force_amplitude_n", "force_phase_rad", "control_dof", "control_quantity",
+            "control_target")
+RESPONSE_QUANTITIES = tuple(q for q in CONTROL_UNITS if q != "force")
 
 
 @dataclass
@@ -28,6 +34,8 @@ class _Lines:
     frequency: list[float] = field(default_factory=list)
     value: list[complex] = field(default_factory=list)
     std: list[float] = field(default_factory=list)
+    force_amplitude: list[float] = field(default_factory=list)
+    force_phase: list[float] = field(default_factory=list)
 
 
 def _number(text: str, path: str, row: int, column: str) -> float:
@@ -70,24 +78,20 @@ def read_csv_long(path: str, options: SourceOptions) -> tuple[list[ImportedRun],
     header_row, columns = _header(rows, path)
     if options.excitation is None:
         raise InputError("a CSV file does not name the excitation: give --excitation NAME", path, "--excitation")
-    runs: dict[tuple[float, str | None], dict[str, _Lines]] = {}
+    runs: dict[tuple[Control, str | None], dict[str, _Lines]] = {}
     for number, row in rows[header_row:]:
         if not row or all(not c.strip() for c in row):
             continue
         if len(row) != len(columns):
             raise InputError(f"{len(row)} fields, the header has {len(columns)}", path, f"line {number}")
         cell = dict(zip(columns, (c.strip() for c in row)))
-        if not cell["force_n"]:
-            raise InputError("no force level", path, f"line {number}: force_n")
-        force = _number(cell["force_n"], path, number, "force_n")
-        if force <= 0:
-            raise InputError(f"{cell['force_n']!r} is not a force amplitude > 0 N", path, f"line {number}: force_n")
+        control = _control(cell, path, number, options.excitation)
         direction = cell.get("direction") or None
         if direction not in (None, "up", "down"):
             raise InputError(f"{direction!r} is not up or down", path, f"line {number}: direction")
         if not cell["dof"]:
             raise InputError("no DOF name", path, f"line {number}: dof")
-        lines = runs.setdefault((force, direction), {}).setdefault(cell["dof"], _Lines(number))
+        lines = runs.setdefault((control, direction), {}).setdefault(cell["dof"], _Lines(number))
         lines.frequency.append(_number(cell["frequency_hz"], path, number, "frequency_hz"))
         lines.value.append(complex(_number(cell["re"], path, number, "re"), _number(cell["im"], path, number, "im")))
         if "std" in cell:
@@ -95,32 +99,105 @@ def read_csv_long(path: str, options: SourceOptions) -> tuple[list[ImportedRun],
             if std <= 0:
                 raise InputError(f"{std!r} is not a standard deviation > 0", path, f"line {number}: std")
             lines.std.append(std)
+        _measured_force(cell, lines, path, number)
     if not runs:
         raise InputError("no data rows after the header", path, f"line {header_row}")
-    out = [_run(path, force, direction, dofs, options) for (force, direction), dofs in runs.items()]
+    out = [_run(path, control, direction, dofs, options) for (control, direction), dofs in runs.items()]
     return [in_sweep_order(r) for r in out], [",".join(rows[header_row - 1][1])], []
 
 
-def _run(path: str, force: float, direction: str | None, dofs: dict[str, _Lines],
+def _control(cell: dict, path: str, row: int, excitation: str) -> Control:
+    """The level of a row: a force level (``force_n``), or the response held where ``control_target`` is given."""
+    if not cell.get("control_target"):
+        if not cell["force_n"]:
+            raise InputError("no force level", path, f"line {row}: force_n")
+        force = _number(cell["force_n"], path, row, "force_n")
+        if force <= 0:
+            raise InputError(f"{cell['force_n']!r} is not a force amplitude > 0 N", path, f"line {row}: force_n")
+        return Control("force", excitation, "force", force)
+    target = _number(cell["control_target"], path, row, "control_target")
+    if target <= 0:
+        raise InputError(f"{cell['control_target']!r} is not an amplitude > 0", path, f"line {row}: control_target")
+    quantity = cell.get("control_quantity", "").lower()
+    if quantity not in RESPONSE_QUANTITIES:
+        raise InputError(f"{quantity!r} is not one of {', '.join(RESPONSE_QUANTITIES)} (the response held)", path,
+                         f"line {row}: control_quantity")
+    dof = cell.get("control_dof", "")
+    if not dof:
+        raise InputError("no DOF named for the response held", path, f"line {row}: control_dof")
+    if not cell.get("force_amplitude_n"):
+        raise InputError("a response-controlled level needs the force measured at each line", path,
+                         f"line {row}: force_amplitude_n")
+    return Control("response", dof, quantity, target)
+
+
+def _measured_force(cell: dict, lines: _Lines, path: str, row: int) -> None:
+    """The force measured at the row's line (optional columns): amplitude > 0 N and its phase."""
+    if cell.get("force_amplitude_n"):
+        amplitude = _number(cell["force_amplitude_n"], path, row, "force_amplitude_n")
+        if amplitude <= 0:
+            raise InputError(f"{cell['force_amplitude_n']!r} is not a force amplitude > 0 N", path,
+                             f"line {row}: force_amplitude_n")
+        lines.force_amplitude.append(amplitude)
+    if cell.get("force_phase_rad"):
+        lines.force_phase.append(_number(cell["force_phase_rad"], path, row, "force_phase_rad"))
+
+
+def _run(path: str, control: Control, direction: str | None, dofs: dict[str, _Lines],
          options: SourceOptions) -> ImportedRun:
     first_dof, first = next(iter(dofs.items()))
     freq = np.array(first.frequency)
     frf, arrays = {}, {}
+    level = control.label()
     for dof, lines in dofs.items():
         f = np.array(lines.frequency)
-        check_axis(f, path, f"line {lines.first_row}: frequency_hz (dof {dof}, force {force:g} N)")
+        check_axis(f, path, f"line {lines.first_row}: frequency_hz (dof {dof}, level {level})")
         if len(f) != len(freq) or not np.allclose(f, freq, rtol=1e-12):
-            raise InputError(f"dof {dof} at {force:g} N has other lines than dof {first_dof} (line "
+            raise InputError(f"dof {dof} at {level} has other lines than dof {first_dof} (line "
                              f"{first.first_row}): a level or line is missing", path,
                              f"line {lines.first_row}: frequency_hz")
         frf[dof] = np.array(lines.value)
         if lines.std:
             arrays[f"frf_std/{dof}"] = ("m/N", np.array(lines.std))
+    arrays.update(_force_arrays(path, dofs, level))
+    force = control.target
+    if control.mode == "response":
+        force = float(np.median(arrays["force_amplitude"][1]))
     kind = KINDS[options.kind or "sine"]
     if (freq <= 0).any():
         raise InputError("a line at 0 Hz or below: receptance lines must be above 0 Hz", path,
                          f"line {first.first_row}: frequency_hz")
     direction = "none" if kind == "random" else sweep_direction(freq, direction or options.direction)
-    name = "random" if kind == "random" else sine_run_name(force, direction)
+    if kind == "random":
+        name = "random"
+    elif control.mode == "response":
+        name = response_run_name(control, direction)
+    else:
+        name = sine_run_name(force, direction)
     return ImportedRun(name, kind, force, direction, options.excitation, freq, frf, arrays, source=path,
-                       records=[lines.first_row for lines in dofs.values()])
+                       records=[lines.first_row for lines in dofs.values()], control=control)
+
+
+def _force_arrays(path: str, dofs: dict[str, _Lines], level: str) -> dict[str, tuple[str, np.ndarray]]:
+    """``force_amplitude`` (N) and ``force_phase`` (rad) per line, where the rows give them: every row of a line
+    (one per DOF) gives the same force, it being one force."""
+    out = {}
+    for name, column, unit in (("force_amplitude", "force_amplitude_n", "N"), ("force_phase", "force_phase_rad",
+                                                                                "rad")):
+        given = [(dof, getattr(lines, name)) for dof, lines in dofs.items()]
+        if not any(values for _, values in given):
+            continue
+        first_dof, first = given[0]
+        for dof, values in given:
+            lines = dofs[dof]
+            if len(values) != len(lines.frequency):
+                raise InputError(f"dof {dof} at {level}: {column} is given on {len(values)} of its "
+                                 f"{len(lines.frequency)} lines; give it on every line or none", path,
+                                 f"line {lines.first_row}: {column}")
+            differ = np.flatnonzero(~np.isclose(values, first, rtol=1e-9, atol=0))
+            if differ.size:
+                raise InputError(f"dof {dof} at {level}: line {int(differ[0])} has {column} {values[differ[0]]!r}, "
+                                 f"dof {first_dof} {first[differ[0]]!r}: one force a line", path,
+                                 f"line {lines.first_row}: {column}")
+        out[name] = (unit, np.array(first, float))
+    return out

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from analysis.errors import InputError
+from analysis.measurements import Control
 
 KINDS = {"sine": "stepped_sine", "random": "random"}
 DIRECTION_CODES = {"X": 1, "Y": 2, "Z": 3, "RX": 4, "RY": 5, "RZ": 6}
@@ -52,6 +53,8 @@ class SourceOptions:
     direction: str | None = None         # "up" | "down"
     dofs: list[DofMap] = field(default_factory=list)
     excitation: str | None = None
+    records: list[int] | None = None     # UFF records to import (numbers from 1 in file order); None: all
+    force_sign: float = 1.0              # -1: the file's force is reversed against exp(+jwt) (docs/import.md)
 
     def __post_init__(self):
         named: dict[tuple[int, int | None], str] = {}
@@ -92,7 +95,10 @@ class ImportedRun:
     source: str = ""
     records: list[int] = field(default_factory=list)
     raw: "RawRecord | None" = None
-    sample_rate: float = 0.0
+    sample_rate: float = 0.0             # Hz; with segment_length, a random run's Welch resolution
+    segment_length: int = 0              # samples per Welch segment (0: not known)
+    load_case: int | None = None         # the UFF load case of another system's FRFs (None: tagged or CSV)
+    control: Control | None = None       # None: force control at ``force``
 
 
 @dataclass
@@ -115,6 +121,7 @@ class SourceFile:
     id_lines: list[list[str]]
     runs: list[ImportedRun]
     notes: list[str]
+    force_sign: float = 1.0              # applied to every FRF of the file (--force-sign)
 
 
 def check_axis(x: np.ndarray, where: str, field_name: str) -> None:
@@ -161,6 +168,23 @@ def in_sweep_order(run: ImportedRun) -> ImportedRun:
     return run
 
 
+def parse_records(text: str) -> list[int]:
+    """``--records 1,3`` (record numbers from 1, in file order)."""
+    words = [w.strip() for w in text.split(",")]
+    if not words or not all(w.isdigit() and int(w) > 0 for w in words):
+        raise InputError(f"--records takes record numbers from 1 separated by commas (e.g. 1,3), got {text!r}",
+                         field="--records")
+    return [int(w) for w in words]
+
+
 def sine_run_name(force: float, direction: str) -> str:
     """The name an acquired session gives a stepped-sine run (docs/session-format.md)."""
     return f"sine_{force:g}N_{direction}"
+
+
+UNIT_TOKENS = {"displacement": "m", "velocity": "mps", "acceleration": "mps2"}
+
+
+def response_run_name(control: Control, direction: str) -> str:
+    """The name of a response-controlled stepped-sine level: ``sine_x1_20mps2_up`` (docs/session-format.md)."""
+    return f"sine_{control.dof}_{control.target:g}{UNIT_TOKENS[control.quantity]}_{direction}"

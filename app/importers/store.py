@@ -24,9 +24,12 @@ from analysis.errors import InputError
 
 from app.session import (LINES_PER_CHUNK, RunData, RunSpec, SessionWriter, atomic_output, check_output, check_run,
                          open_session, require_free_space)
+from .conventions import apply_force_sign, check_drive_point
 from .csv_long import read_csv_long
+from .csv_runs import is_run_csv, read_csv_run
+from .idlines import ID_KEYS
 from .runs import ImportedRun, SourceFile, SourceOptions
-from .uff import ID_KEYS, read_uff
+from .uff import read_uff
 
 # What an imported session takes on the disk, estimated from the data (measured on imports of 1 to 50 runs of
 # 6 to 20000 lines: the estimate is 1.3 to 1.9 times the file written): a session's fixed part, each run's
@@ -70,13 +73,31 @@ def read_source(path: str, options: SourceOptions) -> SourceFile:
     if not p.is_file():
         raise InputError("file not found", path)
     size, sha = _digest(p)
-    if p.suffix.lower() == ".csv":
+    if p.suffix.lower() == ".csv" and options.records:
+        raise InputError("only a UFF file has records to pick; this is a CSV file", path, "--records")
+    if p.suffix.lower() == ".csv" and is_run_csv(path):
+        runs, header, notes = read_csv_run(path)
+        source = SourceFile(path, "csv-run", size, sha, [header], runs, notes)
+    elif p.suffix.lower() == ".csv":
         runs, header, notes = read_csv_long(path, options)
-        return SourceFile(path, "csv-long", size, sha, [header], runs, notes)
-    runs, records, notes = read_uff(path, options)
-    binary = any(r.fields.get("binary") for r in records)
-    id_lines = [[str(r.fields.get(k, "")).strip() for k in ID_KEYS] for r in records]
-    return SourceFile(path, "uff58b" if binary else "uff58", size, sha, id_lines, runs, notes)
+        source = SourceFile(path, "csv-long", size, sha, [header], runs, notes)
+    else:
+        runs, records, notes = read_uff(path, options)
+        binary = any(r.fields.get("binary") for r in records)
+        id_lines = [[str(r.fields.get(k, "")).strip() for k in ID_KEYS] for r in records]
+        source = SourceFile(path, "uff58b" if binary else "uff58", size, sha, id_lines, runs, notes)
+    _conventions(source, options.force_sign)
+    return source
+
+
+def _conventions(source: SourceFile, force_sign: float) -> None:
+    """Where the CSV and UFF paths meet: the force sign applied, then every drive point's convention checked."""
+    source.force_sign = force_sign
+    for run in source.runs:
+        apply_force_sign(run, force_sign)
+        check_drive_point(run, source.path, force_sign)
+    if force_sign < 0:
+        source.notes.append("force sign reversed (--force-sign -1): every FRF's sign changed")
 
 
 def estimated_bytes(files: list[SourceFile]) -> int:
@@ -101,10 +122,19 @@ def _stored_status(run: ImportedRun) -> tuple[str, str]:
     return "aborted", f"the source says status {run.status}"
 
 
+def control_attrs(run: ImportedRun) -> dict:
+    """The run attributes saying how its level was held (docs/session-format.md); none for force control."""
+    c = run.control
+    if c is None or c.mode == "force":
+        return {}
+    return {"control": c.mode, "control_dof": c.dof, "control_quantity": c.quantity,
+            "control_target": float(c.target), "control_units": c.units}
+
+
 def _as_stored(run: ImportedRun) -> RunData:
     """The run as a session will hold it, for the checks every session passes before it is analysed."""
     attrs = {"kind": run.kind, "status": _stored_status(run)[0], "direction": run.direction, "force": run.force,
-             "excitation_dof": run.excitation_dof, "sensor_dofs": json.dumps(list(run.frf))}
+             "excitation_dof": run.excitation_dof, "sensor_dofs": json.dumps(list(run.frf)), **control_attrs(run)}
     return RunData(run.name, attrs, run.frequency, run.frf, {k: v for k, (_, v) in run.arrays.items()},
                    {k: u for k, (u, _) in run.arrays.items()}, incomplete=False)
 
@@ -211,10 +241,13 @@ def _write_run(writer: SessionWriter, run: ImportedRun, source: SourceFile) -> N
     extras = {name: (units, (), "c16" if np.iscomplexobj(values) else "f8")
               for name, (units, values) in run.arrays.items()}
     raw = run.raw
+    attrs = {"imported": True, "source_file": Path(source.path).name, "source_format": source.format,
+             "source_records": json.dumps(run.records)}
+    if run.segment_length:
+        attrs["segment_length"] = int(run.segment_length)      # as a campaign's random run has it
     writer.begin_run(RunSpec(run.name, run.kind, run.force, run.direction, run.excitation_dof, list(run.frf),
                              run.sample_rate, raw.channels if raw else ["force"], raw.units if raw else ["N"],
-                             extras, {"imported": True, "source_file": Path(source.path).name,
-                                      "source_format": source.format, "source_records": json.dumps(run.records)}))
+                             extras, {**attrs, **control_attrs(run)}))
     arrays = {"frequency": run.frequency, **{f"frf/{d}": v for d, v in run.frf.items()},
               **{name: values for name, (_, values) in run.arrays.items()}}
     if run.kind == "stepped_sine":                     # no raw samples for any line
@@ -237,6 +270,6 @@ def _store_provenance(path: Path, files: list[SourceFile], first_index: int) -> 
             g.attrs.update({"name": Path(source.path).name, "path": str(Path(source.path).resolve()),
                             "size": source.size, "sha256": source.sha256, "format": source.format,
                             "imported": now, "runs": json.dumps([r.name for r in source.runs]),
-                            "notes": json.dumps(source.notes)})
+                            "notes": json.dumps(source.notes), "force_sign": float(source.force_sign)})
             lines = np.array(source.id_lines, dtype=object) if source.id_lines else np.empty((0, 0), object)
             g.create_dataset("id_lines", data=lines, dtype=h5py.string_dtype())

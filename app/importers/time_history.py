@@ -14,6 +14,7 @@ from analysis.errors import InputError
 from analysis.frf_estimation import FRFEstimator
 
 from .runs import ImportedRun, RawRecord, SourceOptions
+from .uff_codes import data_type_name
 from .units import FORCES, PREFIX, RESPONSES, SI_UNITS, FileUnits, file_default, to_receptance, unit_factor
 
 MIN_AVERAGES = 8
@@ -29,8 +30,9 @@ def _channel(path: str, number: int, fields: dict, units: FileUnits | None) -> t
     """(specific data type, samples in SI, sample interval) of one time-history record."""
     kind = int(fields.get("ordinate_spec_data_type", 0))
     if kind not in RESPONSES and kind not in FORCES:
-        raise InputError(f"ordinate specific data type {kind} is neither a force (13, 9) nor a displacement, "
-                         "velocity or acceleration (8, 11, 12)", path, _where(number, "ordinate_spec_data_type"))
+        raise InputError(f"ordinate specific data type {kind} ({data_type_name(kind)}) is neither a force (13, 9) "
+                         "nor a displacement, velocity or acceleration (8, 11, 12)", path,
+                         _where(number, "ordinate_spec_data_type"))
     if int(fields.get("abscissa_spec_data_type", 0)) not in TIME_TYPES:
         raise InputError("the abscissa of a time history must be time", path, _where(number, "abscissa_spec_data_type"))
     x = np.asarray(fields["x"], float)
@@ -58,13 +60,22 @@ def segment_length(fs: float, samples: int) -> int:
     return max(8, min(longest, fitting))
 
 
+def _require_force(path: str, records: list[tuple[int, dict]]) -> None:
+    """The real reason first: time histories without a force channel make no FRF, whatever else they are."""
+    kinds = [int(fields.get("ordinate_spec_data_type", 0)) for _, fields in records]
+    if any(k in FORCES for k in kinds):
+        return
+    held = "; ".join(f"record {n}: {data_type_name(k)} ({k})" for (n, _), k in zip(records, kinds))
+    raise InputError(f"no force channel among the time histories ({held}): a random run needs the excitation "
+                     "force (ordinate specific data type 13 or 9) beside the responses; nothing imported", path,
+                     _where(records[0][0], "ordinate_spec_data_type"))
+
+
 def random_run_from_time_histories(path: str, records: list[tuple[int, dict]], options: SourceOptions,
                                    units: FileUnits | None, notes: list[str]) -> ImportedRun:
+    _require_force(path, records)
     channels = [(number, fields, *_channel(path, number, fields, units)) for number, fields in records]
     forces = [c for c in channels if c[2] in FORCES]
-    if not forces:
-        raise InputError("no force channel among the time histories (ordinate specific data type 13 or 9)", path,
-                         _where(channels[0][0], "ordinate_spec_data_type"))
     if len(forces) > 1:
         raise InputError(f"a second force channel (first: record {forces[0][0]}); one excitation per run", path,
                          _where(forces[1][0], "ordinate_spec_data_type"))
@@ -116,4 +127,5 @@ def random_run_from_time_histories(path: str, records: list[tuple[int, dict]], o
     raw = RawRecord(["force"] + [f"{PREFIX[k]}:{d}" for k, d in zip(kinds, names)],
                     ["N"] + [SI_UNITS[k] for k in kinds], np.column_stack([force, stacked]))
     return ImportedRun("random", "random", float(np.std(force)), "none", excitation, f, frf, arrays, source=path,
-                       records=[n for n, _ in records], raw=raw, sample_rate=fs)
+                       records=[n for n, _ in records], raw=raw, sample_rate=fs,
+                       segment_length=est.segment_length)

@@ -1,9 +1,10 @@
 """UFF58 files (ASCII and binary, read with pyuff) to imported runs (docs/import.md).
 
-Records are numbered from 1 in file order. Dataset 58 records of function type 4 (FRF) become stepped-sine
-runs (or a random run with ``--kind random``), function type 1 (time response) a random run through the
-project's H1/H2/Hv estimator; contactid's own tagged per-line records (:mod:`.idlines`) go back to their run;
-everything else (headers, units, geometry, spectra, coherence of other systems) is skipped and listed.
+Records are numbered from 1 in file order (``--records`` picks some). Dataset 58 records of function type 4
+(FRF) become stepped-sine runs (or a random run with ``--kind random``), function type 1 (time response) a random
+run through the project's H1/H2/Hv estimator; a force spectrum beside the FRFs (:mod:`.force_spectrum`) and
+contactid's own tagged per-line records (:mod:`.idlines`) go back to their run; everything else (headers, units,
+geometry, other spectra, coherence of other systems) is skipped and listed.
 """
 from __future__ import annotations
 
@@ -14,10 +15,12 @@ import pyuff
 
 from analysis.errors import InputError
 
-from .idlines import RecordTag, decode
+from .force_spectrum import attach_force_spectra, is_force_spectrum
+from .idlines import ID_KEYS, RecordTag, decode
 from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, check_values, in_sweep_order, sine_run_name,
                    sweep_direction)
 from .time_history import random_run_from_time_histories
+from .uff_codes import data_type_name, function_name
 from .units import DISPLACEMENT, FORCES, RESPONSES, FileUnits, Scaled, file_default, to_receptance, unit_factor
 
 FUNC_TIME, FUNC_FRF = 1, 4
@@ -26,7 +29,6 @@ FREQUENCY_TYPES = (0, 18)          # unknown or frequency
 LINE_QUANTITIES = {"frf_std": ("frf_std/{dof}", "m/N"), "coherence": ("coherence/{dof}", "1"),
                    "random_error": ("random_error/{dof}", "1"), "force_amplitude": ("force_amplitude", "N"),
                    "distortion": ("distortion", "1")}
-ID_KEYS = ("id1", "id2", "id3", "id4", "id5")
 
 
 @dataclass
@@ -61,6 +63,9 @@ def read_records(path: str) -> tuple[list[Record], FileUnits | None, list[str]]:
         raise InputError(f"not a readable universal file ({exc})", path) from None
     if not types:
         raise InputError("holds no universal-file dataset (not a UFF file?)", path)
+    if 58 not in types:
+        raise InputError(f"holds no dataset 58 record, so no FRF and no time history (its datasets: "
+                         f"{', '.join(map(str, types))}); nothing imported", path)
     _check_whole(uff, path)
     records, others, units = [], [], None
     for i, kind in enumerate(types):
@@ -100,8 +105,13 @@ def _check_whole(uff, path: str) -> None:
 
 
 def _check_points(fields: dict, path: str, number: int) -> None:
-    """The record header's number of points is the number of points the record holds."""
+    """The record header's number of points is the number of points the record holds; fewer is a record cut
+    short (a file copied or exported incompletely), and says so."""
     claimed, held = fields.get("num_pts"), len(fields.get("data", ()))
+    if claimed is not None and held < int(claimed):
+        raise InputError(f"the record is truncated: its header promises {int(claimed)} points but only {held} "
+                         "follow (the file was copied or exported incompletely); nothing imported", path,
+                         f"record {number}: num_pts")
     if claimed is None or int(claimed) != held:
         raise InputError(f"the header says {claimed} points, the record holds {held}", path,
                          f"record {number}: num_pts")
@@ -137,26 +147,79 @@ def read_uff(path: str, options: SourceOptions) -> tuple[list[ImportedRun], list
     """The runs of one UFF58 file, its dataset 58 records and notes (skipped records, assumed units)."""
     records, units, notes = read_records(path)
     _check_records_complete(path, records)
+    records = _chosen(path, records, options.records, notes)
     frf = [r for r in records if r.fields.get("func_type") == FUNC_FRF and (r.tag is None or r.tag.quantity == "frf")]
     time = [r for r in records if r.fields.get("func_type") == FUNC_TIME and r.tag is None]
     extra = [r for r in records if r.tag is not None and r.tag.quantity != "frf"]
-    skipped = [r for r in records if r not in frf and r not in time and r not in extra]
+    spectra = [r for r in records if r.tag is None and frf and is_force_spectrum(r.fields)]
+    skipped = [r for r in records if r not in frf and r not in time and r not in extra and r not in spectra]
     if not frf and not time:
-        first = records[0] if records else None
-        if first is None:
-            raise InputError("holds no dataset 58 record (no FRF or time history)", path)
-        raise InputError(f"function type {first.fields.get('func_type')} is not an FRF (4) or a time history (1), "
-                         "and no record of the file is", path, first.where("func_type"))
+        _refuse_no_function(path, records)
     if skipped:
         notes.append(f"skipped records {', '.join(str(r.number) for r in skipped)} (function types "
                      f"{', '.join(sorted({str(r.fields.get('func_type')) for r in skipped}))}: "
-                     "neither FRF nor time history)")
-    runs = _frf_runs(path, frf, options, units, notes)
+                     "neither FRF nor time history nor a force spectrum beside FRFs)")
+    _check_one_reference(path, frf)
+    runs = _frf_runs(path, frf, options, units, notes, {r.fields.get("load_case_id", 0) for r in spectra})
+    attach_force_spectra(path, runs, [(r.number, r.fields) for r in spectra], units, notes)
     if time:
         runs.append(random_run_from_time_histories(path, [(r.number, r.fields) for r in time], options, units,
                                                    notes))
     _attach_line_quantities(path, runs, extra, units)
     return [in_sweep_order(r) for r in runs], records, notes
+
+
+def _chosen(path: str, records: list[Record], wanted: list[int] | None, notes: list[str]) -> list[Record]:
+    """The dataset 58 records ``--records`` names (all without it); a number that is none of them is refused."""
+    if not wanted:
+        return records
+    numbers = [r.number for r in records]
+    missing = [n for n in wanted if n not in numbers]
+    if missing:
+        raise InputError(f"record {missing[0]} is not a dataset 58 record of the file (its dataset 58 records: "
+                         f"{', '.join(map(str, numbers)) or 'none'})", path, "--records")
+    left = [n for n in numbers if n not in wanted]
+    if left:
+        notes.append(f"records {', '.join(map(str, left))} left out (--records)")
+    return [r for r in records if r.number in wanted]
+
+
+def _refuse_no_function(path: str, records: list[Record]) -> None:
+    """No FRF and no time history among the (chosen) dataset 58 records -- there is one at least (read_records):
+    say what the first is instead, in a whole sentence."""
+    first = records[0]
+    code = int(first.fields.get("func_type", 0))
+    why = {9: "a PSD has neither phase nor a force to divide by, so it gives no receptance",
+           10: "an ESD has neither phase nor a force to divide by, so it gives no receptance"}.get(
+        code, "it gives no receptance")
+    others = "" if len(records) == 1 else f", and neither is any other of its {len(records)} records"
+    raise InputError(f"function type {code} is {function_name(code)}, not an FRF (4) or a time history (1): "
+                     f"{why}{others}; export FRFs or time histories of force and responses", path,
+                     first.where("func_type"))
+
+
+def _reference(record: Record) -> tuple[int, int]:
+    return int(record.fields.get("ref_node", 0)), int(record.fields.get("ref_dir", 0))
+
+
+def _check_one_reference(path: str, frf: list[Record]) -> None:
+    """Other systems' FRFs of one load case make one run, which has one excitation: a file with several
+    references (a roving hammer) is refused first for that, with the records of each reference to pick."""
+    by_case: dict = {}
+    for r in frf:
+        if r.tag is None:
+            by_case.setdefault(r.fields.get("load_case_id", 0), {}).setdefault(_reference(r), []).append(r)
+    for references in by_case.values():
+        if len(references) < 2:
+            continue
+        groups = "; ".join(f"node {node}{'-' if d < 0 else '+'}{abs(d)}: record{'s' if len(rs) > 1 else ''} "
+                           f"{', '.join(str(r.number) for r in rs)}" for (node, d), rs in references.items())
+        second = list(references.values())[1][0]
+        example = ",".join(str(r.number) for r in list(references.values())[0])
+        raise InputError(f"the FRFs have {len(references)} different references ({groups}) -- a roving-hammer or "
+                         "multi-reference measurement; a run has one excitation: import the records of one "
+                         f"reference (e.g. --records {example}), one import per reference", path,
+                         second.where("ref_node"))
 
 
 def _dof(path: str, record: Record, node_field: str, dir_field: str, options: SourceOptions,
@@ -185,8 +248,11 @@ def _axis(path: str, record: Record, axis: str, allowed: dict, units: FileUnits 
     if kind not in allowed:
         what = AXIS_TYPES[axis] if axis == "orddenom" or allowed is RESPONSES else " or ".join(
             f"{name} ({t})" for t, name in allowed.items())
-        raise InputError(f"{AXIS_NAMES[axis]} specific data type {kind} is not {what}", path,
-                         record.where(f"{axis}_spec_data_type"))
+        label = str(f.get(f"{axis}_axis_units_lab", "")).strip()
+        shown = f" (unit label {label!r}; the type decides, never the label)" if label.upper() not in ("", "NONE") \
+            else ""
+        raise InputError(f"{AXIS_NAMES[axis]} specific data type {kind} ({data_type_name(kind)}) is not {what}"
+                         f"{shown}", path, record.where(f"{axis}_spec_data_type"))
     return kind, unit_factor(kind, f.get(f"{axis}_axis_units_lab", ""), path, record.where(f"{axis}_axis_units_lab"),
                              file_default(units, f, axis))
 
@@ -244,14 +310,17 @@ def _run_key(record: Record) -> tuple:
 
 
 def _frf_runs(path: str, frf: list[Record], options: SourceOptions, units: FileUnits | None,
-              notes: list[str]) -> list[ImportedRun]:
+              notes: list[str], measured_force: set) -> list[ImportedRun]:
+    """One run per load case (per tagged run); ``measured_force``: load cases with a force spectrum, whose
+    level may come from it."""
     groups: dict[tuple, list[FrfEntry]] = {}
     for record in frf:
         groups.setdefault(_run_key(record), []).append(_frf_entry(path, record, options, units, notes))
-    return [_run_from_entries(path, entries, options) for entries in groups.values()]
+    return [_run_from_entries(path, entries, options, measured_force) for entries in groups.values()]
 
 
-def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions) -> ImportedRun:
+def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions,
+                      measured_force: set) -> ImportedRun:
     first = entries[0]
     frf: dict[str, np.ndarray] = {}
     for e in entries:
@@ -267,9 +336,13 @@ def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions
     tag = first.record.tag
     if tag is not None:
         kind, force, direction, name, status = tag.kind, tag.force, tag.direction, tag.run, tag.status
+        load_case = None
     else:
         kind = KINDS[options.kind or "sine"]
+        load_case = first.record.fields.get("load_case_id", 0)
         force = options.force
+        if force is None and load_case in measured_force:
+            force = 0.0                        # set from the force spectrum (attach_force_spectra)
         if force is None:
             what = "force level of its stepped-sine" if kind == "stepped_sine" else "rms force of its random"
             raise InputError(f"the file does not say the {what} FRFs: give it (--force-amplitude N)", path,
@@ -277,8 +350,11 @@ def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions
         direction = "none" if kind == "random" else sweep_direction(first.frequency, options.direction)
         name = "random" if kind == "random" else sine_run_name(force, direction)
         status = "complete"
-    return ImportedRun(name, kind, float(force), direction, first.excitation, first.frequency, frf, status=status,
-                       source=path, records=[e.record.number for e in entries])
+    run = ImportedRun(name, kind, float(force), direction, first.excitation, first.frequency, frf, status=status,
+                      source=path, records=[e.record.number for e in entries], load_case=load_case)
+    if tag is not None and tag.sample_rate:
+        run.sample_rate, run.segment_length = tag.sample_rate, tag.segment_length
+    return run
 
 
 def _attach_line_quantities(path: str, runs: list[ImportedRun], extra: list[Record],

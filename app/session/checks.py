@@ -57,7 +57,7 @@ class CheckedRun:
     run: RunData
     lines: int
     sensor_dofs: list[str]
-    control: Control | None = None
+    control: Control
 
     @property
     def unfinished(self) -> bool:
@@ -78,14 +78,12 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
     status = _choice(attrs, "status", STATUSES, error)
     _choice(attrs, "direction", DIRECTIONS[kind], error)
     force = attrs.get("force")
-    if isinstance(force, bool) or not isinstance(force, (int, float, np.number)) or not math.isfinite(force) \
-            or force <= 0:
+    if not _positive_number(force):
         raise error("attribute force", f"must be a finite force > 0 N, got {force!r}")
     excitation = attrs.get("excitation_dof")
     if not isinstance(excitation, str) or not excitation:
         raise error("attribute excitation_dof", f"must name a DOF, got {excitation!r}")
     sensors = _sensor_dofs(attrs.get("sensor_dofs"), error)
-    control = check_control(attrs, excitation, float(force), error)
 
     frequency = np.asarray(run.frequency)
     if frequency.ndim != 1 or frequency.dtype.kind not in "fi":
@@ -121,7 +119,32 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
                                                                                             message))
     if kind == "phase_resonance":
         _check_lock(run, sensors, error)
-    return CheckedRun(run, lines, sensors, control)
+    return CheckedRun(run, lines, sensors, run_control(attrs, float(force), excitation, error))
+
+
+def run_control(attrs: dict, force: float, excitation: str, error) -> Control:
+    """How the run's level was held (attributes ``control``, ``control_dof``, ``control_quantity``,
+    ``control_target``); a run without them (older sessions) was force-controlled at its ``force``."""
+    mode = attrs.get("control", "force")
+    if mode not in CONTROL_MODES:
+        raise error("attribute control", f"must be one of {', '.join(CONTROL_MODES)}; got {mode!r}")
+    if mode != "response":
+        return Control(mode, excitation, "force", force)
+    dof = attrs.get("control_dof")
+    if not isinstance(dof, str) or not dof:
+        raise error("attribute control_dof", f"must name the DOF whose response is held, got {dof!r}")
+    quantity = _choice(attrs, "control_quantity", tuple(q for q in CONTROL_UNITS if q != "force"), error)
+    target = attrs.get("control_target")
+    if not _positive_number(target):
+        shown = target.item() if isinstance(target, np.generic) else target      # -5.0, not np.float64(-5.0)
+        raise error("attribute control_target", f"must be a finite amplitude > 0, got {shown!r}")
+    return Control(mode, dof, quantity, float(target))
+
+
+def _positive_number(value) -> bool:
+    """A finite number > 0 (an attribute read back from HDF5: a numpy scalar, never a bool)."""
+    return not isinstance(value, bool) and isinstance(value, (int, float, np.number)) and math.isfinite(value) \
+        and value > 0
 
 
 def _check_lock(run: RunData, sensors: list[str], error) -> None:
@@ -135,27 +158,6 @@ def _check_lock(run: RunData, sensors: list[str], error) -> None:
     for name in (f"harmonics/acc:{dof}", "lock_converged"):
         if name not in run.arrays:
             raise error(f"dataset {name}", "is missing (a phase-resonance run reads its points from it)")
-
-
-def check_control(attrs: dict, excitation_dof: str, force: float, error) -> Control:
-    """A run's control from its ``control*`` attributes (docs/session-format.md); force control at the run's
-    force where they are absent (sessions written before they were recorded)."""
-    mode = attrs.get("control", "force")
-    if mode not in CONTROL_MODES:
-        raise error("attribute control", f"must be one of {', '.join(CONTROL_MODES)}, got {mode!r}")
-    dof = attrs.get("control_dof", excitation_dof)
-    if not isinstance(dof, str) or not dof:
-        raise error("attribute control_dof", f"must name a DOF, got {dof!r}")
-    if mode != "response":
-        return Control(mode, dof, "force", force)
-    quantity, target = attrs.get("control_quantity"), attrs.get("control_target")
-    if quantity not in CONTROL_UNITS or quantity == "force":
-        raise error("attribute control_quantity", "must be displacement, velocity or acceleration for a "
-                                                  f"response-controlled run, got {quantity!r}")
-    if isinstance(target, bool) or not isinstance(target, (int, float, np.number)) or not math.isfinite(target) \
-            or target <= 0:
-        raise error("attribute control_target", f"must be a finite amplitude > 0, got {target!r}")
-    return Control("response", dof, quantity, float(target))
 
 
 def _check_order(frequency: np.ndarray, kind: str, direction: str, error) -> None:

@@ -56,8 +56,7 @@ def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarra
     distortion = np.max(np.stack(thd), axis=0) if thd else arrays.get("distortion")   # imported: as stored
     return SineRun(run.name, run.force, run.direction, run.excitation_dof, dofs, frequency, H,
                    std if std is not None else smoothness_noise(frequency, H),
-                   arrays.get("force_amplitude"), distortion, noise_estimated=std is None,
-                   control=control)
+                   arrays.get("force_amplitude"), distortion, noise_estimated=std is None, control=control)
 
 
 def _phase_run(run: RunData, frequency: np.ndarray, arrays: dict) -> PhaseRun:

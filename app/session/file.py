@@ -498,7 +498,3 @@ def main() -> int:
     replies = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
     sys.stdout = sys.stderr                       # nothing but replies on the reply pipe
     return serve(sys.stdin.buffer, replies)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

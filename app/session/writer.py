@@ -217,11 +217,12 @@ class SessionWriter:
 
 
 def _start_writer_process() -> subprocess.Popen:
-    """``python -m app.session.file`` in a session of its own: Ctrl-C or a kill of the acquiring process's group
-    does not reach it, so it can close the file after the acquiring process is gone."""
-    root = str(Path(__file__).resolve().parents[1])
+    """``python -m app.session`` (the writer loop of :mod:`app.session.file`) in a session of its own: Ctrl-C or a
+    kill of the acquiring process's group does not reach it, so it can close the file after the acquiring process
+    is gone."""
+    root = str(Path(__file__).resolve().parents[2])          # the checkout holding app/
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p))
-    return subprocess.Popen([sys.executable, "-m", "app.session.file"], stdin=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "app.session"], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, env=env, start_new_session=True, close_fds=True)
 
 
@@ -706,6 +707,9 @@ def append_model_history(path, steps: list[dict], model_source: str = "") -> Sto
                 levels = np.array([[e["force"], e["error"]] for e in step["error_by_level"]], float)
                 d = s.create_dataset("error_by_level", data=levels.reshape(-1, 2))
                 d.attrs["columns"] = json.dumps(["force [N]", "error [1]"])
+                # how each level was held: a response-controlled level is named by its target response
+                d.attrs["levels"] = json.dumps([{k: v for k, v in e.items() if k not in ("force", "error")}
+                                                for e in step["error_by_level"]])
         return StoredHistory(name, recovered)
     except InputError as exc:
         raise SessionWriteError(str(exc)) from None
@@ -713,9 +717,15 @@ def append_model_history(path, steps: list[dict], model_source: str = "") -> Sto
         raise SessionWriteError(f"{path}: {exc.strerror or exc}; the session is unchanged") from None
 
 
+def _levels(dataset) -> list[dict]:
+    raw = dataset.attrs.get("levels")
+    return json.loads(_text(raw)) if raw is not None else [{} for _ in range(len(dataset))]
+
+
 def read_model_history(session: Session) -> list[dict]:
     """Every stored analysis: ``{"name", "created", "model_source", "steps": [{"action", "error", "model",
-    "error_by_level"}]}``, ``error_by_level`` as ``[[force N, error], ...]``."""
+    "error_by_level", "levels"}]}``, ``error_by_level`` as ``[[force N, error], ...]`` and ``levels`` how each was
+    held (``{"label", "control", ...}``; empty dicts in histories stored before it was kept)."""
     f = session._file
     with session._reading("/models"):
         if "models" not in f:
@@ -723,7 +733,8 @@ def read_model_history(session: Session) -> list[dict]:
         out = []
         for name, g in f["models"].items():
             steps = [{"action": _text(s.attrs["action"]), "error": float(s.attrs["error"]),
-                      "model": _text(s["model"][()]), "error_by_level": s["error_by_level"][()].tolist()}
+                      "model": _text(s["model"][()]), "error_by_level": s["error_by_level"][()].tolist(),
+                      "levels": _levels(s["error_by_level"])}
                      for _, s in sorted(g.items())]
             out.append({"name": name, "created": _text(g.attrs.get("created", "")),
                         "model_source": _text(g.attrs.get("model_source", "")), "steps": steps})

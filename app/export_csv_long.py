@@ -1,0 +1,93 @@
+"""A session's stepped-sine runs in the CSV long format that ``contactid import`` reads (docs/import.md).
+
+One row per line, level and sensor DOF, with what the analysis reads of each line: the receptance, its standard
+deviation (where every run has one > 0), the force measured at the line (``force_amplitude_n``, its phase where
+stored) and how the level was held (``control_*`` for a response-controlled level, ``force_n`` otherwise).
+Numbers are written as Python's shortest round-trip decimals, so an import gives the analysis the same numbers.
+Random runs have no place in the format (an import of it makes stepped-sine runs): they are left out and named.
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from analysis.errors import InputError
+
+from app.session.outputs import atomic_output, check_output, require_free_space
+from app.session.writer import open_session
+from app.session.checks import CheckedRun, check_format, check_run, check_run_count
+
+COLUMNS = ["frequency_hz", "force_n", "dof", "re", "im", "direction", "force_amplitude_n", "force_phase_rad",
+           "control_dof", "control_quantity", "control_target"]
+BYTES_PER_ROW = 200                     # generous, for the free-space check
+
+
+@dataclass
+class CsvLongExport:
+    """What :func:`export_csv_long` wrote: the runs written and those left out (random runs)."""
+
+    path: Path
+    runs: list[str] = field(default_factory=list)
+    left_out: list[str] = field(default_factory=list)
+
+
+def _checked_runs(path: Path) -> list[CheckedRun]:
+    with open_session(path) as s:
+        check_format(s.attrs, str(path))
+        check_run_count(s.run_names(), str(path))
+        return [c for c in (check_run(run, str(path)) for run in s.runs()) if c.lines]
+
+
+def _with_std(runs: list[CheckedRun]) -> bool:
+    """Whether every run has a standard deviation > 0 at every line and sensor (the import takes all or none)."""
+    for c in runs:
+        for d in c.sensor_dofs:
+            std = c.run.arrays.get(f"frf_std/{d}")
+            if std is None or not (np.asarray(std[:c.lines]) > 0).all():
+                return False
+    return True
+
+
+def _number(x) -> str:
+    return repr(float(x))
+
+
+def _rows(checked: CheckedRun, with_std: bool):
+    run, n, control = checked.run, checked.lines, checked.control
+    response = control.mode == "response"
+    level = ["" if response else _number(run.force)]
+    held = [control.dof, control.quantity, _number(control.target)] if response else ["", "", ""]
+    force = run.arrays.get("force_amplitude")
+    phase = run.arrays.get("force_phase")
+    for i in range(n):
+        measured = ["" if force is None else _number(force[i]), "" if phase is None else _number(phase[i])]
+        for d in checked.sensor_dofs:
+            h = complex(run.frf[d][i])
+            row = [_number(run.frequency[i]), *level, d, _number(h.real), _number(h.imag), run.attrs["direction"],
+                   *measured, *held]
+            yield row + ([_number(run.arrays[f"frf_std/{d}"][i])] if with_std else [])
+
+
+def export_csv_long(session_path, path, overwrite: bool = False) -> CsvLongExport:
+    """Write every stepped-sine run of the session into one CSV long-format file."""
+    session_path, path = Path(session_path), Path(path)
+    check_output(path, inputs=[session_path], overwrite=overwrite, field="--csv-long")
+    checked = _checked_runs(session_path)
+    sine = [c for c in checked if c.run.kind == "stepped_sine"]
+    if not sine:
+        raise InputError("has no stepped-sine run with lines: the CSV long format holds stepped-sine levels",
+                         str(session_path))
+    out = CsvLongExport(path, [c.run.name for c in sine], [c.run.name for c in checked if c.run.kind != "stepped_sine"])
+    with_std = _with_std(sine)
+    require_free_space(path, BYTES_PER_ROW * sum(c.lines * len(c.sensor_dofs) for c in sine) + 4096,
+                       "export the CSV long format")
+    with atomic_output(path, inputs=[session_path], overwrite=overwrite, field="--csv-long") as temp:
+        with temp.open("w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(COLUMNS + (["std"] if with_std else []))
+            for c in sine:
+                writer.writerows(_rows(c, with_std))
+    return out

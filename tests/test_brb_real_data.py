@@ -1,0 +1,58 @@
+"""The Brake-Reuss beam's measured stepped sine (../shared/realdata/brb/, real data): read from MATLAB into the
+CSV long format by the documented script, imported (the reversed force sign refused until named), the reference
+from the lowest level, and ``analyze --auto`` end to end (docs/import.md shows the numbers)."""
+import importlib.util
+import json
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from app.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+MAT = ROOT.parent / "shared" / "realdata" / "brb" / "ForcedFrequencyResponses.mat"
+pytestmark = pytest.mark.skipif(not MAT.exists(), reason="the shared real data are not beside the checkout")
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("brb_to_csv", ROOT / "docs" / "examples" / "brb_to_csv.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def brb(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("brb")
+    _script().write_csv(str(MAT), str(folder / "brb.csv"))
+    return folder
+
+
+def test_the_reversed_force_sign_is_refused_then_imported_with_the_flag(brb, capsys):
+    session = brb / "refused.h5"
+    assert main(["import", str(brb / "brb.csv"), "-o", str(session), "--excitation", "x1"]) == 2
+    err = capsys.readouterr().err
+    assert "run sine_0.2N_up, frf x1 (drive point)" in err and "give --force-sign -1" in err
+    assert not session.exists()
+
+
+@pytest.mark.slow
+def test_import_reference_and_analyze_auto_on_the_measured_beam(brb, capsys):
+    session, model = brb / "brb.h5", brb / "reference.toml"
+    assert main(["import", str(brb / "brb.csv"), "-o", str(session), "--excitation", "x1", "--force-sign", "-1"]) == 0
+    out = capsys.readouterr().out
+    for name in ("sine_0.2N_up", "sine_1.5N_up", "sine_x1_5mps2_up", "sine_x1_80mps2_up"):
+        assert f"run {name} from" in out
+    assert main(["reference", str(session), "-o", str(model)]) == 0
+    out = capsys.readouterr().out
+    assert "reference from run sine_x1_5mps2_up" in out and "NONLINEAR already" in out
+    structure = tomllib.loads(model.read_text())["structure"]
+    assert 80.0 < structure["frequencies"][0] < 80.6 and 0.001 < structure["damping"][0] < 0.003
+    assert main(["analyze", str(session), str(model), "--auto", "--json", "--no-history"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    labels = [e["label"] for e in result["error_by_level"]]
+    assert labels[:4] == ["0.2 N", "0.5 N", "1 N", "1.5 N"] and labels[4] == "5 m/s^2 at x1"
+    level = result["error_by_level"][4]
+    assert (level["control"], level["control_dof"], level["control_target"]) == ("response", "x1", 5.0)
+    assert result["error"] < 0.35

@@ -1,0 +1,179 @@
+"""The modal structure type and the reference from the lowest stepped-sine level, against an SDOF rig with a
+Jenkins joint integrated by RK4 in tests/rk4_rig.py (known stuck frequency and damping), through the commands:
+``import`` of a CSV with the force measured per line, ``reference``, ``analyze --auto``."""
+import json
+import tomllib
+
+import numpy as np
+import pytest
+
+import rk4_rig
+from analysis import InputError, load_structure
+from analysis.measurements import Measurements, SineRun
+from analysis.model import load_model
+from analysis.workbench import Workbench
+from app.cli import main
+
+LINES = np.linspace(19.0, 25.0, 41)
+LEVELS = (0.002, 0.01, 0.03, 0.06)           # N: the lowest stuck, the others slipping more and more
+
+
+def test_modal_structure_is_the_modal_sum_with_residual_terms():
+    table = {"type": "modal", "dofs": ["a", "b"], "frequencies": [10.0, 30.0], "damping": [0.01, 0.02],
+             "shapes": [[0.5, 0.3], [0.4, -0.6]], "residual_flexibility": [[1e-6, 2e-7], [2e-7, 0.0]],
+             "residual_inertia": [[-0.5, 0.0], [0.0, -0.1]]}
+    s = load_structure(table)
+    w = 2 * np.pi * np.array([5.0, 10.0, 20.0, 31.0])
+    H = s.frf(w)
+    wr, z = 2 * np.pi * np.array([10.0, 30.0]), np.array([0.01, 0.02])
+    phi = np.array(table["shapes"])
+    for i, wi in enumerate(w):
+        expected = sum(np.outer(phi[r], phi[r]) / (wr[r] ** 2 - wi ** 2 + 2j * z[r] * wr[r] * wi) for r in range(2))
+        expected += np.array(table["residual_flexibility"]) + np.array(table["residual_inertia"]) / wi ** 2
+        np.testing.assert_allclose(H[i], expected, rtol=1e-12)
+    np.testing.assert_allclose(s.natural_frequencies(), [10.0, 30.0])
+    # M, K, C realise the modes: their eigenvalues are the natural frequencies
+    lam = np.linalg.eigvals(np.linalg.solve(s.M, s.K))
+    np.testing.assert_allclose(np.sort(np.sqrt(lam.real)) / (2 * np.pi), [10.0, 30.0], rtol=1e-12)
+    with pytest.raises(InputError, match=r"\[structure\]\.shapes"):
+        load_structure({**table, "shapes": [[0.5, 0.3]]})
+
+
+@pytest.fixture(scope="module")
+def rk4_levels():
+    """The RK4 rig's four levels, the force drifting +-25 % around each target."""
+    return rk4_rig.campaign(LEVELS, LINES, drift=0.25)
+
+
+@pytest.fixture(scope="module")
+def rk4_session(tmp_path_factory, rk4_levels):
+    """The drifting levels imported from CSV with the force measured at each line."""
+    folder = tmp_path_factory.mktemp("rk4")
+    levels = rk4_levels
+    rk4_rig.write_csv(folder / "rig.csv", levels, LEVELS)
+    session = folder / "rig.h5"
+    assert main(["import", str(folder / "rig.csv"), "-o", str(session), "--excitation", "x1"]) == 0
+    return session
+
+
+def test_reference_from_the_lowest_level_has_the_rigs_frequency_and_damping(rk4_session, capsys):
+    model = rk4_session.with_name("reference.toml")
+    assert main(["reference", str(rk4_session), "-o", str(model)]) == 0
+    out = capsys.readouterr().out
+    table = tomllib.loads(model.read_text())
+    s = table["structure"]
+    assert s["type"] == "modal" and s["dofs"] == ["x1"]
+    assert s["frequencies"][0] == pytest.approx(rk4_rig.stuck_frequency_hz(), rel=1e-3)
+    assert s["damping"][0] == pytest.approx(rk4_rig.stuck_damping(), rel=0.05)
+    # mass-normalised: the modal mass is the rig's
+    assert s["shapes"][0][0] ** -2 == pytest.approx(rk4_rig.M, rel=0.02)
+    assert table["element"] == [{"name": "joint", "dof": "x1", "laws": []}]
+    assert "reference from run sine_0.002N_up" in out
+    assert "NONLINEAR already between the two lowest levels" in out          # the 0.01 N level slips
+    # a named run, a band without a mode
+    assert main(["reference", str(rk4_session), "-o", str(model), "--overwrite", "--run", "nope"]) == 2
+    assert "--run" in capsys.readouterr().err
+
+
+def test_import_keeps_the_force_measured_at_each_line(rk4_session):
+    from app.session import open_session
+    from app.session.data import measurements_from_session
+    with open_session(rk4_session) as s:
+        m = measurements_from_session(s)
+    run = next(r for r in m.sine if r.name == "sine_0.03N_up")
+    np.testing.assert_allclose(run.force_per_line, rk4_rig.drifting(0.03, len(LINES), 0.25, phase=2), rtol=1e-15)
+    assert run.force == 0.03 and run.control.mode == "force"
+
+
+@pytest.mark.slow
+def test_lowest_level_reference_then_analyze_auto_runs_end_to_end(rk4_session, capsys):
+    model = rk4_session.with_name("reference2.toml")
+    assert main(["reference", str(rk4_session), "-o", str(model)]) == 0
+    capsys.readouterr()
+    assert main(["analyze", str(rk4_session), str(model), "--auto", "--json", "--no-history"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert [e["label"] for e in result["error_by_level"]] == [f"{f:g} N" for f in LEVELS]
+    assert result["error"] < 0.1
+    assert result["elements"][0]["verdict"] == "nonlinear"
+
+
+def _runs(levels, per_line: bool) -> list[SineRun]:
+    """The levels as the analysis sees them, with the force measured per line or the nominal level at every
+    line."""
+    return [SineRun(f"sine_{F0:g}N_up", F0, "up", "x1", ["x1"], lv.frequency_hz, lv.receptance[:, None],
+                    np.abs(lv.receptance[:, None]) * 1e-4, lv.force if per_line else None, np.zeros(len(LINES)))
+            for F0, lv in zip(LEVELS, levels)]
+
+
+def _jenkins_fit(runs: list[SineRun]):
+    """The Jenkins law fitted on the rig's own reference (m, k, c known): its values and the model's FRF
+    error."""
+    doc = {"structure": {"type": "lumped", "dofs": ["x1"], "mass": [[rk4_rig.M]], "stiffness": [[rk4_rig.K]],
+                         "damping": [[rk4_rig.C]]},
+           "element": [{"name": "joint", "dof": "x1", "laws": [{"law": "jenkins"}]}]}
+    wb = Workbench(load_model(doc), Measurements(runs))
+    wb.identify()
+    wb.fit()
+    return wb.model.elements[0].laws[0].values, wb.compare().error
+
+
+def test_a_force_drifting_25_percent_is_analysed_like_one_held(rk4_levels):
+    """docs/import.md: with the force measured per line the law is the rig's (kt 6e-6, fs 1e-3 off); with the
+    nominal force fs is 19 % off and the FRF error 0.2."""
+    values, error = _jenkins_fit(_runs(rk4_levels, per_line=True))
+    assert values["kt"] == pytest.approx(rk4_rig.KT, rel=0.05)
+    assert values["fs"] == pytest.approx(rk4_rig.FS, rel=0.05)
+    assert error < 0.01
+    nominal, nominal_error = _jenkins_fit(_runs(rk4_levels, per_line=False))
+    assert abs(nominal["fs"] / rk4_rig.FS - 1) > 0.1 and nominal_error > 10 * error
+
+
+@pytest.mark.slow
+def test_response_controlled_levels_give_the_law_of_the_force_controlled_ones(tmp_path, rk4_levels):
+    """Levels holding 20, 50 and 100 um at x1 (the force per line what the controller needed), imported from CSV:
+    the law their kbar gives is the rig's and that of the force-controlled levels."""
+    targets = (2e-5, 5e-5, 1e-4)
+    csv = tmp_path / "response.csv"
+    rk4_rig.write_csv(csv, rk4_rig.response_controlled(targets, LINES), None, response_targets=targets)
+    session = tmp_path / "response.h5"
+    assert main(["import", str(csv), "-o", str(session), "--excitation", "x1"]) == 0
+    from app.session import open_session
+    from app.session.data import measurements_from_session
+    with open_session(session) as s:
+        runs = measurements_from_session(s).sine
+    assert sorted(r.name for r in runs) == ["sine_x1_0.0001m_up", "sine_x1_2e-05m_up", "sine_x1_5e-05m_up"]
+    for run in runs:
+        held = np.abs(run.receptance[:, 0]) * run.force_per_line
+        np.testing.assert_allclose(held, run.control.target, rtol=0.02)       # the controller's last correction
+        # known noise for the fit (the import estimates it from the FRF's scatter otherwise)
+        run.receptance_std = np.abs(run.receptance) * 1e-4
+    values, error = _jenkins_fit(runs)
+    forced, _ = _jenkins_fit(_runs(rk4_levels, per_line=True))
+    for name, truth in (("kt", rk4_rig.KT), ("fs", rk4_rig.FS)):
+        assert values[name] == pytest.approx(truth, rel=0.05)
+        assert values[name] == pytest.approx(forced[name], rel=0.02)
+    assert error < 0.01
+
+
+@pytest.mark.slow
+def test_reference_from_an_emulated_campaigns_lowest_level(tmp_path, capsys):
+    """The same rig emulated (tests/rigs/jenkins-sdof.toml) and measured through the drivers, no random run:
+    the reference command recovers the stuck frequency and damping."""
+    import tomllib as toml
+    from pathlib import Path
+
+    from app.campaign.instruments import emulated_instruments
+    from app.campaign.measure import run_plan
+    from app.campaign.plan import parse_plan
+    from drivers.simulation.rig import load_rig
+
+    text = "".join(f"[[stepped_sine]]\nforce = {f}\nstart = 21.0\nstop = 25.0\nstep = 0.2\nrefine = false\n"
+                   for f in (0.002, 0.01)) + "[limits]\nmax_force = 1.0\nmax_acceleration = 150.0\n"
+    session, model = tmp_path / "emulated.h5", tmp_path / "reference.toml"
+    with emulated_instruments(load_rig(Path(__file__).parent / "rigs" / "jenkins-sdof.toml"), seed=3) as inst:
+        run_plan(parse_plan(toml.loads(text), text, "plan.toml"), inst, session)
+    assert main(["reference", str(session), "-o", str(model)]) == 0
+    s = tomllib.loads(model.read_text())["structure"]
+    assert s["frequencies"][0] == pytest.approx(rk4_rig.stuck_frequency_hz(), rel=1e-3)
+    assert s["damping"][0] == pytest.approx(rk4_rig.stuck_damping(), rel=0.05)
+    assert "NONLINEAR already between the two lowest levels" in capsys.readouterr().out
