@@ -178,3 +178,19 @@ def test_analyze_compares_the_locked_points_with_the_fitted_model_s_backbone(tmp
     assert (tmp_path / "report" / "backbone.png").exists()
     assert main(args) == 0
     assert "point(s) of phase_x_90deg, phase resonance (90 deg)" in capsys.readouterr().out
+
+
+def test_a_phase_resonance_run_just_begun_reads_as_no_point_yet():
+    from app.session import measurements_from_session
+    from app.session.writer import RunData
+
+    begun = RunData("phase_x_90deg", {"kind": "phase_resonance", "status": "running", "direction": "up",
+                                      "force": 0.05, "excitation_dof": "x", "sensor_dofs": '["x"]',
+                                      "phase_dof": "x", "target_phase": 90.0},
+                    np.empty(0), {"x": np.empty(0, complex)}, {}, {}, False)
+
+    class Live:
+        def runs(self):
+            return [begun]
+
+    assert measurements_from_session(Live()).phase == []

@@ -82,13 +82,13 @@ class SineSpec:
     refine: bool = True
     min_step: float = 0.0
     force_drift: float = 0.0    # the force target drifts by up to this fraction around ``force`` (emulated rigs)
+    response: ResponseLevel | None = None
 
     def line_target(self, index: int) -> float:
         """The force held at the run's line ``index``, N: ``force``, or with ``force_drift`` a target that wanders
         smoothly around it line by line, within +-force_drift, as a real controller's achieved force does
         across a resonance (docs/campaigns.md)."""
         return self.force * (1.0 + self.force_drift * np.sin(2 * np.pi * index / DRIFT_LINES))
-    response: ResponseLevel | None = None
 
     def control(self, excitation_dof: str) -> Control:
         """The level's control in the session's vocabulary (docs/session-format.md)."""

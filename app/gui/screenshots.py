@@ -115,7 +115,7 @@ def take(out: Path) -> list[Path]:
         grab("rig")
         _wait(app, lambda: not lab.campaign_running and lab.session is not None, 300, "the end of the campaign")
         window.model.analyze_button.click()
-        _wait(app, lambda: lab.analysis is not None, 300, "the analysis")
+        _wait(app, lambda: lab.analysis is not None, AUTO_TIMEOUT_S, "the analysis")
         window.model.auto_button.click()
         _wait(app, lambda: lab.analysis.auto or errors, AUTO_TIMEOUT_S, "the automatic loop")
         _wait(app, lambda: lab.identification is not None and not lab.identification.live, 60,

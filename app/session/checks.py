@@ -118,7 +118,7 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
         if rule is not None:
             _check_lines(np.asarray(values)[:lines], rule, lambda message, name=name: error(f"dataset {name}",
                                                                                             message))
-    if kind == "phase_resonance":
+    if kind == "phase_resonance" and lines:      # (a run just begun holds no point yet)
         _check_lock(run, sensors, error)
     return CheckedRun(run, lines, sensors, control)
 
