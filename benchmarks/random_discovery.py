@@ -3,6 +3,7 @@
     python benchmarks/random_discovery.py                  # 50 cases, seed from the clock (printed)
     python benchmarks/random_discovery.py --seed 7 --cases 10
     python benchmarks/random_discovery.py --record         # the figures into docs/discovery.md
+    python benchmarks/random_discovery.py --seed 11 22 --cases 25 --jobs 2 --budget 3000 --record
 
 Each case draws a lumped chain of 2 or 3 masses (0.5-2 kg, springs 500-3000 N/m, 2-4 % modal damping in
 Rayleigh form), one or two joints (grounded at a mass, or between two masses of a 3-mass chain) with one or two
@@ -19,11 +20,14 @@ each joint, nothing the rig does not have), with one exception the product must 
 random case is scored"): a joint whose laws were found as another set counts as right when discovery named the
 rig's set of kinds to the user as *indistinguishable on these data*, with the test that would separate them, and
 the loop added nothing there afterwards. Such cases are counted apart from the cases right outright. One line
-per case as it finishes, then the shares right, the confusion of law kinds and every miss.
+per case as it finishes, then for each seed the shares right, the confusion of law kinds and every miss.
+Several seeds run their cases interleaved (``--jobs`` at a time); ``--budget`` starts no case after that many
+seconds of wall time, and the report says how many of the cases drawn were measured.
 """
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import sys
 import tempfile
 import time
@@ -201,7 +205,8 @@ def run(c: mc.Case, folder: Path) -> Scored:
     return Scored(outcome, named_equivalences(c, outcome, result))
 
 
-def report(scored: list[Scored], cases: list[mc.Case], seed: int) -> str:
+def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int) -> str:
+    """The figures of one seed: ``scored`` the outcomes of ``cases`` (in order), out of ``drawn`` cases drawn."""
     outcomes = [s.outcome for s in scored]
     measured = [s for s in scored if s.outcome.measured]
     right = sum(s.right for s in measured)
@@ -213,7 +218,8 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int) -> str:
     cols = [c for c in kinds if any(k[1] == c for k in table)]
     laws = {c.name: ", ".join(f"{law.element}:{law.law} ({', '.join(f'{k} = {v:.3g}' for k, v in law.values)})"
                               for law in c.laws) for c in cases}
-    lines = [BEGIN, f"Seed {seed}: {len(cases)} cases drawn, {len(measured)} measured; discovery from an empty model "
+    budget = f" ({drawn - len(cases)} not run within the time budget)" if drawn > len(cases) else ""
+    lines = [f"Seed {seed}: {drawn} cases drawn{budget}, {len(measured)} measured; discovery from an empty model "
              f"right on {right + named}/{len(measured)} ({100 * (right + named) / n:.0f} %; goal "
              f"{100 * GOAL:.0f} %): {right} right outright, {named} by an equivalence named to the user; "
              f"{sum(len(o.false_alarms) for o in outcomes if o.measured)} false alarm(s).", "",
@@ -222,7 +228,8 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int) -> str:
              "| true \\ found | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
     lines += [f"| {r} | " + " | ".join(str(table.get((r, c), "")) for c in cols) + " |" for r in rows]
     misses = [s for s in scored if not s.right]
-    lines += ["", "Every case not right outright:" if misses else "Every case right outright.", ""]
+    lines += ["", "Every case not right outright:" if misses else
+              "Every case measured right outright." if measured else "No case measured.", ""]
     for s in misses:
         o = s.outcome
         why = "; ".join([f"{f.element}:{f.law} found {f.found}" for f in o.effects if not f.right]
@@ -231,38 +238,77 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int) -> str:
                    "miss" + (" (named: " + "; ".join(s.named.values()) + ")" if s.named else ""))
         lines.append(f"- {o.case} ({o.structure}; rig {laws[o.case]}; noise {100 * o.noise:.2g} %; error "
                      f"{mc._fmt_fall(o)}): {why} -- {verdict}")
-    return "\n".join(lines + [END])
+    return "\n".join(lines)
+
+
+def _draw(seed: int, n: int) -> list[mc.Case]:
+    """The seed's first ``n`` cases (the same whatever ``n``: a shorter run is a prefix of a longer one)."""
+    rng = np.random.default_rng(seed)
+    return [draw_case(rng, i + 1) for i in range(n)]
+
+
+def run_in_folder(c: mc.Case) -> tuple[Scored, float]:
+    """One case in a folder of its own (a worker's task), with its wall time; a case whose data cannot be made or
+    analysed is listed, not hidden."""
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            scored = run(c, Path(tmp))
+        except Exception as exc:
+            scored = Scored(mc.Outcome.broken(c, f"{type(exc).__name__}: {exc}".splitlines()[0]))
+    return scored, time.monotonic() - t0
+
+
+def interleaved(draws: dict[int, list[mc.Case]]) -> list[tuple[int, int]]:
+    """(seed, index) of every case drawn, the seeds' first cases first: a time budget cuts every seed alike."""
+    longest = max(len(cases) for cases in draws.values())
+    return [(seed, i) for i in range(longest) for seed, cases in draws.items() if i < len(cases)]
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seed", type=int, default=None, help="the draw (default: from the clock, printed)")
-    ap.add_argument("--cases", type=int, default=50)
+    ap.add_argument("--seed", type=int, nargs="+", default=None,
+                    help="the draws, one or more (default: one from the clock, printed)")
+    ap.add_argument("--cases", type=int, default=50, help="cases drawn per seed")
+    ap.add_argument("--jobs", type=int, default=1, help="cases run at a time")
+    ap.add_argument("--budget", type=float, default=None, help="start no case after this many seconds (wall)")
     ap.add_argument("--record", action="store_true", help="write the figures into docs/discovery.md")
     args = ap.parse_args()
-    seed = args.seed if args.seed is not None else int(time.time()) % 1_000_000
-    print(f"seed {seed}", flush=True)
-    rng = np.random.default_rng(seed)
-    cases = [draw_case(rng, i + 1) for i in range(args.cases)]
-    outcomes = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for i, c in enumerate(cases, 1):
-            folder = Path(tmp) / f"case{i}"
-            folder.mkdir()
-            t0 = time.monotonic()
-            try:
-                outcomes.append(run(c, folder))
-            except Exception as exc:        # a case whose data cannot be made or analysed is listed, not hidden
-                outcomes.append(Scored(mc.Outcome.broken(c, f"{type(exc).__name__}: {exc}".splitlines()[0])))
-            named = "; named: " + "; ".join(outcomes[-1].named.values()) if outcomes[-1].named else ""
-            print(mc.progress_line(i, len(cases), outcomes[-1].outcome, time.monotonic() - t0)
-                  + f"; rig {', '.join(f'{law.element}:{law.law}' for law in c.laws)}{named}", flush=True)
-    section = report(outcomes, cases, seed)
-    print("\n" + section)
+    seeds = args.seed if args.seed is not None else [int(time.time()) % 1_000_000]
+    print(f"seed {' '.join(map(str, seeds))}", flush=True)
+    draws = {seed: _draw(seed, args.cases) for seed in seeds}
+    start = time.monotonic()
+    done: dict[tuple[int, int], Scored] = {}
+    order = interleaved(draws)
+    with concurrent.futures.ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        running = {}
+        while order or running:
+            while order and len(running) < args.jobs and (args.budget is None
+                                                          or time.monotonic() - start < args.budget):
+                seed, i = order.pop(0)
+                running[pool.submit(run_in_folder, draws[seed][i])] = (seed, i)
+            if not running:
+                break                                 # the budget is spent: the cases left are not run
+            finished, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
+            for future in finished:
+                seed, i = running.pop(future)
+                scored, seconds = future.result()
+                done[seed, i] = scored
+                c = draws[seed][i]
+                named = "; named: " + "; ".join(scored.named.values()) if scored.named else ""
+                print(f"seed {seed} " + mc.progress_line(i + 1, len(draws[seed]), scored.outcome, seconds)
+                      + f"; rig {', '.join(f'{law.element}:{law.law}' for law in c.laws)}{named}", flush=True)
+    sections = []
+    for seed, cases in draws.items():
+        run_cases = [c for i, c in enumerate(cases) if (seed, i) in done]
+        sections.append(report([done[seed, i] for i in range(len(cases)) if (seed, i) in done], run_cases, seed,
+                               len(cases)))
+    block = "\n\n".join([BEGIN] + sections) + "\n" + END
+    print("\n" + block)
     if args.record:
         text = DOCS.read_text(encoding="utf-8")
-        start, end = text.index(BEGIN), text.index(END) + len(END)
-        DOCS.write_text(text[:start] + section + text[end:], encoding="utf-8")
+        first, last = text.index(BEGIN), text.index(END) + len(END)
+        DOCS.write_text(text[:first] + block + text[last:], encoding="utf-8")
     return 0
 
 
