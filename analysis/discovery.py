@@ -26,10 +26,11 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    whose single-harmonic FRF error is within ``min_gain`` of the best is tried, and taken only if the kbar
    criterion prefers it to the current choice too and no set alike it in the kbar, with no more parameters, has
    laws of other kinds (neither on data without harmonics, where the capped criterion can prefer no law to a
-   right one), and it cuts the error of the current choice by ``min_gain`` and the FRF chi-square by more than
-   the noise explains. Then -- the model-form check, with every element at its choice -- each element's last
-   step must do the same with the lines that carry harmonics predicted multi-harmonically (unless its gain is
-   beyond ``certain_gain``), or it is taken back. A law that fits only what one harmonic cannot represent, or a
+   right one), every law of it is seen in the kbar (:func:`_unseen_laws`), and it cuts the error of the current
+   choice by ``min_gain`` for every law it adds and the FRF chi-square by more than the noise explains. Then --
+   the model-form check, with every element at its choice -- each element's last step must do the same with
+   the lines that carry harmonics predicted multi-harmonically (unless its gain is beyond ``certain_gain``), or
+   it is taken back. A law that fits only what one harmonic cannot represent, or a
    wrong law standing in for part of a kbar, gains too little there.
 
 The chosen laws' explanations are written from the *partial* kbar each law explains (the samples less the other
@@ -48,7 +49,7 @@ import scipy.stats
 from .comparison import Comparison, HarmonicCriterion, Predictor, gain_phrase, kbar_functions_with
 from .diagnosis import ElementSamples, RankingRules, explain, frf_criterion, signature, tied_parameters
 from .errors import InputError
-from .fit import LawFit, fit_laws, outlier_limit
+from .fit import UNDETERMINED_Z, LawFit, fit_laws, outlier_limit
 from .laws import LAWS
 from .nonparametric import fit_nonparametric
 
@@ -148,8 +149,9 @@ class ElementDiscovery:
                f"sets of up to three laws fitted to its kbar)"]
         out += [f"  {e}" for e in self.explanations]
         if self.equivalents:
-            out.append("  indistinguishable on these data (they fit its kbar as well; the fewest parameters are "
-                       "taken): " + "; ".join(f"{'+'.join(s.laws)} ({s.test})" for s in self.equivalents))
+            out.append("  indistinguishable on these data (they fit its kbar as well, and the FRFs within the margin "
+                       "a law must bring; the fewest parameters are taken): "
+                       + "; ".join(f"{'+'.join(s.laws)} ({s.test})" for s in self.equivalents))
         if self.walk:
             out.append("  judged by the FRFs: " + "; ".join(s.text() for s in self.walk))
         if self.simplified_from:
@@ -313,6 +315,25 @@ def _simplest(judge: "_Judge", search: _Search, chosen: LawSet) -> LawSet:
     return next(s for s in alike if s is chosen or judge.single({search.index: s}).error <= limit)
 
 
+def _unseen_laws(s: LawSet, current: LawSet) -> list[str]:
+    """The laws ``s`` adds to ``current`` whose size the kbar does not determine: every one of its linear
+    parameters (the law's ``linear``, its force scale) has a 95 % interval that holds zero, or no finite error.
+    Such a law fits nothing of the element's kbar; an FRF gain with it is another element's or the harmonics'
+    (a velocity stiffness whose gamma's interval held zero gained x1.36 beside a gap at the other joint). A law
+    whose stiffness trades with another's but whose damping is its own is seen (the beam's tangential linear
+    law beside the Iwan: k and kt have no finite error alone, c = -5.0e-4 +- 0.95e-4)."""
+    if s.fit is None:
+        return []
+    out = []
+    for term in s.fit.terms:
+        if term.law.name in current.laws:
+            continue
+        sizes = [(term.params[n], term.stderr[n]) for n in term.law.linear]
+        if all(not np.isfinite(err) or abs(value) < UNDETERMINED_Z * err for value, err in sizes):
+            out.append(term.law.name)
+    return out
+
+
 def _kinds(s: LawSet) -> list[str]:
     return sorted(LAWS[n].kind for n in s.laws)
 
@@ -327,10 +348,14 @@ def _other_kinds(search: _Search, s: LawSet, false_alarm: float) -> list[LawSet]
             and _alike(search, t, s, false_alarm) and _kinds(t) != _kinds(s)]
 
 
-def _indistinguishable(search: _Search, chosen: LawSet, false_alarm: float) -> list[LawSet]:
-    """The sets alike ``chosen`` with at least as many parameters: the ones the user is told of."""
+def _indistinguishable(judge: "_Judge", search: _Search, chosen: LawSet) -> list[LawSet]:
+    """The sets alike ``chosen`` in the kbar, with at least as many parameters, whose single-harmonic FRF error
+    is within ``min_gain`` of its own: the ones the user is told of. A set the kbar cannot tell apart but the
+    FRFs can is not indistinguishable on these data."""
+    rules = judge.rules.ranking
+    limit = rules.min_gain * judge.single({search.index: chosen}).error
     return [s for s in search.sets if s is not chosen and s.n_parameters >= chosen.n_parameters
-            and _alike(search, s, chosen, false_alarm)]
+            and _alike(search, s, chosen, rules.false_alarm) and judge.single({search.index: s}).error <= limit]
 
 
 def _separation(search: _Search, chosen: LawSet, other: LawSet) -> str:
@@ -436,22 +461,28 @@ class _Judge:
 
     def step_up(self, search: _Search, current: LawSet, larger: LawSet) -> WalkStep:
         """Whether ``larger`` earns its extra parameters on the element (the others by their stand-ins): the kbar
-        criterion falls, the kbar tells the kinds of its laws, and the FRF error falls by ``min_gain`` and above
-        the noise, single-harmonic."""
+        criterion falls, the kbar tells the kinds of its laws and shows each of them, and the FRF error falls by
+        ``min_gain`` per law added and above the noise, single-harmonic."""
         i, ranking = search.index, self.rules.ranking
         a, b = self.single({i: current}), self.single({i: larger})
         step = WalkStep(larger.laws, b.error, a.error, False)
         _, above = frf_criterion(a, b, max(larger.n_parameters - current.n_parameters, 1), ranking.false_alarm)
         other_kinds = _other_kinds(search, larger, ranking.false_alarm) if self.kbar_judges else []
+        unseen = _unseen_laws(larger, current)
+        # every law the step adds must bring the margin one law must: a step past a size not taken adds two
+        required = ranking.min_gain ** max(len(larger.laws) - len(current.laws), 1)
         if self.kbar_judges and larger.criterion >= current.criterion:
             step.why = "its kbar does not call for it (the criterion, which charges for parameters, does not fall)"
+        elif unseen:
+            step.why = (f"its kbar does not show {unseen[0]}: every size parameter of it is within its 95 % "
+                        "interval of zero")
         elif other_kinds:
             step.why = (f"its kbar cannot tell which physics it is: {other_kinds[0].name} fits it as well with "
                         "laws of other kinds")
         elif not np.isfinite(b.error):
             step.why = "no prediction"
-        elif step.gain < ranking.min_gain:
-            step.why = f"less than the x{ranking.min_gain:g} required"
+        elif step.gain < required:
+            step.why = f"less than the x{required:.3g} required"
         elif not above:
             step.why = "within the noise"
         else:
@@ -597,7 +628,7 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
     for search in searches:
         chosen = choice[search.index]
         equivalents = [Separation(s.laws, _separation(search, chosen, s))
-                       for s in _indistinguishable(search, chosen, rules.ranking.false_alarm)]
+                       for s in _indistinguishable(judge, search, chosen)]
         found.append(ElementDiscovery(names[search.index], chosen, search.scale, len(search.sets) - 1,
                                       _explanations(names[search.index], search, chosen), equivalents,
                                       walks.get(search.index, []),

@@ -11,8 +11,8 @@ import pytest
 
 from analysis.auto import run_auto
 from analysis.diagnosis import ElementSamples, tied_parameters
-from analysis.discovery import (DiscoveryRules, _adds_nothing, _Search, _separation, _shortlists, law_sets,
-                                search_element)
+from analysis.discovery import (DiscoveryRules, _adds_nothing, _Judge, _Search, _separation, _shortlists,
+                                _unseen_laws, law_sets, search_element)
 from analysis.fit import fit_laws
 from analysis.laws import LAWS
 from analysis.laws.base import KINDS
@@ -92,6 +92,63 @@ def test_the_shortlist_keeps_one_of_sets_that_fit_alike_and_a_determined_one():
     chi = [x.chi_square for x in short[1]]
     assert len(set(np.round(chi, 6))) == len(chi)                 # no two that fit alike
     assert any(not any(t.undetermined for t in x.fit.terms) for x in short[1])
+
+
+def analytic_samples(k: float, c: float, k3: float, c2: float, noise=1e-3, seed=1) -> ElementSamples:
+    """kbar of a linear spring and damper, a cubic spring and quadratic damping written from their describing
+    functions by hand (3/4 k3 X^2; 8/(3 pi) c2 w^2 X), with relative circular noise."""
+    truth = k + 1j * c * W + 0.75 * k3 * X ** 2 + 1j * 8.0 / (3.0 * np.pi) * c2 * W ** 2 * X
+    std = noise * np.abs(truth) + 1e-3
+    rng = np.random.default_rng(seed)
+    kbar = truth + std / np.sqrt(2) * (rng.normal(size=len(X)) + 1j * rng.normal(size=len(X)))
+    return ElementSamples("joint", X, W, kbar, std, np.ones(len(X)))
+
+
+def test_a_law_whose_size_the_kbar_cannot_tell_from_zero_is_unseen():
+    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    sets = {s.laws: s for s in search.sets}
+    empty, pair = sets[()], sets["cubic", "quadratic_damping"]
+    assert _unseen_laws(pair, empty) == []
+    # the rig has no rate stiffness: its gamma's interval holds zero
+    assert _unseen_laws(sets["cubic", "quadratic_damping", "velocity_stiffness"], empty) == ["velocity_stiffness"]
+    assert _unseen_laws(sets["cubic", "quadratic_damping", "velocity_stiffness"], pair) == ["velocity_stiffness"]
+
+
+class _Errors:
+    """A stand-in for the FRF comparisons: the single-harmonic error of each set, chi-squares far apart."""
+
+    def __init__(self, errors: dict[tuple[str, ...], float]):
+        self.errors = errors
+
+    def __call__(self, choice, standins=True):
+        (s,) = choice.values()
+        e = self.errors[s.laws]
+        return type("Comparison", (), {"error": e, "chi_square": 1e6 * e ** 2, "n_observations": 400})()
+
+
+@pytest.mark.parametrize("gain, taken", [(1.5, False), (2.0, True)])
+def test_a_step_that_adds_two_laws_must_gain_the_margin_of_each(gain, taken):
+    search = search_element(0, analytic_samples(-300.0, 0.5, 4e5, 5.0), linear_verdict=False)
+    sets = {s.laws: s for s in search.sets}
+    one, three = sets["cubic",], sets["linear", "cubic", "quadratic_damping"]
+    assert _unseen_laws(three, one) == []
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), True
+    judge.single = _Errors({one.laws: 0.1, three.laws: 0.1 / gain})
+    step = judge.step_up(search, one, three)
+    assert step.taken is taken
+    assert taken or step.why == "less than the x1.69 required"          # 1.3 for each of the two laws added
+
+
+def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
+    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    sets = {s.laws: s for s in search.sets}
+    two, three = sets["cubic", "quadratic_damping"], sets["cubic", "quadratic_damping", "velocity_stiffness"]
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False        # as on data without harmonics
+    judge.single = _Errors({two.laws: 0.1, three.laws: 0.01})        # an FRF gain of x10 from elsewhere
+    step = judge.step_up(search, two, three)
+    assert not step.taken and "does not show velocity_stiffness" in step.why
 
 
 # ------------------------------------------------------------------------------------------- the whole path

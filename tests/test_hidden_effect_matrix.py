@@ -93,6 +93,31 @@ def test_scoring_counts_kinds_elements_and_false_alarms():
                      ("nothing", "friction"): 1, ("nothing", "damping"): 1, ("nothing", "stiffness"): 1}
 
 
+def test_a_random_case_is_right_by_an_equivalence_only_where_discovery_named_it():
+    import sys
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import random_discovery as rd
+    from analysis.auto import AutoResult, AutoStep
+    from analysis.discovery import Discovery, ElementDiscovery, LawSet, Separation
+
+    c = mc.case("2dof gap")                                     # a gap at a, hidden
+    wrong = mc.score(c, _wb({"a": [], "b": []}, {"a": ["cubic"], "b": []}), "stop")
+    assert [f.found for f in wrong.effects] == ["stiffness"] and not wrong.right
+
+    def result(named: list[tuple[str, ...]], later: bool = False) -> AutoResult:
+        found = ElementDiscovery("a", LawSet(("cubic",), None, 10.0, 1), 1.0, 120, [],
+                                 [Separation(laws, "a higher level would: they part at X = 0.04 m") for laws in named])
+        steps = [AutoStep("add", "a", ("quintic",), 1.0, 0.5, "")] if later else []
+        return AutoResult(steps, "stop", [], Discovery([found]))
+
+    named = rd.Scored(wrong, rd.named_equivalences(c, wrong, result([("unilateral",)])))
+    assert named.right_by_naming and "unilateral named indistinguishable from cubic" in named.named["a"]
+    assert "they part at X = 0.04 m" in named.named["a"]
+    for unnamed in (result([("quintic",)]), result([]), result([("unilateral",)], later=True)):
+        scored = rd.Scored(wrong, rd.named_equivalences(c, wrong, unnamed))
+        assert not scored.right_by_naming and not scored.right
+
+
 def test_the_published_table_is_the_last_full_run():
     recorded = json.loads((ROOT / "benchmarks" / "hidden_effect_matrix.json").read_text(encoding="utf-8"))
     outcomes = [mc.Outcome.from_json(o) for o in recorded["outcomes"]]
