@@ -253,6 +253,8 @@ def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool
     all in ``uff_path``; binary records (58b, doubles) unless ``binary=False``. Nothing is written unless every
     record could be prepared."""
     session_path, uff_path = Path(session_path), Path(uff_path)
+    if uff_path.resolve() == session_path.resolve():      # FILE names the session: a slip, whatever is written
+        raise InputError("is the session being exported; give another file name", str(uff_path), "--uff")
     files: dict[Path, list[dict]] = {}
     with open_session(session_path) as s:
         software, created = s.attrs.get("software_version", ""), s.attrs.get("created", "")

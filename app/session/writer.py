@@ -552,8 +552,11 @@ def needs_recovery(path) -> bool:
     try:
         with h5py.File(path, "r") as f:
             closed = True
+            runs = f.get("runs", {})
+            if not isinstance(runs, (h5py.Group, dict)):
+                raise InputError("/runs: is not a group of runs: not a contactid session", str(path))
             left_running = not alive and any(_text(g.attrs.get("status", "running")) == "running"
-                                             for g in f.get("runs", {}).values())
+                                             for g in runs.values())
     except OSError as exc:
         if "truncated file" in str(exc):     # cut short: no repair brings back what is missing
             raise InputError(f"is truncated, damaged beyond a repair ({exc})", str(path)) from None
