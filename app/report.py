@@ -313,7 +313,7 @@ def backbone_layout(comparisons: list[BackboneComparison]):
     lay = _layout()
     error = comparisons_error(comparisons)
     lay.addLabel("Natural frequency and damping ratio against response amplitude: measured (dots, a modal fit per "
-                 "response-controlled level or a phase-resonance point) and predicted by the model (line)<br>"
+                 "response-controlled level<br>or a phase-resonance point) and predicted by the model (line); "
                  f"RMS relative error: frequency {error.frequency:.3g}, damping {error.damping:.3g}",
                  row=0, col=0, size="11pt")
     units = comparisons[0].measured.units if comparisons else ""
