@@ -300,9 +300,6 @@ class ModalError:
     def measured(self) -> bool:
         return bool(np.isfinite(self.frequency))
 
-    def text(self) -> str:
-        return f"backbone error {self.frequency:.3g}, damping error {self.damping:.3g}"
-
     def to_json(self) -> dict:
         return {"backbone_error": _number(self.frequency), "damping_error": _number(self.damping)}
 

@@ -185,6 +185,15 @@ def test_analyze_compares_the_locked_points_with_the_fitted_model_s_backbone(tmp
     assert "point(s) of phase_x_90deg, phase resonance (90 deg)" in text
     assert f"RMS relative error of the model: natural frequency {out['backbone_error']:.3g}, damping ratio " \
            f"{out['damping_error']:.3g}" in text
+    # the loop from no law: each step says the errors of frequency and damping before and after. The response
+    # level holds one amplitude and the locked points are few, so discovery takes a linear spring (the FRFs
+    # cannot tell); the backbone error shows it wrong: 5x the cubic's
+    (tmp_path / "model.toml").write_text((tmp_path / "model.toml").read_text().replace('["cubic"]', "[]"))
+    assert main(args + ["--auto", "--json"]) == 0
+    auto = json.loads(capsys.readouterr().out)
+    (step,) = auto["auto"]["steps"]
+    assert step["laws"] == ["linear"] and step["backbone_error_after"] == pytest.approx(auto["backbone_error"])
+    assert step["backbone_error_after"] > 5 * out["backbone_error"] and step["damping_error_after"] > 0.01
 
 
 def test_a_phase_resonance_run_just_begun_reads_as_no_point_yet():
