@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 
+from .backbone import ModalError, model_modal_error
 from .comparison import gain_phrase
 from .diagnosis import Candidate, RankingRules
 from .discovery import Discovery, DiscoveryRules, ElementDiscovery
@@ -47,6 +48,9 @@ class AutoStep:
     error_before: float
     error_after: float
     reason: str
+    # natural frequency and damping against the measured ones (response levels, phase resonance), where measured
+    modal_before: ModalError | None = None
+    modal_after: ModalError | None = None
 
     @property
     def gain(self) -> float:
@@ -55,8 +59,12 @@ class AutoStep:
     def line(self) -> str:
         """One line: what was added and the error before and after."""
         what = f"at {self.element}" if self.action == "linear correction" else f"{self.element}:{'+'.join(self.laws)}"
+        modal = ""
+        if self.modal_after is not None and self.modal_after.measured:
+            modal = (f"; backbone error {self.modal_before.frequency:.3g} -> {self.modal_after.frequency:.3g}, "
+                     f"damping error {self.modal_before.damping:.3g} -> {self.modal_after.damping:.3g}")
         return (f"{self.action} {what}: error {self.error_before:.3g} -> {self.error_after:.3g} "
-                f"({gain_phrase(self.gain)})")
+                f"({gain_phrase(self.gain)}){modal}")
 
     def text(self) -> str:
         return f"{self.line()}\n     {self.reason}"
@@ -64,7 +72,14 @@ class AutoStep:
     def to_json(self) -> dict:
         return {"action": self.action, "element": self.element, "laws": list(self.laws),
                 "error_before": self.error_before, "error_after": self.error_after, "gain": self.gain,
-                "reason": self.reason}
+                "reason": self.reason, **_modal_json(self.modal_before, "_before"),
+                **_modal_json(self.modal_after, "_after")}
+
+
+def _modal_json(error: ModalError | None, suffix: str) -> dict:
+    """``backbone_error_before`` etc.: null where nothing is measured."""
+    values = {"backbone_error": None, "damping_error": None} if error is None else error.to_json()
+    return {k + suffix: v for k, v in values.items()}
 
 
 @dataclass
@@ -178,6 +193,15 @@ def _discovery_reason(found: ElementDiscovery, still_empty: list[str]) -> str:
 STOPPED_BY_USER = "stopped by the user"
 
 
+def _modal_error(wb: Workbench) -> ModalError | None:
+    """The model's natural frequency and damping error, None where the session measures neither (no response
+    level, no phase-resonance run)."""
+    m = wb.measurements
+    if not m.phase and not any(r.control.response for r in m.sine):
+        return None
+    return model_modal_error(wb.model.structure, wb.model.elements, m.sine, m.phase)
+
+
 def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
              progress: Callable[[AutoStep], None] | None = None,
              note: Callable[[str], None] | None = None,
@@ -191,7 +215,12 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
     steps: list[AutoStep] = []
     stopping = stop or (lambda: False)
 
+    modal = [_modal_error(wb)]          # the last step's natural frequency and damping error
+
     def take(step: AutoStep) -> None:
+        if modal[-1] is not None:
+            step.modal_before, step.modal_after = modal[-1], _modal_error(wb)
+            modal.append(step.modal_after)
         steps.append(step)
         if progress is not None:
             progress(step)

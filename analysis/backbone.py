@@ -17,6 +17,13 @@ its shape: the eigenvector most parallel to the last one). The natural frequency
 damping ratio ``-Re lambda / |lambda|`` -- the pole a single-mode fit of a measured FRF at that amplitude
 estimates. It is the single-harmonic, single-nonlinear-mode limit of the extended periodic motion concept:
 exact for the first harmonic of an isolated mode, blind to harmonics and to the coupling of close modes.
+
+**Measured damping at phase resonance.** At a lag of 90 deg the force balances the damping force of the mode
+(the power balance of the extended periodic motion concept): with the mass-normalised shape ``phi`` of the
+mode of the model's linear structure nearest the lock, force ``F`` at DOF ``e`` and fundamental displacement
+amplitude ``X_d`` at the locked DOF ``d``, ``zeta = F phi_e phi_d sin(lag) / (2 w^2 X_d)`` (``sin(lag)``: the
+force's share in quadrature with the response, 1 at an exact lock). Exact for one mode of a structure with
+proportional damping; close modes and non-proportional damping bias it.
 """
 from __future__ import annotations
 
@@ -128,14 +135,32 @@ def level_modal_point(run: SineRun) -> ModalPoint | None:
     return ModalPoint(float(np.median(held)), float(fit.frequency[0]), float(fit.damping[0]))
 
 
-def phase_resonance_backbone(run: PhaseRun) -> Backbone:
+def phase_resonance_backbone(run: PhaseRun, structure: Structure | None = None) -> Backbone:
     """A phase-resonance run's points as a measured curve: the locked frequency against the displacement
-    amplitude at the locked DOF. A lock at 90 deg is the natural frequency of an isolated mode; it measures no
-    damping ratio (NaN)."""
-    points = [ModalPoint(float(a), float(f), float("nan"), bool(c))
-              for a, f, c in zip(run.amplitude, run.frequency_hz, run.converged)]
+    amplitude at the locked DOF -- a lock at 90 deg is the natural frequency of an isolated mode -- and the
+    damping ratio by the power balance (:func:`phase_resonance_damping`; NaN without a ``structure``)."""
+    damping = phase_resonance_damping(run, structure) if structure is not None else \
+        np.full(len(run.frequency_hz), np.nan)
+    points = [ModalPoint(float(a), float(f), float(z), bool(c))
+              for a, f, z, c in zip(run.amplitude, run.frequency_hz, damping, run.converged)]
     return Backbone(run.dof, "displacement", points, "measured", f"phase resonance ({run.target_phase:g} deg)",
                     (run.name,))
+
+
+def phase_resonance_damping(run: PhaseRun, structure: Structure) -> np.ndarray:
+    """Damping ratio of each point of a phase-resonance run, ``F phi_e phi_d sin(lag) / (2 w^2 X_d)`` (module
+    docstring), ``phi`` the mass-normalised shape of the linear structure's mode nearest the lock at the smallest
+    amplitude (the least nonlinear); NaN where the excitation DOF is not the structure's."""
+    n = len(run.frequency_hz)
+    if run.excitation_dof not in structure.dofs or run.dof not in structure.dofs:
+        return np.full(n, np.nan)
+    frequencies, shapes = structure.modes()
+    mode = int(np.argmin(np.abs(frequencies - run.frequency_hz[int(np.argmin(run.amplitude))])))
+    phi = shapes[:, mode]
+    lag = np.full(n, run.target_phase) if run.lag is None else np.asarray(run.lag, float)
+    w = 2 * np.pi * np.asarray(run.frequency_hz, float)
+    return (np.asarray(run.force, float) * phi[structure.index(run.excitation_dof)] * phi[structure.index(run.dof)]
+            * np.sin(np.radians(lag)) / (2 * w ** 2 * np.asarray(run.amplitude, float)))
 
 
 # --------------------------------------------------------------------------- predicted
@@ -242,10 +267,57 @@ def compare_backbones(structure: Structure, elements: Sequence[Element], runs: S
     """Measured natural frequency and damping -- of the response levels, and of the phase-resonance runs'
     points -- against the model's prediction."""
     out = []
-    for measured in measured_backbone(runs) + [phase_resonance_backbone(r) for r in phase_runs]:
+    for measured in measured_backbones(structure, runs, phase_runs):
         a, f, _ = measured.arrays()
-        predicted = predict_backbone(structure, elements, measured.dof, measured.quantity, a, float(f[0]))
         grid = np.geomspace(a.min(), a.max(), CURVE_POINTS) if a.max() > a.min() else a
         curve = predict_backbone(structure, elements, measured.dof, measured.quantity, grid, float(f[0]))
-        out.append(BackboneComparison(measured, predicted, curve))
+        out.append(BackboneComparison(measured, _predicted_at(structure, elements, measured), curve))
     return out
+
+
+def measured_backbones(structure: Structure, runs: Sequence[SineRun],
+                       phase_runs: Sequence[PhaseRun] = ()) -> list[Backbone]:
+    """Every measured curve: the response levels' and the phase-resonance runs' (damping from ``structure``)."""
+    return measured_backbone(runs) + [phase_resonance_backbone(r, structure) for r in phase_runs]
+
+
+def _predicted_at(structure: Structure, elements: Sequence[Element], measured: Backbone) -> Backbone:
+    """The model's prediction at the measured amplitudes, from the mode nearest the first measured frequency."""
+    a, f, _ = measured.arrays()
+    return predict_backbone(structure, elements, measured.dof, measured.quantity, a, float(f[0]))
+
+
+@dataclass(frozen=True)
+class ModalError:
+    """The error of a model's natural frequencies and damping ratios against the measured ones (every point of
+    the response levels and the phase-resonance runs): the RMS relative error of each; NaN where nothing of it
+    is measured."""
+
+    frequency: float
+    damping: float
+
+    @property
+    def measured(self) -> bool:
+        return bool(np.isfinite(self.frequency))
+
+    def to_json(self) -> dict:
+        return {"backbone_error": _number(self.frequency), "damping_error": _number(self.damping)}
+
+
+def modal_error(pairs: Sequence[tuple[Backbone, Backbone]]) -> ModalError:
+    """RMS relative frequency and damping errors over (measured, predicted) curves; damping over the points
+    where it is measured."""
+    if not pairs:
+        return ModalError(float("nan"), float("nan"))
+    ef = np.concatenate([p.arrays()[1] / m.arrays()[1] - 1.0 for m, p in pairs])
+    ez = np.concatenate([p.arrays()[2] / m.arrays()[2] - 1.0 for m, p in pairs])
+    ez = ez[np.isfinite(ez)]
+    return ModalError(float(np.sqrt(np.mean(ef ** 2))),
+                      float(np.sqrt(np.mean(ez ** 2))) if len(ez) else float("nan"))
+
+
+def model_modal_error(structure: Structure, elements: Sequence[Element], runs: Sequence[SineRun],
+                      phase_runs: Sequence[PhaseRun] = ()) -> ModalError:
+    """:func:`modal_error` of the model (predicted at the measured amplitudes only: no curve for plots)."""
+    return modal_error([(m, _predicted_at(structure, elements, m))
+                        for m in measured_backbones(structure, runs, phase_runs)])

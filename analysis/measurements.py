@@ -179,7 +179,8 @@ class RunNote:
 class PhaseRun:
     """A phase-resonance run: at each force level the point its lock ended at -- frequency (Hz), force amplitude
     (N), the fundamental displacement amplitude at ``dof`` (m), the lag it locked to (deg) and whether the lock
-    converged."""
+    converged; the force is applied at ``excitation_dof`` and ``lag`` is the measured lag of each point (deg;
+    None: taken as ``target_phase``)."""
 
     name: str
     dof: str
@@ -188,6 +189,8 @@ class PhaseRun:
     force: np.ndarray
     amplitude: np.ndarray
     converged: np.ndarray
+    excitation_dof: str = ""
+    lag: np.ndarray | None = None
 
 
 @dataclass

@@ -6,8 +6,10 @@ from dataclasses import dataclass, field
 
 from typing import Callable
 
+import numpy as np
+
 from analysis.auto import AutoResult, AutoStep, run_auto
-from analysis.backbone import BackboneComparison, compare_backbones
+from analysis.backbone import BackboneComparison, ModalError, compare_backbones, modal_error
 from analysis.comparison import gain_phrase
 from analysis.errors import InputError
 from analysis.frf_noise import METHOD as NOISE_METHOD
@@ -209,8 +211,14 @@ def backbones(wb: Workbench) -> list[BackboneComparison]:
 
 
 def backbones_json(comparisons: list[BackboneComparison]) -> dict:
-    """The ``backbones`` entry of ``analyze --json`` (docs/contracts.md §6)."""
-    return {"backbones": [c.to_json() for c in comparisons]}
+    """The ``backbones``, ``backbone_error`` and ``damping_error`` entries of ``analyze --json``
+    (docs/contracts.md §6)."""
+    return {"backbones": [c.to_json() for c in comparisons], **comparisons_error(comparisons).to_json()}
+
+
+def comparisons_error(comparisons: list[BackboneComparison]) -> ModalError:
+    """The RMS relative error of the predicted natural frequency and damping over every measured point."""
+    return modal_error([(c.measured, c.predicted) for c in comparisons])
 
 
 def backbone_text(comparisons: list[BackboneComparison]) -> list[str]:
@@ -220,6 +228,9 @@ def backbone_text(comparisons: list[BackboneComparison]) -> list[str]:
                "response level, or the points of a phase-resonance run):"]
     for c in comparisons:
         out += c.text()
+    error = comparisons_error(comparisons)
+    out.append(f"  RMS relative error of the model: natural frequency {error.frequency:.3g}, damping ratio "
+               + (f"{error.damping:.3g}" if np.isfinite(error.damping) else "- (no damping measured)"))
     return out
 
 

@@ -16,7 +16,7 @@ from analysis.backbone import BackboneComparison
 from analysis.numbers import engineering
 from analysis.workbench import Workbench
 
-from app.analyze import backbones, element_misfits
+from app.analyze import backbones, comparisons_error, element_misfits
 from app.kbar_view import LEGEND_OFFSETS, emptiest_corner, linear_axis, model_paths
 
 LEVEL_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
@@ -311,8 +311,11 @@ def plot_backbones(comparisons: list[BackboneComparison], path: Path) -> Path:
 def backbone_layout(comparisons: list[BackboneComparison]):
     """The two panels of :func:`plot_backbones` (frequency above, damping below, amplitude axes linked)."""
     lay = _layout()
+    error = comparisons_error(comparisons)
     lay.addLabel("Natural frequency and damping ratio against response amplitude: measured (dots, a modal fit per "
-                 "response-controlled level) and predicted by the model (line)", row=0, col=0, size="11pt")
+                 "response-controlled level<br>or a phase-resonance point) and predicted by the model (line); "
+                 f"RMS relative error: frequency {error.frequency:.3g}, damping {error.damping:.3g}",
+                 row=0, col=0, size="11pt")
     units = comparisons[0].measured.units if comparisons else ""
     freq = _log_plot(lay, 1, 0, x_unit=units)
     damp = _log_plot(lay, 2, 0, x_unit=units)
@@ -330,7 +333,7 @@ def backbone_layout(comparisons: list[BackboneComparison]):
         ca, cf, cz = c.curve.arrays()
         for plot, measured, predicted in ((freq, f, cf), (damp, z, cz)):
             plot.plot(ca, predicted, pen={"color": colour, "width": 2}, name=f"{name}: model")
-            known = np.isfinite(measured)              # a phase lock measures no damping ratio
+            known = np.isfinite(measured)              # no damping where the model has no mode shape there
             if known.any():
                 plot.plot(a[known], measured[known], name=f"{name}: measured", **_symbols(colour, 9))
     return lay

@@ -10,6 +10,7 @@ import pytest
 
 import analysis.auto as auto_module
 from analysis.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained, run_auto
+from analysis.backbone import ModalError
 from analysis.diagnosis import Candidate, ElementSamples, RankingRules
 from analysis.linearity import linearity_verdict
 from analysis.measurements import Measurements, SineRun
@@ -168,7 +169,13 @@ def test_step_and_result_records():
     assert step.gain == 8.0
     assert step.line() == "add b:quadratic_damping: error 1 -> 0.125 (x8.00 better)"
     assert step.to_json() == {"action": "add", "element": "b", "laws": ["quadratic_damping"], "error_before": 1.0,
-                              "error_after": 0.125, "gain": 8.0, "reason": "why"}
+                              "error_after": 0.125, "gain": 8.0, "reason": "why",
+                              "backbone_error_before": None, "damping_error_before": None,
+                              "backbone_error_after": None, "damping_error_after": None}
+    modal = AutoStep("add", "b", ("cubic",), 1.0, 0.5, "why", ModalError(0.02, 0.3), ModalError(0.001, float("nan")))
+    assert modal.line() == ("add b:cubic: error 1 -> 0.5 (x2.00 better); backbone error 0.02 -> 0.001, "
+                            "damping error 0.3 -> nan")
+    assert modal.to_json()["backbone_error_after"] == 0.001 and modal.to_json()["damping_error_after"] is None
     result = AutoResult([step], "nothing significant is left")
     assert json.loads(json.dumps(result.to_json()))["stopped"] == "nothing significant is left"
     assert result.text().splitlines()[-1] == "  stopped: nothing significant is left"

@@ -169,15 +169,31 @@ def test_analyze_compares_the_locked_points_with_the_fitted_model_s_backbone(tmp
                                          encoding="utf-8")
     args = ["analyze", str(tmp_path / "s.h5"), str(tmp_path / "model.toml"), "--no-history"]
     assert main(args + ["--json", "--report", str(tmp_path / "report")]) == 0
-    backbones = {b["measured"]["method"]: b for b in json.loads(capsys.readouterr().out)["backbones"]}
+    out = json.loads(capsys.readouterr().out)
+    backbones = {b["measured"]["method"]: b for b in out["backbones"]}
     locked = backbones["phase resonance (90 deg)"]
     assert locked["measured"]["runs"] == ["phase_x_90deg"] and len(locked["measured"]["points"]) == 4
-    assert all(p["damping_ratio"] is None for p in locked["measured"]["points"])
+    # the power balance's damping against the Duffing oscillator's c / (2 m w) at each locked frequency
+    for p in locked["measured"]["points"]:
+        assert p["damping_ratio"] == pytest.approx(1.5 / (2 * M * 2 * np.pi * p["frequency_hz"]), rel=0.02)
     assert max(abs(e) for e in locked["frequency_error"]) < 0.005
-    assert all(e is None for e in locked["damping_error"])
+    assert max(abs(e) for e in locked["damping_error"]) < 0.02
+    assert 0 < out["backbone_error"] < 0.005 and 0 < out["damping_error"] < 0.02
     assert (tmp_path / "report" / "backbone.png").exists()
     assert main(args) == 0
-    assert "point(s) of phase_x_90deg, phase resonance (90 deg)" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "point(s) of phase_x_90deg, phase resonance (90 deg)" in text
+    assert f"RMS relative error of the model: natural frequency {out['backbone_error']:.3g}, damping ratio " \
+           f"{out['damping_error']:.3g}" in text
+    # the loop from no law: each step says the errors of frequency and damping before and after. The response
+    # level holds one amplitude and the locked points are few, so discovery takes a linear spring (the FRFs
+    # cannot tell); the backbone error shows it wrong: 5x the cubic's
+    (tmp_path / "model.toml").write_text((tmp_path / "model.toml").read_text().replace('["cubic"]', "[]"))
+    assert main(args + ["--auto", "--json"]) == 0
+    auto = json.loads(capsys.readouterr().out)
+    (step,) = auto["auto"]["steps"]
+    assert step["laws"] == ["linear"] and step["backbone_error_after"] == pytest.approx(auto["backbone_error"])
+    assert step["backbone_error_after"] > 5 * out["backbone_error"] and step["damping_error_after"] > 0.01
 
 
 def test_a_phase_resonance_run_just_begun_reads_as_no_point_yet():

@@ -62,11 +62,12 @@ def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarra
 
 def _phase_run(run: RunData, frequency: np.ndarray, arrays: dict) -> PhaseRun:
     """A phase-resonance run's locked points, the displacement at the locked DOF from its acceleration's
-    fundamental."""
+    fundamental, the lag from its receptance."""
     dof = str(run.attrs["phase_dof"])
     displacement = np.abs(arrays[f"harmonics/acc:{dof}"][:, 1]) / (2 * np.pi * frequency) ** 2
+    lag = np.degrees(-np.angle(run.frf[dof][:len(frequency)])) % 360.0 if dof in run.frf else None
     return PhaseRun(run.name, dof, float(run.attrs["target_phase"]), frequency, arrays["force_amplitude"],
-                    displacement, arrays["lock_converged"].astype(bool))
+                    displacement, arrays["lock_converged"].astype(bool), run.excitation_dof, lag)
 
 
 def _welch_resolution(attrs: dict) -> float | None:
