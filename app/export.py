@@ -254,7 +254,7 @@ def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool
     record could be prepared."""
     session_path, uff_path = Path(session_path), Path(uff_path)
     if uff_path.resolve() == session_path.resolve():      # FILE names the session: a slip, whatever is written
-        raise InputError("is the session being exported; give another file name", str(uff_path), "--uff")
+        check_output(uff_path, inputs=[session_path], overwrite=overwrite, field="--uff")
     files: dict[Path, list[dict]] = {}
     with open_session(session_path) as s:
         software, created = s.attrs.get("software_version", ""), s.attrs.get("created", "")
