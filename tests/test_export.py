@@ -10,6 +10,7 @@ import pytest
 import pyuff
 
 from analysis import InputError
+from app.cli import main
 from app.export import export_csv, export_uff, run_file
 from app.session.writer import RunSpec, SessionWriter
 
@@ -165,3 +166,18 @@ def test_csv_has_units_and_all_lines(session, tmp_path):
     data = np.array(rows[3:], float)
     np.testing.assert_allclose(data[:, 0], freqs)
     np.testing.assert_allclose(data[:, header.index("Im frf B.theta [m/N]")], -2e-4 * np.arange(1, 6))
+
+
+def test_a_run_csv_read_back_refuses_digits_grouped_with_underscores(session, tmp_path, capsys):
+    """The CSV export read back follows the long format's rule: ``1_000`` is no number (Python's float would
+    read 1000)."""
+    path, _ = session
+    export_csv(path, tmp_path / "csv")
+    exported = tmp_path / "csv" / f"{RUN}.csv"
+    rows = exported.read_text().splitlines()
+    first = rows[3].split(",")
+    rows[3] = ",".join(["1_000"] + first[1:])
+    exported.write_text("\n".join(rows) + "\n")
+    assert main(["import", str(exported), "-o", str(tmp_path / "back.h5")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'1_000' is not a number" in err and "line 4: column 1" in err

@@ -17,8 +17,8 @@ import numpy as np
 from analysis.errors import InputError
 from analysis.measurements import CONTROL_UNITS, Control
 
-from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, in_sweep_order, response_run_name, sine_run_name,
-                   sweep_direction)
+from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, csv_float, in_sweep_order, response_run_name,
+                   sine_run_name, sweep_direction)
 
 REQUIRED = ("frequency_hz", "force_n", "dof", "re", "im")
 OPTIONAL = ("std", "direction", "force_amplitude_n", "force_phase_rad", "control_dof", "control_quantity",
@@ -40,9 +40,7 @@ class _Lines:
 
 def _number(text: str, path: str, row: int, column: str) -> float:
     try:
-        if "_" in text:                      # Python reads 1_000 as 1000; no CSV writer means that
-            raise ValueError
-        value = float(text)
+        value = csv_float(text)
     except ValueError:
         raise InputError(f"{text!r} is not a number", path, f"line {row}: {column}") from None
     if not np.isfinite(value):

@@ -19,7 +19,7 @@ import numpy as np
 from analysis.errors import InputError
 
 from .idlines import DIRECTIONS, KINDS, read_control
-from .runs import ImportedRun, check_axis, check_values
+from .runs import ImportedRun, check_axis, check_values, csv_float
 
 MARK = "# contactid-run"
 KEYS = ("run", "kind", "force", "direction", "status", "excitation")
@@ -51,7 +51,7 @@ def _run_words(text: str, path: str) -> dict[str, str]:
 def _positive(words: dict, key: str, path: str, whole: bool = False) -> float:
     text = words[key]
     try:
-        value = float(text)
+        value = csv_float(text)
     except ValueError:
         raise InputError(f"{key}={text!r} is not a number", path, "line 2") from None
     if not (math.isfinite(value) and value > 0) or (whole and not text.isdigit()):
@@ -68,7 +68,7 @@ def _table(rows: list[list[str]], width: int, path: str) -> np.ndarray:
             raise InputError(f"{len(row)} fields, the column row has {width}", path, f"line {line}")
         for j, cell in enumerate(row):
             try:
-                values[i, j] = float(cell)
+                values[i, j] = csv_float(cell)
             except ValueError:
                 raise InputError(f"{cell!r} is not a number", path, f"line {line}: column {j + 1}") from None
     return values

@@ -124,6 +124,14 @@ class SourceFile:
     force_sign: float = 1.0              # applied to every FRF of the file (--force-sign)
 
 
+def csv_float(text: str) -> float:
+    """A CSV cell as a number, as ``float`` reads it but without digit groups: Python reads ``1_000`` as 1000,
+    and no CSV writer means that. ValueError when it is no number."""
+    if "_" in text:
+        raise ValueError(text)
+    return float(text)
+
+
 def check_axis(x: np.ndarray, where: str, field_name: str) -> None:
     """Finite, positive, strictly monotonic frequencies (one direction), else an error naming the line."""
     bad = np.flatnonzero(~np.isfinite(x))

@@ -151,8 +151,7 @@ def check_control(attrs: dict, excitation_dof: str, force: float, error) -> Cont
     if quantity not in CONTROL_UNITS or quantity == "force":
         raise error("attribute control_quantity", "must be displacement, velocity or acceleration for a "
                                                   f"response-controlled run, got {quantity!r}")
-    if isinstance(target, bool) or not isinstance(target, (int, float, np.number)) or not math.isfinite(target) \
-            or target <= 0:
+    if not _positive_number(target):
         shown = target.item() if isinstance(target, np.generic) else target      # -5.0, not np.float64(-5.0)
         raise error("attribute control_target", f"must be a finite amplitude > 0, got {shown!r}")
     return Control("response", dof, quantity, float(target))
