@@ -15,10 +15,11 @@ from typing import Callable
 
 import numpy as np
 
-from .backbone import ModalError, model_modal_error
+from .backbone import ModalError
 from .comparison import gain_phrase
 from .diagnosis import Candidate, RankingRules
 from .discovery import Discovery, DiscoveryRules, ElementDiscovery
+from .modal_judge import ModalRules, judge_by_modes, measures_modes, model_error
 from .unexplained import unexplained
 from .workbench import ElementReport, Workbench
 
@@ -35,6 +36,7 @@ class AutoRules:
                                      # other law of positive evidence
     unexplained_false_alarm: float = 1e-3   # of the test "the kbar is not explained by the element's laws"
     partial_min_gain: float = 5.0    # error cut a law must reach alone when its element's kbar stays unexplained
+    modes: ModalRules | None = ModalRules()   # the measured backbone and damping judge candidates too (None: not)
     ranking: RankingRules = RankingRules()
 
 
@@ -149,8 +151,7 @@ def _best_pair(wb: Workbench, ranked: list[Candidate], rules: AutoRules,
         if el.name in searched or report is None or not kbar_unexplained(report, rules.unexplained_false_alarm):
             continue
         pairs = _pairs(ranked, el.name, rules.pair_pool)
-        scored = wb.pair_candidates(el.name, pairs, rules.ranking) if pairs else []
-        _hold_back_partial(wb, scored, rules)
+        scored = _judged(wb, wb.pair_candidates(el.name, pairs, rules.ranking) if pairs else [], rules)
         found = [c for c in scored if c.significant]
         if found and (best is None or found[0].bic < best.bic):
             best = found[0]
@@ -159,8 +160,9 @@ def _best_pair(wb: Workbench, ranked: list[Candidate], rules: AutoRules,
 
 def _reason(c: Candidate) -> str:
     mh = "" if c.multiharmonic_gain is None else f", {gain_phrase(c.multiharmonic_gain)} with harmonics"
+    modes = f"; {c.by_modes}" if c.by_modes else ""
     return (f"top significant candidate ({gain_phrase(c.gain)} single-harmonic{mh}, kbar evidence "
-            f"{c.evidence:.3g}): {c.explanation}")
+            f"{c.evidence:.3g}{modes}): {c.explanation}")
 
 
 def _stop_reason(ranked: list[Candidate], pairs_tried: bool, min_gain: float) -> str:
@@ -196,10 +198,16 @@ STOPPED_BY_USER = "stopped by the user"
 def _modal_error(wb: Workbench) -> ModalError | None:
     """The model's natural frequency and damping error, None where the session measures neither (no response
     level, no phase-resonance run)."""
-    m = wb.measurements
-    if not m.phase and not any(r.control.response for r in m.sine):
-        return None
-    return model_modal_error(wb.model.structure, wb.model.elements, m.sine, m.phase)
+    return model_error(wb.model, wb.measurements) if measures_modes(wb.measurements) else None
+
+
+def _judged(wb: Workbench, candidates: list[Candidate], rules: AutoRules) -> list[Candidate]:
+    """The loop's own holds on ranked candidates: a partial law held back, then the measured backbone and
+    damping's veto and second witness (:mod:`analysis.modal_judge`) where the session measures them."""
+    _hold_back_partial(wb, candidates, rules)
+    if rules.modes is not None and measures_modes(wb.measurements):
+        judge_by_modes(wb.model, wb.measurements, candidates, rules.ranking.min_gain, rules.modes)
+    return candidates
 
 
 def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
@@ -249,8 +257,7 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
     for _ in range(rules.max_steps):
         if stopping():
             return AutoResult(steps, STOPPED_BY_USER, [], found)
-        ranked = wb.candidates(rules=rules.ranking)
-        _hold_back_partial(wb, ranked, rules)
+        ranked = _judged(wb, wb.candidates(rules=rules.ranking), rules)
         top = next((c for c in ranked if c.significant), None)
         pairs_tried = top is None and rules.pairs
         if pairs_tried:

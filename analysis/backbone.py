@@ -35,7 +35,7 @@ import scipy.linalg
 
 from .elements import Element
 from .errors import InputError
-from .measurements import CONTROL_UNITS, PhaseRun, SineRun, response_amplitude
+from .measurements import CONTROL_UNITS, Measurements, PhaseRun, SineRun, response_amplitude
 from .modal_fit import fit_modes
 from .structures import Structure
 
@@ -151,16 +151,62 @@ def phase_resonance_damping(run: PhaseRun, structure: Structure) -> np.ndarray:
     """Damping ratio of each point of a phase-resonance run, ``F phi_e phi_d sin(lag) / (2 w^2 X_d)`` (module
     docstring), ``phi`` the mass-normalised shape of the linear structure's mode nearest the lock at the smallest
     amplitude (the least nonlinear); NaN where the excitation DOF is not the structure's."""
-    n = len(run.frequency_hz)
     if run.excitation_dof not in structure.dofs or run.dof not in structure.dofs:
-        return np.full(n, np.nan)
+        return np.full(len(run.frequency_hz), np.nan)
     frequencies, shapes = structure.modes()
-    mode = int(np.argmin(np.abs(frequencies - run.frequency_hz[int(np.argmin(run.amplitude))])))
-    phi = shapes[:, mode]
-    lag = np.full(n, run.target_phase) if run.lag is None else np.asarray(run.lag, float)
+    phi = shapes[:, int(np.argmin(np.abs(frequencies - _least_nonlinear_hz(run))))]
+    return power_balance_damping(run, phi[structure.index(run.excitation_dof)] * phi[structure.index(run.dof)])
+
+
+def _least_nonlinear_hz(run: PhaseRun) -> float:
+    """The frequency the run locked at at its smallest amplitude."""
+    return float(run.frequency_hz[int(np.argmin(run.amplitude))])
+
+
+def power_balance_damping(run: PhaseRun, modal_constant: float) -> np.ndarray:
+    """``F A sin(lag) / (2 w^2 X_d)`` at each point, ``A = phi_e phi_d`` the mode's modal constant between the
+    excitation and the locked DOF (mass-normalised shapes; from a model or a measured FRF)."""
+    lag = np.full(len(run.frequency_hz), run.target_phase) if run.lag is None else np.asarray(run.lag, float)
     w = 2 * np.pi * np.asarray(run.frequency_hz, float)
-    return (np.asarray(run.force, float) * phi[structure.index(run.excitation_dof)] * phi[structure.index(run.dof)]
-            * np.sin(np.radians(lag)) / (2 * w ** 2 * np.asarray(run.amplitude, float)))
+    return (np.asarray(run.force, float) * modal_constant * np.sin(np.radians(lag))
+            / (2 * w ** 2 * np.asarray(run.amplitude, float)))
+
+
+def measured_modal_constant(run: PhaseRun, frequency_hz, receptance) -> float | None:
+    """The modal constant ``phi_e phi_d`` of the mode a phase-resonance run locks on, from a measured receptance
+    ``H_de`` of the same excitation and locked DOF taken where the structure is (nearly) linear -- the low-level
+    random run, or a low level: the real part of the residue of the single-mode fit nearest the lock
+    (:func:`analysis.modal_fit.fit_modes`); None where no mode is found within 25 % of the lock. With it the
+    power balance needs no model: what the lab reads live."""
+    fit = fit_modes(frequency_hz, np.asarray(receptance)[:, None])
+    if not len(fit.frequency):
+        return None
+    near = _least_nonlinear_hz(run)
+    mode = int(np.argmin(np.abs(fit.frequency - near)))
+    if abs(fit.frequency[mode] / near - 1.0) > 0.25:
+        return None
+    return float(fit.residues[mode, 0].real)
+
+
+def measured_power_balance(measurements: Measurements, run: PhaseRun) -> np.ndarray | None:
+    """Damping ratio of each point of ``run`` by the power balance with the modal constant measured in the same
+    session (:func:`measured_modal_constant`): from the random run where it drives the run's excitation DOF and
+    sees the locked DOF, else from the lowest force-controlled stepped-sine level that does. None where the
+    session holds neither, or its FRF shows no mode near the lock."""
+    e, d = run.excitation_dof, run.dof
+    sources = []
+    r = measurements.random
+    if r is not None and r.excitation_dof == e and d in r.sensor_dofs:
+        sources.append((r.frequency_hz, r.receptance[:, r.sensor_dofs.index(d)]))
+    levels = sorted((s for s in measurements.sine if s.control.mode == "force" and s.excitation_dof == e
+                     and d in s.sensor_dofs and len(s.frequency_hz) >= MIN_FIT_LINES), key=lambda s: s.force)
+    sources += [(np.sort(s.frequency_hz), s.receptance[np.argsort(s.frequency_hz), s.sensor_dofs.index(d)])
+                for s in levels[:1]]
+    for f, h in sources:
+        constant = measured_modal_constant(run, f, h)
+        if constant is not None:
+            return power_balance_damping(run, constant)
+    return None
 
 
 # --------------------------------------------------------------------------- predicted

@@ -126,6 +126,7 @@ class Candidate:
     multiharmonic_gain: float | None = None   # the gain with the harmonics represented (check_model_form)
     model_form: str = ""            # why the model-form check took significance away ("" if it did not)
     held_back: str = ""             # why the automatic loop did not take it (analysis.auto; "" if it did)
+    by_modes: str = ""              # why the measured backbone and damping made it significant (analysis.modal_judge)
 
     def __post_init__(self):
         self.laws = tuple(self.laws) or (self.law,)
@@ -145,7 +146,8 @@ class Candidate:
         return {"element": self.element, "law": self.law, "laws": list(self.laws), "error": self.error,
                 "gain": self.gain, "significant": self.significant, "kbar_evidence": self.evidence,
                 "supported": self.supported, "multiharmonic_gain": self.multiharmonic_gain,
-                "model_form": self.model_form, "held_back": self.held_back, "explanation": self.explanation,
+                "model_form": self.model_form, "held_back": self.held_back, "by_modes": self.by_modes,
+                "explanation": self.explanation,
                 "params": {} if self.fit is None else
                 {k: v for t in self.fit.terms[-n:] for k, v in t.params.items()}}
 

@@ -191,6 +191,9 @@ class PhaseRun:
     converged: np.ndarray
     excitation_dof: str = ""
     lag: np.ndarray | None = None
+    # the locked points as lines, each at its own force: the element's kbar is identified at them as at any
+    # line (they reach amplitudes no response level may), but they are no sweep and are not predicted as one
+    lines: SineRun | None = None
 
 
 @dataclass

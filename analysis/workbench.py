@@ -35,7 +35,7 @@ from .fit import LawFit, fit_laws
 from .identify import identify_complex_stiffness
 from .laws import get_law
 from .linearity import LinearityVerdict, linearity_verdict
-from .measurements import Measurements
+from .measurements import Measurements, SineRun
 from .model import Model, load_model
 from .nonparametric import NAME as NONPARAMETRIC, fit_nonparametric
 from .reference import ReferenceReport, reference_from_random
@@ -139,7 +139,7 @@ class Workbench:
             raise InputError("the model has no [[element]] to identify", self.model.source)
         per: dict[str, list[ElementSamples]] = {e.name: [] for e in els}
         flagged = {e.name: 0 for e in els}
-        for run in self.measurements.sine:
+        for run, level in self._identified_runs():
             if len(run.sensor_dofs) < len(els):
                 raise InputError(f"run {run.name} measured {len(run.sensor_dofs)} FRF(s) but the model has "
                                  f"{len(els)} unknown elements: at least as many sensors as elements are needed")
@@ -154,7 +154,7 @@ class Workbench:
                 flagged[el.name] += int((~good).sum())
                 kstd = None if ident.kbar_std is None else ident.kbar_std[good, i]
                 per[el.name].append(ElementSamples(el.name, ident.amplitude[good, i], run.w[good],
-                                                   ident.kbar[good, i], kstd, np.full(good.sum(), run.force),
+                                                   ident.kbar[good, i], kstd, level[good],
                                                    el.rotational(self.model.structure)))
         self.reports = {}
         for el in els:
@@ -171,6 +171,12 @@ class Workbench:
             self.reports[el.name] = ElementReport(el.name, samples if len(X) else None, verdict, len(X),
                                                   flagged[el.name])
         return self.reports
+
+    def _identified_runs(self) -> list[tuple[SineRun, np.ndarray]]:
+        """Every run identified from, with the level of each line: the stepped-sine runs (their level), then the
+        phase-resonance runs' locked points (each at its own force, the one that took it to its amplitude)."""
+        out = [(run, np.full(len(run.frequency_hz), run.force)) for run in self.measurements.sine]
+        return out + [(p.lines, p.lines.force_per_line) for p in self.measurements.phase if p.lines is not None]
 
     # ------------------------------------------------------------------ fitting and comparison
     def fit(self, names: list[str] | None = None) -> None:

@@ -141,6 +141,32 @@ def test_a_linear_2dof_with_rayleigh_damping_gives_each_mode_s_modal_damping(e, 
     assert phase_resonance_damping(run, s)[0] == pytest.approx(a / (2 * w_r) + b * w_r / 2, rel=5e-3)
 
 
+@pytest.mark.parametrize("e, d, mode", [(1, 1, 0), (0, 0, 1), (0, 1, 0)])
+def test_the_power_balance_needs_no_model_where_the_session_measured_a_low_level_frf(e, d, mode):
+    """The modal constant phi_e phi_d from a single-mode fit of the session's own FRF H_de (the exact one here, as
+    a random run or a low force level would measure it) gives the modal damping as the model's shapes do."""
+    from analysis.backbone import measured_power_balance
+    from analysis.measurements import Measurements, RandomRun
+
+    Mm = np.diag([1.0, 2.0])
+    Km = np.array([[3000.0, -1000.0], [-1000.0, 2000.0]])
+    a, b = 0.3, 1.0e-4
+    s = Structure(["x1", "x2"], Mm, Km, a * Mm + b * Km)
+    w_r = 2 * np.pi * s.natural_frequencies()[mode]
+    w, h = lag_90_frequency(s, e, d, 0.95 * w_r, 1.05 * w_r)
+    run = phase_run(w / (2 * np.pi), 0.5, 0.5 * abs(h), np.degrees(-np.angle(h)) % 360.0, s.dofs[d], s.dofs[e])
+    f = np.linspace(2.0, 12.0, 801)
+    W = 2 * np.pi * f
+    H = np.array([np.linalg.solve(s.K - x ** 2 * s.M + 1j * x * s.C, np.eye(2)[e]) for x in W])
+    truth = a / (2 * w_r) + b * w_r / 2
+    random = RandomRun(s.dofs[e], list(s.dofs), f, H)
+    assert measured_power_balance(Measurements(random=random), run)[0] == pytest.approx(truth, rel=5e-3)
+    level = SineRun("sine_0.1N_up", 0.1, "up", s.dofs[e], list(s.dofs), f, H)
+    assert measured_power_balance(Measurements(sine=[level]), run)[0] == pytest.approx(truth, rel=5e-3)
+    elsewhere = RandomRun("y", list(s.dofs), f, H)        # another excitation: its residues are not phi_e phi_d
+    assert measured_power_balance(Measurements(random=elsewhere), run) is None
+
+
 def test_a_jenkins_oscillator_s_phase_resonance_damping_is_its_equivalent_damping_by_quadrature():
     """At 90 deg the first harmonic balances: m w^2 = K + Re kbar(X) and F = (C w + Im kbar) X (kbar by
     quadrature of the loop here). The truth is the equivalent viscous damping of the energy dissipated per

@@ -181,6 +181,13 @@ max_force = 4.0
 max_acceleration = 40.0
 
 [[stepped_sine]]
+force = 0.2
+start = 1.1
+stop = 1.4
+step = 0.03
+refine = false
+
+[[stepped_sine]]
 response = 2.0
 dof = "x2"
 start = 1.1
@@ -225,3 +232,6 @@ def test_frequency_and_damping_against_amplitude_grow_point_by_point(window, qtb
     assert not errors, errors
     f, zeta = (live.shown(plot, "response levels", "acceleration at x2")[1] for plot in (live.natural, live.damping))
     assert len(f) == 1 and 1.1 < f[0] < 1.3 and 0 < zeta[0] < 0.2   # the response level's modal fit
+    # the locked points' damping by the power balance, the modal constant from the 0.1 N level measured first
+    zeta = live.shown(live.damping, "phase_x2_90deg", "locked")[1]
+    assert len(zeta) == 3 and np.all((0 < zeta) & (zeta < 0.2))

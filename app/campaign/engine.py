@@ -385,7 +385,8 @@ class Campaign:
     # ------------------------------------------------------------------ stepped sine
     def _sine_extras(self, response: ResponseLevel | None = None) -> dict:
         extras = {"force_amplitude": ("N", (), "f8"), "force_target": ("N", (), "f8"),
-                  "force_phasor": ("N", (), "c16"), "measured_frequency": ("Hz", (), "f8"),
+                  "force_phasor": ("N", (), "c16"), "force_phase": ("rad", (), "f8"),
+                  "measured_frequency": ("Hz", (), "f8"),
                   "drive": ("V", (), "f8"), "settle_time": ("s", (), "f8"), "settle_periods": ("1", (), "f8"),
                   "steady": ("bool", (), "?"), "control_steps": ("1", (), "i4"),
                   "force_on_target": ("bool", (), "?"), "transient": ("bool", (), "?"),
@@ -694,6 +695,7 @@ def line_extras(m: LineMeasurement, target: float, daq_channels: list[str], chan
     session (docs/session-format.md); ``daq_channels`` orders ``m.harmonics`` and ``m.thd``, ``channels`` are
     the ones recorded. The GUI's live view builds the same record from the listener's lines."""
     extras = {"force_amplitude": abs(m.force), "force_target": target, "force_phasor": m.force,
+              "force_phase": float(np.angle(m.force)),
               "measured_frequency": m.measured_frequency, "drive": m.drive, "settle_time": m.settle_time,
               "settle_periods": m.settle_periods, "steady": m.steady, "control_steps": m.control_steps,
               "force_on_target": m.on_target, "transient": m.transient, "transient_std": m.transient_std}

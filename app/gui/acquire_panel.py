@@ -16,7 +16,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QDoubleSpinBox, QFi
                                QHBoxLayout, QHeaderView, QLabel, QLineEdit, QListWidget, QProgressBar,
                                QPushButton, QSplitter, QTableWidget, QVBoxLayout, QWidget)
 
-from analysis.backbone import POWER, measured_backbone
+from analysis.backbone import POWER, measured_backbone, measured_power_balance
 from analysis.errors import InputError
 from analysis.measurements import Control
 from app.models import builtin_plan_path
@@ -288,10 +288,11 @@ class LivePlots(pg.GraphicsLayoutWidget):
         self.natural = configure_plot(modal.addPlot(0, 0),
                                       "Natural frequency: phase resonance ●, response levels ◆",
                                       "displacement amplitude", "m", "frequency", "Hz", log_x=True, legend=True)
-        self.damping = configure_plot(modal.addPlot(0, 1), "Damping ratio: response levels ◆",
+        self.damping = configure_plot(modal.addPlot(0, 1), "Damping ratio: phase resonance ●, response levels ◆",
                                       "displacement amplitude", "m", "damping ratio", None, log_x=True, log_y=True)
         self.damping.setXLink(self.natural)
         self._modal_runs: tuple = ()                     # the finished response levels fitted so far
+        self._locked_damping: dict[tuple, np.ndarray | None] = {}   # (run, points) -> damping by power balance
         self.phase.setXLink(self.magnitude)
         self.ci.layout.setRowStretchFactor(1, 2)
         self._time_curves: list[pg.PlotDataItem] = []
@@ -308,7 +309,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
     def shown(self, plot: pg.PlotItem, run: str, what: str) -> tuple[np.ndarray, np.ndarray]:
         """The points a run's curve on ``plot`` shows now (``what``: a sensor DOF on the FRF plots; "achieved",
         "target", "response", "force", "steady", "transient" or "limit" on the others; "locked" for a
-        phase-resonance run on the natural-frequency plot, whose response levels are ``run`` "response levels",
+        phase-resonance run on the natural-frequency and damping plots, whose response levels are ``run`` "response levels",
         ``what`` e.g. "acceleration at x2"); empty before its first line."""
         curve = self._run_curves.get((id(plot), run, what))
         x, y = (None, None) if curve is None else curve.getOriginalDataset()
@@ -330,6 +331,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
                 plot.legend.clear()
         self._run_curves.clear()
         self._modal_runs = ()
+        self._locked_damping = {}
         ring = feed.ring
         self._time_curves = []
         for i, channel in enumerate(ring.channels):
@@ -401,9 +403,27 @@ class LivePlots(pg.GraphicsLayoutWidget):
         w = 2 * np.pi * run.frequency
         X = np.abs(run.arrays[f"harmonics/acc:{dof}"][:, 1]) / w ** 2
         color = self.palette.color(run.force)
-        self._curve(self.natural, (run.name, "locked"), pen=pg.mkPen(color, width=1.2), symbol="o", symbolSize=7,
-                    symbolBrush=pg.mkBrush(color), symbolPen=None,
-                    name=f"phase resonance at {dof}").setData(X, run.frequency)
+        style = {"pen": pg.mkPen(color, width=1.2), "symbol": "o", "symbolSize": 7, "symbolBrush": pg.mkBrush(color),
+                 "symbolPen": None}
+        self._curve(self.natural, (run.name, "locked"), name=f"phase resonance at {dof}",
+                    **style).setData(X, run.frequency)
+        zeta = self._power_balance(run)
+        if zeta is not None:
+            self._curve(self.damping, (run.name, "locked"), **style).setData(X, zeta)
+
+    def _power_balance(self, run) -> np.ndarray | None:
+        """The locked points' damping ratio by the power balance, with the modal constant from the session's own
+        low-level FRF (analysis/backbone.py ``measured_power_balance``): computed once per point locked; None
+        until the session holds such an FRF."""
+        key = (run.name, len(run.frequency))
+        if key not in self._locked_damping:
+            try:
+                m = measurements_from_session(self.lab.live)
+            except InputError:       # lines the analysis refuses: no damping drawn, no crash
+                m = None
+            phase = None if m is None else next((p for p in m.phase if p.name == run.name), None)
+            self._locked_damping[key] = None if phase is None else measured_power_balance(m, phase)
+        return self._locked_damping[key]
 
     def _draw_response_levels(self, live) -> None:
         """The modal fit of every finished response-controlled level (analysis/backbone.py), one point per level:

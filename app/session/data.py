@@ -35,7 +35,8 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
         arrays = {k: v[:n] for k, v in run.arrays.items()}
         H = np.stack([run.frf[d][:n] for d in dofs], axis=1)
         if run.kind == "phase_resonance":
-            phase.append(_phase_run(run, run.frequency[:n], arrays))
+            lines = _sine_run(run, dofs, run.frequency[:n], H, arrays, checked.control)
+            phase.append(_phase_run(run, run.frequency[:n], arrays, lines))
             continue
         if run.kind == "random":
             random = RandomRun(run.excitation_dof, dofs, run.frequency[:n], H,
@@ -60,14 +61,14 @@ def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarra
                    control=control)
 
 
-def _phase_run(run: RunData, frequency: np.ndarray, arrays: dict) -> PhaseRun:
+def _phase_run(run: RunData, frequency: np.ndarray, arrays: dict, lines: SineRun) -> PhaseRun:
     """A phase-resonance run's locked points, the displacement at the locked DOF from its acceleration's
-    fundamental, the lag from its receptance."""
+    fundamental, the lag from its receptance; ``lines`` the same points as lines for the identification."""
     dof = str(run.attrs["phase_dof"])
     displacement = np.abs(arrays[f"harmonics/acc:{dof}"][:, 1]) / (2 * np.pi * frequency) ** 2
     lag = np.degrees(-np.angle(run.frf[dof][:len(frequency)])) % 360.0 if dof in run.frf else None
     return PhaseRun(run.name, dof, float(run.attrs["target_phase"]), frequency, arrays["force_amplitude"],
-                    displacement, arrays["lock_converged"].astype(bool), run.excitation_dof, lag)
+                    displacement, arrays["lock_converged"].astype(bool), run.excitation_dof, lag, lines)
 
 
 def _welch_resolution(attrs: dict) -> float | None:

@@ -1,0 +1,81 @@
+"""The measured natural frequency and damping against amplitude as a judge of the loop (analysis/modal_judge.py).
+
+The measured curves here are the Duffing oscillator's analytic ones: phase-resonance points on its first-order
+backbone w^2 = (k + 3/4 k3 a^2) / m, each at the force that balances its damping, F = c w a. Candidate laws are
+real fits to the element's exact describing function, not made-up records."""
+import numpy as np
+import pytest
+
+from analysis.diagnosis import Candidate
+from analysis.elements import load_elements
+from analysis.fit import fit_laws
+from analysis.measurements import Measurements, PhaseRun
+from analysis.modal_judge import ModalChange, ModalRules, judge_by_modes, measures_modes, model_error
+from analysis.backbone import ModalError
+from analysis.model import Model
+from analysis.structures import Structure
+
+M, K, C, K3 = 2.0, 5000.0, 0.8, 3.0e8
+AMPLITUDES = np.array([2e-4, 1e-3, 2e-3, 4e-3])
+
+
+def duffing_phase_run() -> PhaseRun:
+    w = np.sqrt((K + 0.75 * K3 * AMPLITUDES ** 2) / M)
+    return PhaseRun("phase_x_90deg", "x", 90.0, w / (2 * np.pi), C * w * AMPLITUDES, AMPLITUDES,
+                    np.ones(len(w), bool), "x")
+
+
+def model_with(laws: list) -> Model:
+    s = Structure(["x"], np.array([[M]]), np.array([[K]]), np.array([[C]]))
+    els = load_elements({"element": [{"name": "joint", "dof": "x", "laws": laws}]}, s, complete=True)
+    return Model({}, s, els)
+
+
+def candidate(law: str, kbar_of, significant: bool, gain: float) -> Candidate:
+    """A candidate ``law`` fitted to the kbar ``kbar_of(X)`` over the measured amplitudes."""
+    X = np.geomspace(1e-4, 5e-3, 12)
+    w = np.full_like(X, 2 * np.pi * 8.0)
+    fit = fit_laws([law], X, w, kbar_of(X).astype(complex))
+    return Candidate("joint", law, 1.0 / gain, 1.0, 0.0, significant, "", evidence=1.0, supported=True,
+                     significant=significant, fit=fit)
+
+
+def test_the_true_model_has_no_modal_error_and_a_linear_one_misses_the_backbone():
+    m = Measurements(phase=[duffing_phase_run()])
+    assert measures_modes(m) and not measures_modes(Measurements())
+    true = model_error(model_with([{"law": "cubic", "k3": K3}]), m)
+    assert true.frequency < 1e-9 and true.damping < 1e-9
+    assert model_error(model_with([]), m).frequency > 0.05
+
+
+def test_a_law_that_bends_the_backbone_wrong_is_vetoed_and_one_that_follows_it_is_admitted():
+    m = Measurements(phase=[duffing_phase_run()])
+    model = model_with([])                          # the joint without a law: the backbone is flat
+    cubic = candidate("cubic", lambda X: 0.75 * K3 * X ** 2, significant=False, gain=1.1)
+    # a softening law fitted to the opposite kbar: the FRFs liked it (significant), the backbone falls instead
+    soft = candidate("cubic", lambda X: -0.5 * 0.75 * K3 * X ** 2, significant=True, gain=2.0)
+    unsupported = candidate("cubic", lambda X: 0.75 * K3 * X ** 2, significant=False, gain=1.1)
+    unsupported.supported = False
+    worse_frf = candidate("cubic", lambda X: 0.75 * K3 * X ** 2, significant=False, gain=0.9)
+    judge_by_modes(model, m, [cubic, soft, unsupported, worse_frf], min_gain=1.3)
+    assert cubic.significant and "call for it" in cubic.by_modes and "backbone error" in cubic.by_modes
+    assert not soft.significant and "worse by more than x1.3" in soft.held_back
+    assert not unsupported.significant and not worse_frf.significant
+    assert cubic.to_json()["by_modes"] == cubic.by_modes
+
+
+def test_nothing_is_judged_where_no_curve_is_measured():
+    c = candidate("cubic", lambda X: 0.75 * K3 * X ** 2, significant=False, gain=1.1)
+    judge_by_modes(model_with([]), Measurements(), [c], min_gain=1.3)
+    assert not c.significant and not c.by_modes
+
+
+def test_errors_below_the_floor_are_the_same_and_an_unmeasured_damping_judges_nothing():
+    rules = ModalRules()
+    same = ModalChange.of(ModalError(1e-4, 0.01), ModalError(5e-5, 0.015), rules)
+    assert not same.worse(1.3) and not same.better(1.3)
+    better = ModalChange.of(ModalError(0.02, float("nan")), ModalError(0.001, float("nan")), rules)
+    assert better.better(1.3) and better.words() == "backbone error 0.02 -> 0.001"
+    mixed = ModalChange.of(ModalError(0.02, 0.05), ModalError(0.001, 0.2), rules)
+    assert mixed.worse(1.3) and not mixed.better(1.3)
+    assert ModalChange.of(ModalError(0.02, 0.05), ModalError(0.02, 0.05), rules).frequency_gain == pytest.approx(1)
