@@ -51,6 +51,8 @@ def test_the_lock_follows_the_duffing_backbone_up_its_branch(tmp_path):
         assert a["lock_converged"].all() and (np.abs(a["phase_error"]) <= 1.0).all()
         assert (np.abs(a["phase_lag"] - 90.0) <= 1.0).all() and (a["lock_iterations"] >= 1).all()
         assert (a["shaker_time"] > 0).all()
+        np.testing.assert_array_equal(a["force_phase"], np.angle(a["force_phasor"]))    # the force, measured whole
+        assert run.units["force_phase"] == "rad"
         X = displacement(run, "x")
         backbone = np.sqrt((K + 0.75 * K3 * X ** 2) / M) / (2 * np.pi)
         np.testing.assert_allclose(run.frequency, backbone, rtol=0.005)
