@@ -300,6 +300,8 @@ def report_text(wb: Workbench, candidates, top: int = 5,
             out.append(f"    {c.explanation}")
             if c.model_form or c.held_back:
                 out.append(f"    not significant: {c.model_form or c.held_back}")
+            elif c.by_modes:
+                out.append(f"    significant: {c.by_modes}")
     return "\n".join(out)
 
 
