@@ -196,6 +196,23 @@ class PhaseRun:
     lines: SineRun | None = None
 
 
+@dataclass(frozen=True)
+class UnresolvedLines:
+    """Lines of a run left out of the analysis because a sensor saw nothing there: its fundamental was below one
+    count of the DAQ (a DOF held by friction at a low level), stored as NaN."""
+
+    run: str
+    left_out: int
+    lines: int
+
+    def text(self) -> str:
+        return (f"run {self.run}: {self.left_out} of {self.lines} line(s) left out: a sensor saw nothing there "
+                "(below one count of the DAQ; its FRF is stored as NaN)")
+
+    def to_json(self) -> dict:
+        return {"run": self.run, "left_out": self.left_out, "lines": self.lines}
+
+
 @dataclass
 class Measurements:
     """Everything measured in a session, ready for the workbench; ``unfinished`` lists the runs that did not
@@ -205,6 +222,7 @@ class Measurements:
     random: RandomRun | None = None
     unfinished: list[RunNote] = field(default_factory=list)
     phase: list[PhaseRun] = field(default_factory=list)
+    unresolved: list[UnresolvedLines] = field(default_factory=list)
 
     @property
     def levels(self) -> list[float]:

@@ -411,7 +411,8 @@ class Workbench:
                "candidates": [c.to_json() for c in (candidates or [])],
                "unexplained": [o.to_json() for o in self.unexplained()],
                "history": [h.to_json() for h in self.history],
-               "unfinished_runs": [note.to_json() for note in self.measurements.unfinished]}
+               "unfinished_runs": [note.to_json() for note in self.measurements.unfinished],
+               "unresolved_lines": [note.to_json() for note in self.measurements.unresolved]}
         if self.reference is not None:
             out["reference"] = self.reference.to_json()
         return out

@@ -238,7 +238,7 @@ def report_text(wb: Workbench, candidates, top: int = 5,
                 comparisons: list[BackboneComparison] | None = None) -> str:
     """The analysis as a test engineer reads it (``comparisons``: :func:`backbones`, computed here if not
     given)."""
-    out = [f"note: {note.text()}" for note in wb.measurements.unfinished]
+    out = [f"note: {note.text()}" for note in wb.measurements.unfinished + wb.measurements.unresolved]
     if out:
         out.append("")
     if wb.reference is not None and wb.reference.text():

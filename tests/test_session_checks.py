@@ -161,3 +161,27 @@ def test_failed_run_is_read_and_noted_with_its_reason(capsys, files):
     rc, out, err = analyze(capsys, session, model, "--json")
     note, = json.loads(out)["unfinished_runs"]
     assert note["status"] == "failed" and note["lines"] == 12
+
+
+def test_lines_where_a_sensor_saw_nothing_are_left_out_with_a_note(capsys, files):
+    """A campaign stores a fundamental below one count of the DAQ as NaN, FRF and standard deviation both: those
+    lines hold no FRF to analyse and are left out, named; the other lines give the joint as before. A NaN FRF
+    without that mark (its standard deviation finite) stays refused."""
+    session, model = files
+    with h5py.File(session, "r+") as f:
+        g = f["runs"][RUN]
+        for i in (0, 1):
+            g["frf"]["x1"][i] = np.nan + 1j * np.nan
+            g["frf_std"]["x1"][i] = np.nan
+    rc, out, err = analyze(capsys, session, model, "--json")
+    assert rc == 0, err
+    result = json.loads(out)
+    assert result["unresolved_lines"] == [{"run": RUN, "left_out": 2, "lines": 12}]
+    linear = result["elements"][0]["laws"][0]["params"]
+    assert linear["k"] == pytest.approx(K_TRUE, rel=1e-6) and linear["c"] == pytest.approx(C_TRUE, rel=1e-6)
+    rc, out, err = analyze(capsys, session, model)
+    assert out.startswith(f"note: run {RUN}: 2 of 12 line(s) left out: a sensor saw nothing there")
+    with h5py.File(session, "r+") as f:
+        f["runs"][RUN]["frf_std"]["x1"][1] = 1e-6          # an FRF lost, not a sensor below one count
+    rc, out, err = analyze(capsys, session, model)
+    assert rc == 2 and f"run {RUN}, dataset frf/x1: line 1 is (nan+nanj); FRFs must be finite" in err

@@ -58,6 +58,9 @@ class CheckedRun:
     lines: int
     sensor_dofs: list[str]
     control: Control
+    # per whole line: some sensor saw nothing there (FRF and standard deviation NaN, as a campaign stores a
+    # fundamental below one count of the DAQ): the line holds no FRF to analyse
+    unresolved: np.ndarray | None = None
 
     @property
     def unfinished(self) -> bool:
@@ -109,18 +112,32 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
         raise error("dataset frequency", f"line {bad[0]} is {float(frequency[bad[0]]):g} Hz; frequencies must be "
                                          f"finite, from {MIN_FREQUENCY:g} Hz to {MAX_FREQUENCY:g} Hz")
     _check_order(frequency[:lines], kind, run.attrs.get("direction"), error)
+    saw_nothing = {d: _saw_nothing(run, d, lines) for d in sensors}
     for d in sensors:
-        bad = np.flatnonzero(~np.isfinite(run.frf[d][:lines]))
+        bad = np.flatnonzero(~np.isfinite(run.frf[d][:lines]) & ~saw_nothing[d])
         if len(bad):
             raise error(f"dataset frf/{d}", f"line {bad[0]} is {complex(run.frf[d][bad[0]])}; FRFs must be finite")
     for name, values in sorted(run.arrays.items()):
         rule = _line_rule(name)
         if rule is not None:
+            excused = saw_nothing.get(name.split("/", 1)[1]) if name.startswith("frf_std/") else None
             _check_lines(np.asarray(values)[:lines], rule, lambda message, name=name: error(f"dataset {name}",
-                                                                                            message))
+                                                                                            message), excused)
     if kind == "phase_resonance" and lines:      # (a run just begun holds no point yet)
         _check_lock(run, sensors, error)
-    return CheckedRun(run, lines, sensors, control)
+    unresolved = np.any([saw_nothing[d] for d in sensors], axis=0) if sensors and lines else None
+    return CheckedRun(run, lines, sensors, control, unresolved if unresolved is not None and unresolved.any()
+                      else None)
+
+
+def _saw_nothing(run: RunData, dof: str, lines: int) -> np.ndarray:
+    """The lines where the sensor at ``dof`` saw nothing: its FRF and its standard deviation both NaN, the mark a
+    campaign stores for a fundamental below one count of the DAQ (docs/campaigns.md). A NaN FRF with a finite
+    standard deviation, or without one, is no such mark and stays refused."""
+    std = run.arrays.get(f"frf_std/{dof}")
+    if std is None or np.asarray(std).dtype.kind != "f":
+        return np.zeros(lines, bool)
+    return np.isnan(np.asarray(run.frf[dof])[:lines]) & np.isnan(np.asarray(std, float)[:lines])
 
 
 def _check_lock(run: RunData, sensors: list[str], error) -> None:
@@ -205,10 +222,11 @@ def _line_rule(name: str) -> LineRule | None:
     return LINE_RULES.get(name.split("/")[0])
 
 
-def _check_lines(values: np.ndarray, rule: LineRule, error) -> None:
+def _check_lines(values: np.ndarray, rule: LineRule, error, excused: np.ndarray | None = None) -> None:
     if values.dtype.kind not in "fiu":
         raise error(f"holds {values.dtype} values; {rule.text()}")
-    bad = np.flatnonzero(rule.wrong(values.astype(float)))
+    wrong = rule.wrong(values.astype(float))
+    bad = np.flatnonzero(wrong if excused is None else wrong & ~excused)
     if len(bad):
         raise error(f"line {bad[0]} is {float(values[bad[0]])!r}; {rule.text()}")
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from analysis.frf_noise import smoothness_noise
-from analysis.measurements import Control, Measurements, PhaseRun, RandomRun, SineRun
+from analysis.measurements import Control, Measurements, PhaseRun, RandomRun, SineRun, UnresolvedLines
 
 from app.session.writer import RunData, Session
 from app.session.checks import check_format, check_run, check_run_count
@@ -25,26 +25,33 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
         source = str(session.path)
         check_format(session.attrs, source)
         check_run_count(session.run_names(), source)
-    sine, random, unfinished, phase = [], None, [], []
+    sine, random, unfinished, phase, unresolved = [], None, [], [], []
     for checked in (check_run(run, source) for run in session.runs()):
         if not checked.lines or (checked.run.incomplete and not include_incomplete):
             continue
         if checked.unfinished:
             unfinished.append(checked.note())
         run, dofs, n = checked.run, checked.sensor_dofs, checked.lines
-        arrays = {k: v[:n] for k, v in run.arrays.items()}
-        H = np.stack([run.frf[d][:n] for d in dofs], axis=1)
+        keep = np.ones(n, bool) if checked.unresolved is None else ~checked.unresolved
+        if not keep.all():
+            unresolved.append(UnresolvedLines(run.name, int((~keep).sum()), n))
+            if not keep.any():
+                continue
+        arrays = {k: v[:n][keep] for k, v in run.arrays.items()}
+        frequency = run.frequency[:n][keep]
+        H = np.stack([run.frf[d][:n][keep] for d in dofs], axis=1)
         if run.kind == "phase_resonance":
-            lines = _sine_run(run, dofs, run.frequency[:n], H, arrays, checked.control)
-            phase.append(_phase_run(run, run.frequency[:n], arrays, lines))
+            lines = _sine_run(run, dofs, frequency, H, arrays, checked.control)
+            phase.append(_phase_run(run, frequency, arrays, H[:, dofs.index(run.attrs["phase_dof"])]
+                                    if run.attrs["phase_dof"] in dofs else None, lines))
             continue
         if run.kind == "random":
-            random = RandomRun(run.excitation_dof, dofs, run.frequency[:n], H,
+            random = RandomRun(run.excitation_dof, dofs, frequency, H,
                                _stack(arrays, "coherence", dofs), _stack(arrays, "random_error", dofs),
                                run.force, _welch_resolution(run.attrs))
             continue
-        sine.append(_sine_run(run, dofs, run.frequency[:n], H, arrays, checked.control))
-    return Measurements(sine, random, unfinished, phase)
+        sine.append(_sine_run(run, dofs, frequency, H, arrays, checked.control))
+    return Measurements(sine, random, unfinished, phase, unresolved)
 
 
 def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarray, arrays: dict,
@@ -61,12 +68,14 @@ def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarra
                    control=control)
 
 
-def _phase_run(run: RunData, frequency: np.ndarray, arrays: dict, lines: SineRun) -> PhaseRun:
+def _phase_run(run: RunData, frequency: np.ndarray, arrays: dict, locked: np.ndarray | None,
+               lines: SineRun) -> PhaseRun:
     """A phase-resonance run's locked points, the displacement at the locked DOF from its acceleration's
-    fundamental, the lag from its receptance; ``lines`` the same points as lines for the identification."""
+    fundamental, the lag from its receptance there (``locked``); ``lines`` the same points as lines for the
+    identification."""
     dof = str(run.attrs["phase_dof"])
     displacement = np.abs(arrays[f"harmonics/acc:{dof}"][:, 1]) / (2 * np.pi * frequency) ** 2
-    lag = np.degrees(-np.angle(run.frf[dof][:len(frequency)])) % 360.0 if dof in run.frf else None
+    lag = None if locked is None else np.degrees(-np.angle(locked)) % 360.0
     return PhaseRun(run.name, dof, float(run.attrs["target_phase"]), frequency, arrays["force_amplitude"],
                     displacement, arrays["lock_converged"].astype(bool), run.excitation_dof, lag, lines)
 
