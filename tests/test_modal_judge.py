@@ -79,3 +79,26 @@ def test_errors_below_the_floor_are_the_same_and_an_unmeasured_damping_judges_no
     mixed = ModalChange.of(ModalError(0.02, 0.05), ModalError(0.001, 0.2), rules)
     assert mixed.worse(1.3) and not mixed.better(1.3)
     assert ModalChange.of(ModalError(0.02, 0.05), ModalError(0.02, 0.05), rules).frequency_gain == pytest.approx(1)
+
+
+def test_locked_points_are_kbar_samples_where_one_harmonic_describes_them():
+    """The locked points of a phase-resonance run are identified from like lines (each at its own force), the
+    Duffing's kbar 3/4 k3 X^2 recovered at each; a point beyond 1 % displacement THD is left out as distorted."""
+    from analysis.measurements import SineRun
+    from analysis.workbench import Workbench
+
+    run = duffing_phase_run()
+    w = 2 * np.pi * run.frequency_hz
+    k_eq = K + 0.75 * K3 * AMPLITUDES ** 2
+    h = 1.0 / (k_eq - M * w ** 2 + 1j * C * w)                   # the locked lines' first-harmonic receptance
+    run.lines = SineRun(run.name, float(run.force[0]), "up", "x", ["x"], run.frequency_hz, h[:, None],
+                        np.abs(h)[:, None] * 1e-4, run.force, np.array([0.001, 0.002, 0.005, 0.02]))
+    f = np.linspace(7.5, 8.5, 11)
+    sweep = SineRun("sine_x_0.0002m_up", 1.0, "up", "x", ["x"], f,
+                    (1.0 / (K + 0.75 * K3 * 4e-8 - M * (2 * np.pi * f) ** 2 + 2j * np.pi * f * C))[:, None])
+    wb = Workbench(model_with([]), Measurements(sine=[sweep], phase=[run]))
+    report = wb.identify()["joint"]
+    locked = np.isin(report.samples.level, run.force)
+    np.testing.assert_allclose(report.samples.X[locked], AMPLITUDES[:3], rtol=1e-9)
+    np.testing.assert_allclose(report.samples.kbar[locked].real, 0.75 * K3 * AMPLITUDES[:3] ** 2, rtol=1e-6)
+    assert report.lines_flagged == 1 and report.lines_used == len(f) + 3
