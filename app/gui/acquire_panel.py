@@ -289,7 +289,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
                                       "Natural frequency: phase resonance ●, response levels ◆",
                                       "displacement amplitude", "m", "frequency", "Hz", log_x=True, legend=True)
         self.damping = configure_plot(modal.addPlot(0, 1), "Damping ratio: phase resonance ●, response levels ◆",
-                                      "displacement amplitude", "m", "damping ratio", None, log_x=True, log_y=True)
+                                      "displacement amplitude", "m", "damping ratio", None, log_x=True)
         self.damping.setXLink(self.natural)
         self._modal_runs: tuple = ()                     # the finished response levels fitted so far
         self._locked_damping: dict[tuple, np.ndarray | None] = {}   # (run, points) -> damping by power balance
