@@ -124,21 +124,27 @@ def lag_90_frequency(s: Structure, e: int, d: int, lo: float, hi: float) -> tupl
     return w, h(w)
 
 
-@pytest.mark.parametrize("e, d, mode", [(1, 1, 0), (0, 0, 0), (0, 0, 1), (0, 1, 0), (1, 0, 1)])
-def test_a_linear_2dof_with_rayleigh_damping_gives_each_mode_s_modal_damping(e, d, mode):
-    """Modal damping a / (2 w_r) + b w_r / 2 of C = a M + b K; the lock at 90 deg of the exact FRF (found here;
-    at x2 alone the second mode, small there, never brings the lag to 90 deg: not locked on). The other mode
-    adds a small bias (a single-mode estimate): below 0.5 % for these separated modes; a lag of 270 deg (a
-    mode whose shape has opposite signs at e and d) gives the same damping."""
+def rayleigh_2dof_lock(e: int, d: int, mode: int) -> tuple[Structure, PhaseRun, float]:
+    """A 2-DOF with Rayleigh damping C = a M + b K locked at 90 deg on its exact FRF H_de near ``mode`` (0.5 N),
+    and that mode's damping ratio a / (2 w_r) + b w_r / 2."""
     Mm = np.diag([1.0, 2.0])
     Km = np.array([[3000.0, -1000.0], [-1000.0, 2000.0]])
     a, b = 0.3, 1.0e-4
     s = Structure(["x1", "x2"], Mm, Km, a * Mm + b * Km)
     w_r = 2 * np.pi * s.natural_frequencies()[mode]
     w, h = lag_90_frequency(s, e, d, 0.95 * w_r, 1.05 * w_r)
-    F = 0.5
-    run = phase_run(w / (2 * np.pi), F, F * abs(h), np.degrees(-np.angle(h)) % 360.0, s.dofs[d], s.dofs[e])
-    assert phase_resonance_damping(run, s)[0] == pytest.approx(a / (2 * w_r) + b * w_r / 2, rel=5e-3)
+    run = phase_run(w / (2 * np.pi), 0.5, 0.5 * abs(h), np.degrees(-np.angle(h)) % 360.0, s.dofs[d], s.dofs[e])
+    return s, run, a / (2 * w_r) + b * w_r / 2
+
+
+@pytest.mark.parametrize("e, d, mode", [(1, 1, 0), (0, 0, 0), (0, 0, 1), (0, 1, 0), (1, 0, 1)])
+def test_a_linear_2dof_with_rayleigh_damping_gives_each_mode_s_modal_damping(e, d, mode):
+    """Modal damping a / (2 w_r) + b w_r / 2 of C = a M + b K; the lock at 90 deg of the exact FRF (found here;
+    at x2 alone the second mode, small there, never brings the lag to 90 deg: not locked on). The other mode
+    adds a small bias (a single-mode estimate): below 0.5 % for these separated modes; a lag of 270 deg (a
+    mode whose shape has opposite signs at e and d) gives the same damping."""
+    s, run, truth = rayleigh_2dof_lock(e, d, mode)
+    assert phase_resonance_damping(run, s)[0] == pytest.approx(truth, rel=5e-3)
 
 
 @pytest.mark.parametrize("e, d, mode", [(1, 1, 0), (0, 0, 1), (0, 1, 0)])
@@ -148,17 +154,10 @@ def test_the_power_balance_needs_no_model_where_the_session_measured_a_low_level
     from analysis.backbone import measured_power_balance
     from analysis.measurements import Measurements, RandomRun
 
-    Mm = np.diag([1.0, 2.0])
-    Km = np.array([[3000.0, -1000.0], [-1000.0, 2000.0]])
-    a, b = 0.3, 1.0e-4
-    s = Structure(["x1", "x2"], Mm, Km, a * Mm + b * Km)
-    w_r = 2 * np.pi * s.natural_frequencies()[mode]
-    w, h = lag_90_frequency(s, e, d, 0.95 * w_r, 1.05 * w_r)
-    run = phase_run(w / (2 * np.pi), 0.5, 0.5 * abs(h), np.degrees(-np.angle(h)) % 360.0, s.dofs[d], s.dofs[e])
+    s, run, truth = rayleigh_2dof_lock(e, d, mode)
     f = np.linspace(2.0, 12.0, 801)
     W = 2 * np.pi * f
     H = np.array([np.linalg.solve(s.K - x ** 2 * s.M + 1j * x * s.C, np.eye(2)[e]) for x in W])
-    truth = a / (2 * w_r) + b * w_r / 2
     random = RandomRun(s.dofs[e], list(s.dofs), f, H)
     assert measured_power_balance(Measurements(random=random), run)[0] == pytest.approx(truth, rel=5e-3)
     level = SineRun("sine_0.1N_up", 0.1, "up", s.dofs[e], list(s.dofs), f, H)
