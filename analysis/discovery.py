@@ -20,18 +20,21 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    ``false_alarm``) are alike (:func:`_alike`). Of those alike the FRFs' choice, the simplest is taken
    (:func:`_simplest`); the others are listed as *indistinguishable on these data* with the test that would
    separate them (where their describing functions part: a lower or higher level, another band).
-4. **The FRFs judge the size.** Each element's shortlists (:func:`_shortlists`) are walked from no law upward,
-   every other searched element represented meanwhile by its own measured kbar (a stand-in, :func:`_standins`),
-   so that no element's choice waits on another's: of each size the set the kbar criterion prefers among those
-   whose single-harmonic FRF error is within ``min_gain`` of the best is tried, and taken only if the kbar
-   criterion prefers it to the current choice too and no set alike it in the kbar, with no more parameters, has
-   laws of other kinds (neither on data without harmonics, where the capped criterion can prefer no law to a
-   right one), every law of it is seen in the kbar (:func:`_unseen_laws`), and it cuts the error of the current
-   choice by ``min_gain`` for every law it adds and the FRF chi-square by more than the noise explains. Then --
-   the model-form check, with every element at its choice -- each element's last step must do the same with
-   the lines that carry harmonics predicted multi-harmonically (unless its gain is beyond ``certain_gain``), or
-   it is taken back. A law that fits only what one harmonic cannot represent, or a
-   wrong law standing in for part of a kbar, gains too little there.
+4. **The FRFs judge the size.** Each element's shortlists (:func:`_shortlists`), with every set one law larger
+   than its current choice (:func:`_extension`), are walked from no law upward, every other searched element
+   represented meanwhile by its own measured kbar (a stand-in, :func:`_standins`), so that no element's choice
+   waits on another's: of each size the set the kbar criterion prefers among those whose single-harmonic FRF
+   error is within ``min_gain`` of the best is tried, and taken only if the kbar criterion prefers it to the
+   current choice too and no set alike it in the kbar, with no more parameters and an FRF error within
+   ``min_gain``, has laws of other kinds (neither on data without harmonics, where the capped criterion can
+   prefer no law to a right one), every law of it is seen in the kbar (:func:`_unseen_laws`) and seen as itself,
+   not only in its limit of a vanishing amplitude scale (:func:`_limit_only_laws`), and it cuts the error of the
+   current choice by ``min_gain`` for every law it adds and the FRF chi-square by more than the noise explains.
+   Then -- the model-form check, with every element at its choice -- each element's last step must do the same
+   with the lines that carry harmonics predicted multi-harmonically (unless its gain is beyond ``certain_gain``
+   and the data carry harmonics or the step is the element's first law), or it is taken back. A law that fits
+   only what one harmonic cannot represent, or a wrong law standing in for part of a kbar, gains too little
+   there.
 
 The chosen laws' explanations are written from the *partial* kbar each law explains (the samples less the other
 laws of the set), so the log-slopes printed beside a law are the ones it fits; a law whose own signature departs
@@ -67,7 +70,8 @@ class DiscoveryRules:
     screening_evaluations: int = 30   # residual evaluations per local search while screening
     certain_gain: float = 5.0         # a single-harmonic gain this large is not the harmonics' effect: no
                                       # multi-harmonic check (laws that only fit what one harmonic cannot
-                                      # represent gained x1.26-x1.9 in every case measured)
+                                      # represent gained x1.26-x1.9 in every case measured) on data with
+                                      # harmonics, or for an element's first law
     ranking: RankingRules = RankingRules()   # min_gain, false_alarm, model_form_thd
 
 
@@ -497,8 +501,8 @@ class _Judge:
 
     def step_up(self, search: _Search, current: LawSet, larger: LawSet) -> WalkStep:
         """Whether ``larger`` earns its extra parameters on the element (the others by their stand-ins): the kbar
-        criterion falls, the kbar tells the kinds of its laws and shows each of them, and the FRF error falls by
-        ``min_gain`` per law added and above the noise, single-harmonic."""
+        criterion falls, the data tell the kinds of its laws, the kbar shows each of them as itself, and the FRF
+        error falls by ``min_gain`` per law added and above the noise, single-harmonic."""
         i, ranking = search.index, self.rules.ranking
         a, b = self.single({i: current}), self.single({i: larger})
         step = WalkStep(larger.laws, b.error, a.error, False)
@@ -532,7 +536,10 @@ class _Judge:
     def holds_with_harmonics(self, choice: dict[int, LawSet], i: int, before: LawSet, step: WalkStep) -> bool:
         """The model-form check of a step taken on element ``i`` (module docstring, step 4): with every searched
         element at its choice, the step must also gain ``min_gain``, above the noise, with the lines that carry
-        harmonics predicted multi-harmonically. A gain beyond ``certain_gain`` is not the harmonics' effect."""
+        harmonics predicted multi-harmonically. A gain beyond ``certain_gain`` is not the harmonics' effect where
+        the lines far from harmonic are left out of the kbar (data with harmonics), nor for the element's first
+        law; on data without harmonics those lines are in the kbar and a law beside another can gain x5 by
+        fitting them (docs/discovery.md, "The model-form check")."""
         if step.gain >= self.rules.certain_gain and (self.kbar_judges or not before.laws):
             return True
         ranking = self.rules.ranking

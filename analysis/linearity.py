@@ -104,7 +104,7 @@ class LinearityVerdict:
         With the per-line model, the standard normal quantile at ``false_alarm / 8``: a trend of Re or Im with
         ln X across the levels of a line beyond this many sigma (either sign) is amplitude dependence. The
         chi-square sums every departure over all its degrees of freedom and so is weak against one steady trend
-        (a quadratic damping of a tenth of the joint's loss: 8 sigma in Im with p = 0.04 over 112 dof); the two
+        (a quadratic damping beside a stiffness offset: 8 sigma in Im, p = 0.04 over 112 dof); the two
         tests share ``false_alarm`` (half to the chi-square, a quarter to each component's trend). ``inf`` with
         the polynomial model, where a trend along one level is partly frequency dependence.
     """
