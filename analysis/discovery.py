@@ -606,15 +606,16 @@ def _preferred(judge: _Judge, i: int, sets: list[LawSet]) -> LawSet:
 
 def _extension(search: _Search, current: LawSet, size: int) -> list[LawSet]:
     """The sets of ``size`` laws that keep every law of ``current`` (those not on the shortlist already): the walk
-    also tries adding to what it took, not only the shortlist's other sets. One law more: every such set fitted,
-    for the FRFs to choose from -- where a friction contact sticks, the lines departing from every describing
-    function rank the sets in the kbar (on the 3-DOF chain a saturating spring and a linear law fitting the
-    sticking came first, the cubic beside Coulomb friction far behind although the FRFs gain x5.8 with it);
-    the kbar still vetoes a step whose criterion does not fall or whose law it does not show. More laws at once:
-    the best by the criterion."""
+    also tries adding to what it took, not only the shortlist's other sets. One law more beside laws taken: every
+    such set fitted, for the FRFs to choose from -- once the element's main effect is taken, what its kbar ranks
+    the sets by is what that law leaves, and where a friction contact sticks that is the lines departing from
+    every describing function (on the 3-DOF chain a saturating spring and a linear law fitting the sticking came
+    first, the cubic beside Coulomb friction far behind although the FRFs gain x5.8 with it); the kbar still
+    vetoes a step whose criterion does not fall or whose law it does not show. From no law, or more laws at
+    once: the best by the criterion (the first law's ranking is that of the whole kbar, the main effect's)."""
     keep = set(current.laws)
     extending = [s for s in search.sets if len(s.laws) == size and keep <= set(s.laws)]
-    if size > len(current.laws) + 1:
+    if not current.laws or size > len(current.laws) + 1:
         extending = extending[:1]
     return [s for s in extending if s not in search.by_size[size]]
 
