@@ -20,18 +20,21 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    ``false_alarm``) are alike (:func:`_alike`). Of those alike the FRFs' choice, the simplest is taken
    (:func:`_simplest`); the others are listed as *indistinguishable on these data* with the test that would
    separate them (where their describing functions part: a lower or higher level, another band).
-4. **The FRFs judge the size.** Each element's shortlists (:func:`_shortlists`) are walked from no law upward,
-   every other searched element represented meanwhile by its own measured kbar (a stand-in, :func:`_standins`),
-   so that no element's choice waits on another's: of each size the set the kbar criterion prefers among those
-   whose single-harmonic FRF error is within ``min_gain`` of the best is tried, and taken only if the kbar
-   criterion prefers it to the current choice too and no set alike it in the kbar, with no more parameters, has
-   laws of other kinds (neither on data without harmonics, where the capped criterion can prefer no law to a
-   right one), every law of it is seen in the kbar (:func:`_unseen_laws`), and it cuts the error of the current
-   choice by ``min_gain`` for every law it adds and the FRF chi-square by more than the noise explains. Then --
-   the model-form check, with every element at its choice -- each element's last step must do the same with
-   the lines that carry harmonics predicted multi-harmonically (unless its gain is beyond ``certain_gain``), or
-   it is taken back. A law that fits only what one harmonic cannot represent, or a
-   wrong law standing in for part of a kbar, gains too little there.
+4. **The FRFs judge the size.** Each element's shortlists (:func:`_shortlists`), with every set one law larger
+   than its current choice (:func:`_extension`), are walked from no law upward, every other searched element
+   represented meanwhile by its own measured kbar (a stand-in, :func:`_standins`), so that no element's choice
+   waits on another's: of each size the set the kbar criterion prefers among those whose single-harmonic FRF
+   error is within ``min_gain`` of the best is tried, and taken only if the kbar criterion prefers it to the
+   current choice too and no set alike it in the kbar, with no more parameters and an FRF error within
+   ``min_gain``, has laws of other kinds (neither on data without harmonics, where the capped criterion can
+   prefer no law to a right one), every law of it is seen in the kbar (:func:`_unseen_laws`) and seen as itself,
+   not only in its limit of a vanishing amplitude scale (:func:`_limit_only_laws`), and it cuts the error of the
+   current choice by ``min_gain`` for every law it adds and the FRF chi-square by more than the noise explains.
+   Then -- the model-form check, with every element at its choice -- each element's last step must do the same
+   with the lines that carry harmonics predicted multi-harmonically (unless its gain is beyond ``certain_gain``
+   and the data carry harmonics or the step is the element's first law), or it is taken back. A law that fits
+   only what one harmonic cannot represent, or a wrong law standing in for part of a kbar, gains too little
+   there.
 
 The chosen laws' explanations are written from the *partial* kbar each law explains (the samples less the other
 laws of the set), so the log-slopes printed beside a law are the ones it fits; a law whose own signature departs
@@ -49,7 +52,7 @@ import scipy.stats
 from .comparison import Comparison, HarmonicCriterion, Predictor, gain_phrase, kbar_functions_with
 from .diagnosis import ElementSamples, RankingRules, explain, frf_criterion, signature, tied_parameters
 from .errors import InputError
-from .fit import UNDETERMINED_Z, LawFit, fit_laws, outlier_limit
+from .fit import UNDETERMINED_Z, LawFit, fit_laws, outlier_limit, unit_exponents
 from .laws import LAWS
 from .nonparametric import fit_nonparametric
 
@@ -67,7 +70,8 @@ class DiscoveryRules:
     screening_evaluations: int = 30   # residual evaluations per local search while screening
     certain_gain: float = 5.0         # a single-harmonic gain this large is not the harmonics' effect: no
                                       # multi-harmonic check (laws that only fit what one harmonic cannot
-                                      # represent gained x1.26-x1.9 in every case measured)
+                                      # represent gained x1.26-x1.9 in every case measured) on data with
+                                      # harmonics, or for an element's first law
     ranking: RankingRules = RankingRules()   # min_gain, false_alarm, model_form_thd
 
 
@@ -334,18 +338,54 @@ def _unseen_laws(s: LawSet, current: LawSet) -> list[str]:
     return out
 
 
+def _limit_only_laws(s: LawSet, current: LawSet, x_min: float) -> list[str]:
+    """The laws ``s`` adds to ``current`` that the kbar shows only in their limit of a vanishing amplitude scale:
+    a shape parameter that is a length (or its inverse) puts the law's scale below the smallest amplitude
+    measured, and its 95 % interval holds zero or it has no finite error -- the samples would fit as well with
+    it smaller still. Such a law is not seen as itself but as its limit, which is either another law of the
+    library (a Jenkins element whose slip displacement vanishes is Coulomb friction, a clearance that vanishes a
+    spring) or no law at all (a saturating spring saturated below every amplitude is a force of constant size in
+    phase with the displacement, sgn x: on data without harmonics it fitted the sticking lines of a friction
+    contact, and beside them a velocity stiffness, x2.4 in the FRFs)."""
+    if s.fit is None:
+        return []
+    names = s.fit.fit_parameter_names
+    errors = np.sqrt(np.abs(np.diag(s.fit.covariance)))
+    out = []
+    for term in s.fit.terms:
+        if term.law.name in current.laws:
+            continue
+        for p in term.law.shape:
+            length = unit_exponents(p.unit)[1]
+            key = f"{term.label}.{p.name}"
+            if abs(length) != 1 or key not in names:
+                continue
+            value, err = term.fit_params[p.name], errors[names.index(key)]
+            below = value != 0 and abs(value) ** length < x_min
+            if below and not (np.isfinite(err) and abs(value) >= UNDETERMINED_Z * err):
+                out.append(term.law.name)
+                break
+    return out
+
+
 def _kinds(s: LawSet) -> list[str]:
     return sorted(LAWS[n].kind for n in s.laws)
 
 
-def _other_kinds(search: _Search, s: LawSet, false_alarm: float) -> list[LawSet]:
-    """The sets alike ``s``, with no more parameters, whose laws are of other kinds: where there are any, the kbar
-    does not tell what physics the set adds (a law fitting what no describing function of the library
-    represents -- the mean shift of a one-sided contact -- can be written with laws of several kinds alike). A
-    richer set of other kinds that fits as well says nothing against ``s``: with parameters to spare, a gap
-    spring and a Jenkins element can follow a cubic and Coulomb friction."""
+def _other_kinds(judge: "_Judge", search: _Search, s: LawSet) -> list[LawSet]:
+    """The sets alike ``s``, with no more parameters, whose laws are of other kinds and whose single-harmonic FRF
+    error is within ``min_gain`` of its own: where there are any, the data do not tell what physics the set adds
+    (a law fitting what no describing function of the library represents -- the mean shift of a one-sided
+    contact -- can be written with laws of several kinds alike). A richer set of other kinds that fits as well
+    says nothing against ``s``: with parameters to spare, a gap spring and a Jenkins element can follow a cubic
+    and Coulomb friction. Nor does a set the FRFs tell apart by more than a law's margin (on the 3-DOF chain,
+    Coulomb friction with a velocity stiffness fitted the kbar as well as with the cubic the rig has, where
+    samples of high amplitude are samples near resonance, and left x4.8 the FRF error)."""
+    rules = judge.rules.ranking
+    limit = rules.min_gain * judge.single({search.index: s}).error
     return [t for t in search.sets if t is not s and t.n_parameters <= s.n_parameters
-            and _alike(search, t, s, false_alarm) and _kinds(t) != _kinds(s)]
+            and _alike(search, t, s, rules.false_alarm) and _kinds(t) != _kinds(s)
+            and judge.single({search.index: t}).error <= limit]
 
 
 def _indistinguishable(judge: "_Judge", search: _Search, chosen: LawSet) -> list[LawSet]:
@@ -461,14 +501,15 @@ class _Judge:
 
     def step_up(self, search: _Search, current: LawSet, larger: LawSet) -> WalkStep:
         """Whether ``larger`` earns its extra parameters on the element (the others by their stand-ins): the kbar
-        criterion falls, the kbar tells the kinds of its laws and shows each of them, and the FRF error falls by
-        ``min_gain`` per law added and above the noise, single-harmonic."""
+        criterion falls, the data tell the kinds of its laws, the kbar shows each of them as itself, and the FRF
+        error falls by ``min_gain`` per law added and above the noise, single-harmonic."""
         i, ranking = search.index, self.rules.ranking
         a, b = self.single({i: current}), self.single({i: larger})
         step = WalkStep(larger.laws, b.error, a.error, False)
         _, above = frf_criterion(a, b, max(larger.n_parameters - current.n_parameters, 1), ranking.false_alarm)
-        other_kinds = _other_kinds(search, larger, ranking.false_alarm) if self.kbar_judges else []
+        other_kinds = _other_kinds(self, search, larger) if self.kbar_judges else []
         unseen = _unseen_laws(larger, current)
+        limit_only = _limit_only_laws(larger, current, float(search.samples.X.min()))
         # every law the step adds must bring the margin one law must: a step past a size not taken adds two
         required = ranking.min_gain ** max(len(larger.laws) - len(current.laws), 1)
         if self.kbar_judges and larger.criterion >= current.criterion:
@@ -476,6 +517,9 @@ class _Judge:
         elif unseen:
             step.why = (f"its kbar does not show {unseen[0]}: every size parameter of it is within its 95 % "
                         "interval of zero")
+        elif limit_only:
+            step.why = (f"its kbar shows {limit_only[0]} only in its limit: its amplitude scale lies below the "
+                        "smallest amplitude measured and is not determined")
         elif other_kinds:
             step.why = (f"its kbar cannot tell which physics it is: {other_kinds[0].name} fits it as well with "
                         "laws of other kinds")
@@ -492,8 +536,11 @@ class _Judge:
     def holds_with_harmonics(self, choice: dict[int, LawSet], i: int, before: LawSet, step: WalkStep) -> bool:
         """The model-form check of a step taken on element ``i`` (module docstring, step 4): with every searched
         element at its choice, the step must also gain ``min_gain``, above the noise, with the lines that carry
-        harmonics predicted multi-harmonically. A gain beyond ``certain_gain`` is not the harmonics' effect."""
-        if step.gain >= self.rules.certain_gain:
+        harmonics predicted multi-harmonically. A gain beyond ``certain_gain`` is not the harmonics' effect where
+        the lines far from harmonic are left out of the kbar (data with harmonics), nor for the element's first
+        law; on data without harmonics those lines are in the kbar and a law beside another can gain x5 by
+        fitting them (docs/discovery.md, "The model-form check")."""
+        if step.gain >= self.rules.certain_gain and (self.kbar_judges or not before.laws):
             return True
         ranking = self.rules.ranking
         ma, mb = self.multi({**choice, i: before}), self.multi(choice)
@@ -558,11 +605,19 @@ def _preferred(judge: _Judge, i: int, sets: list[LawSet]) -> LawSet:
 
 
 def _extension(search: _Search, current: LawSet, size: int) -> list[LawSet]:
-    """The best set of ``size`` laws by the criterion that keeps every law of ``current`` (none if it is on the
-    shortlist already): the walk also tries adding to what it took, not only the shortlist's other sets."""
+    """The sets of ``size`` laws that keep every law of ``current`` (those not on the shortlist already): the walk
+    also tries adding to what it took, not only the shortlist's other sets. One law more beside laws taken: every
+    such set fitted, for the FRFs to choose from -- once the element's main effect is taken, what its kbar ranks
+    the sets by is what that law leaves, and where a friction contact sticks that is the lines departing from
+    every describing function (on the 3-DOF chain a saturating spring and a linear law fitting the sticking came
+    first, the cubic beside Coulomb friction far behind although the FRFs gain x5.8 with it); the kbar still
+    vetoes a step whose criterion does not fall or whose law it does not show. From no law, or more laws at
+    once: the best by the criterion (the first law's ranking is that of the whole kbar, the main effect's)."""
     keep = set(current.laws)
-    best = next((s for s in search.sets if len(s.laws) == size and keep <= set(s.laws)), None)
-    return [] if best is None or best in search.by_size[size] else [best]
+    extending = [s for s in search.sets if len(s.laws) == size and keep <= set(s.laws)]
+    if not current.laws or size > len(current.laws) + 1:
+        extending = extending[:1]
+    return [s for s in extending if s not in search.by_size[size]]
 
 
 def _check_with_harmonics(judge: _Judge, taken: dict[int, list[LawSet]], walks: dict[int, list[WalkStep]]) -> None:

@@ -4,6 +4,7 @@
     python benchmarks/random_discovery.py --seed 7 --cases 10
     python benchmarks/random_discovery.py --record         # the figures into docs/discovery.md
     python benchmarks/random_discovery.py --seed 11 22 --cases 25 --jobs 2 --budget 3000 --record
+    python benchmarks/random_discovery.py --seed 20261 --only 3 13   # cases 3 and 13 of the seed's draw only
 
 Each case draws a lumped chain of 2 or 3 masses (0.5-2 kg, springs 500-3000 N/m, 2-4 % modal damping in
 Rayleigh form), one or two joints (grounded at a mass, or between two masses of a 3-mass chain) with one or two
@@ -205,8 +206,10 @@ def run(c: mc.Case, folder: Path) -> Scored:
     return Scored(outcome, named_equivalences(c, outcome, result))
 
 
-def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int) -> str:
-    """The figures of one seed: ``scored`` the outcomes of ``cases`` (in order), out of ``drawn`` cases drawn."""
+def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
+           left_out: str = "not run within the time budget") -> str:
+    """The figures of one seed: ``scored`` the outcomes of ``cases`` (in order), out of ``drawn`` cases drawn
+    (``left_out``: why the others were not run)."""
     outcomes = [s.outcome for s in scored]
     measured = [s for s in scored if s.outcome.measured]
     right = sum(s.right for s in measured)
@@ -218,7 +221,7 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int) ->
     cols = [c for c in kinds if any(k[1] == c for k in table)]
     laws = {c.name: ", ".join(f"{law.element}:{law.law} ({', '.join(f'{k} = {v:.3g}' for k, v in law.values)})"
                               for law in c.laws) for c in cases}
-    budget = f" ({drawn - len(cases)} not run within the time budget)" if drawn > len(cases) else ""
+    budget = f" ({drawn - len(cases)} {left_out})" if drawn > len(cases) else ""
     lines = [f"Seed {seed}: {drawn} cases drawn{budget}, {len(measured)} measured; discovery from an empty model "
              f"right on {right + named}/{len(measured)} ({100 * (right + named) / n:.0f} %; goal "
              f"{100 * GOAL:.0f} %): {right} right outright, {named} by an equivalence named to the user; "
@@ -273,13 +276,22 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=1, help="cases run at a time")
     ap.add_argument("--budget", type=float, default=None, help="start no case after this many seconds (wall)")
     ap.add_argument("--record", action="store_true", help="write the figures into docs/discovery.md")
+    ap.add_argument("--only", type=int, nargs="+", default=None, metavar="INDEX",
+                    help="run only these cases of each seed's draw (1-based, as the report numbers them; --cases "
+                         "defaults to the largest)")
     args = ap.parse_args()
+    if args.only is not None:
+        if min(args.only) < 1:
+            ap.error("--only: case indices start at 1")
+        if args.record:
+            ap.error("--only measures a part of the draw: it cannot --record")
     seeds = args.seed if args.seed is not None else [int(time.time()) % 1_000_000]
     print(f"seed {' '.join(map(str, seeds))}", flush=True)
-    draws = {seed: _draw(seed, args.cases) for seed in seeds}
+    n_cases = max(args.only) if args.only is not None and "--cases" not in sys.argv[1:] else args.cases
+    draws = {seed: _draw(seed, n_cases) for seed in seeds}
     start = time.monotonic()
     done: dict[tuple[int, int], Scored] = {}
-    order = interleaved(draws)
+    order = [(seed, i) for seed, i in interleaved(draws) if args.only is None or i + 1 in args.only]
     with concurrent.futures.ProcessPoolExecutor(max_workers=args.jobs) as pool:
         running = {}
         while order or running:
@@ -301,8 +313,9 @@ def main() -> int:
     sections = []
     for seed, cases in draws.items():
         run_cases = [c for i, c in enumerate(cases) if (seed, i) in done]
+        left_out = "not asked for (--only)" if args.only is not None else "not run within the time budget"
         sections.append(report([done[seed, i] for i in range(len(cases)) if (seed, i) in done], run_cases, seed,
-                               len(cases)))
+                               len(cases), left_out))
     block = "\n\n".join([BEGIN] + sections) + "\n" + END
     print("\n" + block)
     if args.record:

@@ -11,8 +11,9 @@ import pytest
 
 from analysis.auto import run_auto
 from analysis.diagnosis import ElementSamples, tied_parameters
-from analysis.discovery import (DiscoveryRules, _adds_nothing, _Judge, _Search, _separation, _shortlists,
-                                _unseen_laws, law_sets, search_element)
+from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _extension, _Judge, _limit_only_laws,
+                                _other_kinds, _Search, _separation, _shortlists, _unseen_laws, law_sets,
+                                search_element)
 from analysis.fit import fit_laws
 from analysis.laws import LAWS
 from analysis.laws.base import KINDS
@@ -114,6 +115,28 @@ def test_a_law_whose_size_the_kbar_cannot_tell_from_zero_is_unseen():
     assert _unseen_laws(sets["cubic", "quadratic_damping", "velocity_stiffness"], pair) == ["velocity_stiffness"]
 
 
+def _screened(laws: tuple[str, ...], samples: ElementSamples) -> LawSet:
+    fit = fit_laws(list(laws), samples.X, samples.w, samples.kbar, samples.kbar_std, grid_points=4, n_starts=1,
+                   max_evaluations=30)
+    return LawSet(laws, fit, fit.chi_square, fit.n_parameters)
+
+
+def test_a_law_seen_only_in_its_limit_of_a_vanishing_amplitude_scale_is_not_seen_as_itself():
+    empty = LawSet((), None, 0.0, 0)
+    # a force of constant size in phase with the displacement, f = F sgn(x): kbar = 4 F / (pi X), real (the
+    # describing function of a relay). A saturating spring follows it only with beta run beyond every amplitude
+    relay = ElementSamples("joint", X, W, 4 * 0.2 / (np.pi * X) + 0j, np.full(len(X), 0.05), np.ones(len(X)))
+    saturated = _screened(("arctan_softening",), relay)
+    assert 1.0 / saturated.fit.terms[0].params["beta"] < X.min()
+    assert _limit_only_laws(saturated, empty, X.min()) == ["arctan_softening"]
+    # a saturating spring whose softening displacement lies within the amplitudes measured is seen as itself
+    spring = _screened(("arctan_softening",), samples_of({"arctan_softening": {"alpha": 20.0, "beta": 200.0}}, X, W))
+    assert X.min() < 1.0 / spring.fit.terms[0].params["beta"] < X.max()
+    assert _limit_only_laws(spring, empty, X.min()) == []
+    # the laws already taken are not asked again
+    assert _limit_only_laws(saturated, saturated, X.min()) == []
+
+
 class _Errors:
     """A stand-in for the FRF comparisons: the single-harmonic error of each set, chi-squares far apart."""
 
@@ -149,6 +172,57 @@ def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
     judge.single = _Errors({two.laws: 0.1, three.laws: 0.01})        # an FRF gain of x10 from elsewhere
     step = judge.step_up(search, two, three)
     assert not step.taken and "does not show velocity_stiffness" in step.why
+
+
+def test_every_set_one_law_larger_than_the_choice_goes_to_the_frfs():
+    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    sets = {s.laws: s for s in search.sets}
+    cubic = sets["cubic",]
+    larger = {s.laws for s in _extension(search, cubic, 2)} | {s.laws for s in search.by_size[2]}
+    assert {s.laws for s in search.sets if len(s.laws) == 2 and "cubic" in s.laws} <= larger
+    # two laws more at once, or the first law: the best by the criterion only
+    assert len(_extension(search, cubic, 3)) <= 1
+    assert len(_extension(search, sets[()], 1)) <= 1
+
+
+def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tell_them_apart():
+    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    pair = next(s for s in search.sets if s.laws == ("cubic", "quadratic_damping"))
+    # a set of other kinds made alike in the kbar: the same chi-square, as many parameters
+    twin = LawSet(("velocity_stiffness", "coulomb"), pair.fit, pair.chi_square, pair.n_parameters)
+    search.sets.append(twin)
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), True
+    errors = {s.laws: 1.0 for s in search.sets}
+    for twin_error, counts in ((0.012, True), (0.05, False)):
+        judge.single = _Errors({**errors, pair.laws: 0.01, twin.laws: twin_error})
+        assert (twin in _other_kinds(judge, search, pair)) is counts
+
+
+class _Multi:
+    """A stand-in for the multi-harmonic comparisons: the same error with the law as without it."""
+
+    def __init__(self):
+        self.asked = 0
+
+    def __call__(self, choice):
+        self.asked += 1
+        return type("Comparison", (), {"error": 0.02, "chi_square": 400.0, "n_observations": 400})()
+
+
+@pytest.mark.parametrize("kbar_judges, before, checked", [(True, ("cubic",), False), (False, (), False),
+                                                          (False, ("cubic",), True)])
+def test_a_large_single_harmonic_gain_is_checked_with_harmonics_beside_a_law_on_data_without_harmonics(
+        kbar_judges, before, checked):
+    # x6 single-harmonically, nothing with harmonics: a law that fits the lines one harmonic cannot represent
+    search = search_element(0, analytic_samples(-300.0, 0.5, 4e5, 5.0), linear_verdict=False)
+    sets = {s.laws: s for s in search.sets}
+    after = sets[before + ("quadratic_damping",)]
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges, judge.multi = DiscoveryRules(), kbar_judges, _Multi()
+    step = WalkStep(after.laws, 0.01, 0.06, True)
+    held = judge.holds_with_harmonics({0: after}, 0, sets[before], step)
+    assert held is not checked and step.taken is not checked and (judge.multi.asked > 0) is checked
 
 
 # ------------------------------------------------------------------------------------------- the whole path

@@ -66,6 +66,20 @@ def test_friction_is_nonlinear_with_falling_imaginary_part():
     assert "Im kbar falls by" in v.evidence
 
 
+def test_a_steady_trend_the_chi_square_dilutes_is_amplitude_dependence():
+    # quadratic damping, Im kbar = (8 / 3 pi) c2 w^2 X (its describing function), small beside the viscous part:
+    # over 240 degrees of freedom the chi-square stays below its threshold, the trend of Im with ln X does not
+    lines = np.linspace(10.0, 30.0, 120)
+    v = linearity_verdict(*campaign(lambda X, w: 500.0 + 2.0j * w + 1j * 8 / (3 * np.pi) * 0.4 * w ** 2 * X, 6,
+                                    lines=lines)[:4])
+    assert v.statistic <= v.threshold and v.imag.sigma > v.trend_limit > 3.5 and v.real.sigma < 3
+    assert not v.linear and v.imag.change > 0
+    assert f"sigma, beyond the {v.trend_limit:.3g} of a linear element" in v.evidence
+    # a single level has no trend across levels within a line: the chi-square alone decides
+    one = linearity_verdict(*campaign(cubic, 1, levels=LEVELS[:1])[:4])
+    assert one.model == "polynomial" and one.trend_limit == np.inf
+
+
 def test_constant_offset_is_linear_and_named_as_offset():
     v = linearity_verdict(*campaign(lambda X, w: 200.0 + 5.0j + 0 * X, 3)[:4])
     assert v.linear
