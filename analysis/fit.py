@@ -67,7 +67,7 @@ _SEARCH_OFFSET = 10.0
 # A contact law placed in its surroundings: refits with the placement of the previous fit's values, at most
 # this many, until its scaling parameter moves by less than _PLACED_TOLERANCE (relative)
 _PLACED_REFITS = 8
-_PLACED_TOLERANCE = 1e-4
+_PLACED_TOLERANCE = 1e-3
 # ... and where outliers are left out, one refit from the placement settled on every sample
 _ROBUST_PLACED_REFITS = 1
 
