@@ -178,3 +178,20 @@ def test_discovery_places_a_contact_and_finds_it_alone():
     assert k == pytest.approx(CONTACT["k"], rel=0.01)
     alone = search_element(0, samples, False)
     assert len(alone.sets[0].laws) > 1 or alone.sets[0].chi_square > 3 * placed.sets[0].chi_square
+
+
+def test_a_model_places_its_elements_in_its_own_structure():
+    """A model's elements see its structure; a copy shares what was computed of it, an updated structure is seen
+    anew."""
+    from analysis.model import load_model
+
+    table = {"type": "lumped", "dofs": ["x"], "mass": [[M_S]], "stiffness": [[K_S]], "damping": [[C_S]]}
+    model = load_model({"structure": table, "element": [{"name": "c", "dof": "x",
+                                                         "laws": [{"law": "unilateral", **CONTACT}]}]})
+    el = model.elements[0]
+    assert el.surroundings.receptance(0.0) == pytest.approx(1.0 / K_S)
+    assert model.copy().elements[0].surroundings is el.surroundings
+    stiffer = model.with_structure({**table, "stiffness": [[2 * K_S]]})
+    assert stiffer.elements[0].surroundings.receptance(0.0) == pytest.approx(0.5 / K_S)
+    X, w = 0.01, 30.0
+    assert stiffer.elements[0].describing_function(X, w).real > el.describing_function(X, w).real
