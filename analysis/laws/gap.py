@@ -5,10 +5,7 @@ Describing function (u = gap / X):
     kbar = 0                                                   X <= gap
     kbar = k [1 - (2/pi) (asin u + u sqrt(1 - u^2))]           X > gap
 
-The onset is smooth, ``~ (1 - u)^(3/2)``, not a step. The force is odd (no mean) but its odd harmonics are
-large; in a structure they move the element, which changes how far the clearance closes: the formula is the
-clearance alone (``x = X sin wt``), and a model places the law in its structure (``placed``,
-analysis/surroundings.py). The bracket equals twice the real
+The onset is smooth, ``~ (1 - u)^(3/2)``, not a step. The bracket equals twice the real
 part of a unit Jenkins element at slip ratio ``(1 - u)/2`` (see _special.py), which is
 how it is evaluated: without cancellation close to the onset.
 """
@@ -45,7 +42,6 @@ class Gap(Law):
     example = {"k": 1.0e5, "gap": 1.0e-4}
     example_amplitude = (1e-5, 1e-2)
     kernel = gap_force
-    placed = True
 
     def basis(self, X, w, gap):
         X, w = np.broadcast_arrays(X, w)
