@@ -198,10 +198,11 @@ def measured_power_balance(measurements: Measurements, run: PhaseRun) -> np.ndar
     r = measurements.random
     if r is not None and r.excitation_dof == e and d in r.sensor_dofs:
         sources.append((r.frequency_hz, r.receptance[:, r.sensor_dofs.index(d)]))
-    levels = sorted((s for s in measurements.sine if s.control.mode == "force" and s.excitation_dof == e
-                     and d in s.sensor_dofs and len(s.frequency_hz) >= MIN_FIT_LINES), key=lambda s: s.force)
-    sources += [(np.sort(s.frequency_hz), s.receptance[np.argsort(s.frequency_hz), s.sensor_dofs.index(d)])
-                for s in levels[:1]]
+    lowest = min((s for s in measurements.sine if s.control.mode == "force" and s.excitation_dof == e
+                  and d in s.sensor_dofs and len(s.frequency_hz) >= MIN_FIT_LINES), key=lambda s: s.force, default=None)
+    if lowest is not None:
+        order = np.argsort(lowest.frequency_hz)          # a down sweep too: the fit wants its band low to high
+        sources.append((lowest.frequency_hz[order], lowest.receptance[order, lowest.sensor_dofs.index(d)]))
     for f, h in sources:
         constant = measured_modal_constant(run, f, h)
         if constant is not None:

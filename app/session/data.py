@@ -41,9 +41,7 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
         frequency = run.frequency[:n][keep]
         H = np.stack([run.frf[d][:n][keep] for d in dofs], axis=1)
         if run.kind == "phase_resonance":
-            lines = _sine_run(run, dofs, frequency, H, arrays, checked.control)
-            phase.append(_phase_run(run, frequency, arrays, H[:, dofs.index(run.attrs["phase_dof"])]
-                                    if run.attrs["phase_dof"] in dofs else None, lines))
+            phase.append(_phase_run(run, arrays, _sine_run(run, dofs, frequency, H, arrays, checked.control)))
             continue
         if run.kind == "random":
             random = RandomRun(run.excitation_dof, dofs, frequency, H,
@@ -68,14 +66,13 @@ def _sine_run(run: RunData, dofs: list[str], frequency: np.ndarray, H: np.ndarra
                    control=control)
 
 
-def _phase_run(run: RunData, frequency: np.ndarray, arrays: dict, locked: np.ndarray | None,
-               lines: SineRun) -> PhaseRun:
-    """A phase-resonance run's locked points, the displacement at the locked DOF from its acceleration's
-    fundamental, the lag from its receptance there (``locked``); ``lines`` the same points as lines for the
-    identification."""
-    dof = str(run.attrs["phase_dof"])
+def _phase_run(run: RunData, arrays: dict, lines: SineRun) -> PhaseRun:
+    """A phase-resonance run's locked points (``lines``, as lines for the identification too), the displacement
+    at the locked DOF from its acceleration's fundamental, the lag from its receptance there."""
+    dof, frequency = str(run.attrs["phase_dof"]), lines.frequency_hz
     displacement = np.abs(arrays[f"harmonics/acc:{dof}"][:, 1]) / (2 * np.pi * frequency) ** 2
-    lag = None if locked is None else np.degrees(-np.angle(locked)) % 360.0
+    lag = None if dof not in lines.sensor_dofs else \
+        np.degrees(-np.angle(lines.receptance[:, lines.sensor_dofs.index(dof)])) % 360.0
     return PhaseRun(run.name, dof, float(run.attrs["target_phase"]), frequency, arrays["force_amplitude"],
                     displacement, arrays["lock_converged"].astype(bool), run.excitation_dof, lag, lines)
 
