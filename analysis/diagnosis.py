@@ -363,7 +363,8 @@ def _score(scene: _Scene, el: _Element, laws: tuple[str, ...], rules: RankingRul
     cannot be a candidate (too few samples for their parameters, no direction of their own, no prediction)."""
     s = el.samples
     try:
-        fit = fit_laws(el.terms + [LawTerm(LAWS[law], {}) for law in laws], s.X, s.w, s.kbar, s.kbar_std)
+        fit = fit_laws(el.terms + [LawTerm(LAWS[law], {}) for law in laws], s.X, s.w, s.kbar, s.kbar_std,
+                       surroundings=scene.predictor.model.elements[el.index].surroundings)
     except InputError:
         return None                           # too few samples for this many parameters
     if _duplicates_present_laws(fit, len(laws), rules.max_correlation):

@@ -55,6 +55,7 @@ from .errors import InputError
 from .fit import UNDETERMINED_Z, LawFit, fit_laws, outlier_limit, unit_exponents
 from .laws import LAWS
 from .nonparametric import fit_nonparametric
+from .surroundings import Surroundings
 
 
 @dataclass(frozen=True)
@@ -68,6 +69,7 @@ class DiscoveryRules:
     screening_grid: int = 4           # shape-parameter grid points per parameter while sets are screened
     screening_starts: int = 1         # local searches per screening fit
     screening_evaluations: int = 30   # residual evaluations per local search while screening
+    placed_pool: int = 8              # best sets with a contact law refitted placed (with their smaller sets)
     certain_gain: float = 5.0         # a single-harmonic gain this large is not the harmonics' effect: no
                                       # multi-harmonic check (laws that only fit what one harmonic cannot
                                       # represent gained x1.26-x1.9 in every case measured) on data with
@@ -196,7 +198,31 @@ def _candidate_laws(linear_verdict: bool) -> list[str]:
             if law.visible_in_kbar and not (linear_verdict and law.amplitude_dependent)]
 
 
-def _fit_set(samples: ElementSamples, laws: tuple[str, ...], rules: DiscoveryRules, robust: bool) -> LawSet | None:
+def _place_contacts(by_laws: dict[tuple[str, ...], LawSet], samples: ElementSamples, rules: DiscoveryRules,
+                    robust: bool, around: Surroundings) -> None:
+    """The best ``placed_pool`` sets with a contact law (by the criterion of their fit with its formula alone), and
+    every smaller set within them that keeps the contact law, refitted with it placed in the element's structure
+    (docs/fitting.md, "Contact laws in their structure"); the rest keep the formula. A placed fit costs 0.1-1 s
+    against milliseconds. The formula's misfit is what laws of other kinds beside it fill in, so by the formula's
+    fit the larger sets lead; their smaller sets are placed too, so that a law only there to fill that misfit
+    meets the set without it on equal terms."""
+    n_obs = 2 * len(samples.X)
+    scale = _scale(list(by_laws.values()), n_obs)
+    contact = sorted((laws for laws in by_laws if any(LAWS[n].placed for n in laws)),
+                     key=lambda laws: by_laws[laws].chi_square / scale + by_laws[laws].n_parameters * np.log(n_obs))
+    chosen = []
+    for laws in contact[:rules.placed_pool]:
+        kept = [n for n in laws if LAWS[n].placed]
+        chosen += [sub for size in range(1, len(laws) + 1) for sub in itertools.combinations(laws, size)
+                   if set(kept) <= set(sub) and sub in by_laws]
+    for laws in dict.fromkeys(chosen):
+        s = _fit_set(samples, laws, rules, robust, around)
+        if s is not None:
+            by_laws[laws] = s
+
+
+def _fit_set(samples: ElementSamples, laws: tuple[str, ...], rules: DiscoveryRules, robust: bool,
+             around: Surroundings | None = None) -> LawSet | None:
     """The set fitted with the screening settings; None where it cannot be fitted or one of its laws adds no
     direction of its own (:func:`_adds_nothing`). ``robust``: the fit leaves out the samples that do not follow
     it (data without harmonics, where no line could be left out as far from harmonic), and the set is judged by
@@ -204,7 +230,8 @@ def _fit_set(samples: ElementSamples, laws: tuple[str, ...], rules: DiscoveryRul
     try:
         fit = fit_laws(list(laws), samples.X, samples.w, samples.kbar, samples.kbar_std,
                        grid_points=rules.screening_grid, n_starts=rules.screening_starts,
-                       max_evaluations=rules.screening_evaluations, exclude_outliers=robust)
+                       max_evaluations=rules.screening_evaluations, exclude_outliers=robust,
+                       surroundings=around)
     except InputError:
         return None                                   # too few samples for this many parameters
     if len(laws) > 1 and any(_adds_nothing(fit, j, rules.max_correlation) for j in range(len(laws))):
@@ -244,8 +271,11 @@ def _scale(sets: list[LawSet], n_obs: int) -> float:
 
 
 def search_element(index: int, samples: ElementSamples, linear_verdict: bool,
-                   rules: DiscoveryRules = DiscoveryRules(), robust: bool = False) -> _Search:
-    """The kbar stage of one element (module docstring, steps 1 and 2; ``robust``: :func:`_fit_set`)."""
+                   rules: DiscoveryRules = DiscoveryRules(), robust: bool = False,
+                   around: Surroundings | None = None) -> _Search:
+    """The kbar stage of one element (module docstring, steps 1 and 2; ``robust``: :func:`_fit_set`; ``around``:
+    the structure around the element, where the best sets with a contact law are refitted placed,
+    :func:`_place_contacts`)."""
     names = _candidate_laws(linear_verdict)
     sets = [_empty_set(samples, robust)]
     by_laws: dict[tuple[str, ...], LawSet] = {}
@@ -266,6 +296,8 @@ def search_element(index: int, samples: ElementSamples, linear_verdict: bool,
                 s = _fit_set(samples, laws, rules, robust)
                 if s is not None:
                     by_laws[laws] = s
+    if around is not None:
+        _place_contacts(by_laws, samples, rules, robust, around)
     sets += list(by_laws.values())
     n_obs = 2 * len(samples.X)
     scale = _scale(sets, n_obs)
@@ -663,7 +695,7 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
         s = samples.get(el.name)
         if el.laws or el.nonparametric is not None or s is None or len(s.X) < 3:
             continue
-        searches.append(search_element(i, s, el.name in linear, rules, robust))
+        searches.append(search_element(i, s, el.name in linear, rules, robust, el.surroundings))
         if progress is not None:
             best = searches[-1].sets[0]
             progress(f"discovery: {el.name}: {len(searches[-1].sets) - 1} sets of laws fitted to its kbar; "

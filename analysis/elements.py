@@ -16,6 +16,7 @@ from .errors import InputError
 from .laws import Law, get_law
 from .nonparametric import NAME as NONPARAMETRIC, NonParametric
 from .structures import Structure
+from .surroundings import Surroundings, linear_part, placed_kbar, surroundings_of
 from .tables import Fields
 
 
@@ -49,6 +50,8 @@ class Element:
     dofs: tuple[str, ...]  # (a,) grounded, or (a, b) between
     laws: list[LawTerm] = field(default_factory=list)
     nonparametric: NonParametric | None = None     # what the laws leave of kbar, where no law explains it
+    # the structure around the element (set where it is read into a structure): a contact law's kbar is placed in it
+    surroundings: Surroundings | None = field(default=None, compare=False, repr=False)
 
     @property
     def time_domain(self) -> bool:
@@ -76,12 +79,25 @@ class Element:
     def rotational(self, structure: Structure) -> bool:
         return structure.is_rotational(self.dofs[0])
 
+    def placed_surroundings(self) -> Surroundings | None:
+        """The surroundings with the element's own amplitude-independent laws in parallel; None without
+        surroundings or without a contact law (nothing to place)."""
+        if self.surroundings is None or not any(t.law.placed for t in self.laws):
+            return None
+        return self.surroundings.with_parallel(linear_part([(t.law, t.values) for t in self.laws if t.complete]))
+
     def describing_function(self, X, w) -> np.ndarray:
-        """Sum of the law terms' kbar and the non-parametric part's (0 when the element has neither)."""
+        """Sum of the law terms' kbar and the non-parametric part's (0 when the element has neither); the contact
+        laws' kbar placed in the element's surroundings (analysis/surroundings.py) where the element has them."""
         X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
         total = np.zeros(X.shape, complex)
+        around = self.placed_surroundings()
+        placed = [t for t in self.laws if around is not None and t.law.placed and t.complete]
+        if placed:          # one mean and one set of harmonics for the element, whatever its placed laws
+            total = total + placed_kbar([(t.law, t.values) for t in placed], X, w, around)
         for term in self.laws:
-            total = total + term.describing_function(X, w)
+            if not any(term is t for t in placed):
+                total = total + term.describing_function(X, w)
         if self.nonparametric is not None:
             total = total + self.nonparametric.describing_function(X, w)
         return total
@@ -145,5 +161,7 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
                 raise f.error(NONPARAMETRIC, "a rig's element needs laws with a time-domain force; a "
                               "non-parametric part has none and cannot be simulated")
             part = NonParametric.from_toml(f.table[NONPARAMETRIC], source, f.path(NONPARAMETRIC))
-        elements.append(Element(name, dofs, terms, part))
+        element = Element(name, dofs, terms, part)
+        element.surroundings = surroundings_of(structure, element.vector(structure))
+        elements.append(element)
     return elements

@@ -28,6 +28,7 @@ from .elements import LawTerm
 from .errors import InputError
 from .laws import Law, get_law
 from .laws.base import Param
+from .surroundings import Surroundings, linear_part, placed_kbar
 
 #: Singular values of the column-scaled weighted Jacobian below this fraction of
 #: the largest one count as zero: the parameter combinations along them are not
@@ -63,6 +64,12 @@ _WIDEN = 3.0
 # coordinates would get a vanishing radius and stop at once. The coordinates (O(1) over
 # the plausible range) are shifted by this much so that no start sits near the origin.
 _SEARCH_OFFSET = 10.0
+# A contact law placed in its surroundings: refits with the placement of the previous fit's values, at most
+# this many, until its scaling parameter moves by less than _PLACED_TOLERANCE (relative)
+_PLACED_REFITS = 8
+_PLACED_TOLERANCE = 1e-3
+# ... and where outliers are left out, one refit from the placement settled on every sample
+_ROBUST_PLACED_REFITS = 1
 
 
 # --------------------------------------------------------------------------- results
@@ -88,6 +95,9 @@ class TermFit:
         Contract parameters the samples do not determine: an infinite standard error, a 95 %
         interval that holds zero (``UNDETERMINED_Z``), or a member of a correlated pair
         (:attr:`LawFit.correlated`). Their values are not findings; print them as undetermined.
+    surroundings : Surroundings or None
+        Where a contact law was fitted placed in its structure (``fit_laws(surroundings=...)``): the
+        structure around the element with the element's amplitude-independent laws; its kbar is placed there.
     """
 
     law: Law
@@ -96,6 +106,7 @@ class TermFit:
     stderr: dict[str, float]
     fit_params: dict[str, float]
     undetermined: tuple[str, ...] = ()
+    surroundings: Surroundings | None = None
 
     def law_term(self) -> LawTerm:
         """The fitted term as a :class:`LawTerm` (e.g. to write a fitted model file)."""
@@ -103,6 +114,8 @@ class TermFit:
 
     def describing_function(self, X, w) -> np.ndarray:
         """kbar of this term, complex, broadcast over X (m or rad) and w (rad/s)."""
+        if self.surroundings is not None:
+            return placed_kbar([(self.law, self.params)], X, w, self.surroundings)
         if not hasattr(self, "_term"):            # one validated LawTerm, reused by the solvers
             self._term = self.law_term()
         return self._term.describing_function(X, w)
@@ -744,7 +757,8 @@ def _coupled_groups(projector: np.ndarray, involved: np.ndarray) -> list[list[in
 # --------------------------------------------------------------------------- entry point
 def fit_laws(laws, X, w, kbar, sigma=None, start=None, *, grid_points: int = 7, grid_budget: int = 128,
              n_starts: int = 3, tolerance: float = 1e-12, max_evaluations: int = 60,
-             rank_rtol: float = RANK_RTOL, exclude_outliers: bool = False) -> LawFit:
+             rank_rtol: float = RANK_RTOL, exclude_outliers: bool = False,
+             surroundings: Surroundings | None = None) -> LawFit:
     """Fit a sum of laws on one element to complex-stiffness samples.
 
     Parameters
@@ -791,6 +805,10 @@ def fit_laws(laws, X, w, kbar, sigma=None, start=None, *, grid_points: int = 7, 
         sample above :func:`outlier_limit`, from an iteratively reweighted start), and
         scale the standard errors by the reduced chi-square where it exceeds 1
         (docs/fitting.md, "Outliers"). :attr:`LawFit.excluded` says which.
+    surroundings : Surroundings, optional
+        The structure around the element (:mod:`analysis.surroundings`): a contact law (``placed``) is
+        fitted by its kbar placed there, the mean and harmonics it drives in the structure included
+        (:func:`_fit_placed`); without it, or without such a law, by its describing function alone.
 
     Returns
     -------
@@ -806,9 +824,99 @@ def fit_laws(laws, X, w, kbar, sigma=None, start=None, *, grid_points: int = 7, 
     terms = _resolve_terms(laws, start)
     X, w, kbar, w_re, w_im = _samples(X, w, kbar, sigma)
     opts = _Options(grid_points, grid_budget, n_starts, tolerance, max_evaluations, rank_rtol)
-    if exclude_outliers:
-        return _fit_robust(terms, _Samples(X, w, kbar, w_re, w_im, sigma is not None), opts)
-    return _fit_once(terms, _Samples(X, w, kbar, w_re, w_im, sigma is not None), opts)
+    data = _Samples(X, w, kbar, w_re, w_im, sigma is not None)
+    fitter = _fit_robust if exclude_outliers else _fit_once
+    if surroundings is None or not any(law.placed for law, _ in terms):
+        return fitter(terms, data, opts)
+    return _fit_placed(terms, data, opts, surroundings, fitter)
+
+
+class _PlacedLaw:
+    """A contact law whose basis is its kbar placed in ``around`` with its scaling parameter held at
+    ``reference`` (and divided by it): the fit's linear parameter then rescales a fixed placement, and
+    :func:`_fit_placed` refits until the two agree. Everything else is the law's own."""
+
+    def __init__(self, law: Law, reference: float, around: Surroundings):
+        self.law, self.reference, self.around = law, reference, around
+
+    def __getattr__(self, name):
+        return getattr(self.law, name)
+
+    def basis(self, X, w, **shape):
+        values = self.law.from_fit({self.law.linear[0]: self.reference}, shape)
+        return placed_kbar([(self.law, values)], X, w, self.around)[None] / self.reference
+
+    def kbar_function(self, **params):
+        """kbar of this basis at the given values (what a fit in progress judges its samples by)."""
+        linear, shape = self.law.to_fit(self.law.check_params(params, complete=True))
+        scale = linear[self.law.linear[0]]
+        return lambda X, w: scale * self.basis(np.asarray(X, float), np.asarray(w, float), **shape)[0]
+
+    def describing_function(self, X, w, **params):
+        return self.kbar_function(**params)(X, w)
+
+
+def _scaling(law: Law, values: Mapping[str, float]) -> float:
+    """The parameter scaling a placed law's force (its one linear parameter)."""
+    return values[law.linear[0]]
+
+
+def _fit_placed(terms, data: _Samples, opts: _Options, surroundings: Surroundings, fitter) -> LawFit:
+    """The fit of ``terms`` with their contact laws placed in ``surroundings`` (:mod:`analysis.surroundings`).
+
+    The placed kbar depends on the law's scaling parameter (the contact's stiffness against the structure's),
+    which the fit solves for linearly: from the fit of the describing function alone, the laws are placed at a
+    reference value and refitted until the fitted value is the reference (:func:`_settle`), first on every sample
+    and then, where outliers are left out, by ``fitter`` from there (a placement far off would leave out the very
+    samples that show the contact)."""
+    laws = [law for law, _ in terms]
+    fit = _settle(laws, _fit_once(terms, data, opts), data, _quick(opts), surroundings, _fit_once, _PLACED_REFITS)
+    if fitter is not _fit_once:
+        fit = _settle(laws, fit, data, _quick(opts), surroundings, fitter, _ROBUST_PLACED_REFITS)
+    around = _around(fit, surroundings)
+    for t, law in zip(fit.terms, laws):
+        placed = isinstance(t.law, _PlacedLaw)
+        t.law = law
+        t.surroundings = around if placed else None
+    return fit
+
+
+def _around(fit: LawFit, surroundings: Surroundings) -> Surroundings:
+    """The surroundings with the fit's amplitude-independent laws in parallel."""
+    return surroundings.with_parallel(linear_part([(t.law, t.params) for t in fit.terms]))
+
+
+def _settle(laws: list[Law], fit: LawFit, data: _Samples, opts: _Options, surroundings: Surroundings, fitter,
+            refits: int) -> LawFit:
+    """Refits of ``fit``'s terms (laws ``laws``) with the contact laws placed at reference values until each fitted
+    scaling parameter equals its reference (``_PLACED_TOLERANCE``), the references moved by secant steps on
+    ``fitted - reference`` (a plain substitution converges slowly where the contact is as stiff as the
+    structure); each refit refines from the last values. A contact whose
+    scaling parameter is 0 has no force to place: the terms are then refitted by ``fitter`` as they are."""
+    placed = [law.placed for law in laws]
+    reference = np.array([_scaling(law, t.params) for t, law, m in zip(fit.terms, laws, placed) if m])
+    previous = None
+    for i in range(refits):
+        if np.any(reference == 0.0):
+            return fit if i else fitter([(law, dict(t.params)) for t, law in zip(fit.terms, laws)], data, opts)
+        around = _around(fit, surroundings)
+        refs = iter(reference)
+        fit = fitter([(_PlacedLaw(law, next(refs), around) if m else law, dict(t.params))
+                      for t, law, m in zip(fit.terms, laws, placed)], data, opts)
+        fitted = np.array([_scaling(law, t.params) for t, law, m in zip(fit.terms, laws, placed) if m])
+        gap = fitted - reference
+        if np.all(np.abs(gap) <= _PLACED_TOLERANCE * np.abs(reference)):
+            break
+        following = fitted
+        if previous is not None:
+            slope = (gap - previous[1]) / (reference - previous[0])
+            secant = reference - gap / np.where(slope < 0.0, slope, -1.0)
+            # a secant step where the fitted value falls as the reference rises (the placement's own effect),
+            # never across zero
+            following = np.where((slope < 0.0) & (secant * reference > 0.0), secant, fitted)
+        previous = (reference, gap)
+        reference = following
+    return fit
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ from .elements import Element, LawTerm, load_elements
 from .errors import InputError
 from .nonparametric import NAME as NONPARAMETRIC
 from .structures import Structure, load_structure
+from .surroundings import surroundings_of
 from .tables import Fields
 
 # The top-level keys of a rig file (docs/contracts.md §3, docs/rig-simulator.md). A rig file is also a valid model
@@ -39,6 +40,16 @@ class Model:
     updating_modes: list[int] | None = None
     source: str | None = None
 
+    def __post_init__(self):
+        self.place_elements(keep=True)
+
+    def place_elements(self, keep: bool = False) -> None:
+        """Give every element the structure around it (a contact law's kbar depends on it); ``keep``: an element
+        that has them (a copy's, sharing the receptances computed) keeps them."""
+        for el in self.elements:
+            if not (keep and el.surroundings is not None):
+                el.surroundings = surroundings_of(self.structure, el.vector(self.structure))
+
     def element(self, name: str) -> Element:
         for el in self.elements:
             if el.name == name:
@@ -48,7 +59,8 @@ class Model:
 
     def copy(self) -> "Model":
         return Model(copy.deepcopy(self.structure_table), self.structure,
-                     [Element(e.name, e.dofs, [LawTerm(t.law, dict(t.values)) for t in e.laws], e.nonparametric)
+                     [Element(e.name, e.dofs, [LawTerm(t.law, dict(t.values)) for t in e.laws], e.nonparametric,
+                             e.surroundings)
                       for e in self.elements],
                      list(self.updating_parameters), self.updating_modes, self.source)
 
@@ -56,6 +68,7 @@ class Model:
         m = self.copy()
         m.structure_table = copy.deepcopy(table)
         m.structure = load_structure(table, self.source)
+        m.place_elements()
         return m
 
     def describe(self) -> str:

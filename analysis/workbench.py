@@ -213,7 +213,7 @@ class Workbench:
                 raise InputError(f"element {el.name!r} has no well-conditioned line to fit its laws to")
             if el.laws:
                 report.fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std,
-                                      exclude_outliers=self._harmonics_blind())
+                                      exclude_outliers=self._harmonics_blind(), surroundings=el.surroundings)
                 el.laws = [LawTerm(t.law, dict(report.fit.terms[j].params)) for j, t in enumerate(el.laws)]
             if el.nonparametric is not None:
                 self._fit_nonparametric(el)

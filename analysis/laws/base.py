@@ -168,6 +168,12 @@ class Law(ABC):
     # True where the force is its small-amplitude tangent k0 x + c0 x' at every amplitude and state (a spring
     # and damper): a time integrator that moves k0 and c0 into its linear part has nothing left to solve for
     tangent_exact: ClassVar[bool] = False
+    # True where the force's harmonics are as large as its fundamental (a contact that closes: one-sided, with a
+    # mean and even harmonics, or a clearance on both sides, with odd ones): they move the structure, which
+    # changes how far the contact closes and so kbar. Where the law sits in a structure its kbar is then placed
+    # there (analysis/surroundings.py) rather than taken from the formula alone. Such a law is stateless,
+    # velocity-free and has one linear parameter scaling its whole force.
+    placed: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs):
         # A jitted function stored on a class binds like a method; keep the numba
@@ -186,6 +192,9 @@ class Law(ABC):
             raise TypeError(f"law class {cls.__name__} lacks {', '.join(missing)}")
         if cls.kind not in KINDS:
             raise TypeError(f"law {cls.name!r}: kind {cls.kind!r} is not one of {', '.join(KINDS)}")
+        if cls.placed and (len(cls.linear) != 1 or cls.n_state or cls.hysteretic):
+            raise TypeError(f"law class {cls.__name__}: a placed law needs one linear parameter scaling its force "
+                            "and no state")
         if (cls.update is None) != (cls.commit is None):
             raise TypeError(f"law class {cls.__name__} defines one of update and commit without the other")
         unknown = {f for _, f, _, _ in string.Formatter().parse(cls.explanation) if f is not None} - EXPLANATION_FIELDS
@@ -344,7 +353,11 @@ class Law(ABC):
 
         The state starts at rest unless given, and is updated in place when given.
         """
-        p = self.parameter_vector(**params)
+        return self.march(x, v, self.parameter_vector(**params), state)
+
+    def march(self, x, v, p: np.ndarray, state: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`force` with the kernel's parameter vector ``p`` (:meth:`parameter_vector`) already built: for
+        solvers that evaluate the force many times at the same values."""
         s = self.initial_state(p) if state is None else state
         return _march(self.kernel, np.ascontiguousarray(x, float), np.ascontiguousarray(v, float), p, s)
 

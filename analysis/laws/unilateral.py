@@ -7,7 +7,10 @@ Describing function (u = gap / X):
     kbar = (k/2) [1 - (2/pi) (asin u + u sqrt(1 - u^2))]       -1 < u < 1
     kbar = k                                                   u <= -1  (never opens)
 
-The force also has a mean value and even harmonics, which kbar does not show. The
+The force also has a mean value and even harmonics as large as its fundamental; in a structure they move the
+element (a new mean position, a response at 2w, 3w ...), which changes how far the contact opens: the formula
+above is the contact alone (``x = X sin wt``), and a model places the law in its structure (``placed``,
+analysis/surroundings.py). The
 bracket is evaluated as twice the unit Jenkins real part at slip ratio ``(1 - u)/2``
 (_special.py), free of cancellation at the onset.
 """
@@ -42,6 +45,7 @@ class Unilateral(Law):
     example = {"k": 1.0e5, "gap": 1.0e-4}
     example_amplitude = (1e-5, 1e-2)
     kernel = unilateral_force
+    placed = True
 
     def basis(self, X, w, gap):
         X, w = np.broadcast_arrays(X, w)
