@@ -36,7 +36,7 @@ class Gap(Law):
     force_text = "k (x - gap sgn x) for |x| > gap, else 0"
     kbar_text = "X <= gap: 0; else k [1 - (2/pi)(asin u + u sqrt(1 - u^2))], u = gap/X"
     explanation = "{re} with Im flat, little below a threshold amplitude: a clearance that closes -- gap"
-    params = (Param("k", "{F}/{L}", "contact stiffness beyond the clearance"), _GAP)
+    params = (Param("k", "{F}/{L}", "contact stiffness beyond the clearance", lower=0.0), _GAP)
     linear = ("k",)
     shape = (_GAP,)
     example = {"k": 1.0e5, "gap": 1.0e-4}

@@ -39,7 +39,7 @@ class Unilateral(Law):
     force_text = "k (x - gap) for x > gap, else 0"
     kbar_text = "u >= 1: 0; u <= -1: k; else (k/2)[1 - (2/pi)(asin u + u sqrt(1 - u^2))], u = gap/X"
     explanation = "{re} with Im flat: contact on one side only -- unilateral spring"
-    params = (Param("k", "{F}/{L}", "contact stiffness"), _GAP)
+    params = (Param("k", "{F}/{L}", "contact stiffness", lower=0.0), _GAP)
     linear = ("k",)
     shape = (_GAP,)
     example = {"k": 1.0e5, "gap": 1.0e-4}
