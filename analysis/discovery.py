@@ -625,6 +625,21 @@ def _walk_element(judge: _Judge, search: _Search) -> tuple[list[LawSet], list[Wa
     return taken, steps
 
 
+def _offer_frf_best_single(judge: _Judge, search: _Search) -> None:
+    """The single law the FRFs like best joins the shortlist of one law, where the kbar criterion left it out. A
+    law that acts on a few lines only -- a clearance that closes at the resonance of the higher level, a quintic
+    spring -- changes few kbar samples, and where lines may depart from every describing function (data without
+    harmonics) their chi-square is capped: the criterion hardly sees it, though the FRFs near that resonance show
+    it by far. One prediction per law of the library; the walk still asks the kbar to show the law and the FRFs
+    to gain the margin."""
+    singles = [s for s in search.sets if len(s.laws) == 1]
+    if not singles or 1 not in search.by_size:
+        return
+    best = min(singles, key=lambda s: judge.single({search.index: s}).error)
+    if best not in search.by_size[1]:
+        search.by_size[1].append(best)
+
+
 def _preferred(judge: _Judge, i: int, sets: list[LawSet]) -> LawSet:
     """Of sets of one size, the first by the kbar criterion whose single-harmonic FRF error is within
     ``min_gain`` of the best of them: the kbar chooses, and the FRFs overrule it only by the margin a law must
@@ -705,6 +720,7 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
     judge = _Judge(predictor, rules, n_harmonics, n_time, _standins(searches, robust), kbar_judges=not robust)
     taken, walks = {}, {}
     for search in searches:
+        _offer_frf_best_single(judge, search)
         taken[search.index], walks[search.index] = _walk_element(judge, search)
     _check_with_harmonics(judge, taken, walks)
     judged = {i: sets[-1] for i, sets in taken.items()}
