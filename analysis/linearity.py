@@ -368,21 +368,21 @@ def _component(base: np.ndarray, values: np.ndarray, sigma: np.ndarray, log_X: n
 
 def _tail_shift(X, w, kbar, sigma, false_alarm: float) -> TailShift | None:
     """The largest common shift, in sigma, of the ``k`` largest-amplitude samples (``k`` in :data:`TAIL_SIZES`,
-    at most a quarter of the samples) from ``a + b w^2`` (Re) or ``c w + d`` (Im) fitted to the other samples,
-    the fit's own uncertainty included (generalised least squares on the tail's residuals); ``false_alarm`` is
-    shared by the tests of both components (two-sided). None with too few samples for any test."""
-    order = np.argsort(X)
-    sizes = [k for k in TAIL_SIZES if 4 * k <= X.size and X.size - k >= 4]
+    at most a quarter of the samples, larger in amplitude than every other) from a quadratic in w fitted to the
+    other samples (a linear element's kbar may change smoothly with the frequency), the fit's own uncertainty
+    included (generalised least squares on the tail's residuals); ``false_alarm`` is shared by the tests of both
+    components (two-sided). None with too few samples, or amplitudes too alike, for any test."""
+    order = np.argsort(X, kind="stable")
+    sizes = [k for k in TAIL_SIZES if 4 * k <= X.size and X.size - k >= 4 and X[order[-k]] > X[order[-k - 1]]]
     if not sizes:
         return None
     limit = float(scipy.stats.norm.isf(false_alarm / (4 * len(sizes))))
     w_unit = w / w.max()
-    bases = {"Re": np.stack([np.ones_like(w), w_unit ** 2], axis=1), "Im": np.stack([w_unit, np.ones_like(w)], axis=1)}
+    A = np.stack([np.ones_like(w), w_unit, w_unit ** 2], axis=1)
     best = None
     for k in sizes:
         tail, rest = order[-k:], order[:-k]
         for name, values in (("Re", kbar.real), ("Im", kbar.imag)):
-            A = bases[name]
             Aw = A[rest] / sigma[rest, None]
             coef, *_ = np.linalg.lstsq(Aw, values[rest] / sigma[rest], rcond=None)
             covariance = np.linalg.pinv(Aw.T @ Aw)
