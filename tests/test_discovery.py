@@ -12,8 +12,8 @@ import pytest
 from analysis.auto import run_auto
 from analysis.diagnosis import ElementSamples, tied_parameters
 from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _extension, _Judge, _limit_only_laws,
-                                _other_kinds, _Search, _separation, _shortlists, _unseen_laws, law_sets,
-                                search_element)
+                                _offer_frf_best_single, _other_kinds, _Search, _separation, _shortlists, _unseen_laws,
+                                law_sets, search_element)
 from analysis.fit import fit_laws
 from analysis.laws import LAWS
 from analysis.laws.base import KINDS
@@ -183,6 +183,20 @@ def test_every_set_one_law_larger_than_the_choice_goes_to_the_frfs():
     # two laws more at once, or the first law: the best by the criterion only
     assert len(_extension(search, cubic, 3)) <= 1
     assert len(_extension(search, sets[()], 1)) <= 1
+
+
+def test_the_single_law_the_frfs_like_best_joins_the_shortlist_of_one_law():
+    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    singles = [s for s in search.sets if len(s.laws) == 1]
+    outside = next(s for s in singles if s not in search.by_size[1])
+    judge = _Judge.__new__(_Judge)
+    errors = {s.laws: 0.5 for s in search.sets}
+    judge.single = _Errors({**errors, outside.laws: 0.01})            # the FRFs see what the kbar ranks low
+    before = list(search.by_size[1])
+    _offer_frf_best_single(judge, search)
+    assert search.by_size[1] == before + [outside]
+    _offer_frf_best_single(judge, search)                              # once only
+    assert search.by_size[1] == before + [outside]
 
 
 def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tell_them_apart():

@@ -80,6 +80,33 @@ def test_a_steady_trend_the_chi_square_dilutes_is_amplitude_dependence():
     assert one.model == "polynomial" and one.trend_limit == np.inf
 
 
+def test_a_law_acting_at_the_largest_amplitudes_only_is_amplitude_dependence():
+    # a clearance that closes at the higher level's resonance only (the two largest of 80 samples, a few sigma
+    # each): the chi-square over 80 dof and the trend in ln X stay quiet, the tail's shift does not
+    def gap(X, w, k=4000.0, clearance=0.0094):
+        u = np.minimum(clearance / X, 1.0)
+        return k * (1 - 2 / np.pi * (np.arcsin(u) + u * np.sqrt(1 - u ** 2))) + 0j * w
+    X, w, k, std, _ = campaign(gap, 7, noise=12.0, levels=np.array([0.2, 1.0]))
+    assert np.count_nonzero(gap(X, w).real) == 2
+    v = linearity_verdict(X, w, k, std)
+    assert v.statistic <= v.threshold and max(v.real.sigma, v.imag.sigma) <= v.trend_limit
+    assert not v.linear and v.tail.component == "Re" and v.tail.departs and v.tail.shift > 0
+    assert "largest-amplitude sample(s)" in v.evidence
+    # the same samples without the law: linear, and so is a kbar that changes smoothly with the frequency only
+    for kbar_of in (lambda X, w: 0j * X, lambda X, w: 4.0 * w + 0.02j * w ** 2):
+        X, w, k, std, _ = campaign(kbar_of, 7, noise=12.0, levels=np.array([0.2, 1.0]))
+        v = linearity_verdict(X, w, k, std)
+        assert v.linear and not v.tail.departs, v.evidence
+
+
+def test_amplitudes_all_alike_at_the_top_have_no_tail_to_test():
+    # two levels, each at one amplitude (response control): the largest samples are a level, not a tail
+    w = np.tile(LINES, 2)
+    X = np.repeat([1e-3, 4e-3], LINES.size)
+    v = linearity_verdict(X, w, 100.0 + 0j * w + 0.1 * np.random.default_rng(0).normal(size=w.size), np.ones(w.size))
+    assert v.tail is None
+
+
 def test_constant_offset_is_linear_and_named_as_offset():
     v = linearity_verdict(*campaign(lambda X, w: 200.0 + 5.0j + 0 * X, 3)[:4])
     assert v.linear
