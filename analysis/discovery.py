@@ -117,6 +117,7 @@ class WalkStep:
     taken: bool
     multiharmonic_gain: float | None = None
     why: str = ""
+    not_itself: bool = False           # not taken because the kbar does not show a law of it as itself
 
     @property
     def gain(self) -> float:
@@ -549,9 +550,11 @@ class _Judge:
         elif unseen:
             step.why = (f"its kbar does not show {unseen[0]}: every size parameter of it is within its 95 % "
                         "interval of zero")
+            step.not_itself = True
         elif limit_only:
             step.why = (f"its kbar shows {limit_only[0]} only in its limit: its amplitude scale lies below the "
                         "smallest amplitude measured and is not determined")
+            step.not_itself = True
         elif other_kinds:
             step.why = (f"its kbar cannot tell which physics it is: {other_kinds[0].name} fits it as well with "
                         "laws of other kinds")
@@ -617,11 +620,13 @@ def _walk_element(judge: _Judge, search: _Search) -> tuple[list[LawSet], list[Wa
     for size in sorted(search.by_size):
         if size == 0:
             continue
-        best = _preferred(judge, i, search.by_size[size] + _extension(search, taken[-1], size))
-        step = judge.step_up(search, taken[-1], best)
-        steps.append(step)
-        if step.taken:
-            taken.append(best)
+        for candidate in _preferred(judge, i, search.by_size[size] + _extension(search, taken[-1], size)):
+            step = judge.step_up(search, taken[-1], candidate)
+            steps.append(step)
+            if step.taken:
+                taken.append(candidate)
+            if not step.not_itself:
+                break                  # only a set not seen as itself gives way to the next the kbar prefers
     return taken, steps
 
 
@@ -640,15 +645,17 @@ def _offer_frf_best_single(judge: _Judge, search: _Search) -> None:
         search.by_size[1].append(best)
 
 
-def _preferred(judge: _Judge, i: int, sets: list[LawSet]) -> LawSet:
-    """Of sets of one size, the first by the kbar criterion whose single-harmonic FRF error is within
-    ``min_gain`` of the best of them: the kbar chooses, and the FRFs overrule it only by the margin a law must
-    bring (the stand-ins of the other elements leave an error floor of their own, within which the FRFs cannot
-    choose)."""
+def _preferred(judge: _Judge, i: int, sets: list[LawSet]) -> list[LawSet]:
+    """Of sets of one size, those whose single-harmonic FRF error is within ``min_gain`` of the best of them,
+    by the kbar criterion: the kbar chooses, and the FRFs overrule it only by the margin a law must bring (the
+    stand-ins of the other elements leave an error floor of their own, within which the FRFs cannot choose). The
+    walk tries the first, and the next only where the kbar does not show a law of the one before as itself (a
+    clearance whose gap runs below every amplitude is a linear spring: random case 8 of seed 112631, where the
+    linear law it stood for came next and, once taken, the clearance beside it was found)."""
     errors = [judge.single({i: s}).error for s in sets]
     best = min(errors)
     ordered = sorted(zip(sets, errors), key=lambda pair: pair[0].criterion)
-    return next(s for s, e in ordered if e <= judge.rules.ranking.min_gain * best)
+    return [s for s, e in ordered if e <= judge.rules.ranking.min_gain * best]
 
 
 def _extension(search: _Search, current: LawSet, size: int) -> list[LawSet]:
