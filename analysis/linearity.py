@@ -248,7 +248,8 @@ def linearity_verdict(X, w, kbar, kbar_std=None, *, level=None, false_alarm: flo
         (a, b_unit), (c_unit, d) = fits["real"][1], fits["imag"][1]
         correction = {"a": float(a), "b": float(b_unit / w.max() ** 2), "c": float(c_unit / w.max()), "d": float(d)}
     verdict = LinearityVerdict(
-        linear=statistic <= threshold and not trended and not (tail is not None and tail.departs), statistic=float(statistic), dof=int(dof), threshold=threshold,
+        linear=statistic <= threshold and not trended and not (tail is not None and tail.departs),
+        statistic=float(statistic), dof=int(dof), threshold=threshold,
         p_value=p_value, false_alarm=false_alarm, model=model, samples_used=int(used.sum()),
         mean_kbar=mean, mean_kbar_std=mean_std, real=fits["real"][0], imag=fits["imag"][0],
         amplitude_range=(float(X_used.min()), float(X_used.max())), linear_correction=correction,

@@ -13,7 +13,7 @@ from analysis.auto import run_auto
 from analysis.diagnosis import ElementSamples, tied_parameters
 from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _extension, _Judge, _limit_only_laws,
                                 _offer_frf_best_single, _other_kinds, _Search, _separation, _shortlists, _unseen_laws,
-                                law_sets, search_element)
+                                _walk_element, law_sets, search_element)
 from analysis.fit import fit_laws
 from analysis.laws import LAWS
 from analysis.laws.base import KINDS
@@ -135,6 +135,27 @@ def test_a_law_seen_only_in_its_limit_of_a_vanishing_amplitude_scale_is_not_seen
     assert _limit_only_laws(spring, empty, X.min()) == []
     # the laws already taken are not asked again
     assert _limit_only_laws(saturated, saturated, X.min()) == []
+
+
+def test_a_set_not_seen_as_itself_gives_way_to_the_next_the_kbar_prefers():
+    # a relay-like kbar (4 F / pi X): the saturating spring the criterion ranks first fits it only in its limit;
+    # the cubic after it, within the FRFs' margin, is walked to and taken -- and no further set after a veto of
+    # another kind (the FRF gain)
+    relay = ElementSamples("joint", X, W, 4 * 0.2 / (np.pi * X) + 0j, np.full(len(X), 0.05), np.ones(len(X)))
+    empty = LawSet((), None, 1e6, 0)
+    saturated, cubic = _screened(("arctan_softening",), relay), _screened(("cubic",), relay)
+    empty.criterion, saturated.criterion, cubic.criterion = 1e6, 10.0, 20.0
+    search = _Search(0, relay, [empty, saturated, cubic], 1.0, {0: [empty], 1: [saturated, cubic]})
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False
+    judge.single = _Errors({(): 1.0, saturated.laws: 0.1, cubic.laws: 0.12})
+    taken, steps = _walk_element(judge, search)
+    assert [s.laws for s in taken] == [(), ("cubic",)]
+    assert [s.laws for s in steps] == [("arctan_softening",), ("cubic",)] and steps[0].not_itself
+    cubic.criterion = 5.0                                               # first now, and it gains too little
+    judge.single = _Errors({(): 1.0, saturated.laws: 0.95, cubic.laws: 0.9})
+    taken, steps = _walk_element(judge, search)
+    assert [s.laws for s in steps] == [("cubic",)] and len(taken) == 1 and not steps[0].not_itself
 
 
 class _Errors:
