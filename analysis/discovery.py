@@ -361,14 +361,7 @@ def _unseen_laws(s: LawSet, current: LawSet) -> list[str]:
     law beside the Iwan: k and kt have no finite error alone, c = -5.0e-4 +- 0.95e-4)."""
     if s.fit is None:
         return []
-    out = []
-    for term in s.fit.terms:
-        if term.law.name in current.laws:
-            continue
-        sizes = [(term.params[n], term.stderr[n]) for n in term.law.linear]
-        if all(not np.isfinite(err) or abs(value) < UNDETERMINED_Z * err for value, err in sizes):
-            out.append(term.law.name)
-    return out
+    return [t.law.name for t in s.fit.terms if t.law.name not in current.laws and t.size_unseen]
 
 
 def _limit_only_laws(s: LawSet, current: LawSet, x_min: float) -> list[str]:

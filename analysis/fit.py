@@ -108,6 +108,13 @@ class TermFit:
     undetermined: tuple[str, ...] = ()
     surroundings: Surroundings | None = None
 
+    @property
+    def size_unseen(self) -> bool:
+        """Whether the samples leave the law's size open: every linear parameter (its force scale) has a 95 %
+        interval that holds zero, or no finite error. Such a law fits nothing of the samples."""
+        return all(not np.isfinite(self.stderr[n]) or abs(self.params[n]) < UNDETERMINED_Z * self.stderr[n]
+                   for n in self.law.linear)
+
     def law_term(self) -> LawTerm:
         """The fitted term as a :class:`LawTerm` (e.g. to write a fitted model file)."""
         return LawTerm(self.law, dict(self.params))
