@@ -52,7 +52,7 @@ import scipy.stats
 from .comparison import Comparison, HarmonicCriterion, Predictor, gain_phrase, kbar_functions_with
 from .diagnosis import ElementSamples, RankingRules, explain, frf_criterion, signature, tied_parameters
 from .errors import InputError
-from .fit import UNDETERMINED_Z, LawFit, fit_laws, outlier_limit, unit_exponents
+from .fit import UNDETERMINED_Z, LawFit, capped_chi_square, fit_laws, unit_exponents
 from .laws import LAWS
 from .nonparametric import fit_nonparametric
 from .surroundings import Surroundings
@@ -239,13 +239,6 @@ def _fit_set(samples: ElementSamples, laws: tuple[str, ...], rules: DiscoveryRul
         return None
     chi2 = capped_chi_square(np.abs(fit.normalized_residuals) ** 2) if robust else fit.chi_square
     return LawSet(laws, fit, chi2, fit.n_parameters)
-
-
-def capped_chi_square(z: np.ndarray) -> float:
-    """The chi-square with every sample's share capped at the outlier limit (:func:`analysis.fit.outlier_limit`):
-    where lines may depart from any describing function (data without harmonics), a set of laws neither wins by
-    bending to the departing lines nor loses nothing by leaving a line out -- each costs the limit."""
-    return float(np.sum(np.minimum(z, outlier_limit(len(z)))))
 
 
 def _adds_nothing(fit: LawFit, j: int, max_correlation: float) -> bool:

@@ -1040,6 +1040,13 @@ def outlier_limit(n: int) -> float:
     return -2.0 * math.log(OUTLIER_FALSE_ALARM / max(n, 1))
 
 
+def capped_chi_square(z: np.ndarray) -> float:
+    """The chi-square with every sample's share ``z`` capped at the outlier limit (:func:`outlier_limit`):
+    where lines may depart from any describing function (data without harmonics), a set of laws neither wins by
+    bending to the departing lines nor loses nothing by leaving a line out -- each costs the limit."""
+    return float(np.sum(np.minimum(z, outlier_limit(len(z)))))
+
+
 def _robust_start(terms, data: _Samples, opts: _Options, plain: LawFit | None = None) -> LawFit:
     """Iteratively reweighted fit with Huber weights: a start that large outliers do not drag far (a plain
     least-squares start can sit so far off that the good samples look like the outliers). ``plain``: the plain
@@ -1086,7 +1093,7 @@ def _fit_robust(terms, data: _Samples, opts: _Options) -> LawFit:
     n = data.X.size
     limit = outlier_limit(n)
     plain = _fit_once(terms, data, opts)
-    fit = min((_robust_start(terms, data, opts, plain), plain), key=lambda f: _capped_loss(f, data, limit))
+    fit = min((_robust_start(terms, data, opts, plain), plain), key=lambda f: _capped_loss(f, data))
     keep = np.ones(n, bool)
     for _ in range(_ROBUST_ITERATIONS):
         new = data.distance(fit.describing_function(data.X, data.w)) ** 2 <= limit
@@ -1116,9 +1123,9 @@ def _sizes_determined(fit: LawFit) -> int:
     return sum(int(np.isfinite(t.stderr.get(n, np.inf))) for t in fit.terms for n in t.law.linear)
 
 
-def _capped_loss(fit: LawFit, data: _Samples, limit: float) -> float:
-    """What leaving samples out minimises: the chi-square with each sample's share capped at ``limit``."""
-    return float(np.sum(np.minimum(data.distance(fit.describing_function(data.X, data.w)) ** 2, limit)))
+def _capped_loss(fit: LawFit, data: _Samples) -> float:
+    """What leaving samples out minimises: :func:`capped_chi_square` of ``fit`` on ``data``."""
+    return capped_chi_square(data.distance(fit.describing_function(data.X, data.w)) ** 2)
 
 
 def _with_scatter_sigma(terms, data: _Samples, opts: _Options) -> _Samples:

@@ -152,7 +152,7 @@ class LinearityVerdict:
     noise_estimated: bool
     evidence: str
     trend_limit: float = np.inf
-    tail: "TailShift | None" = None
+    tail: TailShift | None = None
 
 
 def linearity_verdict(X, w, kbar, kbar_std=None, *, level=None, false_alarm: float = DEFAULT_FALSE_ALARM,
@@ -383,14 +383,15 @@ def _tail_shift(X, w, kbar, sigma, false_alarm: float) -> TailShift | None:
     best = None
     for k in sizes:
         tail, rest = order[-k:], order[:-k]
+        # Re and Im share the weights, so the fit's design, covariance and the tail's C are the same for both
+        Aw = A[rest] / sigma[rest, None]
+        covariance = np.linalg.pinv(Aw.T @ Aw)
+        C = np.diag(sigma[tail] ** 2) + A[tail] @ covariance @ A[tail].T
+        Ci_1 = np.linalg.solve(C, np.ones(k))
+        se = float(1.0 / np.sqrt(Ci_1.sum()))
         for name, values in (("Re", kbar.real), ("Im", kbar.imag)):
-            Aw = A[rest] / sigma[rest, None]
             coef, *_ = np.linalg.lstsq(Aw, values[rest] / sigma[rest], rcond=None)
-            covariance = np.linalg.pinv(Aw.T @ Aw)
-            r = values[tail] - A[tail] @ coef
-            C = np.diag(sigma[tail] ** 2) + A[tail] @ covariance @ A[tail].T
-            Ci_r, Ci_1 = np.linalg.solve(C, r), np.linalg.solve(C, np.ones(k))
-            shift, se = float(Ci_r.sum() / Ci_1.sum()), float(1.0 / np.sqrt(Ci_1.sum()))
+            shift = float(np.linalg.solve(C, values[tail] - A[tail] @ coef).sum() / Ci_1.sum())
             found = TailShift(name, k, shift, abs(shift) / se, limit, float(X[tail].min()))
             if best is None or found.sigma > best.sigma:
                 best = found
