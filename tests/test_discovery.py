@@ -128,13 +128,30 @@ def test_a_law_seen_only_in_its_limit_of_a_vanishing_amplitude_scale_is_not_seen
     relay = ElementSamples("joint", X, W, 4 * 0.2 / (np.pi * X) + 0j, np.full(len(X), 0.05), np.ones(len(X)))
     saturated = _screened(("arctan_softening",), relay)
     assert 1.0 / saturated.fit.terms[0].params["beta"] < X.min()
-    assert _limit_only_laws(saturated, empty, X.min()) == ["arctan_softening"]
+    assert _limit_only_laws(saturated, empty, relay, 1e-3) == [("arctan_softening", "below the smallest")]
     # a saturating spring whose softening displacement lies within the amplitudes measured is seen as itself
-    spring = _screened(("arctan_softening",), samples_of({"arctan_softening": {"alpha": 20.0, "beta": 200.0}}, X, W))
+    spring_samples = samples_of({"arctan_softening": {"alpha": 20.0, "beta": 200.0}}, X, W)
+    spring = _screened(("arctan_softening",), spring_samples)
     assert X.min() < 1.0 / spring.fit.terms[0].params["beta"] < X.max()
-    assert _limit_only_laws(spring, empty, X.min()) == []
+    assert _limit_only_laws(spring, empty, spring_samples, 1e-3) == []
     # the laws already taken are not asked again
-    assert _limit_only_laws(saturated, saturated, X.min()) == []
+    assert _limit_only_laws(saturated, saturated, relay, 1e-3) == []
+
+
+def test_a_saturating_spring_that_saturates_beyond_every_amplitude_is_the_linear_spring_it_stands_for():
+    empty = LawSet((), None, 0.0, 0)
+    # a softer joint, linear: a tanh spring follows it with alpha beta = k and its scale 1 / beta run out beyond
+    # the amplitudes measured, neither determined (random case 26 of seed 112631, beside Coulomb friction)
+    linear = samples_of({"linear": {"k": -120.0, "c": 0.0}}, X, W)
+    softer = _screened(("tanh_softening",), linear)
+    p = softer.fit.terms[0].params
+    assert 1.0 / abs(p["beta"]) > X.max() and p["alpha"] * p["beta"] == pytest.approx(-120.0, rel=0.05)
+    assert _limit_only_laws(softer, empty, linear, 1e-3) == [("tanh_softening", "above the largest")]
+    # one that saturates within the amplitudes measured is seen as itself, though its scale lies beyond them
+    bent = samples_of({"tanh_softening": {"alpha": -8.0, "beta": 15.0}}, X, W)
+    curved = _screened(("tanh_softening",), bent)
+    assert 1.0 / curved.fit.terms[0].params["beta"] > X.max()
+    assert _limit_only_laws(curved, empty, bent, 1e-3) == []
 
 
 def test_a_set_not_seen_as_itself_gives_way_to_the_next_the_kbar_prefers():
