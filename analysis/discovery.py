@@ -378,11 +378,13 @@ def _limit_only_laws(s: LawSet, current: LawSet, samples: ElementSamples, false_
     a spring, a saturating spring that saturates beyond every amplitude a linear one) or no law at all (a
     saturating spring saturated below every amplitude is a force of constant size in phase with the displacement,
     sgn x: on data without harmonics it fitted the sticking lines of a friction contact, and beside them a
-    velocity stiffness, x2.4 in the FRFs). Beyond the largest amplitude, a scale the kbar determines at 2 sigma
-    only by the noise says no more: the law is its linear limit there too where its kbar over the samples is that
-    limit within the noise (:func:`_linear_within_noise`; a tanh spring for a softer joint beside Coulomb
-    friction, random case 26 of seed 112631, 1/beta = 0.53 m against 0.074 m measured). Returns (law, "below the
-    smallest" or "above the largest")."""
+    velocity stiffness, x2.4 in the FRFs). Beyond the largest amplitude the law is its linear limit where its
+    kbar over the samples is that limit within the noise (:func:`_linear_within_noise`; a tanh spring for a
+    softer joint beside Coulomb friction, random case 26 of seed 112631, 1/beta = 0.53 m against 0.074 m
+    measured), whether or not the noise determines the scale at 2 sigma; an undetermined scale alone says
+    nothing there (an Iwan element in micro-slip has its slip displacement beyond every amplitude, tied to its
+    other shape parameters, and its kbar is far from linear: "beam jenkins" of the matrix). Returns (law, the
+    limit in words)."""
     if s.fit is None:
         return []
     x_min, x_max = float(samples.X.min()), float(samples.X.max())
@@ -403,10 +405,12 @@ def _limit_only_laws(s: LawSet, current: LawSet, samples: ElementSamples, false_
             undetermined = not (np.isfinite(err) and abs(value) >= UNDETERMINED_Z * err)
             scale = abs(value) ** length
             if scale < x_min and undetermined:
-                out.append((term.law.name, "below the smallest"))
+                out.append((term.law.name, "its amplitude scale lies below the smallest amplitude measured and is "
+                                           "not determined"))
                 break
-            if scale > x_max and (undetermined or _linear_within_noise(term, samples, false_alarm)):
-                out.append((term.law.name, "above the largest"))
+            if scale > x_max and _linear_within_noise(term, samples, false_alarm):
+                out.append((term.law.name, "its amplitude scale lies above the largest amplitude measured, where "
+                                           "its kbar is a linear spring's within the noise"))
                 break
     return out
 
@@ -562,8 +566,7 @@ class _Judge:
                         "interval of zero")
             step.not_itself = True
         elif limit_only:
-            step.why = (f"its kbar shows {limit_only[0][0]} only in its limit: its amplitude scale lies "
-                        f"{limit_only[0][1]} amplitude measured and is not determined")
+            step.why = f"its kbar shows {limit_only[0][0]} only in its limit: {limit_only[0][1]}"
             step.not_itself = True
         elif other_kinds:
             step.why = (f"its kbar cannot tell which physics it is: {other_kinds[0].name} fits it as well with "
