@@ -53,7 +53,7 @@ import scipy.stats
 from .comparison import Comparison, HarmonicCriterion, Predictor, gain_phrase, kbar_functions_with
 from .diagnosis import ElementSamples, RankingRules, explain, frf_criterion, signature, tied_parameters
 from .errors import InputError
-from .fit import UNDETERMINED_Z, LawFit, capped_chi_square, fit_laws, unit_exponents
+from .fit import UNDETERMINED_Z, LawFit, TermFit, capped_chi_square, fit_laws, unit_exponents
 from .laws import LAWS
 from .nonparametric import fit_nonparametric
 from .surroundings import Surroundings
@@ -253,10 +253,19 @@ def _adds_nothing(fit: LawFit, j: int, max_correlation: float) -> bool:
     return all(name in tied for name in fit.fit_parameter_names if name.startswith(prefix))
 
 
+def _z(misfit: np.ndarray, std: np.ndarray | None) -> np.ndarray:
+    """Each sample's squared complex misfit in units of its noise (Re and Im each of variance std^2 / 2)."""
+    return np.abs(misfit) ** 2 if std is None else 2 * np.abs(misfit) ** 2 / std ** 2
+
+
+def _chi_square(misfit: np.ndarray, std: np.ndarray | None, robust: bool) -> float:
+    """The samples' chi-square, capped as the sets' on data without harmonics (``robust``)."""
+    z = _z(misfit, std)
+    return capped_chi_square(z) if robust else float(np.sum(z))
+
+
 def _empty_set(samples: ElementSamples, robust: bool) -> LawSet:
-    std = samples.kbar_std
-    z = np.abs(samples.kbar) ** 2 if std is None else 2 * np.abs(samples.kbar) ** 2 / std ** 2
-    return LawSet((), None, capped_chi_square(z) if robust else float(np.sum(z)), 0)
+    return LawSet((), None, _chi_square(samples.kbar, samples.kbar_std, robust), 0)
 
 
 def _scale(sets: list[LawSet], n_obs: int) -> float:
@@ -358,22 +367,22 @@ def _unseen_laws(s: LawSet, current: LawSet) -> list[str]:
     return [t.law.name for t in s.fit.terms if t.law.name not in current.laws and t.size_unseen]
 
 
-def _linear_within_noise(term, samples: ElementSamples, false_alarm: float) -> bool:
+def _linear_within_noise(term: TermFit, samples: ElementSamples, false_alarm: float) -> bool:
     """Whether a law's kbar over the samples is its value at a vanishing amplitude -- a constant spring -- to within
     the noise: what it adds to a linear law is then not seen."""
     if samples.kbar_std is None:
         return False
     own = term.law.describing_function(samples.X, samples.w, **term.params)
     limit = term.law.describing_function(1e-6 * samples.X.min(), samples.w, **term.params)
-    z = float(np.sum(2 * np.abs(own - limit) ** 2 / samples.kbar_std ** 2))
+    z = float(np.sum(_z(own - limit, samples.kbar_std)))
     return bool(np.isfinite(z) and z < scipy.stats.chi2.ppf(1 - false_alarm, max(len(term.law.shape), 1)))
 
 
 def _limit_only_laws(s: LawSet, current: LawSet, samples: ElementSamples, false_alarm: float) -> list[tuple[str, str]]:
     """The laws ``s`` adds to ``current`` that the kbar shows only in a limit of their amplitude scale: a shape
-    parameter that is a length (or its inverse) puts the law's scale below the smallest amplitude measured or
-    above the largest, and its 95 % interval holds zero or it has no finite error -- the samples would fit as well
-    with it further out still. Such a law is not seen as itself but as its limit, which is either another law of
+    parameter that is a length (or its inverse) puts the law's scale below the smallest amplitude measured, and
+    its 95 % interval holds zero or it has no finite error -- the samples would fit as well with it smaller still
+    -- or above the largest (the test there is below). Such a law is not seen as itself but as its limit, which is either another law of
     the library (a Jenkins element whose slip displacement vanishes is Coulomb friction, a clearance that vanishes
     a spring, a saturating spring that saturates beyond every amplitude a linear one) or no law at all (a
     saturating spring saturated below every amplitude is a force of constant size in phase with the displacement,
@@ -615,9 +624,7 @@ def _standins(searches: list["_Search"], robust: bool) -> dict[int, Callable]:
         s = search.samples
         part = fit_nonparametric(s.X, s.w, s.kbar, s.kbar_std).model
         best = min(search.sets, key=lambda x: x.criterion)
-        z = (np.abs(part.describing_function(s.X, s.w) - s.kbar) ** 2 *
-             (2.0 / s.kbar_std ** 2 if s.kbar_std is not None else 1.0))
-        part_chi2 = capped_chi_square(z) if robust else float(np.sum(z))
+        part_chi2 = _chi_square(part.describing_function(s.X, s.w) - s.kbar, s.kbar_std, robust)
         out[search.index] = best.describing_function if best.chi_square < part_chi2 else part.describing_function
     return out
 

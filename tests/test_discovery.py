@@ -142,7 +142,8 @@ def test_a_law_seen_only_in_its_limit_of_a_vanishing_amplitude_scale_is_not_seen
 def test_a_saturating_spring_that_saturates_beyond_every_amplitude_is_the_linear_spring_it_stands_for():
     empty = LawSet((), None, 0.0, 0)
     # a softer joint, linear: a tanh spring follows it with alpha beta = k and its scale 1 / beta run out beyond
-    # the amplitudes measured, neither determined (random case 26 of seed 112631, beside Coulomb friction)
+    # the amplitudes measured, which the noise alone may determine at 2 sigma (random case 26 of seed 112631,
+    # beside Coulomb friction)
     linear = samples_of({"linear": {"k": -120.0, "c": 0.0}}, X, W)
     softer = _screened(("tanh_softening",), linear)
     p = softer.fit.terms[0].params
