@@ -18,8 +18,10 @@ lets the force vary tenfold.
 Jumps do not dominate it: every run is predicted by a sweep in its own direction and one the other way over the
 same lines. Where both give stable solutions that differ, the response is multivalued there, and
 ``h_pred`` is the one of the two nearer the measured point (summed over sensors): a measurement that jumped a
-line or two early is compared with the branch it sits on. Those lines are marked in ``other_branch``, and the
-jumps are reported separately (:class:`Jump`).
+line or two early is compared with the branch it sits on. Where the swept prediction failed at a line (it did
+not converge, or its solution is unstable) and the other sweep found a stable one, that one is compared: a
+failed solution predicts nothing, and the rig would have left that branch. Those lines are marked in
+``other_branch``, and the jumps are reported separately (:class:`Jump`).
 """
 from __future__ import annotations
 
@@ -323,7 +325,9 @@ def compare_predictions(runs: Sequence[SineRun], predictions: dict[str, RunPredi
         pred = predictions[run.name]
         swept_num = np.sum(np.abs(pred.swept - run.receptance) ** 2, axis=1)
         other_num = np.sum(np.abs(pred.opposite - run.receptance) ** 2, axis=1)
-        other = pred.multivalued() & (other_num < swept_num)
+        # the other sweep's where both are stable and it is nearer, or where it alone found a stable solution (a
+        # swept prediction that failed is none: the rig would have jumped there)
+        other = (pred.multivalued() & (other_num < swept_num)) | (~pred.swept_ok & pred.opposite_ok)
         compared[run.name] = np.where(other[:, None], pred.opposite, pred.swept)
         other_branch[run.name] = other
         jumps += _jumps(run, pred, other)

@@ -133,3 +133,25 @@ def test_a_representative_case_is_diagnosed_right(name, tmp_path):
     outcome = mc.run_case(mc.case(name), tmp_path)
     assert outcome.right, mc.progress_line(1, 1, outcome, 0)
     assert outcome.error_fall >= mc.GOAL_FALL, outcome.errors
+
+
+def test_a_random_clearance_is_drawn_to_close_at_the_amplitude_its_joint_reaches():
+    # the gap is a fraction (0.2-0.5) of the joint's amplitude with the case's other laws, not of its linear
+    # amplitude, which a damping or a friction can keep the joint far below (seed 112631 random 22 and 23)
+    import sys
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import random_discovery as rd
+
+    cases = [c for c in rd._draw(112631, 25) if any(law.law in ("gap", "unilateral") for law in c.laws)]
+    assert len(cases) >= 5
+    for c in cases:
+        others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if law.law not in ("gap", "unilateral")),
+                         (), c.noise)
+        reached = rd._joint_amplitudes(others)
+        for law in c.laws:
+            if law.law in ("gap", "unilateral"):
+                assert 0.2 <= dict(law.values)["gap"] / reached[law.element] <= 0.5, (c.name, law)
+    # the other random numbers are those drawn before the correction: the structures and the laws' sizes
+    case = rd._draw(112631, 22)[21]
+    assert [law.law for law in case.laws] == ["cubic_damping", "tanh_softening", "gap"]
+    assert dict(case.laws[2].values)["k"] == pytest.approx(1.403e3, rel=1e-3)
