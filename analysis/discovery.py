@@ -26,8 +26,8 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    waits on another's: of each size the set the kbar criterion prefers among those whose single-harmonic FRF
    error is within ``min_gain`` of the best is tried, and taken only if the kbar criterion prefers it to the
    current choice too (on data without harmonics: beside laws taken, its chi-square falls by more than the noise
-   explains, :func:`_beside_above_noise`) and no set alike it in the kbar, with no more parameters and an FRF error within
-   ``min_gain``, has laws of other kinds (neither on data without harmonics, where the capped criterion can
+   explains, :func:`_beside_above_noise`) and no set alike it in the kbar, with no more parameters and an FRF
+   error within ``min_gain``, has laws of other kinds (neither on data without harmonics, where the capped criterion can
    prefer no law to a right one), every law of it is seen in the kbar (:func:`_unseen_laws`) and seen as itself,
    not only in a limit of its amplitude scale, below or beyond every amplitude (:func:`_limit_only_laws`), and it
    cuts the error of the current choice by ``min_gain`` for every law it adds and the FRF chi-square by more than
@@ -337,11 +337,17 @@ def _shortlists(sets: list[LawSet], width: int) -> dict[int, list[LawSet]]:
     return out
 
 
+def _noise_bound(search: _Search, dof: int, false_alarm: float) -> float:
+    """The kbar chi-square difference the noise explains at the false-alarm rate for ``dof`` parameters (at least
+    one): s^2 chi2_q."""
+    return search.scale * scipy.stats.chi2.ppf(1 - false_alarm, max(dof, 1))
+
+
 def _alike(search: _Search, a: LawSet, b: LawSet, false_alarm: float) -> bool:
     """Whether two sets of as many laws fit the element's kbar neither better nor worse than each other by more
     than the noise explains (module docstring, step 3)."""
-    q = scipy.stats.chi2.ppf(1 - false_alarm, max(1, abs(a.n_parameters - b.n_parameters)))
-    return len(a.laws) == len(b.laws) and abs(a.chi_square - b.chi_square) <= search.scale * q
+    return (len(a.laws) == len(b.laws) and abs(a.chi_square - b.chi_square)
+            <= _noise_bound(search, abs(a.n_parameters - b.n_parameters), false_alarm))
 
 
 def _simplest(judge: "_Judge", search: _Search, chosen: LawSet) -> LawSet:
@@ -390,8 +396,7 @@ def _fits_as_its_linear_limit(search: "_Search", s: LawSet, name: str, false_ala
     limit = next((t for t in search.sets if set(t.laws) == laws), None)
     if limit is None:
         return False
-    q = scipy.stats.chi2.ppf(1 - false_alarm, max(s.n_parameters - limit.n_parameters, 1))
-    return limit.chi_square - s.chi_square <= search.scale * q
+    return limit.chi_square - s.chi_square <= _noise_bound(search, s.n_parameters - limit.n_parameters, false_alarm)
 
 
 def _limit_only_laws(s: LawSet, current: LawSet, search: "_Search", false_alarm: float) -> list[tuple[str, str]]:
@@ -399,8 +404,8 @@ def _limit_only_laws(s: LawSet, current: LawSet, search: "_Search", false_alarm:
     parameter that is a length (or its inverse) puts the law's scale below the smallest amplitude measured, and
     its 95 % interval holds zero or it has no finite error -- the samples would fit as well with it smaller still
     -- or above the largest (the test there is below). Such a law is not seen as itself but as its limit, which is
-    either another law of the library (a Jenkins element whose slip displacement vanishes is Coulomb friction, a clearance that vanishes
-    a spring, a saturating spring that saturates beyond every amplitude a linear one) or no law at all (a
+    either another law of the library (a Jenkins element whose slip displacement vanishes is Coulomb friction, a
+    clearance that vanishes a spring, a saturating spring that saturates beyond every amplitude a linear one) or no law at all (a
     saturating spring saturated below every amplitude is a force of constant size in phase with the displacement,
     sgn x: on data without harmonics it fitted the sticking lines of a friction contact, and beside them a
     velocity stiffness, x2.4 in the FRFs). Beyond the largest amplitude the law is its linear limit where its
@@ -435,13 +440,15 @@ def _limit_only_laws(s: LawSet, current: LawSet, search: "_Search", false_alarm:
                 out.append((term.law.name, "its amplitude scale lies below the smallest amplitude measured and is "
                                            "not determined"))
                 break
-            if scale > x_max and _linear_within_noise(term, samples, false_alarm):
-                out.append((term.law.name, "its amplitude scale lies above the largest amplitude measured, where "
-                                           "its kbar is a linear spring's within the noise"))
+            if scale <= x_max:
+                continue
+            above = "its amplitude scale lies above the largest amplitude measured, "
+            if _linear_within_noise(term, samples, false_alarm):
+                out.append((term.law.name, above + "where its kbar is a linear spring's within the noise"))
                 break
-            if scale > x_max and _fits_as_its_linear_limit(search, s, term.law.name, false_alarm):
-                out.append((term.law.name, "its amplitude scale lies above the largest amplitude measured, and a "
-                                           "linear spring in its place fits the kbar as well within the noise"))
+            if _fits_as_its_linear_limit(search, s, term.law.name, false_alarm):
+                out.append((term.law.name, above + "and a linear spring in its place fits the kbar as well within "
+                                                   "the noise"))
                 break
     return out
 
@@ -461,8 +468,8 @@ def _beside_above_noise(search: _Search, current: LawSet, larger: LawSet, false_
     than the noise explains for three parameters)."""
     if not current.laws or not (set(current.laws) < set(larger.laws) and len(larger.laws) == len(current.laws) + 1):
         return True
-    q = scipy.stats.chi2.ppf(1 - false_alarm, max(larger.n_parameters - current.n_parameters, 1))
-    return current.chi_square - larger.chi_square > search.scale * q
+    return (current.chi_square - larger.chi_square
+            > _noise_bound(search, larger.n_parameters - current.n_parameters, false_alarm))
 
 
 def _kinds(s: LawSet) -> list[str]:

@@ -56,6 +56,9 @@ GOAL = 0.90
 # RK4 steps per period where a case has friction: its tanh is a stiff damper fs / v0 at the switch; the receptances
 # of random case 26 of seed 112631 agree with 768 steps to 1e-4 at 384, to 1e-3 at 96 (the least noise drawn)
 FRICTION_STEPS = 384
+# the plan's line spacing, Hz, and the laws whose gap the generator draws
+LINE_STEP = 0.15
+CLEARANCES = ("gap", "unilateral")
 # law -> its parameters for a joint of linear stiffness scale k, linear amplitude X and resonance w (rad/s) at the
 # higher level; r is drawn per law from the range beside it (the size of the effect at X)
 RANGES = {
@@ -146,7 +149,7 @@ def draw_case(rng, index: int) -> mc.Case:
     io = (f'\n[excitation]\ndof = "x{n}"\n[sensors]\ndofs = [{", ".join(chr(34) + d + chr(34) for d in dofs)}]\n'
           "[daq]\nsample_rate = 512.0\n")
     plan = "".join(f"[[stepped_sine]]\nforce = {F!r}\nstart = {round(f_lo, 1)!r}\nstop = {round(f_hi, 1)!r}\n"
-                   f'step = 0.15\ndirection = "up"\n' for F in (force, 4 * force))
+                   f'step = {LINE_STEP!r}\ndirection = "up"\n' for F in (force, 4 * force))
     places = [("dof", d) for d in dofs] + ([("between", ("x1", "x2"))] if n == 3 else [])
     chosen = [places[i] for i in rng.choice(len(places), size=int(rng.choice([1, 2])), replace=False)]
     sites, laws, amplitude = [], [], {}
@@ -181,7 +184,7 @@ def _gaps_that_close(c: mc.Case, linear_amplitude: dict[str, float]) -> tuple[mc
     with its other laws, over the plan's lines swept up; the clearance only stiffens beyond its gap, so with it
     the joint still passes the gap. The same fraction as drawn of ``linear_amplitude`` (joint -> X) is kept, so the
     random numbers are unchanged."""
-    clearances = [law for law in c.laws if law.law in ("gap", "unilateral")]
+    clearances = [law for law in c.laws if law.law in CLEARANCES]
     if not clearances:
         return c.laws
     others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if law not in clearances), (), c.noise)
@@ -195,7 +198,7 @@ def _gaps_that_close(c: mc.Case, linear_amplitude: dict[str, float]) -> tuple[mc
 def _joint_amplitudes(c: mc.Case) -> dict[str, float]:
     """Each joint's largest single-harmonic amplitude over the plan's lines at the higher level, swept up."""
     model = load_model(tomllib.loads(c.rig_toml()), c.name)
-    freqs, forces = mc._plan_lines(c.bench, 0.15)
+    freqs, forces = mc._plan_lines(c.bench, LINE_STEP)
     excitation = tomllib.loads(c.bench.io)["excitation"]["dof"]
     up, = predict_sweeps(model.structure, model.elements, excitation, 2 * np.pi * freqs, [max(forces)], ("up",))
     return {e.name: float(np.abs(up.y[:, 0, j]).max()) for j, e in enumerate(model.elements)}
@@ -246,7 +249,7 @@ def named_equivalences(c: mc.Case, o: mc.Outcome, result: AutoResult) -> dict[st
 def run(c: mc.Case, folder: Path) -> Scored:
     """The case's RK4 data imported, the loop from no law, the score."""
     per_period = FRICTION_STEPS if any(law.law == "coulomb" for law in c.laws) else 48
-    session = mc.imported_session(c, folder, settle_seconds=20.0, per_period=per_period, line_step=0.15)
+    session = mc.imported_session(c, folder, settle_seconds=20.0, per_period=per_period, line_step=LINE_STEP)
     wb = mc.started_workbench(c, folder, session)
     result = run_auto(wb)
     outcome = mc.score(c, wb, result.stopped)

@@ -142,14 +142,13 @@ def test_a_random_clearance_is_drawn_to_close_at_the_amplitude_its_joint_reaches
     sys.path.insert(0, str(ROOT / "benchmarks"))
     import random_discovery as rd
 
-    cases = [c for c in rd._draw(112631, 25) if any(law.law in ("gap", "unilateral") for law in c.laws)]
+    cases = [c for c in rd._draw(112631, 25) if any(law.law in rd.CLEARANCES for law in c.laws)]
     assert len(cases) >= 5
     for c in cases:
-        others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if law.law not in ("gap", "unilateral")),
-                         (), c.noise)
+        others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if law.law not in rd.CLEARANCES), (), c.noise)
         reached = rd._joint_amplitudes(others)
         for law in c.laws:
-            if law.law in ("gap", "unilateral"):
+            if law.law in rd.CLEARANCES:
                 assert 0.2 <= dict(law.values)["gap"] / reached[law.element] <= 0.5, (c.name, law)
     # the other random numbers are those drawn before the correction: the structures and the laws' sizes
     case = rd._draw(112631, 22)[21]
