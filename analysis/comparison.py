@@ -279,8 +279,23 @@ class Predictor:
                         criterion: HarmonicCriterion) -> Comparison:
         """``comp`` with the lines the criterion selects predicted by multi-harmonic balance (the fundamental),
         each started from the single-harmonic solution of the branch it was compared with."""
-        structure, elements = self.model.structure, self.model.elements
         compared, selected = dict(comp.compared), {}
+        for run, lines, mh in self._multiharmonic_lines(comp, predictions, criterion):
+            mask = np.zeros(len(run.w), bool)
+            if mh is not None:
+                fundamental = mh.receptance(run.force_per_line[lines])[mh.converged][:, self._rows[run.name]]
+                lines = lines[mh.converged]
+                compared[run.name] = compared[run.name].copy()
+                compared[run.name][lines] = fundamental
+                mask[lines] = True
+            selected[run.name] = mask
+        return _scored(self.runs, comp.predicted, comp.converged, compared, comp.other_branch, comp.jumps, selected)
+
+    def _multiharmonic_lines(self, comp: Comparison, predictions: dict[str, RunPrediction],
+                             criterion: HarmonicCriterion):
+        """Each run, the lines the criterion selects, and their multi-harmonic balance (None where none is
+        selected), each line started from the single-harmonic solution of the branch it was compared with."""
+        structure, elements = self.model.structure, self.model.elements
         for run in self.runs:
             pred, rows = predictions[run.name], self._rows[run.name]
             y = np.where(comp.other_branch[run.name][:, None], pred.opposite_y, pred.y)
@@ -288,17 +303,30 @@ class Predictor:
             implied = single_harmonic_distortion(structure, elements, run.excitation_dof, run.w, force, y,
                                                  criterion.n_harmonics)[:, rows].max(axis=1)
             lines = np.flatnonzero(criterion.selects(run.distortion, implied, pred.multivalued()))
-            mask = np.zeros(len(run.w), bool)
-            if len(lines):
-                mh = predict_multiharmonic(structure, elements, run.excitation_dof, run.w[lines], force[lines],
-                                           criterion.n_harmonics, criterion.n_time, y_start=y[lines])
-                fundamental = mh.receptance(force[lines])[mh.converged][:, rows]
-                lines = lines[mh.converged]
-                compared[run.name] = compared[run.name].copy()
-                compared[run.name][lines] = fundamental
-                mask[lines] = True
-            selected[run.name] = mask
-        return _scored(self.runs, comp.predicted, comp.converged, compared, comp.other_branch, comp.jumps, selected)
+            mh = (predict_multiharmonic(structure, elements, run.excitation_dof, run.w[lines], force[lines],
+                                        criterion.n_harmonics, criterion.n_time, y_start=y[lines])
+                  if len(lines) else None)
+            yield run, lines, mh
+
+    def fundamental_bias(self, criterion: HarmonicCriterion) -> dict[str, np.ndarray]:
+        """Per run, (lines, elements): what the model's own harmonics add to the kbar the closed-form
+        identification measures -- the fundamental's force over the fundamental's motion, by multi-harmonic
+        balance at the lines the criterion selects, less the describing function at that motion's amplitude
+        (docs/fitting.md, "The fundamental's bias"); zero at the other lines and where the balance did not
+        converge. Needs every element's laws (a time-domain force)."""
+        predictions = self.predict()
+        comp = compare_predictions(self.runs, predictions)
+        out = {}
+        for run, lines, mh in self._multiharmonic_lines(comp, predictions, criterion):
+            bias = np.zeros((len(run.w), len(self.model.elements)), complex)
+            if mh is not None:
+                ok = mh.converged & (np.abs(mh.element_harmonics[:, 1]) > 0).all(axis=1)
+                Y1, F1 = mh.element_harmonics[ok, 1], mh.element_forces[ok, 1]
+                for i, el in enumerate(self.model.elements):
+                    bias[lines[ok], i] = F1[:, i] / Y1[:, i] - el.describing_function(np.abs(Y1[:, i]),
+                                                                                     run.w[lines[ok]])
+            out[run.name] = bias
+        return out
 
     def _locate_folds(self, comp: Comparison, predictions: dict[str, RunPrediction], kbar_fns) -> None:
         """Set ``fold_hz`` of each jump: continuation from the swept solution at the last line before the jump

@@ -678,11 +678,17 @@ class MultiharmonicResponse:
         Complex amplitude of harmonic k (k = 0 is the mean, real) of every DOF, in the phasor convention
         ``Im(X_k e^{j k w t})``.
     converged : ndarray of bool, shape (L,)
+    element_harmonics, element_forces : ndarray, shape (L, H + 1, r)
+        The same of every element's relative displacement and of its force: ``element_forces[:, 1] /
+        element_harmonics[:, 1]`` is the fundamental's force over the fundamental's motion, what the closed-form
+        identification measures as kbar where the motion is not sinusoidal.
     """
 
     w: np.ndarray
     harmonics: np.ndarray
     converged: np.ndarray
+    element_harmonics: np.ndarray
+    element_forces: np.ndarray
 
     def receptance(self, force) -> np.ndarray:
         """Fundamental receptance ``X_1 / F``, shape (L, n); ``force`` one amplitude or one per line (L,)."""
@@ -823,6 +829,7 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
         single = predict_sweep(structure, elements, excitation_dof, w[order[:1]], forces[order[0]],
                                direction).y[0, 0]
     out = np.zeros((len(w), H + 1, structure.n), complex)
+    motion, element_forces = np.zeros((2, len(w), H + 1, r), complex)
     converged = np.zeros(len(w), bool)
     previous = None
     for line in order:
@@ -858,7 +865,8 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
         sol = scipy.optimize.root(residual, pack(start), method="hybr", options={"xtol": 1e-12})
         Yk = unpack(sol.x)
         Fk = aft.forces(Yk, wl)
+        motion[line], element_forces[line] = Yk, Fk
         out[line] = np.einsum("kn,k->kn", Hq, np.r_[0.0, force, np.zeros(H - 1)]) - np.einsum("knr,kr->kn", HE, Fk)
         converged[line] = sol.success and np.linalg.norm(residual(sol.x)) < 1e-8
         previous = Yk
-    return MultiharmonicResponse(w, out, converged)
+    return MultiharmonicResponse(w, out, converged, motion, element_forces)
