@@ -27,8 +27,9 @@ FORCES = (0.5, 2.0)
 FRF_NOISE = 2e-4                           # relative, circular complex, on each receptance
 
 
-def steady_receptance(freqs, forces, k3, c2, settle_seconds=40.0, per_period=64, keep=2):
-    """RK4 of M x'' + C x' + K x + (k3 x1^3 + c2 |v1| v1) e1 = F sin(wt) e2, every (force, line) at once,
+def steady_receptance(freqs, forces, k3=0.0, c2=0.0, settle_seconds=40.0, per_period=64, keep=2, joint=None):
+    """RK4 of M x'' + C x' + K x + (k3 x1^3 + c2 |v1| v1) e1 = F sin(wt) e2 (``joint(x1, v1)`` in the place of
+    the bracket, where given), every (force, line) at once,
     started on the linear steady state (the transient that must die out is only the nonlinear part; mode 1
     decays in 4.5 s; 64 steps per period keep the scheme's own damping error below the noise, 32 did not); the
     fundamental X of x1 and x2 (x = Im X e^{jwt}) over the last periods, over F. Shape (levels, L, 2)."""
@@ -41,7 +42,8 @@ def steady_receptance(freqs, forces, k3, c2, settle_seconds=40.0, per_period=64,
     def rhs(t, y):
         x, v = y[:, :2], y[:, 2:]
         f = x @ K.T + v @ C.T
-        f[:, 0] += k3 * x[:, 0] ** 3 + c2 * np.abs(v[:, 0]) * v[:, 0]
+        f[:, 0] += (joint(x[:, 0], v[:, 0]) if joint is not None
+                    else k3 * x[:, 0] ** 3 + c2 * np.abs(v[:, 0]) * v[:, 0])
         f[:, 1] -= F * np.sin(w * t)
         return np.hstack([v, -f @ np.linalg.inv(M).T])
 

@@ -1,0 +1,90 @@
+"""The kbar the closed form identifies where a joint's motion is not sinusoidal, and the fit's correction of it on
+data without harmonics (docs/fitting.md, "The fundamental's bias"): the fundamental's force over the
+fundamental's motion by multi-harmonic balance against the identification of the balance's own FRFs, and laws
+refitted to RK4 receptances of a friction joint (an integrator written in the tests, sharing no code with the
+project) against the rig's values."""
+import tomllib
+
+import numpy as np
+import pytest
+
+from analysis import load_elements, load_structure
+from analysis.comparison import HarmonicCriterion, Predictor
+from analysis.fit import capped_chi_square
+from analysis.harmonic_balance import predict_multiharmonic, predict_sweep
+from analysis.identify import identify_complex_stiffness
+from analysis.measurements import Measurements, SineRun
+from analysis.model import load_model
+from analysis.workbench import Workbench
+from test_auto import FREQS, LUMPED, element, steady_receptance
+
+CHAIN = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 1.0]],
+         "stiffness": [[3000.0, -1000.0], [-1000.0, 2000.0]], "damping": [[0.6, -0.1], [-0.1, 0.5]]}
+JOINT = [{"name": "a", "dof": "x1", "laws": [{"law": "linear", "k": -300.0, "c": 0.0}, {"law": "coulomb", "fs": 0.3}]}]
+
+
+def test_the_fundamental_force_over_motion_is_the_kbar_identified_from_the_balance_s_own_frfs():
+    s = load_structure(CHAIN)
+    els = load_elements({"element": JOINT}, s, None, True)
+    w = 2 * np.pi * np.linspace(5.0, 8.0, 7)
+    single = predict_sweep(s, els, "x2", w, 1.0)
+    mh = predict_multiharmonic(s, els, "x2", w, 1.0, 7, 512, y_start=single.y[:, 0])
+    assert mh.converged.all()
+    ident = identify_complex_stiffness(s, mh.receptance(1.0), ["x1", "x2"], "x2", els, w=w, force=1.0)
+    own = mh.element_forces[:, 1, 0] / mh.element_harmonics[:, 1, 0]
+    np.testing.assert_allclose(ident.kbar[:, 0], own, rtol=1e-6)
+    # the joint's motion is far from sinusoidal there: the describing function misses the identified kbar
+    df = els[0].describing_function(np.abs(mh.element_harmonics[:, 1, 0]), w)
+    assert np.abs(own - df).max() > 0.03 * np.abs(df).max()
+
+
+def test_the_bias_is_zero_where_the_balance_needs_no_harmonics():
+    model = load_model(tomllib.loads(LUMPED + element("a", "x1", '{ law = "linear", k = 50.0, c = 0.1 }')))
+    lines = FREQS[:4]
+    H = np.ones((len(lines), 2), complex)
+    p = Predictor(model, Measurements(sine=[SineRun("sine", 1.0, "up", "x2", ["x1", "x2"], lines, H)]))
+    assert not np.any(p.fundamental_bias(HarmonicCriterion())["sine"])
+
+
+FS, KJ, V0 = 0.2, -300.0, 5e-4          # the RK4 rig's joint at x1: linear spring and Coulomb friction as a steep tanh
+
+
+@pytest.fixture(scope="module")
+def friction_runs():
+    freqs = np.arange(5.0, 11.01, 0.3)
+    forces = (0.5, 2.0)
+    # 40 s: mode 1 decays in 6.7 s with the joint stuck; 96 steps per period keep the tanh's fs / v0 stable
+    H = steady_receptance(freqs, forces, settle_seconds=40.0, per_period=96,
+                          joint=lambda x, v: KJ * x + FS * np.tanh(v / V0))
+    rng = np.random.default_rng(11)
+    runs = []
+    for F, h in zip(forces, H):
+        std = 2e-3 * np.abs(h)
+        noisy = h + std / np.sqrt(2) * (rng.normal(size=h.shape) + 1j * rng.normal(size=h.shape))
+        runs.append(SineRun(f"sine_{F:g}N_up", F, "up", "x2", ["x1", "x2"], freqs, noisy, std))
+    return Measurements(sine=runs)
+
+
+def _capped(wb: Workbench) -> float:
+    """The joint's laws against all its samples, each sample's share capped as on data without harmonics."""
+    return capped_chi_square(np.abs(wb.reports["a"].fit.normalized_residuals) ** 2)
+
+
+def _fitted(measurements) -> Workbench:
+    wb = Workbench(load_model(tomllib.loads(LUMPED + element("a", "x1", '"linear", "coulomb"'))), measurements)
+    wb.start()
+    return wb
+
+
+@pytest.mark.slow
+def test_friction_laws_refitted_without_their_harmonics_keep_the_rig_s_values(friction_runs, monkeypatch):
+    # friction slipping at 40 % of the lower force: the joint's motion carries harmonics at most lines, which
+    # the imported FRFs do not; without them the laws fit the samples better (capped chi-square 422 against 441)
+    corrected = _fitted(friction_runs)
+    values = {t.law.name: t.values for t in corrected.model.element("a").laws}
+    monkeypatch.setattr(Workbench, "_correct_fundamental_bias", lambda self: False)
+    plain = _fitted(friction_runs)
+    assert values["linear"]["k"] == pytest.approx(KJ, rel=0.01)
+    assert values["coulomb"]["fs"] == pytest.approx(FS, rel=0.02)
+    assert _capped(corrected) < _capped(plain)
+    assert corrected.compare().error <= 1.05 * plain.compare().error
