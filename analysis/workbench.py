@@ -153,29 +153,8 @@ class Workbench:
 
     # ------------------------------------------------------------------ identification
     def identify(self) -> dict[str, ElementReport]:
-        """kbar samples and a verdict for every element of the model."""
-        els = self.model.elements
-        per, flagged = self._identified_samples(self._kbar_bias)
-        self.reports = {}
-        for el in els:
-            samples = per[el.name]
-            X = samples.X
-            verdict = None
-            if len(X) >= 4:
-                k_u, x_u = samples.units
-                try:
-                    verdict = linearity_verdict(X, samples.w, samples.kbar, samples.kbar_std, level=samples.level,
-                                                stiffness_unit=k_u, amplitude_unit=x_u)
-                except InputError:
-                    verdict = None
-            self.reports[el.name] = ElementReport(el.name, samples if len(X) else None, verdict, len(X),
-                                                  flagged[el.name])
-        return self.reports
-
-    def _identified_samples(self, kbar_bias: dict[str, np.ndarray]) -> tuple[dict[str, ElementSamples],
-                                                                            dict[str, int]]:
-        """Every element's kbar samples over the runs identified from, less ``kbar_bias`` (run -> (lines,
-        elements), :meth:`_correct_fundamental_bias`), and the lines left out per element."""
+        """kbar samples and a verdict for every element of the model (less the model's own harmonics on data
+        without them, :meth:`_correct_fundamental_bias`)."""
         els = self.model.elements
         if not els:
             raise InputError("the model has no [[element]] to identify", self.model.source)
@@ -189,7 +168,7 @@ class Workbench:
             ident = identify_complex_stiffness(self.model.structure, run.receptance, run.sensor_dofs,
                                                run.excitation_dof, els, w=run.w, force=run.force_per_line,
                                                noise_std=std)
-            bias = kbar_bias.get(run.name)
+            bias = self._kbar_bias.get(run.name)
             if bias is not None and bias.shape == ident.kbar.shape:
                 ident.kbar = ident.kbar - bias
             good = ~ident.ill_conditioned & np.isfinite(ident.kbar).all(axis=1) & (ident.amplitude > 0).all(axis=1)
@@ -201,7 +180,21 @@ class Workbench:
                 per[el.name].append(ElementSamples(el.name, ident.amplitude[good, i], run.w[good],
                                                    ident.kbar[good, i], kstd, level[good],
                                                    el.rotational(self.model.structure)))
-        return {name: ElementSamples.joined(parts) for name, parts in per.items()}, flagged
+        self.reports = {}
+        for el in els:
+            samples = ElementSamples.joined(per[el.name])
+            X = samples.X
+            verdict = None
+            if len(X) >= 4:
+                k_u, x_u = samples.units
+                try:
+                    verdict = linearity_verdict(X, samples.w, samples.kbar, samples.kbar_std, level=samples.level,
+                                                stiffness_unit=k_u, amplitude_unit=x_u)
+                except InputError:
+                    verdict = None
+            self.reports[el.name] = ElementReport(el.name, samples if len(X) else None, verdict, len(X),
+                                                  flagged[el.name])
+        return self.reports
 
     def _identified_runs(self) -> list[tuple[SineRun, np.ndarray]]:
         """Every run identified from, with the level of each line: the stepped-sine runs (their level), then the
