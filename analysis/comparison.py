@@ -203,6 +203,14 @@ class Comparison:
                 "multiharmonic_lines": int(sum(m.sum() for m in self.multiharmonic.values()))}
 
 
+@dataclass
+class FundamentalBias:
+    """:meth:`Predictor.fundamental_bias`: per run, (lines, elements) the kbar departure; and the comparison,
+    with harmonics, of the model it was computed from."""
+    bias: dict[str, np.ndarray]
+    comparison: Comparison
+
+
 class Predictor:
     """Predicts every stepped-sine run of a measurement set for a structure with elements at fixed places.
 
@@ -272,15 +280,14 @@ class Predictor:
         if locate_folds:
             self._locate_folds(comp, predictions, kbar_fns)
         if harmonics is not None:
-            comp = self._with_harmonics(comp, predictions, harmonics)
+            comp = self._with_harmonics(comp, self._multiharmonic_lines(comp, predictions, harmonics))
         return comp
 
-    def _with_harmonics(self, comp: Comparison, predictions: dict[str, RunPrediction],
-                        criterion: HarmonicCriterion) -> Comparison:
-        """``comp`` with the lines the criterion selects predicted by multi-harmonic balance (the fundamental),
-        each started from the single-harmonic solution of the branch it was compared with."""
+    def _with_harmonics(self, comp: Comparison, balanced: list[tuple]) -> Comparison:
+        """``comp`` with the lines of ``balanced`` (:meth:`_multiharmonic_lines`) predicted by multi-harmonic
+        balance (the fundamental)."""
         compared, selected = dict(comp.compared), {}
-        for run, lines, mh in self._multiharmonic_lines(comp, predictions, criterion):
+        for run, lines, mh in balanced:
             mask = np.zeros(len(run.w), bool)
             if mh is not None:
                 fundamental = mh.receptance(run.force_per_line[lines])[mh.converged][:, self._rows[run.name]]
@@ -292,10 +299,11 @@ class Predictor:
         return _scored(self.runs, comp.predicted, comp.converged, compared, comp.other_branch, comp.jumps, selected)
 
     def _multiharmonic_lines(self, comp: Comparison, predictions: dict[str, RunPrediction],
-                             criterion: HarmonicCriterion):
+                             criterion: HarmonicCriterion) -> list[tuple]:
         """Each run, the lines the criterion selects, and their multi-harmonic balance (None where none is
         selected), each line started from the single-harmonic solution of the branch it was compared with."""
         structure, elements = self.model.structure, self.model.elements
+        out = []
         for run in self.runs:
             pred, rows = predictions[run.name], self._rows[run.name]
             y = np.where(comp.other_branch[run.name][:, None], pred.opposite_y, pred.y)
@@ -306,18 +314,21 @@ class Predictor:
             mh = (predict_multiharmonic(structure, elements, run.excitation_dof, run.w[lines], force[lines],
                                         criterion.n_harmonics, criterion.n_time, y_start=y[lines])
                   if len(lines) else None)
-            yield run, lines, mh
+            out.append((run, lines, mh))
+        return out
 
-    def fundamental_bias(self, criterion: HarmonicCriterion) -> dict[str, np.ndarray]:
+    def fundamental_bias(self, criterion: HarmonicCriterion) -> "FundamentalBias":
         """Per run, (lines, elements): what the model's own harmonics add to the kbar the closed-form
         identification measures -- the fundamental's force over the fundamental's motion, by multi-harmonic
         balance at the lines the criterion selects, less the describing function at that motion's amplitude
         (docs/fitting.md, "The fundamental's bias"); zero at the other lines and where the balance did not
-        converge. Needs every element's laws (a time-domain force)."""
+        converge. With it, the model's comparison with those harmonics (the same balance). Needs every element's
+        laws (a time-domain force)."""
         predictions = self.predict()
         comp = compare_predictions(self.runs, predictions)
+        balanced = self._multiharmonic_lines(comp, predictions, criterion)
         out = {}
-        for run, lines, mh in self._multiharmonic_lines(comp, predictions, criterion):
+        for run, lines, mh in balanced:
             bias = np.zeros((len(run.w), len(self.model.elements)), complex)
             if mh is not None:
                 ok = mh.converged & (np.abs(mh.element_harmonics[:, 1]) > 0).all(axis=1)
@@ -326,7 +337,7 @@ class Predictor:
                     bias[lines[ok], i] = F1[:, i] / Y1[:, i] - el.describing_function(np.abs(Y1[:, i]),
                                                                                      run.w[lines[ok]])
             out[run.name] = bias
-        return out
+        return FundamentalBias(out, self._with_harmonics(comp, balanced))
 
     def _locate_folds(self, comp: Comparison, predictions: dict[str, RunPrediction], kbar_fns) -> None:
         """Set ``fold_hz`` of each jump: continuation from the swept solution at the last line before the jump

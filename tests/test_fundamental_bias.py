@@ -43,7 +43,7 @@ def test_the_bias_is_zero_where_the_balance_needs_no_harmonics():
     lines = FREQS[:4]
     H = np.ones((len(lines), 2), complex)
     p = Predictor(model, Measurements(sine=[SineRun("sine", 1.0, "up", "x2", ["x1", "x2"], lines, H)]))
-    assert not np.any(p.fundamental_bias(HarmonicCriterion())["sine"])
+    assert not np.any(p.fundamental_bias(HarmonicCriterion()).bias["sine"])
 
 
 FS, KJ, V0 = 0.2, -300.0, 5e-4          # the RK4 rig's joint at x1: linear spring and Coulomb friction as a steep tanh
@@ -82,9 +82,15 @@ def test_friction_laws_refitted_without_their_harmonics_keep_the_rig_s_values(fr
     # the imported FRFs do not; without them the laws fit the samples better (capped chi-square 422 against 441)
     corrected = _fitted(friction_runs)
     values = {t.law.name: t.values for t in corrected.model.element("a").laws}
-    monkeypatch.setattr(Workbench, "_correct_fundamental_bias", lambda self: False)
+    with monkeypatch.context() as m:
+        m.setattr(Workbench, "_corrected_is_kept", lambda self, before, criterion: False)
+        refused = _fitted(friction_runs)
+    monkeypatch.setattr(Workbench, "_correct_fundamental_bias", lambda self: None)
     plain = _fitted(friction_runs)
     assert values["linear"]["k"] == pytest.approx(KJ, rel=0.01)
     assert values["coulomb"]["fs"] == pytest.approx(FS, rel=0.02)
     assert _capped(corrected) < _capped(plain)
-    assert corrected.compare().error <= 1.05 * plain.compare().error
+    # the correction is kept only where the FRFs with harmonics are no worse; refused, the plain fit stays whole
+    assert corrected.compare().error <= plain.compare().error
+    assert [t.values for t in refused.model.element("a").laws] == [t.values for t in plain.model.element("a").laws]
+    assert refused._kbar_bias == {} and _capped(refused) == _capped(plain)
