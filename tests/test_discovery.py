@@ -224,8 +224,21 @@ def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
     judge = _Judge.__new__(_Judge)
     judge.rules, judge.kbar_judges = DiscoveryRules(), False        # as on data without harmonics
     judge.single = _Errors({two.laws: 0.1, three.laws: 0.01})        # an FRF gain of x10 from elsewhere
+    # nor do the FRFs refined (analysis/frf_refinement.py; tests/test_frf_refinement.py)
+    asked = []
+    judge._seen_in_frfs = lambda search, current, larger, unseen: asked.append(unseen) or ""
     step = judge.step_up(search, two, three)
-    assert not step.taken and "does not show velocity_stiffness" in step.why
+    assert not step.taken and "does not show velocity_stiffness" in step.why and step.not_itself
+    assert asked == [["velocity_stiffness"]]
+    # where the FRFs refined determine its size, the step is taken, and says so
+    judge._seen_in_frfs = lambda search, current, larger, unseen: "velocity_stiffness gamma = 0.2 +- 0.05"
+    step = judge.step_up(search, two, three)
+    assert step.taken and "the FRFs refined give velocity_stiffness gamma = 0.2 +- 0.05" in step.text()
+    # on data with harmonics the kbar alone decides: the FRFs are not asked
+    judge.kbar_judges, asked = True, []
+    judge._seen_in_frfs = lambda search, current, larger, unseen: asked.append(unseen) or "seen"
+    judge.step_up(search, two, three)
+    assert asked == []
 
 
 @pytest.mark.parametrize("fall, taken", [(0.9, False), (1.1, True)])

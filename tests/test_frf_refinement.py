@@ -1,0 +1,77 @@
+"""A law set's parameters refined against the FRFs (analysis/frf_refinement.py): against the analytic receptance
+of a linear chain, and against RK4 receptances of a cubic joint (an integrator written in the tests)."""
+import tomllib
+
+import numpy as np
+import pytest
+
+from analysis.comparison import Predictor
+from analysis.elements import LawTerm
+from analysis.frf_refinement import refine_against_frfs
+from analysis.laws import get_law
+from analysis.measurements import Measurements, SineRun
+from analysis.model import load_model
+from test_auto import FREQS, LUMPED, element, steady_receptance
+
+M = np.eye(2)
+K = np.array([[3000.0, -1000.0], [-1000.0, 2000.0]])
+C = 0.3 * M + 1.0e-4 * K                   # LUMPED's Rayleigh damping
+E1 = np.diag([1.0, 0.0])
+
+
+def _noisy(H: np.ndarray, rel: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    std = rel * np.abs(H)
+    return H + std / np.sqrt(2) * (rng.normal(size=H.shape) + 1j * rng.normal(size=H.shape)), std
+
+
+def _predictor(runs: list[SineRun]) -> Predictor:
+    model = load_model(tomllib.loads(LUMPED + element("a", "x1", '"linear"')))
+    return Predictor(model, Measurements(sine=runs))
+
+
+def test_a_linear_joint_refined_against_its_analytic_receptance():
+    kj, cj = -300.0, 0.05
+    w = 2 * np.pi * FREQS
+    H = np.array([np.linalg.solve(K + kj * E1 - x ** 2 * M + 1j * x * (C + cj * E1), [0.0, 1.0]) for x in w])
+    noisy, std = _noisy(H, 2e-3, 5)
+    p = _predictor([SineRun("sine", 1.0, "up", "x2", ["x1", "x2"], FREQS, noisy, std)])
+    start = [LawTerm(get_law("linear"), {"k": -200.0, "c": 0.02})]
+    out = refine_against_frfs(p, 0, start, [["k", "c"]], {})
+    k, c = out.terms[0].values["k"], out.terms[0].values["c"]
+    assert abs(k - kj) < 3 * out.stderr[0]["k"] and out.stderr[0]["k"] < 0.01 * abs(kj)
+    assert abs(c - cj) < 3 * out.stderr[0]["c"] and out.stderr[0]["c"] < 0.2 * cj
+    assert out.size_seen(0, 1.96)
+    # the reduced chi-square of the noise alone
+    assert out.chi_square / (out.n_residuals - 2) == pytest.approx(1.0, abs=0.35)
+
+
+def test_a_law_the_frfs_do_not_need_is_not_seen():
+    w = 2 * np.pi * FREQS
+    H = np.array([np.linalg.solve(K - x ** 2 * M + 1j * x * C, [0.0, 1.0]) for x in w])
+    noisy, std = _noisy(H, 2e-3, 6)
+    p = _predictor([SineRun("sine", 1.0, "up", "x2", ["x1", "x2"], FREQS, noisy, std)])
+    out = refine_against_frfs(p, 0, [LawTerm(get_law("velocity_stiffness"), {"gamma": 0.5})], [["gamma"]], {})
+    assert not out.size_seen(0, 1.96)
+
+
+def test_nothing_free_is_evaluated_once():
+    w = 2 * np.pi * FREQS
+    H = np.array([np.linalg.solve(K - x ** 2 * M + 1j * x * C, [0.0, 1.0]) for x in w])
+    p = _predictor([SineRun("sine", 1.0, "up", "x2", ["x1", "x2"], FREQS, H, 1e-3 * np.abs(H))])
+    out = refine_against_frfs(p, 0, [], [], {})
+    assert out.evaluations == 1 and out.chi_square < 1e-12
+
+
+@pytest.mark.slow
+def test_a_cubic_joint_refined_against_rk4_receptances():
+    k3 = 3.0e5                               # test_auto's hardening joint
+    forces = (0.5, 2.0)
+    H = steady_receptance(FREQS, forces, k3=k3)
+    runs = []
+    for j, (F, h) in enumerate(zip(forces, H)):
+        noisy, std = _noisy(h, 1e-3, 10 + j)
+        runs.append(SineRun(f"sine_{F:g}N_up", F, "up", "x2", ["x1", "x2"], FREQS, noisy, std))
+    out = refine_against_frfs(_predictor(runs), 0, [LawTerm(get_law("cubic"), {"k3": 0.6 * k3})], [["k3"]], {})
+    assert out.terms[0].values["k3"] == pytest.approx(k3, rel=0.03)
+    assert out.size_seen(0, 1.96)
