@@ -90,7 +90,8 @@ def test_friction_laws_refitted_without_their_harmonics_keep_the_rig_s_values(fr
     assert values["linear"]["k"] == pytest.approx(KJ, rel=0.01)
     assert values["coulomb"]["fs"] == pytest.approx(FS, rel=0.02)
     assert _capped(corrected) < _capped(plain)
-    # the correction is kept only where the FRFs with harmonics are no worse; refused, the plain fit stays whole
-    assert corrected.compare().error <= plain.compare().error
+    # the correction is kept only where the FRFs with harmonics are not worse by a law's margin; refused, the plain
+    # fit stays whole
+    assert corrected.compare().error <= 1.05 * plain.compare().error
     assert [t.values for t in refused.model.element("a").laws] == [t.values for t in plain.model.element("a").laws]
     assert refused._kbar_bias == {} and _capped(refused) == _capped(plain)
