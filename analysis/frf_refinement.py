@@ -21,6 +21,7 @@ from scipy.optimize import least_squares
 
 from .comparison import Predictor, kbar_functions_with
 from .elements import LawTerm
+from .errors import InputError
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,8 @@ def refine_against_frfs(predictor: Predictor, index: int, terms: list[LawTerm], 
     keys = [(j, n) for j, names in enumerate(free) for n in names]
     x0 = np.array([terms[j].values[n] for j, n in keys], float)
     scale = np.where(np.abs(x0) > 0, np.abs(x0), 1.0)
+    lower, upper = _bounds(terms, keys, scale)
+    start = np.clip(x0 / scale, lower, upper)
     runs = predictor.runs
 
     def trial(x) -> list[LawTerm]:
@@ -67,7 +70,10 @@ def refine_against_frfs(predictor: Predictor, index: int, terms: list[LawTerm], 
         def kbar(X, w):
             return sum((t.describing_function(X, w) for t in ts), np.zeros(np.shape(X), complex))
 
-        comp = predictor.compare(kbar_functions_with(predictor.model.elements, {**others, index: kbar}))
+        try:
+            comp = predictor.compare(kbar_functions_with(predictor.model.elements, {**others, index: kbar}))
+        except InputError:                    # values the law refuses (beyond what its bounds say): far off
+            return np.full(n_residuals, 1e3)
         parts = []
         for run in runs:
             std = (run.receptance_std if run.receptance_std is not None
@@ -79,11 +85,13 @@ def refine_against_frfs(predictor: Predictor, index: int, terms: list[LawTerm], 
         # a line the prediction fails at counts as far off, not as nothing
         return np.where(np.isfinite(r), r, 1e3)
 
+    n_residuals = 2 * sum(np.size(run.receptance) for run in runs)
     if not keys:
-        r = residuals(np.ones(0))
-        return FrfRefinement(trial(np.ones(0)), [{} for _ in terms], float(r @ r), r.size, 1)
+        r = residuals(start)
+        return FrfRefinement(trial(start), [{} for _ in terms], float(r @ r), r.size, 1)
     # a chi-square of hundreds is decided to within one unit: 1e-3 of it
-    sol = least_squares(residuals, np.ones(len(x0)), diff_step=1e-4, ftol=1e-3, xtol=1e-4, max_nfev=max_evaluations)
+    sol = least_squares(residuals, start, bounds=(lower, upper), diff_step=1e-4, ftol=1e-3, xtol=1e-4,
+                        max_nfev=max_evaluations)
     n, p = sol.jac.shape
     chi2 = float(2 * sol.cost)
     s2 = max(1.0, chi2 / max(n - p, 1))
@@ -93,3 +101,14 @@ def refine_against_frfs(predictor: Predictor, index: int, terms: list[LawTerm], 
     for (j, name), e in zip(keys, se):
         stderr[j][name] = float(e)
     return FrfRefinement(trial(sol.x), stderr, chi2, n, int(sol.nfev))
+
+
+def _bounds(terms: list[LawTerm], keys: list[tuple[int, str]], scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each free parameter's contract range in the scaled units the search runs in; an open lower bound a hair
+    inside."""
+    lower, upper = np.empty(len(keys)), np.empty(len(keys))
+    for k, (j, name) in enumerate(keys):
+        param = next(p for p in terms[j].law.params if p.name == name)
+        lower[k] = param.lower / scale[k] + (1e-9 if param.lower_open else 0.0)
+        upper[k] = param.upper / scale[k]
+    return lower, upper

@@ -75,3 +75,16 @@ def test_a_cubic_joint_refined_against_rk4_receptances():
     out = refine_against_frfs(_predictor(runs), 0, [LawTerm(get_law("cubic"), {"k3": 0.6 * k3})], [["k3"]], {})
     assert out.terms[0].values["k3"] == pytest.approx(k3, rel=0.03)
     assert out.size_seen(0, 1.96)
+
+
+def test_a_law_s_range_holds_where_the_frfs_pull_beyond_it():
+    # a softer joint (-300 N/m) refined as a clearance, whose stiffness cannot go below zero: the search stays in
+    # range and ends at its edge instead of asking the law for a value it refuses
+    kj = -300.0
+    w = 2 * np.pi * FREQS
+    H = np.array([np.linalg.solve(K + kj * E1 - x ** 2 * M + 1j * x * C, [0.0, 1.0]) for x in w])
+    noisy, std = _noisy(H, 2e-3, 7)
+    p = _predictor([SineRun("sine", 1.0, "up", "x2", ["x1", "x2"], FREQS, noisy, std)])
+    out = refine_against_frfs(p, 0, [LawTerm(get_law("gap"), {"k": 50.0, "gap": 1e-5})], [["k", "gap"]], {})
+    assert out.terms[0].values["k"] >= 0.0 and out.terms[0].values["gap"] >= 0.0
+    assert out.terms[0].values["k"] < 1.0
