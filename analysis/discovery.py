@@ -723,7 +723,7 @@ class _Judge:
         the noise explains for the parameters added (the test the kbar's chi-square fails there); "" otherwise.
         Random case 42 of seed 42911: beside a saturating spring that only begins to saturate within the
         amplitudes measured, a linear law fitted the kbar as k = -61 +- 43 N/m and lowered its chi-square by 3.7;
-        refined against the FRFs k = -59.0 +- 4.9 (the rig's -73.4: the stand-ins' own error is in it) and their
+        refined against the FRFs k = -62.2 +- 5.0 (the rig's -73.4: the stand-ins' own error is in it) and their
         chi-square fell from 815 to 481 over 432 residuals. The refined values decide the step only; the model
         keeps its kbar fit."""
         others = {j: f for j, f in self.standins.items() if j != search.index}
