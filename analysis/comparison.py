@@ -317,7 +317,7 @@ class Predictor:
             out.append((run, lines, mh))
         return out
 
-    def fundamental_bias(self, criterion: HarmonicCriterion) -> "FundamentalBias":
+    def fundamental_bias(self, criterion: HarmonicCriterion) -> FundamentalBias:
         """Per run, (lines, elements): what the model's own harmonics add to the kbar the closed-form
         identification measures -- the fundamental's force over the fundamental's motion, by multi-harmonic
         balance at the lines the criterion selects, less the describing function at that motion's amplitude

@@ -424,6 +424,10 @@ def _unseen_laws(s: LawSet, current: LawSet) -> list[str]:
     return [t.law.name for t in s.fit.terms if t.law.name not in current.laws and t.size_unseen]
 
 
+def _unseen_why(unseen: list[str]) -> str:
+    return f"its kbar does not show {unseen[0]}: every size parameter of it is within its 95 % interval of zero"
+
+
 def _linear_within_noise(term: TermFit, samples: ElementSamples, false_alarm: float) -> bool:
     """Whether a law's kbar over the samples is its value at a vanishing amplitude -- a constant spring -- to within
     the noise: what it adds to a linear law is then not seen."""
@@ -677,8 +681,7 @@ class _Judge:
             if seen:
                 step.seen_in_frfs = seen
             else:
-                step.why, step.not_itself = (f"its kbar does not show {unseen[0]}: every size parameter of it is "
-                                             "within its 95 % interval of zero"), True
+                step.why, step.not_itself = _unseen_why(unseen), True
         step.taken = not step.why
         return step
 
@@ -695,8 +698,7 @@ class _Judge:
         if self.kbar_judges and larger.criterion >= current.criterion:
             return "its kbar does not call for it (the criterion, which charges for parameters, does not fall)", False
         if unseen and (self.kbar_judges or any(t.surroundings is not None for t in larger.fit.terms)):
-            return (f"its kbar does not show {unseen[0]}: every size parameter of it is within its 95 % interval "
-                    "of zero"), True
+            return _unseen_why(unseen), True
         if limit_only:
             return f"its kbar shows {limit_only[0][0]} only in its limit: {limit_only[0][1]}", True
         if not self.kbar_judges and not unseen and not _beside_above_noise(search, current, larger,

@@ -57,6 +57,9 @@ def refine_against_frfs(predictor: Predictor, index: int, terms: list[LawTerm], 
     lower, upper = _bounds(terms, keys, scale)
     start = np.clip(x0 / scale, lower, upper)
     runs = predictor.runs
+    # Re and Im each carry std / sqrt(2); relative to the measured modulus where no std was measured
+    weights = {run.name: np.sqrt(2.0) / (run.receptance_std if run.receptance_std is not None
+                                         else np.maximum(np.abs(run.receptance), 1e-300)) for run in runs}
 
     def trial(x) -> list[LawTerm]:
         out = [LawTerm(t.law, dict(t.values)) for t in terms]
@@ -76,10 +79,7 @@ def refine_against_frfs(predictor: Predictor, index: int, terms: list[LawTerm], 
             return np.full(n_residuals, 1e3)
         parts = []
         for run in runs:
-            std = (run.receptance_std if run.receptance_std is not None
-                   else np.maximum(np.abs(run.receptance), 1e-300))
-            # Re and Im each carry std / sqrt(2)
-            d = np.sqrt(2.0) * (comp.compared[run.name] - run.receptance) / std
+            d = weights[run.name] * (comp.compared[run.name] - run.receptance)
             parts += [d.real.ravel(), d.imag.ravel()]
         r = np.concatenate(parts)
         # a line the prediction fails at counts as far off, not as nothing

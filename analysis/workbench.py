@@ -112,6 +112,11 @@ def _overruled(verdict: LinearityVerdict, found: AmplitudeDependence | None) -> 
     return replace(verdict, linear=False, evidence=f"{verdict.evidence} Yet {found.text()}.")
 
 
+def _nonzero(bias: dict[str, np.ndarray]) -> bool:
+    """Whether a kbar bias (run -> (lines, elements)) changes any sample."""
+    return any(np.any(b) for b in bias.values())
+
+
 def _harmonic_points(lines: SineRun, limit: float) -> SineRun:
     """The locked points of a phase-resonance run with those whose displacement THD exceeds ``limit`` marked as
     distorted (left out of the identification like any line beyond the distortion limit). A locked point sits at
@@ -251,26 +256,28 @@ class Workbench:
         departure at each line (:meth:`analysis.comparison.Predictor.fundamental_bias`) is subtracted from the
         samples and every element refitted; the bias is that of the model last fitted, so successive fits
         converge (on random case 24 one pass took the joint's k from -1.5 % to -0.3 % and its chi-square from 380
-        to 183 over 104 samples; a second pass changed k by 0.02 %). The corrected fit is kept only where it
-        predicts the FRFs, with harmonics, no worse than the fit it corrects (:meth:`_corrected_is_kept`)."""
+        to 183 over 104 samples; a second pass changed k by 0.02 %). The corrected fit is refused where it
+        predicts the FRFs, with harmonics, worse than the fit it corrects by a law's margin
+        (:meth:`_corrected_is_kept`)."""
         criterion = self._harmonics()
         complete = all(el.laws and all(t.complete for t in el.laws) for el in self.model.elements)
         if not (self._harmonics_blind() and criterion is not None and complete):
-            if any(np.any(b) for b in self._kbar_bias.values()):
+            if _nonzero(self._kbar_bias):
                 self._kbar_bias = {}
                 self.identify()
                 self._fit_elements(None)
             return
         found = self.predictor.fundamental_bias(criterion)
-        if not any(np.any(b) for b in found.bias.values()) and not any(np.any(b) for b in self._kbar_bias.values()):
+        if not _nonzero(found.bias) and not _nonzero(self._kbar_bias):
             return
-        kept = (self._kbar_bias, self.reports, [(el.laws, el.nonparametric) for el in self.model.elements])
+        bias_before, reports_before = self._kbar_bias, self.reports
+        parts_before = [(el.laws, el.nonparametric) for el in self.model.elements]
         self._kbar_bias = found.bias
         self.identify()
         self._fit_elements(None)
         if not self._corrected_is_kept(found.comparison, criterion):
-            self._kbar_bias, self.reports = kept[0], kept[1]
-            for el, (laws, nonparametric) in zip(self.model.elements, kept[2]):
+            self._kbar_bias, self.reports = bias_before, reports_before
+            for el, (laws, nonparametric) in zip(self.model.elements, parts_before):
                 el.laws, el.nonparametric = laws, nonparametric
 
     def _corrected_is_kept(self, before: Comparison, criterion: HarmonicCriterion) -> bool:
