@@ -12,9 +12,10 @@ import scipy.stats
 
 from analysis.auto import run_auto
 from analysis.diagnosis import ElementSamples, tied_parameters
-from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _extension, _Judge, _limit_only_laws,
-                                _offer_frf_best_single, _other_kinds, _Search, _separation, _shortlists, _unseen_laws,
-                                _walk_element, law_sets, search_element)
+from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _extension, _indistinguishable, _Judge,
+                                _kinds, _limit_only_laws, _offer_frf_best_single, _one_law_more_alike, _other_kinds,
+                                _Search, _separation, _shortlists, _unseen_laws, _walk_element, law_sets,
+                                search_element)
 from analysis.fit import fit_laws
 from analysis.laws import LAWS
 from analysis.laws.base import KINDS
@@ -85,6 +86,33 @@ def test_coulomb_and_a_stiff_jenkins_element_are_named_alike_with_the_test_that_
     # only at a lower level (or never, where the fit made it infinitely stiff)
     text = _separation(search, coulomb, jenkins)
     assert text.startswith("a lower level would") or text.startswith("no test")
+
+
+def test_a_set_with_one_law_more_of_the_same_kinds_that_fits_as_well_is_named():
+    # random case 36 of seed 779606: a linear spring beside an arctan spring that only begins to saturate at the
+    # largest amplitude; a saturating spring alone fits as well, and so does a linear spring with a softening cubic
+    Xs, Ws = np.geomspace(2.4e-4, 2.4e-2, 60), np.linspace(20.0, 40.0, 60)
+    s = samples_of({"linear": {"k": -177.0, "c": 0.0}, "arctan_softening": {"alpha": 31.0, "beta": 22.7}}, Xs, Ws,
+                   noise=5e-3, floor=1.0)
+    search = search_element(0, s, linear_verdict=False)
+    chosen = search.sets[0]
+    assert _kinds(chosen) == ["stiffness"]
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.single = DiscoveryRules(), _Errors({x.laws: 0.01 for x in search.sets})
+    named = _indistinguishable(judge, search, chosen)
+    more = [x for x in named if len(x.laws) == 2]
+    assert ("linear", "cubic") in [x.laws for x in more]
+    assert all("stiffness" in _kinds(x) for x in more)                   # the chosen mechanism, one more beside
+    assert len({tuple(_kinds(x)) for x in more}) == len(more)            # the best of each reading only
+    sets = {x.laws: x for x in search.sets}
+    # a law of no size beside it is no other reading, nor a set that fits better by more than the noise explains
+    assert sets["coulomb", "arctan_softening"].fit.terms[0].size_unseen
+    assert not _one_law_more_alike(search, sets["coulomb", "arctan_softening"], chosen, 1e-3)
+    better = LawSet(("linear", "cubic"), sets["linear", "cubic"].fit, chosen.chi_square - 50.0, 3)
+    assert not _one_law_more_alike(search, better, chosen, 1e-3)
+    # where the FRFs tell it apart by more than the margin, it is not named
+    judge.single = _Errors({**{x.laws: 0.01 for x in search.sets}, ("linear", "cubic"): 0.02})
+    assert ("linear", "cubic") not in [x.laws for x in _indistinguishable(judge, search, chosen)]
 
 
 def test_the_shortlist_keeps_one_of_sets_that_fit_alike_and_a_determined_one():
