@@ -116,6 +116,12 @@ def test_a_random_case_is_right_by_an_equivalence_only_where_discovery_named_it(
     for unnamed in (result([("quintic",)]), result([]), result([("unilateral",)], later=True)):
         scored = rd.Scored(wrong, rd.named_equivalences(c, wrong, unnamed))
         assert not scored.right_by_naming and not scored.right
+    # a law the choice leaves out counts where discovery named the rig's set, one law larger, as indistinguishable
+    two = mc.case("2dof cubic + damping same element")          # cubic and quadratic damping at a
+    short = mc.score(two, _wb({"a": [], "b": []}, {"a": ["cubic"], "b": []}), "stop")
+    assert not short.right
+    assert rd.Scored(short, rd.named_equivalences(two, short, result([("cubic", "cubic_damping")]))).right_by_naming
+    assert not rd.Scored(short, rd.named_equivalences(two, short, result([("cubic", "coulomb")]))).right_by_naming
 
 
 def test_the_published_table_is_the_last_full_run():
