@@ -556,11 +556,13 @@ def _one_law_more_alike(search: _Search, s: LawSet, chosen: LawSet, false_alarm:
     saturating spring alone, or a linear spring with a softening cubic beside it (random case 2 of seed 779606:
     tanh 308.6 in chi-square, linear + cubic 306.9, over 136 samples; the rig has a linear spring beside a tanh
     spring that only begins to saturate at the largest amplitude)."""
+    # the cheap tests first: the limit test scans the element's sets; every law of ``s`` is asked, the choice's too
+    # (refitted beside another law, it can run to a limit)
     return (s.fit is not None and len(s.laws) == len(chosen.laws) + 1 and set(_kinds(chosen)) <= set(_kinds(s))
-            and not any(t.size_unseen for t in s.fit.terms)
-            and not _limit_only_laws(s, LawSet((), None, 0.0, 0), search, false_alarm)
             and chosen.chi_square - s.chi_square <= _noise_bound(search, s.n_parameters - chosen.n_parameters,
-                                                                 false_alarm))
+                                                                 false_alarm)
+            and not any(t.size_unseen for t in s.fit.terms)
+            and not _limit_only_laws(s, LawSet((), None, 0.0, 0), search, false_alarm))
 
 
 def _indistinguishable(judge: "_Judge", search: _Search, chosen: LawSet) -> list[LawSet]:
@@ -576,11 +578,12 @@ def _indistinguishable(judge: "_Judge", search: _Search, chosen: LawSet) -> list
         if s is chosen:
             continue
         alike = s.n_parameters >= chosen.n_parameters and _alike(search, s, chosen, rules.false_alarm)
-        more = not alike and _one_law_more_alike(search, s, chosen, rules.false_alarm)
-        if (alike or (more and tuple(_kinds(s)) not in readings)) and judge.single({search.index: s}).error <= limit:
+        reading = tuple(_kinds(s))
+        more = not alike and reading not in readings and _one_law_more_alike(search, s, chosen, rules.false_alarm)
+        if (alike or more) and judge.single({search.index: s}).error <= limit:
             out.append(s)
             if more:
-                readings.add(tuple(_kinds(s)))
+                readings.add(reading)
     return out
 
 
