@@ -55,7 +55,8 @@ from .comparison import Comparison, HarmonicCriterion, Predictor, gain_phrase, k
 from .diagnosis import ElementSamples, RankingRules, explain, frf_criterion, signature, tied_parameters
 from .errors import InputError
 from .frf_refinement import FrfRefinement, refine_against_frfs
-from .fit import UNDETERMINED_Z, LawFit, TermFit, capped_chi_square, fit_laws, unit_exponents
+from .fit import (UNDETERMINED_Z, LawFit, TermFit, capped_chi_square, chi_square_noise_bound, fit_laws,
+                  unit_exponents)
 from .laws import LAWS
 from .nonparametric import fit_nonparametric
 from .surroundings import Surroundings
@@ -390,7 +391,7 @@ def _shortlists(sets: list[LawSet], width: int) -> dict[int, list[LawSet]]:
 def _noise_bound(search: _Search, dof: int, false_alarm: float) -> float:
     """The kbar chi-square difference the noise explains at the false-alarm rate for ``dof`` parameters (at least
     one): s^2 chi2_q."""
-    return search.scale * scipy.stats.chi2.ppf(1 - false_alarm, max(dof, 1))
+    return chi_square_noise_bound(search.scale, dof, false_alarm)
 
 
 def _alike(search: _Search, a: LawSet, b: LawSet, false_alarm: float) -> bool:
@@ -773,8 +774,7 @@ class _Judge:
         small = refined(current)
         dof = max(larger.n_parameters - current.n_parameters, 1)
         scale = max(1.0, big.chi_square / max(big.n_residuals - larger.n_parameters, 1))
-        if small.chi_square - big.chi_square <= scale * scipy.stats.chi2.ppf(1 - self.rules.ranking.false_alarm,
-                                                                               dof):
+        if small.chi_square - big.chi_square <= chi_square_noise_bound(scale, dof, self.rules.ranking.false_alarm):
             return ""
         return "; ".join(f"{n} {big.size_text(labels.index(n))}" for n in unseen)
 

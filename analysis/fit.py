@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
+import scipy.stats
 from scipy.optimize import least_squares, lsq_linear
 
 from .elements import LawTerm
@@ -1038,6 +1039,13 @@ def outlier_limit(n: int) -> float:
     ``OUTLIER_FALSE_ALARM``; the limit is ``-2 ln(OUTLIER_FALSE_ALARM / n)`` (18.4 for 97 samples, i.e. 4.3
     standard deviations)."""
     return -2.0 * math.log(OUTLIER_FALSE_ALARM / max(n, 1))
+
+
+def chi_square_noise_bound(scale: float, dof: int, false_alarm: float) -> float:
+    """The drop of a kbar chi-square that the noise explains at the false-alarm rate for ``dof`` parameters added
+    (at least one), on a chi-square of scale ``scale`` (s^2, the reduced chi-square of the best fit, at least 1):
+    s^2 chi2_q."""
+    return scale * scipy.stats.chi2.ppf(1 - false_alarm, max(dof, 1))
 
 
 def capped_chi_square(z: np.ndarray) -> float:

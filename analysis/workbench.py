@@ -339,7 +339,7 @@ class Workbench:
         against what the single-harmonic model cannot represent (:func:`analysis.diagnosis.check_model_form`)."""
         samples, fits, linear = self._ranking_inputs()
         ranked = rank_candidates(self.predictor, samples, fits, self.single_harmonic_comparison(), laws,
-                                 linear_elements=linear, rules=rules)
+                                 linear_elements=linear, rules=rules, robust=self._harmonics_blind())
         check_model_form(self.predictor, ranked, rules, self.harmonics_or_default.n_harmonics,
                          self.harmonics_or_default.n_time)
         return ranked

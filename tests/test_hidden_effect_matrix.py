@@ -160,3 +160,18 @@ def test_a_random_clearance_is_drawn_to_close_at_the_amplitude_its_joint_reaches
     case = rd._draw(112631, 22)[21]
     assert [law.law for law in case.laws] == ["cubic_damping", "tanh_softening", "gap"]
     assert dict(case.laws[2].values)["k"] == pytest.approx(1.403e3, rel=1e-3)
+
+
+@pytest.mark.slow
+def test_the_loop_adds_no_law_beside_a_contact_that_only_fits_its_closing_lines(tmp_path):
+    # seed 786947 random 17: a one-sided contact alone, on RK4 receptances without harmonics; discovery takes the
+    # contact and refuses cubic damping beside it (its kbar's capped chi-square falls within the noise); the loop
+    # must refuse it by the same test, though it cuts the single-harmonic FRF error x2.3
+    import sys
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import random_discovery as rd
+
+    case = rd._draw(786947, 17)[16]
+    assert [(law.element, law.law) for law in case.laws] == [("a", "unilateral")]
+    scored = rd.run(case, tmp_path)
+    assert scored.outcome.right and not scored.outcome.false_alarms, mc.progress_line(1, 1, scored.outcome, 0)
