@@ -49,7 +49,8 @@ from typing import Callable
 import numpy as np
 import scipy.stats
 
-from .comparison import Comparison, HarmonicCriterion, Predictor, gain_phrase, kbar_functions_with
+from .comparison import (Comparison, HarmonicCriterion, Predictor, chi_square_falls, gain_phrase,
+                         kbar_functions_with)
 from .elements import LawTerm
 from .errors import InputError
 from .fit import LawFit, TermFit, capped_chi_square, chi_square_noise_bound, fit_laws
@@ -347,15 +348,14 @@ class _Leader:
 
 
 def frf_criterion(base: Comparison, comp: Comparison, k_added: int, false_alarm: float) -> tuple[float, bool]:
-    """(BIC of the FRFs, whether the FRF chi-square drops by more than the noise explains)."""
+    """(BIC of the FRFs, whether the FRF chi-square drops by more than the noise explains:
+    :func:`analysis.comparison.chi_square_falls`)."""
     n_obs = base.n_observations
     if base.chi_square is not None and comp.chi_square is not None:
         bic = comp.chi_square + k_added * np.log(n_obs)
-        above_noise = base.chi_square - comp.chi_square > scipy.stats.chi2.ppf(1 - false_alarm, k_added)
     else:
         bic = n_obs * np.log(comp.error ** 2) + k_added * np.log(n_obs)
-        above_noise = True
-    return float(bic), bool(above_noise)
+    return float(bic), chi_square_falls(base, comp, k_added, false_alarm)
 
 
 def _score(scene: _Scene, el: _Element, laws: tuple[str, ...], rules: RankingRules) -> Candidate | None:

@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import scipy.stats
 
-from .comparison import Comparison, Predictor, compare_predictions, gain_phrase, kbar_functions_with
+from .comparison import Comparison, Predictor, chi_square_falls, compare_predictions, gain_phrase, kbar_functions_with
 from .diagnosis import ElementSamples, Signature, signature, signature_words
 from .fit import LawFit
 from .laws.base import SignatureWords
@@ -221,9 +221,7 @@ def offer_nonparametric(predictor: Predictor, base: Comparison, index: int, samp
 def _frf_drop_above_noise(base: Comparison, comp: Comparison, parameters: float) -> bool:
     """Whether the FRF chi-square falls by more than its 1 - FALSE_ALARM quantile for the part's effective
     parameters (True where the measurement has no standard deviations: nothing to judge against)."""
-    if base.chi_square is None or comp.chi_square is None:
-        return True
-    return bool(base.chi_square - comp.chi_square > scipy.stats.chi2.ppf(1 - FALSE_ALARM, max(parameters, 1.0)))
+    return chi_square_falls(base, comp, parameters, FALSE_ALARM)
 
 
 def _with_part(laws, part: NonParametric):

@@ -228,7 +228,8 @@ class _Errors:
     def __call__(self, choice, standins=True):
         (s,) = choice.values()
         e = self.errors[s.laws]
-        return type("Comparison", (), {"error": e, "chi_square": 1e6 * e ** 2, "n_observations": 400})()
+        return type("Comparison", (), {"error": e, "chi_square": 1e6 * e ** 2, "capped_chi_square": None,
+                                         "n_observations": 400})()
 
 
 @pytest.mark.parametrize("gain, taken", [(1.5, False), (2.0, True)])
@@ -338,7 +339,8 @@ class _Multi:
 
     def __call__(self, choice):
         self.asked += 1
-        return type("Comparison", (), {"error": 0.02, "chi_square": 400.0, "n_observations": 400})()
+        return type("Comparison", (), {"error": 0.02, "chi_square": 400.0, "capped_chi_square": None,
+                                         "n_observations": 400})()
 
 
 @pytest.mark.parametrize("kbar_judges, before, checked", [(True, ("cubic",), False), (False, (), False),

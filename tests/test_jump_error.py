@@ -103,3 +103,61 @@ def test_the_model_tab_shows_the_jump_and_marks_the_line(qtbot, analysed):
     assert "measured between 6.2 and 6.28 Hz (1 line early)" in window.model.jump_label.text()
     crosses = [c for c in window.model.residual.listDataItems() if c.opts.get("symbol") == "x"]
     assert len(crosses) == 1 and crosses[0].getData()[0] == pytest.approx([6.28])
+
+
+def _run_and_prediction(L: int, missed: list[int], far: float, harmonics_measured: bool, seed: int = 7):
+    """A run of ``L`` lines with unit noise, and a prediction right except at the lines ``missed``, off there by
+    100 sigma, and off everywhere by ``far`` times the receptance."""
+    from analysis.comparison import RunPrediction
+    from analysis.measurements import SineRun
+
+    rng = np.random.default_rng(seed)
+    truth = (1e-4 / (1 + 1j * np.linspace(-2, 2, L)))[:, None]
+    std = np.full((L, 1), 1e-7)
+    measured = truth + std / np.sqrt(2) * (rng.standard_normal((L, 1)) + 1j * rng.standard_normal((L, 1)))
+    predicted = truth * (1 + far)
+    predicted[missed] += 100 * std[missed]
+    run = SineRun("up", 1.0, "up", "x1", ["x1"], np.linspace(5, 7, L), measured, std,
+                  distortion=np.zeros(L) if harmonics_measured else None)
+    ok = np.ones(L, bool)
+    return run, RunPrediction(predicted, predicted, ok, ok, np.zeros((L, 1), complex), np.zeros((L, 1), complex))
+
+
+@pytest.mark.parametrize("harmonics_measured", [False, True])
+def test_without_harmonics_the_chi_square_is_also_given_capped_at_the_outlier_limit(harmonics_measured):
+    """On imported FRFs (no harmonics) two lines missed by 100 sigma (where friction sticks) cost the capped
+    chi-square the outlier limit each, as a kbar sample's share is capped; the plain one counts them whole, and
+    where the harmonics were measured only the plain one is given."""
+    from analysis.comparison import compare_predictions
+    from analysis.fit import outlier_limit
+
+    run, pred = _run_and_prediction(40, [5, 20], 0.0, harmonics_measured)
+    comp = compare_predictions([run], {"up": pred})
+    z = np.abs(pred.swept - run.receptance) ** 2 / run.receptance_std ** 2
+    assert comp.chi_square == pytest.approx(float(z.sum()), rel=1e-12)
+    if harmonics_measured:
+        assert comp.capped_chi_square is None
+    else:
+        clean = float(np.delete(z, [5, 20]).sum())
+        assert comp.capped_chi_square == pytest.approx(clean + 2 * outlier_limit(40), rel=1e-12)
+
+
+def test_a_fall_of_the_plain_or_the_capped_chi_square_is_a_fall_above_the_noise():
+    """A model right on most lines but 100 sigma off at three where friction sticks, after one a few sigma off
+    everywhere: the plain chi-square rises, the capped one falls (seed 786947 random 48); where the harmonics were
+    measured the plain one alone judges. Two models far from every line: the capped one cannot fall (every share
+    at the cap), the plain one does (seed 172963 random 17)."""
+    from analysis.comparison import chi_square_falls, compare_predictions
+
+    def comparison(missed, far, harmonics=False):
+        run, pred = _run_and_prediction(40, missed, far, harmonics)
+        return compare_predictions([run], {"up": pred})
+
+    for harmonics in (False, True):
+        before, after = comparison([], 0.004, harmonics), comparison([5, 20, 30], 0.0, harmonics)
+        assert after.chi_square > before.chi_square
+        assert chi_square_falls(before, after, 1, 1e-3) is not harmonics
+    far, farther = comparison([], 0.5), comparison([], 1.0)
+    assert far.capped_chi_square == pytest.approx(farther.capped_chi_square)
+    assert chi_square_falls(farther, far, 1, 1e-3)
+    assert not chi_square_falls(far, farther, 1, 1e-3)
