@@ -38,9 +38,8 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
-import scipy.stats
 
-from .fit import outlier_limit
+from .fit import chi_square_noise_bound, outlier_limit
 from .harmonic_balance import (CondensedSystem, KbarFunction, condense, continue_response, predict_multiharmonic,
                                predict_sweeps, single_harmonic_distortion)
 from .measurements import Control, Measurements, SineRun
@@ -428,7 +427,7 @@ def chi_square_falls(base: Comparison, comp: Comparison, dof: float, false_alarm
     (module docstring). True where the measurement has no standard deviations: nothing to judge against."""
     if base.chi_square is None or comp.chi_square is None:
         return True
-    q = scipy.stats.chi2.ppf(1 - false_alarm, max(dof, 1))
+    q = chi_square_noise_bound(1.0, dof, false_alarm)
     return bool(base.chi_square - comp.chi_square > q or (
         base.capped_chi_square is not None and comp.capped_chi_square is not None
         and base.capped_chi_square - comp.capped_chi_square > q))

@@ -57,6 +57,7 @@ from .fit import LawFit, TermFit, capped_chi_square, chi_square_noise_bound, fit
 from .laws import LAWS
 from .laws.base import SignatureWords
 from .numbers import change_words
+from .surroundings import Surroundings
 
 
 @dataclass
@@ -405,7 +406,8 @@ def _unseen(c: Candidate) -> bool:
     return c.fit is not None and any(t.size_unseen for t in c.fit.terms[-len(c.laws):])
 
 
-def _beside_above_noise(el: _Element, c: Candidate, current: LawFit, surroundings, false_alarm: float) -> bool:
+def _beside_above_noise(el: _Element, c: Candidate, current: LawFit, surroundings: Surroundings | None,
+                        false_alarm: float) -> bool:
     """On data without harmonics: whether the element's laws with the candidate, fitted leaving out the lines
     that do not follow them, fit its kbar better than its laws alone by more than the noise explains -- the capped
     chi-square (:func:`analysis.fit.capped_chi_square`) falling by more than s^2 chi2_q(parameters added), s^2 the

@@ -1041,10 +1041,10 @@ def outlier_limit(n: int) -> float:
     return -2.0 * math.log(OUTLIER_FALSE_ALARM / max(n, 1))
 
 
-def chi_square_noise_bound(scale: float, dof: int, false_alarm: float) -> float:
-    """The drop of a kbar chi-square that the noise explains at the false-alarm rate for ``dof`` parameters added
-    (at least one), on a chi-square of scale ``scale`` (s^2, the reduced chi-square of the best fit, at least 1):
-    s^2 chi2_q."""
+def chi_square_noise_bound(scale: float, dof: float, false_alarm: float) -> float:
+    """The drop of a chi-square that the noise explains at the false-alarm rate for ``dof`` parameters added
+    (at least one), on a chi-square of scale ``scale`` (s^2: for the kbar the reduced chi-square of the best fit,
+    at least 1; 1 for the FRFs, whose noise is measured): s^2 chi2_q."""
     return scale * scipy.stats.chi2.ppf(1 - false_alarm, max(dof, 1))
 
 
