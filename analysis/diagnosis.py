@@ -53,6 +53,7 @@ from .comparison import (Comparison, HarmonicCriterion, Predictor, chi_square_fa
                          kbar_functions_with)
 from .elements import LawTerm
 from .errors import InputError
+from .friction_fundamental import chi_square_with_friction_turn, holds_friction
 from .fit import LawFit, TermFit, capped_chi_square, chi_square_noise_bound, fit_laws
 from .laws import LAWS
 from .laws.base import SignatureWords
@@ -415,7 +416,9 @@ def _beside_above_noise(el: _Element, c: Candidate, current: LawFit, surrounding
     (:func:`analysis.discovery._beside_above_noise`); the loop asks it too, or it adds what discovery refused:
     beside a one-sided contact, whose kbar on data without harmonics departs from its describing function at the
     lines where it closes, cubic damping fitted those lines and cut the single-harmonic FRF error x2.3 (random 17
-    of seed 786947), where the capped chi-square fell by less than the noise explains."""
+    of seed 786947), where the capped chi-square fell by less than the noise explains. Beside friction each side
+    is taken at its best, as fitted or with the force that turns the friction's fundamental on such data
+    (:mod:`analysis.friction_fundamental`)."""
     s = el.samples
     try:
         larger = fit_laws(el.terms + [LawTerm(LAWS[c.law], {})], s.X, s.w, s.kbar, s.kbar_std,
@@ -424,6 +427,12 @@ def _beside_above_noise(el: _Element, c: Candidate, current: LawFit, surrounding
         return False
     before = capped_chi_square(np.abs(current.normalized_residuals) ** 2)
     after = capped_chi_square(np.abs(larger.normalized_residuals) ** 2)
+    if s.kbar_std is not None and holds_friction([t.law for t in el.terms]):
+        # beside friction, what the force that turns its fundamental fits is no law (analysis.friction_fundamental):
+        # each side at its best, with or without it
+        before = min(before, chi_square_with_friction_turn(el.terms, s.X, s.w, s.kbar, s.kbar_std, surroundings))
+        after = min(after, chi_square_with_friction_turn(el.terms + [LawTerm(LAWS[c.law], {})], s.X, s.w, s.kbar,
+                                                         s.kbar_std, surroundings))
     scale = max(1.0, after / max(2 * len(s.X) - larger.n_parameters, 1))
     return bool(before - after > chi_square_noise_bound(scale, larger.n_parameters - current.n_parameters,
                                                         false_alarm))

@@ -5,6 +5,7 @@ through the whole campaign stack."""
 import itertools
 import json
 import tomllib
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,8 +14,9 @@ import scipy.stats
 from analysis.auto import run_auto
 from analysis.diagnosis import ElementSamples, tied_parameters
 from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _extension, _indistinguishable, _Judge,
-                                _kinds, _limit_only_laws, _offer_frf_best_single, _one_law_more_alike, _other_kinds,
-                                _Search, _separation, _shortlists, _unseen_laws, _walk_element, law_sets,
+                                _kinds, _limit_only_laws, _offer_frf_best_single, _seen_as_its_tail, _one_law_more_alike, _other_kinds,
+                                _fit_set, _noise_bound, _not_seen_beside_friction, _Search, _separation, _shortlists, _unseen_laws, _walk_element,
+                                law_sets,
                                 search_element)
 from analysis.fit import fit_laws
 from analysis.laws import LAWS
@@ -483,3 +485,57 @@ def test_the_paper_2dof_from_an_empty_model(levels, tmp_path):
     # the model with every law of the rig gets nothing added, although the friction sticks for part of the
     # cycle near x2's antiresonance and leaves an error several times the noise
     assert run_auto(known).steps == []
+
+
+# ------------------------------------------------------------------ what a law shows below every amplitude
+def _term(name: str, **params) -> SimpleNamespace:
+    """What the test reads of a fitted term: its law and values."""
+    return SimpleNamespace(law=LAWS[name], params=params)
+
+
+def test_a_clearance_far_below_every_amplitude_is_seen_only_as_a_spring_and_a_constant_force():
+    """kbar of a gap g << X is k (1 - 4 g / (pi X)) to order (g / X)^3: a spring and a force of constant size in
+    phase with the displacement, which is no law; a gap that closes within the amplitudes measured is seen."""
+    joint = samples_of({"linear": {"k": 130.0, "c": 0.0}}, X, W, noise=0.02)
+    assert _seen_as_its_tail(_term("gap", k=130.0, gap=0.15 * X.min()), joint, 0.01)
+    assert not _seen_as_its_tail(_term("gap", k=130.0, gap=0.8 * X.min()), joint, 0.01)
+    assert not _seen_as_its_tail(_term("gap", k=130.0, gap=5 * X.min()), joint, 0.01)
+    # a friction's Im falls as 1 / X: no constant-size force in phase with the displacement
+    assert not _seen_as_its_tail(_term("coulomb", fs=0.1), joint, 0.01)
+
+
+def _set(samples: ElementSamples, *laws: str) -> LawSet:
+    return _fit_set(samples, laws, DiscoveryRules(), True)
+
+
+def test_beside_friction_a_law_must_beat_the_force_that_turns_its_fundamental():
+    """Coulomb friction beside a spring whose fundamental turned by 4 % (Re kbar = -0.04 * 4 fs / (pi X)), as on
+    data without harmonics, the lines' amplitude rising with their frequency: a velocity stiffness beside them
+    fits part of that force and nothing more, so it is not seen, and a clearance below every amplitude is seen only
+    as its tail; a cubic spring that is there is seen beside the turned friction, and nothing is asked without
+    friction."""
+    fs, false_alarm = 0.1, 0.01
+
+    def turned(laws):
+        samples = samples_of(laws, X, W, noise=0.005, floor=0.05)
+        samples.kbar = samples.kbar - 0.04 * 4 * fs / (np.pi * X)
+        return samples
+
+    joint = turned({"coulomb": {"fs": fs}, "linear": {"k": 130.0, "c": 0.0}})
+    search = search_element(0, joint, False, robust=True)
+    current, rate = _set(joint, "linear", "coulomb"), _set(joint, "linear", "coulomb", "velocity_stiffness")
+    assert current.chi_square - rate.chi_square > 5 * _noise_bound(search, 1, false_alarm)   # it fits some
+    assert _not_seen_beside_friction(search, current, rate, false_alarm) == ["velocity_stiffness"]
+    clearance = _set(joint, "coulomb", "gap")
+    assert clearance.chi_square < 0.5 * current.chi_square
+    assert [law for law, _ in _limit_only_laws(clearance, current, search, false_alarm)] == ["gap"]
+
+    hardening = turned({"coulomb": {"fs": fs}, "cubic": {"k3": 3e6}})
+    search = search_element(0, hardening, False, robust=True)
+    current, larger = _set(hardening, "coulomb"), _set(hardening, "coulomb", "cubic")
+    assert _not_seen_beside_friction(search, current, larger, false_alarm) == []
+
+    spring = samples_of({"linear": {"k": 130.0, "c": 0.0}, "cubic": {"k3": 3e6}}, X, W, noise=0.005, floor=0.05)
+    search = search_element(0, spring, False, robust=True)
+    assert _not_seen_beside_friction(search, _set(spring, "linear"), _set(spring, "linear", "cubic"),
+                                     false_alarm) == []

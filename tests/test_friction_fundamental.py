@@ -1,0 +1,53 @@
+"""The force that turns a friction's fundamental on data without harmonics (analysis/friction_fundamental.py):
+its describing function against quadrature of its force, and the reference a law beside friction must beat,
+on kbar samples of RK4 and of describing functions."""
+import numpy as np
+import pytest
+import scipy.integrate
+
+from analysis.friction_fundamental import FRICTION_TURN, chi_square_with_friction_turn, holds_friction
+from analysis.fit import capped_chi_square, fit_laws
+from analysis.laws import LAWS
+
+X = np.geomspace(2e-4, 5e-2, 80)
+W = np.linspace(8.0, 20.0, 80)
+
+
+def test_it_is_no_law_of_the_library_and_its_kbar_is_the_fundamental_of_its_force():
+    assert FRICTION_TURN.name not in LAWS and FRICTION_TURN not in LAWS.values()
+    for amplitude in (1e-4, 3e-3, 0.2):
+        # kbar = (1 / (pi X)) int_0^2pi f(X cos t) cos t dt, the force taken from the kernel
+        def integrand(t):
+            return FRICTION_TURN.kernel(amplitude * np.cos(t), 0.0, np.array([0.03]), np.zeros(0)) * np.cos(t)
+        quad = scipy.integrate.quad(integrand, 0, 2 * np.pi, points=[np.pi / 2, 3 * np.pi / 2])[0]
+        kbar = FRICTION_TURN.describing_function(np.array([amplitude]), np.array([10.0]), F0=0.03)[0]
+        assert kbar == pytest.approx(quad / (np.pi * amplitude), rel=1e-8)
+
+
+def test_only_friction_laws_hold_friction():
+    assert holds_friction([LAWS["linear"], LAWS["coulomb"]])
+    assert holds_friction([LAWS["jenkins"]])
+    assert not holds_friction([LAWS["linear"], LAWS["cubic"], LAWS["gap"]])
+
+
+def _samples(turn: float, seed: int):
+    fs, k = 0.1, 130.0
+    truth = LAWS["coulomb"].describing_function(X, W, fs=fs) + k + turn * 4 * fs / (np.pi * X)
+    std = 0.005 * np.abs(truth) + 0.05
+    rng = np.random.default_rng(seed)
+    return truth + std / np.sqrt(2) * (rng.normal(size=X.size) + 1j * rng.normal(size=X.size)), std
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_turned_friction_with_the_force_fits_to_the_noise_and_a_plain_one_gains_nothing(seed):
+    """Coulomb friction beside a spring whose fundamental turned by 4 %: with the force the laws fit the samples
+    to the noise, 2N +- 3 sqrt(4N), far below the laws alone; where it did not turn the force adds nothing."""
+    n_noise = 2 * X.size + 3 * np.sqrt(4 * X.size)
+    turned, std = _samples(-0.04, seed)
+    alone = fit_laws(["linear", "coulomb"], X, W, turned, std, exclude_outliers=True)
+    with_turn = chi_square_with_friction_turn(["linear", "coulomb"], X, W, turned, std)
+    assert with_turn < n_noise < capped_chi_square(np.abs(alone.normalized_residuals) ** 2)
+    plain, std = _samples(0.0, seed)
+    alone = fit_laws(["linear", "coulomb"], X, W, plain, std, exclude_outliers=True)
+    assert chi_square_with_friction_turn(["linear", "coulomb"], X, W, plain, std) == pytest.approx(
+        capped_chi_square(np.abs(alone.normalized_residuals) ** 2), abs=12.0)
