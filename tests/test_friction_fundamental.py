@@ -51,3 +51,32 @@ def test_a_turned_friction_with_the_force_fits_to_the_noise_and_a_plain_one_gain
     alone = fit_laws(["linear", "coulomb"], X, W, plain, std, exclude_outliers=True)
     assert chi_square_with_friction_turn(["linear", "coulomb"], X, W, plain, std) == pytest.approx(
         capped_chi_square(np.abs(alone.normalized_residuals) ** 2), abs=12.0)
+
+
+@pytest.mark.slow
+def test_on_independent_rk4_receptances_the_turn_is_there_and_the_rigs_laws_are_seen_beside_it():
+    """The paper's 2-DOF integrated by the plain RK4 of tests/test_paper_frfs_alone.py (Coulomb as a steep tanh,
+    receptances only): the right joint's kbar leaves the sliding describing function by a force in phase with
+    the displacement (F0 < 0, far beyond its error), cubic + Coulomb fit far better with it (capped chi-square
+    1164 -> 730 over 97 lines), and the rig's cubic is seen beside the Coulomb friction beyond it. (Not all of
+    the departure is that force: at the smallest amplitude, where the friction sticks, Re kbar is -34 % of Im;
+    a velocity stiffness or a saturating spring still fits part of that, and other rules decide them there.)"""
+    from analysis.discovery import DiscoveryRules, _fit_set, _not_seen_beside_friction, search_element
+    from test_paper_frfs_alone import FREQS as PAPER_FREQS, paper_receptance, workbench
+
+    wb = workbench(paper_receptance(PAPER_FREQS), seed=0)
+    samples = wb._ranking_inputs()[0]["right"]
+    turned = fit_laws(["cubic", "coulomb", FRICTION_TURN], samples.X, samples.w, samples.kbar, samples.kbar_std,
+                      exclude_outliers=True)
+    f0, = (t for t in turned.terms if t.law is FRICTION_TURN)
+    assert f0.params["F0"] < 0 and abs(f0.params["F0"]) > 5 * f0.stderr["F0"]
+    alone = fit_laws(["cubic", "coulomb"], samples.X, samples.w, samples.kbar, samples.kbar_std,
+                     exclude_outliers=True)
+    with_turn = chi_square_with_friction_turn(["cubic", "coulomb"], samples.X, samples.w, samples.kbar,
+                                              samples.kbar_std)
+    assert with_turn < 0.8 * capped_chi_square(np.abs(alone.normalized_residuals) ** 2)
+
+    search = search_element(1, samples, False, robust=True)
+    rules = DiscoveryRules()
+    friction, rig = _fit_set(samples, ("coulomb",), rules, True), _fit_set(samples, ("cubic", "coulomb"), rules, True)
+    assert _not_seen_beside_friction(search, friction, rig, rules.ranking.false_alarm) == []
