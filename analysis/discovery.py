@@ -26,7 +26,9 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    waits on another's: of each size the set the kbar criterion prefers among those whose single-harmonic FRF
    error is within ``min_gain`` of the best is tried, and taken only if the kbar criterion prefers it to the
    current choice too (on data without harmonics: beside laws taken, its chi-square falls by more than the noise
-   explains, :func:`_beside_above_noise`) and no set alike it in the kbar, with no more parameters and an FRF
+   explains, :func:`_beside_above_noise`; beside friction, by more than the force that turns the friction's
+   fundamental fits, :func:`_not_seen_beside_friction`, the set without a law that fails it tried in its place,
+   :func:`_took_instead`) and no set alike it in the kbar, with no more parameters and an FRF
    error within ``min_gain``, has laws of other kinds (neither on data without harmonics, where the capped criterion can
    prefer no law to a right one), every law of it is seen in the kbar (:func:`_unseen_laws`) and seen as itself,
    not only in a limit of its amplitude scale, below or beyond every amplitude (:func:`_limit_only_laws`), and it

@@ -30,11 +30,7 @@ from .surroundings import Surroundings
 
 @njit(cache=True)
 def _in_phase_force(x, v, p, s):
-    if x > 0.0:
-        return p[0]
-    if x < 0.0:
-        return -p[0]
-    return 0.0
+    return p[0] * np.sign(x)
 
 
 class ConstantInPhaseForce(Law):

@@ -126,3 +126,22 @@ def test_a_law_beside_laws_present_must_lower_the_capped_chi_square_above_the_no
         plain = fit_laws(["cubic", "cubic_damping"], s.X, s.w, s.kbar, s.kbar_std)
         alone = fit_laws(["cubic"], s.X, s.w, s.kbar, s.kbar_std)
         assert alone.chi_square - plain.chi_square > 10 * scipy.stats.chi2.ppf(1 - RULES.false_alarm, 1)
+
+
+@pytest.mark.parametrize("law, expected", [("tanh_softening", False), ("velocity_stiffness", False),
+                                           ("cubic", True)])
+def test_beside_friction_the_loop_asks_a_law_to_beat_the_force_that_turns_its_fundamental(law, expected):
+    """Coulomb friction beside a spring whose fundamental turned by 4 % (Re kbar = -0.04 * 4 fs / (pi X)), as on
+    data without harmonics, with a cubic spring where ``cubic`` is expected: a saturating spring or a velocity
+    stiffness beside them fits that force and nothing more and is refused; the cubic the kbar has is taken
+    (the same rule as model discovery's, docs/workbench.md)."""
+    X, w, fs = np.geomspace(2e-4, 5e-2, 80), np.linspace(8.0, 20.0, 80), 0.1
+    truth = (130.0 + LAWS["coulomb"].describing_function(X, w, fs=fs) - 0.04 * 4 * fs / (np.pi * X)
+             + (LAWS["cubic"].describing_function(X, w, k3=3e6) if expected else 0.0))
+    std = 0.005 * np.abs(truth) + 0.05
+    rng = np.random.default_rng(3)
+    kbar = truth + std / np.sqrt(2) * (rng.normal(size=X.size) + 1j * rng.normal(size=X.size))
+    s = ElementSamples("joint", X, w, kbar, std, np.ones(X.size))
+    current = fit_laws(["linear", "coulomb"], X, w, kbar, std, exclude_outliers=True)
+    el = SimpleNamespace(samples=s, terms=[LawTerm(LAWS[t.law.name], dict(t.params)) for t in current.terms])
+    assert _beside_above_noise(el, candidate(law), current, None, RULES.false_alarm) is expected
