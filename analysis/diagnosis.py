@@ -420,8 +420,9 @@ def _beside_above_noise(el: _Element, c: Candidate, current: LawFit, surrounding
     is taken at its best, as fitted or with the force that turns the friction's fundamental on such data
     (:mod:`analysis.friction_fundamental`)."""
     s = el.samples
+    terms = el.terms + [LawTerm(LAWS[c.law], {})]
     try:
-        larger = fit_laws(el.terms + [LawTerm(LAWS[c.law], {})], s.X, s.w, s.kbar, s.kbar_std,
+        larger = fit_laws(terms, s.X, s.w, s.kbar, s.kbar_std,
                           exclude_outliers=True, surroundings=surroundings)
     except InputError:
         return False
@@ -431,8 +432,7 @@ def _beside_above_noise(el: _Element, c: Candidate, current: LawFit, surrounding
         # beside friction, what the force that turns its fundamental fits is no law (analysis.friction_fundamental):
         # each side at its best, with or without it
         before = min(before, chi_square_with_friction_turn(el.terms, s.X, s.w, s.kbar, s.kbar_std, surroundings))
-        after = min(after, chi_square_with_friction_turn(el.terms + [LawTerm(LAWS[c.law], {})], s.X, s.w, s.kbar,
-                                                         s.kbar_std, surroundings))
+        after = min(after, chi_square_with_friction_turn(terms, s.X, s.w, s.kbar, s.kbar_std, surroundings))
     scale = max(1.0, after / max(2 * len(s.X) - larger.n_parameters, 1))
     return bool(before - after > chi_square_noise_bound(scale, larger.n_parameters - current.n_parameters,
                                                         false_alarm))
