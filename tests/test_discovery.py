@@ -13,8 +13,8 @@ import scipy.stats
 
 from analysis.auto import run_auto
 from analysis.diagnosis import ElementSamples, tied_parameters
-from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _extension, _indistinguishable, _Judge,
-                                _kinds, _limit_only_laws, _offer_frf_best_single, _seen_as_its_tail, _one_law_more_alike, _other_kinds,
+from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _alike, _extension, _indistinguishable, _Judge,
+                                _kinds, _limit_only_laws, _offer_frf_best_alike, _offer_frf_best_single, _seen_as_its_tail, _one_law_more_alike, _other_kinds,
                                 _fit_set, _noise_bound, _not_seen_beside_friction, _Search, _separation, _shortlists, _unseen_laws, _walk_element,
                                 law_sets,
                                 search_element)
@@ -112,9 +112,10 @@ def test_a_set_with_one_law_more_of_the_same_kinds_that_fits_as_well_is_named():
     assert not _one_law_more_alike(search, sets["coulomb", "arctan_softening"], chosen, 1e-3)
     better = LawSet(("linear", "cubic"), sets["linear", "cubic"].fit, chosen.chi_square - 50.0, 3)
     assert not _one_law_more_alike(search, better, chosen, 1e-3)
-    # where the FRFs tell it apart by more than the margin, it is not named
-    judge.single = _Errors({**{x.laws: 0.01 for x in search.sets}, ("linear", "cubic"): 0.02})
-    assert ("linear", "cubic") not in [x.laws for x in _indistinguishable(judge, search, chosen)]
+    # where the FRFs tell it apart by more than the margin, worse or better, it is not named
+    for error in (0.02, 0.005):
+        judge.single = _Errors({**{x.laws: 0.01 for x in search.sets}, ("linear", "cubic"): error})
+        assert ("linear", "cubic") not in [x.laws for x in _indistinguishable(judge, search, chosen)]
 
 
 def test_the_shortlist_keeps_one_of_sets_that_fit_alike_and_a_determined_one():
@@ -198,6 +199,15 @@ def test_a_saturating_spring_that_saturates_beyond_every_amplitude_is_the_linear
     assert law == "tanh_softening" and "a linear spring in its place fits the kbar as well" in why
     worse = LawSet(("linear",), None, curved.chi_square + 1.1 * q, 2)
     assert _limit_only_laws(curved, empty, _searched(bent, curved, worse), 1e-3) == []
+    # ... unless the FRFs tell the two apart beyond doubt, where the kbar's chi-square is capped (data without
+    # harmonics): the law is then seen
+    asked = []
+
+    def frfs_part(limit, s):
+        asked.append((limit.laws, s.laws))
+        return True
+    assert _limit_only_laws(curved, empty, _searched(bent, curved, as_well), 1e-3, frfs_part) == []
+    assert asked == [(("linear",), ("tanh_softening",))]
 
 
 def test_a_set_not_seen_as_itself_gives_way_to_the_next_the_kbar_prefers():
@@ -317,6 +327,30 @@ def test_the_single_law_the_frfs_like_best_joins_the_shortlist_of_one_law():
     assert search.by_size[1] == before + [outside]
     _offer_frf_best_single(judge, search)                              # once only
     assert search.by_size[1] == before + [outside]
+
+
+def test_on_data_without_harmonics_sets_that_fit_the_kbar_alike_and_the_frfs_far_better_join_the_shortlist():
+    # random case 9 of seed 275748: the capped kbar ranked a tanh spring beside Coulomb friction below a dozen
+    # sets of two laws, and its FRF error was x17 lower
+    search = search_element(0, samples_of({"coulomb": {"fs": 0.5}}, X, W), linear_verdict=False)
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False
+    short = list(search.by_size[2])
+    outside = [s for s in search.sets if len(s.laws) == 2 and s not in short]
+    alike = next(s for s in outside if _alike(search, s, short[0], judge.rules.ranking.false_alarm))
+    apart = next(s for s in outside if not any(_alike(search, s, t, 1e-3) for t in short))
+    errors = {s.laws: 0.5 for s in search.sets}
+    close = next(s for s in outside if s is not alike and _alike(search, s, short[0], 1e-3))
+    # x50 better and alike: joins; x2 better and alike: below certain_gain; x500 better but not alike: the kbar
+    # tells it apart
+    judge.single = _Errors({**errors, alike.laws: 0.01, close.laws: 0.25, apart.laws: 0.001})
+    _offer_frf_best_alike(judge, search)
+    assert search.by_size[2] == short + [alike]
+    # on data with harmonics the kbar is not capped, and the shortlist stays as it is
+    search.by_size[2] = list(short)
+    judge.kbar_judges = True
+    _offer_frf_best_alike(judge, search)
+    assert search.by_size[2] == short
 
 
 def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tell_them_apart():
