@@ -15,7 +15,7 @@ from analysis.auto import run_auto
 from analysis.diagnosis import ElementSamples, tied_parameters
 from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _alike, _extension, _indistinguishable, _Judge,
                                 _kinds, _limit_only_laws, _offer_frf_best_alike, _offer_frf_best_single, _seen_as_its_tail, _one_law_more_alike, _other_kinds,
-                                _fit_set, _noise_bound, _not_seen_beside_friction, _Search, _separation, _shortlists, _unseen_laws, _walk_element,
+                                _fit_set, _noise_bound, _not_seen_beside_friction, _Search, _separation, _shortlists, _unseen_laws, _verdict_overruled, _walk_element,
                                 law_sets,
                                 search_element)
 from analysis.fit import fit_laws
@@ -351,6 +351,35 @@ def test_on_data_without_harmonics_sets_that_fit_the_kbar_alike_and_the_frfs_far
     judge.kbar_judges = True
     _offer_frf_best_alike(judge, search)
     assert search.by_size[2] == short
+
+
+class _Otherwise(dict):
+    """FRF errors of the sets named; every other set's is 0.5."""
+
+    def __missing__(self, laws):
+        return 0.5
+
+
+def test_a_linear_verdict_is_set_aside_where_the_frfs_show_a_law_of_the_amplitude_beyond_doubt():
+    # random case 45 of seed 635793: cubic damping at a joint whose kbar is small beside the structure's, too
+    # little in its kbar for the verdict, x10.5 in the FRFs
+    s = samples_of({"linear": {"k": 20.0, "c": 0.0}}, X, W, noise=0.05)
+    search = search_element(0, s, linear_verdict=True)
+    assert all(not LAWS[n].amplitude_dependent for x in search.sets for n in x.laws)
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False
+    errors = _Otherwise({x.laws: 0.4 for x in search.sets})
+    judge.single = _Errors(errors)
+    errors["cubic_damping",] = 0.04
+    singles = DiscoveryRules(max_laws=1)                 # the search of single laws is what the test needs
+    full = _verdict_overruled(judge, search, singles, None)
+    assert full is not None and ("cubic_damping",) in [x.laws for x in full.sets]
+    assert "cubic_damping beats every set without amplitude dependence in the FRFs x10" in full.overruled
+    # x2 is within what the verdict may miss; on data with harmonics the kbar is not capped and the verdict holds
+    errors["cubic_damping",] = 0.2
+    assert _verdict_overruled(judge, search, singles, None) is None
+    errors["cubic_damping",], judge.kbar_judges = 0.04, True
+    assert _verdict_overruled(judge, search, singles, None) is None
 
 
 def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tell_them_apart():
