@@ -13,10 +13,3 @@ _MAX_WORKERS = 4
 
 def pytest_xdist_auto_num_workers(config):
     return max(1, min(_MAX_WORKERS, os.cpu_count() or 1))
-
-
-def pytest_collection_modifyitems(config, items):
-    """The modules with slow tests run first, each kept together (its module fixtures are built once per worker):
-    the workers then end on short tests together instead of one waiting for the other's three-minute case."""
-    heavy = {item.module.__name__ for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: item.module.__name__ not in heavy)
