@@ -47,7 +47,7 @@ from them says so.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -967,19 +967,22 @@ def _verdict_overruled(judge: _Judge, search: _Search, rules: DiscoveryRules,
     at the false-alarm rate, and an element whose kbar is small beside the structure's carries little of it:
     random case 45 of seed 635793, cubic damping c3 = 23.8 at a joint whose kbar is 26 N/m, lowered the kbar's
     chi-square from 302.5 to 291.9 over 136 samples, too little for the verdict, and cut the FRF error x10.5
-    (0.401 -> 0.038); the loop, bound by the verdict, left the joint empty."""
+    (0.401 -> 0.038); the loop, bound by the verdict, left the joint empty. The single laws are fitted first;
+    the sets of two and three only where the verdict is set aside."""
     part = judge.frfs_part(search)
     if part is None:
         return None
-    full = search_element(search.index, search.samples, False, rules, True, around)
-    singles = [s for s in full.sets if len(s.laws) == 1 and LAWS[s.laws[0]].amplitude_dependent]
-    if not singles:
+    i = search.index
+    singles = search_element(i, search.samples, False, replace(rules, max_laws=1), robust=True, around=around)
+    amplitude = [s for s in singles.sets if len(s.laws) == 1 and LAWS[s.laws[0]].amplitude_dependent]
+    if not amplitude:
         return None
-    best = min(singles, key=lambda s: judge.single({search.index: s}).error)
-    linear = min(search.sets, key=lambda s: judge.single({search.index: s}).error)
+    best = min(amplitude, key=lambda s: judge.single({i: s}).error)
+    linear = min(search.sets, key=lambda s: judge.single({i: s}).error)
     if not part(linear, best):
         return None
-    gain = judge.single({search.index: linear}).error / judge.single({search.index: best}).error
+    full = search_element(i, search.samples, False, rules, robust=True, around=around)
+    gain = judge.single({i: linear}).error / judge.single({i: best}).error
     full.overruled = (f"its linearity verdict (linear, from its kbar at the false-alarm rate) is set aside: "
                       f"{best.name} beats every set without amplitude dependence in the FRFs x{gain:.3g}, so every "
                       "law of the library was searched")
@@ -1122,7 +1125,7 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
         equivalents = [Separation(s.laws, _separation(search, chosen, s))
                        for s in _indistinguishable(judge, search, chosen)]
         found.append(ElementDiscovery(names[search.index], chosen, search.scale, len(search.sets) - 1,
-                                      [search.overruled] * bool(search.overruled)
+                                      ([search.overruled] if search.overruled else [])
                                       + _explanations(names[search.index], search, chosen), equivalents,
                                       walks.get(search.index, []),
                                       judged[search.index].laws if judged[search.index] is not chosen else None))
