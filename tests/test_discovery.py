@@ -16,9 +16,10 @@ from analysis.diagnosis import ElementSamples, tied_parameters
 from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _alike, _extension, _indistinguishable, _Judge,
                                 _kinds, _limit_only_laws, _offer_frf_best_alike, _offer_frf_best_single, _seen_as_its_tail, _one_law_more_alike, _other_kinds,
                                 _fit_set, _noise_bound, _not_seen_beside_friction, _Search, _separation, _shortlists, _unseen_laws, _verdict_overruled, _walk_element,
+                                _warm_start, _simplest,
                                 law_sets,
                                 search_element)
-from analysis.fit import fit_laws
+from analysis.fit import _shape_coordinate, fit_laws
 from analysis.laws import LAWS
 from analysis.laws.base import KINDS
 
@@ -55,6 +56,52 @@ def test_the_kbar_criterion_picks_the_true_pair_and_charges_the_third_law():
     assert set(best[2].laws) == {"cubic", "quadratic_damping"}
     assert best[2].criterion < best[1].criterion and best[2].criterion < best[3].criterion
     assert search.scale == pytest.approx(1.0)            # the right pair fits to the noise: nothing to scale
+
+
+def one_sided_contact(X, k: float, gap: float) -> np.ndarray:
+    """The fundamental of k max(x - gap, 0) over x = X cos(theta), by quadrature (no mean drives it here)."""
+    theta = np.linspace(0.0, 2 * np.pi, 4001)[:-1]
+    force = k * np.maximum(X[:, None] * np.cos(theta) - gap, 0.0)
+    return 2.0 * np.mean(force * np.cos(theta), axis=1) / X
+
+
+def test_the_screening_grid_of_a_clearance_spans_the_amplitudes_measured():
+    # random case 6 of seed 635793: the signed clearance of a one-sided contact had one magnitude on the screening
+    # grid (4 points), the smallest amplitude's; a contact closing at 0.8 of the largest amplitude was fitted as
+    # no contact (k = 0) from there
+    Xs = np.geomspace(3e-5, 5.75e-3, 62)
+    coordinate = _shape_coordinate(LAWS["unilateral"].shape[0], None, Xs, 1.0)
+    positive = np.array([coordinate.to_natural(z) for z in coordinate.grid(DiscoveryRules().screening_grid)])
+    positive = positive[positive > 0]
+    for gap in np.geomspace(Xs.min(), Xs.max(), 30):
+        assert np.min(np.abs(np.log(positive / gap))) < np.log(4.0)
+
+
+def test_a_one_sided_contact_that_closes_near_the_largest_amplitude_is_fitted_at_the_screening_settings():
+    # kbar near the noise but where the contact closes (the real case's: 100-300 N/m of noise, up to 1100 N/m of
+    # contact); from the smallest clearance alone the search stalled at no contact on three draws of six
+    Xs, Ws = np.geomspace(3e-5, 5.75e-3, 62), np.linspace(11.0, 40.0, 62)
+    truth, std = one_sided_contact(Xs, 20000.0, 0.0045), np.full(len(Xs), 300.0)
+    found = 0
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        kbar = truth + std / np.sqrt(2) * (rng.normal(size=len(Xs)) + 1j * rng.normal(size=len(Xs)))
+        s = _fit_set(ElementSamples("joint", Xs, Ws, kbar, std, np.ones(len(Xs))), ("unilateral",),
+                     DiscoveryRules(), robust=True)
+        found += abs(s.fit.terms[0].params["gap"] / 0.0045 - 1.0) < 0.05
+    assert found >= 4
+
+
+def test_a_set_starts_from_the_fits_of_its_smaller_sets():
+    s = samples_of({"gap": {"k": 900.0, "gap": 0.02}}, X, W)
+    search = search_element(0, s, linear_verdict=False, rules=DiscoveryRules(max_laws=2))
+    by_laws = {x.laws: x for x in search.sets if x.laws}
+    start = _warm_start(("cubic", "gap"), by_laws)
+    assert start[0] is None and start[1] == by_laws["gap",].fit.terms[0].params
+    assert _warm_start(("linear", "cubic"), by_laws) is None            # no shape parameter to start
+    # a triple starts from the pair that holds the law
+    pair = min((by_laws[p] for p in (("cubic", "gap"), ("quadratic_damping", "gap"))), key=lambda x: x.chi_square)
+    assert _warm_start(("cubic", "quadratic_damping", "gap"), by_laws)[2] == pair.fit.terms[1].params
 
 
 def test_a_linear_verdict_admits_only_laws_without_amplitude_dependence():
@@ -394,6 +441,37 @@ def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tel
     for twin_error, counts in ((0.012, True), (0.05, False)):
         judge.single = _Errors({**errors, pair.laws: 0.01, twin.laws: twin_error})
         assert (twin in _other_kinds(judge, search, pair)) is counts
+
+
+class _MultiOf:
+    """A stand-in for the multi-harmonic comparisons: the error of the set at element 0."""
+
+    def __init__(self, errors: dict[tuple[str, ...], float]):
+        self.errors = errors
+
+    def __call__(self, choice):
+        return type("Comparison", (), {"error": self.errors[choice[0].laws]})()
+
+
+def test_a_simpler_set_alike_replaces_the_choice_only_where_it_holds_with_harmonics_on_data_without_them():
+    # random case 10 of seed 635793: a one-sided contact and a gap alike in the kbar and single-harmonic (0.075),
+    # 0.296 and 0.019 with harmonics; as many parameters, and the tie took the contact
+    search = search_element(0, samples_of({"gap": {"k": 900.0, "gap": 0.02}}, X, W), linear_verdict=False)
+    chosen = next(x for x in search.sets if x.laws == ("gap",))
+    contact = LawSet(("unilateral",), chosen.fit, chosen.chi_square, chosen.n_parameters)
+    spring = LawSet(("quintic",), chosen.fit, chosen.chi_square, 1)          # simpler, alike made
+    search.sets += [contact, spring]
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False
+    judge.single = _Errors(_Otherwise({chosen.laws: 0.075, contact.laws: 0.075, spring.laws: 0.08}))
+    judge.multi = _MultiOf(_Otherwise({chosen.laws: 0.019, contact.laws: 0.296, spring.laws: 0.3}))
+    assert _simplest(judge, search, chosen, {0: chosen}) is chosen       # the quintic fails with harmonics
+    judge.multi.errors[spring.laws] = 0.02
+    assert _simplest(judge, search, chosen, {0: chosen}) is spring       # it holds: the simpler is taken
+    judge.multi.errors[spring.laws], judge.kbar_judges = 0.3, True
+    assert _simplest(judge, search, chosen, {0: chosen}) is spring       # the kbar carries the harmonics
+    search.sets.remove(spring)
+    assert _simplest(judge, search, chosen, {0: chosen}) is chosen       # a tie is no simpler
 
 
 class _Multi:
