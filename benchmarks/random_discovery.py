@@ -78,7 +78,9 @@ def law_values(law: str, r: float, sign: float, k: float, X: float, w: float, fo
         # a softer joint by as much as a stiffer one, within the limit that keeps the rig stable
         return {"k": r * k if sign > 0 else -min(r * k, k_soft), "c": 0.0}
     if law == "cubic":
-        return {"k3": (sign if sign < 0 else 1.0) * r * k / X ** 2 * (0.5 if sign < 0 else 1.0)}
+        # a softening cubic within the limit a softer linear law keeps: its tangent stiffness 3 k3 x^2 reaches
+        # k_soft at X, so the joint cannot escape below the amplitudes the plan drives it to
+        return {"k3": r * k / X ** 2 if sign > 0 else -min(0.5 * r * k, k_soft / 3.0) / X ** 2}
     if law == "quintic":
         return {"k5": r * k / X ** 4}
     if law in ("tanh_softening", "arctan_softening"):

@@ -329,11 +329,13 @@ def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
     assert asked == []
 
 
-@pytest.mark.parametrize("fall, taken", [(0.9, False), (1.1, True)])
-def test_on_data_without_harmonics_a_law_beside_others_must_lower_the_kbar_chi_square_above_the_noise(fall, taken):
+@pytest.mark.parametrize("fall, after, taken", [(0.9, 0.05, False), (1.1, 0.05, True), (0.9, 0.01, True)])
+def test_on_data_without_harmonics_a_law_beside_others_must_lower_the_kbar_chi_square_above_the_noise(
+        fall, after, taken):
     # the criterion does not judge there; a law beside the laws taken that fits part of the lines departing from
     # every describing function gains in the FRFs (random 14 and 24 of seed 112631: a velocity stiffness beside
-    # a softer joint and Coulomb friction)
+    # a softer joint and Coulomb friction, x2.0); a gain of x10 is beyond what that brings (random 27 of seed
+    # 266231: a gap closing at a few lines, x29 in the FRFs), and is checked with harmonics instead
     search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
     sets = {s.laws: s for s in search.sets}
     one, two = sets["cubic",], sets["cubic", "quadratic_damping"]
@@ -341,7 +343,7 @@ def test_on_data_without_harmonics_a_law_beside_others_must_lower_the_kbar_chi_s
     beside = LawSet(two.laws, two.fit, one.chi_square - fall * noise, two.n_parameters)
     judge = _Judge.__new__(_Judge)
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
-    judge.single = _Errors({one.laws: 0.1, two.laws: 0.01})
+    judge.single = _Errors({one.laws: 0.1, two.laws: after})
     step = judge.step_up(search, one, beside)
     assert step.taken is taken
     assert taken or "falls by less than the noise explains" in step.why
@@ -357,8 +359,10 @@ def test_every_set_one_law_larger_than_the_choice_goes_to_the_frfs():
     cubic = sets["cubic",]
     larger = {s.laws for s in _extension(search, cubic, 2)} | {s.laws for s in search.by_size[2]}
     assert {s.laws for s in search.sets if len(s.laws) == 2 and "cubic" in s.laws} <= larger
-    # two laws more at once, or the first law: the best by the criterion only
-    assert len(_extension(search, cubic, 3)) <= 1
+    # two laws more beside laws taken: every such set too (the Brake-Reuss beam's cubic + cubic damping + contact
+    # beside cubic damping); the first law: the best by the criterion only
+    three = {s.laws for s in _extension(search, cubic, 3)} | {s.laws for s in search.by_size[3]}
+    assert {s.laws for s in search.sets if len(s.laws) == 3 and "cubic" in s.laws} <= three
     assert len(_extension(search, sets[()], 1)) <= 1
 
 

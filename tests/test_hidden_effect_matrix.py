@@ -3,6 +3,7 @@ covers what the matrix promises, the independent integrator is right, the scorin
 published table is the one the last full run produced, and a representative subset of cases is diagnosed right
 (slow)."""
 import json
+import tomllib
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -160,6 +161,30 @@ def test_a_random_clearance_is_drawn_to_close_at_the_amplitude_its_joint_reaches
     case = rd._draw(112631, 22)[21]
     assert [law.law for law in case.laws] == ["cubic_damping", "tanh_softening", "gap"]
     assert dict(case.laws[2].values)["k"] == pytest.approx(1.403e3, rel=1e-3)
+
+
+def test_a_random_softening_cubic_is_drawn_so_that_its_joint_cannot_escape_within_its_amplitude():
+    # seed 266231 random 3: a softening cubic of k3 = -8.4e6 N/m^3 between two masses ran away in the integrator
+    # (the joint's stiffness e K e is 3-4 x the stiffness the structure gives it, 1 / e K^-1 e)
+    import sys
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import random_discovery as rd
+
+    softening = 0
+    for c in rd._draw(266231, 45):
+        rig = mc.Lumped.of(c.bench)
+        force = 4 * tomllib.loads(c.bench.plan)["stepped_sine"][0]["force"]
+        w_modes = np.sqrt(np.sort(np.linalg.eigvals(np.linalg.solve(rig.M, rig.K)).real))
+        f_lo = 0.75 * w_modes[0] / (2 * np.pi)          # the band the generator scales the joint over
+        f_hi = min(1.2 * w_modes[min(1, len(w_modes) - 1)] / (2 * np.pi), f_lo + 12.0)
+        for law in c.laws:
+            if law.law != "cubic" or dict(law.values)["k3"] > 0:
+                continue
+            softening += 1
+            e = mc._site_vector(next(s for s in c.bench.sites if s.name == law.element), rig.dofs)
+            X, _ = rd._joint_scale(rig.M, rig.K, rig.C, e, force, f_lo, f_hi)
+            assert 3 * abs(dict(law.values)["k3"]) * X ** 2 <= rd._softening_limit(rig.K, e) * (1 + 1e-9), c.name
+    assert softening >= 3
 
 
 @pytest.mark.slow
