@@ -318,7 +318,7 @@ class RankingRules:
     model_form_thd: float = 1e-3     # lines whose displacement THD exceeds this are predicted with harmonics
                                      # when a significant candidate is checked (check_model_form)
     certain_gain: float = 5.0        # a single-harmonic gain this large is not the harmonics' effect (laws that
-                                     # only fit what one harmonic cannot represent gained x1.26-x1.9 in every
+                                     # only fit what one harmonic cannot represent gained x1.26-x2.5 in every
                                      # case measured): on data without harmonics the capped kbar does not veto
                                      # it; model discovery checks no such step with harmonics on data with
                                      # them, nor an element's first law

@@ -259,8 +259,9 @@ def _warm_start(laws: tuple[str, ...], by_laws: dict[tuple[str, ...], LawSet]) -
     and the gap at no stiffness, while the gap's own fit (gap = 8.27 mm) started both right (random case 10 of
     seed 635793: k = 2520 N/m, gap = 8.34 mm, k3 = 1.16e5, the rig's 2656, 8.52 mm and 1.48e5)."""
     start: list[dict | None] = []
+    within = [s for sub, s in by_laws.items() if set(sub) < set(laws) and s.fit is not None]
     for name in laws:
-        smaller = [s for sub, s in by_laws.items() if name in sub and set(sub) < set(laws) and s.fit is not None]
+        smaller = [s for s in within if name in s.laws]
         if not LAWS[name].shape or not smaller:
             start.append(None)
             continue

@@ -459,7 +459,7 @@ class _ShapeCoordinate:
             # zero and n log-spaced magnitudes a..b of either sign: the size of a sign-changing
             # parameter (a clearance or a preload) is as uncertain as that of a positive one, and a
             # clearance that closes near the largest amplitude is found only from a start within a few
-            # times of it (n // 2 points left one magnitude, the smallest, at the screening's n = 4)
+            # times of it ((n - 1) // 2 a side left one magnitude, the smallest, at the screening's n = 4)
             half = np.geomspace(a, b, n)
             values = np.concatenate([-half[::-1], [0.0], half])
         else:
