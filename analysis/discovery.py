@@ -38,7 +38,10 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    with the lines that carry harmonics predicted multi-harmonically (unless its gain is beyond ``certain_gain``
    and the data carry harmonics or the step is the element's first law), or it is taken back. A law that fits
    only what one harmonic cannot represent, or a wrong law standing in for part of a kbar, gains too little
-   there.
+   there. On data without harmonics a set with a clearance law is also judged at its parameters refined against
+   the FRFs, and a law beside a clearance is taken back where, every element refined, it gains less than
+   ``min_gain`` (:func:`_overruled_at_kbar_fit_only`, :meth:`_Judge.fitted_single`,
+   :func:`_pruned_beside_clearance`; docs/discovery.md, "A clearance judged at its refined parameters").
 
 The chosen laws' explanations are written from the *partial* kbar each law explains (the samples less the other
 laws of the set), so the log-slopes printed beside a law are the ones it fits; a law whose own signature departs
@@ -918,7 +921,7 @@ class _Judge:
         (random case 6 of seed 939814: Anderson-Ferri friction of negative c beside a gap, x1.39 over the gap at
         its kbar fit, 0.178, which refined gives 0.055; random case 38: a negative quintic beside a gap)."""
         own = self.single({search.index: s})
-        if self.kbar_judges or not any(LAWS[n].kind == "clearance" for n in s.laws):
+        if self.kbar_judges or not _has_clearance(s):
             return own
         replace = {**self.standins, search.index: _terms_function(self.refined(search, s).terms)}
         refined = self.predictor.compare(kbar_functions_with(self.predictor.model.elements, replace))
@@ -976,7 +979,8 @@ def _has_clearance(s: LawSet) -> bool:
     return any(LAWS[n].kind == "clearance" for n in s.laws)
 
 
-def _pruned_beside_clearance(judge: _Judge, index: dict[int, "_Search"], judged: dict[int, LawSet]) -> dict[int, str]:
+def _pruned_beside_clearance(judge: _Judge, index: dict[int, "_Search"],
+                             judged: dict[int, LawSet]) -> dict[int, str]:
     """On data without harmonics, each element's law beside a clearance law taken back where, with every
     element's parameters refined against the FRFs, the set without it is within ``min_gain`` of the set with it,
     single-harmonic or with harmonics (``judged`` is changed in place; returns element index -> why, in words).
@@ -1006,7 +1010,8 @@ def _pruned_beside_clearance(judge: _Judge, index: dict[int, "_Search"], judged:
             dropped = next(n for n in chosen.laws if n not in best.laws)
             why[i] = (f"{dropped} taken back: with every element's parameters refined against the FRFs, "
                       f"{best.name} gives {errors[0]:.3g} single-harmonic and {errors[1]:.3g} with harmonics, "
-                      f"{chosen.name} {full[0]:.3g} and {full[1]:.3g}: less than x{ranking.min_gain:g} in one of them")
+                      f"{chosen.name} {full[0]:.3g} and {full[1]:.3g}: less than x{ranking.min_gain:g} in one "
+                      "of them")
             judged[i] = chosen = best
     return why
 
@@ -1190,9 +1195,9 @@ def _overruled_at_kbar_fit_only(judge: _Judge, search: _Search, first: LawSet, r
     parameters are refined against them (its FRF chi-square within the noise of the best rival's,
     :meth:`_Judge.refined`). The capped kbar can place a clearance's gap a few percent off, and the FRFs of the
     lines where it closes are that sensitive to it (a refinement costs seconds, a minute for three laws with
-    friction: only there is it asked): random case 6 of seed 939814, a gap (k = 879 N/m, gap 13.7 mm) fitted to the kbar as 830 N/m and
-    13.1 mm gave an FRF error of 0.178 against a quintic's 0.126, and refined, 877 N/m and 14.05 mm, an FRF
-    chi-square of 1896 against the quintic's 17264 over 312 residuals."""
+    friction: only there is it asked): random case 6 of seed 939814, a gap (k = 879 N/m, gap 13.7 mm) fitted to
+    the kbar as 830 N/m and 13.1 mm gave an FRF error of 0.178 against a quintic's 0.126, and refined, 877 N/m
+    and 14.05 mm, an FRF chi-square of 1896 against the quintic's 17264 over 312 residuals."""
     if judge.kbar_judges or not _has_clearance(first):
         return False
     own = judge.refined(search, first)

@@ -919,7 +919,8 @@ def _settle(laws: list[Law], fit: LawFit, data: _Samples, opts: _Options, surrou
             break
         following = fitted
         if previous is not None:
-            slope = (gap - previous[1]) / (reference - previous[0])
+            with np.errstate(divide="ignore", invalid="ignore"):     # an unmoved reference: no slope, no secant
+                slope = (gap - previous[1]) / (reference - previous[0])
             secant = reference - gap / np.where(slope < 0.0, slope, -1.0)
             # a secant step where the fitted value falls as the reference rises (the placement's own effect),
             # never across zero

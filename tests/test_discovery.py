@@ -16,10 +16,12 @@ from analysis.diagnosis import ElementSamples, tied_parameters
 from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _alike, _extension, _indistinguishable, _Judge,
                                 _kinds, _limit_only_laws, _offer_frf_best_alike, _offer_frf_best_single, _seen_as_its_tail, _one_law_more_alike, _other_kinds,
                                 _fit_set, _noise_bound, _not_seen_beside_friction, _Search, _separation, _shortlists, _unseen_laws, _verdict_overruled, _walk_element,
-                                _warm_start, _simplest,
+                                _warm_start, _simplest, _preferred, _pruned_beside_clearance,
                                 law_sets,
                                 search_element)
+from analysis import discovery
 from analysis.fit import _shape_coordinate, fit_laws
+from analysis.frf_refinement import FrfRefinement
 from analysis.laws import LAWS
 from analysis.laws.base import KINDS
 
@@ -504,6 +506,58 @@ def test_a_large_single_harmonic_gain_is_checked_with_harmonics_beside_a_law_on_
     held = judge.holds_with_harmonics({0: after}, 0, sets[before], step)
     assert held is not checked and step.taken is not checked and (judge.multi.asked > 0) is checked
 
+
+
+def _refinement(chi_square: float, n_residuals: int) -> FrfRefinement:
+    return FrfRefinement([], [], chi_square, n_residuals, 1)
+
+
+def test_a_clearance_the_frfs_overrule_only_at_its_kbar_fit_stays_first_on_data_without_harmonics():
+    # random case 6 of seed 939814: a gap fitted to the capped kbar a few percent off gave an FRF error of 0.178
+    # against a quintic's 0.126; refined against the FRFs, a chi-square of 1896 against 17264 over 312 residuals
+    search = search_element(0, samples_of({"gap": {"k": 900.0, "gap": 0.02}}, X, W), linear_verdict=False)
+    sets = {s.laws: s for s in search.sets}
+    gap, quintic, cubic = sets["gap",], sets["quintic",], sets["cubic",]
+    gap.criterion, quintic.criterion, cubic.criterion = 1.0, 2.0, 3.0
+    empty = LawSet((), None, 1e6, 0)
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False
+    judge.single = _Errors({gap.laws: 0.178, quintic.laws: 0.126, cubic.laws: 0.2})
+    chi_square = {gap.laws: 1896.0, quintic.laws: 17264.0, cubic.laws: 19568.0}
+    asked = []
+    judge.refined = lambda search, s: asked.append(s.laws) or _refinement(chi_square[s.laws], 312)
+    assert _preferred(judge, search, [gap, quintic, cubic], empty) == [gap, quintic]
+    assert asked == [gap.laws, quintic.laws]             # the rivals within the FRFs' margin only
+    chi_square[gap.laws] = 2 * 17264.0                   # refined, still worse beyond the noise: overruled
+    assert _preferred(judge, search, [gap, quintic, cubic], empty) == [quintic]
+    chi_square[gap.laws], asked[:] = 1896.0, []
+    judge.kbar_judges = True                             # data with harmonics: the kbar is not capped there
+    assert _preferred(judge, search, [gap, quintic, cubic], empty) == [quintic] and asked == []
+    judge.kbar_judges = False                            # a set without a clearance law is not refined
+    quintic.criterion, judge.single = 0.5, _Errors({gap.laws: 0.1, quintic.laws: 0.2, cubic.laws: 0.2})
+    assert _preferred(judge, search, [gap, quintic, cubic], empty) == [gap] and asked == []
+
+
+def test_a_law_beside_a_clearance_is_taken_back_where_every_element_refined_leaves_it_less_than_the_margin(
+        monkeypatch):
+    # random case 6 of seed 939814: Anderson-Ferri friction beside a gap, x1.39 over the gap at its kbar fit;
+    # with both joints refined against the FRFs x1.13 single-harmonic (x1.37 with harmonics)
+    search = search_element(0, samples_of({"gap": {"k": 900.0, "gap": 0.02}}, X, W), linear_verdict=False)
+    gap = next(s for s in search.sets if s.laws == ("gap",))
+    pair = next(s for s in search.sets if len(s.laws) == 2 and "gap" in s.laws)
+    other = next(n for n in pair.laws if n != "gap")
+    errors = {pair.laws: (0.0126, 0.0107), gap.laws: (0.0143, 0.0147)}
+    monkeypatch.setattr(discovery, "_refined_errors", lambda judge, i, s, judged: errors[s.laws])
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False
+    judged = {0: pair}
+    why = _pruned_beside_clearance(judge, {0: search}, judged)
+    assert judged[0] is gap and why[0].startswith(f"{other} taken back") and "0.0143" in why[0]
+    errors[gap.laws] = (0.0143 * 10, 0.0107 * 1.31)       # the law brings the margin both ways: it stays
+    judged = {0: pair}
+    assert _pruned_beside_clearance(judge, {0: search}, judged) == {} and judged[0] is pair
+    errors[gap.laws], judge.kbar_judges = (0.0143, 0.0147), True     # data with harmonics: the walk's choice
+    assert _pruned_beside_clearance(judge, {0: search}, judged) == {} and judged[0] is pair
 
 # ------------------------------------------------------------------------------------------- the whole path
 def test_an_empty_model_of_a_joint_gets_its_stiffness_and_its_damping():
