@@ -47,6 +47,13 @@ class FrfRefinement:
                          if n in self.stderr[j])
 
 
+def terms_function(terms: list[LawTerm]) -> Callable:
+    """The describing function of a list of law terms together."""
+    def kbar(X, w):
+        return sum((t.describing_function(X, w) for t in terms), np.zeros(np.shape(X), complex))
+    return kbar
+
+
 def refine_against_frfs(predictor: Predictor, index: int, terms: list[LawTerm], free: list[list[str]],
                         others: dict[int, Callable], max_evaluations: int = 60) -> FrfRefinement:
     """Refine the ``free`` parameters (per term) of element ``index``'s ``terms`` against the FRFs; ``others``:
@@ -68,11 +75,7 @@ def refine_against_frfs(predictor: Predictor, index: int, terms: list[LawTerm], 
         return out
 
     def residuals(x) -> np.ndarray:
-        ts = trial(x)
-
-        def kbar(X, w):
-            return sum((t.describing_function(X, w) for t in ts), np.zeros(np.shape(X), complex))
-
+        kbar = terms_function(trial(x))
         try:
             comp = predictor.compare(kbar_functions_with(predictor.model.elements, {**others, index: kbar}))
         except InputError:                    # values the law refuses (beyond what its bounds say): far off

@@ -21,6 +21,7 @@ from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing,
                                 search_element)
 from analysis import discovery
 from analysis.fit import _shape_coordinate, fit_laws
+from analysis.elements import LawTerm
 from analysis.frf_refinement import FrfRefinement
 from analysis.laws import LAWS
 from analysis.laws.base import KINDS
@@ -423,14 +424,37 @@ def test_a_linear_verdict_is_set_aside_where_the_frfs_show_a_law_of_the_amplitud
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     errors = _Otherwise({x.laws: 0.4 for x in search.sets})
     judge.single = _Errors(errors)
+    judge.standins = {0: None}
+    judge.stand_in = judge.standins.__setitem__
+    judge.refined = lambda search, x: FrfRefinement([LawTerm(LAWS["cubic_damping"], {"c3": 1.0})], [{}], 0.0, 400, 1)
     errors["cubic_damping",] = 0.04
     singles = DiscoveryRules(max_laws=1)                 # the search of single laws is what the test needs
     full = _verdict_overruled(judge, search, singles, None)
     assert full is not None and ("cubic_damping",) in [x.laws for x in full.sets]
     assert "cubic_damping beats every set without amplitude dependence in the FRFs x10" in full.overruled
-    # x2 is within what the verdict may miss; on data with harmonics the kbar is not capped and the verdict holds
+    assert judge.standins[0] is not None                 # the others are judged beside the law from now on
+    # x2 at the kbar fits: refined against the FRFs, the law must be seen and gain 1.3 squared
     errors["cubic_damping",] = 0.2
+    refined = {("cubic_damping",): (0.1, 0.0079, 0.2), **{x.laws: (None, None, 0.4) for x in search.sets}}
+
+    def refinement(search, x):
+        value, stderr, _ = refined[x.laws]
+        terms = [LawTerm(LAWS[n], {"c3": value}) for n in x.laws] if value is not None else []
+        return FrfRefinement(terms, [{"c3": stderr}] if value is not None else [], 0.0, 400, 1)
+
+    judge.refined = refinement
+    judge.refined_single = lambda search, x: SimpleNamespace(error=refined[x.laws][2])
+    full = _verdict_overruled(judge, search, singles, None)
+    assert full is not None and "cubic_damping refined against the FRFs (c3 = 0.1 +- 0.0079)" in full.overruled
+    assert "x2 (0.4 -> 0.2)" in full.overruled
+    refined["cubic_damping",] = (0.1, 0.06, 0.2)         # its size not seen: the verdict holds
     assert _verdict_overruled(judge, search, singles, None) is None
+    refined["cubic_damping",] = (0.1, 0.0079, 0.25)      # x1.6 refined: within what the verdict may miss
+    assert _verdict_overruled(judge, search, singles, None) is None
+    errors["cubic_damping",] = 0.35                      # x1.14 at the kbar fits: not refined
+    judge.refined = None
+    assert _verdict_overruled(judge, search, singles, None) is None
+    # on data with harmonics the kbar is not capped and the verdict holds
     errors["cubic_damping",], judge.kbar_judges = 0.04, True
     assert _verdict_overruled(judge, search, singles, None) is None
 
@@ -547,12 +571,25 @@ def test_a_law_beside_a_clearance_is_taken_back_where_every_element_refined_leav
     pair = next(s for s in search.sets if len(s.laws) == 2 and "gap" in s.laws)
     other = next(n for n in pair.laws if n != "gap")
     errors = {pair.laws: (0.0126, 0.0107), gap.laws: (0.0143, 0.0147)}
-    monkeypatch.setattr(discovery, "_refined_errors", lambda judge, i, s, judged: errors[s.laws])
+    asked = []
+
+    def refined_errors(judge, i, s, judged):
+        def multi():
+            asked.append(s.laws)
+            return errors[s.laws][1]
+        return discovery._RefinedErrors(errors[s.laws][0], multi)
+
+    monkeypatch.setattr(discovery, "_refined_errors", refined_errors)
     judge = _Judge.__new__(_Judge)
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judged = {0: pair}
     why = _pruned_beside_clearance(judge, {0: search}, judged)
     assert judged[0] is gap and why[0].startswith(f"{other} taken back") and "0.0143" in why[0]
+    assert asked == [] and "with harmonics" not in why[0]   # lost single-harmonic: no harmonic prediction
+    errors[gap.laws] = (0.0126 * 1.4, 0.0107 * 1.2)        # lost with harmonics only: asked once each
+    judged = {0: pair}
+    why = _pruned_beside_clearance(judge, {0: search}, judged)
+    assert judged[0] is gap and sorted(asked) == sorted([pair.laws, gap.laws]) and "0.0128 with harmonics" in why[0]
     errors[gap.laws] = (0.0143 * 10, 0.0107 * 1.31)       # the law brings the margin both ways: it stays
     judged = {0: pair}
     assert _pruned_beside_clearance(judge, {0: search}, judged) == {} and judged[0] is pair
