@@ -597,6 +597,7 @@ def test_a_law_beside_a_clearance_is_taken_back_where_every_element_refined_leav
     assert _pruned_beside_clearance(judge, {0: search}, judged) == {} and judged[0] is pair
 
 # ------------------------------------------------------------------------------------------- the whole path
+@pytest.mark.slow
 def test_an_empty_model_of_a_joint_gets_its_stiffness_and_its_damping():
     # single-harmonic data by quadrature and fsolve (tests/test_nonparametric.py): cubic spring and quadratic
     # damping at x1, three levels
@@ -744,6 +745,7 @@ def _set(samples: ElementSamples, *laws: str) -> LawSet:
     return _fit_set(samples, laws, DiscoveryRules(), True)
 
 
+@pytest.mark.slow
 def test_beside_friction_a_law_must_beat_the_force_that_turns_its_fundamental():
     """Coulomb friction beside a spring whose fundamental turned by 4 % (Re kbar = -0.04 * 4 fs / (pi X)), as on
     data without harmonics, the lines' amplitude rising with their frequency: a velocity stiffness beside them
