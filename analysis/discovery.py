@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field, replace
-from functools import cached_property
 from typing import Callable
 
 import numpy as np
@@ -1003,10 +1002,10 @@ def _pruned_beside_clearance(judge: _Judge, index: dict[int, "_Search"],
     why = {}
     for i in list(judged):
         chosen = judged[i]
-        full = None
+        full = None                 # the set adopted last round was refined beside the same others: carried over
         while len(chosen.laws) >= 2 and _has_clearance(chosen):
-            # the set adopted last round was refined beside the same others: its errors carry over
-            full = full or _refined_errors(judge, i, chosen, judged)
+            if full is None:
+                full = _refined_errors(judge, i, chosen, judged)
             smaller = [s for s in index[i].sets if len(s.laws) == len(chosen.laws) - 1 and _has_clearance(s)
                        and set(s.laws) < set(chosen.laws)]
             verdicts = [(s, _refined_errors(judge, i, s, judged)) for s in smaller]
@@ -1031,20 +1030,23 @@ def _terms_of(s: LawSet) -> list:
 
 class _RefinedErrors:
     """A set's FRF errors with every element refined (:func:`_refined_errors`): single-harmonic, and with
-    harmonics computed when first asked (a harmonic prediction costs seconds)."""
+    harmonics predicted when first asked (a harmonic prediction costs seconds)."""
 
-    def __init__(self, single: float, multi: Callable[[], float]):
+    def __init__(self, single: float, predict_multi: Callable[[], float]):
         self.single = single
-        self._multi = multi
+        self._predict_multi = predict_multi
+        self._multi: float | None = None
 
-    @cached_property
+    @property
     def multi(self) -> float:
-        return self._multi()
+        if self._multi is None:
+            self._multi = self._predict_multi()
+        return self._multi
 
     def text(self) -> str:
-        """In words, with harmonics only where it was asked."""
-        return f"{self.single:.3g} single-harmonic" + (f", {self.__dict__['multi']:.3g} with harmonics"
-                                                       if "multi" in self.__dict__ else "")
+        """In words, with harmonics only where they were predicted."""
+        return f"{self.single:.3g} single-harmonic" + (f", {self._multi:.3g} with harmonics"
+                                                       if self._multi is not None else "")
 
 
 def _refined_errors(judge: _Judge, i: int, s: LawSet, judged: dict[int, LawSet]) -> _RefinedErrors:

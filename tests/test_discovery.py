@@ -531,7 +531,6 @@ def test_a_large_single_harmonic_gain_is_checked_with_harmonics_beside_a_law_on_
     assert held is not checked and step.taken is not checked and (judge.multi.asked > 0) is checked
 
 
-
 def _refinement(chi_square: float, n_residuals: int) -> FrfRefinement:
     return FrfRefinement([], [], chi_square, n_residuals, 1)
 

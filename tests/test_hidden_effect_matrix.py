@@ -200,4 +200,3 @@ def test_the_loop_adds_no_law_beside_a_contact_that_only_fits_its_closing_lines(
     assert [(law.element, law.law) for law in case.laws] == [("a", "unilateral")]
     scored = rd.run(case, tmp_path)
     assert scored.outcome.right and not scored.outcome.false_alarms, mc.progress_line(1, 1, scored.outcome, 0)
-
