@@ -5,6 +5,7 @@ through the whole campaign stack."""
 import itertools
 import json
 import tomllib
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -166,6 +167,40 @@ def test_a_set_with_one_law_more_of_the_same_kinds_that_fits_as_well_is_named():
     for error in (0.02, 0.005):
         judge.single = _Errors({**{x.laws: 0.01 for x in search.sets}, ("linear", "cubic"): error})
         assert ("linear", "cubic") not in [x.laws for x in _indistinguishable(judge, search, chosen)]
+
+
+def test_a_set_whose_law_is_tied_to_another_is_never_chosen_but_named_where_its_laws_are_seen():
+    # a linear spring beside an arctan spring that saturates by a few per cent over the amplitudes measured: the
+    # linear law's stiffness trades with the arctan's alpha beta, so linear + a saturating spring is tied
+    Xs, Ws = np.geomspace(3.4e-5, 6e-3, 70), np.linspace(30.0, 60.0, 70)
+    s = samples_of({"linear": {"k": -564.0, "c": 0.0}, "arctan_softening": {"alpha": 25.3, "beta": 121.0}}, Xs, Ws,
+                   noise=8e-3, floor=1.0)
+    search = search_element(0, s, linear_verdict=False)
+    assert search.tied and all(x.tied for x in search.tied) and not any(x.tied for x in search.sets)
+    assert ("linear", "arctan_softening") in [x.laws for x in search.tied]
+    chosen = search.sets[0]
+    judge = _Judge.__new__(_Judge)
+    judge.rules = DiscoveryRules()
+    judge.single = _Errors({x.laws: 0.01 for x in search.sets + search.tied})
+    # here the kbar sees neither law of the tied pair: no other reading
+    pair = next(x for x in search.tied if x.laws == ("linear", "arctan_softening"))
+    assert pair.fit.terms[0].size_unseen
+    assert pair not in _indistinguishable(judge, search, chosen)
+    # over a wider range both are seen (random case 7 of seed 957188): the tied pair is named as one law more
+    wide = samples_of({"linear": {"k": -564.0, "c": 0.0}, "arctan_softening": {"alpha": 25.3, "beta": 121.0}},
+                      np.geomspace(3.4e-5, 1.0e-2, 70), Ws, noise=8e-3, floor=1.0)
+    seen = _fit_set(wide, ("linear", "arctan_softening"), DiscoveryRules(), False)
+    assert not any(term.size_unseen for term in seen.fit.terms)
+    tied = replace(seen, chi_square=chosen.chi_square - 1.0, tied=True)
+    search.tied = [tied]
+    # (a linear spring beside a softening cubic, the same reading, told apart here by the FRFs)
+    judge.single = _Errors({**{x.laws: 0.01 for x in search.sets}, tied.laws: 0.011, ("linear", "cubic"): 0.02})
+    assert _one_law_more_alike(search, tied, chosen, 1e-3) and tied in _indistinguishable(judge, search, chosen)
+    # a reading that fits the kbar worse by more than the noise explains is no reading of these data
+    worse = replace(tied, chi_square=chosen.chi_square + 2 * _noise_bound(search, 2, 1e-3))
+    search.tied = [worse]
+    assert not _one_law_more_alike(search, worse, chosen, 1e-3)
+    assert worse not in _indistinguishable(judge, search, chosen)
 
 
 def test_the_shortlist_keeps_one_of_sets_that_fit_alike_and_a_determined_one():
@@ -457,6 +492,29 @@ def test_a_linear_verdict_is_set_aside_where_the_frfs_show_a_law_of_the_amplitud
     # on data with harmonics the kbar is not capped and the verdict holds
     errors["cubic_damping",], judge.kbar_judges = 0.04, True
     assert _verdict_overruled(judge, search, singles, None) is None
+
+
+def test_the_frfs_part_two_sets_by_far_at_their_kbar_fits_or_by_the_margin_squared_refined():
+    # random case 27 of seed 957188: linear + Coulomb against Coulomb + a saturating spring the kbar sees only in
+    # its linear limit; x4.2 at their kbar fits, below certain_gain, x2.76 refined
+    search = _searched(analytic_samples(0.0, 0.0, 4e5, 5.0))
+    limit, bent = LawSet(("linear", "coulomb"), None, 0.0, 3), LawSet(("coulomb", "tanh_softening"), None, 0.0, 3)
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False
+    refined = {limit.laws: 0.0413, bent.laws: 0.0150}
+    judge.refined_single = lambda search, x: SimpleNamespace(error=refined[x.laws])
+    judge.single = _Errors({limit.laws: 0.0549, bent.laws: 0.0132})
+    assert judge.frfs_part_refined(search)(limit, bent)
+    assert not judge.frfs_part(search)(limit, bent)     # elsewhere only certain_gain parts them: no refinement
+    refined[bent.laws] = 0.030                          # x1.38 refined: part of the misfit only
+    assert not judge.frfs_part_refined(search)(limit, bent)
+    judge.single = _Errors({limit.laws: 0.0549, bent.laws: 0.009})   # x6.1 at the kbar fits: not refined
+    judge.refined_single = None
+    assert judge.frfs_part_refined(search)(limit, bent) and judge.frfs_part(search)(limit, bent)
+    judge.single = _Errors({limit.laws: 0.0549, bent.laws: 0.045})   # x1.22: below min_gain, not refined
+    assert not judge.frfs_part_refined(search)(limit, bent)
+    judge.kbar_judges = True                            # data with harmonics: the kbar is not capped
+    assert judge.frfs_part_refined(search) is None
 
 
 def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tell_them_apart():

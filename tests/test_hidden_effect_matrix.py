@@ -152,11 +152,32 @@ def test_a_random_clearance_is_drawn_to_close_at_the_amplitude_its_joint_reaches
     cases = [c for c in rd._draw(112631, 25) if any(law.law in rd.CLEARANCES for law in c.laws)]
     assert len(cases) >= 5
     for c in cases:
-        others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if law.law not in rd.CLEARANCES), (), c.noise)
+        others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if not rd._reach_sized(law)), (), c.noise)
         reached = rd._joint_amplitudes(others)
         for law in c.laws:
             if law.law in rd.CLEARANCES:
                 assert 0.2 <= dict(law.values)["gap"] / reached[law.element] <= 0.5, (c.name, law)
+
+
+def test_a_random_hardening_power_law_is_sized_at_the_amplitude_its_joint_reaches():
+    # seed 957188 random 28: a quintic sized at the joint's linear amplitude added 4.7 N/m at the largest
+    # amplitude reached, within the kbar's noise, where a gap and a linear law at the other joint held the joint
+    # to half of it; its effect at the amplitude reached is now the share drawn (10-60 % of e K e, times 5/8)
+    import sys
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import random_discovery as rd
+
+    c = rd._draw(957188, 28)[27]
+    quintic = next(law for law in c.laws if law.law == "quintic")
+    others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if not rd._reach_sized(law)), (), c.noise)
+    X = rd._joint_amplitudes(others)[quintic.element]
+    rig = mc.Lumped.of(c.bench)
+    e = mc._site_vector(next(s for s in c.bench.sites if s.name == quintic.element), rig.dofs)
+    share = dict(quintic.values)["k5"] * X ** 4 / float(e @ rig.K @ e)
+    assert rd.RANGES["quintic"][0] <= share <= rd.RANGES["quintic"][1]
+    assert dict(quintic.values)["k5"] == pytest.approx(1.232e10, rel=1e-3)      # 6.37e8 at the linear amplitude
+    # a softening cubic keeps its linear amplitude, where its tangent stiffness is held below the structure's
+    assert not rd._reach_sized(mc._law("a", "cubic", k3=-1e6)) and rd._reach_sized(mc._law("a", "cubic", k3=1e6))
     # the other random numbers are those drawn before the correction: the structures and the laws' sizes
     case = rd._draw(112631, 22)[21]
     assert [law.law for law in case.laws] == ["cubic_damping", "tanh_softening", "gap"]
