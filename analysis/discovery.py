@@ -8,7 +8,8 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    one of each kind (:data:`analysis.laws.base.KINDS`: one joint has one stiffness mechanism, one damping, one
    friction...), is fitted to the element's kbar samples (pairs all; triples extend the ``triple_pool`` best pairs).
    A set in which one law adds no direction of its own (every parameter of it tied to another law's, by an exact
-   degeneracy or a correlation beyond ``max_correlation``) is not a set of separate effects and is dropped. Where
+   degeneracy or a correlation beyond ``max_correlation``) is not a set of separate effects and is never chosen,
+   only named as a reading the data cannot part (step 3). Where
    the element's verdict is linear, only laws without amplitude dependence enter. Data without harmonics: the
    fits leave out the lines that do not follow them, and sets are judged by :func:`capped_chi_square`.
 2. **A criterion that charges for parameters.** ``chi2 / s^2 + p ln(2N)`` (BIC in the kbar noise), with ``s^2``
@@ -19,7 +20,9 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    by more than the noise explains (``|chi2_a - chi2_b| <= s^2 q``, ``q`` the chi-square quantile at
    ``false_alarm``) are alike (:func:`_alike`). Of those alike the FRFs' choice, the simplest is taken
    (:func:`_simplest`); the others are listed as *indistinguishable on these data* with the test that would
-   separate them (where their describing functions part: a lower or higher level, another band).
+   separate them (where their describing functions part: a lower or higher level, another band), and so are
+   sets of one law more that read the kbar otherwise and as well, a set with a tied law among them
+   (:func:`_one_law_more_alike`).
 4. **The FRFs judge the size.** Each element's shortlists (:func:`_shortlists`), with every set one or two laws
    larger than its current choice (:func:`_extension`), are walked from no law upward, every other searched element
    represented meanwhile by its own measured kbar (a stand-in, :func:`_standins`), so that no element's choice
