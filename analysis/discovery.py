@@ -679,8 +679,7 @@ def _one_law_more_alike(search: _Search, s: LawSet, chosen: LawSet, false_alarm:
     a law of no size is no other reading; none seen only in a limit of its amplitude scale,
     :func:`_limit_only_laws`: that is another law, named as itself), and fits the kbar neither better nor worse
     by more than the noise explains for the parameters it adds. Its laws then read the kbar otherwise, and as
-    well: a
-    saturating spring alone, or a linear spring with a softening cubic beside it (random case 2 of seed 779606:
+    well: a saturating spring alone, or a linear spring with a softening cubic beside it (random case 2 of seed 779606:
     tanh 308.6 in chi-square, linear + cubic 306.9, over 136 samples; the rig has a linear spring beside a tanh
     spring that only begins to saturate at the largest amplitude)."""
     # the cheap tests first: the limit test scans the element's sets; every law of ``s`` is asked, the choice's too

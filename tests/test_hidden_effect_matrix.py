@@ -157,6 +157,10 @@ def test_a_random_clearance_is_drawn_to_close_at_the_amplitude_its_joint_reaches
         for law in c.laws:
             if law.law in rd.CLEARANCES:
                 assert 0.2 <= dict(law.values)["gap"] / reached[law.element] <= 0.5, (c.name, law)
+    # the other random numbers are those drawn before the correction: the structures and the laws' sizes
+    case = rd._draw(112631, 22)[21]
+    assert [law.law for law in case.laws] == ["cubic_damping", "tanh_softening", "gap"]
+    assert dict(case.laws[2].values)["k"] == pytest.approx(1.403e3, rel=1e-3)
 
 
 def test_a_random_hardening_power_law_is_sized_at_the_amplitude_its_joint_reaches():
@@ -178,10 +182,6 @@ def test_a_random_hardening_power_law_is_sized_at_the_amplitude_its_joint_reache
     assert dict(quintic.values)["k5"] == pytest.approx(1.232e10, rel=1e-3)      # 6.37e8 at the linear amplitude
     # a softening cubic keeps its linear amplitude, where its tangent stiffness is held below the structure's
     assert not rd._reach_sized(mc._law("a", "cubic", k3=-1e6)) and rd._reach_sized(mc._law("a", "cubic", k3=1e6))
-    # the other random numbers are those drawn before the correction: the structures and the laws' sizes
-    case = rd._draw(112631, 22)[21]
-    assert [law.law for law in case.laws] == ["cubic_damping", "tanh_softening", "gap"]
-    assert dict(case.laws[2].values)["k"] == pytest.approx(1.403e3, rel=1e-3)
 
 
 def test_a_random_softening_cubic_is_drawn_so_that_its_joint_cannot_escape_within_its_amplitude():
