@@ -14,7 +14,8 @@ steep tanh, gap, unilateral contact), with parameters scaled to the joint's line
 so that every law shows (a linear law changes the joint's stiffness by 10-30 % either way, a softening at most a
 quarter of what would make the structure unstable; a cubic by 10-60 % there, a damping law adds 2-10 % of it as
 loss, a friction slips at 10-30 % of the lower level's force...; a clearance's gap is 0.2-0.5 of the amplitude
-the joint reaches with the case's other laws, and a hardening cubic or quintic is sized at that amplitude too).
+the joint reaches with the case's other laws, and a hardening cubic or quintic and a saturating spring are sized at
+that amplitude too).
 Two force levels, a 1:4 ratio, swept over
 the lowest modes at 0.15 Hz; relative noise 0.1-1 %; 20 s of settling (at least 7 decay times of the slowest mode).
 The receptances come from that RK4 integrator (never the project's simulator), are written as a user's CSV and
@@ -62,7 +63,8 @@ LINE_STEP = 0.15
 CLEARANCES = ("gap", "unilateral")
 # laws sized at the amplitude their joint reaches with the case's other laws (:func:`_sized_where_reached`): the
 # power of that amplitude each parameter scales with
-REACHED = {"gap": {"gap": 1}, "unilateral": {"gap": 1}, "cubic": {"k3": -2}, "quintic": {"k5": -4}}
+REACHED = {"gap": {"gap": 1}, "unilateral": {"gap": 1}, "cubic": {"k3": -2}, "quintic": {"k5": -4},
+           "tanh_softening": {"alpha": 1, "beta": -1}, "arctan_softening": {"alpha": 1, "beta": -1}}
 # law -> its parameters for a joint of linear stiffness scale k, linear amplitude X and resonance w (rad/s) at the
 # higher level; r is drawn per law from the range beside it (the size of the effect at X)
 RANGES = {
@@ -183,23 +185,27 @@ def draw_case(rng, index: int) -> mc.Case:
 
 
 def _reach_sized(law: mc.Law) -> bool:
-    """Whether ``law`` is sized at the amplitude its joint reaches: a clearance, or a hardening cubic or quintic.
-    A softening cubic keeps its linear amplitude, where its tangent stiffness is held below the structure's."""
+    """Whether ``law`` is sized at the amplitude its joint reaches: a clearance, a hardening cubic or quintic, or
+    a saturating spring. A softening cubic keeps its linear amplitude, where its tangent stiffness is held below
+    the structure's."""
     return law.law in REACHED and all(v >= 0 for v in dict(law.values).values())
 
 
 def _sized_where_reached(c: mc.Case, linear_amplitude: dict[str, float]) -> tuple[mc.Law, ...]:
-    """The case's laws with each clearance and each hardening cubic or quintic sized at the amplitude its joint
-    reaches at the higher level, not at its linear amplitude: a clearance's gap is drawn as 0.2-0.5 of the
-    amplitude, a power law's effect as a share of the joint's stiffness there, and the case's other laws (a
-    damping, a friction, at that joint or the other) can keep the joint far below it. A clearance then never
+    """The case's laws with each clearance, each hardening cubic or quintic and each saturating spring sized at
+    the amplitude its joint reaches at the higher level, not at its linear amplitude: a clearance's gap is drawn
+    as 0.2-0.5 of the amplitude, a power law's effect as a share of the joint's stiffness there, and the case's
+    other laws (a damping, a friction, at that joint or the other) can keep the joint far below it. A clearance then never
     closes, or closes by 3-5 % at the top line (random 22 and 23 of seed 112631, 34 of seed 271126); a quintic,
     whose effect goes with the fourth power of the amplitude, adds 4.7 and 8.0 N/m at the largest amplitude
     reached, within the kbar's noise there (random 28 and 24 of seed 957188, where 48 % and 39 % of the linear
-    amplitude were reached): no measurement of the plan shows either. The amplitude reached is the
-    single-harmonic balance's of the case without the laws so sized, over the plan's lines swept up; those only
-    stiffen beyond it. The same share as drawn of ``linear_amplitude`` (joint -> X) is kept, so the random
-    numbers are unchanged."""
+    amplitude were reached): no measurement of the plan shows either. A saturating spring drawn to saturate at
+    1-4 times the linear amplitude's inverse had saturated by 0.8 % of its initial stiffness, within the kbar's
+    noise, where quadratic damping and a quintic at the other joint held its joint to 2.7 mm (random 23 of seed
+    344719). The amplitude reached is the single-harmonic balance's of the case without the laws so sized, over
+    the plan's lines swept up; the stiffening ones only stiffen beyond it, and a saturating spring, sized to
+    saturate there, lets its joint reach as far or further. The same share as drawn of ``linear_amplitude``
+    (joint -> X) is kept, so the random numbers are unchanged."""
     sized = [law for law in c.laws if _reach_sized(law)]
     if not sized:
         return c.laws

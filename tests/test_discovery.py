@@ -650,6 +650,14 @@ def test_a_law_beside_a_clearance_is_taken_back_where_every_element_refined_leav
     errors[gap.laws] = (0.0143 * 10, 0.0107 * 1.31)       # the law brings the margin both ways: it stays
     judged = {0: pair}
     assert _pruned_beside_clearance(judge, {0: search}, judged) == {} and judged[0] is pair
+    # random case 37 of seed 344719: refined single-harmonic, the harmonic prediction misses the FRFs x6 worse
+    # than the single-harmonic one for the set and without the law alike; it cannot judge, and the law stays
+    errors[pair.laws], errors[gap.laws] = (0.0203, 0.128), (0.038, 0.126)
+    assert _pruned_beside_clearance(judge, {0: search}, judged) == {} and judged[0] is pair
+    errors[pair.laws], errors[gap.laws] = (0.0203, 0.0203 * 1.29), (0.038, 0.03)   # within the margin: it judges
+    why = _pruned_beside_clearance(judge, {0: search}, judged)
+    assert judged[0] is gap and "0.03 with harmonics" in why[0]
+    judged, errors[pair.laws] = {0: pair}, (0.0126, 0.0107)
     errors[gap.laws], judge.kbar_judges = (0.0143, 0.0147), True     # data with harmonics: the walk's choice
     assert _pruned_beside_clearance(judge, {0: search}, judged) == {} and judged[0] is pair
 

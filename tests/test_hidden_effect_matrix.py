@@ -184,6 +184,24 @@ def test_a_random_hardening_power_law_is_sized_at_the_amplitude_its_joint_reache
     assert not rd._reach_sized(mc._law("a", "cubic", k3=-1e6)) and rd._reach_sized(mc._law("a", "cubic", k3=1e6))
 
 
+def test_a_random_saturating_spring_saturates_at_the_amplitude_its_joint_reaches():
+    # seed 344719 random 23: a tanh spring drawn to saturate at its joint's linear amplitude had saturated by
+    # 0.8 % of its initial stiffness at the 2.7 mm reached beside quadratic damping and a quintic, within the
+    # kbar's noise; beta X is now 1-4 at the amplitude reached, its initial stiffness alpha beta as drawn
+    import sys
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import random_discovery as rd
+
+    c = rd._draw(344719, 23)[22]
+    tanh = next(law for law in c.laws if law.law == "tanh_softening")
+    others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if not rd._reach_sized(law)), (), c.noise)
+    X = rd._joint_amplitudes(others)[tanh.element]
+    values = dict(tanh.values)
+    assert 1.0 <= values["beta"] * X <= 4.0
+    assert values["alpha"] * values["beta"] == pytest.approx(61.8 * 65.7, rel=2e-3)   # alpha 61.8, beta 65.7 before
+    assert values["beta"] == pytest.approx(145.1, rel=1e-3)
+
+
 def test_a_random_softening_cubic_is_drawn_so_that_its_joint_cannot_escape_within_its_amplitude():
     # seed 266231 random 3: a softening cubic of k3 = -8.4e6 N/m^3 between two masses ran away in the integrator
     # (the joint's stiffness e K e is 3-4 x the stiffness the structure gives it, 1 / e K^-1 e)
