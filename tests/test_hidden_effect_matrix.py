@@ -94,10 +94,22 @@ def test_scoring_counts_kinds_elements_and_false_alarms():
                      ("nothing", "friction"): 1, ("nothing", "damping"): 1, ("nothing", "stiffness"): 1}
 
 
-def test_a_random_case_is_right_by_an_equivalence_only_where_discovery_named_it():
+def _random_discovery():
+    """benchmarks/random_discovery.py, the random cases' generator, as a module."""
     import sys
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    import random_discovery as rd
+    import random_discovery
+    return random_discovery
+
+
+def _reached_without_sized(rd, c: mc.Case) -> dict[str, float]:
+    """Each joint's amplitude at the higher level without the laws the generator sizes where their joint reaches."""
+    others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if not rd._reach_sized(law)), (), c.noise)
+    return rd._joint_amplitudes(others)
+
+
+def test_a_random_case_is_right_by_an_equivalence_only_where_discovery_named_it():
+    rd = _random_discovery()
     from analysis.auto import AutoResult, AutoStep
     from analysis.discovery import Discovery, ElementDiscovery, LawSet, Separation
 
@@ -145,15 +157,12 @@ def test_a_representative_case_is_diagnosed_right(name, tmp_path):
 def test_a_random_clearance_is_drawn_to_close_at_the_amplitude_its_joint_reaches():
     # the gap is a fraction (0.2-0.5) of the joint's amplitude with the case's other laws, not of its linear
     # amplitude, which a damping or a friction can keep the joint far below (seed 112631 random 22 and 23)
-    import sys
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    import random_discovery as rd
+    rd = _random_discovery()
 
     cases = [c for c in rd._draw(112631, 25) if any(law.law in rd.CLEARANCES for law in c.laws)]
     assert len(cases) >= 5
     for c in cases:
-        others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if not rd._reach_sized(law)), (), c.noise)
-        reached = rd._joint_amplitudes(others)
+        reached = _reached_without_sized(rd, c)
         for law in c.laws:
             if law.law in rd.CLEARANCES:
                 assert 0.2 <= dict(law.values)["gap"] / reached[law.element] <= 0.5, (c.name, law)
@@ -167,14 +176,11 @@ def test_a_random_hardening_power_law_is_sized_at_the_amplitude_its_joint_reache
     # seed 957188 random 28: a quintic sized at the joint's linear amplitude added 4.7 N/m at the largest
     # amplitude reached, within the kbar's noise, where a gap and a linear law at the other joint held the joint
     # to half of it; its effect at the amplitude reached is now the share drawn (10-60 % of e K e, times 5/8)
-    import sys
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    import random_discovery as rd
+    rd = _random_discovery()
 
     c = rd._draw(957188, 28)[27]
     quintic = next(law for law in c.laws if law.law == "quintic")
-    others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if not rd._reach_sized(law)), (), c.noise)
-    X = rd._joint_amplitudes(others)[quintic.element]
+    X = _reached_without_sized(rd, c)[quintic.element]
     rig = mc.Lumped.of(c.bench)
     e = mc._site_vector(next(s for s in c.bench.sites if s.name == quintic.element), rig.dofs)
     share = dict(quintic.values)["k5"] * X ** 4 / float(e @ rig.K @ e)
@@ -188,14 +194,11 @@ def test_a_random_saturating_spring_saturates_at_the_amplitude_its_joint_reaches
     # seed 344719 random 23: a tanh spring drawn to saturate at its joint's linear amplitude had saturated by
     # 0.8 % of its initial stiffness at the 2.7 mm reached beside quadratic damping and a quintic, within the
     # kbar's noise; beta X is now 1-4 at the amplitude reached, its initial stiffness alpha beta as drawn
-    import sys
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    import random_discovery as rd
+    rd = _random_discovery()
 
     c = rd._draw(344719, 23)[22]
     tanh = next(law for law in c.laws if law.law == "tanh_softening")
-    others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if not rd._reach_sized(law)), (), c.noise)
-    X = rd._joint_amplitudes(others)[tanh.element]
+    X = _reached_without_sized(rd, c)[tanh.element]
     values = dict(tanh.values)
     assert 1.0 <= values["beta"] * X <= 4.0
     assert values["alpha"] * values["beta"] == pytest.approx(61.8 * 65.7, rel=2e-3)   # alpha 61.8, beta 65.7 before
@@ -205,9 +208,7 @@ def test_a_random_saturating_spring_saturates_at_the_amplitude_its_joint_reaches
 def test_a_random_softening_cubic_is_drawn_so_that_its_joint_cannot_escape_within_its_amplitude():
     # seed 266231 random 3: a softening cubic of k3 = -8.4e6 N/m^3 between two masses ran away in the integrator
     # (the joint's stiffness e K e is 3-4 x the stiffness the structure gives it, 1 / e K^-1 e)
-    import sys
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    import random_discovery as rd
+    rd = _random_discovery()
 
     softening = 0
     for c in rd._draw(266231, 45):
@@ -231,9 +232,7 @@ def test_the_loop_adds_no_law_beside_a_contact_that_only_fits_its_closing_lines(
     # seed 786947 random 17: a one-sided contact alone, on RK4 receptances without harmonics; discovery takes the
     # contact and refuses cubic damping beside it (its kbar's capped chi-square falls within the noise); the loop
     # must refuse it by the same test, though it cuts the single-harmonic FRF error x2.3
-    import sys
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    import random_discovery as rd
+    rd = _random_discovery()
 
     case = rd._draw(786947, 17)[16]
     assert [(law.element, law.law) for law in case.laws] == [("a", "unilateral")]
