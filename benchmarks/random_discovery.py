@@ -195,11 +195,11 @@ def _sized_where_reached(c: mc.Case, linear_amplitude: dict[str, float]) -> tupl
     """The case's laws with each clearance, each hardening cubic or quintic and each saturating spring sized at
     the amplitude its joint reaches at the higher level, not at its linear amplitude: a clearance's gap is drawn
     as 0.2-0.5 of the amplitude, a power law's effect as a share of the joint's stiffness there, and the case's
-    other laws (a damping, a friction, at that joint or the other) can keep the joint far below it. A clearance then never
-    closes, or closes by 3-5 % at the top line (random 22 and 23 of seed 112631, 34 of seed 271126); a quintic,
-    whose effect goes with the fourth power of the amplitude, adds 4.7 and 8.0 N/m at the largest amplitude
-    reached, within the kbar's noise there (random 28 and 24 of seed 957188, where 48 % and 39 % of the linear
-    amplitude were reached): no measurement of the plan shows either. A saturating spring drawn to saturate at
+    other laws (a damping, a friction, at that joint or the other) can keep the joint far below it. A clearance
+    then never closes, or closes by 3-5 % at the top line (random 22 and 23 of seed 112631, 34 of seed 271126);
+    a quintic, whose effect goes with the fourth power of the amplitude, adds 4.7 and 8.0 N/m at the largest
+    amplitude reached, within the kbar's noise there (random 28 and 24 of seed 957188, where 48 % and 39 % of the
+    linear amplitude were reached): no measurement of the plan shows either. A saturating spring drawn to saturate at
     1-4 times the linear amplitude's inverse had saturated by 0.8 % of its initial stiffness, within the kbar's
     noise, where quadratic damping and a quintic at the other joint held its joint to 2.7 mm (random 23 of seed
     344719). The amplitude reached is the single-harmonic balance's of the case without the laws so sized, over
@@ -209,14 +209,20 @@ def _sized_where_reached(c: mc.Case, linear_amplitude: dict[str, float]) -> tupl
     sized = [law for law in c.laws if _reach_sized(law)]
     if not sized:
         return c.laws
-    others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if law not in sized), (), c.noise)
-    reached = _joint_amplitudes(others)
+    reached = _reached_without_sized(c)
 
     def at_reach(law: mc.Law) -> mc.Law:
         ratio = reached[law.element] / linear_amplitude[law.element]
         return mc._law(law.element, law.law, **{name: value * ratio ** REACHED[law.law].get(name, 0)
                                                  for name, value in law.values})
     return tuple(at_reach(law) if law in sized else law for law in c.laws)
+
+
+def _reached_without_sized(c: mc.Case) -> dict[str, float]:
+    """Each joint's amplitude at the higher level with the case's laws but those sized where their joint reaches
+    (:func:`_reach_sized`)."""
+    return _joint_amplitudes(mc.Case(c.name, c.bench, tuple(law for law in c.laws if not _reach_sized(law)), (),
+                                     c.noise))
 
 
 def _joint_amplitudes(c: mc.Case) -> dict[str, float]:

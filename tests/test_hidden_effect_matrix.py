@@ -102,12 +102,6 @@ def _random_discovery():
     return random_discovery
 
 
-def _reached_without_sized(rd, c: mc.Case) -> dict[str, float]:
-    """Each joint's amplitude at the higher level without the laws the generator sizes where their joint reaches."""
-    others = mc.Case(c.name, c.bench, tuple(law for law in c.laws if not rd._reach_sized(law)), (), c.noise)
-    return rd._joint_amplitudes(others)
-
-
 def test_a_random_case_is_right_by_an_equivalence_only_where_discovery_named_it():
     rd = _random_discovery()
     from analysis.auto import AutoResult, AutoStep
@@ -162,7 +156,7 @@ def test_a_random_clearance_is_drawn_to_close_at_the_amplitude_its_joint_reaches
     cases = [c for c in rd._draw(112631, 25) if any(law.law in rd.CLEARANCES for law in c.laws)]
     assert len(cases) >= 5
     for c in cases:
-        reached = _reached_without_sized(rd, c)
+        reached = rd._reached_without_sized(c)
         for law in c.laws:
             if law.law in rd.CLEARANCES:
                 assert 0.2 <= dict(law.values)["gap"] / reached[law.element] <= 0.5, (c.name, law)
@@ -180,7 +174,7 @@ def test_a_random_hardening_power_law_is_sized_at_the_amplitude_its_joint_reache
 
     c = rd._draw(957188, 28)[27]
     quintic = next(law for law in c.laws if law.law == "quintic")
-    X = _reached_without_sized(rd, c)[quintic.element]
+    X = rd._reached_without_sized(c)[quintic.element]
     rig = mc.Lumped.of(c.bench)
     e = mc._site_vector(next(s for s in c.bench.sites if s.name == quintic.element), rig.dofs)
     share = dict(quintic.values)["k5"] * X ** 4 / float(e @ rig.K @ e)
@@ -198,7 +192,7 @@ def test_a_random_saturating_spring_saturates_at_the_amplitude_its_joint_reaches
 
     c = rd._draw(344719, 23)[22]
     tanh = next(law for law in c.laws if law.law == "tanh_softening")
-    X = _reached_without_sized(rd, c)[tanh.element]
+    X = rd._reached_without_sized(c)[tanh.element]
     values = dict(tanh.values)
     assert 1.0 <= values["beta"] * X <= 4.0
     assert values["alpha"] * values["beta"] == pytest.approx(61.8 * 65.7, rel=2e-3)   # alpha 61.8, beta 65.7 before
