@@ -39,7 +39,11 @@ from .structures import Structure
 N_HARMONICS = 9
 # Samples per cycle of the AFT evaluation (well above 2 N + 1: the contact's kink is sampled finely)
 N_TIME = 128
-_MAX_ITERATIONS = 40
+# Newton steps per sample. A balance converges in 2-3 steps (at most 7 on all but 3 of the 416 000 samples the
+# paper-2dof discovery places); one that has not in 12 has none to find (a harmonic of a contact as stiff as the
+# structure at one of its modes: its residual stalls at a few % of X however damped the steps) and keeps the
+# contact alone (:func:`placed_kbar`).
+_MAX_ITERATIONS = 12
 # Relative change of the harmonics (to X) below which the balance has converged
 _TOLERANCE = 1e-10
 
@@ -109,7 +113,9 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
                 n_harmonics: int = N_HARMONICS, n_time: int = N_TIME) -> np.ndarray:
     """kbar of the sum of ``terms`` ((law, contract values) pairs: the placed laws of one element, which share its
     mean and harmonics) at element amplitudes X and lines w, placed in ``around`` (module docstring); complex,
-    broadcast over X and w."""
+    broadcast over X and w. A sample whose balance has no solution (``_MAX_ITERATIONS``) keeps the kbar of the
+    contact alone, the formula's: the same value at nearby parameter values, where the last of a wandering Newton
+    iteration would differ at every one (and a fit's finite differences would follow it)."""
     X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
     shape = X.shape
     X, w = X.ravel(), w.ravel()
@@ -126,7 +132,7 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
         step = z[active] + (R[active] @ (f @ cycle.P.T)[..., None])[..., 0]
         # where the contact never touches over the cycle the residual is its own step (the Jacobian is I)
         touching = np.any(tangent != 0.0, axis=1)
-        jacobian = np.eye(cycle.size) + R[active][touching] @ ((cycle.P[None] * tangent[touching, None, :]) @ cycle.Phi)
+        jacobian = np.eye(cycle.size) + R[active][touching] @ cycle.tangent_blocks(tangent[touching])
         try:
             step[touching] = np.linalg.solve(jacobian, step[touching][..., None])[..., 0]
         except np.linalg.LinAlgError:
@@ -137,6 +143,8 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
         if not still.any():
             break
         active[np.flatnonzero(active)[~still]] = False
+    else:
+        z[active] = 0.0
     f = _force(p, fundamental + z @ cycle.Phi.T)
     # fundamental phasor of Im(F e^{jwt}) per docs/contracts.md §1: f ~ A sin + B cos -> kbar = (A + j B) / X
     a = 2.0 / n_time * f @ np.sin(cycle.theta)
@@ -162,6 +170,17 @@ class _Cycle:
         self.P = np.vstack([np.full(n_time, 1.0 / n_time)]
                            + [r for pair in zip(2.0 / n_time * np.cos(n), -2.0 / n_time * np.sin(n)) for r in pair])
         self.size = self.Phi.shape[1]
+        self._products = _trig_products(self.harmonics)
+
+    def tangent_blocks(self, tangent: np.ndarray) -> np.ndarray:
+        """``P diag(t) Phi`` for each row t of ``tangent`` (S, T): the harmonics of the force that a change of
+        each unknown makes, shape (S, size, size). Each entry is a sum of t against a product of two harmonics,
+        i.e. a Fourier coefficient of t up to twice the highest harmonic (:func:`_trig_products`): one FFT per
+        sample instead of a (size, T) by (T, size) product, the same numbers to rounding."""
+        spectrum = np.fft.rfft(tangent, axis=1)[:, :2 * self.harmonics[-1] + 1] / tangent.shape[1]
+        coefficients = np.concatenate([spectrum.real, -spectrum.imag], axis=1)     # mean of t cos k, t sin k
+        (first, first_sign), (second, second_sign) = self._products
+        return first_sign * coefficients[:, first] + second_sign * coefficients[:, second]
 
     def receptance_blocks(self, R: np.ndarray) -> np.ndarray:
         """Complex receptances (S, H) at the harmonics -> the real (S, size, size) matrix acting on ``P f``."""
@@ -173,6 +192,40 @@ class _Cycle:
             out[:, i, i + 1] = -R[:, j].imag
             out[:, i + 1, i] = R[:, j].imag
         return out
+
+
+def _trig_products(harmonics: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Where each entry of ``P diag(t) Phi`` (:meth:`_Cycle.tangent_blocks`) takes its two Fourier coefficients of
+    t, and with which factors: indices into ``[c_0 .. c_K, s_0 .. s_K]`` (c_k, s_k the means of t cos k theta and
+    t sin k theta, K twice the highest harmonic), from the row's and the column's function by
+
+        cos a cos b = (cos(a-b) + cos(a+b))/2,   sin a sin b = (cos(a-b) - cos(a+b))/2,
+        sin a cos b = (sin(a+b) + sin(a-b))/2,   cos a sin b = (sin(a+b) - sin(a-b))/2."""
+    K = 2 * int(harmonics[-1])
+    # each unknown: (factor of its row of P times the mean, factor of its column of Phi, harmonic, is sine)
+    functions = [(1.0, 1.0, 0, False)] + [f for h in harmonics[1:] for f in ((2.0, 1.0, h, False),
+                                                                            (-2.0, -1.0, h, True))]
+    size = len(functions)
+    index = np.zeros((2, size, size), int)
+    sign = np.zeros((2, size, size))
+
+    def coefficient(k: int, sine: bool) -> tuple[int, float]:
+        if not sine:
+            return abs(k), 1.0
+        return K + 1 + abs(k), float(np.sign(k))          # sin(-k) = -sin(k); sin 0 = 0
+
+    for i, (row, _, a, row_sine) in enumerate(functions):
+        for j, (_, column, b, column_sine) in enumerate(functions):
+            if row_sine and column_sine:
+                terms = [(a - b, False, 0.5), (a + b, False, -0.5)]
+            elif row_sine or column_sine:
+                terms = [(a + b, True, 0.5), (a - b if row_sine else b - a, True, 0.5)]
+            else:
+                terms = [(a - b, False, 0.5), (a + b, False, 0.5)]
+            for n, (k, sine, half) in enumerate(terms):
+                at, sign_k = coefficient(k, sine)
+                index[n, i, j], sign[n, i, j] = at, row * column * half * sign_k
+    return (index[0], sign[0]), (index[1], sign[1])
 
 
 def _force(laws: list[tuple[Law, np.ndarray]], x: np.ndarray) -> np.ndarray:

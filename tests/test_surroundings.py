@@ -11,7 +11,7 @@ from analysis.harmonic_balance import predict_sweep
 from analysis.laws import get_law
 from analysis.laws.base import Law, Param
 from analysis.laws.unilateral import unilateral_force
-from analysis.surroundings import placed_kbar
+from analysis.surroundings import _cycle, placed_kbar
 
 UNILATERAL = get_law("unilateral")
 K_S, M_S, C_S = 1000.0, 1.0, 2 * 0.02 * np.sqrt(1000.0)
@@ -195,3 +195,28 @@ def test_a_model_places_its_elements_in_its_own_structure():
     assert stiffer.elements[0].surroundings.receptance(0.0) == pytest.approx(0.5 / K_S)
     X, w = 0.01, 30.0
     assert stiffer.elements[0].describing_function(X, w).real > el.describing_function(X, w).real
+
+
+@pytest.mark.parametrize("n_harmonics, n_time", [(9, 128), (1, 16), (5, 64), (3, 4096)])
+def test_the_tangent_blocks_from_one_fft_are_the_product_they_replace(n_harmonics, n_time):
+    """``P diag(t) Phi`` from the Fourier coefficients of t is the direct product to rounding, for tangents that
+    switch along the cycle as a contact's does."""
+    cycle = _cycle(n_harmonics, n_time)
+    rng = np.random.default_rng(n_time)
+    t = rng.random((6, n_time)) * (rng.random((6, n_time)) > 0.4) * 1e3
+    direct = (cycle.P[None] * t[:, None, :]) @ cycle.Phi
+    np.testing.assert_allclose(cycle.tangent_blocks(t), direct, rtol=0, atol=1e-12 * np.max(np.abs(direct)))
+
+
+def test_a_sample_without_a_balance_keeps_the_contact_alone_and_moves_smoothly():
+    """A contact five times as stiff as the structure, at half its natural frequency: the contact's second harmonic
+    meets the mode and the balance has no solution. The sample keeps the contact alone's kbar (the formula, to the
+    sampling of the cycle), and a change of 1e-7 in k moves it by about 1e-7 -- not by whatever a wandering
+    iteration ends at, which a fit's finite differences would follow."""
+    X, w = np.array([0.01]), np.sqrt(K_S / M_S) / 2
+    stiff = {"k": 5 * K_S, "gap": 0.2 * X[0]}
+    _, (el,) = sdof([{"law": "unilateral", **stiff}])
+    got = placed_kbar([(UNILATERAL, stiff)], X, w, el.surroundings)
+    np.testing.assert_allclose(got, UNILATERAL.describing_function(X, w, **stiff), rtol=1e-4)
+    nearby = placed_kbar([(UNILATERAL, {**stiff, "k": stiff["k"] * (1 + 1e-7)})], X, w, el.surroundings)
+    assert abs(nearby - got)[0] / abs(got)[0] < 2e-7
