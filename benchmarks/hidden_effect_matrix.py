@@ -29,10 +29,12 @@ import matrix_cases as mc  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "hidden_effect_matrix.json"
 DOCS = ROOT / "docs/workbench.md"
-# The loop and what its decisions rest on: the fit, the comparison, the model-form check, the detector.
+# The loop and what its decisions rest on: the fit (a contact placed in its structure), the comparison, the
+# model-form check, the detector.
 LOOP_FILES = ("analysis/auto.py", "analysis/discovery.py", "analysis/diagnosis.py", "analysis/workbench.py",
               "analysis/fit.py", "analysis/nonparametric.py",
-              "analysis/comparison.py", "analysis/harmonic_balance.py", "analysis/unexplained.py")
+              "analysis/comparison.py", "analysis/harmonic_balance.py", "analysis/unexplained.py",
+              "analysis/surroundings.py")
 
 
 def loop_commit() -> str:
