@@ -262,17 +262,22 @@ def test_a_law_seen_only_in_its_limit_of_a_vanishing_amplitude_scale_is_not_seen
 
 def test_a_saturating_spring_that_saturates_beyond_every_amplitude_is_the_linear_spring_it_stands_for():
     empty = LawSet((), None, 0.0, 0)
-    # a softer joint, linear: a tanh spring follows it with alpha beta = k and its scale 1 / beta run out beyond
+    # a stiffer joint, linear: a tanh spring follows it with alpha beta = k and its scale 1 / beta run out beyond
     # the amplitudes measured, which the noise alone may determine at 2 sigma (random case 26 of seed 112631,
     # beside Coulomb friction)
-    linear = samples_of({"linear": {"k": -120.0, "c": 0.0}}, X, W)
-    softer = _screened(("tanh_softening",), linear)
-    p = softer.fit.terms[0].params
-    assert 1.0 / abs(p["beta"]) > X.max() and p["alpha"] * p["beta"] == pytest.approx(-120.0, rel=0.05)
-    (law, why), = _limit_only_laws(softer, empty, _searched(linear, softer), 1e-3)
+    linear = samples_of({"linear": {"k": 120.0, "c": 0.0}}, X, W)
+    stiffer = _screened(("tanh_softening",), linear)
+    p = stiffer.fit.terms[0].params
+    assert 1.0 / abs(p["beta"]) > X.max() and p["alpha"] * p["beta"] == pytest.approx(120.0, rel=0.05)
+    (law, why), = _limit_only_laws(stiffer, empty, _searched(linear, stiffer), 1e-3)
     assert law == "tanh_softening" and "above the largest amplitude" in why
+    # a softer joint is no saturating spring: a spring that saturates pushes back (alpha >= 0), so the fit stops
+    # at no force at all (random case 2 of seed 260383: alpha = -0.0082 N, beta = 1.6e24 /m, a constant in-phase
+    # force standing in for friction's negative Re kbar at the smallest amplitudes)
+    softer = _screened(("tanh_softening",), samples_of({"linear": {"k": -120.0, "c": 0.0}}, X, W))
+    assert softer.fit.terms[0].params["alpha"] == 0.0
     # one that saturates within the amplitudes measured is seen as itself, though its scale lies beyond them
-    bent = samples_of({"tanh_softening": {"alpha": -8.0, "beta": 15.0}}, X, W)
+    bent = samples_of({"tanh_softening": {"alpha": 8.0, "beta": 15.0}}, X, W)
     curved = _screened(("tanh_softening",), bent)
     assert 1.0 / curved.fit.terms[0].params["beta"] > X.max()
     assert _limit_only_laws(curved, empty, _searched(bent, curved), 1e-3) == []

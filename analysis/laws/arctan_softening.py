@@ -37,7 +37,7 @@ class ArctanSoftening(Law):
     force_text = "alpha arctan(beta x)"
     kbar_text = "2 alpha beta / (1 + sqrt(1 + beta^2 X^2))"
     explanation = "{re} and Im stays flat: a spring that saturates -- arctan softening"
-    params = (Param("alpha", "{F}", "force scale (the force saturates at (pi/2) alpha)"), _BETA)
+    params = (Param("alpha", "{F}", "force scale (the force saturates at (pi/2) alpha)", lower=0.0), _BETA)
     linear = ("alpha",)
     shape = (_BETA,)
     example = {"alpha": 10.0, "beta": 1.0e3}

@@ -83,7 +83,7 @@ class TanhSoftening(Law):
     force_text = "alpha tanh(beta x)"
     kbar_text = "alpha beta G(beta X), G below"
     explanation = "{re} and Im stays flat: a spring that saturates -- tanh softening"
-    params = (Param("alpha", "{F}", "saturation force"), _BETA)
+    params = (Param("alpha", "{F}", "saturation force", lower=0.0), _BETA)
     linear = ("alpha",)
     shape = (_BETA,)
     example = {"alpha": 10.0, "beta": 1.0e3}
