@@ -36,7 +36,8 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    prefer no law to a right one), every law of it is seen in the kbar (:func:`_unseen_laws`) and seen as itself,
    not only in a limit of its amplitude scale, below or beyond every amplitude (:func:`_limit_only_laws`), and it
    cuts the error of the current choice by ``min_gain`` for every law it adds and the FRF chi-square by more than
-   the noise explains; a set not seen as itself gives way to the next (:func:`_preferred`).
+   the noise explains; a set not seen as itself, or not called for beside the laws taken, gives way to the next
+   (:func:`_preferred`).
    Then -- the model-form check, with every element at its choice -- each element's last step must do the same
    with the lines that carry harmonics predicted multi-harmonically (unless its gain is beyond ``certain_gain``
    and the data carry harmonics or the step is the element's first law), or it is taken back. A law that fits
@@ -127,7 +128,8 @@ class WalkStep:
     taken: bool
     multiharmonic_gain: float | None = None
     why: str = ""
-    not_itself: bool = False           # not taken because the kbar does not show a law of it as itself
+    not_itself: bool = False           # not taken because the kbar does not show a law of it as itself, or does
+    #                                    not call for it beside the laws taken: the next set of its size is tried
     seen_in_frfs: str = ""             # the sizes the FRFs determine where the kbar leaves them open
     instead: tuple[str, ...] = ()      # the set without a law the kbar does not show beside friction, to try next
 
@@ -873,8 +875,8 @@ class _Judge:
 
     def _veto(self, search: _Search, current: LawSet, larger: LawSet, step: WalkStep, a: Comparison,
               b: Comparison, unseen: list[str]) -> tuple[str, bool]:
-        """Why the step is not taken ("" where nothing stops it), and whether because the kbar does not show a law
-        of it as itself. A law whose size the kbar leaves open stops it here except on data without harmonics,
+        """Why the step is not taken ("" where nothing stops it), and whether it gives way to the next set of its
+        size (the kbar does not show a law of it as itself, or does not call for it beside the laws taken). A law whose size the kbar leaves open stops it here except on data without harmonics,
         where the FRFs are asked once nothing else stops it (:meth:`step_up`)."""
         ranking = self.rules.ranking
         limit_only = _limit_only_laws(larger, current, search, ranking.false_alarm, self.frfs_part_refined(search))
@@ -894,6 +896,7 @@ class _Judge:
         # step is still checked with harmonics (holds_with_harmonics)
         if not self.kbar_judges and not unseen and step.gain < ranking.certain_gain and \
                 not _beside_above_noise(search, current, larger, ranking.false_alarm):
+            # no evidence against the sets of its size that replace a law taken: they are tried next
             return ("its kbar does not call for it: beside the laws taken its chi-square falls by less than the "
                     "noise explains"), True
         other_kinds = _other_kinds(self, search, larger) if self.kbar_judges else []

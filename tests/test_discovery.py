@@ -321,6 +321,54 @@ def test_a_set_not_seen_as_itself_gives_way_to_the_next_the_kbar_prefers():
     assert [s.laws for s in steps] == [("cubic",)] and len(taken) == 1 and not steps[0].not_itself
 
 
+def test_a_set_the_kbar_does_not_call_for_beside_the_laws_taken_gives_way_to_the_next_of_its_size():
+    # data without harmonics: the walk tries first the sets that keep the law taken; linear + tanh fits the kbar
+    # no better than the tanh spring alone, and gives way to linear + arctan, the rig's pair, which replaces the
+    # spring (random case 3 of seed 518456, where the walk went on to linear + cubic damping + tanh)
+    rig = samples_of({"linear": {"k": -220.0, "c": 0.0}, "arctan_softening": {"alpha": 20.0, "beta": 38.0}}, X, W)
+    empty = LawSet((), None, 1e6, 0)
+    tanh, linear_tanh, linear_arctan = (_screened(laws, rig) for laws in (
+        ("tanh_softening",), ("linear", "tanh_softening"), ("linear", "arctan_softening")))
+    q = scipy.stats.chi2.ppf(1 - 1e-3, 2)
+    linear_tanh.chi_square = tanh.chi_square - 0.5 * q            # within the noise beside the spring taken
+    for s, criterion in ((empty, 1e6), (tanh, 10.0), (linear_tanh, 12.0), (linear_arctan, 11.0)):
+        s.criterion = criterion
+    search = _Search(0, rig, [empty, tanh, linear_arctan, linear_tanh], 1.0,
+                     {0: [empty], 1: [tanh], 2: [linear_arctan, linear_tanh]})
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False
+    judge.single = _Errors({(): 1.0, tanh.laws: 0.007, linear_tanh.laws: 0.0046, linear_arctan.laws: 0.0041})
+    taken, steps = _walk_element(judge, search)
+    assert [s.laws for s in steps] == [tanh.laws, linear_tanh.laws, linear_arctan.laws]
+    assert "falls by less than the noise explains" in steps[1].why and steps[1].not_itself
+    assert [s.laws for s in taken] == [(), tanh.laws, linear_arctan.laws]
+
+
+def test_a_step_to_a_clearance_judges_the_set_before_it_refined_too(monkeypatch):
+    # data without harmonics: a set with a clearance is judged at its parameters refined against the FRFs, where
+    # that is better; the set it would join is judged so too, or a contact of no size beside the rig's pair
+    # gains by the refinement alone (random case 1 of seed 518456: quintic + cubic damping 0.275 at their kbar
+    # fit, the same with a one-sided contact, refined, 0.0786)
+    rig = samples_of({"quintic": {"k5": 2.5e8}, "cubic_damping": {"c3": 15.0}}, X, W)
+    pair = _screened(("quintic", "cubic_damping"), rig)
+    contact = _screened(("quintic", "cubic_damping", "unilateral"), rig)
+    contact.chi_square = pair.chi_square - 3.0 * scipy.stats.chi2.ppf(1 - 1e-3, 2)
+    search = _Search(0, rig, [pair, contact], 1.0, {})
+    for name in ("_unseen_laws", "_limit_only_laws", "_not_seen_beside_friction"):
+        monkeypatch.setattr(discovery, name, lambda *args, **kwargs: [])
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False
+    friction = LawSet(pair.laws + ("jenkins",), pair.fit, contact.chi_square, 5)
+    judge.single = _Errors({pair.laws: 0.275, contact.laws: 0.274, friction.laws: 0.273})
+    refined = _Errors({pair.laws: 0.0750, contact.laws: 0.0786, friction.laws: 0.0700})
+    judge.refined_single = lambda search, s: refined({0: s})
+    step = judge.step_up(search, pair, contact)
+    assert not step.taken and step.error_before == pytest.approx(0.0750) and step.error == pytest.approx(0.0786)
+    # the other way round: a set without a clearance, in place of one with it, is judged refined as well
+    step = judge.step_up(search, contact, friction)
+    assert step.error_before == pytest.approx(0.0786) and step.error == pytest.approx(0.0700) and not step.taken
+
+
 class _Errors:
     """A stand-in for the FRF comparisons: the single-harmonic error of each set, chi-squares far apart."""
 
