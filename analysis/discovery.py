@@ -876,8 +876,9 @@ class _Judge:
     def _veto(self, search: _Search, current: LawSet, larger: LawSet, step: WalkStep, a: Comparison,
               b: Comparison, unseen: list[str]) -> tuple[str, bool]:
         """Why the step is not taken ("" where nothing stops it), and whether it gives way to the next set of its
-        size (the kbar does not show a law of it as itself, or does not call for it beside the laws taken). A law whose size the kbar leaves open stops it here except on data without harmonics,
-        where the FRFs are asked once nothing else stops it (:meth:`step_up`)."""
+        size (the kbar does not show a law of it as itself, or does not call for it beside the laws taken). A law
+        whose size the kbar leaves open stops it here except on data without harmonics, where the FRFs are asked
+        once nothing else stops it (:meth:`step_up`)."""
         ranking = self.rules.ranking
         limit_only = _limit_only_laws(larger, current, search, ranking.false_alarm, self.frfs_part_refined(search))
         if self.kbar_judges and larger.criterion >= current.criterion:
@@ -1002,9 +1003,13 @@ class _Judge:
 
     def refined_single(self, search: _Search, s: LawSet) -> Comparison:
         """The single-harmonic comparison of set ``s`` on its element at its refined parameters, the others by
-        their stand-ins."""
-        replace = {**self.standins, search.index: terms_function(self.refined(search, s).terms)}
-        return self.predictor.compare(kbar_functions_with(self.predictor.model.elements, replace))
+        their stand-ins (cached with the single-harmonic scores: a step judges its current set this way again for
+        every set it tries)."""
+        key = self._key({search.index: s}, "refined")
+        if key not in self._single:
+            replace = {**self.standins, search.index: terms_function(self.refined(search, s).terms)}
+            self._single[key] = self.predictor.compare(kbar_functions_with(self.predictor.model.elements, replace))
+        return self._single[key]
 
     def stand_in(self, i: int, function: Callable) -> None:
         """Element ``i`` represented by ``function`` from now on: every score and refinement made beside its
