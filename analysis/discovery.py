@@ -825,6 +825,9 @@ class _Judge:
         self._single: dict[tuple, Comparison] = {}
         self._multi: dict[tuple, Comparison] = {}
         self._refined: dict[tuple, FrfRefinement] = {}
+        # the laws each searched element holds while another is walked, for scores with harmonics (which need
+        # laws, not stand-ins): its best set by the criterion until its own walk has chosen
+        self.held: dict[int, LawSet] = {}
 
     @staticmethod
     def _key(choice: dict[int, LawSet], *extra) -> tuple:
@@ -864,6 +867,8 @@ class _Judge:
                 b = self.fitted_single(search, larger, refine=_has_clearance(current))
                 step.error = b.error
             step.why, step.not_itself = self._frf_veto(current, larger, step, a, b, unseen)
+            if step.why and np.isfinite(b.error) and self._gains_with_harmonics(search, current, larger, step):
+                step.why, step.not_itself = "", False
         if not step.why and unseen:
             seen = self._seen_in_frfs(search, current, larger, unseen)
             if seen:
@@ -920,6 +925,30 @@ class _Judge:
         if not above:
             return "within the noise", unseen != []
         return "", False
+
+    def _gains_with_harmonics(self, search: _Search, current: LawSet, larger: LawSet, step: WalkStep) -> bool:
+        """On data without harmonics, whether a step the single-harmonic FRFs refuse, and the kbar calls for by
+        more than the noise explains (its chi-square falls by more than s^2 chi2_q for the parameters added), gains
+        the margin with the lines that carry harmonics predicted multi-harmonically, every other searched element
+        at the laws it holds (:attr:`held`). Friction whose force is near a square wave drives the structure at
+        3w and 5w, and the fundamental it leaves differs from the single-harmonic one: random case 9 of seed
+        786964, a tanh spring beside Coulomb friction at one joint (a quintic at the other), whose kbar fit the rig's
+        values within 1.3 % and cut the capped chi-square from 2004 (linear) to 1122, predicted the FRFs worse
+        than the linear law single-harmonically (0.638 against 0.488) and x7.1 better with harmonics
+        (0.466 -> 0.066). The step is then taken on that gain, and checked again as the element's last step with
+        every element at its choice (:meth:`holds_with_harmonics`)."""
+        ranking = self.rules.ranking
+        dof = max(larger.n_parameters - current.n_parameters, 1)
+        if self.kbar_judges or current.chi_square - larger.chi_square <= _noise_bound(search, dof, ranking.false_alarm):
+            return False
+        i = search.index
+        ma, mb = self.multi({**self.held, i: current}), self.multi({**self.held, i: larger})
+        step.multiharmonic_gain = ma.error / mb.error if mb.error > 0 else float("inf")
+        _, above = frf_criterion(ma, mb, dof, ranking.false_alarm)
+        if step.multiharmonic_gain >= _required(current, larger, ranking) and above:
+            return True
+        step.why += ", with harmonics too"
+        return False
 
     def frfs_part(self, search: _Search) -> Callable[[LawSet, LawSet], bool] | None:
         """On data without harmonics, whether the single-harmonic FRFs tell set ``b`` from set ``a`` of the element
@@ -1438,10 +1467,12 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
     searches = [(_verdict_overruled(judge, search, rules, elements[search.index].surroundings)
                  if elements[search.index].name in linear else None) or search for search in searches]
     taken, walks = {}, {}
+    judge.held = {search.index: min(search.sets, key=lambda s: s.criterion) for search in searches}
     for search in searches:
         _offer_frf_best_single(judge, search)
         _offer_frf_best_alike(judge, search)
         taken[search.index], walks[search.index] = _walk_element(judge, search)
+        judge.held[search.index] = taken[search.index][-1]
     _check_with_harmonics(judge, taken, walks)
     judged = {i: sets[-1] for i, sets in taken.items()}
     index = {s.index: s for s in searches}

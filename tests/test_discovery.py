@@ -362,11 +362,49 @@ def test_a_step_to_a_clearance_judges_the_set_before_it_refined_too(monkeypatch)
     judge.single = _Errors({pair.laws: 0.275, contact.laws: 0.274, friction.laws: 0.273})
     refined = _Errors({pair.laws: 0.0750, contact.laws: 0.0786, friction.laws: 0.0700})
     judge.refined_single = lambda search, s: refined({0: s})
+    judge.held, judge.multi = {}, refined          # with harmonics the contact gains nothing either
     step = judge.step_up(search, pair, contact)
     assert not step.taken and step.error_before == pytest.approx(0.0750) and step.error == pytest.approx(0.0786)
     # the other way round: a set without a clearance, in place of one with it, is judged refined as well
     step = judge.step_up(search, contact, friction)
     assert step.error_before == pytest.approx(0.0786) and step.error == pytest.approx(0.0700) and not step.taken
+
+
+@pytest.mark.parametrize("kbar_fall, with_harmonics, taken", [(3.0, 7.1, True), (3.0, 1.1, False),
+                                                             (0.5, 7.1, False)])
+def test_a_step_the_kbar_calls_for_and_one_harmonic_refuses_is_judged_with_harmonics(monkeypatch, kbar_fall,
+                                                                                     with_harmonics, taken):
+    # data without harmonics: friction's near-square-wave force drives the structure at 3w and 5w, and the
+    # single-harmonic FRFs can refuse the rig's own laws (random case 9 of seed 786964: tanh + Coulomb, x0.76
+    # single-harmonic against a linear law, x7.1 with harmonics); the step is judged with harmonics where the kbar
+    # calls for it beyond the noise, and only there
+    rig = samples_of({"tanh_softening": {"alpha": 30.0, "beta": 45.0}, "coulomb": {"fs": 0.18}}, X, W)
+    one = _screened(("linear",), rig)
+    pair = _screened(("coulomb", "tanh_softening"), rig)
+    pair.chi_square = one.chi_square - kbar_fall * scipy.stats.chi2.ppf(1 - 1e-3, 1)
+    search = _Search(1, rig, [one, pair], 1.0, {})
+    for name in ("_unseen_laws", "_limit_only_laws", "_not_seen_beside_friction"):
+        monkeypatch.setattr(discovery, name, lambda *args, **kwargs: [])
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges = DiscoveryRules(), False
+    judge.single = _Errors({one.laws: 0.488, pair.laws: 0.638})
+    held = LawSet(("quintic",), None, 0.0, 1)
+    asked = []
+
+    def multi(choice):
+        assert choice[0] is held                 # the other joint at the laws it holds, not a stand-in
+        asked.append(choice[1].laws)
+        return _Errors({one.laws: 0.466, pair.laws: 0.466 / with_harmonics})({1: choice[1]})
+    judge.held, judge.multi = {0: held}, multi
+    step = judge.step_up(search, one, pair)
+    assert step.taken is taken
+    assert asked == ([one.laws, pair.laws] if kbar_fall > 1 else [])
+    assert taken or "required" in step.why
+    # data with harmonics: the kbar criterion judges, and the single-harmonic refusal stands
+    judge.kbar_judges, asked[:] = True, []
+    pair.criterion = one.criterion - 10.0
+    monkeypatch.setattr(discovery, "_other_kinds", lambda *args: [])
+    assert not judge.step_up(search, one, pair).taken and asked == []
 
 
 class _Errors:
