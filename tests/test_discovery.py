@@ -407,6 +407,30 @@ def test_a_step_the_kbar_calls_for_and_one_harmonic_refuses_is_judged_with_harmo
     assert not judge.step_up(search, one, pair).taken and asked == []
 
 
+@pytest.mark.parametrize("tanh_chi2, tanh_with_harmonics, first", [(439.0, 0.0152, "tanh_softening"),
+                                                                    (439.0, 0.0600, "arctan_softening"),
+                                                                    (605.0, 0.0152, "arctan_softening")])
+def test_the_set_the_kbar_ranks_first_is_kept_where_the_frfs_overrule_it_only_single_harmonically(
+        tanh_chi2, tanh_with_harmonics, first):
+    # data without harmonics: a spring saturating within the amplitudes measured has a force near a square wave,
+    # and only with harmonics do the FRFs take the kbar's first choice (random case 32 of seed 786964: a tanh
+    # spring, x0.69 single-harmonic against an arctan spring, x2.76 with harmonics); the kbar must prefer it
+    # beyond the noise, and the FRFs with harmonics hold it within the margin
+    rig = samples_of({"tanh_softening": {"alpha": 7.8, "beta": 177.0}}, X, W)
+    tanh, arctan = _screened(("tanh_softening",), rig), _screened(("arctan_softening",), rig)
+    tanh.chi_square, arctan.chi_square = tanh_chi2, 610.0
+    tanh.criterion, arctan.criterion = tanh_chi2 / 1.25, 610.0 / 1.25
+    search = _Search(0, rig, [tanh, arctan], 1.25, {})
+    judge = _Judge.__new__(_Judge)
+    judge.rules, judge.kbar_judges, judge.held = DiscoveryRules(), False, {}
+    judge.single = _Errors({tanh.laws: 0.0467, arctan.laws: 0.0324})
+    judge.multi = _Errors({tanh.laws: tanh_with_harmonics, arctan.laws: 0.0419})
+    empty = LawSet((), None, 1e4, 0)
+    assert _preferred(judge, search, [tanh, arctan], empty)[0].laws == (first,)
+    judge.kbar_judges = True                   # data with harmonics: the single-harmonic FRFs overrule it
+    assert _preferred(judge, search, [tanh, arctan], empty)[0].laws == ("arctan_softening",)
+
+
 class _Errors:
     """A stand-in for the FRF comparisons: the single-harmonic error of each set, chi-squares far apart."""
 
@@ -695,6 +719,7 @@ def test_a_clearance_the_frfs_overrule_only_at_its_kbar_fit_stays_first_on_data_
     judge = _Judge.__new__(_Judge)
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judge.single = _Errors({gap.laws: 0.178, quintic.laws: 0.126, cubic.laws: 0.2})
+    judge.held, judge.multi = {}, judge.single           # with harmonics the FRFs overrule it alike
     chi_square = {gap.laws: 1896.0, quintic.laws: 17264.0, cubic.laws: 19568.0}
     asked = []
     judge.refined = lambda search, s: asked.append(s.laws) or _refinement(chi_square[s.laws], 312)
