@@ -1372,11 +1372,11 @@ def _overruled_single_harmonically_only(judge: _Judge, search: _Search, first: L
     predicts them within ``min_gain`` of the best of the ``walk_width`` rivals they prefer once the lines that
     carry harmonics are predicted multi-harmonically, every other searched element at the laws it holds
     (:attr:`_Judge.held`); asked only where the kbar prefers it to each of those rivals by more than the noise
-    explains (a score with harmonics costs seconds). A spring that saturates within the amplitudes measured has a force near a square
-    wave, whose harmonics change the fundamental: random case 32 of seed 786964, a tanh spring alone, capped
-    chi-square 439 against an arctan spring's 610, FRF error 0.0467 against 0.0324 single-harmonic and 0.0152
-    against 0.0419 with harmonics. The arctan was taken, and cubic damping beside a tanh in its place then
-    gained x1.39 over it, by the tanh."""
+    explains (a score with harmonics costs seconds). A spring that saturates within the amplitudes measured has
+    a force near a square wave, whose harmonics change the fundamental: random case 32 of seed 786964, a tanh
+    spring alone, capped chi-square 439 against an arctan spring's 610, FRF error 0.0467 against 0.0324
+    single-harmonic and 0.0152 against 0.0419 with harmonics. The arctan was taken, and cubic damping beside a
+    tanh in its place then gained x1.39 over it, by the tanh."""
     if judge.kbar_judges:
         return False
     i = search.index
