@@ -207,6 +207,11 @@ class _Search:
     overruled: str = ""                # why the linearity verdict was set aside (:func:`_verdict_overruled`)
     tied: list[LawSet] = field(default_factory=list)   # sets with a law tied to another's: named, never chosen
 
+    @property
+    def best(self) -> LawSet:
+        """The set the kbar criterion prefers."""
+        return min(self.sets, key=lambda s: s.criterion)
+
 
 def law_sets(names: list[str], size: int) -> list[tuple[str, ...]]:
     """Every set of ``size`` laws out of ``names`` with at most one law of each kind."""
@@ -443,6 +448,13 @@ def _noise_bound(search: _Search, dof: int, false_alarm: float) -> float:
     return chi_square_noise_bound(search.scale, dof, false_alarm)
 
 
+def _fits_better(search: _Search, better: LawSet, worse: LawSet, false_alarm: float) -> bool:
+    """Whether ``better`` fits the element's kbar better than ``worse`` by more than the noise explains for the
+    parameters it adds."""
+    return (worse.chi_square - better.chi_square
+            > _noise_bound(search, better.n_parameters - worse.n_parameters, false_alarm))
+
+
 def _alike(search: _Search, a: LawSet, b: LawSet, false_alarm: float) -> bool:
     """Whether two sets of as many laws fit the element's kbar neither better nor worse than each other by more
     than the noise explains (module docstring, step 3)."""
@@ -625,8 +637,7 @@ def _beside_above_noise(search: _Search, current: LawSet, larger: LawSet, false_
     than the noise explains for three parameters)."""
     if not current.laws or not (set(current.laws) < set(larger.laws) and len(larger.laws) == len(current.laws) + 1):
         return True
-    return (current.chi_square - larger.chi_square
-            > _noise_bound(search, larger.n_parameters - current.n_parameters, false_alarm))
+    return _fits_better(search, larger, current, false_alarm)
 
 
 def _not_seen_beside_friction(search: _Search, current: LawSet, larger: LawSet, false_alarm: float,
@@ -941,17 +952,24 @@ class _Judge:
         (0.466 -> 0.066). The step is then taken on that gain, and checked again as the element's last step with
         every element at its choice (:meth:`holds_with_harmonics`)."""
         ranking = self.rules.ranking
-        dof = max(larger.n_parameters - current.n_parameters, 1)
-        if self.kbar_judges or current.chi_square - larger.chi_square <= _noise_bound(search, dof, ranking.false_alarm):
+        if self.kbar_judges or not _fits_better(search, larger, current, ranking.false_alarm):
             return False
-        i = search.index
-        ma, mb = self.multi({**self.held, i: current}), self.multi({**self.held, i: larger})
-        step.multiharmonic_gain = ma.error / mb.error if mb.error > 0 else float("inf")
-        _, above = frf_criterion(ma, mb, dof, ranking.false_alarm)
-        if step.multiharmonic_gain >= _required(current, larger, ranking) and above:
+        if self._gains_with_harmonics_beside(self.held, search.index, current, larger, step,
+                                             _required(current, larger, ranking)):
             return True
         step.why += ", with harmonics too"
         return False
+
+    def _gains_with_harmonics_beside(self, others: dict[int, LawSet], i: int, before: LawSet, after: LawSet,
+                                     step: WalkStep, required: float) -> bool:
+        """Whether ``after`` in place of ``before`` on element ``i``, the others at ``others``, cuts the FRF error
+        with harmonics by ``required`` and its chi-square by more than the noise explains (the gain goes into
+        ``step.multiharmonic_gain``)."""
+        ma, mb = self.multi({**others, i: before}), self.multi({**others, i: after})
+        step.multiharmonic_gain = ma.error / mb.error if mb.error > 0 else float("inf")
+        _, above = frf_criterion(ma, mb, max(after.n_parameters - before.n_parameters, 1),
+                                 self.rules.ranking.false_alarm)
+        return step.multiharmonic_gain >= required and above
 
     def frfs_part(self, search: _Search) -> Callable[[LawSet, LawSet], bool] | None:
         """On data without harmonics, whether the single-harmonic FRFs tell set ``b`` from set ``a`` of the element
@@ -1073,11 +1091,7 @@ class _Judge:
         fitting them (docs/discovery.md, "The model-form check")."""
         if step.gain >= self.rules.ranking.certain_gain and (self.kbar_judges or not before.laws):
             return True
-        ranking = self.rules.ranking
-        ma, mb = self.multi({**choice, i: before}), self.multi(choice)
-        step.multiharmonic_gain = ma.error / mb.error if mb.error > 0 else float("inf")
-        _, above = frf_criterion(ma, mb, max(choice[i].n_parameters - before.n_parameters, 1), ranking.false_alarm)
-        if step.multiharmonic_gain >= ranking.min_gain and above:
+        if self._gains_with_harmonics_beside(choice, i, before, choice[i], step, self.rules.ranking.min_gain):
             return True
         step.taken = False
         step.why = ("with the harmonics represented it gains too little: the single-harmonic gain fits what one "
@@ -1203,7 +1217,7 @@ def _standins(searches: list["_Search"], robust: bool) -> dict[int, Callable]:
     for search in searches:
         s = search.samples
         part = fit_nonparametric(s.X, s.w, s.kbar, s.kbar_std).model
-        best = min(search.sets, key=lambda x: x.criterion)
+        best = search.best
         part_chi2 = _chi_square(part.describing_function(s.X, s.w) - s.kbar, s.kbar_std, robust)
         out[search.index] = best.describing_function if best.chi_square < part_chi2 else part.describing_function
     return out
@@ -1380,13 +1394,16 @@ def _overruled_single_harmonically_only(judge: _Judge, search: _Search, first: L
     if judge.kbar_judges:
         return False
     i = search.index
-    closest = sorted(rivals, key=lambda s: judge.single({i: s}).error)[:judge.rules.walk_width]
-    false_alarm = judge.rules.ranking.false_alarm
-    if not all(s.chi_square - first.chi_square
-               > _noise_bound(search, max(first.n_parameters - s.n_parameters, 1), false_alarm) for s in closest):
+    closest = _closest(judge, search, rivals)
+    if not all(_fits_better(search, first, s, judge.rules.ranking.false_alarm) for s in closest):
         return False
     best = min(judge.multi({**judge.held, i: s}).error for s in closest)
     return judge.multi({**judge.held, i: first}).error <= judge.rules.ranking.min_gain * best
+
+
+def _closest(judge: _Judge, search: _Search, rivals: list[LawSet]) -> list[LawSet]:
+    """The ``walk_width`` rivals with the lowest single-harmonic FRF errors."""
+    return sorted(rivals, key=lambda s: judge.single({search.index: s}).error)[:judge.rules.walk_width]
 
 
 def _overruled_at_kbar_fit_only(judge: _Judge, search: _Search, first: LawSet, rivals: list[LawSet]) -> bool:
@@ -1401,7 +1418,7 @@ def _overruled_at_kbar_fit_only(judge: _Judge, search: _Search, first: LawSet, r
     if judge.kbar_judges or not _has_clearance(first):
         return False
     own = judge.refined(search, first)
-    closest = sorted(rivals, key=lambda s: judge.single({search.index: s}).error)[:judge.rules.walk_width]
+    closest = _closest(judge, search, rivals)
     best, best_set = min(((judge.refined(search, s), s) for s in closest), key=lambda pair: pair[0].chi_square)
     scale = max(1.0, best.chi_square / max(best.n_residuals - best_set.n_parameters, 1))
     return own.chi_square <= best.chi_square + chi_square_noise_bound(scale, 1, judge.rules.ranking.false_alarm)
@@ -1493,7 +1510,7 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
     searches = [(_verdict_overruled(judge, search, rules, elements[search.index].surroundings)
                  if elements[search.index].name in linear else None) or search for search in searches]
     taken, walks = {}, {}
-    judge.held = {search.index: min(search.sets, key=lambda s: s.criterion) for search in searches}
+    judge.held = {search.index: search.best for search in searches}
     for search in searches:
         _offer_frf_best_single(judge, search)
         _offer_frf_best_alike(judge, search)
