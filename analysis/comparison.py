@@ -205,6 +205,15 @@ class Comparison:
     multiharmonic: dict[str, np.ndarray] = field(default_factory=dict)
     capped_chi_square: float | None = None
 
+    @property
+    def times_the_noise(self) -> float | None:
+        """The FRF residual in units of the measured noise: sqrt of the chi-square over its expectation from the
+        noise alone, one per complex value (1 where the model is within the noise); None without standard
+        deviations."""
+        if self.chi_square is None or self.n_observations == 0:
+            return None
+        return float(np.sqrt(self.chi_square / (self.n_observations / 2)))
+
     def other_branch_hz(self, runs: Sequence[SineRun]) -> dict[str, list[float]]:
         """Frequencies of the lines measured on another branch, per run that has any."""
         return {r.name: [float(f) for f in np.asarray(r.frequency_hz)[self.other_branch[r.name]]]
