@@ -209,10 +209,9 @@ def _taken_back(wb: Workbench, found: list[ElementDiscovery], min_gain: float,
                 near: float) -> Iterator[AutoStep]:
     """On data without harmonics, each discovered law that the whole model, refitted without it, does not miss by
     ``min_gain``, taken back (one step each; of several, the one whose absence costs least first), where the model
-    is near the noise (:func:`_near_the_noise`). Discovery
-    judges a set at its kbar fit, the others by their stand-ins, and steps from the set taken before; the model's
-    own fit takes out the bias its harmonics put in the kbar (:meth:`Workbench.fit`), so the model is the fairer
-    judge of what a law brings. Random case 9 of seed 735527, a gap alone: the walk stepped from a one-sided
+    is near the noise (:func:`_near_the_noise`). Discovery judges a set at its kbar fit, the others by their
+    stand-ins, and steps from the set taken before; the model's own fit takes out the bias its harmonics put in
+    the kbar (:meth:`Workbench.fit`), so the model is the fairer judge of what a law brings. Random case 9 of seed 735527, a gap alone: the walk stepped from a one-sided
     contact to cubic damping + gap (x3.47 with harmonics), and the gap alone never competed; refitted, the model
     gives 0.0107 with the gap alone and 0.0106 with a velocity stiffness beside it. The loop adds a law only for
     ``min_gain``; a law that brings less is not kept either."""
