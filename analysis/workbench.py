@@ -38,7 +38,7 @@ from .laws import get_law
 from .linearity import LinearityVerdict, linearity_verdict
 from .measurements import Measurements, SineRun
 from .model import Model, load_model
-from .nonparametric import NAME as NONPARAMETRIC, fit_nonparametric
+from .nonparametric import NAME as NONPARAMETRIC, NonParametric, fit_nonparametric
 from .reference import ReferenceReport, reference_from_random
 from .unexplained import NonParametricOffer, offer_nonparametric, unexplained
 
@@ -126,7 +126,7 @@ class _FittedState:
     bias: dict[str, np.ndarray]
     reports: dict[str, ElementReport]
     fits: dict[str, LawFit | None]       # each report's fit (a refit without identification sets it in place)
-    parts: list[tuple[list[LawTerm], object]]
+    parts: list[tuple[list[LawTerm], NonParametric | None]]
 
 
 def _harmonic_points(lines: SineRun, limit: float) -> SineRun:
@@ -280,12 +280,16 @@ class Workbench:
                 self._fit_elements(None)
             return
         found = self.predictor.fundamental_bias(criterion)
+        error = found.comparison.error          # of the fit kept so far, with harmonics
         if _nonzero(found.bias) or _nonzero(self._kbar_bias):
             before = self._fitted_state()
             self._refit_less(found.bias)
-            if not self._corrected_is_kept(found.comparison, criterion):
+            corrected = self.predictor.compare(harmonics=criterion).error
+            if self._corrected_is_kept(found.comparison, corrected):
+                error = corrected
+            else:
                 self._restore(before)
-        self._corrected_from_refined(criterion)
+        self._corrected_from_refined(criterion, error)
 
     def _fitted_state(self) -> _FittedState:
         return _FittedState(self._kbar_bias, self.reports, {n: r.fit for n, r in self.reports.items()},
@@ -304,7 +308,7 @@ class Workbench:
         self.identify()
         self._fit_elements(None)
 
-    def _corrected_from_refined(self, criterion: HarmonicCriterion) -> None:
+    def _corrected_from_refined(self, criterion: HarmonicCriterion, error: float) -> None:
         """A clearance's corrected fit can have more than one fixed point: the bias of a model fitted at one
         contact stiffness moves the kbar so that the same stiffness fits it best. On random case 13 of seed 735527
         (quadratic damping + a one-sided contact) the kbar fit and every corrected pass after it stayed at
@@ -313,12 +317,11 @@ class Workbench:
         FRFs (:func:`analysis.frf_refinement.refine_against_frfs`, single-harmonic: 1729 N/m, 0.080), one
         corrected pass reached 2549 N/m at 0.0022. So where an element has a clearance law, the corrected fit is
         also started from its FRF-refined laws, and the fixed point the FRFs with harmonics prefer by the margin
-        a law must bring (``RankingRules.min_gain``) is kept."""
+        a law must bring (``RankingRules.min_gain``) is kept (``error``: the current fit's, with harmonics)."""
         at = [i for i, el in enumerate(self.model.elements) if any(t.law.kind == "clearance" for t in el.laws)]
         if not at:
             return
         before = self._fitted_state()
-        error = self.predictor.compare(harmonics=criterion).error
         for i in at:
             self.model.elements[i].laws = self._refined_against_frfs(i)
         self._refit_less(self.predictor.fundamental_bias(criterion).bias)
@@ -333,7 +336,7 @@ class Workbench:
         return refine_against_frfs(self.predictor, i, els[i].laws, [list(t.law.param_names) for t in els[i].laws],
                                    others).terms
 
-    def _corrected_is_kept(self, before: Comparison, criterion: HarmonicCriterion) -> bool:
+    def _corrected_is_kept(self, before: Comparison, corrected: float) -> bool:
         """The balance's own sliders never stick (a Coulomb slider is a tanh of the velocity), so its bias can be
         wrong where a joint sticks and slips in turn: on random case 43 of seed 42911 (Coulomb + gap) the
         corrected fit predicted the FRFs with harmonics at 0.63 against 0.11 before it. The FRFs decide, by the
@@ -341,7 +344,7 @@ class Workbench:
         one pass may leave the error a little worse on the way (random case 7 of seed 777240, a softening cubic:
         0.3155 against 0.3151 after the first law; refused there, the bias never built up, and the loop added four
         laws that stood in for it)."""
-        return self.predictor.compare(harmonics=criterion).error <= RankingRules().min_gain * before.error
+        return corrected <= RankingRules().min_gain * before.error
 
     @property
     def harmonics_blind(self) -> bool:

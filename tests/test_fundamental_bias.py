@@ -83,7 +83,7 @@ def test_friction_laws_refitted_without_their_harmonics_keep_the_rig_s_values(fr
     corrected = _fitted(friction_runs)
     values = {t.law.name: t.values for t in corrected.model.element("a").laws}
     with monkeypatch.context() as m:
-        m.setattr(Workbench, "_corrected_is_kept", lambda self, before, criterion: False)
+        m.setattr(Workbench, "_corrected_is_kept", lambda self, before, corrected: False)
         refused = _fitted(friction_runs)
     monkeypatch.setattr(Workbench, "_correct_fundamental_bias", lambda self: None)
     plain = _fitted(friction_runs)
