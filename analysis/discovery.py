@@ -135,6 +135,8 @@ class WalkStep:
     #                                    not call for it beside the laws taken: the next set of its size is tried
     seen_in_frfs: str = ""             # the sizes the FRFs determine where the kbar leaves them open
     instead: tuple[str, ...] = ()      # the set without a law the kbar does not show beside friction, to try next
+    by_kbar: bool = False              # refused for what the element's own kbar shows (:meth:`_Judge._veto`), which
+    #                                    the laws the other elements take do not change
 
     @property
     def gain(self) -> float:
@@ -151,7 +153,7 @@ class WalkStep:
     def to_json(self) -> dict:
         return {"laws": list(self.laws), "error": self.error, "error_before": self.error_before, "gain": self.gain,
                 "taken": self.taken, "multiharmonic_gain": self.multiharmonic_gain, "why": self.why,
-                "seen_in_frfs": self.seen_in_frfs}
+                "seen_in_frfs": self.seen_in_frfs, "by_kbar": self.by_kbar}
 
 
 @dataclass
@@ -875,6 +877,7 @@ class _Judge:
         step = WalkStep(larger.laws, b.error, a.error, False)
         unseen = _unseen_laws(larger, current)
         step.why, step.not_itself = self._veto(search, current, larger, step, a, b, unseen)
+        step.by_kbar = bool(step.why)
         if not step.why:
             if step.gain < _required(current, larger, self.rules.ranking):
                 # refined only where the kbar lets the step through and the gain decides: a refinement costs seconds
@@ -1455,16 +1458,59 @@ def _extension(search: _Search, current: LawSet, size: int) -> list[LawSet]:
     return [s for s in extending if s not in search.by_size[size]]
 
 
-def _check_with_harmonics(judge: _Judge, taken: dict[int, list[LawSet]], walks: dict[int, list[WalkStep]]) -> None:
+#: The contact laws the fundamental alone hardly tells apart: a contact that closes on one side and one that closes
+#: on both differ first in their harmonics (a mean and even ones against odd ones)
+CONTACT_TWINS = {"gap": "unilateral", "unilateral": "gap"}
+
+
+def _contact_twin(search: _Search, s: LawSet) -> LawSet | None:
+    """Set ``s`` with its contact law on the other side (:data:`CONTACT_TWINS`), as fitted to the element's kbar;
+    None where ``s`` holds no such law, or holds both, or the twin was not fitted."""
+    contacts = [n for n in s.laws if n in CONTACT_TWINS]
+    if len(contacts) != 1:
+        return None
+    twin = {CONTACT_TWINS[contacts[0]] if n == contacts[0] else n for n in s.laws}
+    return next((t for t in search.sets if set(t.laws) == twin and not t.tied), None)
+
+
+def _check_with_harmonics(judge: _Judge, index: dict[int, _Search], taken: dict[int, list[LawSet]],
+                          walks: dict[int, list[WalkStep]]) -> None:
     """Each element's last step, checked with the harmonics represented and every other element at its choice;
-    a step that fails is taken back and the one before it checked in turn."""
+    a step that fails is taken back and the one before it checked in turn. A set with a contact law that fails
+    gives way first to its twin with the contact on the other side (:func:`_contact_twin`), stepped up to and
+    checked the same way: on data without harmonics the kbar can read a gap as a one-sided contact, and the
+    harmonics that part the two are what refused the set (random case 31 of seed 300885: a gap and cubic
+    damping, read as a one-sided contact and cubic damping, x7.8 single-harmonic and x2.0 worse with
+    harmonics, the cubic damping then left out)."""
     for i, sets in taken.items():
         while len(sets) > 1:
             step = next(s for s in reversed(walks[i]) if s.taken and s.laws == sets[-1].laws)
             choice = {j: other[-1] for j, other in taken.items()}
             if judge.holds_with_harmonics(choice, i, sets[-2], step):
                 break
-            sets.pop()
+            failed = sets.pop()
+            if _twin_holds(judge, index[i], taken, walks[i], failed):
+                break
+
+
+def _twin_holds(judge: _Judge, search: _Search, taken: dict[int, list[LawSet]], walk: list[WalkStep],
+                failed: LawSet) -> bool:
+    """Whether the contact twin of a set refused with harmonics (:func:`_contact_twin`) is stepped up to from the
+    set before it and holds with harmonics; it is then taken (appended to ``taken`` and ``walk``). Data with
+    harmonics show which side a contact closes on in the kbar already."""
+    twin = None if judge.kbar_judges else _contact_twin(search, failed)
+    sets = taken[search.index]
+    if twin is None or any(set(s.laws) == set(twin.laws) for s in sets):
+        return False
+    step = judge.step_up(search, sets[-1], twin)
+    walk.append(step)
+    if not step.taken:
+        return False
+    if not judge.holds_with_harmonics({**{j: other[-1] for j, other in taken.items()}, search.index: twin},
+                                      search.index, sets[-1], step):
+        return False
+    sets.append(twin)
+    return True
 
 
 @dataclass
@@ -1516,9 +1562,9 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
         _offer_frf_best_alike(judge, search)
         taken[search.index], walks[search.index] = _walk_element(judge, search)
         judge.held[search.index] = taken[search.index][-1]
-    _check_with_harmonics(judge, taken, walks)
-    judged = {i: sets[-1] for i, sets in taken.items()}
     index = {s.index: s for s in searches}
+    _check_with_harmonics(judge, index, taken, walks)
+    judged = {i: sets[-1] for i, sets in taken.items()}
     pruned = _pruned_beside_clearance(judge, index, judged)
     choice = {i: _simplest(judge, index[i], s, judged) for i, s in judged.items()}
     names = {i: el.name for i, el in enumerate(predictor.model.elements)}

@@ -14,6 +14,7 @@ from analysis.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained, run
 from analysis.backbone import ModalError
 from analysis.comparison import RunPrediction, compare_predictions
 from analysis.diagnosis import Candidate, ElementSamples, RankingRules
+from analysis.discovery import Discovery, ElementDiscovery, LawSet, WalkStep
 from analysis.linearity import linearity_verdict
 from analysis.measurements import Measurements, SineRun
 from analysis.model import load_model
@@ -375,6 +376,42 @@ def test_no_law_is_taken_back_while_the_model_is_far_from_the_noise():
     unknown = _Trial(["quadratic_damping", "coulomb"], 0.287, {"quadratic_damping": 0.9, "coulomb": 0.272},
                      times_the_noise=None)
     assert list(auto_module._taken_back(unknown, [_found("b")], 1.3, 10.0)) == []
+
+
+def _walked(element: str, *steps: WalkStep) -> Discovery:
+    chosen = LawSet(("linear", "coulomb"), None, 0.0, 3)
+    return Discovery([ElementDiscovery(element, chosen, 1.0, 148, [], walk=list(steps))])
+
+
+def _significant_candidate(element: str, law: str) -> Candidate:
+    c = Candidate(element, law, 0.025, 0.046, 0.0, True, "a clearance that closes", evidence=25.0, supported=True)
+    c.significant = True
+    return c
+
+
+def test_the_loop_does_not_add_what_discovery_refused_for_what_the_kbar_shows():
+    # seed 300885 random 19: discovery refused a gap beside b's linear + Coulomb friction (its kbar shows the gap
+    # no more than the force that turns the friction's fundamental); the loop's ranking found it x1.8 in the FRFs
+    refused = WalkStep(("linear", "coulomb", "gap"), 0.0733, 0.081, False, why="its kbar shows gap beside friction "
+                       "no more than the force that turns the friction's fundamental", not_itself=True, by_kbar=True)
+    by_frfs = WalkStep(("linear", "coulomb", "unilateral"), 0.0202, 0.081, False, why="with the harmonics "
+                       "represented it gains too little")
+    found = _walked("b", WalkStep(("linear", "coulomb"), 0.081, 0.729, True), refused, by_frfs)
+    wb = _Trial(["coulomb", "linear"], 0.0456, {})
+    gap, unilateral, other = (_significant_candidate("b", "gap"), _significant_candidate("b", "unilateral"),
+                              _significant_candidate("a", "gap"))
+    auto_module._hold_back_refused(wb, [gap, unilateral, other], found)
+    assert not gap.significant and "model discovery refused linear+coulomb+gap at 'b'" in gap.held_back
+    # refused by the FRFs (which depend on the other elements' laws), or at another element: the ranking decides
+    assert unilateral.significant and other.significant and not unilateral.held_back
+    # beside other laws than those the walk refused it beside, the kbar's verdict is another question
+    beside_gap = _significant_candidate("b", "gap")
+    auto_module._hold_back_refused(_Trial(["coulomb"], 0.0456, {}), [beside_gap], found)
+    assert beside_gap.significant
+    # with harmonics the ranking's kbar criterion is the walk's own
+    with_harmonics = _significant_candidate("b", "gap")
+    auto_module._hold_back_refused(_Trial(["coulomb", "linear"], 0.0456, {}, blind=False), [with_harmonics], found)
+    assert with_harmonics.significant
 
 
 def test_the_error_in_units_of_the_noise_is_one_for_a_prediction_within_the_noise():

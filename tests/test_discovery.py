@@ -315,10 +315,12 @@ def test_a_set_not_seen_as_itself_gives_way_to_the_next_the_kbar_prefers():
     taken, steps = _walk_element(judge, search)
     assert [s.laws for s in taken] == [(), ("cubic",)]
     assert [s.laws for s in steps] == [("arctan_softening",), ("cubic",)] and steps[0].not_itself
+    assert steps[0].by_kbar and not steps[1].by_kbar                   # what the loop after discovery respects
     cubic.criterion = 5.0                                               # first now, and it gains too little
     judge.single = _Errors({(): 1.0, saturated.laws: 0.95, cubic.laws: 0.9})
     taken, steps = _walk_element(judge, search)
     assert [s.laws for s in steps] == [("cubic",)] and len(taken) == 1 and not steps[0].not_itself
+    assert not steps[0].by_kbar                                         # refused by the FRFs, not by its kbar
 
 
 def test_a_set_the_kbar_does_not_call_for_beside_the_laws_taken_gives_way_to_the_next_of_its_size():
@@ -340,7 +342,7 @@ def test_a_set_the_kbar_does_not_call_for_beside_the_laws_taken_gives_way_to_the
     judge.single = _Errors({(): 1.0, tanh.laws: 0.007, linear_tanh.laws: 0.0046, linear_arctan.laws: 0.0041})
     taken, steps = _walk_element(judge, search)
     assert [s.laws for s in steps] == [tanh.laws, linear_tanh.laws, linear_arctan.laws]
-    assert "falls by less than the noise explains" in steps[1].why and steps[1].not_itself
+    assert "falls by less than the noise explains" in steps[1].why and steps[1].not_itself and steps[1].by_kbar
     assert [s.laws for s in taken] == [(), tanh.laws, linear_arctan.laws]
 
 
@@ -470,7 +472,7 @@ def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
     judge._seen_in_frfs = lambda search, current, larger, unseen: asked.append(unseen) or ""
     step = judge.step_up(search, two, three)
     assert not step.taken and "does not show velocity_stiffness" in step.why and step.not_itself
-    assert asked == [["velocity_stiffness"]]
+    assert asked == [["velocity_stiffness"]] and not step.by_kbar     # the FRFs had their word
     # where the FRFs refined determine its size, the step is taken, and says so
     judge._seen_in_frfs = lambda search, current, larger, unseen: "velocity_stiffness gamma = 0.2 +- 0.05"
     step = judge.step_up(search, two, three)
@@ -985,3 +987,38 @@ def test_beside_friction_a_clearance_the_kbar_cannot_show_is_seen_where_the_frfs
     assert _not_seen_beside_friction(search, current, gap, false_alarm, parts) == []
     rate = next(s for s in search.sets if set(s.laws) == {"coulomb", "velocity_stiffness"})
     assert _not_seen_beside_friction(search, current, rate, false_alarm, parts) == ["velocity_stiffness"]
+
+
+def test_a_contact_refused_with_harmonics_gives_way_to_its_twin_on_the_other_side():
+    # seed 300885 random 31: a gap + cubic damping read as a one-sided contact + cubic damping, x7.8 single-harmonic
+    # and x2.0 worse with harmonics; the same pair with a gap, x7.9 and x5.3 with harmonics, is then taken
+    kbar = np.full(len(X), 100.0 + 1j)
+    sets = {laws: LawSet(laws, None, 10.0, 2 * len(laws)) for laws in (
+        (), ("unilateral",), ("cubic_damping", "unilateral"), ("cubic_damping", "gap"), ("gap", "unilateral"),
+        ("cubic", "gap"))}
+    search = _Search(0, ElementSamples("a", X, W, kbar, np.ones(len(X)), np.ones(len(X))), list(sets.values()),
+                     1.0, {})
+    assert discovery._contact_twin(search, sets["cubic_damping", "unilateral"]) is sets["cubic_damping", "gap"]
+    assert discovery._contact_twin(search, sets["gap", "unilateral"]) is None           # both sides already
+    assert discovery._contact_twin(search, sets["cubic", "gap"]) is None                # its twin was not fitted
+    assert discovery._contact_twin(search, sets[()]) is None
+
+    def judged(holds: set[tuple[str, ...]], kbar_judges: bool = False):
+        judge = _Judge.__new__(_Judge)
+        judge.rules, judge.kbar_judges = DiscoveryRules(), kbar_judges
+        judge.step_up = lambda search, current, larger: WalkStep(larger.laws, 0.0085, 0.067, True)
+        judge.holds_with_harmonics = lambda choice, i, before, step: choice[i].laws in holds
+        pair = WalkStep(("cubic_damping", "unilateral"), 0.0085, 0.067, True)
+        taken = {0: [sets[()], sets["unilateral",], sets["cubic_damping", "unilateral"]]}
+        walks = {0: [WalkStep(("unilateral",), 0.067, 1.0, True), pair]}
+        discovery._check_with_harmonics(judge, {0: search}, taken, walks)
+        return [s.laws for s in taken[0]], [s.laws for s in walks[0]]
+
+    laws, walk = judged({("unilateral",), ("cubic_damping", "gap")})
+    assert laws == [(), ("unilateral",), ("cubic_damping", "gap")] and walk[-1] == ("cubic_damping", "gap")
+    # the twin refused with harmonics too: the set before is kept, as without twins
+    laws, walk = judged({("unilateral",)})
+    assert laws == [(), ("unilateral",)] and walk[-1] == ("cubic_damping", "gap")
+    # data with harmonics show the side in the kbar: no twin is tried
+    laws, walk = judged({("unilateral",), ("cubic_damping", "gap")}, kbar_judges=True)
+    assert laws == [(), ("unilateral",)] and walk[-1] == ("cubic_damping", "unilateral")
