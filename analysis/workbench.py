@@ -553,7 +553,20 @@ class Workbench:
         if len(self.history) < 2:
             raise InputError("nothing to undo: the model is as analysis started it")
         self.history.pop()
-        before = load_model(tomllib.loads(self.history[-1].model_toml), self.model.source)
+        self._laws_of(self.history[-1])
+        return self.history[-1]
+
+    def back_to(self, index: int, action: str) -> HistoryStep:
+        """The laws and values of history step ``index`` again, the elements whose laws change refitted from
+        those values, recorded as a new step (``action``): the steps after it stay in the history. Refitted from
+        the values the step had, the fit returns to the fixed point it had then; from the values of a model with
+        a law more it can settle elsewhere (the fundamental's bias correction, docs/fitting.md)."""
+        self._laws_of(self.history[index])
+        return self.record(action)
+
+    def _laws_of(self, step: HistoryStep) -> None:
+        """Every element's laws and values as in ``step``; the elements whose laws change refitted."""
+        before = load_model(tomllib.loads(step.model_toml), self.model.source)
         changed = []
         for el, old in zip(self.model.elements, before.elements):
             if ([t.law.name for t in el.laws] != [t.law.name for t in old.laws]
@@ -561,7 +574,6 @@ class Workbench:
                 changed.append(el.name)
             el.laws, el.nonparametric = old.laws, old.nonparametric
         self.fit(changed)                      # also drops the cached comparison
-        return self.history[-1]
 
     def start(self) -> HistoryStep:
         """Reference, identification and fit of the model as given; the first history step."""

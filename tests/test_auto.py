@@ -400,18 +400,41 @@ def test_the_loop_does_not_add_what_discovery_refused_for_what_the_kbar_shows():
     wb = _Trial(["coulomb", "linear"], 0.0456, {})
     gap, unilateral, other = (_significant_candidate("b", "gap"), _significant_candidate("b", "unilateral"),
                               _significant_candidate("a", "gap"))
-    auto_module._hold_back_refused(wb, [gap, unilateral, other], found)
+    auto_module._hold_back_against_discovery(wb, [gap, unilateral, other], found)
     assert not gap.significant and "model discovery refused linear+coulomb+gap at 'b'" in gap.held_back
     # refused by the FRFs (which depend on the other elements' laws), or at another element: the ranking decides
     assert unilateral.significant and other.significant and not unilateral.held_back
     # beside other laws than those the walk refused it beside, the kbar's verdict is another question
     beside_gap = _significant_candidate("b", "gap")
-    auto_module._hold_back_refused(_Trial(["coulomb"], 0.0456, {}), [beside_gap], found)
+    auto_module._hold_back_against_discovery(_Trial(["coulomb"], 0.0456, {}), [beside_gap], found)
     assert beside_gap.significant
     # with harmonics the ranking's kbar criterion is the walk's own
     with_harmonics = _significant_candidate("b", "gap")
-    auto_module._hold_back_refused(_Trial(["coulomb", "linear"], 0.0456, {}, blind=False), [with_harmonics], found)
+    auto_module._hold_back_against_discovery(_Trial(["coulomb", "linear"], 0.0456, {}, blind=False), [with_harmonics], found)
     assert with_harmonics.significant
+
+
+def test_the_loop_adds_no_second_law_of_a_kind_at_a_joint_discovery_searched():
+    # seed 300885 random 19: a Jenkins element of 0.8 % of the Coulomb friction's slip force beside it
+    found = _walked("b", WalkStep(("linear", "coulomb"), 0.081, 0.729, True))
+    jenkins, cubic = _significant_candidate("b", "jenkins"), _significant_candidate("b", "cubic")
+    auto_module._hold_back_against_discovery(_Trial(["linear", "coulomb"], 0.0456, {}, blind=False),
+                                             [jenkins, cubic], found)
+    assert not jenkins.significant and "holds a law of kind friction already" in jenkins.held_back
+    assert cubic.significant
+    # an element discovery did not search (laws given by the user) is the ranking's alone
+    given = _significant_candidate("a", "jenkins")
+    auto_module._hold_back_against_discovery(_Trial(["linear", "coulomb"], 0.0456, {}), [given], found)
+    assert given.significant
+
+
+def test_a_law_added_that_the_refitted_model_does_not_gain_by_falls_short():
+    c = _significant_candidate("b", "velocity_stiffness")
+    # seed 300885 random 19: x1.57 at its kbar fit, 0.04562 -> 0.04561 refitted
+    assert auto_module._falls_short(c, 0.04562, 0.04561, 1.3)
+    assert not auto_module._falls_short(c, 0.0456, 0.0248, 1.3)
+    c.by_modes = "the measured backbone calls for it"                   # significant by the modes' word
+    assert not auto_module._falls_short(c, 0.04562, 0.04561, 1.3)
 
 
 def test_the_error_in_units_of_the_noise_is_one_for_a_prediction_within_the_noise():

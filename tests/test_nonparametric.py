@@ -293,6 +293,12 @@ def test_model_file_round_trip_keeps_the_part_and_undo_takes_it_back():
     wb.undo()
     assert wb.model.element("joint").nonparametric is None
     assert wb.compare().error == pytest.approx(wb.history[0].error, rel=1e-9)
+    # back to the first step as a step of its own: the history keeps the part's step
+    wb.add("joint", "nonparametric")
+    step = wb.back_to(0, "take back joint:nonparametric")
+    assert [s.action for s in wb.history] == ["start", "add joint:nonparametric", "take back joint:nonparametric"]
+    assert wb.model.element("joint").nonparametric is None and step.laws == wb.history[0].laws
+    assert step.error == pytest.approx(wb.history[0].error, rel=1e-9)
 
 
 def test_bad_nonparametric_tables_and_the_missing_time_domain_are_clear_errors():

@@ -60,7 +60,8 @@ PUBLIC_NAMES = {
 PUBLIC_MEMBERS = {
     ("analysis", "Structure"): ["dofs", "n", "frf", "natural_frequencies", "modes", "index"],
     ("analysis.workbench", "Workbench"): ["start", "update_reference", "identify", "fit", "compare", "candidates",
-                                          "add", "add_laws", "pair_candidates", "to_json"],
+                                          "add", "add_laws", "pair_candidates", "to_json", "undo", "back_to",
+                                          "take_back", "error_without", "discover", "harmonics_blind"],
     ("drivers.simulation.simulator", "RigSimulator"): ["advance", "set_sine", "set_noise", "set_output", "time",
                                                         "output_on", "frequency"],
     ("drivers", "ShakerController"): [], ("drivers", "Daq"): [],
