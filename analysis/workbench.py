@@ -166,6 +166,7 @@ class Workbench:
         # run -> (lines, elements): the model's own harmonics in the identified kbar, taken out of the samples on
         # data without harmonics (:meth:`_correct_fundamental_bias`)
         self._kbar_bias: dict[str, np.ndarray] = {}
+        self._states: dict[int, _FittedState] = {}   # history index -> the fitted state it recorded
 
     # ------------------------------------------------------------------ reference
     def update_reference(self) -> ReferenceReport:
@@ -293,7 +294,7 @@ class Workbench:
 
     def _fitted_state(self) -> _FittedState:
         return _FittedState(self._kbar_bias, self.reports, {n: r.fit for n, r in self.reports.items()},
-                            [(el.laws, el.nonparametric) for el in self.model.elements])
+                            [(list(el.laws), el.nonparametric) for el in self.model.elements])
 
     def _restore(self, state: _FittedState) -> None:
         self._kbar_bias, self.reports = state.bias, state.reports
@@ -424,6 +425,7 @@ class Workbench:
                             ([{"law": NONPARAMETRIC, **el.nonparametric.to_toml()}] if el.nonparametric else [])
                             for el in self.model.elements})
         self.history.append(step)
+        self._states[step.step] = self._fitted_state()
         return step
 
     def add(self, element: str, law: str) -> HistoryStep:
@@ -557,11 +559,17 @@ class Workbench:
         return self.history[-1]
 
     def back_to(self, index: int, action: str) -> HistoryStep:
-        """The laws and values of history step ``index`` again, the elements whose laws change refitted from
-        those values, recorded as a new step (``action``): the steps after it stay in the history. Refitted from
-        the values the step had, the fit returns to the fixed point it had then; from the values of a model with
-        a law more it can settle elsewhere (the fundamental's bias correction, docs/fitting.md)."""
-        self._laws_of(self.history[index])
+        """The model exactly as history step ``index`` recorded it -- laws, values, and the kbar bias taken out --
+        recorded again as a new step (``action``): the steps after it stay in the history. Refitted instead, even
+        from the values the step had, the bias correction of data without harmonics can settle at another fixed
+        point (docs/fitting.md): seed 300885 random 19, linear + Coulomb friction at 0.0456 refitted to 0.0511
+        after a velocity stiffness was added and taken back."""
+        state = self._states.get(self.history[index].step)
+        if state is None:                      # a history this workbench did not record: refitted from the values
+            self._laws_of(self.history[index])
+        else:
+            self._restore(state)
+            self._comparison = self._single = None
         return self.record(action)
 
     def _laws_of(self, step: HistoryStep) -> None:
