@@ -1485,8 +1485,7 @@ def _check_with_harmonics(judge: _Judge, index: dict[int, _Search], taken: dict[
     for i, sets in taken.items():
         while len(sets) > 1:
             step = next(s for s in reversed(walks[i]) if s.taken and s.laws == sets[-1].laws)
-            choice = {j: other[-1] for j, other in taken.items()}
-            if judge.holds_with_harmonics(choice, i, sets[-2], step):
+            if judge.holds_with_harmonics(_choices(taken), i, sets[-2], step):
                 break
             failed = sets.pop()
             if _twin_holds(judge, index[i], taken, walks[i], failed):
@@ -1506,11 +1505,16 @@ def _twin_holds(judge: _Judge, search: _Search, taken: dict[int, list[LawSet]], 
     walk.append(step)
     if not step.taken:
         return False
-    if not judge.holds_with_harmonics({**{j: other[-1] for j, other in taken.items()}, search.index: twin},
-                                      search.index, sets[-1], step):
-        return False
     sets.append(twin)
-    return True
+    if judge.holds_with_harmonics(_choices(taken), search.index, sets[-2], step):
+        return True
+    sets.pop()
+    return False
+
+
+def _choices(taken: dict[int, list[LawSet]]) -> dict[int, LawSet]:
+    """Every element at the last set it took."""
+    return {j: sets[-1] for j, sets in taken.items()}
 
 
 @dataclass

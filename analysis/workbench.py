@@ -20,7 +20,6 @@ came from.
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, replace
 from typing import Callable
 
@@ -37,7 +36,7 @@ from .identify import identify_complex_stiffness
 from .laws import get_law
 from .linearity import LinearityVerdict, linearity_verdict
 from .measurements import Measurements, SineRun
-from .model import Model, load_model
+from .model import Model
 from .nonparametric import NAME as NONPARAMETRIC, NonParametric, fit_nonparametric
 from .reference import ReferenceReport, reference_from_random
 from .unexplained import NonParametricOffer, offer_nonparametric, unexplained
@@ -550,38 +549,27 @@ class Workbench:
         return self.record("linear correction " + ", ".join(names))
 
     def undo(self) -> HistoryStep:
-        """Take back the last step of the history (an added law): the previous step's laws and values return,
-        the elements whose laws change are refitted, and the step is dropped. Returns the step now current."""
+        """Take back the last step of the history (an added law): the model returns exactly as the previous step
+        recorded it (:meth:`_return_to`), and the step is dropped. Returns the step now current."""
         if len(self.history) < 2:
             raise InputError("nothing to undo: the model is as analysis started it")
-        self.history.pop()
-        self._laws_of(self.history[-1])
+        del self._states[self.history.pop().step]
+        self._return_to(len(self.history) - 1)
         return self.history[-1]
 
     def back_to(self, index: int, action: str) -> HistoryStep:
-        """The model exactly as history step ``index`` recorded it -- laws, values, and the kbar bias taken out --
-        recorded again as a new step (``action``): the steps after it stay in the history. Refitted instead, even
-        from the values the step had, the bias correction of data without harmonics can settle at another fixed
-        point (docs/fitting.md): seed 300885 random 19, linear + Coulomb friction at 0.0456 refitted to 0.0511
-        after a velocity stiffness was added and taken back."""
-        state = self._states.get(self.history[index].step)
-        if state is None:                      # a history this workbench did not record: refitted from the values
-            self._laws_of(self.history[index])
-        else:
-            self._restore(state)
-            self._comparison = self._single = None
+        """The model exactly as history step ``index`` recorded it (:meth:`_return_to`), recorded again as a new
+        step (``action``): the steps after it stay in the history."""
+        self._return_to(index)
         return self.record(action)
 
-    def _laws_of(self, step: HistoryStep) -> None:
-        """Every element's laws and values as in ``step``; the elements whose laws change refitted."""
-        before = load_model(tomllib.loads(step.model_toml), self.model.source)
-        changed = []
-        for el, old in zip(self.model.elements, before.elements):
-            if ([t.law.name for t in el.laws] != [t.law.name for t in old.laws]
-                    or (el.nonparametric is None) != (old.nonparametric is None)):
-                changed.append(el.name)
-            el.laws, el.nonparametric = old.laws, old.nonparametric
-        self.fit(changed)                      # also drops the cached comparison
+    def _return_to(self, index: int) -> None:
+        """The fitted state history step ``index`` recorded -- laws, values, reports and the kbar bias taken out
+        -- restored, not refitted: refitted, even from the values the step had, the bias correction of data
+        without harmonics can settle at another fixed point (docs/fitting.md; seed 300885 random 19, linear +
+        Coulomb friction at 0.0456 refitted to 0.0511 after a velocity stiffness was added and taken back)."""
+        self._restore(self._states[self.history[index].step])
+        self._comparison = self._single = None
 
     def start(self) -> HistoryStep:
         """Reference, identification and fit of the model as given; the first history step."""
