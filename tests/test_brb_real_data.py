@@ -1,6 +1,6 @@
-"""The Brake-Reuss beam's measured stepped sine (../shared/realdata/brb/, real data): read from MATLAB into the
-CSV long format by the documented script, imported (the reversed force sign refused until named), the reference
-from the lowest level, and ``analyze --auto`` end to end (docs/import.md shows the numbers)."""
+"""The Brake-Reuss beam's measured stepped sine (real data that cannot ship: tests/realdata.py): read from MATLAB
+into the CSV long format by the documented script, imported (the reversed force sign refused until named), the
+reference from the lowest level, and ``analyze --auto`` end to end (docs/import.md shows the numbers)."""
 import importlib.util
 import json
 import tomllib
@@ -9,10 +9,11 @@ from pathlib import Path
 import pytest
 
 from app.cli import main
+from realdata import BRB_MAT, BRB_MISSING
 
 ROOT = Path(__file__).resolve().parents[1]
-MAT = ROOT.parent / "shared" / "realdata" / "brb" / "ForcedFrequencyResponses.mat"
-pytestmark = pytest.mark.skipif(not MAT.exists(), reason="the shared real data are not beside the checkout")
+MAT = BRB_MAT
+pytestmark = pytest.mark.skipif(not MAT.exists(), reason=BRB_MISSING)
 
 
 def _script():

@@ -2,7 +2,6 @@
 stores what `analyze` would later refuse; cut or edited files are refused with one line naming the file, the
 record or line and the field, exit status 2, and no session is written."""
 import errno
-import glob
 from pathlib import Path
 
 import h5py
@@ -12,11 +11,12 @@ import pytest
 from app.cli import main
 from app.session.writer import RunSpec, SessionWriter
 from paper_structure import PAPER_STRUCTURE
+from realdata import UFF
 
 RUN = "sine_0.8N_up"
 M, K = np.diag([1.0, 2.0]), np.array([[200.0, -100.0], [-100.0, 200.0]])
 FREQS = np.linspace(0.8, 3.2, 6)
-REALDATA = sorted(glob.glob(str(Path(__file__).resolve().parents[2] / "shared" / "realdata" / "uff" / "*.uff")))
+REAL_UFF = sorted(str(p) for p in UFF.glob("*.uff"))
 UNTAGGED = ["--dof", "1=x1", "--dof", "2=x2", "--force-amplitude", "0.8"]
 MODEL = PAPER_STRUCTURE + """
 [[element]]
@@ -194,7 +194,7 @@ def test_a_record_header_claiming_another_number_of_points_is_refused(exported, 
             f"the header says {int(claimed)} points, the record holds 6")
 
 
-@pytest.mark.parametrize("path", REALDATA, ids=[Path(p).name for p in REALDATA])
+@pytest.mark.parametrize("path", REAL_UFF, ids=[Path(p).name for p in REAL_UFF])
 @pytest.mark.parametrize("fraction", [0.3, 0.6])
 def test_real_files_cut_short_are_refused_with_one_line(tmp_path, capsys, path, fraction):
     source = Path(path).read_bytes()
@@ -204,7 +204,7 @@ def test_real_files_cut_short_are_refused_with_one_line(tmp_path, capsys, path, 
             cut_file)
 
 
-@pytest.mark.parametrize("path", REALDATA, ids=[Path(p).name for p in REALDATA])
+@pytest.mark.parametrize("path", REAL_UFF, ids=[Path(p).name for p in REAL_UFF])
 def test_whole_real_files_are_not_taken_for_cut_ones(path):
     from app.importers.uff import read_records
     from analysis import InputError
@@ -216,7 +216,7 @@ def test_whole_real_files_are_not_taken_for_cut_ones(path):
 
 
 def test_the_real_files_are_there():
-    assert len(REALDATA) >= 10
+    assert len(REAL_UFF) >= 10
 
 
 # ----------------------------------------------------------------------------- CSV and flags

@@ -1,4 +1,4 @@
-"""Other systems' real UFF files (../shared/realdata/uff, README.txt there): each imports or is refused with one
+"""Other systems' real UFF files (tests/data/uff, its README.md): each imports or is refused with one
 line naming the file, the record and the field (exit 2). What imports is checked against an independent reading
 of the numbers (the text files the FRFs were written from); what is refused is refused for the reason the raw
 text of the file shows."""
@@ -10,8 +10,9 @@ import pytest
 
 from app.cli import main
 from app.session import open_session
+from realdata import UFF
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "uff"
+REAL = UFF
 ROVING = REAL / "measurement_FRF_from_meas_point_txt.uff"
 
 # file -> (fragments the one-line refusal must hold: the record and field, then the reason)
