@@ -8,17 +8,17 @@ from typing import Callable
 
 import numpy as np
 
-from analysis.auto import AutoResult, AutoStep, run_auto
-from analysis.backbone import BackboneComparison, ModalError, compare_backbones, modal_error
-from analysis.comparison import gain_phrase
-from analysis.errors import InputError
-from analysis.frf_noise import METHOD as NOISE_METHOD
-from analysis.misfit import Misfit, systematic_misfits
-from analysis.measurements import Measurements
-from analysis.model import Model, load_model
-from analysis.reference import ReferenceReport, reference_from_random
-from analysis.tables import load_toml
-from analysis.workbench import Workbench
+from analysis.loop.auto import AutoResult, AutoStep, run_auto
+from analysis.prediction.backbone import BackboneComparison, ModalError, compare_backbones, modal_error
+from analysis.prediction.comparison import gain_phrase
+from analysis.common.errors import InputError
+from analysis.signals.frf_noise import METHOD as NOISE_METHOD
+from analysis.missing.misfit import Misfit, systematic_misfits
+from analysis.common.measurements import Measurements
+from analysis.mechanics.model import Model, load_model
+from analysis.linear.reference import ReferenceReport, reference_from_random
+from analysis.common.tables import load_toml
+from analysis.loop.workbench import Workbench
 
 from app.progress import Progress
 from app.session import (SessionWriteError, append_model_history, measurements_from_session, open_session,
@@ -92,7 +92,7 @@ def run_workbench_auto(session_path, model_path, adds: list[str] = (),
                        note: Callable[[str], None] | None = None,
                        measurements: Measurements | None = None) -> tuple[Workbench, AutoResult]:
     """The workbench taken through start and the requested additions, then the automatic loop
-    (:func:`analysis.auto.run_auto`, each step reported to ``progress`` as it is taken, discovery's search
+    (:func:`analysis.loop.auto.run_auto`, each step reported to ``progress`` as it is taken, discovery's search
     lines to ``note``)."""
     wb = _started_workbench(session_path, model_path, adds, measurements)
     return wb, run_auto(wb, progress=progress, note=note)
@@ -187,7 +187,7 @@ def _data_notes(wb: Workbench) -> list[str]:
 
 
 def element_misfits(wb: Workbench, element) -> list[Misfit]:
-    """The systematic misfits the fitted laws leave in an element's kbar (analysis/misfit.py); none for an
+    """The systematic misfits the fitted laws leave in an element's kbar (analysis/missing/misfit.py); none for an
     element without fitted laws (nothing to misfit) or without samples."""
     report = wb.reports.get(element.name)
     s = report.samples if report is not None else None
@@ -205,7 +205,7 @@ def misfits_json(wb: Workbench) -> dict:
 
 def backbones(wb: Workbench) -> list[BackboneComparison]:
     """Natural frequency and damping against response amplitude: measured on the response-controlled levels and
-    the phase-resonance runs, predicted from the workbench's (fitted) model (analysis/backbone.py; none without
+    the phase-resonance runs, predicted from the workbench's (fitted) model (analysis/prediction/backbone.py; none without
     either)."""
     return compare_backbones(wb.model.structure, wb.model.elements, wb.measurements.sine, wb.measurements.phase)
 

@@ -22,7 +22,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 # Only light modules here: each command imports what it uses, so that `--help` and `laws` start fast
 # (docs/performance.md, "Start-up"; tests/test_public_api.py checks what they import).
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -47,8 +47,8 @@ def cmd_modes(args) -> int:
     alone."""
     from pathlib import Path
 
-    from analysis.model import load_model
-    from analysis.tables import load_toml
+    from analysis.mechanics.model import load_model
+    from analysis.common.tables import load_toml
     from drivers.simulation.linear_model import structure_at_rest
     from drivers.simulation.rig import builtin_rig_path, builtin_rigs
 
@@ -80,7 +80,7 @@ def cmd_modes(args) -> int:
 
 def _at_rest_words(at_rest) -> str:
     """What ``modes`` shows by default: which elements' small-amplitude stiffness it adds, which it cannot."""
-    from analysis.numbers import engineering
+    from analysis.common.wording import engineering
 
     s = at_rest.structure
     added = "; ".join(f"{el.name} on {' - '.join(el.dofs)}: "
@@ -317,7 +317,7 @@ def cmd_analyze(args) -> int:
 
 def cmd_reference(args) -> int:
     """A modal reference structure from the lowest stepped-sine level, written as a model file."""
-    from analysis.level_reference import reference_from_level
+    from analysis.linear.level_reference import reference_from_level
 
     from app.analyze import read_measurements
     from app.session.outputs import check_output

@@ -3,7 +3,7 @@
 1. campaign through the real drivers on the emulated rig: random run, stepped sine at several force levels;
 2. the reference model updated to the random run's natural frequencies;
 3. complex stiffness of the two contact elements identified at every line and level, with verdicts;
-4. the missing-effect loop from a model with no laws (:func:`analysis.auto.run_auto`, as ``analyze --auto``):
+4. the missing-effect loop from a model with no laws (:func:`analysis.loop.auto.run_auto`, as ``analyze --auto``):
    linear corrections, then rank, add the top significant candidate, refit, repeat;
 5. the session (with the model history), the fitted model and report plots written to the output folder.
 """
@@ -13,11 +13,11 @@ import sys
 import time
 from pathlib import Path
 
-from analysis.auto import run_auto
-from analysis.errors import InputError
-from analysis.model import load_model
-from analysis.tables import load_toml
-from analysis.workbench import Workbench
+from analysis.loop.auto import run_auto
+from analysis.common.errors import InputError
+from analysis.mechanics.model import load_model
+from analysis.common.tables import load_toml
+from analysis.loop.workbench import Workbench
 from drivers.simulation.rig import load_rig
 
 from app.analyze import report_text

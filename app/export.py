@@ -38,8 +38,8 @@ from pathlib import Path
 import numpy as np
 import pyuff
 
-from analysis.errors import InputError
-from analysis.measurements import Control
+from analysis.common.errors import InputError
+from analysis.common.measurements import Control
 
 from .importers.csv_runs import MARK as CSV_RUN_MARK
 from .importers.idlines import RecordTag, control_words, encode

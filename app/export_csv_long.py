@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from app.session.outputs import atomic_output, check_output, require_free_space
 from app.session.writer import open_session

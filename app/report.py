@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.backbone import BackboneComparison
-from analysis.numbers import engineering
-from analysis.workbench import Workbench
+from analysis.prediction.backbone import BackboneComparison
+from analysis.common.wording import engineering
+from analysis.loop.workbench import Workbench
 
 from app.analyze import backbones, comparisons_error, element_misfits
 from app.kbar_view import LEGEND_OFFSETS, emptiest_corner, linear_axis, model_paths

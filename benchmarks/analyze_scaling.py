@@ -5,7 +5,7 @@
 
 Sessions as an imported controller export gives them: stepped-sine runs of the paper's 2-DOF structure (K = 100
 [[2, -1], [-1, 2]] N/m, M = diag(1, 2) kg, Rayleigh damping, a hardening cubic k3 = 400 N/m^3 at x2, force on
-x2), receptances by the harmonic balance of analysis.harmonic_balance with 0.1 % complex noise, no measured
+x2), receptances by the harmonic balance of analysis.prediction.harmonic_balance with 0.1 % complex noise, no measured
 noise (the analysis estimates it) and no harmonics. Force levels spread over 0.1-1.0 N; lines over 0.8-3.2 Hz.
 The model names one element at x2 with no law, so ``analyze`` runs the whole chain: identification, the
 candidate ranking, the fit, the prediction.
@@ -16,7 +16,7 @@ smallest case in the same process, so the figures compare across machines: a cos
 a ratio equal to the ratio of the lines.
 
 ``--against-march`` analyzes one case twice in the same process: with the sweeps solved as they are
-(analysis.harmonic_balance: a long sweep solved at all its lines at once, checked against the march) and with
+(analysis.prediction.harmonic_balance: a long sweep solved at all its lines at once, checked against the march) and with
 every sweep marched line by line; it prints both CPU times, their ratio, and the largest relative difference
 between the numbers of the two ``analyze --json`` outputs.
 """
@@ -40,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from analysis import load_elements, load_structure  # noqa: E402
-from analysis.harmonic_balance import predict_sweep  # noqa: E402
+from analysis.prediction.harmonic_balance import predict_sweep  # noqa: E402
 from app.cli import main  # noqa: E402
 from app.session.writer import RunSpec, SessionWriter  # noqa: E402
 
@@ -108,7 +108,7 @@ def _numbers(value) -> list[float]:
 def against_march(folder: Path, lines: int, runs: int) -> None:
     import json
 
-    from analysis import harmonic_balance
+    from analysis.prediction import harmonic_balance
 
     batch, out_batch = analyze_cpu(folder, lines, runs, ("--json",))
     marched_steps = harmonic_balance.MARCHED_STEPS

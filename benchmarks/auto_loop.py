@@ -22,10 +22,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from analysis.auto import run_auto  # noqa: E402
-from analysis.model import load_model  # noqa: E402
-from analysis.tables import load_toml  # noqa: E402
-from analysis.workbench import Workbench  # noqa: E402
+from analysis.loop.auto import run_auto  # noqa: E402
+from analysis.mechanics.model import load_model  # noqa: E402
+from analysis.common.tables import load_toml  # noqa: E402
+from analysis.loop.workbench import Workbench  # noqa: E402
 from app.campaign.instruments import emulated_instruments  # noqa: E402
 from app.campaign.measure import run_plan  # noqa: E402
 from app.models import asset  # noqa: E402

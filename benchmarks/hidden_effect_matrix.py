@@ -31,10 +31,10 @@ RESULTS = ROOT / "benchmarks" / "hidden_effect_matrix.json"
 DOCS = ROOT / "docs/workbench.md"
 # The loop and what its decisions rest on: the fit (a contact placed in its structure), the comparison, the
 # model-form check, the detector.
-LOOP_FILES = ("analysis/auto.py", "analysis/discovery.py", "analysis/diagnosis.py", "analysis/workbench.py",
-              "analysis/fit.py", "analysis/nonparametric.py",
-              "analysis/comparison.py", "analysis/harmonic_balance.py", "analysis/unexplained.py",
-              "analysis/surroundings.py")
+LOOP_FILES = ("analysis/loop/auto.py", "analysis/search/discovery.py", "analysis/missing/diagnosis.py", "analysis/loop/workbench.py",
+              "analysis/fitting/fit.py", "analysis/mechanics/nonparametric.py",
+              "analysis/prediction/comparison.py", "analysis/prediction/harmonic_balance.py", "analysis/missing/unexplained.py",
+              "analysis/mechanics/surroundings.py")
 
 
 def loop_commit() -> str:

@@ -22,8 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from test_identify import FORCE, paper_case  # noqa: E402  (one definition of the paper case)
-from analysis.identify import identify_complex_stiffness  # noqa: E402
-from analysis.sherman_morrison import solve_per_line  # noqa: E402
+from analysis.identification.identify import identify_complex_stiffness  # noqa: E402
+from analysis.identification.sherman_morrison import solve_per_line  # noqa: E402
 
 
 def paper_data(n_lines: int):

@@ -3,7 +3,7 @@
     python benchmarks/workbench_speed.py [--session PAPER_BEAM.h5]
 
 1. Prediction of 200 lines x 6 force levels for the paper's 2-element model (cubic + quadratic damping at x1,
-   cubic + Coulomb at x2): the batched condensed Newton of analysis.harmonic_balance against a plain baseline
+   cubic + Coulomb at x2): the batched condensed Newton of analysis.prediction.harmonic_balance against a plain baseline
    in the same process -- scipy.optimize.fsolve on the full (uncondensed) single-harmonic equations, line by
    line and level by level, started from the previous line. Target < 1 s.
 2. The whole candidate ranking for a paper-beam session (default plan; simulated first when no session is
@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from analysis import load_elements, load_structure  # noqa: E402
-from analysis.harmonic_balance import condense, predict_sweep, predict_sweeps  # noqa: E402
+from analysis.prediction.harmonic_balance import condense, predict_sweep, predict_sweeps  # noqa: E402
 
 STRUCTURE = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
              "stiffness": [[200.0, -100.0], [-100.0, 200.0]], "rayleigh": [0.0, 0.005]}
@@ -88,9 +88,9 @@ def prediction_benchmark():
 
 
 def ranking_benchmark(session: Path | None):
-    from analysis.model import load_model
-    from analysis.tables import load_toml
-    from analysis.workbench import Workbench
+    from analysis.mechanics.model import load_model
+    from analysis.common.tables import load_toml
+    from analysis.loop.workbench import Workbench
     from app.campaign.instruments import emulated_instruments
     from app.campaign.measure import run_plan
     from app.campaign.plan import load_plan

@@ -29,7 +29,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 ROLES = ("shaker", "daq")
 

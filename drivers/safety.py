@@ -32,7 +32,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from .errors import InstrumentError, LinkLost
 from .interfaces import Block, ShakerController

@@ -28,7 +28,7 @@ import time
 import tty
 from typing import Any, Callable, Mapping
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from .emulator.core import EmulatedRig
 from .emulator.link import InstrumentLink, LinkDropped

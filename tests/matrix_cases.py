@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.auto import run_auto
+from analysis.loop.auto import run_auto
 from analysis.laws import LAWS
 from analysis.laws.base import KINDS
-from analysis.model import load_model
-from analysis.workbench import Workbench
+from analysis.mechanics.model import load_model
+from analysis.loop.workbench import Workbench
 from app.importers.runs import SourceOptions
 from app.importers.store import ImportRequest, import_files
 from app.campaign.instruments import emulated_instruments
@@ -495,7 +495,7 @@ def score(c: Case, wb: Workbench, stopped: str) -> Outcome:
                    tuple(f"{e}:{law}" for e, law in pool), tuple(h.error for h in wb.history), stopped)
 
 
-LOOP_NAME = "run_auto (analysis/auto.py: discovery first), default AutoRules"
+LOOP_NAME = "run_auto (analysis/loop/auto.py: discovery first), default AutoRules"
 
 
 def run_case(c: Case, folder: Path, session: Path | None = None) -> Outcome:

@@ -1,13 +1,13 @@
-"""A law's own signature found where the omnibus linearity test sees none (analysis.discovery.amplitude_dependence),
-and the verdict it overrules (analysis.workbench._overruled)."""
+"""A law's own signature found where the omnibus linearity test sees none (analysis.search.discovery.amplitude_dependence),
+and the verdict it overrules (analysis.loop.workbench._overruled)."""
 
 import numpy as np
 
-from analysis.diagnosis import ElementSamples
-from analysis.discovery import AmplitudeDependence, amplitude_dependence
+from analysis.missing.diagnosis import ElementSamples
+from analysis.search.discovery import AmplitudeDependence, amplitude_dependence
 from analysis.laws import LAWS
-from analysis.linearity import linearity_verdict
-from analysis.workbench import _overruled
+from analysis.identification.linearity import linearity_verdict
+from analysis.loop.workbench import _overruled
 
 F = np.linspace(3.0, 10.0, 50)
 

@@ -177,12 +177,47 @@ def test_the_room_rules_bite():
 
 def test_the_checks_see_the_imports():
     # guards against a checker that finds nothing: known edges of each kind are seen
-    assert "analysis.laws" in _imports("analysis.elements", runtime_only=False)           # absolute
+    assert "analysis.laws" in _imports("analysis.mechanics.elements", runtime_only=False)           # absolute
     assert "drivers.simulation.kernels" in _imports("drivers.simulation.simulator", False)  # from . import x
     assert "drivers" in _imports("app.campaign.engine", False)                            # a name from __init__
     assert "drivers.simulation.simulator" in _imports("app.cli", False)                   # inside a function
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _layer("drivers.emulator.core") == "drivers.emulator" and _layer("drivers.scpi") == "drivers"
+
+
+# analysis/'s rooms in the order of the method: each imports only the rooms before it (analysis/__init__.py)
+ANALYSIS_ROOMS = ("common", "laws", "mechanics", "signals", "linear", "identification", "fitting", "prediction",
+                  "missing", "search", "loop")
+
+
+def _analysis_rule_broken(module: str, target: str) -> bool:
+    """A module of analysis/ imports a later room's module, or the package's front door (which would load every
+    room for one name), or lies outside every room."""
+    if not (module.startswith("analysis.") and target.startswith("analysis")):
+        return False
+    src, dst = module.split(".")[1], target.split(".")[1] if "." in target else None
+    if src not in ANALYSIS_ROOMS or dst not in ANALYSIS_ROOMS:
+        return True
+    return ANALYSIS_ROOMS.index(dst) > ANALYSIS_ROOMS.index(src)
+
+
+def test_analysis_rooms_import_only_the_rooms_before_them():
+    assert sorted(p.name for p in (ROOT / "analysis").iterdir() if p.suffix == ".py") == ["__init__.py"]
+    rooms = {p.name for p in (ROOT / "analysis").iterdir() if (p / "__init__.py").is_file()}
+    assert rooms == set(ANALYSIS_ROOMS)
+    wrong = [f"{m} imports {t}" for m in MODULES if m.startswith("analysis.")
+             for t in sorted(_imports(m, runtime_only=False)) if _analysis_rule_broken(m, t)]
+    assert wrong == []
+
+
+def test_the_analysis_room_rules_bite():
+    assert _analysis_rule_broken("analysis.fitting.fit", "analysis.prediction.comparison")
+    assert _analysis_rule_broken("analysis.common.tables", "analysis.mechanics.structures")
+    assert _analysis_rule_broken("analysis.prediction.comparison", "analysis")
+    assert _analysis_rule_broken("analysis.fit", "analysis.common.errors")           # outside every room
+    assert not _analysis_rule_broken("analysis.prediction.comparison", "analysis.fitting.fit")
+    assert not _analysis_rule_broken("analysis.loop.workbench", "analysis.loop.auto")
+    assert "analysis.common.statistics" in _imports("analysis.prediction.comparison", False)
 
 
 CITATION = re.compile(r"(?<![\w/.-])((?:[\w.-]+/)*[\w.-]+\.md)\b")

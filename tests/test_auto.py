@@ -1,4 +1,4 @@
-"""The missing-effect loop run by itself (analysis/auto.py): from a model with no laws it must find every missing
+"""The missing-effect loop run by itself (analysis/loop/auto.py): from a model with no laws it must find every missing
 effect -- on different elements and on the same element -- and stop when nothing significant is left, adding
 nothing the rig does not have. Data from the project's simulator through the whole campaign stack, and from a
 small RK4 integrator written here (steady state at every line from rest), which shares no code with it."""
@@ -9,16 +9,16 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import analysis.auto as auto_module
-from analysis.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained, run_auto
-from analysis.backbone import ModalError
-from analysis.comparison import RunPrediction, compare_predictions
-from analysis.diagnosis import Candidate, ElementSamples, RankingRules
-from analysis.discovery import Discovery, ElementDiscovery, LawSet, WalkStep
-from analysis.linearity import linearity_verdict
-from analysis.measurements import Measurements, SineRun
-from analysis.model import load_model
-from analysis.workbench import ElementReport, Workbench
+import analysis.loop.auto as auto_module
+from analysis.loop.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained, run_auto
+from analysis.prediction.backbone import ModalError
+from analysis.prediction.comparison import RunPrediction, compare_predictions
+from analysis.missing.diagnosis import Candidate, ElementSamples, RankingRules
+from analysis.search.discovery import Discovery, ElementDiscovery, LawSet, WalkStep
+from analysis.identification.linearity import linearity_verdict
+from analysis.common.measurements import Measurements, SineRun
+from analysis.mechanics.model import load_model
+from analysis.loop.workbench import ElementReport, Workbench
 from test_hidden_effects import LUMPED, LUMPED_IO, LUMPED_PLAN, UNKNOWN_LUMPED, analyse, element
 
 # ---------------------------------------------------------------------------------------------------- RK4 rig
@@ -187,8 +187,8 @@ def test_step_and_result_records():
 
 
 def test_no_law_is_supported_where_the_laws_already_explain_the_kbar_within_the_noise():
-    from analysis.diagnosis import Candidate, ElementSamples, _supported, explained_within_noise
-    from analysis.fit import fit_laws
+    from analysis.missing.diagnosis import Candidate, ElementSamples, _supported, explained_within_noise
+    from analysis.fitting.fit import fit_laws
     from analysis.laws import LAWS
 
     rng = np.random.default_rng(0)
@@ -234,8 +234,8 @@ def test_a_stiffness_growing_with_frequency_is_no_linear_correction():
 
 
 def test_a_law_that_leaves_its_element_unexplained_must_gain_much_alone():
-    from analysis.auto import _hold_back_partial
-    from analysis.fit import fit_laws
+    from analysis.loop.auto import _hold_back_partial
+    from analysis.fitting.fit import fit_laws
 
     wb = kbar_workbench(lambda w: 4.0 * w + 0j, np.random.default_rng(4))
     s = wb.reports["a"].samples
@@ -292,7 +292,7 @@ def test_the_jump_rig_adds_coulomb_and_no_quintic(tmp_path):
 @pytest.mark.slow
 def test_the_paper_beam_loop_ends_on_iwan(tmp_path):
     """The demo's rig and quick plan: the tangential contact is an Iwan element and nothing else."""
-    from analysis.tables import load_toml
+    from analysis.common.tables import load_toml
     from app.campaign.instruments import emulated_instruments
     from app.campaign.measure import run_plan
     from app.models import asset

@@ -1,4 +1,4 @@
-"""Amplitude-dependent natural frequency and damping (analysis/backbone.py) against independent truth: the Duffing
+"""Amplitude-dependent natural frequency and damping (analysis/prediction/backbone.py) against independent truth: the Duffing
 oscillator's first-order backbone w^2 = (k + 3/4 k3 a^2) / m, and a Jenkins element's describing function
 computed here by quadrature of its hysteresis loop; the damping of phase-resonance points against the modal
 damping of linear structures with Rayleigh damping and the equivalent damping of a Jenkins oscillator by the
@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from analysis.backbone import (measured_backbone, model_modal_error, phase_resonance_backbone,
+from analysis.prediction.backbone import (measured_backbone, model_modal_error, phase_resonance_backbone,
                                phase_resonance_damping, predict_backbone)
-from analysis.elements import load_elements
-from analysis.measurements import Control, PhaseRun, SineRun
-from analysis.structures import Structure
+from analysis.mechanics.elements import load_elements
+from analysis.common.measurements import Control, PhaseRun, SineRun
+from analysis.mechanics.structures import Structure
 
 M, K, C = 2.0, 5000.0, 0.8
 
@@ -151,8 +151,8 @@ def test_a_linear_2dof_with_rayleigh_damping_gives_each_mode_s_modal_damping(e, 
 def test_the_power_balance_needs_no_model_where_the_session_measured_a_low_level_frf(e, d, mode):
     """The modal constant phi_e phi_d from a single-mode fit of the session's own FRF H_de (the exact one here, as
     a random run or a low force level would measure it) gives the modal damping as the model's shapes do."""
-    from analysis.backbone import measured_power_balance
-    from analysis.measurements import Measurements, RandomRun
+    from analysis.prediction.backbone import measured_power_balance
+    from analysis.common.measurements import Measurements, RandomRun
 
     s, run, truth = rayleigh_2dof_lock(e, d, mode)
     f = np.linspace(2.0, 12.0, 801)

@@ -235,8 +235,8 @@ def test_paper_2dof_campaign_reproduces_table_1(tmp_path):
     kn1, cn, kn2, mu within 1.5 % of 500, 1.0, 750, 0.1 (the paper reached 3 %)."""
     import tomllib
 
-    from analysis.model import load_model
-    from analysis.workbench import Workbench
+    from analysis.mechanics.model import load_model
+    from analysis.loop.workbench import Workbench
     from app.session.data import measurements_from_session
     from drivers.simulation.rig import builtin_rig_path
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from analysis.diagnosis import (Candidate, ElementSamples, RankingRules, Signature, _beside_above_noise,
+from analysis.missing.diagnosis import (Candidate, ElementSamples, RankingRules, Signature, _beside_above_noise,
                                 _fits_only_departing_lines, _Leader, _rank_key, _significant, _supported, explain)
-from analysis.elements import LawTerm
-from analysis.fit import fit_laws
+from analysis.mechanics.elements import LawTerm
+from analysis.fitting.fit import fit_laws
 from analysis.laws import LAWS
 
 RULES = RankingRules()

@@ -1,4 +1,4 @@
-"""Model discovery from an empty model (analysis/discovery.py, docs/discovery.md): sets of laws chosen where the
+"""Model discovery from an empty model (analysis/search/discovery.py, docs/discovery.md): sets of laws chosen where the
 elements are decoupled, judged by the FRFs, equivalent sets named. Data from describing functions by quadrature
 and an fsolve balance, from RK4 integrations written in the tests, and (slow) from the project's simulator
 through the whole campaign stack."""
@@ -12,18 +12,18 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from analysis.auto import run_auto
-from analysis.diagnosis import ElementSamples, tied_parameters
-from analysis.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _alike, _extension, _indistinguishable, _Judge,
+from analysis.loop.auto import run_auto
+from analysis.missing.diagnosis import ElementSamples, tied_parameters
+from analysis.search.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_nothing, _alike, _extension, _indistinguishable, _Judge,
                                 _kinds, _limit_only_laws, _offer_frf_best_alike, _offer_frf_best_single, _seen_as_its_tail, _one_law_more_alike, _other_kinds,
                                 _fit_set, _noise_bound, _not_seen_beside_friction, _Search, _separation, _shortlists, _unseen_laws, _verdict_overruled, _walk_element,
                                 _warm_start, _simplest, _preferred, _pruned_beside_clearance,
                                 law_sets,
                                 search_element)
-from analysis import discovery
-from analysis.fit import _shape_coordinate, fit_laws
-from analysis.elements import LawTerm
-from analysis.frf_refinement import FrfRefinement
+from analysis.search import discovery
+from analysis.fitting.fit import _shape_coordinate, fit_laws
+from analysis.mechanics.elements import LawTerm
+from analysis.prediction.frf_refinement import FrfRefinement
 from analysis.laws import LAWS
 from analysis.laws.base import KINDS
 
@@ -467,7 +467,7 @@ def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
     judge = _Judge.__new__(_Judge)
     judge.rules, judge.kbar_judges = DiscoveryRules(), False        # as on data without harmonics
     judge.single = _Errors({two.laws: 0.1, three.laws: 0.01})        # an FRF gain of x10 from elsewhere
-    # nor do the FRFs refined (analysis/frf_refinement.py; tests/test_frf_refinement.py)
+    # nor do the FRFs refined (analysis/prediction/frf_refinement.py; tests/test_frf_refinement.py)
     asked = []
     judge._seen_in_frfs = lambda search, current, larger, unseen: asked.append(unseen) or ""
     step = judge.step_up(search, two, three)
@@ -815,7 +815,7 @@ def test_a_model_with_its_laws_gets_no_discovery():
 
 
 def test_discovery_can_be_switched_off():
-    from analysis.auto import AutoRules
+    from analysis.loop.auto import AutoRules
     from test_nonparametric import library_force, measured, started
 
     result = run_auto(started([], measured(library_force)), AutoRules(discovery=None))
@@ -876,8 +876,8 @@ def assert_the_paper_laws(wb, result):
 def test_the_paper_2dof_from_an_empty_model(levels, tmp_path):
     """The paper's own example from a model with no law, through the emulated rig and the drivers: the four
     laws of Table 1, within 1.5 %, and an error within 2 x the four-law model's."""
-    from analysis.model import load_model
-    from analysis.workbench import Workbench
+    from analysis.mechanics.model import load_model
+    from analysis.loop.workbench import Workbench
     from app.campaign.instruments import emulated_instruments
     from app.campaign.measure import run_plan
     from app.campaign.plan import parse_plan

@@ -1,10 +1,10 @@
-"""The N/V a voltage-driven shaker gives at the next line (analysis/drive_prediction.py), against the analytic
+"""The N/V a voltage-driven shaker gives at the next line (analysis/signals/drive_prediction.py), against the analytic
 force per volt of a shaker model on a 2-DOF structure, built here from polynomials in s."""
 import numpy as np
 import pytest
 from numpy.polynomial import Polynomial as P
 
-from analysis.drive_prediction import predicted_gain
+from analysis.signals.drive_prediction import predicted_gain
 
 # the linear-shaker rig's structure and shaker (tests/rigs/linear-shaker.toml)
 M = np.diag([1.0, 0.5])

@@ -5,7 +5,7 @@ import time
 import numpy as np
 import pytest
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 import drivers  # noqa: F401  (registers sim://)
 from drivers.daq import SerialDaq

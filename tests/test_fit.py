@@ -1,4 +1,4 @@
-"""Fitting laws to complex-stiffness samples (analysis/fit.py).
+"""Fitting laws to complex-stiffness samples (analysis/fitting/fit.py).
 
 Truth comes from each law's own describing function: samples generated from known
 parameters must give those parameters back (exactly without noise, within three
@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from analysis import LAWS, LawTerm, get_law
-from analysis.errors import InputError
-from analysis.fit import fit_laws, unit_exponents
+from analysis.common.errors import InputError
+from analysis.fitting.fit import fit_laws, unit_exponents
 
 # Several frequencies so that w-dependent laws (damping, velocity stiffness) are separable from X.
 FREQUENCIES = np.array([20.0, 60.0, 200.0])   # rad/s

@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.elements import LawTerm
-from analysis.fit import CORRELATION_LIMIT, UNDETERMINED_Z, fit_laws, outlier_limit
+from analysis.mechanics.elements import LawTerm
+from analysis.common.statistics import outlier_limit
+from analysis.fitting.fit import CORRELATION_LIMIT, UNDETERMINED_Z, fit_laws
 from analysis.laws import get_law
 
 SEEDS = 200
@@ -172,9 +173,9 @@ def test_analyze_says_which_parameters_the_data_do_not_determine():
     balance (X = F / |k - w^2 m + kbar(X)| solved per line); the model puts a linear spring beside the iwan."""
     import json
 
-    from analysis.measurements import Measurements, SineRun
-    from analysis.model import load_model
-    from analysis.workbench import Workbench
+    from analysis.common.measurements import Measurements, SineRun
+    from analysis.mechanics.model import load_model
+    from analysis.loop.workbench import Workbench
     from app.analyze import report_text
 
     iwan = LawTerm(get_law("iwan"), IWAN)
@@ -210,7 +211,7 @@ def test_the_lines_a_clearance_acts_on_alone_are_kept_as_its_evidence(monkeypatc
     # a grounded clearance, identified from RK4 receptances without harmonics: it closes at three lines of the
     # higher level only, where its formula misses the samples by 37-390 sigma (the contact's harmonics move the
     # structure). Leaving them all out would leave its stiffness without a finite error.
-    import analysis.fit as fit_module
+    import analysis.fitting.fit as fit_module
     table = np.loadtxt(Path(__file__).parent / "data" / "gap_kbar_rk4.csv", delimiter=",", skiprows=3)
     X, w, kbar, std = table[:, 0], table[:, 1], table[:, 2] + 1j * table[:, 3], table[:, 4]
     robust = fit_laws(["gap"], X, w, kbar, std, exclude_outliers=True)

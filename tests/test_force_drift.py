@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from analysis import InputError
-from analysis.model import load_model
-from analysis.tables import load_toml
-from analysis.workbench import Workbench
+from analysis.mechanics.model import load_model
+from analysis.common.tables import load_toml
+from analysis.loop.workbench import Workbench
 from app.campaign.instruments import emulated_instruments
 from app.campaign.measure import run_plan
 from app.campaign.plan import parse_plan

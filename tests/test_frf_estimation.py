@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from analysis.frf_estimation import FRFEstimator
+from analysis.signals.frf_estimation import FRFEstimator
 
 FS, N_SEG = 256.0, 2048
 M, C, K = 1.0, 2 * 0.05 * 2 * np.pi * 20.0, (2 * np.pi * 20.0) ** 2   # 20 Hz, 5 % damping

@@ -1,7 +1,7 @@
-"""The noise of FRFs that came without it (analysis.frf_noise), against noise of known size."""
+"""The noise of FRFs that came without it (analysis.signals.frf_noise), against noise of known size."""
 import numpy as np
 
-from analysis.frf_noise import smoothness_noise
+from analysis.signals.frf_noise import smoothness_noise
 
 
 def test_the_estimated_noise_is_the_noise_added():
@@ -24,7 +24,7 @@ def test_a_down_sweep_gets_the_noise_of_its_lines():
 
 
 def test_the_stacked_least_squares_is_lstsq_also_where_a_system_is_rank_deficient():
-    from analysis.frf_noise import _least_squares
+    from analysis.signals.frf_noise import _least_squares
 
     rng = np.random.default_rng(2)
     A = rng.normal(size=(3, 15, 6)) + 1j * rng.normal(size=(3, 15, 6))

@@ -1,16 +1,16 @@
-"""A law set's parameters refined against the FRFs (analysis/frf_refinement.py): against the analytic receptance
+"""A law set's parameters refined against the FRFs (analysis/prediction/frf_refinement.py): against the analytic receptance
 of a linear chain, and against RK4 receptances of a cubic joint (an integrator written in the tests)."""
 import tomllib
 
 import numpy as np
 import pytest
 
-from analysis.comparison import Predictor
-from analysis.elements import LawTerm
-from analysis.frf_refinement import refine_against_frfs
+from analysis.prediction.comparison import Predictor
+from analysis.mechanics.elements import LawTerm
+from analysis.prediction.frf_refinement import refine_against_frfs
 from analysis.laws import get_law
-from analysis.measurements import Measurements, SineRun
-from analysis.model import load_model
+from analysis.common.measurements import Measurements, SineRun
+from analysis.mechanics.model import load_model
 from test_auto import FREQS, LUMPED, element, steady_receptance
 
 M = np.eye(2)

@@ -1,12 +1,13 @@
-"""The force that turns a friction's fundamental on data without harmonics (analysis/friction_fundamental.py):
+"""The force that turns a friction's fundamental on data without harmonics (analysis/fitting/friction_fundamental.py):
 its describing function against quadrature of its force, and the reference a law beside friction must beat,
 on kbar samples of RK4 and of describing functions."""
 import numpy as np
 import pytest
 import scipy.integrate
 
-from analysis.friction_fundamental import FRICTION_TURN, chi_square_with_friction_turn, holds_friction
-from analysis.fit import capped_chi_square, fit_laws
+from analysis.fitting.friction_fundamental import FRICTION_TURN, chi_square_with_friction_turn, holds_friction
+from analysis.common.statistics import capped_chi_square
+from analysis.fitting.fit import fit_laws
 from analysis.laws import LAWS
 
 X = np.geomspace(2e-4, 5e-2, 80)
@@ -61,7 +62,7 @@ def test_on_independent_rk4_receptances_the_turn_is_there_and_the_rigs_laws_are_
     1164 -> 730 over 97 lines), and the rig's cubic is seen beside the Coulomb friction beyond it. (Not all of
     the departure is that force: at the smallest amplitude, where the friction sticks, Re kbar is -34 % of Im;
     a velocity stiffness or a saturating spring still fits part of that, and other rules decide them there.)"""
-    from analysis.discovery import DiscoveryRules, _fit_set, _not_seen_beside_friction, search_element
+    from analysis.search.discovery import DiscoveryRules, _fit_set, _not_seen_beside_friction, search_element
     from test_paper_frfs_alone import FREQS as PAPER_FREQS, paper_receptance, workbench
 
     wb = workbench(paper_receptance(PAPER_FREQS), seed=0)

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from analysis import load_elements, load_structure
-from analysis.comparison import HarmonicCriterion, Predictor
-from analysis.fit import capped_chi_square
-from analysis.harmonic_balance import predict_multiharmonic, predict_sweep
-from analysis.identify import identify_complex_stiffness
-from analysis.measurements import Measurements, SineRun
-from analysis.model import load_model
-from analysis.workbench import Workbench
+from analysis.prediction.comparison import HarmonicCriterion, Predictor
+from analysis.common.statistics import capped_chi_square
+from analysis.prediction.harmonic_balance import predict_multiharmonic, predict_sweep
+from analysis.identification.identify import identify_complex_stiffness
+from analysis.common.measurements import Measurements, SineRun
+from analysis.mechanics.model import load_model
+from analysis.loop.workbench import Workbench
 from test_auto import FREQS, LUMPED, element, steady_receptance
 
 CHAIN = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 1.0]],

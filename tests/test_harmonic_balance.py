@@ -5,8 +5,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from analysis import load_elements, load_structure
-from analysis.comparison import HarmonicCriterion
-from analysis.harmonic_balance import (_AFT, continue_response, predict_multiharmonic, predict_sweep, predict_sweeps,
+from analysis.prediction.comparison import HarmonicCriterion
+from analysis.prediction.harmonic_balance import (_AFT, continue_response, predict_multiharmonic, predict_sweep, predict_sweeps,
                                        single_harmonic_distortion)
 
 SDOF = {"type": "lumped", "dofs": ["x"], "mass": [[1.0]], "stiffness": [[100.0]], "damping": [[0.2]]}
@@ -471,7 +471,7 @@ def test_a_long_sweep_follows_the_branch_a_stepped_sine_measures_by_the_analytic
 def test_a_long_sweep_solved_at_once_is_the_line_by_line_march(laws, monkeypatch):
     """The batch solution of a long sweep and the march line by line give the same phasors, convergence and
     stability flags (to Newton's tolerance), also where lines have no solution and across jumps."""
-    import analysis.harmonic_balance as hb
+    import analysis.prediction.harmonic_balance as hb
 
     s, els = sdof(laws)
     w = np.linspace(5.0, 25.0, 120)                 # > MARCHED_STEPS: batch-solved

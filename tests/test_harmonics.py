@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from analysis.harmonics import (coherent_length, harmonics, harmonics_at, sine_fit,
+from analysis.signals.harmonics import (coherent_length, harmonics, harmonics_at, sine_fit,
                                 total_harmonic_distortion)
 
 FS = 1000.0

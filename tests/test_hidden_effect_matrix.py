@@ -104,8 +104,8 @@ def _random_discovery():
 
 def test_a_random_case_is_right_by_an_equivalence_only_where_discovery_named_it():
     rd = _random_discovery()
-    from analysis.auto import AutoResult, AutoStep
-    from analysis.discovery import Discovery, ElementDiscovery, LawSet, Separation
+    from analysis.loop.auto import AutoResult, AutoStep
+    from analysis.search.discovery import Discovery, ElementDiscovery, LawSet, Separation
 
     c = mc.case("2dof gap")                                     # a gap at a, hidden
     wrong = mc.score(c, _wb({"a": [], "b": []}, {"a": ["cubic"], "b": []}), "stop")
@@ -240,8 +240,8 @@ def test_a_contact_s_corrected_fit_reaches_the_fixed_point_the_frfs_prefer(tmp_p
     # fit and every corrected pass from it stay at a contact half as stiff as the rig's; started from the laws
     # refined against the FRFs, the correction reaches the rig's (docs/fitting.md, "The fundamental's bias")
     rd = _random_discovery()
-    from analysis.elements import LawTerm
-    from analysis.workbench import Workbench
+    from analysis.mechanics.elements import LawTerm
+    from analysis.loop.workbench import Workbench
 
     case = rd._draw(735527, 13)[12]
     rig = {law.law: dict(law.values) for law in case.laws}
@@ -267,12 +267,12 @@ def test_a_contact_s_corrected_fit_reaches_the_fixed_point_the_frfs_prefer(tmp_p
 def test_a_law_beside_a_gap_that_the_refitted_model_does_not_need_is_taken_back(tmp_path):
     # seed 735527 random 9: a gap alone, RK4 receptances without harmonics. Discovery stepped from a one-sided
     # contact to a law beside the gap and never tried the gap alone; refitted, the model does not miss the law
-    # (analysis/auto.py, _taken_back). Discovery's choice is set here directly: the rule is what is tested
+    # (analysis/loop/auto.py, _taken_back). Discovery's choice is set here directly: the rule is what is tested
     rd = _random_discovery()
     from types import SimpleNamespace
 
-    from analysis.auto import _taken_back
-    from analysis.elements import LawTerm
+    from analysis.loop.auto import _taken_back
+    from analysis.mechanics.elements import LawTerm
 
     case = rd._draw(735527, 9)[8]
     assert [(law.element, law.law) for law in case.laws] == [("a", "gap")]

@@ -5,8 +5,8 @@ import tomllib
 
 import pytest
 
-from analysis.model import load_model
-from analysis.workbench import Workbench
+from analysis.mechanics.model import load_model
+from analysis.loop.workbench import Workbench
 from app.campaign.instruments import emulated_instruments
 from app.campaign.measure import run_plan
 from app.campaign.plan import parse_plan

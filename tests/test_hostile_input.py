@@ -5,8 +5,8 @@ import tomllib
 import numpy as np
 import pytest
 
-from analysis.errors import InputError
-from analysis.tables import load_toml
+from analysis.common.errors import InputError
+from analysis.common.tables import load_toml
 from app.cli import main
 from app.campaign.plan import MAX_SHAKER_SECONDS, load_plan, parse_plan
 from drivers.simulation.rig import builtin_rig_path, load_rig

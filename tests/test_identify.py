@@ -9,8 +9,8 @@ import scipy.linalg
 from hypothesis import assume, given, settings, strategies as st
 
 from analysis import InputError, load_elements, load_structure
-from analysis.identify import DEFAULT_COND_LIMIT, identify_complex_stiffness
-from analysis.sherman_morrison import receptance_with_elements, solve_per_line
+from analysis.identification.identify import DEFAULT_COND_LIMIT, identify_complex_stiffness
+from analysis.identification.sherman_morrison import receptance_with_elements, solve_per_line
 
 PAPER_2DOF = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
               "stiffness": [[200.0, -100.0], [-100.0, 200.0]]}

@@ -16,8 +16,8 @@ import pytest
 import pyuff
 
 from analysis import InputError
-from analysis.model import load_model
-from analysis.workbench import Workbench
+from analysis.mechanics.model import load_model
+from analysis.loop.workbench import Workbench
 from app.analyze import report_text
 from app.cli import main
 from app.importers.idlines import RecordTag, encode

@@ -143,9 +143,9 @@ def test_error_by_level_names_a_response_controlled_level_by_its_target(tmp_path
     """Two sweeps held at 5 m/s^2 are one level, named by the response held; the error per level is the
     closed-form one of a model whose receptance is off by a known factor, and the stored history keeps the
     labels."""
-    from analysis.measurements import Control, Measurements, SineRun
-    from analysis.model import load_model
-    from analysis.workbench import Workbench
+    from analysis.common.measurements import Control, Measurements, SineRun
+    from analysis.mechanics.model import load_model
+    from analysis.loop.workbench import Workbench
     from app.session import append_model_history, read_model_history
 
     h = sdof()[:, None]

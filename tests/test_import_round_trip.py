@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import pyuff
 
-from analysis.measurements import Control
-from analysis.model import load_model
+from analysis.common.measurements import Control
+from analysis.mechanics.model import load_model
 from app.analyze import run_workbench
 from app.cli import main
 from app.importers.idlines import RecordTag, decode, encode

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from analysis import InputError
-from analysis.model import load_model
-from analysis.tables import load_toml
+from analysis.mechanics.model import load_model
+from analysis.common.tables import load_toml
 from app.cli import main
 from app.campaign.instruments import check_placement
 from app.campaign.plan import LARGEST_MAX_LINES, load_plan, parse_plan

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from analysis import load_elements, load_structure
-from analysis.comparison import gain_phrase
-from analysis.harmonic_balance import continue_response
-from analysis.model import load_model
-from analysis.workbench import Workbench
+from analysis.prediction.comparison import gain_phrase
+from analysis.prediction.harmonic_balance import continue_response
+from analysis.mechanics.model import load_model
+from analysis.loop.workbench import Workbench
 from app.analyze import report_text
 from app.campaign.instruments import emulated_instruments
 from app.campaign.measure import run_plan
@@ -108,8 +108,8 @@ def test_the_model_tab_shows_the_jump_and_marks_the_line(qtbot, analysed):
 def _run_and_prediction(L: int, missed: list[int], far: float, harmonics_measured: bool, seed: int = 7):
     """A run of ``L`` lines with unit noise, and a prediction right except at the lines ``missed``, off there by
     100 sigma, and off everywhere by ``far`` times the receptance."""
-    from analysis.comparison import RunPrediction
-    from analysis.measurements import SineRun
+    from analysis.prediction.comparison import RunPrediction
+    from analysis.common.measurements import SineRun
 
     rng = np.random.default_rng(seed)
     truth = (1e-4 / (1 + 1j * np.linspace(-2, 2, L)))[:, None]
@@ -128,8 +128,8 @@ def test_without_harmonics_the_chi_square_is_also_given_capped_at_the_outlier_li
     """On imported FRFs (no harmonics) two lines missed by 100 sigma (where friction sticks) cost the capped
     chi-square the outlier limit each, as a kbar sample's share is capped; the plain one counts them whole, and
     where the harmonics were measured only the plain one is given."""
-    from analysis.comparison import compare_predictions
-    from analysis.fit import outlier_limit
+    from analysis.prediction.comparison import compare_predictions
+    from analysis.common.statistics import outlier_limit
 
     run, pred = _run_and_prediction(40, [5, 20], 0.0, harmonics_measured)
     comp = compare_predictions([run], {"up": pred})
@@ -147,7 +147,7 @@ def test_a_fall_of_the_plain_or_the_capped_chi_square_is_a_fall_above_the_noise(
     everywhere: the plain chi-square rises, the capped one falls (seed 786947 random 48); where the harmonics were
     measured the plain one alone judges. Two models far from every line: the capped one cannot fall (every share
     at the cap), the plain one does (seed 172963 random 17)."""
-    from analysis.comparison import chi_square_falls, compare_predictions
+    from analysis.prediction.comparison import chi_square_falls, compare_predictions
 
     def comparison(missed, far, harmonics=False):
         run, pred = _run_and_prediction(40, missed, far, harmonics)

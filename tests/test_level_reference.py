@@ -9,9 +9,9 @@ import pytest
 
 import rk4_rig
 from analysis import InputError, load_structure
-from analysis.measurements import Measurements, SineRun
-from analysis.model import load_model
-from analysis.workbench import Workbench
+from analysis.common.measurements import Measurements, SineRun
+from analysis.mechanics.model import load_model
+from analysis.loop.workbench import Workbench
 from app.cli import main
 
 LINES = np.linspace(19.0, 25.0, 41)

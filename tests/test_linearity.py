@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from analysis import InputError
-from analysis.identify import identify_complex_stiffness
-from analysis.linearity import SCATTER_WINDOW, linearity_verdict, scatter_std
+from analysis.identification.identify import identify_complex_stiffness
+from analysis.identification.linearity import SCATTER_WINDOW, linearity_verdict, scatter_std
 
 LINES = np.linspace(10.0, 30.0, 40)          # rad/s
 LEVELS = np.array([0.2, 0.5, 1.0])            # N
@@ -213,7 +213,7 @@ def test_scatter_noise_on_a_level_shorter_than_its_window():
 def test_the_per_line_fit_in_closed_form_is_the_dense_least_squares():
     """The per-line component against the dense weighted least squares on the indicator design (and its ln X
     extension with pinv's standard error) it replaces."""
-    from analysis.linearity import _component, _per_line_component
+    from analysis.identification.linearity import _component, _per_line_component
 
     rng = np.random.default_rng(5)
     group = np.repeat(np.arange(40), 3)[rng.permutation(120)]

@@ -3,7 +3,7 @@ large; noise alone is not."""
 import numpy as np
 import pytest
 
-from analysis.misfit import RUN_FALSE_ALARM, shortest_telling_run, systematic_misfits
+from analysis.missing.misfit import RUN_FALSE_ALARM, shortest_telling_run, systematic_misfits
 
 
 def _samples(n=167, seed=0, std=0.01):

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from analysis import load_structure
-from analysis.modal_fit import fit_modes
+from analysis.signals.modal_fit import fit_modes
 
 
 def beam():

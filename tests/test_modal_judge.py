@@ -1,4 +1,4 @@
-"""The measured natural frequency and damping against amplitude as a judge of the loop (analysis/modal_judge.py).
+"""The measured natural frequency and damping against amplitude as a judge of the loop (analysis/missing/modal_judge.py).
 
 The measured curves here are the Duffing oscillator's analytic ones: phase-resonance points on its first-order
 backbone w^2 = (k + 3/4 k3 a^2) / m, each at the force that balances its damping, F = c w a. Candidate laws are
@@ -6,14 +6,14 @@ real fits to the element's exact describing function, not made-up records."""
 import numpy as np
 import pytest
 
-from analysis.diagnosis import Candidate
-from analysis.elements import load_elements
-from analysis.fit import fit_laws
-from analysis.measurements import Measurements, PhaseRun
-from analysis.modal_judge import ModalChange, ModalRules, judge_by_modes, measures_modes, model_error
-from analysis.backbone import ModalError
-from analysis.model import Model
-from analysis.structures import Structure
+from analysis.missing.diagnosis import Candidate
+from analysis.mechanics.elements import load_elements
+from analysis.fitting.fit import fit_laws
+from analysis.common.measurements import Measurements, PhaseRun
+from analysis.missing.modal_judge import ModalChange, ModalRules, judge_by_modes, measures_modes, model_error
+from analysis.prediction.backbone import ModalError
+from analysis.mechanics.model import Model
+from analysis.mechanics.structures import Structure
 
 M, K, C, K3 = 2.0, 5000.0, 0.8, 3.0e8
 AMPLITUDES = np.array([2e-4, 1e-3, 2e-3, 4e-3])
@@ -84,8 +84,8 @@ def test_errors_below_the_floor_are_the_same_and_an_unmeasured_damping_judges_no
 def test_locked_points_are_kbar_samples_where_one_harmonic_describes_them():
     """The locked points of a phase-resonance run are identified from like lines (each at its own force), the
     Duffing's kbar 3/4 k3 X^2 recovered at each; a point beyond 1 % displacement THD is left out as distorted."""
-    from analysis.measurements import SineRun
-    from analysis.workbench import Workbench
+    from analysis.common.measurements import SineRun
+    from analysis.loop.workbench import Workbench
 
     run = duffing_phase_run()
     w = 2 * np.pi * run.frequency_hz

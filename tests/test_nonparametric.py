@@ -12,16 +12,16 @@ import scipy.optimize
 from numba import njit
 
 from analysis import InputError
-from analysis.diagnosis import ElementSamples
-from analysis.fit import fit_laws
-from analysis.elements import LawTerm
-from analysis.harmonic_balance import element_force_history
+from analysis.missing.diagnosis import ElementSamples
+from analysis.fitting.fit import fit_laws
+from analysis.mechanics.elements import LawTerm
+from analysis.prediction.harmonic_balance import element_force_history
 from analysis.laws import LAWS
-from analysis.measurements import Measurements, SineRun
-from analysis.model import load_model
-from analysis.nonparametric import fit_nonparametric
-from analysis.unexplained import trimmed_null, unexplained
-from analysis.workbench import Workbench
+from analysis.common.measurements import Measurements, SineRun
+from analysis.mechanics.model import load_model
+from analysis.mechanics.nonparametric import fit_nonparametric
+from analysis.missing.unexplained import trimmed_null, unexplained
+from analysis.loop.workbench import Workbench
 from app.analyze import report_text
 
 M = np.diag([1.0, 2.0])
@@ -310,8 +310,8 @@ def test_bad_nonparametric_tables_and_the_missing_time_domain_are_clear_errors()
             load_model(doc, "m.toml")
     doc = {"structure": STRUCTURE, "element": [{"name": "joint", "dof": "x1", "laws": [],
                                                 "nonparametric": good}]}
-    from analysis.elements import load_elements
-    from analysis.structures import load_structure
+    from analysis.mechanics.elements import load_elements
+    from analysis.mechanics.structures import load_structure
     with pytest.raises(InputError, match="cannot be simulated"):
         load_elements(doc, load_structure(STRUCTURE), "rig.toml", complete=True)
     el = load_model(doc).element("joint")
@@ -374,7 +374,7 @@ def test_the_model_tab_shows_the_unexplained_joint_and_adds_its_nonparametric_pa
     panel = window.model
     with qtbot.waitSignal(window.lab.analysisUpdated, timeout=120000):
         panel.analyze_button.click()
-    [shown] = window.lab.analysis.unexplained
+    [shown] = window.lab.analysis.missing.unexplained
     assert shown.element == "joint" and shown.gain > 20
     [button] = panel.unexplained.findChildren(QPushButton)
     with qtbot.waitSignal(window.lab.analysisUpdated, timeout=120000):

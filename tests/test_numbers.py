@@ -1,8 +1,8 @@
 """Numbers in the text: a change is printed with the digits it needs."""
 import pytest
 
-from analysis.diagnosis import signature_words
-from analysis.numbers import change_words, engineering, significant
+from analysis.missing.diagnosis import signature_words
+from analysis.common.wording import change_words, engineering, significant
 
 
 @pytest.mark.parametrize("value, digits, text", [

@@ -1,7 +1,7 @@
 """Output files: never overwrite silently, never an input, nothing half-written."""
 import pytest
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 from app.session.outputs import atomic_output, atomic_replace, check_output, require_free_space, temporary_path
 
 

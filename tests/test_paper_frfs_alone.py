@@ -9,11 +9,11 @@ import json
 import numpy as np
 import pytest
 
-from analysis.fit import fit_laws
-from analysis.frf_noise import smoothness_noise
-from analysis.measurements import Measurements, SineRun
-from analysis.model import load_model
-from analysis.workbench import Workbench
+from analysis.fitting.fit import fit_laws
+from analysis.signals.frf_noise import smoothness_noise
+from analysis.common.measurements import Measurements, SineRun
+from analysis.mechanics.model import load_model
+from analysis.loop.workbench import Workbench
 
 FREQS = np.arange(0.8, 3.2001, 0.025)
 FORCE = 0.8
@@ -128,7 +128,7 @@ def test_table_1_from_receptances_alone_and_an_empty_model(clean):
     within 1.5 % and with intervals that cover, as with the laws known."""
     import copy
 
-    from analysis.auto import run_auto
+    from analysis.loop.auto import run_auto
 
     rng = np.random.default_rng(0)
     H = clean + NOISE * np.abs(clean) / np.sqrt(2) * (rng.normal(size=clean.shape) + 1j * rng.normal(size=clean.shape))

@@ -2,7 +2,7 @@
 
 Truth: the hardening (Duffing) oscillator's backbone w^2 = (k + 3/4 k3 X^2) / m, at which a viscously damped
 SDOF lags its force by exactly 90 deg; paper-2dof's first-harmonic backbone by the describing-function
-eigenproblem of the true rig (analysis/backbone.py, tested against truth in tests/test_backbone.py)."""
+eigenproblem of the true rig (analysis/prediction/backbone.py, tested against truth in tests/test_backbone.py)."""
 import threading
 import tomllib
 from pathlib import Path
@@ -63,9 +63,9 @@ def test_the_lock_follows_the_duffing_backbone_up_its_branch(tmp_path):
 
 @pytest.mark.slow
 def test_paper_2dof_locks_on_the_first_mode_s_backbone(tmp_path):
-    from analysis.backbone import predict_backbone
-    from analysis.model import load_model
-    from analysis.tables import load_toml
+    from analysis.prediction.backbone import predict_backbone
+    from analysis.mechanics.model import load_model
+    from analysis.common.tables import load_toml
     from drivers.simulation.rig import builtin_rig_path
 
     text = ('[[phase_resonance]]\ndof = "x2"\nforces = [0.2, 0.4, 0.8]\nstart = 1.27\n'

@@ -59,7 +59,7 @@ PUBLIC_NAMES = {
 # class -> members that must exist on it
 PUBLIC_MEMBERS = {
     ("analysis", "Structure"): ["dofs", "n", "frf", "natural_frequencies", "modes", "index"],
-    ("analysis.workbench", "Workbench"): ["start", "update_reference", "identify", "fit", "compare", "candidates",
+    ("analysis.loop.workbench", "Workbench"): ["start", "update_reference", "identify", "fit", "compare", "candidates",
                                           "add", "add_laws", "pair_candidates", "to_json", "undo", "back_to",
                                           "take_back", "error_without", "discover", "harmonics_blind"],
     ("drivers.simulation.simulator", "RigSimulator"): ["advance", "set_sine", "set_noise", "set_output", "time",
@@ -86,6 +86,34 @@ COMMANDS = {
     "modes": ["file", "-n", "--count", "--all-dofs", "--bare"],
     "laws": [],
 }
+
+
+# the flat module paths of before analysis/ had rooms: each is the room's module itself (analysis/__init__.py)
+FLAT_PATHS = {"analysis.model": "analysis.mechanics.model", "analysis.tables": "analysis.common.tables",
+              "analysis.identify": "analysis.identification.identify", "analysis.fit": "analysis.fitting.fit",
+              "analysis.harmonic_balance": "analysis.prediction.harmonic_balance",
+              "analysis.measurements": "analysis.common.measurements", "analysis.workbench": "analysis.loop.workbench",
+              "analysis.unexplained": "analysis.missing.unexplained",
+              "analysis.nonparametric": "analysis.mechanics.nonparametric", "analysis.auto": "analysis.loop.auto"}
+PUBLIC_NAMES.update({new: PUBLIC_NAMES[old] for old, new in FLAT_PATHS.items()})
+
+
+@pytest.mark.parametrize("old, new", sorted(FLAT_PATHS.items()))
+def test_flat_paths_are_the_rooms_modules_themselves(old, new, monkeypatch):
+    """An old path gives the same module object, so a patch through it reaches the code that runs."""
+    flat, room = importlib.import_module(old), importlib.import_module(new)
+    assert flat is room and room.__spec__.name == new
+    name = PUBLIC_NAMES[old][0]
+    monkeypatch.setattr(f"{old}.{name}", "patched")
+    assert getattr(room, name) == "patched"
+
+
+def test_every_flat_name_of_analysis_still_imports():
+    import analysis
+
+    for flat, target in analysis.MOVED.items():
+        assert importlib.import_module(f"analysis.{flat}") is importlib.import_module(f"analysis.{target}")
+        assert getattr(analysis, flat) is importlib.import_module(f"analysis.{target}")
 
 
 @pytest.mark.parametrize("module", sorted(PUBLIC_NAMES))

@@ -10,11 +10,11 @@ import pytest
 import scipy.signal
 
 from analysis import InputError
-from analysis.frf_estimation import (FRFEstimator, auto_resolution, expected_h1, hann_kernel, welch_averages)
-from analysis.measurements import RandomRun
-from analysis.modal_fit import LOW_COHERENCE, fit_modes, hann_damping_bias, leakage_bias
-from analysis.model import load_model
-from analysis.reference import held_frequencies, reference_from_random
+from analysis.signals.frf_estimation import (FRFEstimator, auto_resolution, expected_h1, hann_kernel, welch_averages)
+from analysis.common.measurements import RandomRun
+from analysis.signals.modal_fit import LOW_COHERENCE, fit_modes, hann_damping_bias, leakage_bias
+from analysis.mechanics.model import load_model
+from analysis.linear.reference import held_frequencies, reference_from_random
 from app.cli import main
 from app.campaign.plan import parse_plan
 from app.session.writer import RunSpec, SessionWriter

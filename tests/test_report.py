@@ -2,12 +2,12 @@
 import numpy as np
 import pytest
 
-from analysis.model import load_model
-from analysis.workbench import Workbench
+from analysis.mechanics.model import load_model
+from analysis.loop.workbench import Workbench
 from types import SimpleNamespace
 
-from analysis.diagnosis import ElementSamples
-from analysis.numbers import engineering
+from analysis.missing.diagnosis import ElementSamples
+from analysis.common.wording import engineering
 from app.kbar_view import FLAT_VIEW, emptiest_corner, model_paths
 from app.report import (_label_anchor, _labelled_log_ticks, _log_axis, _log_range_with_ticks, kbar_layout,
                         qt_application, write_report)

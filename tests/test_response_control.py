@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from analysis import InputError
-from analysis.identify import identify_complex_stiffness
-from analysis.measurements import Control
+from analysis.identification.identify import identify_complex_stiffness
+from analysis.common.measurements import Control
 from app.campaign import emulated_instruments, parse_plan, run_plan
 from app.session import check_control, measurements_from_session, open_session
 from drivers.simulation.rig import load_rig
@@ -183,8 +183,8 @@ def _tangential(run, structure, elements):
 
 @pytest.mark.slow
 def test_paper_beam_response_levels_hold_their_targets_and_agree_with_force_levels_on_kbar(beam_levels):
-    from analysis.model import load_model
-    from analysis.tables import load_toml
+    from analysis.mechanics.model import load_model
+    from analysis.common.tables import load_toml
     from drivers.simulation.rig import builtin_rig_path
 
     path, measurements = beam_levels
@@ -266,10 +266,10 @@ def test_paper_beam_frequency_and_damping_against_amplitude_agree_with_the_fitte
     """The model fitted to all the levels (the rig's beam, a linear normal contact and an Iwan joint, their values
     fitted) predicts the measured natural frequency within 0.5 % and the damping within 10 % at every response
     level."""
-    from analysis.backbone import compare_backbones
-    from analysis.model import load_model
-    from analysis.tables import parse_toml
-    from analysis.workbench import Workbench
+    from analysis.prediction.backbone import compare_backbones
+    from analysis.mechanics.model import load_model
+    from analysis.common.tables import parse_toml
+    from analysis.loop.workbench import Workbench
     from drivers.simulation.rig import builtin_rig_path
 
     rig = builtin_rig_path("paper-beam").read_text(encoding="utf-8")

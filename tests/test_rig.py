@@ -4,7 +4,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 from app.models import builtin_plan_path
 from drivers.simulation.rig import builtin_rigs, load_rig, parse_rig
 from paper_structure import PAPER_STRUCTURE

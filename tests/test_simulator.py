@@ -8,9 +8,9 @@ import scipy.signal
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-from analysis.harmonics import harmonics, sine_fit
+from analysis.signals.harmonics import harmonics, sine_fit
 from analysis.laws import LAWS
-from analysis.structures import Structure
+from analysis.mechanics.structures import Structure
 from drivers.simulation import kernels
 from drivers.simulation.rig import load_rig, parse_rig
 from drivers.simulation import simulator
@@ -582,8 +582,8 @@ def test_a_step_ending_on_the_jump_of_velocity_stiffness_crosses_it():
 def test_paper_example_end_to_end():
     """Paper eqs. 22-24: stepped sine up at 0.8 N on paper-2dof, fundamental per line, closed-form
     identification, law fits: kn1, kn2, cn, mu within 1.5 %."""
-    from analysis.fit import fit_laws
-    from analysis.identify import identify_complex_stiffness
+    from analysis.fitting.fit import fit_laws
+    from analysis.identification.identify import identify_complex_stiffness
 
     rig = load_rig("paper-2dof")
     fs = rig.daq.sample_rate

@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from analysis import InputError, load_structure
-from analysis.tables import load_toml
+from analysis.common.tables import load_toml
 
 E, RHO, B, H, L = 211e9, 7860.0, 0.04, 0.005, 0.6
 EI, RHO_A = E * B * H**3 / 12, RHO * B * H
@@ -176,7 +176,7 @@ def test_fine_beam_that_can_move_as_a_rigid_body_is_still_refused(left, right):
 
 
 def test_beam_beyond_the_element_limit_is_refused_naming_the_field_before_allocating():
-    from analysis.structures import MAX_BEAM_ELEMENTS
+    from analysis.mechanics.structures import MAX_BEAM_ELEMENTS
     for n in (2000, 100_000):
         with pytest.raises(InputError) as err:
             beam(elements=n)
@@ -208,7 +208,7 @@ def test_a_dof_typo_names_the_closest_dofs_first():
     # the demo's beam has 14 DOFs: the plain list of twelve stopped before O.theta, the one a user mistypes
     from pathlib import Path
 
-    from analysis.model import load_model
+    from analysis.mechanics.model import load_model
     structure = load_model(load_toml(Path(__file__).parents[1] / "app/models/paper-beam.model.toml")).structure
     assert structure.n > 12 and structure.dofs.index("O.theta") >= 12
     with pytest.raises(InputError) as err:

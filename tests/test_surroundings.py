@@ -6,13 +6,13 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from analysis import load_elements, load_structure
-from analysis.fit import fit_laws
-from analysis.harmonic_balance import predict_sweep
+from analysis.fitting.fit import fit_laws
+from analysis.prediction.harmonic_balance import predict_sweep
 from analysis.laws import get_law
 from analysis.laws.base import Law, Param
 from analysis.laws.unilateral import unilateral_force
-from analysis import surroundings
-from analysis.surroundings import _cycle, placed_kbar
+from analysis.mechanics import surroundings
+from analysis.mechanics.surroundings import _cycle, placed_kbar
 
 UNILATERAL = get_law("unilateral")
 K_S, M_S, C_S = 1000.0, 1.0, 2 * 0.02 * np.sqrt(1000.0)
@@ -162,8 +162,8 @@ def test_a_one_sided_law_must_have_one_scaling_parameter_and_no_state():
 def test_discovery_places_a_contact_and_finds_it_alone():
     """A contact's kbar placed in its structure (with noise): placed, discovery's best set is the contact alone;
     with the formula alone a law of another kind has to fill the placement's difference."""
-    from analysis.diagnosis import ElementSamples
-    from analysis.discovery import search_element
+    from analysis.missing.diagnosis import ElementSamples
+    from analysis.search.discovery import search_element
 
     s, (el,) = sdof([{"law": "unilateral", **CONTACT}])
     X = np.geomspace(1e-3, 3e-2, 60)
@@ -184,7 +184,7 @@ def test_discovery_places_a_contact_and_finds_it_alone():
 def test_a_model_places_its_elements_in_its_own_structure():
     """A model's elements see its structure; a copy shares what was computed of it, an updated structure is seen
     anew."""
-    from analysis.model import load_model
+    from analysis.mechanics.model import load_model
 
     table = {"type": "lumped", "dofs": ["x"], "mass": [[M_S]], "stiffness": [[K_S]], "damping": [[C_S]]}
     model = load_model({"structure": table, "element": [{"name": "c", "dof": "x",

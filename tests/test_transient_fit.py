@@ -1,10 +1,10 @@
-"""The steady-state phasor from records that still hold the transient (analysis/transient_fit.py,
+"""The steady-state phasor from records that still hold the transient (analysis/signals/transient_fit.py,
 app/transient_line.py), against analytic responses and an independent integrator."""
 import numpy as np
 import pytest
 import scipy.integrate
 
-from analysis.transient_fit import fit_transient, free_response_poles
+from analysis.signals.transient_fit import fit_transient, free_response_poles
 from app.campaign.acquisition import Record
 from app.campaign.transient_line import TransientLines
 
@@ -119,7 +119,7 @@ def test_linear_structure_from_rest_gives_the_analytic_receptance_within_two_rec
 
 
 def _steady_harmonics(data, f):
-    from analysis.harmonics import harmonics_at
+    from analysis.signals.harmonics import harmonics_at
     return harmonics_at(data, FS, f, 5).amplitudes
 
 
@@ -151,7 +151,7 @@ def test_no_poles_no_fit():
                                             ('"transient"\nfixed_periods = 300', "cannot be combined")])
 def test_plan_refuses_a_bad_settle_method_naming_the_field(value, message):
     import tomllib
-    from analysis.errors import InputError
+    from analysis.common.errors import InputError
     from app.campaign.plan import parse_plan
     text = (f"[settle]\nmethod = {value}\n[[stepped_sine]]\nforce = 0.5\nstart = 5.0\nstop = 6.0\nstep = 0.5\n"
             "[limits]\nmax_force = 5.0\nmax_acceleration = 100.0\n")

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from analysis import InputError, load_structure
-from analysis.updating import frequency_sensitivity, get_parameter, set_parameter, update_parameters
+from analysis.linear.updating import frequency_sensitivity, get_parameter, set_parameter, update_parameters
 
 BEAM = {"type": "beam", "length": 0.6, "youngs_modulus": 211e9, "density": 7860.0, "width": 0.04,
         "thickness": 0.005, "elements": 20, "left": "clamped", "right": "free",

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from analysis import InputError
-from analysis.harmonic_balance import predict_sweep
-from analysis.measurements import Measurements, RandomRun, SineRun
-from analysis.model import load_model
-from analysis.workbench import Workbench
+from analysis.prediction.harmonic_balance import predict_sweep
+from analysis.common.measurements import Measurements, RandomRun, SineRun
+from analysis.mechanics.model import load_model
+from analysis.loop.workbench import Workbench
 
 STRUCTURE = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
              "stiffness": [[200.0, -100.0], [-100.0, 200.0]], "rayleigh": [0.0, 0.002]}

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InputError
+from ..common.errors import InputError
 from .base import Law, Param
 from .anderson_ferri import AndersonFerri
 from .arctan_softening import ArctanSoftening

@@ -48,7 +48,7 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 from numba import njit
 
-from ..errors import InputError
+from ..common.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -171,7 +171,7 @@ class Law(ABC):
     # True where the force's harmonics are as large as its fundamental (a contact that closes: one-sided, with a
     # mean and even harmonics, or a clearance on both sides, with odd ones): they move the structure, which
     # changes how far the contact closes and so kbar. Where the law sits in a structure its kbar is then placed
-    # there (analysis/surroundings.py) rather than taken from the formula alone. Such a law is stateless,
+    # there (analysis/mechanics/surroundings.py) rather than taken from the formula alone. Such a law is stateless,
     # velocity-free and has one linear parameter scaling its whole force.
     placed: ClassVar[bool] = False
 

@@ -10,7 +10,7 @@ Describing function (u = gap / X):
 The force also has a mean value and even harmonics as large as its fundamental; in a structure they move the
 element (a new mean position, a response at 2w, 3w ...), which changes how far the contact opens: the formula
 above is the contact alone (``x = X sin wt``), and a model places the law in its structure (``placed``,
-analysis/surroundings.py). The
+analysis/mechanics/surroundings.py). The
 bracket is evaluated as twice the unit Jenkins real part at slip ratio ``(1 - u)/2``
 (_special.py), free of cancellation at the onset.
 """

@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.drive_prediction import predicted_gain
-from analysis.errors import InputError
-from analysis.frf_estimation import FRFEstimator
-from analysis.measurements import CONTROL_UNITS
+from analysis.signals.drive_prediction import predicted_gain
+from analysis.common.errors import InputError
+from analysis.signals.frf_estimation import FRFEstimator
+from analysis.common.measurements import CONTROL_UNITS
 from drivers import AbortLimits, InstrumentError, LimitExceeded, OutputGuard
 from drivers.errors import describe_instrument_error
 from drivers.interfaces import Block
@@ -554,7 +554,7 @@ class Campaign:
 
     def _predicted_drive(self, gains: list[tuple[float, float]], f: float, force: float, carried: float) -> float:
         """The transient-aware path's start drive: the force per volt at ``f`` predicted from the run's lines so
-        far and the free response's poles (analysis/drive_prediction.py), within x0.5..2 of the last line's --
+        far and the free response's poles (analysis/signals/drive_prediction.py), within x0.5..2 of the last line's --
         no further than one correction of the force loop could move it. A line measured from its transient
         takes a record or two once its force is on target, while a drive correction costs the latency of the
         command-to-data path and a new transient; the waiting paths keep the carried drive."""

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 import drivers
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 from drivers.emulator import EmulatedRig, register, set_backend_factory
 from drivers.simulation.rig import Rig, builtin_rigs, load_rig
 from drivers.simulation.simulator import RigSimulator

@@ -21,10 +21,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from analysis.errors import InputError
-from analysis.measurements import CONTROL_UNITS, NAME_UNITS, Control
-from analysis.frf_estimation import WelchResolution, auto_resolution, welch_averages
-from analysis.tables import Fields, parse_toml, read_toml_text
+from analysis.common.errors import InputError
+from analysis.common.measurements import CONTROL_UNITS, NAME_UNITS, Control
+from analysis.signals.frf_estimation import WelchResolution, auto_resolution, welch_averages
+from analysis.common.tables import Fields, parse_toml, read_toml_text
 
 
 DEFAULT_EXPECTED_DAMPING = 0.01   # lightest damping ratio a random run is planned to resolve, unless the plan says

@@ -42,9 +42,9 @@ from typing import Callable
 
 import numpy as np
 
-from analysis.harmonics import HarmonicProjector, harmonics_at, sine_fit, total_harmonic_distortion
+from analysis.signals.harmonics import HarmonicProjector, harmonics_at, sine_fit, total_harmonic_distortion
 
-from analysis.measurements import response_amplitude
+from analysis.common.measurements import response_amplitude
 
 from app.campaign.acquisition import RecordFeed
 from app.campaign.plan import SettleSpec

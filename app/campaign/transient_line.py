@@ -1,7 +1,7 @@
 """The transient-aware path of a stepped-sine line (``[settle] method = "transient"``, docs/campaigns.md).
 
 Instead of waiting for the free response to die, each new record refits the line's records so far -- since the
-line began or the drive last changed -- as forced harmonics plus decaying modes (analysis/transient_fit.py) and
+line began or the drive last changed -- as forced harmonics plus decaying modes (analysis/signals/transient_fit.py) and
 takes the forced part as the steady state when the fit says its model holds:
 
 - **precise**: three standard deviations of every FRF and of the force magnitude within the settle tolerance;
@@ -30,8 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.harmonics import total_harmonic_distortion
-from analysis.transient_fit import fit_transient, free_response_poles
+from analysis.signals.harmonics import total_harmonic_distortion
+from analysis.signals.transient_fit import fit_transient, free_response_poles
 
 MIN_RECORDS = 1          # records a transient fit needs (the consistency check drops the first half of one)
 MAX_FIT_RECORDS = 8      # a line not accepted within this many records waits as the steady path does

@@ -16,9 +16,9 @@ from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QDoubleSpinBox, QFi
                                QHBoxLayout, QHeaderView, QLabel, QLineEdit, QListWidget, QProgressBar,
                                QPushButton, QSplitter, QTableWidget, QVBoxLayout, QWidget)
 
-from analysis.backbone import POWER, measured_backbone, measured_power_balance
-from analysis.errors import InputError
-from analysis.measurements import Control
+from analysis.prediction.backbone import POWER, measured_backbone, measured_power_balance
+from analysis.common.errors import InputError
+from analysis.common.measurements import Control
 from app.models import builtin_plan_path
 from app.session import measurements_from_session
 from drivers.simulation.rig import builtin_rigs
@@ -413,7 +413,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
 
     def _power_balance(self, run) -> np.ndarray | None:
         """The locked points' damping ratio by the power balance, with the modal constant from the session's own
-        low-level FRF (analysis/backbone.py ``measured_power_balance``): computed once per point locked; None
+        low-level FRF (analysis/prediction/backbone.py ``measured_power_balance``): computed once per point locked; None
         until the session holds such an FRF."""
         key = (run.name, len(run.frequency))
         if key not in self._locked_damping:
@@ -426,7 +426,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
         return self._locked_damping[key]
 
     def _draw_response_levels(self, live) -> None:
-        """The modal fit of every finished response-controlled level (analysis/backbone.py), one point per level:
+        """The modal fit of every finished response-controlled level (analysis/prediction/backbone.py), one point per level:
         refitted only when another level finishes."""
         done = tuple(r.name for r in live.runs() if r.attrs.get("control") == "response" and r.status != "running")
         if done == self._modal_runs:

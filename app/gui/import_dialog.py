@@ -9,7 +9,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QCheckBox, QComboBox, QDialog,
                                QFormLayout, QHBoxLayout, QHeaderView, QLabel, QLineEdit, QPlainTextEdit,
                                QPushButton, QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from ..importers.runs import SourceOptions, parse_dof_map, parse_records
 from ..importers.store import ImportRequest

@@ -18,11 +18,11 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
-from analysis.auto import run_auto
-from analysis.errors import InputError
-from analysis.model import Model, load_model
-from analysis.tables import load_toml
-from analysis.workbench import Workbench
+from analysis.loop.auto import run_auto
+from analysis.common.errors import InputError
+from analysis.mechanics.model import Model, load_model
+from analysis.common.tables import load_toml
+from analysis.loop.workbench import Workbench
 from drivers import InstrumentError
 from drivers.discovery import find_instruments
 from drivers.simulation.rig import Rig, load_rig
@@ -527,7 +527,7 @@ class Lab(QObject):
         self._on_workbench(lambda wb: wb.undo())
 
     def auto(self) -> None:
-        """The missing-effect loop (:func:`analysis.auto.run_auto`, as ``contactid analyze --auto``) on the
+        """The missing-effect loop (:func:`analysis.loop.auto.run_auto`, as ``contactid analyze --auto``) on the
         analysed model: discovery of the elements without laws, linear corrections, then the top significant
         candidate added until none is left. Each step is sent as ``autoProgress`` as it is taken;
         :meth:`stop_auto` ends the loop before its next step."""

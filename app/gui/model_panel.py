@@ -12,8 +12,8 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxL
                                QPushButton, QSplitter, QTableWidget, QTableWidgetItem, QTextBrowser, QTreeWidget,
                                QTreeWidgetItem, QVBoxLayout, QWidget)
 
-from analysis.comparison import gain_phrase
-from analysis.nonparametric import NAME as NONPARAMETRIC
+from analysis.prediction.comparison import gain_phrase
+from analysis.mechanics.nonparametric import NAME as NONPARAMETRIC
 
 from .lab import Lab, save_text
 from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol

@@ -10,11 +10,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.auto import AutoResult
-from analysis.comparison import LevelError
-from analysis.diagnosis import Candidate, ElementSamples
-from analysis.measurements import SineRun
-from analysis.workbench import Workbench
+from analysis.loop.auto import AutoResult
+from analysis.prediction.comparison import LevelError
+from analysis.missing.diagnosis import Candidate, ElementSamples
+from analysis.common.measurements import SineRun
+from analysis.loop.workbench import Workbench
 
 
 @dataclass(frozen=True)

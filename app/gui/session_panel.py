@@ -15,7 +15,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxL
                                QListWidget, QPushButton, QSplitter, QTableWidget, QTableWidgetItem, QTextBrowser,
                                QVBoxLayout, QWidget)
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from .lab import Lab
 from .live import ALARM_COLOR, is_alarm

@@ -11,7 +11,7 @@ from typing import Callable
 
 from PySide6.QtCore import QObject, Qt, QThread, Signal
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 from drivers import InstrumentError
 
 from app.campaign import Campaign, CampaignListener, Instruments, Plan, run_plan

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from .runs import ImportedRun
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.errors import InputError
-from analysis.measurements import CONTROL_UNITS, Control
+from analysis.common.errors import InputError
+from analysis.common.measurements import CONTROL_UNITS, Control
 
 from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, csv_float, in_sweep_order, response_run_name,
                    sine_run_name, sweep_direction)

@@ -16,7 +16,7 @@ import re
 
 import numpy as np
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from .idlines import DIRECTIONS, KINDS, read_control
 from .runs import ImportedRun, check_axis, check_values, csv_float

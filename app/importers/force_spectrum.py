@@ -15,7 +15,7 @@ import re
 
 import numpy as np
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from .idlines import ID_KEYS
 from .runs import ImportedRun, check_values, sine_run_name

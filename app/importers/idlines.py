@@ -21,8 +21,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from analysis.errors import InputError
-from analysis.measurements import Control
+from analysis.common.errors import InputError
+from analysis.common.measurements import Control
 
 from app.session import check_control
 

@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from analysis.errors import InputError
-from analysis.measurements import Control
+from analysis.common.errors import InputError
+from analysis.common.measurements import Control
 
 KINDS = {"sine": "stepped_sine", "random": "random"}
 DIRECTION_CODES = {"X": 1, "Y": 2, "Z": 3, "RX": 4, "RY": 5, "RZ": 6}

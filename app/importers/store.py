@@ -20,7 +20,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from app.session import (LINES_PER_CHUNK, RunData, RunSpec, SessionWriter, atomic_output, check_output, check_run,
                          open_session, require_free_space)

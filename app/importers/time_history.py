@@ -1,7 +1,7 @@
 """Time histories of a random run (UFF58 function type 1) to a random run, with the project's estimator.
 
 One force channel and one or more responses (displacement, velocity or acceleration), all with the same
-sample interval and length. FRFs are Welch-averaged by :class:`analysis.frf_estimation.FRFEstimator` (Hann,
+sample interval and length. FRFs are Welch-averaged by :class:`analysis.signals.frf_estimation.FRFEstimator` (Hann,
 50 % overlap) with segments of the campaign's length (8 s) or shorter, so that at least
 ``MIN_AVERAGES`` segments fit; the lines kept are those the excitation reached: force autospectrum at least
 ``BAND_FRACTION`` of its largest value, above 0 Hz.
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.errors import InputError
-from analysis.frf_estimation import FRFEstimator
+from analysis.common.errors import InputError
+from analysis.signals.frf_estimation import FRFEstimator
 
 from .runs import ImportedRun, RawRecord, SourceOptions
 from .uff_codes import data_type_name

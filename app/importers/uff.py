@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyuff
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from .force_spectrum import attach_force_spectra, is_force_spectrum
 from .idlines import ID_KEYS, RecordTag, decode

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 G = 9.80665
 INCH = 0.0254

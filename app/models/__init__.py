@@ -5,7 +5,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 from drivers.simulation.rig import builtin_rigs
 
 

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.errors import InputError
-from analysis.measurements import CONTROL_MODES, CONTROL_UNITS, Control, RunNote
+from analysis.common.errors import InputError
+from analysis.common.measurements import CONTROL_MODES, CONTROL_UNITS, Control, RunNote
 
 from app.session.writer import FORMAT_VERSION, RunData
 

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.frf_noise import smoothness_noise
-from analysis.measurements import Control, Measurements, PhaseRun, RandomRun, SineRun, UnresolvedLines
+from analysis.signals.frf_noise import smoothness_noise
+from analysis.common.measurements import Control, Measurements, PhaseRun, RandomRun, SineRun, UnresolvedLines
 
 from app.session.writer import RunData, Session
 from app.session.checks import check_format, check_run, check_run_count

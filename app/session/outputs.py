@@ -20,7 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterable, Iterator
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from app.session.file import SessionWriteError, sync_file
 

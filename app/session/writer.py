@@ -25,7 +25,7 @@ from typing import Iterable
 import h5py
 import numpy as np
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from app.session.file import (EVENT_DTYPE, FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError,
                               append_event, mark_incomplete, now_iso)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 from urllib.parse import parse_qsl, urlsplit
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from ..faults import FAULT_KEYS, ROLES, parse_query_value
 

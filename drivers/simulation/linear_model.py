@@ -12,9 +12,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.linalg
 
-from analysis.elements import Element
-from analysis.errors import InputError
-from analysis.structures import Structure, definiteness
+from analysis.mechanics.elements import Element
+from analysis.common.errors import InputError
+from analysis.mechanics.structures import Structure, definiteness
 
 if TYPE_CHECKING:
     from .rig import Rig

@@ -15,11 +15,11 @@ from importlib import resources
 from pathlib import Path
 
 
-from analysis.elements import Element, load_elements
-from analysis.errors import InputError
-from analysis.model import RIG_TABLES
-from analysis.structures import Structure, load_structure
-from analysis.tables import Fields, parse_toml, read_toml_text
+from analysis.mechanics.elements import Element, load_elements
+from analysis.common.errors import InputError
+from analysis.mechanics.model import RIG_TABLES
+from analysis.mechanics.structures import Structure, load_structure
+from analysis.common.tables import Fields, parse_toml, read_toml_text
 
 from .linear_model import LinearModel, build_linear_model
 

@@ -32,7 +32,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from analysis.elements import Element
+from analysis.mechanics.elements import Element
 
 from . import kernels
 from .linear_model import LinearModel

@@ -12,7 +12,7 @@ import time
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout, to_bytes
 
-from analysis.errors import InputError
+from analysis.common.errors import InputError
 
 from ..emulator.core import LinkBusy
 from ..emulator.link import InstrumentLink, LinkDropped

@@ -1,0 +1,385 @@
+"""The missing-effect loop run automatically (docs/workbench.md §5): the product's own advice followed step by step.
+
+From a started workbench: model discovery first -- every element without laws gets the set of laws its kbar
+and the FRFs choose (:mod:`analysis.search.discovery`), one history step per element --, then the linear corrections (elements whose verdict is linear with a constant kbar
+offset: a wrong reference, applied together), then rank, add the top significant candidate, refit, rank again,
+until nothing significant is left. Where no single law is significant but an element's kbar is clearly not
+explained by its laws, pairs of laws on that element are tried before giving up (two effects of one joint can
+each look insignificant alone). Significance is that of the ranking (:mod:`analysis.missing.diagnosis`), including the
+check against what the single-harmonic model cannot represent, so the loop stops on the physics the data show.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Iterator
+
+import numpy as np
+
+from ..prediction.backbone import ModalError
+from ..prediction.comparison import Comparison, gain_phrase
+from ..missing.diagnosis import Candidate, RankingRules
+from ..search.discovery import Discovery, DiscoveryRules, ElementDiscovery, WalkStep
+from ..laws import LAWS
+from ..missing.modal_judge import ModalRules, judge_by_modes, measures_modes, model_error
+from ..missing.unexplained import unexplained
+from .workbench import ElementReport, Workbench
+
+
+@dataclass(frozen=True)
+class AutoRules:
+    """The thresholds of the loop."""
+
+    max_steps: int = 6               # laws (or pairs) added at most, discovery and linear corrections not counted
+    discovery: DiscoveryRules | None = DiscoveryRules()   # laws of the elements without any first (None: not)
+    linear_corrections: bool = True  # apply the linear corrections first
+    pairs: bool = True               # try pairs of laws on an element whose kbar is not explained
+    pair_pool: int = 2               # the element's laws with the largest kbar evidence, each paired with every
+                                     # other law of positive evidence
+    unexplained_false_alarm: float = 1e-3   # of the test "the kbar is not explained by the element's laws"
+    partial_min_gain: float = 5.0    # error cut a law must reach alone when its element's kbar stays unexplained
+    modes: ModalRules | None = ModalRules()   # the measured backbone and damping judge candidates too (None: not)
+    take_back_near_noise: float = 10.0   # a discovered law is weighed for taking back within this many times the
+                                         # noise (:func:`_near_the_noise`)
+    ranking: RankingRules = RankingRules()
+
+
+@dataclass
+class AutoStep:
+    """One step of the loop: what was added, why, and the FRF error before and after."""
+
+    action: str                      # "discover", "linear correction", "add", "add pair" or "take back"
+    element: str | None              # the element (for a linear correction: the elements, comma-separated)
+    laws: tuple[str, ...]
+    error_before: float
+    error_after: float
+    reason: str
+    # natural frequency and damping against the measured ones (response levels, phase resonance), where measured
+    modal_before: ModalError | None = None
+    modal_after: ModalError | None = None
+
+    @property
+    def gain(self) -> float:
+        return self.error_before / self.error_after if self.error_after > 0 else float("inf")
+
+    def line(self) -> str:
+        """One line: what was added and the error before and after."""
+        what = f"at {self.element}" if self.action == "linear correction" else f"{self.element}:{'+'.join(self.laws)}"
+        modal = ""
+        if self.modal_after is not None and self.modal_after.measured:
+            modal = (f"; backbone error {self.modal_before.frequency:.3g} -> {self.modal_after.frequency:.3g}, "
+                     f"damping error {self.modal_before.damping:.3g} -> {self.modal_after.damping:.3g}")
+        return (f"{self.action} {what}: error {self.error_before:.3g} -> {self.error_after:.3g} "
+                f"({gain_phrase(self.gain)}){modal}")
+
+    def text(self) -> str:
+        return f"{self.line()}\n     {self.reason}"
+
+    def to_json(self) -> dict:
+        return {"action": self.action, "element": self.element, "laws": list(self.laws),
+                "error_before": self.error_before, "error_after": self.error_after, "gain": self.gain,
+                "reason": self.reason, **_modal_json(self.modal_before, "_before"),
+                **_modal_json(self.modal_after, "_after")}
+
+
+def _modal_json(error: ModalError | None, suffix: str) -> dict:
+    """``backbone_error_before`` etc.: null where nothing is measured."""
+    values = {"backbone_error": None, "damping_error": None} if error is None else error.to_json()
+    return {k + suffix: v for k, v in values.items()}
+
+
+@dataclass
+class AutoResult:
+    """The steps taken and why the loop ended; ``candidates`` is the ranking it ended on."""
+
+    steps: list[AutoStep]
+    stopped: str
+    candidates: list[Candidate] = field(default_factory=list)
+    discovery: Discovery | None = None
+
+    def text(self) -> str:
+        lines = [self.discovery.text()] if self.discovery is not None and self.discovery.elements else []
+        lines += ["automatic loop:"] + [f"  {i + 1}. {s.text()}" for i, s in enumerate(self.steps)]
+        return "\n".join(lines + [f"  stopped: {self.stopped}"])
+
+    def to_json(self) -> dict:
+        return {"steps": [s.to_json() for s in self.steps], "stopped": self.stopped,
+                "discovery": None if self.discovery is None else self.discovery.to_json()}
+
+
+def kbar_unexplained(report: ElementReport, false_alarm: float = 1e-3) -> bool:
+    """Whether an element's kbar is clearly not explained by its fitted laws (against zero without laws): the
+    detector of effects outside the library (:func:`analysis.missing.unexplained.unexplained`, robust to a few outlier
+    lines and blind to departures too small to matter) finds it."""
+    return report.samples is not None and unexplained(report.samples, report.fit, false_alarm) is not None
+
+
+def _hold_back_partial(wb: Workbench, candidates: list[Candidate], rules: AutoRules) -> None:
+    """Take significance away from a candidate after which its element's kbar is still clearly not explained
+    (:func:`analysis.missing.unexplained.unexplained` on the element's laws with it) and that cuts the error less than
+    ``rules.partial_min_gain``: a law of the wrong kind can fit most of a kbar it does not describe (a constant
+    spring beside a stiffness growing with frequency) and still gain x1.5 in the FRFs, and a law that is only
+    part of the answer gains little alone. Then pairs are tried, and if none fits either the loop stops and says
+    the element is unexplained, rather than add the least bad law. ``held_back`` says why."""
+    for c in candidates:
+        if not c.significant or c.gain >= rules.partial_min_gain or c.fit is None:
+            continue
+        samples = wb.reports[c.element].samples
+        finding = unexplained(samples, c.fit, rules.unexplained_false_alarm) if samples is not None else None
+        if finding is not None:
+            c.significant = False
+            c.held_back = (f"with it '{c.element}' is still not explained ({finding.noise_ratio:.1f}x the noise: "
+                           f"{finding.trends.words()}) and it cuts the error less than the x"
+                           f"{rules.partial_min_gain:g} a law must reach alone then -- an effect outside the "
+                           f"library? (--add {c.element}:nonparametric)")
+
+
+def _pairs(ranked: list[Candidate], element: str, pool: int) -> list[tuple[str, str]]:
+    """The ``pool`` laws of the element with the largest positive kbar evidence, each paired with every other
+    law of positive evidence: of two effects of one joint the one in the larger part of kbar (Im, say) has the
+    larger evidence, and the other (in Re) may have far less -- its evidence is measured against a kbar still
+    dominated by the first."""
+    mine = sorted((c for c in ranked if c.element == element and len(c.laws) == 1 and c.evidence > 0),
+                  key=lambda c: -c.evidence)
+    pairs = dict.fromkeys(tuple(sorted((a.law, b.law))) for a in mine[:pool] for b in mine if b.law != a.law)
+    return list(pairs)
+
+
+def _best_pair(wb: Workbench, ranked: list[Candidate], rules: AutoRules,
+               searched: frozenset[str] = frozenset()) -> Candidate | None:
+    """The best significant pair of laws on an element whose kbar is not explained, or None. Elements in
+    ``searched`` are left out: discovery already judged every set of up to three laws there."""
+    best = None
+    for el in wb.model.elements:
+        report = wb.reports.get(el.name)
+        if el.name in searched or report is None or not kbar_unexplained(report, rules.unexplained_false_alarm):
+            continue
+        pairs = _pairs(ranked, el.name, rules.pair_pool)
+        scored = _judged(wb, wb.pair_candidates(el.name, pairs, rules.ranking) if pairs else [], rules)
+        found = [c for c in scored if c.significant]
+        if found and (best is None or found[0].bic < best.bic):
+            best = found[0]
+    return best
+
+
+def _reason(c: Candidate) -> str:
+    mh = "" if c.multiharmonic_gain is None else f", {gain_phrase(c.multiharmonic_gain)} with harmonics"
+    modes = f"; {c.by_modes}" if c.by_modes else ""
+    return (f"top significant candidate ({gain_phrase(c.gain)} single-harmonic{mh}, kbar evidence "
+            f"{c.evidence:.3g}{modes}): {c.explanation}")
+
+
+def _stop_reason(ranked: list[Candidate], pairs_tried: bool, min_gain: float) -> str:
+    if not ranked:
+        return "no candidate could be scored (no element has enough well-conditioned lines)"
+    top = ranked[0]
+    why = top.model_form or top.held_back or (
+        "its kbar evidence is not positive, or its element's laws already explain the kbar to within the noise"
+        if not top.supported else "its FRF improvement is within the noise" if not top.above_noise else
+        f"it cuts the error less than the x{min_gain:g} required")
+    pairs = "; no pair of laws on an unexplained element is significant either" if pairs_tried else ""
+    return (f"nothing significant is left: the best candidate, {top.name}, gives {top.error:.3g} "
+            f"({gain_phrase(top.gain)}), not significant because {why}{pairs}")
+
+
+def _discovery_reason(found: ElementDiscovery, still_empty: list[str]) -> str:
+    """Why discovery's step was taken; where elements are still empty, the step's own error says little (the
+    FRF gains judged it with them represented by their measured kbar)."""
+    taken = [s for s in found.walk if s.taken]
+    judged = "; ".join(s.text() for s in taken)
+    reason = (f"the set of laws its kbar chooses ({found.sets_fitted} sets fitted), judged by the FRFs with the "
+              f"other elements as measured: {judged}" if judged else
+              f"the set of laws its kbar chooses ({found.sets_fitted} sets fitted)")
+    if still_empty:
+        reason += (f"; the error recorded here still has {', '.join(still_empty)} without laws, which dominates it "
+                   "until added")
+    return reason
+
+
+def _near_the_noise(comp: Comparison, near: float) -> bool:
+    """Whether the model predicts the FRFs within ``near`` times the noise (:attr:`Comparison.times_the_noise`):
+    only then does a law's share of the error say what it brings. Where another law is missing the model's error
+    is mostly that law's misfit, and refitting an element without a right law can even lower it, its other
+    parameters taking up part of that misfit. Friction that sticks leaves a right model several times the
+    noise."""
+    ratio = comp.times_the_noise
+    return ratio is not None and ratio <= near
+
+
+def _taken_back(wb: Workbench, found: list[ElementDiscovery], min_gain: float,
+                near: float) -> Iterator[AutoStep]:
+    """On data without harmonics, each discovered law that the whole model, refitted without it, does not miss by
+    ``min_gain``, taken back (one step each; of several, the one whose absence costs least first), where the model
+    is near the noise (:func:`_near_the_noise`). Discovery judges a set at its kbar fit, the others by their
+    stand-ins, and steps from the set taken before; the model's own fit takes out the bias its harmonics put in
+    the kbar (:meth:`Workbench.fit`), so the model is the fairer judge of what a law brings. The walk can end on
+    a set larger than the data need while the smaller set within it never competed, and the model refitted
+    without the extra law then predicts the FRFs as well. The loop adds a law only for ``min_gain``; a law that
+    brings less is not kept either."""
+    if not wb.harmonics_blind:
+        return
+    for element in found:
+        if not _near_the_noise(wb.compare(), near):
+            return
+        while len(laws := [t.law.name for t in wb.model.element(element.element).laws]) >= 2:
+            error = wb.history[-1].error
+            law, without = min(((law, wb.error_without(element.element, law)) for law in laws),
+                               key=lambda pair: pair[1])
+            if not without <= min_gain * error:
+                break
+            after = wb.take_back(element.element, law).error
+            yield AutoStep("take back", element.element, (law,), error, after,
+                           f"the model refitted without it predicts the FRFs within x{min_gain:g} of the model with "
+                           f"it ({without:.3g} against {error:.3g}): discovery's set held more than the data need")
+
+
+STOPPED_BY_USER = "stopped by the user"
+
+
+def _modal_error(wb: Workbench) -> ModalError | None:
+    """The model's natural frequency and damping error, None where the session measures neither (no response
+    level, no phase-resonance run)."""
+    return model_error(wb.model, wb.measurements) if measures_modes(wb.measurements) else None
+
+
+def _refused_in_discovery(found: Discovery, laws: tuple[str, ...], c: Candidate) -> WalkStep | None:
+    """The step of discovery's walk that refused candidate ``c`` beside its element's ``laws`` for what the
+    element's kbar shows (:attr:`WalkStep.by_kbar`), or None. The kbar is the element's own, decoupled from the
+    others, so the laws found since do not change that verdict; the loop's ranking asks less of a law beside
+    friction or a clearance than the walk does, and adding what the walk refused undoes discovery's reading.
+    A gap beside linear + Coulomb friction that the walk refused (the kbar shows it no more than the force that
+    turns the friction's fundamental; only in its limit below every amplitude) would otherwise be added by the
+    loop for what it fits in the FRFs: sticking friction's model-form error, which no law explains."""
+    wanted = set(laws) | set(c.laws)
+    return next((step for e in found.elements if e.element == c.element for step in e.walk
+                 if step.by_kbar and set(step.laws) == wanted), None)
+
+
+def _against_discovery(wb: Workbench, found: Discovery | None, c: Candidate) -> str:
+    """Why discovery's reading of the candidate's element rules it out, "" where it does not (or discovery did
+    not search that element). Discovery's sets hold one law of each kind (:func:`analysis.search.discovery.law_sets`):
+    a second law of a kind the element holds is the first written twice, and beside friction it fits the
+    sticking lines, whose misfit is the friction's model-form error, not a second effect. On data without
+    harmonics, a set the walk refused for what the kbar shows is not added either (:func:`_refused_in_discovery`);
+    with harmonics the ranking's kbar criterion is the walk's own."""
+    if found is None or not any(e.element == c.element for e in found.elements):
+        return ""
+    laws = tuple(t.law.name for t in wb.model.element(c.element).laws)
+    held = {LAWS[n].kind for n in laws}
+    twice = next((n for n in c.laws if LAWS[n].kind in held), None)
+    if twice is not None:
+        return (f"'{c.element}' holds a law of kind {LAWS[twice].kind} already, and discovery's sets hold one law "
+                "of each kind: two of a kind at one joint are one effect written twice")
+    step = _refused_in_discovery(found, laws, c) if wb.harmonics_blind else None
+    if step is not None:
+        return f"model discovery refused {'+'.join(step.laws)} at '{c.element}': {step.why}"
+    return ""
+
+
+def _hold_back_against_discovery(wb: Workbench, candidates: list[Candidate], found: Discovery | None) -> None:
+    """Take significance away from a candidate discovery's reading of its element rules out
+    (:func:`_against_discovery`)."""
+    for c in candidates:
+        why = _against_discovery(wb, found, c) if c.significant else ""
+        if why:
+            c.significant = False
+            c.held_back = why
+
+
+def _falls_short(c: Candidate, before: float, after: float, min_gain: float) -> bool:
+    """Whether a candidate added gained less than ``min_gain`` with the model refitted (where its significance
+    rested on its gain, not on the measured modes' word). The ranking judges a candidate at its kbar fit; on data
+    without harmonics the model's own fit takes out the bias the harmonics put in the kbar, and what the
+    candidate fitted of that bias is gone: a gain at its kbar fit can vanish once the model is refitted."""
+    return not c.by_modes and before < min_gain * after
+
+
+def _hold_back_taken_back(candidates: list[Candidate], taken_back: set[str]) -> None:
+    for c in candidates:
+        if c.significant and c.name in taken_back:
+            c.significant = False
+            c.held_back = "added before and taken back: the model refitted with it did not gain its margin"
+
+
+def _judged(wb: Workbench, candidates: list[Candidate], rules: AutoRules,
+            found: Discovery | None = None, taken_back: set[str] = frozenset()) -> list[Candidate]:
+    """The loop's own holds on ranked candidates: a law discovery's reading of its element rules out, one
+    added and taken back, a partial law held back, then the measured backbone and damping's veto and second
+    witness (:mod:`analysis.missing.modal_judge`) where the session measures them."""
+    _hold_back_against_discovery(wb, candidates, found)
+    _hold_back_taken_back(candidates, taken_back)
+    _hold_back_partial(wb, candidates, rules)
+    if rules.modes is not None and measures_modes(wb.measurements):
+        judge_by_modes(wb.model, wb.measurements, candidates, rules.ranking.min_gain, rules.modes)
+    return candidates
+
+
+def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
+             progress: Callable[[AutoStep], None] | None = None,
+             note: Callable[[str], None] | None = None,
+             stop: Callable[[], bool] | None = None) -> AutoResult:
+    """Run the loop on a started workbench (``wb.start()`` called). Afterwards ``wb.model`` is the final model
+    and ``wb.history`` holds every step; ``progress`` is called with each step as it is taken, ``note`` with a
+    line of text while discovery searches an element. ``stop`` is asked before every step: once it answers
+    True the loop ends there (the steps taken stay)."""
+    if not wb.history:
+        raise ValueError("run_auto needs a started workbench (call wb.start() first)")
+    steps: list[AutoStep] = []
+    stopping = stop or (lambda: False)
+
+    modal = [_modal_error(wb)]          # the last step's natural frequency and damping error
+
+    def take(step: AutoStep) -> None:
+        if modal[-1] is not None:
+            step.modal_before, step.modal_after = modal[-1], _modal_error(wb)
+            modal.append(step.modal_after)
+        steps.append(step)
+        if progress is not None:
+            progress(step)
+
+    found, searched = None, frozenset()
+    if rules.discovery is not None:
+        found = wb.discover(rules.discovery, note)
+        searched = frozenset(e.element for e in found.elements)
+        pending = [e for e in found.elements if e.laws]
+        for k, element in enumerate(pending):
+            if stopping():
+                return AutoResult(steps, STOPPED_BY_USER, [], found)
+            before = wb.history[-1].error
+            after = wb.add_laws(element.element, element.laws, action="discover").error
+            still_empty = [e.element for e in pending[k + 1:]]
+            take(AutoStep("discover", element.element, element.laws, before, after,
+                          _discovery_reason(element, still_empty)))
+        for step in _taken_back(wb, pending, rules.ranking.min_gain, rules.take_back_near_noise):
+            take(step)
+    if rules.linear_corrections:
+        names = wb.linear_corrections()
+        if names:
+            before = wb.history[-1].error
+            after = wb.apply_linear_corrections(names).error
+            take(AutoStep("linear correction", ", ".join(names), ("linear",), before, after,
+                          "linear verdict with a constant kbar offset: the reference is wrong there (the "
+                          "corrections are coupled, so they are applied together)"))
+    taken_back: set[str] = set()       # candidates added and taken back: not added again
+    for _ in range(rules.max_steps):
+        if stopping():
+            return AutoResult(steps, STOPPED_BY_USER, [], found)
+        ranked = _judged(wb, wb.candidates(rules=rules.ranking), rules, found, taken_back)
+        top = next((c for c in ranked if c.significant), None)
+        pairs_tried = top is None and rules.pairs
+        if pairs_tried:
+            top = _best_pair(wb, ranked, rules, searched)
+        if top is None:
+            return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked, found)
+        before = wb.history[-1].error
+        after = wb.add_laws(top.element, top.laws).error
+        take(AutoStep("add pair" if len(top.laws) > 1 else "add", top.element, top.laws, before, after,
+                      _reason(top)))
+        if not np.isfinite(after):
+            return AutoResult(steps, f"the model with {top.name} has no prediction", [], found)
+        if _falls_short(top, before, after, rules.ranking.min_gain):
+            wb.back_to(len(wb.history) - 2, f"take back {top.name}")
+            take(AutoStep("take back", top.element, top.laws, after, wb.history[-1].error,
+                          f"the model refitted with it gains {gain_phrase(before / after)} ({before:.3g} -> "
+                          f"{after:.3g}), not the x{rules.ranking.min_gain:g} it gained at its kbar fit"))
+            taken_back.add(top.name)
+    return AutoResult(steps, f"stopped after the {rules.max_steps} steps allowed (AutoRules.max_steps)", [], found)

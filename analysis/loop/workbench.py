@@ -1,0 +1,589 @@
+"""The model workbench: reference model, identification, verdicts, fits, prediction, error, missing effects.
+
+One object carries a model through the loop a test engineer works (docs/workbench.md):
+
+1. :meth:`Workbench.update_reference` -- natural frequencies and damping from the random run (modal fit),
+   then the structure parameters marked uncertain updated to them (eigenvalue sensitivity);
+2. :meth:`Workbench.identify` -- kbar of every element at every well-conditioned stepped-sine line and force
+   level, with its standard deviation, and a linear/nonlinear verdict per element. Lines whose motion is far
+   from harmonic (displacement THD above ``distortion_limit``, 5 %: stick-slip with stops, impacts) are left
+   out, since a describing function describes a harmonic motion;
+3. :meth:`Workbench.fit` -- each element's laws fitted to its kbar samples;
+4. :meth:`Workbench.compare` -- FRFs of every run predicted by harmonic balance, the error and where it fails;
+5. :meth:`Workbench.candidates` / :meth:`Workbench.add` -- the ranked missing effects, and adding one; every
+   step is kept in :attr:`Workbench.history` so the error falling is visible step by step;
+6. :meth:`Workbench.unexplained` -- the elements whose kbar their laws leave unexplained (an effect outside the
+   library), each with the error a non-parametric part would give (``add(element, "nonparametric")`` adds it).
+
+Analysis sees only measured data (``Measurements``) and the user's model: never the rig a simulated session
+came from.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+from ..prediction.comparison import Comparison, HarmonicCriterion, LevelError, Predictor
+from ..missing.diagnosis import Candidate, ElementSamples, RankingRules, check_model_form, rank_candidates, rank_pairs
+from ..search.discovery import AmplitudeDependence, Discovery, DiscoveryRules, amplitude_dependence, discover
+from ..mechanics.elements import LawTerm
+from ..common.errors import InputError
+from ..fitting.fit import LawFit, fit_laws
+from ..prediction.frf_refinement import refine_against_frfs, terms_function
+from ..identification.identify import identify_complex_stiffness
+from ..laws import get_law
+from ..identification.linearity import LinearityVerdict, linearity_verdict
+from ..common.measurements import Measurements, SineRun
+from ..mechanics.model import Model
+from ..mechanics.nonparametric import NAME as NONPARAMETRIC, NonParametric, fit_nonparametric
+from ..linear.reference import ReferenceReport, reference_from_random
+from ..missing.unexplained import NonParametricOffer, offer_nonparametric, unexplained
+
+
+@dataclass
+class ElementReport:
+    """What identification found for one element."""
+
+    name: str
+    samples: ElementSamples | None
+    verdict: LinearityVerdict | None
+    lines_used: int
+    lines_flagged: int
+    fit: LawFit | None = None
+
+    def to_json(self, element) -> dict:
+        laws = []
+        for j, term in enumerate(element.laws):
+            entry = {"law": term.law.name, "params": dict(term.values)}
+            if self.fit is not None:
+                entry["stderr"] = {k: (None if not np.isfinite(v) else float(v))
+                                   for k, v in self.fit.terms[j].stderr.items()}
+                entry["undetermined"] = list(self.fit.terms[j].undetermined)
+            laws.append(entry)
+        out = {"name": self.name, "verdict": None if self.verdict is None else
+               ("linear" if self.verdict.linear else "nonlinear"),
+               "evidence": "" if self.verdict is None else self.verdict.evidence,
+               "lines_used": self.lines_used, "lines_flagged": self.lines_flagged, "laws": laws}
+        if self.verdict is not None:
+            out["statistic"], out["threshold"] = self.verdict.statistic, self.verdict.threshold
+        if self.fit is not None:
+            out["not_identifiable"] = [d.to_json() for d in self.fit.degeneracies]
+            out["correlated"] = [c.to_json() for c in self.fit.correlated]
+            out["lines_excluded_hz"] = self.excluded_hz()
+        if element.nonparametric is not None:
+            out[NONPARAMETRIC] = element.nonparametric.to_toml()
+        return out
+
+    def excluded_hz(self) -> list[float]:
+        """Frequencies, Hz, of the lines the fit left out as not following the fitted laws."""
+        if self.fit is None or self.fit.excluded is None or self.samples is None:
+            return []
+        return sorted(float(w) / (2 * np.pi) for w in self.samples.w[self.fit.excluded])
+
+
+@dataclass
+class HistoryStep:
+    """One step of the model history: what was done and what error it gave."""
+
+    step: int
+    action: str
+    model_toml: str
+    error: float
+    error_by_level: list[LevelError]
+    laws: dict[str, list[dict]]
+
+    def to_json(self) -> dict:
+        return {"step": self.step, "action": self.action, "error": self.error,
+                "error_by_level": [e.to_json() for e in self.error_by_level],
+                "laws": self.laws, "model": self.model_toml}
+
+
+# a locked point is identified from only where one harmonic describes its motion this well (displacement THD)
+LOCKED_DISTORTION = 0.01
+
+
+def _overruled(verdict: LinearityVerdict, found: AmplitudeDependence | None) -> LinearityVerdict:
+    """A linear verdict with the law found departing from it (:func:`analysis.search.discovery.amplitude_dependence`):
+    nonlinear, and its evidence says why."""
+    if found is None:
+        return verdict
+    return replace(verdict, linear=False, evidence=f"{verdict.evidence} Yet {found.text()}.")
+
+
+def _nonzero(bias: dict[str, np.ndarray]) -> bool:
+    """Whether a kbar bias (run -> (lines, elements)) changes any sample."""
+    return any(np.any(b) for b in bias.values())
+
+
+@dataclass(frozen=True)
+class _FittedState:
+    """What a refit changes, to go back to: the kbar bias taken out, the element reports, each element's laws and
+    non-parametric part."""
+
+    bias: dict[str, np.ndarray]
+    reports: dict[str, ElementReport]
+    fits: dict[str, LawFit | None]       # each report's fit (a refit without identification sets it in place)
+    parts: list[tuple[list[LawTerm], NonParametric | None]]
+
+
+def _harmonic_points(lines: SineRun, limit: float) -> SineRun:
+    """The locked points of a phase-resonance run with those whose displacement THD exceeds ``limit`` marked as
+    distorted (left out of the identification like any line beyond the distortion limit). A locked point sits at
+    the largest amplitude of its force, often beyond every swept line: there one point has the leverage of many
+    lines on an amplitude law, and the first-harmonic error of a describing function at a few per cent THD bends
+    the law (paper-2dof, locked at 1.2 N: 2.7 % THD at 0.3 m; identified from, it moved the right joint's k3 by
+    -2.4 % and tripled the FRF error of the 0.4 N level)."""
+    if lines.distortion is None:
+        return lines
+    d = np.asarray(lines.distortion, float)
+    return replace(lines, distortion=np.where(d <= limit, d, np.inf))
+
+
+class Workbench:
+    """Carry one model through identification, fitting, comparison and the missing-effect loop."""
+
+    def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.05,
+                 harmonics: HarmonicCriterion | None = HarmonicCriterion()):
+        if not measurements.sine:
+            raise InputError("the session has no stepped-sine run to identify from")
+        missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
+        if missing:
+            raise InputError(f"measured DOF(s) {', '.join(missing)} are not in the model's structure", model.source)
+        self.model = model.copy()
+        self.measurements = measurements
+        self.distortion_limit = distortion_limit   # lines whose displacement THD is larger: left out
+        self.harmonics = harmonics                 # which lines are predicted multi-harmonically (None: none)
+        self.reference: ReferenceReport | None = None
+        self.reports: dict[str, ElementReport] = {}
+        self.history: list[HistoryStep] = []
+        self._comparison: Comparison | None = None
+        self._single: Comparison | None = None
+        self._predictor: Predictor | None = None
+        self._offers: tuple[Comparison, float, list[NonParametricOffer]] | None = None
+        # run -> (lines, elements): the model's own harmonics in the identified kbar, taken out of the samples on
+        # data without harmonics (:meth:`_correct_fundamental_bias`)
+        self._kbar_bias: dict[str, np.ndarray] = {}
+        self._states: dict[int, _FittedState] = {}   # history index -> the fitted state it recorded
+
+    # ------------------------------------------------------------------ reference
+    def update_reference(self) -> ReferenceReport:
+        """Modal fit of the random run; update the parameters named in the model's ``[updating]`` table."""
+        self.reference = reference_from_random(self.model, self.measurements.random)
+        if self.reference.update is not None:
+            self.model = self.model.with_structure(self.reference.update.table)
+            self._predictor = None
+        return self.reference
+
+    # ------------------------------------------------------------------ identification
+    def identify(self) -> dict[str, ElementReport]:
+        """kbar samples and a verdict for every element of the model (less the model's own harmonics on data
+        without them, :meth:`_correct_fundamental_bias`)."""
+        els = self.model.elements
+        if not els:
+            raise InputError("the model has no [[element]] to identify", self.model.source)
+        per: dict[str, list[ElementSamples]] = {e.name: [] for e in els}
+        flagged = {e.name: 0 for e in els}
+        for run, level in self._identified_runs():
+            if len(run.sensor_dofs) < len(els):
+                raise InputError(f"run {run.name} measured {len(run.sensor_dofs)} FRF(s) but the model has "
+                                 f"{len(els)} unknown elements: at least as many sensors as elements are needed")
+            std = None if run.receptance_std is None else np.asarray(run.receptance_std, float)
+            ident = identify_complex_stiffness(self.model.structure, run.receptance, run.sensor_dofs,
+                                               run.excitation_dof, els, w=run.w, force=run.force_per_line,
+                                               noise_std=std)
+            bias = self._kbar_bias.get(run.name)
+            if bias is not None and bias.shape == ident.kbar.shape:
+                ident.kbar = ident.kbar - bias
+            good = ~ident.ill_conditioned & np.isfinite(ident.kbar).all(axis=1) & (ident.amplitude > 0).all(axis=1)
+            if run.distortion is not None:
+                good &= np.asarray(run.distortion) <= self.distortion_limit
+            for i, el in enumerate(els):
+                flagged[el.name] += int((~good).sum())
+                kstd = None if ident.kbar_std is None else ident.kbar_std[good, i]
+                per[el.name].append(ElementSamples(el.name, ident.amplitude[good, i], run.w[good],
+                                                   ident.kbar[good, i], kstd, level[good],
+                                                   el.rotational(self.model.structure)))
+        self.reports = {}
+        for el in els:
+            samples = ElementSamples.joined(per[el.name])
+            X = samples.X
+            verdict = None
+            if len(X) >= 4:
+                k_u, x_u = samples.units
+                try:
+                    verdict = linearity_verdict(X, samples.w, samples.kbar, samples.kbar_std, level=samples.level,
+                                                stiffness_unit=k_u, amplitude_unit=x_u)
+                except InputError:
+                    verdict = None
+                if verdict is not None and verdict.linear:
+                    verdict = _overruled(verdict, amplitude_dependence(samples, robust=self.harmonics_blind))
+            self.reports[el.name] = ElementReport(el.name, samples if len(X) else None, verdict, len(X),
+                                                  flagged[el.name])
+        return self.reports
+
+    def _identified_runs(self) -> list[tuple[SineRun, np.ndarray]]:
+        """Every run identified from, with the level of each line: the stepped-sine runs (their level), then the
+        phase-resonance runs' locked points (each at its own force, the one that took it to its amplitude)."""
+        out = [(run, np.full(len(run.frequency_hz), run.force)) for run in self.measurements.sine]
+        return out + [(_harmonic_points(p.lines, LOCKED_DISTORTION), p.lines.force_per_line)
+                      for p in self.measurements.phase if p.lines is not None]
+
+    # ------------------------------------------------------------------ fitting and comparison
+    def fit(self, names: list[str] | None = None) -> None:
+        """Fit the laws of the named elements (default all) to their samples; values go into the model. On data
+        without harmonics, the samples are then corrected by the fitted model's own harmonics and every element
+        refitted (:meth:`_correct_fundamental_bias`)."""
+        if not self.reports:
+            self.identify()
+        self._fit_elements(names)
+        self._correct_fundamental_bias()
+        self._comparison = self._single = None
+
+    def _fit_elements(self, names: list[str] | None) -> None:
+        for el in self.model.elements:
+            if names is not None and el.name not in names:
+                continue
+            report = self.reports[el.name]
+            report.fit = None
+            if not el.laws and el.nonparametric is None:
+                continue
+            s = report.samples
+            if s is None:
+                raise InputError(f"element {el.name!r} has no well-conditioned line to fit its laws to")
+            if el.laws:
+                report.fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std,
+                                      exclude_outliers=self.harmonics_blind, surroundings=el.surroundings)
+                el.laws = [LawTerm(t.law, dict(report.fit.terms[j].params)) for j, t in enumerate(el.laws)]
+            if el.nonparametric is not None:
+                self._fit_nonparametric(el)
+
+    def _correct_fundamental_bias(self) -> None:
+        """On data without harmonics, the kbar the closed form identifies at a line is the fundamental's force over
+        the fundamental's motion; where the joint's motion is not sinusoidal (friction that sticks for part of the
+        cycle) that departs from every describing function, and laws fitted to it are biased and leave a misfit
+        that another law can fill. Where every element has fitted laws, the fitted model's own
+        departure at each line (:meth:`analysis.prediction.comparison.Predictor.fundamental_bias`) is subtracted from the
+        samples and every element refitted; the bias is that of the model last fitted, so successive fits
+        converge. The corrected fit is refused where it
+        predicts the FRFs, with harmonics, worse than the fit it corrects by a law's margin
+        (:meth:`_corrected_is_kept`)."""
+        criterion = self._harmonics()
+        complete = all(el.laws and all(t.complete for t in el.laws) for el in self.model.elements)
+        if not (self.harmonics_blind and criterion is not None and complete):
+            if _nonzero(self._kbar_bias):
+                self._kbar_bias = {}
+                self.identify()
+                self._fit_elements(None)
+            return
+        found = self.predictor.fundamental_bias(criterion)
+        error = found.comparison.error          # of the fit kept so far, with harmonics
+        if _nonzero(found.bias) or _nonzero(self._kbar_bias):
+            before = self._fitted_state()
+            self._refit_less(found.bias)
+            corrected = self.predictor.compare(harmonics=criterion).error
+            if self._corrected_is_kept(found.comparison, corrected):
+                error = corrected
+            else:
+                self._restore(before)
+        self._corrected_from_refined(criterion, error)
+
+    def _fitted_state(self) -> _FittedState:
+        return _FittedState(self._kbar_bias, self.reports, {n: r.fit for n, r in self.reports.items()},
+                            [(list(el.laws), el.nonparametric) for el in self.model.elements])
+
+    def _restore(self, state: _FittedState) -> None:
+        self._kbar_bias, self.reports = state.bias, state.reports
+        for name, fit in state.fits.items():
+            self.reports[name].fit = fit
+        for el, (laws, nonparametric) in zip(self.model.elements, state.parts):
+            el.laws, el.nonparametric = laws, nonparametric
+
+    def _refit_less(self, bias: dict[str, np.ndarray]) -> None:
+        """Every element identified again less ``bias`` and refitted, from its laws' current values."""
+        self._kbar_bias = bias
+        self.identify()
+        self._fit_elements(None)
+
+    def _corrected_from_refined(self, criterion: HarmonicCriterion, error: float) -> None:
+        """A clearance's corrected fit can have more than one fixed point: the bias of a model fitted at one
+        contact stiffness moves the kbar so that the same stiffness fits it best: the kbar fit and every corrected
+        pass after it can stay at a wrong contact stiffness, whose misfit the loop then credits to another law.
+        Started from the laws refined against the FRFs
+        (:func:`analysis.prediction.frf_refinement.refine_against_frfs`, single-harmonic), a corrected pass can
+        reach the right one. So where an element has a clearance law, the corrected fit is
+        also started from its FRF-refined laws, and the fixed point the FRFs with harmonics prefer by the margin
+        a law must bring (``RankingRules.min_gain``) is kept (``error``: the current fit's, with harmonics)."""
+        at = [i for i, el in enumerate(self.model.elements) if any(t.law.kind == "clearance" for t in el.laws)]
+        if not at:
+            return
+        before = self._fitted_state()
+        for i in at:
+            self.model.elements[i].laws = self._refined_against_frfs(i)
+        self._refit_less(self.predictor.fundamental_bias(criterion).bias)
+        if not self.predictor.compare(harmonics=criterion).error * RankingRules().min_gain <= error:
+            self._restore(before)
+
+    def _refined_against_frfs(self, i: int) -> list[LawTerm]:
+        """Element ``i``'s laws with every parameter refined against the FRFs single-harmonically, the other
+        elements held at their laws."""
+        els = self.model.elements
+        others = {j: terms_function(el.laws) for j, el in enumerate(els) if j != i}
+        return refine_against_frfs(self.predictor, i, els[i].laws, [list(t.law.param_names) for t in els[i].laws],
+                                   others).terms
+
+    def _corrected_is_kept(self, before: Comparison, corrected: float) -> bool:
+        """The balance's own sliders never stick (a Coulomb slider is a tanh of the velocity), so its bias can be
+        wrong where a joint sticks and slips in turn, and the corrected fit then predicts the FRFs with harmonics
+        worse than the fit it corrects. The FRFs decide, by the
+        margin a law must bring (``RankingRules.min_gain``): the correction converges over successive fits, and
+        one pass may leave the error a little worse on the way (were such a pass refused, the bias would never
+        build up, and other laws would stand in for it)."""
+        return corrected <= RankingRules().min_gain * before.error
+
+    @property
+    def harmonics_blind(self) -> bool:
+        """Some run carries no harmonics (imported FRFs): no line could be left out as far from harmonic, so
+        the fits leave out the lines whose kbar does not follow the fitted laws (docs/fitting.md, "Outliers")."""
+        return any(run.distortion is None for run in self.measurements.sine)
+
+    @property
+    def predictor(self) -> Predictor:
+        if self._predictor is None:
+            self._predictor = Predictor(self.model, self.measurements)
+        return self._predictor
+
+    def compare(self) -> Comparison:
+        """Predict every stepped-sine run with the current model and compare."""
+        if self._comparison is None:
+            for el in self.model.elements:
+                for t in el.laws:
+                    if not t.complete:
+                        raise InputError(f"element {el.name!r}: law {t.law.name} has no values; fit it first")
+            self._comparison = self.predictor.compare(locate_folds=True, harmonics=self._harmonics())
+        return self._comparison
+
+    def _harmonics(self) -> HarmonicCriterion | None:
+        """The harmonic criterion, or None where an element has a non-parametric part (no time-domain force to
+        predict harmonics with: every line single-harmonic)."""
+        return self.harmonics if all(el.time_domain for el in self.model.elements) else None
+
+    def single_harmonic_comparison(self) -> Comparison:
+        """The error with every line predicted single-harmonically, as the candidates are (their gains are
+        measured against it)."""
+        if self._harmonics() is None:
+            return self.compare()
+        if self._single is None:
+            self._single = self.predictor.compare()
+        return self._single
+
+    def _ranking_inputs(self):
+        # an element with a non-parametric part is explained by construction: no candidate there, and its
+        # current kbar (laws plus the part) is the element's own describing function
+        finished = {el.name for el in self.model.elements if el.nonparametric is not None}
+        samples = {n: r.samples for n, r in self.reports.items() if r.samples is not None and n not in finished}
+        fits = {n: (None if n in finished else r.fit) for n, r in self.reports.items()}
+        linear = frozenset(n for n, r in self.reports.items() if r.verdict is not None and r.verdict.linear)
+        return samples, fits, linear
+
+    def candidates(self, laws=None, rules: RankingRules = RankingRules()) -> list[Candidate]:
+        """Ranked missing-effect candidates for the current model (best first); the significant ones are checked
+        against what the single-harmonic model cannot represent (:func:`analysis.missing.diagnosis.check_model_form`)."""
+        samples, fits, linear = self._ranking_inputs()
+        ranked = rank_candidates(self.predictor, samples, fits, self.single_harmonic_comparison(), laws,
+                                 linear_elements=linear, rules=rules, robust=self.harmonics_blind)
+        check_model_form(self.predictor, ranked, rules, self.harmonics_or_default.n_harmonics,
+                         self.harmonics_or_default.n_time)
+        return ranked
+
+    def pair_candidates(self, element: str, pairs: list[tuple[str, str]],
+                        rules: RankingRules = RankingRules()) -> list[Candidate]:
+        """Pairs of laws added together to ``element``, best first, checked like single candidates."""
+        samples, fits, linear = self._ranking_inputs()
+        ranked = rank_pairs(self.predictor, samples, fits, self.single_harmonic_comparison(), element, pairs,
+                            element in linear, rules)
+        check_model_form(self.predictor, ranked, rules, self.harmonics_or_default.n_harmonics,
+                         self.harmonics_or_default.n_time)
+        return ranked
+
+    @property
+    def harmonics_or_default(self) -> HarmonicCriterion:
+        return self.harmonics or HarmonicCriterion()
+
+    # ------------------------------------------------------------------ the loop
+    def record(self, action: str) -> HistoryStep:
+        """Append the current model and its error to the history."""
+        comp = self.compare()
+        step = HistoryStep(len(self.history), action, self.model.to_toml(), comp.error, comp.error_by_level,
+                           {el.name: [t.to_toml() for t in el.laws] +
+                            ([{"law": NONPARAMETRIC, **el.nonparametric.to_toml()}] if el.nonparametric else [])
+                            for el in self.model.elements})
+        self.history.append(step)
+        self._states[step.step] = self._fitted_state()
+        return step
+
+    def add(self, element: str, law: str) -> HistoryStep:
+        """Add ``law`` (or the non-parametric part, ``"nonparametric"``) to ``element``, refit that element and
+        record the new error."""
+        if law == NONPARAMETRIC:
+            return self._add_nonparametric(self.model.element(element))
+        return self.add_laws(element, (law,))
+
+    def add_laws(self, element: str, laws: tuple[str, ...], action: str = "add") -> HistoryStep:
+        """Add ``laws`` (one, or several found together) to ``element``, refit it and record one step
+        (``action``: the word the history starts the step with)."""
+        el = self.model.element(element)
+        new = [get_law(law) for law in laws]
+        for law, n in zip(laws, new):
+            if any(t.law.name == n.name for t in el.laws):
+                raise InputError(f"element {element!r} already has law {law!r}", self.model.source)
+        el.laws += [LawTerm(n, {}) for n in new]
+        self.fit([element])
+        return self.record(f"{action} {element}:{'+'.join(laws)}")
+
+    def error_without(self, element: str, law: str) -> float:
+        """The model's error (:meth:`compare`) with ``law`` taken off ``element`` and that element refitted; the
+        model, its fits and its history are left as they were."""
+        el = self.model.element(element)
+        state, caches = self._fitted_state(), (self._comparison, self._single, self._offers)
+        el.laws = [t for t in el.laws if t.law.name != law]
+        try:
+            self.fit([element])
+            return self.compare().error
+        finally:
+            self._restore(state)
+            self._comparison, self._single, self._offers = caches
+
+    def take_back(self, element: str, law: str, action: str = "take back") -> HistoryStep:
+        """Take ``law`` off ``element``, refit it and record one step."""
+        el = self.model.element(element)
+        if not any(t.law.name == law for t in el.laws):
+            raise InputError(f"element {element!r} has no law {law!r}", self.model.source)
+        el.laws = [t for t in el.laws if t.law.name != law]
+        self.fit([element])
+        return self.record(f"{action} {element}:{law}")
+
+    def discover(self, rules: DiscoveryRules = DiscoveryRules(),
+                 note: Callable[[str], None] | None = None) -> Discovery:
+        """The laws of every element that has none (:func:`analysis.search.discovery.discover`); the model is not
+        changed (``add_laws`` adds a choice)."""
+        samples, _, linear = self._ranking_inputs()
+        h = self.harmonics_or_default
+        return discover(self.predictor, samples, linear, rules, h.n_harmonics, h.n_time, note, self.harmonics_blind)
+
+    def _fit_nonparametric(self, el) -> None:
+        """The element's non-parametric part fitted to what its (fitted) laws leave of its kbar samples."""
+        report = self.reports[el.name]
+        s = report.samples
+        left = s.kbar - (report.fit.describing_function(s.X, s.w) if report.fit else 0.0)
+        el.nonparametric = fit_nonparametric(s.X, s.w, left, s.kbar_std).model
+
+    def _add_nonparametric(self, el) -> HistoryStep:
+        if el.nonparametric is not None:
+            raise InputError(f"element {el.name!r} already has a non-parametric part", self.model.source)
+        if not self.reports:
+            self.fit()                          # identified and the laws fitted: the part takes what they leave
+        if self.reports[el.name].samples is None:
+            raise InputError(f"element {el.name!r} has no well-conditioned line to fit a non-parametric part to")
+        self._fit_nonparametric(el)
+        self._comparison = self._single = None
+        return self.record(f"add {el.name}:{NONPARAMETRIC}")
+
+    def unexplained(self, false_alarm: float = 1e-3) -> list[NonParametricOffer]:
+        """The elements whose kbar departs from their laws by much more than the noise
+        (:func:`analysis.missing.unexplained.unexplained`), each with the error a non-parametric part would give. Only
+        elements with laws: where none is on yet, the library has not been tried and the candidates are the
+        advice. Kept until the model changes (the report and the JSON both ask)."""
+        base = self.single_harmonic_comparison()
+        if self._offers is not None and self._offers[0] is base and self._offers[1] == false_alarm:
+            return self._offers[2]
+        out = []
+        for i, el in enumerate(self.model.elements):
+            report = self.reports.get(el.name)
+            if report is None or report.samples is None or el.nonparametric is not None or not el.laws:
+                continue
+            finding = unexplained(report.samples, report.fit, false_alarm)
+            if finding is not None:
+                out.append(offer_nonparametric(self.predictor, base, i, report.samples, report.fit, finding))
+        self._offers = (base, false_alarm, out)
+        return out
+
+    def linear_corrections(self, min_sigma: float = 5.0) -> list[str]:
+        """Elements whose verdict is linear but whose kbar is a clear constant offset (more than ``min_sigma``
+        standard deviations from zero, and explained by the ``linear`` law: :meth:`_linear_law_explains`) and
+        that have no laws yet: the reference is wrong there, and the offset is a linear correction (the paper's
+        k_w). Corrections of several elements are coupled -- a wrong reference stiffness at one place is
+        compensated elsewhere by the updating -- so they are applied together, before laws are added one at a
+        time."""
+        out = []
+        for el in self.model.elements:
+            report = self.reports.get(el.name)
+            v = report.verdict if report is not None else None
+            if v is None or not v.linear or el.laws:
+                continue
+            if abs(v.mean_kbar) > min_sigma * max(v.mean_kbar_std, 1e-300) and self._linear_law_explains(report):
+                out.append(el.name)
+        return out
+
+    def _linear_law_explains(self, report: ElementReport) -> bool:
+        """Whether the ``linear`` law (k + j c w) fitted to the element's kbar leaves nothing the detector of
+        effects outside the library finds (:func:`analysis.missing.unexplained.unexplained`). A linear verdict only says
+        kbar does not move with the amplitude: a kbar that moves with the frequency in another way (a stiffness
+        growing with w) is no constant offset, and the element is left to the ranking, where the linear law
+        competes with the laws that may explain it."""
+        s = report.samples
+        fit = fit_laws([LawTerm(get_law("linear"), {})], s.X, s.w, s.kbar, s.kbar_std,
+                       exclude_outliers=self.harmonics_blind)
+        return unexplained(s, fit) is None
+
+    def apply_linear_corrections(self, names: list[str]) -> HistoryStep:
+        """Add the ``linear`` law to each named element, refit them, record one history step."""
+        for name in names:
+            self.model.element(name).laws.append(LawTerm(get_law("linear"), {}))
+        self.fit(names)
+        return self.record("linear correction " + ", ".join(names))
+
+    def undo(self) -> HistoryStep:
+        """Take back the last step of the history (an added law): the model returns exactly as the previous step
+        recorded it (:meth:`_return_to`), and the step is dropped. Returns the step now current."""
+        if len(self.history) < 2:
+            raise InputError("nothing to undo: the model is as analysis started it")
+        del self._states[self.history.pop().step]
+        self._return_to(len(self.history) - 1)
+        return self.history[-1]
+
+    def back_to(self, index: int, action: str) -> HistoryStep:
+        """The model exactly as history step ``index`` recorded it (:meth:`_return_to`), recorded again as a new
+        step (``action``): the steps after it stay in the history."""
+        self._return_to(index)
+        return self.record(action)
+
+    def _return_to(self, index: int) -> None:
+        """The fitted state history step ``index`` recorded -- laws, values, reports and the kbar bias taken out
+        -- restored, not refitted: refitted, even from the values the step had, the bias correction of data
+        without harmonics can settle at another fixed point (docs/fitting.md)."""
+        self._restore(self._states[self.history[index].step])
+        self._comparison = self._single = None
+
+    def start(self) -> HistoryStep:
+        """Reference, identification and fit of the model as given; the first history step."""
+        if self.reference is None:
+            self.update_reference()
+        self.identify()
+        self.fit()
+        return self.record("start")
+
+    def to_json(self, candidates: list[Candidate] | None = None) -> dict:
+        comp = self.compare()
+        out = {"elements": [self.reports[el.name].to_json(el) for el in self.model.elements],
+               **comp.to_json(), "single_harmonic_error": self.single_harmonic_comparison().error,
+               "other_branch_hz": comp.other_branch_hz(self.measurements.sine),
+               "candidates": [c.to_json() for c in (candidates or [])],
+               "unexplained": [o.to_json() for o in self.unexplained()],
+               "history": [h.to_json() for h in self.history],
+               "unfinished_runs": [note.to_json() for note in self.measurements.unfinished],
+               "unresolved_lines": [note.to_json() for note in self.measurements.unresolved]}
+        if self.reference is not None:
+            out["reference"] = self.reference.to_json()
+        return out

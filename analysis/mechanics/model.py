@@ -1,0 +1,144 @@
+"""The user's model (docs/contracts.md §4): a reference structure plus unknown elements with believed laws.
+
+A model file has the ``[structure]`` table, ``[[element]]`` entries (laws optional, values optional starting
+values) and optionally ``[updating]`` naming the structure parameters that are uncertain::
+
+    [updating]
+    parameters = ["springs[1].k", "youngs_modulus"]   # paths into [structure]
+    modes = [1, 2, 3]                                  # measured modes to match (default 1..len(parameters)+)
+
+:meth:`Model.to_toml` writes a model back (fitted values, updated structure) in the same format.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+
+from .elements import Element, LawTerm, load_elements
+from ..common.errors import InputError
+from .nonparametric import NAME as NONPARAMETRIC
+from .structures import Structure, load_structure
+from .surroundings import surroundings_of
+from ..common.tables import Fields
+
+# The top-level keys of a rig file (docs/contracts.md §3, docs/rig-simulator.md). A rig file is also a valid model
+# file -- its laws' values are read as starting values -- so a model file may carry them; they are not read.
+RIG_TABLES = frozenset({"name", "structure", "element", "excitation", "sensors", "noise", "shaker", "daq",
+                        "generator", "simulation", "faults"})
+MODEL_TABLES = frozenset({"structure", "element", "updating"})
+
+
+@dataclass
+class Model:
+    """Reference structure, unknown elements and what may be updated."""
+
+    structure_table: dict
+    structure: Structure
+    elements: list[Element]
+    updating_parameters: list[str] = field(default_factory=list)
+    updating_modes: list[int] | None = None
+    source: str | None = None
+
+    def __post_init__(self):
+        self.place_elements(keep=True)
+
+    def place_elements(self, keep: bool = False) -> None:
+        """Give every element the structure around it (a contact law's kbar depends on it); ``keep``: an element
+        that has them (a copy's, sharing the receptances computed) keeps them."""
+        for el in self.elements:
+            if not (keep and el.surroundings is not None):
+                el.surroundings = surroundings_of(self.structure, el.vector(self.structure))
+
+    def element(self, name: str) -> Element:
+        for el in self.elements:
+            if el.name == name:
+                return el
+        raise InputError(f"no element named {name!r} (elements: {', '.join(e.name for e in self.elements)})",
+                         self.source)
+
+    def copy(self) -> "Model":
+        return Model(copy.deepcopy(self.structure_table), self.structure,
+                     [Element(e.name, e.dofs, [LawTerm(t.law, dict(t.values)) for t in e.laws], e.nonparametric,
+                             e.surroundings)
+                      for e in self.elements],
+                     list(self.updating_parameters), self.updating_modes, self.source)
+
+    def with_structure(self, table: dict) -> "Model":
+        m = self.copy()
+        m.structure_table = copy.deepcopy(table)
+        m.structure = load_structure(table, self.source)
+        m.place_elements()
+        return m
+
+    def describe(self) -> str:
+        """One line per element: its laws and values."""
+        lines = []
+        for el in self.elements:
+            where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
+            parts = [_term_text(t) for t in el.laws]
+            if el.nonparametric is not None:
+                parts.append(el.nonparametric.describe("rad" if el.rotational(self.structure) else "m"))
+            laws = " + ".join(parts) or "(reference only)"
+            lines.append(f"{el.name} [{where}]: {laws}")
+        return "\n".join(lines)
+
+    def to_toml(self) -> str:
+        """The model as a TOML model file (the structure as updated, laws with their values)."""
+        out = ["[structure]"]
+        out += [f"{k} = {_toml_value(v)}" for k, v in self.structure_table.items()]
+        if self.updating_parameters:
+            out += ["", "[updating]", f"parameters = {_toml_value(self.updating_parameters)}"]
+            if self.updating_modes:
+                out.append(f"modes = {_toml_value(self.updating_modes)}")
+        for el in self.elements:
+            out += ["", "[[element]]", f"name = {_toml_value(el.name)}"]
+            out.append(f"dof = {_toml_value(el.dofs[0])}" if el.grounded else f"between = {_toml_value(list(el.dofs))}")
+            laws = ", ".join("{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in t.to_toml().items()) + " }"
+                             for t in el.laws)
+            out.append(f"laws = [{laws}]")
+            if el.nonparametric is not None:
+                out.append(f"{NONPARAMETRIC} = {_toml_value(el.nonparametric.to_toml())}")
+        return "\n".join(out) + "\n"
+
+
+def _term_text(t: LawTerm) -> str:
+    values = ", ".join(f"{k}={v:.4g}" for k, v in t.values.items())
+    return f"{t.law.name}({values})"
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else "nan"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    return _toml_value(float(v))
+
+
+def load_model(document: dict, source: str | None = None) -> Model:
+    """Build a Model from a parsed model (or rig) file."""
+    root = Fields(document, source, "")
+    root.unknown_keys(set(MODEL_TABLES | RIG_TABLES))
+    structure_table = root.require("structure")
+    structure = load_structure(structure_table, source)
+    elements = load_elements(document, structure, source, complete=False)
+    params, modes = [], None
+    if root.has("updating"):
+        up = root.sub("updating")
+        up.where = "[updating]"
+        up.unknown_keys({"parameters", "modes"})
+        params = up.strings("parameters")
+        if up.has("modes"):
+            raw = up.table["modes"]
+            if not isinstance(raw, list) or not all(isinstance(m, int) and m >= 1 for m in raw):
+                raise up.error("modes", "must be a list of mode numbers (1 = lowest)")
+            modes = list(raw)
+    return Model(copy.deepcopy(structure_table), structure, elements, params, modes, source)

@@ -1,0 +1,242 @@
+"""The structure around one element, and the describing function of a contact law placed in it.
+
+A contact that closes has harmonics as large as its fundamental -- a one-sided one (:attr:`Law.placed`:
+unilateral) a mean and even harmonics, a two-sided one (gap) odd harmonics. They move the structure: the mean to a
+new static position, the harmonics to a response at 2w, 3w, ... And the element sees that motion, so how far
+its contact closes over a cycle -- hence its fundamental, hence kbar -- depends on the structure around it, not
+on the amplitude X alone. The plain describing function (``x = X sin wt`` at the element, nothing else) leaves
+this out; for a contact whose stiffness is comparable to the structure's a one-sided one is off by 10-25 % in
+Re kbar near resonance (tests/test_surroundings.py, against time integration).
+
+Here the element is placed: its displacement is ``x = x0 + X sin(wt) + sum_{n=2..N} Re(x_n e^{jnwt})`` with
+the fundamental given and the other harmonics balanced against the structure seen at the element,
+
+    x_n = -R(n w) f_n        (n = 0, 2, 3, ..., N)
+
+``R(W) = e^T Z(W)^-1 e`` the receptance of the rest at the element (the structure plus the element's own
+amplitude-independent laws, springs and dampers in parallel), ``f_n`` the harmonics of the law's own
+time-domain force. ``n = 0`` is the static balance ``x0 = -R(0) f0(x0, X)`` (the mean force against the static
+compliance). The balance is solved by alternating frequency and time (AFT) with Newton steps (the law's tangent
+stiffness along the cycle couples the harmonics; a contact as stiff as the structure near one of its modes needs
+that coupling), only for the samples where the contact acts. kbar is then ``f_1 / X``. The fundamental is the
+element's own (the identification measures it; the harmonic balance solves for it); the other elements'
+harmonics, which the single-harmonic model has none of, are left out: a limit, stated in docs/method.md.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..laws import Law
+from .structures import Structure
+
+#: Harmonics balanced besides the fundamental (0, 2, ..., N). On a single mass 5 are within 0.01 % of the
+#: converged kbar; a chain's higher modes can resonate with a harmonic, and 5 harmonics can then leave an error of
+#: percents in Im kbar, which 9 take down a hundredfold.
+N_HARMONICS = 9
+# Samples per cycle of the AFT evaluation (well above 2 N + 1: the contact's kink is sampled finely)
+N_TIME = 128
+# Newton steps per sample. A balance converges in 2-3 steps (at most 7 on all but 3 of the 416 000 samples the
+# paper-2dof discovery places); one that has not in 12 has none to find (a harmonic of a contact as stiff as the
+# structure at one of its modes: its residual stalls at a few % of X however damped the steps), and keeps its
+# last step (:func:`placed_kbar`).
+_MAX_ITERATIONS = 12
+# Relative change of the harmonics (to X) below which the balance has converged
+_TOLERANCE = 1e-10
+
+
+@dataclass
+class Surroundings:
+    """The rest of the structure as an element sees it: ``receptance(W) = e^T Z(W)^-1 e`` (m/N), W in rad/s.
+
+    ``parallel(W)`` adds the element's own amplitude-independent laws (a dynamic stiffness in parallel)."""
+
+    structure: Structure
+    vector: np.ndarray
+    parallel: Callable[[np.ndarray], np.ndarray] | None = None
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+    _blocks: tuple | None = field(default=None, repr=False, compare=False)
+
+    def receptance(self, W) -> np.ndarray:
+        """R(W) for angular frequencies W (any shape), complex."""
+        W = np.asarray(W, float)
+        flat = np.unique(W.ravel())
+        missing = [x for x in flat if x not in self._cache]
+        if missing:
+            H = self.structure.response(np.asarray(missing), self.vector[:, None])[:, :, 0] @ self.vector
+            self._cache.update(zip(missing, H))
+        R = np.array([self._cache[x] for x in W.ravel()], complex).reshape(W.shape)
+        if self.parallel is None:
+            return R
+        return R / (1.0 + R * self.parallel(W))
+
+    def blocks(self, w: np.ndarray, cycle: "_Cycle") -> np.ndarray:
+        """The real receptance blocks of :meth:`_Cycle.receptance_blocks` at the harmonics of the lines ``w``; the
+        last lines asked are kept (a fit asks the same samples' lines many times)."""
+        key = (w.tobytes(), cycle.harmonics.tobytes(), id(self.parallel))
+        if self._blocks is None or self._blocks[0] != key:
+            self._blocks = (key, cycle.receptance_blocks(self.receptance(w[:, None] * cycle.harmonics[None, :])))
+        return self._blocks[1]
+
+    def with_parallel(self, stiffness: Callable[[np.ndarray], np.ndarray] | None) -> "Surroundings":
+        """The same place with the element's amplitude-independent laws ``stiffness(W)`` in parallel (sharing
+        the structure's receptances)."""
+        return Surroundings(self.structure, self.vector, stiffness, self._cache)
+
+
+def surroundings_of(structure: Structure, vector: np.ndarray) -> Surroundings:
+    """The structure around the element of element vector ``vector`` (``x_element = vector @ x``)."""
+    return Surroundings(structure, np.asarray(vector, float))
+
+
+def linear_part(terms) -> Callable[[np.ndarray], np.ndarray] | None:
+    """The dynamic stiffness ``W -> sum kbar(W)`` of the amplitude-independent terms among ``terms`` ((law,
+    values) pairs with complete values), which act in parallel with the structure at every harmonic; None
+    without any."""
+    parts = [(law, dict(values)) for law, values in terms
+             if not law.amplitude_dependent and not law.placed]
+    if not parts:
+        return None
+    functions = [law.kbar_function(**values) for law, values in parts]
+
+    def stiffness(W):
+        W = np.asarray(W, float)
+        return sum((f(np.ones(W.shape), W) for f in functions), np.zeros(W.shape, complex))
+
+    return stiffness
+
+
+def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: Surroundings,
+                n_harmonics: int = N_HARMONICS, n_time: int = N_TIME) -> np.ndarray:
+    """kbar of the sum of ``terms`` ((law, contract values) pairs: the placed laws of one element, which share its
+    mean and harmonics) at element amplitudes X and lines w, placed in ``around`` (module docstring); complex,
+    broadcast over X and w. A sample whose balance has no solution (``_MAX_ITERATIONS``) keeps the kbar of its
+    last step, far from any measured one: a fit moves away from where its model has no balance. (Given the
+    contact alone's kbar there instead, the fits settled where the balance fails, every evaluation paying the
+    full count of steps: several times the Newton work.)"""
+    X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
+    shape = X.shape
+    X, w = X.ravel(), w.ravel()
+    p = [(law, law.parameter_vector(**values)) for law, values in terms]
+    cycle = _cycle(n_harmonics, n_time)
+    R = around.blocks(w, cycle)
+    fundamental = X[:, None] * np.sin(cycle.theta)[None, :]
+    scale = np.maximum(X, 1e-300)
+    z = np.zeros((X.size, cycle.size))
+    active = np.ones(X.size, bool)
+    for _ in range(_MAX_ITERATIONS):
+        x = fundamental[active] + z[active] @ cycle.Phi.T
+        f, tangent = _force_and_tangent(p, x, scale[active])
+        step = z[active] + (R[active] @ (f @ cycle.P.T)[..., None])[..., 0]
+        # where the contact never touches over the cycle the residual is its own step (the Jacobian is I)
+        touching = np.any(tangent != 0.0, axis=1)
+        jacobian = np.eye(cycle.size) + R[active][touching] @ cycle.tangent_blocks(tangent[touching])
+        try:
+            step[touching] = np.linalg.solve(jacobian, step[touching][..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            # a contact pulling (k < 0) as hard as the structure holds it: no static balance, no kbar
+            return np.full(shape, np.nan, complex)
+        z[active] -= step
+        still = np.max(np.abs(step), axis=1) > _TOLERANCE * scale[active]
+        if not still.any():
+            break
+        active[np.flatnonzero(active)[~still]] = False
+    f = _force(p, fundamental + z @ cycle.Phi.T)
+    # fundamental phasor of Im(F e^{jwt}) per docs/contracts.md §1: f ~ A sin + B cos -> kbar = (A + j B) / X
+    a = 2.0 / n_time * f @ np.sin(cycle.theta)
+    b = 2.0 / n_time * f @ np.cos(cycle.theta)
+    return ((a + 1j * b) / scale).reshape(shape)
+
+
+@functools.lru_cache(maxsize=8)
+def _cycle(n_harmonics: int, n_time: int) -> "_Cycle":
+    return _Cycle(n_harmonics, n_time)
+
+
+class _Cycle:
+    """The sampled cycle and the real form of the harmonics balanced: unknowns ``z = [x0, Re x2, Im x2, ...]``,
+    displacement ``x = X sin(theta) + Phi z``, harmonics of a force ``P f`` (``P Phi = I``)."""
+
+    def __init__(self, n_harmonics: int, n_time: int):
+        self.harmonics = np.array([0] + list(range(2, n_harmonics + 1)))
+        self.theta = 2 * np.pi * np.arange(n_time) / n_time
+        n = self.harmonics[1:, None] * self.theta[None, :]
+        # Re(x_n e^{jn theta}) = Re x_n cos - Im x_n sin
+        self.Phi = np.column_stack([np.ones(n_time)] + [c for pair in zip(np.cos(n), -np.sin(n)) for c in pair])
+        self.P = np.vstack([np.full(n_time, 1.0 / n_time)]
+                           + [r for pair in zip(2.0 / n_time * np.cos(n), -2.0 / n_time * np.sin(n)) for r in pair])
+        self.size = self.Phi.shape[1]
+        self._products = _trig_products(self.harmonics)
+
+    def tangent_blocks(self, tangent: np.ndarray) -> np.ndarray:
+        """``P diag(t) Phi`` for each row t of ``tangent`` (S, T): the harmonics of the force that a change of
+        each unknown makes, shape (S, size, size). Each entry is a sum of t against a product of two harmonics,
+        i.e. a Fourier coefficient of t up to twice the highest harmonic (:func:`_trig_products`): one FFT per
+        sample instead of a (size, T) by (T, size) product, the same numbers to rounding."""
+        spectrum = np.fft.rfft(tangent, axis=1)[:, :2 * self.harmonics[-1] + 1] / tangent.shape[1]
+        coefficients = np.concatenate([spectrum.real, -spectrum.imag], axis=1)     # mean of t cos k, t sin k
+        (first, first_sign), (second, second_sign) = self._products
+        return first_sign * coefficients[:, first] + second_sign * coefficients[:, second]
+
+    def receptance_blocks(self, R: np.ndarray) -> np.ndarray:
+        """Complex receptances (S, H) at the harmonics -> the real (S, size, size) matrix acting on ``P f``."""
+        out = np.zeros((R.shape[0], self.size, self.size))
+        out[:, 0, 0] = R[:, 0].real                # the static receptance is real
+        for j in range(1, len(self.harmonics)):
+            i = 2 * j - 1
+            out[:, i, i] = out[:, i + 1, i + 1] = R[:, j].real
+            out[:, i, i + 1] = -R[:, j].imag
+            out[:, i + 1, i] = R[:, j].imag
+        return out
+
+
+def _trig_products(harmonics: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Where each entry of ``P diag(t) Phi`` (:meth:`_Cycle.tangent_blocks`) takes its two Fourier coefficients of
+    t, and with which factors: indices into ``[c_0 .. c_K, s_0 .. s_K]`` (c_k, s_k the means of t cos k theta and
+    t sin k theta, K twice the highest harmonic), from the row's and the column's function by
+
+        cos a cos b = (cos(a-b) + cos(a+b))/2,   sin a sin b = (cos(a-b) - cos(a+b))/2,
+        sin a cos b = (sin(a+b) + sin(a-b))/2,   cos a sin b = (sin(a+b) - sin(a-b))/2."""
+    K = 2 * int(harmonics[-1])
+    # each unknown: (factor of its row of P times the mean, factor of its column of Phi, harmonic, is sine)
+    functions = [(1.0, 1.0, 0, False)] + [f for h in harmonics[1:] for f in ((2.0, 1.0, h, False),
+                                                                            (-2.0, -1.0, h, True))]
+    size = len(functions)
+    index = np.zeros((2, size, size), int)
+    sign = np.zeros((2, size, size))
+
+    def coefficient(k: int, sine: bool) -> tuple[int, float]:
+        if not sine:
+            return abs(k), 1.0
+        return K + 1 + abs(k), float(np.sign(k))          # sin(-k) = -sin(k); sin 0 = 0
+
+    for i, (row, _, a, row_sine) in enumerate(functions):
+        for j, (_, column, b, column_sine) in enumerate(functions):
+            if row_sine and column_sine:
+                terms = [(a - b, False, 0.5), (a + b, False, -0.5)]
+            elif row_sine or column_sine:
+                terms = [(a + b, True, 0.5), (a - b if row_sine else b - a, True, 0.5)]
+            else:
+                terms = [(a - b, False, 0.5), (a + b, False, 0.5)]
+            for n, (k, sine, half) in enumerate(terms):
+                at, sign_k = coefficient(k, sine)
+                index[n, i, j], sign[n, i, j] = at, row * column * half * sign_k
+    return (index[0], sign[0]), (index[1], sign[1])
+
+
+def _force(laws: list[tuple[Law, np.ndarray]], x: np.ndarray) -> np.ndarray:
+    """The laws' force (with their kernel parameter vectors) along displacements x (S, T); a placed law has no
+    velocity dependence or state."""
+    flat = x.ravel()
+    v = np.zeros_like(flat)
+    return sum(law.march(flat, v, p) for law, p in laws).reshape(x.shape)
+
+
+def _force_and_tangent(laws: list[tuple[Law, np.ndarray]], x, scale) -> tuple[np.ndarray, np.ndarray]:
+    """Force and its central-difference slope in x (the contact's tangent stiffness) along x."""
+    h = 1e-7 * scale[:, None]
+    f = _force(laws, x)
+    return f, (_force(laws, x + h) - _force(laws, x - h)) / (2 * h)
