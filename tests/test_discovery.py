@@ -21,7 +21,8 @@ from analysis.search.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_n
                                 law_sets,
                                 search_element)
 from analysis.search import discovery
-from analysis.fitting.fit import _shape_coordinate, fit_laws
+from analysis.fitting.fit import fit_laws
+from analysis.fitting.projection import _shape_coordinate
 from analysis.mechanics.elements import LawTerm
 from analysis.prediction.frf_refinement import FrfRefinement
 from analysis.laws import LAWS

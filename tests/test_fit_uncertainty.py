@@ -211,7 +211,7 @@ def test_the_lines_a_clearance_acts_on_alone_are_kept_as_its_evidence(monkeypatc
     # a grounded clearance, identified from RK4 receptances without harmonics: it closes at three lines of the
     # higher level only, where its formula misses the samples by 37-390 sigma (the contact's harmonics move the
     # structure). Leaving them all out would leave its stiffness without a finite error.
-    import analysis.fitting.fit as fit_module
+    import analysis.fitting.robust as robust_module
     table = np.loadtxt(Path(__file__).parent / "data" / "gap_kbar_rk4.csv", delimiter=",", skiprows=3)
     X, w, kbar, std = table[:, 0], table[:, 1], table[:, 2] + 1j * table[:, 3], table[:, 4]
     robust = fit_laws(["gap"], X, w, kbar, std, exclude_outliers=True)
@@ -219,5 +219,5 @@ def test_the_lines_a_clearance_acts_on_alone_are_kept_as_its_evidence(monkeypatc
     assert np.isfinite(k.stderr["k"]) and abs(k.params["k"] / 991.8 - 1) < 0.02
     assert abs(k.params["gap"] / 7.723e-3 - 1) < 0.05
     assert robust.excluded.sum() < 3 and not robust.excluded[np.argmax(X)]
-    monkeypatch.setattr(fit_module, "_sizes_determined", lambda fit: 0)        # without the rule
+    monkeypatch.setattr(robust_module, "_sizes_determined", lambda fit: 0)     # without the rule
     assert not np.isfinite(fit_laws(["gap"], X, w, kbar, std, exclude_outliers=True).terms[0].stderr["k"])
