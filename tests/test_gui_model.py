@@ -79,7 +79,7 @@ def test_add_on_the_top_candidate_lowers_the_displayed_error_and_undo_restores_i
     # the same addition through the command-line path (a fresh workbench) gives the same error
     wb, _ = run_workbench(session, model, [f"{top.element}:{top.law}"], rank=False)
     assert after == pytest.approx(wb.history[-1].error, rel=1e-3)
-    laws = {el.name: [law.law for law in el.laws] for el in window.lab.analysis.mechanics.elements}
+    laws = {el.name: [law.law for law in el.laws] for el in window.lab.analysis.elements}
     assert laws[top.element] == [top.law]
     assert panel.history.listDataItems()[0].getOriginalDataset()[1] == pytest.approx([before, after], rel=1e-3)
 
@@ -88,7 +88,7 @@ def test_add_on_the_top_candidate_lowers_the_displayed_error_and_undo_restores_i
         panel.undo_button.click()
     qtbot.waitUntil(lambda: len(window.lab.analysis.history) == 1)
     assert shown_error(window) == pytest.approx(before, rel=1e-6)
-    assert all(not el.laws for el in window.lab.analysis.mechanics.elements)
+    assert all(not el.laws for el in window.lab.analysis.elements)
 
 
 def test_a_model_that_does_not_fit_the_session_is_a_message(qtbot, hidden_effect_session, tmp_path):

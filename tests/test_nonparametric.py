@@ -374,7 +374,7 @@ def test_the_model_tab_shows_the_unexplained_joint_and_adds_its_nonparametric_pa
     panel = window.model
     with qtbot.waitSignal(window.lab.analysisUpdated, timeout=120000):
         panel.analyze_button.click()
-    [shown] = window.lab.analysis.missing.unexplained
+    [shown] = window.lab.analysis.unexplained
     assert shown.element == "joint" and shown.gain > 20
     [button] = panel.unexplained.findChildren(QPushButton)
     with qtbot.waitSignal(window.lab.analysisUpdated, timeout=120000):

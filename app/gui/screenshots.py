@@ -117,7 +117,7 @@ def take(out: Path) -> list[Path]:
         window.model.analyze_button.click()
         _wait(app, lambda: lab.analysis is not None, AUTO_TIMEOUT_S, "the analysis")
         window.model.auto_button.click()
-        _wait(app, lambda: lab.analysis.loop.auto or errors, AUTO_TIMEOUT_S, "the automatic loop")
+        _wait(app, lambda: lab.analysis.auto or errors, AUTO_TIMEOUT_S, "the automatic loop")
         _wait(app, lambda: lab.identification is not None and not lab.identification.live, 60,
               "the identification")
         window.session.runs.selectRow(window.session.runs.rowCount() - 1)      # the highest level
