@@ -84,7 +84,7 @@ def __getattr__(name: str):
     if name in _EXPORTS:
         value = getattr(import_module(_EXPORTS[name], __name__), name)
     elif name in MOVED:
-        value = import_module(f"{__name__}.{name}")
+        value = import_module(f".{MOVED[name]}", __name__)
     else:
         raise AttributeError(f"module 'analysis' has no attribute {name!r}")
     globals()[name] = value            # once imported, an ordinary attribute

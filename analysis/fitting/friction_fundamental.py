@@ -20,12 +20,12 @@ from typing import Sequence
 import numpy as np
 from numba import njit
 
-from ..mechanics.elements import LawTerm
 from ..common.errors import InputError
 from ..common.statistics import capped_chi_square
-from .fit import fit_laws
 from ..laws import Law, Param
+from ..mechanics.elements import LawTerm
 from ..mechanics.surroundings import Surroundings
+from .fit import fit_laws
 
 
 @njit(cache=True)

@@ -31,8 +31,8 @@ from typing import Sequence
 import numpy as np
 from scipy.ndimage import median_filter
 
-from ..mechanics.elements import Element
 from ..common.errors import InputError
+from ..mechanics.elements import Element
 from ..mechanics.structures import Structure
 
 DEFAULT_COND_LIMIT = 1.0e3

@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..common.errors import InputError
-from .base import Law, Param
 from .anderson_ferri import AndersonFerri
 from .arctan_softening import ArctanSoftening
+from .base import Law, Param
 from .bilinear import Bilinear
 from .coulomb import Coulomb
 from .cubic import Cubic

@@ -19,12 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..mechanics.elements import Element
 from ..common.errors import InputError
 from ..common.measurements import Measurements, SineRun
-from ..signals.modal_fit import ModalFit, fit_modes
+from ..mechanics.elements import Element
 from ..mechanics.model import Model
 from ..mechanics.structures import load_structure
+from ..signals.modal_fit import ModalFit, fit_modes
 
 FREQUENCY_SHIFT = 1e-3     # relative: the accuracy a reference frequency is wanted to
 DAMPING_SHIFT = 0.05       # relative: the accuracy a reference damping ratio is wanted to

@@ -16,9 +16,9 @@ import numpy as np
 import scipy.linalg
 
 from ..common.measurements import RandomRun
-from ..signals.modal_fit import LOW_COHERENCE, LeakageBias, ModalFit, fit_modes, leakage_bias
 from ..mechanics.model import Model
 from ..mechanics.structures import Structure
+from ..signals.modal_fit import LOW_COHERENCE, LeakageBias, ModalFit, fit_modes, leakage_bias
 from .updating import UpdateResult, update_parameters
 
 STUCK_MATCH = 0.03      # a mode within 3 % of a held-structure frequency...

@@ -15,13 +15,13 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ..prediction.backbone import ModalError
-from ..prediction.comparison import Comparison, gain_phrase
-from ..missing.diagnosis import Candidate, RankingRules
-from ..search.discovery import Discovery, DiscoveryRules, ElementDiscovery, WalkStep
 from ..laws import LAWS
+from ..missing.diagnosis import Candidate, RankingRules
 from ..missing.modal_judge import ModalRules, judge_by_modes, measures_modes, model_error
 from ..missing.unexplained import unexplained
+from ..prediction.backbone import ModalError
+from ..prediction.comparison import Comparison, gain_phrase
+from ..search.discovery import Discovery, DiscoveryRules, ElementDiscovery, WalkStep
 from .workbench import ElementReport, Workbench
 
 

@@ -25,21 +25,21 @@ from typing import Callable
 
 import numpy as np
 
-from ..prediction.comparison import Comparison, HarmonicCriterion, LevelError, Predictor
-from ..missing.diagnosis import Candidate, ElementSamples, RankingRules, check_model_form, rank_candidates, rank_pairs
-from ..search.discovery import AmplitudeDependence, Discovery, DiscoveryRules, amplitude_dependence, discover
-from ..mechanics.elements import LawTerm
 from ..common.errors import InputError
-from ..fitting.fit import LawFit, fit_laws
-from ..prediction.frf_refinement import refine_against_frfs, terms_function
-from ..identification.identify import identify_complex_stiffness
-from ..laws import get_law
-from ..identification.linearity import LinearityVerdict, linearity_verdict
 from ..common.measurements import Measurements, SineRun
+from ..fitting.fit import LawFit, fit_laws
+from ..identification.identify import identify_complex_stiffness
+from ..identification.linearity import LinearityVerdict, linearity_verdict
+from ..laws import get_law
+from ..linear.reference import ReferenceReport, reference_from_random
+from ..mechanics.elements import LawTerm
 from ..mechanics.model import Model
 from ..mechanics.nonparametric import NAME as NONPARAMETRIC, NonParametric, fit_nonparametric
-from ..linear.reference import ReferenceReport, reference_from_random
+from ..missing.diagnosis import Candidate, ElementSamples, RankingRules, check_model_form, rank_candidates, rank_pairs
 from ..missing.unexplained import NonParametricOffer, offer_nonparametric, unexplained
+from ..prediction.comparison import Comparison, HarmonicCriterion, LevelError, Predictor
+from ..prediction.frf_refinement import refine_against_frfs, terms_function
+from ..search.discovery import AmplitudeDependence, Discovery, DiscoveryRules, amplitude_dependence, discover
 
 
 @dataclass

@@ -13,11 +13,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..common.errors import InputError
+from ..common.tables import Fields
 from ..laws import Law, get_law
 from .nonparametric import NAME as NONPARAMETRIC, NonParametric
 from .structures import Structure
 from .surroundings import Surroundings, linear_part, placed_kbar, surroundings_of
-from ..common.tables import Fields
 
 
 @dataclass

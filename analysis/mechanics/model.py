@@ -15,12 +15,12 @@ import copy
 import math
 from dataclasses import dataclass, field
 
-from .elements import Element, LawTerm, load_elements
 from ..common.errors import InputError
+from ..common.tables import Fields
+from .elements import Element, LawTerm, load_elements
 from .nonparametric import NAME as NONPARAMETRIC
 from .structures import Structure, load_structure
 from .surroundings import surroundings_of
-from ..common.tables import Fields
 
 # The top-level keys of a rig file (docs/contracts.md §3, docs/rig-simulator.md). A rig file is also a valid model
 # file -- its laws' values are read as starting values -- so a model file may carry them; they are not read.

@@ -49,18 +49,18 @@ from typing import Callable
 import numpy as np
 import scipy.stats
 
-from ..prediction.comparison import (Comparison, HarmonicCriterion, Predictor, chi_square_falls, gain_phrase,
-                         kbar_functions_with)
-from ..mechanics.elements import LawTerm
 from ..common.errors import InputError
-from ..fitting.friction_fundamental import chi_square_with_friction_turn, holds_friction
 from ..common.statistics import (capped_chi_square, charged_criterion, chi_square_shares, falls_above_noise,
                                  noise_scale)
+from ..common.wording import change_words
 from ..fitting.fit import LawFit, TermFit, fit_laws
+from ..fitting.friction_fundamental import chi_square_with_friction_turn, holds_friction
 from ..laws import LAWS
 from ..laws.base import SignatureWords
-from ..common.wording import change_words
+from ..mechanics.elements import LawTerm
 from ..mechanics.surroundings import Surroundings
+from ..prediction.comparison import (Comparison, HarmonicCriterion, Predictor, chi_square_falls, gain_phrase,
+                         kbar_functions_with)
 
 
 @dataclass

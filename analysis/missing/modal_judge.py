@@ -23,10 +23,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..prediction.backbone import ModalError, model_modal_error
-from .diagnosis import Candidate
 from ..common.measurements import Measurements
 from ..mechanics.model import Model
+from ..prediction.backbone import ModalError, model_modal_error
+from .diagnosis import Candidate
 
 
 @dataclass(frozen=True)

@@ -34,12 +34,13 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import scipy.stats
 
-from ..prediction.comparison import Comparison, Predictor, chi_square_falls, compare_predictions, gain_phrase, kbar_functions_with
-from .diagnosis import ElementSamples, Signature, signature, signature_words
 from ..common.statistics import chi_square_shares, part_weight
 from ..fitting.fit import LawFit
 from ..laws.base import SignatureWords
 from ..mechanics.nonparametric import NonParametric, NonParametricFit, fit_nonparametric
+from ..prediction.comparison import (Comparison, Predictor, chi_square_falls, compare_predictions, gain_phrase,
+                                     kbar_functions_with)
+from .diagnosis import ElementSamples, Signature, signature, signature_words
 
 FALSE_ALARM = 1e-3          # default probability that the noise alone raises the alarm
 OUTLIER_FRACTION = 0.05     # largest per-sample chi-squares left out of the statistic

@@ -33,11 +33,11 @@ from typing import Sequence
 import numpy as np
 import scipy.linalg
 
-from ..mechanics.elements import Element
 from ..common.errors import InputError
 from ..common.measurements import CONTROL_UNITS, Measurements, PhaseRun, SineRun, response_amplitude
-from ..signals.modal_fit import fit_modes
+from ..mechanics.elements import Element
 from ..mechanics.structures import Structure
+from ..signals.modal_fit import fit_modes
 
 METHOD = "describing-function eigenproblem (single nonlinear mode, first harmonic)"
 POWER = {"displacement": 0, "velocity": 1, "acceleration": 2}    # response = displacement x w^k

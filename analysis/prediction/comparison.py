@@ -38,11 +38,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..common.measurements import Control, Measurements, SineRun
 from ..common.statistics import chi_square_noise_bound, outlier_limit
+from ..mechanics.model import Model
 from .harmonic_balance import (CondensedSystem, KbarFunction, condense, continue_response, predict_multiharmonic,
                                predict_sweeps, single_harmonic_distortion)
-from ..common.measurements import Control, Measurements, SineRun
-from ..mechanics.model import Model
 
 
 @dataclass(frozen=True)

@@ -19,10 +19,10 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import least_squares
 
-from .comparison import Predictor, kbar_functions_with
-from ..mechanics.elements import LawTerm
 from ..common.errors import InputError
 from ..common.statistics import part_weight
+from ..mechanics.elements import LawTerm
+from .comparison import Predictor, kbar_functions_with
 
 
 @dataclass(frozen=True)

@@ -63,17 +63,17 @@ from typing import Callable
 import numpy as np
 import scipy.stats
 
-from ..prediction.comparison import Comparison, HarmonicCriterion, Predictor, gain_phrase, kbar_functions_with
-from ..missing.diagnosis import ElementSamples, RankingRules, explain, frf_criterion, signature, tied_parameters
 from ..common.errors import InputError
-from ..fitting.friction_fundamental import chi_square_with_friction_turn, holds_friction
-from ..prediction.frf_refinement import FrfRefinement, refine_against_frfs, terms_function
 from ..common.statistics import (capped_chi_square, charged_criterion, chi_square_noise_bound, chi_square_shares,
                                  falls_above_noise, noise_scale, part_weight)
 from ..fitting.fit import UNDETERMINED_Z, LawFit, TermFit, fit_laws, unit_exponents
+from ..fitting.friction_fundamental import chi_square_with_friction_turn, holds_friction
 from ..laws import LAWS
 from ..mechanics.nonparametric import fit_nonparametric
 from ..mechanics.surroundings import Surroundings
+from ..missing.diagnosis import ElementSamples, RankingRules, explain, frf_criterion, signature, tied_parameters
+from ..prediction.comparison import Comparison, HarmonicCriterion, Predictor, gain_phrase, kbar_functions_with
+from ..prediction.frf_refinement import FrfRefinement, refine_against_frfs, terms_function
 
 
 @dataclass(frozen=True)

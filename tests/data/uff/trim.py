@@ -29,9 +29,8 @@ def trim(data: bytes, points: int) -> bytes:
         out += data[at:match.start(1)]
         head_end = _line_end(data, match.start(1))
         head = data[match.start(1):head_end]
-        lines_start = head_end
         header = []
-        cursor = lines_start
+        cursor = head_end
         for _ in range(11):
             nxt = _line_end(data, cursor)
             header.append(data[cursor:nxt])
