@@ -19,6 +19,7 @@ import argparse
 import math
 import sys
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 
 # Only light modules here: each command imports what it uses, so that `--help` and `laws` start fast
 # (docs/performance.md, "Start-up"; tests/test_public_api.py checks what they import).
@@ -257,8 +258,15 @@ def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
 
+    from dataclasses import replace
+
+    from analysis.mechanics.model import FittedOn
+    from analysis.prediction.held_out import predict_session
     from app.analyze import (backbones, backbones_json, misfits_json, read_measurements, reference_only,
                              report_text, run_workbench, run_workbench_auto, session_notes, store_history)
+    from analysis.loop.cross_check import cross_validate
+    from app.predict import (cross_validation_json, cross_validation_text, parse_levels, prediction_json,
+                             prediction_text, session_created)
     from app.progress import Progress
     from app.session.outputs import check_output, require_free_space
 
@@ -269,7 +277,10 @@ def cmd_analyze(args) -> int:
         require_free_space(args.output, FITTED_MODEL_ALLOWANCE, "write the fitted model")
     with Progress("analyze") as progress:
         progress.phase("reading the session")
-        measurements = read_measurements(args.session)
+        session = read_measurements(args.session)
+        measurements = session
+        if args.fit_levels is not None:     # the fit sees these levels only; the others are predicted after
+            measurements = session.at_levels(parse_levels(args.fit_levels, session.level_controls()))
         reference = reference_only(args.session, args.model, args.add or [], measurements)
         if reference is None and not args.auto:
             wb, candidates = run_workbench(args.session, args.model, args.add or [], measurements=measurements,
@@ -292,26 +303,75 @@ def cmd_analyze(args) -> int:
     if not args.no_history:
         store_history(args.session, wb, args.model, notes)
     modal = backbones(wb)
+    created = session_created(args.session)
+    fitted = replace(wb.model, fitted_on=FittedOn(Path(args.session).name, created,
+                                                  tuple(c.label() for c in measurements.level_controls())))
+    # the levels the fit did not see, predicted by the fitted model as it is
+    held_out = None if args.fit_levels is None else predict_session(fitted, session, created, wb.harmonics)
+    folds = None
+    if args.cross_validate:
+        with Progress("analyze") as progress:
+            progress.phase("cross-validating over the levels")
+            folds = cross_validate(wb, created)
     if args.json:
         extra = {"auto": auto.to_json()} if auto is not None else {}
+        if held_out is not None:
+            extra["prediction"] = prediction_json(held_out)
+        if folds is not None:
+            extra["cross_validation"] = cross_validation_json(folds)
         print(json.dumps({**wb.to_json(candidates), **misfits_json(wb), **backbones_json(modal), **notes.to_json(),
                           **extra}, indent=1, default=float))
     else:
         if auto is not None:
             print(auto.text() + "\n")
         print(report_text(wb, candidates, comparisons=modal))
+        if held_out is not None:
+            print("\n" + prediction_text(held_out, Path(args.session).name, "as fitted"))
+        if folds is not None:
+            print("\n" + cross_validation_text(folds))
         if notes.text():
             print(notes.text())
     if notes.not_stored:
         print(f"contactid: warning: model history not stored: {notes.not_stored}", file=sys.stderr)
     if args.report:
-        from pathlib import Path
-
         from app.report import write_report
         for path in write_report(wb, Path(args.report), args.overwrite, modal):
             print(f"plot written: {path}", file=sys.stderr if args.json else sys.stdout)
     if args.output:                       # last: a failure here leaves the report printed and no partial file
-        _write_model(args, wb.model.to_toml(), inputs)
+        _write_model(args, fitted.to_toml(), inputs)
+    return 0
+
+
+def cmd_predict(args) -> int:
+    """A fitted model's prediction of a session, with nothing refitted."""
+    import json
+
+    from app.predict import KIND_WORDS, prediction_json, prediction_text, run_predict
+    from app.progress import Progress
+
+    if args.report:                       # refused before any work, as analyze refuses
+        from app.report import PREDICTION_FILES
+        from app.session.outputs import check_output
+        Path(args.report).mkdir(parents=True, exist_ok=True)
+        for name in PREDICTION_FILES:
+            check_output(Path(args.report) / name, overwrite=args.overwrite, field=None,
+                         overwrite_flag="--overwrite")
+    with Progress("predict") as progress:
+        progress.phase("predicting every level")
+        _, prediction = run_predict(args.session, args.model)
+    if args.json:
+        print(json.dumps(prediction_json(prediction), indent=1, default=float))
+    else:
+        print(prediction_text(prediction, Path(args.session).name, Path(args.model).name))
+    if args.report:
+        from app.analyze import read_measurements
+        from app.report import write_prediction_report
+        runs = read_measurements(args.session).sine
+        kinds = {lv.control.key(): lv.kind for lv in prediction.levels}
+        tags = {r.name: KIND_WORDS[kinds[r.control.key()]] for r in runs}
+        for path in write_prediction_report(prediction.comparison, runs, prediction.backbones, Path(args.report),
+                                            args.overwrite, tags):
+            print(f"plot written: {path}", file=sys.stderr if args.json else sys.stdout)
     return 0
 
 
@@ -487,7 +547,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", metavar="DIR", help="write the report plots (PNG) into DIR: FRFs, kbar, residuals, "
                                                    "error history, and natural frequency and damping against "
                                                    "response amplitude where the session has response levels")
+    p.add_argument("--fit-levels", metavar="N,M-K",
+                   help="fit on these stepped-sine levels only (numbered from 1 as the report lists them: force "
+                        "levels by force, then response levels); the others are predicted by the fitted model, "
+                        "nothing refitted, and their error is reported as held out")
+    p.add_argument("--cross-validate", action="store_true",
+                   help="refit the final model's laws on alternate levels and predict the others with nothing "
+                        "refitted: how well the model predicts levels its fit did not see")
     p.set_defaults(run=cmd_analyze)
+
+    p = sub.add_parser("predict", help="a fitted model's prediction of a session, nothing refitted: the error of "
+                                       "each level, held-out levels marked, backbones")
+    p.add_argument("session", help="session file (.h5)")
+    p.add_argument("model", help="fitted model file (TOML, as analyze -o writes it)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--report", metavar="DIR", help="write the plots (PNG) into DIR: FRFs, residuals, and natural "
+                                                   "frequency and damping against response amplitude where the "
+                                                   "session has response levels")
+    _overwrite_option(p, "existing report plots")
+    p.set_defaults(run=cmd_predict)
 
     p = sub.add_parser("recover", help="repair a session whose writer was killed so that any HDF5 tool opens it")
     p.add_argument("session", help="session file (.h5)")

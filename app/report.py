@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
+from analysis.common.measurements import SineRun
 from analysis.prediction.backbone import BackboneComparison
+from analysis.prediction.comparison import Comparison
 from analysis.common.wording import engineering
 from analysis.loop.workbench import Workbench
 
@@ -130,11 +133,11 @@ def _layout():
     return pg.GraphicsLayoutWidget()
 
 
-def plot_frfs(wb: Workbench, path: Path, sensor: str | None = None) -> Path:
-    """|h| and phase of one sensor per force level: measured (symbols) and predicted (lines)."""
-    comp = wb.compare()
-    levels = wb.measurements.levels
-    runs = wb.measurements.sine
+def plot_frfs(comp: Comparison, runs: Sequence[SineRun], path: Path, sensor: str | None = None,
+              tags: dict[str, str] | None = None) -> Path:
+    """|h| and phase of one sensor per level: measured (symbols) and predicted (lines); ``tags`` (run name ->
+    words) are added to a run's legend entry (a prediction marks its held-out levels so)."""
+    levels = _levels(runs)
     sensor = sensor or runs[0].sensor_dofs[0]
     lay = _layout()
     mag = _log_plot(lay, 0, 0, title=f"Receptance {sensor} / {runs[0].excitation_dof} at each force level: "
@@ -154,11 +157,21 @@ def plot_frfs(wb: Workbench, path: Path, sensor: str | None = None) -> Path:
         pred = comp.predicted[run.name][order, p]
         c = _colour(levels, run.force)
         measured, model = _symbols(c, 5), {"pen": {"color": c, "width": 2}}
-        mag.plot(f, np.abs(meas), name=f"{run.control.label()} {run.direction}", **measured)
+        mag.plot(f, np.abs(meas), name=_run_name(run, tags), **measured)
         mag.plot(f, np.abs(pred), **model)
         ph.plot(f, np.degrees(np.angle(meas)), **measured)
         ph.plot(f, np.degrees(np.angle(pred)), **model)
     return _export(lay, path)
+
+
+def _levels(runs: Sequence[SineRun]) -> list[float]:
+    """The runs' forces, rounded as :func:`_colour` looks them up."""
+    return sorted({round(r.force, 12) for r in runs})
+
+
+def _run_name(run: SineRun, tags: dict[str, str] | None) -> str:
+    tag = (tags or {}).get(run.name)
+    return f"{run.control.label()} {run.direction}" + (f" ({tag})" if tag else "")
 
 
 def plot_kbar(wb: Workbench, path: Path) -> Path:
@@ -220,11 +233,11 @@ def kbar_layout(wb: Workbench):
     return lay
 
 
-def plot_residuals(wb: Workbench, path: Path) -> Path:
-    """Relative FRF error per line and run, over every response the runs measured: where the model fails."""
-    comp = wb.compare()
-    levels = wb.measurements.levels
-    runs = wb.measurements.sine
+def plot_residuals(comp: Comparison, runs: Sequence[SineRun], path: Path,
+                   tags: dict[str, str] | None = None) -> Path:
+    """Relative FRF error per line and run, over every response the runs measured: where the model fails
+    (``tags`` as in :func:`plot_frfs`)."""
+    levels = _levels(runs)
     responses = ", ".join(dict.fromkeys(d for run in runs for d in run.sensor_dofs))
     lay = _layout()
     p = _log_plot(lay, 0, 0, title=f"Where the model fails: relative FRF error of the prediction at each frequency "
@@ -240,7 +253,7 @@ def plot_residuals(wb: Workbench, path: Path) -> Path:
         shown.append(residual)
         p.plot(run.frequency_hz[order], residual,
                pen={"color": _colour(levels, run.force), "width": 2},
-               name=f"{run.control.label()} {run.direction}")
+               name=_run_name(run, tags))
         other = comp.other_branch.get(run.name, np.zeros(len(order), bool))
         if other.any():                    # measured on another branch than the swept prediction (a jump)
             p.plot(run.frequency_hz[other], np.maximum(comp.residual_map[run.name][other], 1e-6), pen=None,
@@ -351,12 +364,37 @@ def write_report(wb: Workbench, folder: Path, overwrite: bool = False,
     folder.mkdir(parents=True, exist_ok=True)
     for name in names:
         check_output(folder / name, overwrite=overwrite, field=None, overwrite_flag="--overwrite")
-    sensor = wb.measurements.sine[0].excitation_dof
-    if sensor not in wb.measurements.sine[0].sensor_dofs:
-        sensor = wb.measurements.sine[0].sensor_dofs[0]
+    runs = wb.measurements.sine
     frf, kbar, residuals, history = (folder / name for name in REPORT_FILES)
-    plots = [plot_frfs(wb, frf, sensor), plot_kbar(wb, kbar), plot_residuals(wb, residuals),
-             plot_history(wb, history)]
+    plots = [plot_frfs(wb.compare(), runs, frf, _drive_point(runs)), plot_kbar(wb, kbar),
+             plot_residuals(wb.compare(), runs, residuals), plot_history(wb, history)]
     if comparisons:
         plots.append(plot_backbones(comparisons, folder / BACKBONE_FILE))
     return plots
+
+
+PREDICTION_FILES = ("frf.png", "residuals.png")
+
+
+def write_prediction_report(comp: Comparison, runs: Sequence[SineRun], comparisons: list[BackboneComparison],
+                            folder: Path, overwrite: bool = False,
+                            tags: dict[str, str] | None = None) -> list[Path]:
+    """The plots of a prediction with nothing refitted (``contactid predict``): PREDICTION_FILES, and
+    BACKBONE_FILE where the session has response levels; refused as :func:`write_report` refuses."""
+    from app.session.outputs import check_output
+
+    names = PREDICTION_FILES + ((BACKBONE_FILE,) if comparisons else ())
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        check_output(folder / name, overwrite=overwrite, field=None, overwrite_flag="--overwrite")
+    frf, residuals = (folder / name for name in PREDICTION_FILES)
+    plots = [plot_frfs(comp, runs, frf, _drive_point(runs), tags), plot_residuals(comp, runs, residuals, tags)]
+    if comparisons:
+        plots.append(plot_backbones(comparisons, folder / BACKBONE_FILE))
+    return plots
+
+
+def _drive_point(runs: Sequence[SineRun]) -> str:
+    """The sensor the FRF plot shows: the drive point where it is measured, else the first sensor."""
+    first = runs[0]
+    return first.excitation_dof if first.excitation_dof in first.sensor_dofs else first.sensor_dofs[0]

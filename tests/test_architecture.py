@@ -130,7 +130,7 @@ def test_imports_follow_the_layering():
     assert wrong == []
 
 
-COMMANDS = {"app.cli", "app.analyze", "app.demo", "app.export", "app.report"}
+COMMANDS = {"app.cli", "app.analyze", "app.demo", "app.export", "app.predict", "app.report"}
 
 
 def _room(module: str) -> str:

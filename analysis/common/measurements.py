@@ -6,7 +6,7 @@ docs/contracts.md §1.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -47,6 +47,11 @@ class Control:
     def key(self) -> tuple:
         """Runs of one level (both sweep directions) share this key."""
         return (self.mode, self.dof if self.mode == "response" else "", self.quantity, round(self.target, 12))
+
+    def order(self) -> tuple:
+        """Where the level stands in every list of levels: force-controlled levels first by force, then the
+        others by their control DOF, quantity and target (the order ``--fit-levels`` numbers them in)."""
+        return (self.mode != "force", self.key())
 
     def to_json(self) -> dict:
         return {"control": self.mode, "control_dof": self.dof, "control_quantity": self.quantity,
@@ -227,6 +232,20 @@ class Measurements:
     @property
     def levels(self) -> list[float]:
         return sorted({round(r.force, 12) for r in self.sine})
+
+    def level_controls(self) -> list[Control]:
+        """One Control per stepped-sine level (both sweep directions share it), in :meth:`Control.order`."""
+        return sorted({r.control.key(): r.control for r in self.sine}.values(), key=Control.order)
+
+    def at_levels(self, keys: set[tuple]) -> "Measurements":
+        """The measurements a fit restricted to some levels sees: the stepped-sine runs of the levels whose
+        :meth:`Control.key` is in ``keys``, and the random run (the linear reference, not a level). The
+        phase-resonance runs are left out: their points span the same amplitudes, and a level held out must not
+        be seen through them."""
+        sine = [r for r in self.sine if r.control.key() in keys]
+        names = {r.name for r in sine}
+        return replace(self, sine=sine, phase=[], unfinished=[n for n in self.unfinished if n.run in names],
+                       unresolved=[n for n in self.unresolved if n.run in names])
 
     def dofs(self) -> set[str]:
         out = set()

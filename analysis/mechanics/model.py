@@ -7,6 +7,14 @@ values) and optionally ``[updating]`` naming the structure parameters that are u
     parameters = ["springs[1].k", "youngs_modulus"]   # paths into [structure]
     modes = [1, 2, 3]                                  # measured modes to match (default 1..len(parameters)+)
 
+A fitted model also says what it was fitted to, so that a prediction of the same session can tell the levels it
+saw from those it did not (``contactid predict``, docs/workbench.md §6)::
+
+    [fitted]
+    session = "beam.h5"                                 # the session's file name
+    session_created = "2026-11-30T10:12:03+00:00"       # the session's ``created`` attribute: which session
+    levels = ["0.2 N", "0.8 N"]                         # the levels the fit used (their labels)
+
 :meth:`Model.to_toml` writes a model back (fitted values, updated structure) in the same format.
 """
 from __future__ import annotations
@@ -26,7 +34,29 @@ from .surroundings import surroundings_of
 # file -- its laws' values are read as starting values -- so a model file may carry them; they are not read.
 RIG_TABLES = frozenset({"name", "structure", "element", "excitation", "sensors", "noise", "shaker", "daq",
                         "generator", "simulation", "faults"})
-MODEL_TABLES = frozenset({"structure", "element", "updating"})
+MODEL_TABLES = frozenset({"structure", "element", "updating", "fitted"})
+
+
+@dataclass(frozen=True)
+class FittedOn:
+    """The session and levels a model's values were fitted to (the ``[fitted]`` table): ``created`` is the
+    session's ``created`` attribute, which tells one session from another whatever its file is called;
+    ``levels`` are the labels of the levels the fit used (:meth:`analysis.common.measurements.Control.label`)."""
+
+    session: str
+    created: str
+    levels: tuple[str, ...]
+
+    def saw(self, created: str, label: str) -> bool | None:
+        """Whether the fit used level ``label`` of the session created at ``created``: None where the model
+        was fitted to another session (every level of it is unseen, but not a level held out of the fit)."""
+        if created != self.created:
+            return None
+        return label in self.levels
+
+    def to_toml(self) -> list[str]:
+        return ["[fitted]", f"session = {_toml_value(self.session)}",
+                f"session_created = {_toml_value(self.created)}", f"levels = {_toml_value(list(self.levels))}"]
 
 
 @dataclass
@@ -39,6 +69,7 @@ class Model:
     updating_parameters: list[str] = field(default_factory=list)
     updating_modes: list[int] | None = None
     source: str | None = None
+    fitted_on: FittedOn | None = None
 
     def __post_init__(self):
         self.place_elements(keep=True)
@@ -62,7 +93,7 @@ class Model:
                      [Element(e.name, e.dofs, [LawTerm(t.law, dict(t.values)) for t in e.laws], e.nonparametric,
                              e.surroundings)
                       for e in self.elements],
-                     list(self.updating_parameters), self.updating_modes, self.source)
+                     list(self.updating_parameters), self.updating_modes, self.source, self.fitted_on)
 
     def with_structure(self, table: dict) -> "Model":
         m = self.copy()
@@ -99,6 +130,8 @@ class Model:
             out.append(f"laws = [{laws}]")
             if el.nonparametric is not None:
                 out.append(f"{NONPARAMETRIC} = {_toml_value(el.nonparametric.to_toml())}")
+        if self.fitted_on is not None:
+            out += [""] + self.fitted_on.to_toml()
         return "\n".join(out) + "\n"
 
 
@@ -141,4 +174,13 @@ def load_model(document: dict, source: str | None = None) -> Model:
             if not isinstance(raw, list) or not all(isinstance(m, int) and m >= 1 for m in raw):
                 raise up.error("modes", "must be a list of mode numbers (1 = lowest)")
             modes = list(raw)
-    return Model(copy.deepcopy(structure_table), structure, elements, params, modes, source)
+    return Model(copy.deepcopy(structure_table), structure, elements, params, modes, source, _fitted_on(root))
+
+
+def _fitted_on(root: Fields) -> FittedOn | None:
+    if not root.has("fitted"):
+        return None
+    t = root.sub("fitted")
+    t.where = "[fitted]"
+    t.unknown_keys({"session", "session_created", "levels"})
+    return FittedOn(t.string("session"), t.string("session_created"), tuple(t.strings("levels")))

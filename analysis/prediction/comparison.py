@@ -409,8 +409,7 @@ def _scored(runs, predicted, converged, compared, other_branch, jumps, multiharm
     n_obs = 0
     for run in runs:
         diff = compared[run.name] - run.receptance
-        line_num = np.sum(np.abs(diff) ** 2, axis=1)
-        line_den = np.sum(np.abs(run.receptance) ** 2, axis=1)
+        line_num, line_den = _line_sums(run, compared[run.name])
         residual_map[run.name] = np.sqrt(line_num / line_den)
         rn, rd = float(line_num.sum()), float(line_den.sum())
         num, den = num + rn, den + rd
@@ -427,6 +426,23 @@ def _scored(runs, predicted, converged, compared, other_branch, jumps, multiharm
                       residual_map, predicted, converged, chi2 if have_std else None, n_obs,
                       compared, other_branch, jumps, multiharmonic or {},
                       capped if have_std and blind else None)
+
+
+def _line_sums(run: SineRun, compared: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per line, the numerator and denominator of the relative FRF error: ``sum_p |h_pred - h_meas|^2`` and
+    ``sum_p |h_meas|^2`` over the sensors (module docstring)."""
+    return (np.sum(np.abs(compared - run.receptance) ** 2, axis=1),
+            np.sum(np.abs(run.receptance) ** 2, axis=1))
+
+
+def error_over(comp: Comparison, runs: Sequence[SineRun]) -> float:
+    """The relative FRF error of ``comp`` restricted to ``runs`` (their lines pooled, as ``error`` pools every
+    run); NaN for no runs."""
+    num = den = 0.0
+    for run in runs:
+        line_num, line_den = _line_sums(run, comp.compared[run.name])
+        num, den = num + float(line_num.sum()), den + float(line_den.sum())
+    return float(np.sqrt(num / den)) if den else float("nan")
 
 
 def chi_square_falls(base: Comparison, comp: Comparison, dof: float, false_alarm: float) -> bool:
@@ -446,7 +462,7 @@ def _level_errors(levels) -> list[LevelError]:
     first by force, then the others by their control DOF, quantity and target."""
     out = [LevelError(float(run.force) if run.control.mode != "force" else run.control.target,
                       float(np.sqrt(num / den)), run.control) for num, den, run in levels]
-    return sorted(out, key=lambda e: (e.control.mode != "force", e.control.key()))
+    return sorted(out, key=lambda e: e.control.order())
 
 
 def _jumps(run: SineRun, pred: RunPrediction, other: np.ndarray) -> list[Jump]:

@@ -19,6 +19,7 @@ lines; they are kept in the session's provenance but not interpreted.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 from analysis.common.errors import InputError
@@ -87,6 +88,8 @@ def _id3(tag: RecordTag, created: str, where: str) -> str:
     """The creation time, then a random run's sample rate and segment length and a level's control (the time
     is shortened, never they: they decide the analysis's leakage allowance and the level's label)."""
     words = control_words(tag.control, where) if tag.control else []
+    # to the second: a reader of the line needs no more, and the width is the tags'
+    created = re.sub(r"(T\d\d:\d\d:\d\d)\.\d+", r"\1", created)
     if tag.sample_rate and tag.segment_length:
         words = [f"sample_rate={float(tag.sample_rate)!r}", f"segment_length={int(tag.segment_length)}", *words]
     if not words:

@@ -58,8 +58,8 @@ class SessionWriteError(RuntimeError):
     """The session file could not be written (full disk, unwritable path, removed medium)."""
 
 
-def now_iso() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).astimezone().isoformat(timespec="seconds")
+def now_iso(timespec: str = "seconds") -> str:
+    return _dt.datetime.now(_dt.timezone.utc).astimezone().isoformat(timespec=timespec)
 
 
 def append_event(events: h5py.Dataset, seconds: float, run: str, kind: str, message: str) -> None:
@@ -142,7 +142,8 @@ class SessionFile:
             with h5py.File(self.temporary, "w", libver="latest") as f:
                 f.attrs["format"] = FORMAT
                 f.attrs["format_version"] = FORMAT_VERSION
-                f.attrs["created"] = now_iso()
+                # to the microsecond: a fitted model names its session by it (docs/session-format.md)
+                f.attrs["created"] = now_iso("microseconds")
                 f.attrs["software_version"] = header.software_version
                 f.attrs["writer_host"] = socket.gethostname()
                 f.attrs["writer_pid"] = os.getpid()

@@ -1,0 +1,67 @@
+"""How well a model's laws predict levels their fit did not see: two-fold cross-validation over the levels
+(docs/workbench.md §6).
+
+The levels, in :meth:`analysis.common.measurements.Control.order`, are split in halves two ways: alternate
+(1, 3, 5, ... and 2, 4, 6, ...), so that the check asks for interpolation between levels, and lower against upper,
+so that it asks for extrapolation both ways, beyond the levels seen, which is what a law is for and where a law
+that fits its own lines fails first. For each half the model's laws -- the same laws, their current values as starting values -- are refitted on
+that half alone by a fresh workbench (reference, identification, fit), and the fitted model predicts every level
+of the session with nothing refitted (:func:`analysis.prediction.held_out.predict_session`). A fold's held-out
+error against its fitted error says what the in-sample error alone cannot: whether the model describes its own
+lines or the joint.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from ..mechanics.model import FittedOn
+from ..prediction.held_out import FITTED, HELD_OUT, SessionPrediction, predict_session
+from .workbench import Workbench
+
+
+@dataclass(frozen=True)
+class Fold:
+    """One half: ``levels`` the labels it was fitted on, ``prediction`` of every level by the refitted model."""
+
+    levels: tuple[str, ...]
+    prediction: SessionPrediction
+
+    @property
+    def fitted_error(self) -> float:
+        return self.prediction.error_of(FITTED)
+
+    @property
+    def held_out_error(self) -> float:
+        return self.prediction.error_of(HELD_OUT)
+
+    @property
+    def ratio(self) -> float:
+        return self.held_out_error / self.fitted_error if self.fitted_error > 0 else float("inf")
+
+
+def cross_validate(wb: Workbench, created: str) -> list[Fold]:
+    """The folds (up to four) of ``wb``'s model on ``wb``'s measurements (a session created at ``created``); none for a
+    session with fewer than two stepped-sine levels (nothing to hold out)."""
+    controls = wb.measurements.level_controls()
+    if len(controls) < 2:
+        return []
+    folds = []
+    for half in _halves(controls):
+        labels = tuple(c.label() for c in half)
+        fold = Workbench(wb.model, wb.measurements.at_levels({c.key() for c in half}), wb.distortion_limit,
+                         wb.harmonics)
+        fold.start()
+        fitted = replace(fold.model, fitted_on=FittedOn("", created, labels))
+        folds.append(Fold(labels, predict_session(fitted, wb.measurements, created, wb.harmonics)))
+    return folds
+
+
+def _halves(controls: list) -> list[list]:
+    """Alternate halves, then the lower and upper halves (the lower taking the middle level of an odd count);
+    a split that repeats an earlier one is left out."""
+    middle = (len(controls) + 1) // 2
+    out = []
+    for half in (controls[0::2], controls[1::2], controls[:middle], controls[middle:]):
+        if half and all({c.key() for c in half} != {c.key() for c in h} for h in out):
+            out.append(half)
+    return out
