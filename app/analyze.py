@@ -9,9 +9,11 @@ from typing import Callable
 import numpy as np
 
 from analysis.loop.auto import AutoResult, AutoStep, run_auto
+from analysis.mechanics.admissibility import Admissibility, admissibility
 from analysis.prediction.backbone import BackboneComparison, ModalError, compare_backbones, modal_error
 from analysis.prediction.comparison import gain_phrase
 from analysis.common.errors import InputError
+from analysis.common.statistics import OUTLIER_SHARE_LIMIT
 from analysis.signals.frf_noise import METHOD as NOISE_METHOD
 from analysis.missing.misfit import Misfit, systematic_misfits
 from analysis.common.measurements import Measurements
@@ -198,6 +200,52 @@ def element_misfits(wb: Workbench, element) -> list[Misfit]:
                               s.units)
 
 
+def model_admissibility(wb: Workbench) -> Admissibility | None:
+    """The fitted model's admissibility (analysis/mechanics/admissibility.py) at every identified line, each element
+    at its amplitude there; None before anything is identified. The elements' samples are line by line alike
+    (a line is kept for all elements or for none); where they are not, each element is checked alone."""
+    samples = [wb.reports[el.name].samples if el.name in wb.reports else None for el in wb.model.elements]
+    if any(s is None for s in samples):
+        return None
+    structure = wb.model.structure
+    vectors = [el.vector(structure) for el in wb.model.elements]
+    functions = [el.describing_function for el in wb.model.elements]
+    if len({len(s.X) for s in samples}) == 1 and all(np.array_equal(s.w, samples[0].w) for s in samples):
+        return admissibility(structure, vectors, functions, np.stack([s.X for s in samples], axis=1), samples[0].w)
+    alone = [admissibility(structure, [v], [f], s.X[:, None], s.w) for v, f, s in zip(vectors, functions, samples)]
+    return Admissibility(*(np.concatenate([getattr(a, name) for a in alone])
+                           for name in ("amplitude", "w", "dissipation", "stiffness")))
+
+
+def admissibility_text(check: Admissibility | None) -> list[str]:
+    """What the admissibility check found, in the words of the analysis report."""
+    if check is None:
+        return []
+    n = len(check.w)
+    if check.admissible:
+        return [f"physically admissible at all {n} identified lines: the model dissipates energy at every motion "
+                "(passive) and its static stiffness stays positive"]
+    out = []
+    for flagged, what in ((check.active, "gives energy back to the structure (NOT PASSIVE): the dissipation "
+                                         "w C + sum Im kbar v v^T has a negative eigenvalue; no joint does that"),
+                          (check.buckled, "has a negative static stiffness (K + sum Re kbar v v^T): the structure "
+                                          "would not stand")):
+        if flagged.any():
+            f = check.w[flagged] / (2 * np.pi)
+            out.append(f"at {int(flagged.sum())} of {n} identified lines ({f.min():.5g}-{f.max():.5g} Hz) the model "
+                       f"{what}")
+    return out
+
+
+def admissibility_json(check: Admissibility | None) -> dict:
+    """The ``admissibility`` entry of ``analyze --json`` (docs/contracts.md §6)."""
+    if check is None:
+        return {"admissibility": None}
+    return {"admissibility": {"passive": check.passive, "statically_stiff": check.stiff, "lines": len(check.w),
+                              "lines_not_passive": int(check.active.sum()),
+                              "lines_negative_stiffness": int(check.buckled.sum())}}
+
+
 def misfits_json(wb: Workbench) -> dict:
     """The ``misfits`` entry of ``analyze --json`` (docs/contracts.md §6)."""
     return {"misfits": [m.to_json() for el in wb.model.elements for m in element_misfits(wb, el)]}
@@ -263,9 +311,16 @@ def report_text(wb: Workbench, candidates, top: int = 5,
         if r.fit is not None:
             out += [f"    {d}" for d in r.fit.degeneracies] + [f"    {c}" for c in r.fit.correlated]
             left_out = r.excluded_hz()
-            if left_out:
+            if not r.fit.describes_the_data:
+                out.append(f"    NOT A FIT OF THE DATA: the laws leave {len(left_out)} of {r.lines_used} lines "
+                           f"({100 * r.fit.outlier_share:.0f} %) beyond the outlier limit, more than the "
+                           f"{100 * OUTLIER_SHARE_LIMIT:.0f} % a fit may leave out: so many are not outliers but "
+                           "the data, which these laws do not describe; the values above rest on the rest: "
+                           + frequency_ranges(left_out))
+            elif left_out:
                 out.append(f"    {len(left_out)} line(s) left out of the fit, their kbar not following the fitted "
-                           "laws (outliers): " + ", ".join(f"{f:.4g}" for f in left_out) + " Hz")
+                           "laws (outliers): " + frequency_ranges(left_out))
+    out += [f"  {line}" for line in admissibility_text(model_admissibility(wb))]
     comp = wb.compare()
     out.append("")
     single = wb.single_harmonic_comparison().error
@@ -303,6 +358,24 @@ def report_text(wb: Workbench, candidates, top: int = 5,
             elif c.by_modes:
                 out.append(f"    significant: {c.by_modes}")
     return "\n".join(out)
+
+
+def frequency_ranges(hz: list[float]) -> str:
+    """Frequencies as the ranges they fill: ``79-79.6 Hz (26 lines), 80.25 Hz`` -- a run of lines no further apart
+    than 1.5 times the closest spacing is one range (the same line of several levels counts once per level)."""
+    f = np.sort(np.round(np.asarray(hz, float), 6))       # one line of several levels: one frequency to a µHz
+    unique = np.unique(f)
+    if len(unique) == 0:
+        return ""
+    step = np.diff(unique).min() if len(unique) > 1 else 0.0
+    breaks = np.flatnonzero(np.diff(unique) > 1.5 * step) if step > 0 else np.array([], int)
+    parts = []
+    for lo, hi in zip(np.r_[0, breaks + 1], np.r_[breaks, len(unique) - 1]):
+        a, b = unique[lo], unique[hi]
+        n = int(((f >= a) & (f <= b)).sum())
+        parts.append(f"{a:.5g} Hz ({n} line{'s' if n > 1 else ''})" if a == b else
+                     f"{a:.5g}-{b:.5g} Hz ({n} lines)")
+    return ", ".join(parts)
 
 
 def _param_text(name: str, value: float, fitted) -> str:

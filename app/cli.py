@@ -262,8 +262,9 @@ def cmd_analyze(args) -> int:
 
     from analysis.mechanics.model import FittedOn
     from analysis.prediction.held_out import predict_session
-    from app.analyze import (backbones, backbones_json, misfits_json, read_measurements, reference_only,
-                             report_text, run_workbench, run_workbench_auto, session_notes, store_history)
+    from app.analyze import (admissibility_json, backbones, backbones_json, misfits_json, model_admissibility,
+                             read_measurements, reference_only, report_text, run_workbench, run_workbench_auto,
+                             session_notes, store_history)
     from analysis.loop.cross_check import cross_validate
     from app.predict import (cross_validation_json, cross_validation_text, parse_levels, prediction_json,
                              prediction_text, session_created)
@@ -320,7 +321,7 @@ def cmd_analyze(args) -> int:
         if folds is not None:
             extra["cross_validation"] = cross_validation_json(folds)
         print(json.dumps({**wb.to_json(candidates), **misfits_json(wb), **backbones_json(modal), **notes.to_json(),
-                          **extra}, indent=1, default=float))
+                          **admissibility_json(model_admissibility(wb)), **extra}, indent=1, default=float))
     else:
         if auto is not None:
             print(auto.text() + "\n")

@@ -17,6 +17,11 @@ import scipy.stats
 
 #: Probability that a clean set of samples, with the right standard deviations, loses one as an outlier.
 OUTLIER_FALSE_ALARM = 0.01
+# The largest share of the samples a fit may leave out as outliers and still be a fit of the data. At the false
+# alarm above a clean set loses a sample once in a hundred fits: outliers are rare lines a describing function
+# cannot follow (a contact closing, friction sticking, a line the controller did not settle). When more than a
+# tenth of the lines depart, they are not exceptions but the data, and the laws do not describe them.
+OUTLIER_SHARE_LIMIT = 0.10
 
 _TINY = 1e-300
 

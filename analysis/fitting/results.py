@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..common.statistics import OUTLIER_SHARE_LIMIT
 from ..laws import Law
 from ..mechanics.elements import LawTerm
 from ..mechanics.surroundings import Surroundings, placed_kbar
@@ -234,6 +235,17 @@ class LawFit:
     notes: list[str] = field(default_factory=list)
     correlated: list[Correlation] = field(default_factory=list)
     excluded: np.ndarray | None = None
+
+    @property
+    def outlier_share(self) -> float:
+        """The share of the samples left out as outliers (0 for a fit that leaves none out)."""
+        return float(np.mean(self.excluded)) if self.excluded is not None and len(self.excluded) else 0.0
+
+    @property
+    def describes_the_data(self) -> bool:
+        """At most OUTLIER_SHARE_LIMIT of the samples left out (:data:`analysis.common.statistics.OUTLIER_SHARE_LIMIT`):
+        beyond it the laws follow a part of the data, and the fit is no description of the element."""
+        return self.outlier_share <= OUTLIER_SHARE_LIMIT
 
     @property
     def reduced_chi_square(self) -> float:

@@ -72,6 +72,8 @@ class ElementReport:
             out["not_identifiable"] = [d.to_json() for d in self.fit.degeneracies]
             out["correlated"] = [c.to_json() for c in self.fit.correlated]
             out["lines_excluded_hz"] = self.excluded_hz()
+            out["lines_excluded_share"] = self.fit.outlier_share
+            out["fit_describes_data"] = self.fit.describes_the_data
         if element.nonparametric is not None:
             out[NONPARAMETRIC] = element.nonparametric.to_toml()
         return out

@@ -69,6 +69,7 @@ from ..common.statistics import (capped_chi_square, charged_criterion, chi_squar
 from ..fitting.fit import UNDETERMINED_Z, LawFit, TermFit, fit_laws, unit_exponents
 from ..fitting.friction_fundamental import chi_square_with_friction_turn, holds_friction
 from ..laws import LAWS
+from ..mechanics.admissibility import admissibility
 from ..mechanics.nonparametric import fit_nonparametric
 from ..mechanics.surroundings import Surroundings
 from ..missing.diagnosis import ElementSamples, RankingRules, explain, frf_criterion, signature, tied_parameters
@@ -209,6 +210,7 @@ class _Search:
     by_size: dict[int, list[LawSet]]   # the shortlist of each number of laws (:func:`_shortlists`)
     overruled: str = ""                # why the linearity verdict was set aside (:func:`_verdict_overruled`)
     tied: list[LawSet] = field(default_factory=list)   # sets with a law tied to another's: named, never chosen
+    refused: list[LawSet] = field(default_factory=list)  # sets no discovery may take (:func:`_refusal`)
 
     @property
     def best(self) -> LawSet:
@@ -360,14 +362,36 @@ def search_element(index: int, samples: ElementSamples, linear_verdict: bool,
                 keep(_fit_set(samples, laws, rules, robust, start=_warm_start(laws, by_laws)))
     if around is not None:
         _place_contacts(by_laws, samples, rules, robust, around)
-    sets += list(by_laws.values())
+    refused = [s for s in by_laws.values() if _refusal(s, samples, around)]
+    sets += [s for s in by_laws.values() if not any(s is r for r in refused)]
     n_obs = 2 * len(samples.X)
     scale = _scale(sets, n_obs)
     for s in sets + tied:
         s.criterion = charged_criterion(s.chi_square, s.n_parameters, n_obs, scale)
     sets.sort(key=lambda s: s.criterion)
     tied.sort(key=lambda s: s.criterion)
-    return _Search(index, samples, sets, scale, _shortlists(sets, rules.walk_width), tied=tied)
+    return _Search(index, samples, sets, scale, _shortlists(sets, rules.walk_width), tied=tied, refused=refused)
+
+
+def _refusal(s: LawSet, samples: ElementSamples, around: Surroundings | None) -> str:
+    """Why a fitted set is no discovery however it scores ('' where nothing): its fit leaves out more than
+    OUTLIER_SHARE_LIMIT of the samples as outliers (it describes a part of the data, not the element), or the
+    structure with the element at its fitted laws is not admissible at the samples' states -- it would give energy
+    back, or lose its static stiffness (analysis/mechanics/admissibility.py). The element is judged in the
+    reference alone, the other elements absent: their laws are not known yet, and a joint's own laws must not
+    rest on another's damping."""
+    if s.fit is None:
+        return ""
+    if not s.fit.describes_the_data:
+        return f"its fit leaves {100 * s.fit.outlier_share:.0f} % of the lines out as outliers"
+    if around is None:
+        return ""
+    check = admissibility(around.structure, [around.vector], [s.describing_function], samples.X[:, None], samples.w)
+    if not check.passive:
+        return "the element would give energy back to the structure (not passive)"
+    if not check.stiff:
+        return "the structure's static stiffness would turn negative"
+    return ""
 
 
 @dataclass(frozen=True)
