@@ -260,14 +260,13 @@ def cmd_analyze(args) -> int:
 
     from dataclasses import replace
 
-    from analysis.mechanics.model import FittedOn
     from analysis.prediction.held_out import predict_session
     from app.analyze import (admissibility_json, backbones, backbones_json, misfits_json, model_admissibility,
                              read_measurements, reference_only, report_text, run_workbench, run_workbench_auto,
                              session_notes, store_history)
     from analysis.loop.cross_check import cross_validate
-    from app.predict import (cross_validation_json, cross_validation_text, parse_levels, prediction_json,
-                             prediction_text, session_created)
+    from app.predict import (cross_validation_json, cross_validation_text, fitted_on, parse_levels, prediction_json,
+                             prediction_text)
     from app.progress import Progress
     from app.session.outputs import check_output, require_free_space
 
@@ -304,9 +303,9 @@ def cmd_analyze(args) -> int:
     if not args.no_history:
         store_history(args.session, wb, args.model, notes)
     modal = backbones(wb)
-    created = session_created(args.session)
-    fitted = replace(wb.model, fitted_on=FittedOn(Path(args.session).name, created,
-                                                  tuple(c.label() for c in measurements.level_controls())))
+    provenance = fitted_on(args.session, measurements)
+    created = provenance.created
+    fitted = replace(wb.model, fitted_on=provenance)
     # the levels the fit did not see, predicted by the fitted model as it is
     held_out = None if args.fit_levels is None else predict_session(fitted, session, created, wb.harmonics)
     folds = None

@@ -2,11 +2,13 @@
 prediction, which ``analyze --fit-levels`` prints too (docs/workbench.md §6)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import Control, Measurements
-from analysis.mechanics.model import Model, load_model
+from analysis.mechanics.model import FittedOn, Model, load_model
 from analysis.common.tables import load_toml
 from analysis.loop.cross_check import Fold
 from analysis.prediction.comparison import HarmonicCriterion
@@ -22,6 +24,13 @@ def session_created(session_path) -> str:
     """The session's ``created`` attribute: what tells it from another session of the same name."""
     with open_session(session_path) as s:
         return str(s.attrs.get("created", ""))
+
+
+def fitted_on(session_path, measurements: Measurements) -> FittedOn:
+    """What a model fitted to ``measurements`` of the session at ``session_path`` says it was fitted to (the
+    ``[fitted]`` table, docs/contracts.md §4): the session's file name and ``created``, the levels' labels."""
+    return FittedOn(Path(session_path).name, session_created(session_path),
+                    tuple(c.label() for c in measurements.level_controls()))
 
 
 def run_predict(session_path, model_path, measurements: Measurements | None = None) -> tuple[Model, SessionPrediction]:

@@ -236,3 +236,29 @@ def test_cross_validation_tells_a_law_that_follows_the_amplitude_from_one_that_f
     assert main(["analyze", str(sessions / "duffing.h5"), str(sessions / "linear.toml"), "--no-history",
                  "--cross-validate"]) == 0
     assert "describes its own levels better than it predicts others" in capsys.readouterr().out
+
+
+def test_the_model_tab_predicts_with_nothing_refitted_and_saves_what_it_was_fitted_to(fitted_low, qtbot, tmp_path):
+    from app.gui.main_window import MainWindow
+
+    window = MainWindow("test")
+    qtbot.addWidget(window)
+    window.lab.load_model_file(str(fitted_low / "linear_low.toml"))
+    window.lab.open_session(str(fitted_low / "duffing.h5"))
+    panel = window.model
+    assert panel.predict_button.isEnabled()
+    with qtbot.waitSignal(window.lab.predictionUpdated, timeout=60000) as shown:
+        panel.predict_button.click()
+    prediction = shown.args[0].prediction
+    assert panel.error_label.text() == (f"Prediction, nothing refitted: fitted levels "
+                                        f"{prediction.errors['fitted']:.3g}; held out levels "
+                                        f"{prediction.errors['held_out']:.3g}")
+    assert "better than it predicts others" in panel.explanation.toPlainText()
+    names = [item.text for _, item in panel.frf.legend.items]
+    assert "0.0016 m at x up · x (held out)" in names and "0.0004 m at x up · x (fitted)" in names
+    # analysed in the window, the model it saves names the session and levels it was fitted to
+    window.lab.load_model_file(str(fitted_low / "cubic.toml"))
+    with qtbot.waitSignal(window.lab.analysisUpdated, timeout=60000):
+        panel.analyze_button.click()
+    saved = tomllib.loads(window.lab.analysis.model_toml)
+    assert saved["fitted"]["session"] == "duffing.h5" and len(saved["fitted"]["levels"]) == len(AMPLITUDES)

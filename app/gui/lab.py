@@ -20,7 +20,8 @@ from PySide6.QtCore import QObject, QTimer, Signal
 
 from analysis.loop.auto import run_auto
 from analysis.common.errors import InputError
-from analysis.mechanics.model import Model, load_model
+from analysis.mechanics.model import FittedOn, Model, load_model
+from analysis.prediction.held_out import predict_session
 from analysis.common.tables import load_toml
 from analysis.loop.workbench import Workbench
 from drivers import InstrumentError
@@ -30,11 +31,13 @@ from drivers.simulation.rig import Rig, load_rig
 from app.campaign import (CampaignSummary, Instruments, Plan, check_against_instruments, emulated_instruments,
                           parse_plan, real_instruments)
 from app.export import export_csv, export_uff
+from app.predict import fitted_on, prediction_text, session_created
 from app.session import Session, atomic_output, measurements_from_session, open_session
 from ..importers.store import ImportRequest, ImportResult, import_files
 from .live import CampaignFeed, LinkCounters, LiveSession, SignalRing
 from .plan_doc import plan_toml
-from .results import AnalysisView, IdentificationView, analysis_view, identification_of, identification_view
+from .results import (AnalysisView, IdentificationView, PredictionView, analysis_view, identification_of,
+                      identification_view)
 from .workers import CampaignThread, TaskRunner
 
 log = logging.getLogger("contactid.gui")
@@ -86,6 +89,7 @@ class Lab(QObject):
     identificationUpdated = Signal(object)     # IdentificationView
     analysisUpdated = Signal(object)           # AnalysisView
     analysisBusy = Signal(bool)
+    predictionUpdated = Signal(object)         # PredictionView
     autoProgress = Signal(str)                 # a line of the automatic loop as it is taken
     instrumentsBusy = Signal(bool)
     error = Signal(str)
@@ -126,6 +130,7 @@ class Lab(QObject):
         self.analysis: AnalysisView | None = None
         self.identification: IdentificationView | None = None
         self._workbench: tuple[int, Workbench] | None = None     # touched by analysis tasks only
+        self._fitted_on: FittedOn | None = None                   # the analysed session and levels, for the saved model
         self._generation = 0                                      # bumped when the session or model changes
         self._closed = False
         # coalesces identification requests; its interval is the least time between two live identifications
@@ -511,12 +516,38 @@ class Lab(QObject):
         if reader is None:
             raise InputError("open a session or run a campaign first")
 
+        path = None if self.campaign_running else self.session_path
+
         def task():
-            wb = Workbench(model, reader())
+            measurements = reader()
+            wb = Workbench(model, measurements)
             wb.start()
             self._workbench = (generation, wb)
+            self._fitted_on = None if path is None else fitted_on(path, measurements)
             return self._view(wb)
         self.analysis_tasks.submit(task, lambda view: self._analysis_done(view, generation))
+
+    def predict(self) -> None:
+        """The open session predicted by the current model as it is, nothing refitted (as ``contactid
+        predict``): each level's error, the levels the model's ``[fitted]`` table says the fit did not see marked
+        held out. Sent as ``predictionUpdated``."""
+        reader, model, generation = self._measurement_reader(), self.model, self._generation
+        if model is None:
+            raise InputError("open a fitted model first (Model tab)")
+        if reader is None or self.session_path is None or self.campaign_running:
+            raise InputError("open a session first: a prediction compares a fitted model with a finished test")
+        path = self.session_path
+
+        def task():
+            measurements = reader()
+            prediction = predict_session(model, measurements, session_created(path))
+            return PredictionView(prediction_text(prediction, Path(path).name, self.model_label), prediction,
+                                  list(measurements.sine))
+
+        def done(view):
+            if generation == self._generation:
+                self.predictionUpdated.emit(view)
+        self.analysis_tasks.submit(task, done)
 
     def add_law(self, element: str, law: str) -> None:
         """Add a law to an element, refit it and rank again."""
@@ -536,7 +567,7 @@ class Lab(QObject):
         def loop(wb):
             return run_auto(wb, progress=lambda step: self.autoProgress.emit(step.line()),
                             note=self.autoProgress.emit, stop=self._auto_stop.is_set)
-        self._on_workbench(loop, lambda wb, result: analysis_view(wb, result.candidates, result))
+        self._on_workbench(loop, lambda wb, result: analysis_view(wb, result.candidates, result, self._fitted_on))
 
     def stop_auto(self) -> None:
         """End the automatic loop before its next step (the steps taken stay)."""
@@ -555,9 +586,8 @@ class Lab(QObject):
             return self._view(wb) if view is None else view(wb, done)
         self.analysis_tasks.submit(task, lambda v: self._analysis_done(v, generation))
 
-    @staticmethod
-    def _view(wb: Workbench) -> AnalysisView:
-        return analysis_view(wb, wb.candidates())
+    def _view(self, wb: Workbench) -> AnalysisView:
+        return analysis_view(wb, wb.candidates(), fitted_on=self._fitted_on)
 
     def _analysis_done(self, view: AnalysisView, generation: int) -> None:
         if generation != self._generation:

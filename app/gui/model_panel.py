@@ -5,6 +5,8 @@ button for their non-parametric part (docs/nonparametric.md), the error history 
 are added) and undo."""
 from __future__ import annotations
 
+import html
+
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt
@@ -14,10 +16,11 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxL
 
 from analysis.prediction.comparison import gain_phrase
 from analysis.mechanics.nonparametric import NAME as NONPARAMETRIC
+from app.predict import KIND_WORDS
 
 from .lab import Lab, save_text
 from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol
-from .results import AnalysisView
+from .results import AnalysisView, PredictionView
 
 CANDIDATE_COLUMNS = ("Element", "Law", "Error after (1 harmonic)", "Gain", "Significant", "")
 
@@ -48,10 +51,16 @@ class ModelPanel(QWidget):
         self.analyze_button.setStyleSheet("font-weight:bold")
         self.analyze_button.setToolTip("Identify, fit the laws, predict every run, rank the missing effects")
         self.analyze_button.clicked.connect(lambda: self.lab.act(self.lab.analyze))
+        self.predict_button = QPushButton("Predict")
+        self.predict_button.setToolTip("Predict the open session with the model as it is, nothing refitted: each "
+                                       "level's error, the levels a fitted model did not see marked held out "
+                                       "(as contactid predict)")
+        self.predict_button.clicked.connect(lambda: self.lab.act(self.lab.predict))
         self.undo_button = QPushButton("Undo")
         self.undo_button.setToolTip("Take back the last added law")
         self.undo_button.clicked.connect(lambda: self.lab.act(self.lab.undo))
-        for b in (self.open_button, self.starter_button, self.save_button, self.analyze_button, self.undo_button):
+        for b in (self.open_button, self.starter_button, self.save_button, self.analyze_button, self.predict_button,
+                  self.undo_button):
             bar.addWidget(b)
         layout.addLayout(bar)
         self.error_label = QLabel("FRF error: — (press Analyze)")
@@ -136,6 +145,7 @@ class ModelPanel(QWidget):
         splitter.setSizes([520, 900])
 
         lab.analysisUpdated.connect(self._update)
+        lab.predictionUpdated.connect(self._show_prediction)
         lab.analysisBusy.connect(self._show_busy)
         lab.modelChanged.connect(self._model_changed)
         lab.sessionChanged.connect(self._update_enabled)
@@ -214,6 +224,8 @@ class ModelPanel(QWidget):
         busy = self.lab.analysis_tasks.busy
         have_view = self.view is not None
         self.analyze_button.setEnabled(not busy and self.lab.model is not None)
+        self.predict_button.setEnabled(not busy and self.lab.model is not None and self.lab.session_path is not None
+                                       and not self.lab.campaign_running)
         self.auto_button.setEnabled(not busy and have_view)
         self.stop_button.setEnabled(busy and self._auto_running)
         self.undo_button.setEnabled(not busy and have_view and self.view.can_undo)
@@ -225,6 +237,15 @@ class ModelPanel(QWidget):
                 button.setEnabled(not busy)
         for button in self.unexplained.findChildren(QPushButton):
             button.setEnabled(not busy)
+
+    def _show_prediction(self, view: PredictionView) -> None:
+        """A prediction with nothing refitted: the pooled error of each kind of level above, the table in the
+        explanation box, the FRFs and residuals drawn with each run's kind in the legend."""
+        kinds = "; ".join(f"{KIND_WORDS[kind]} levels {error:.3g}" for kind, error in view.prediction.errors.items())
+        self.error_label.setText(f"Prediction, nothing refitted: {kinds}")
+        self.jump_label.setText("")
+        self.explanation.setHtml(f"<pre>{html.escape(view.text)}</pre>")
+        self._draw_frf(view)
 
     def _show_explanation(self) -> None:
         rows = {i.row() for i in self.candidates.selectedIndexes()}
@@ -315,7 +336,7 @@ class ModelPanel(QWidget):
                                            "element's kbar)." if any(el.nonparametric for el in view.elements)
                                            else "."))
 
-    def _draw_frf(self, view: AnalysisView) -> None:
+    def _draw_frf(self, view: AnalysisView | PredictionView) -> None:
         for plot in (self.frf, self.residual):
             plot.clear()
             if plot.legend is not None:
@@ -328,7 +349,8 @@ class ModelPanel(QWidget):
             for p, dof in enumerate(run.sensor_dofs):
                 self.frf.plot(f, finite_log(np.abs(run.receptance[order, p])), pen=None, symbol=sensor_symbol(p),
                               symbolSize=5, symbolBrush=pg.mkBrush(color), symbolPen=None,
-                              name=f"{run.control.label()} {run.direction} · {dof}")
+                              name=f"{run.control.label()} {run.direction} · {dof}"
+                                   + (f" ({view.tags[run.name]})" if run.name in view.tags else ""))
                 self.frf.plot(f, finite_log(np.abs(predicted[:, p])), pen=pg.mkPen(color, width=1.5))
             self.residual.plot(f, finite_log(view.residual_map[run.name][order]), pen=pg.mkPen(color, width=1),
                                symbol="o", symbolSize=4, symbolBrush=pg.mkBrush(color), symbolPen=None)

@@ -6,7 +6,7 @@ never changes afterwards (identification and comparison make new arrays each tim
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -15,6 +15,9 @@ from analysis.prediction.comparison import LevelError
 from analysis.missing.diagnosis import Candidate, ElementSamples
 from analysis.common.measurements import SineRun
 from analysis.loop.workbench import Workbench
+from analysis.mechanics.model import FittedOn
+from analysis.prediction.held_out import SessionPrediction
+from app.predict import KIND_WORDS
 
 
 @dataclass(frozen=True)
@@ -118,6 +121,42 @@ class AnalysisView:
     def can_undo(self) -> bool:
         return len(self.history) > 1
 
+    @property
+    def tags(self) -> dict[str, str]:
+        """Words added to a run's legend entry (none: every run was fitted)."""
+        return {}
+
+
+@dataclass
+class PredictionView:
+    """The model tab's content after Predict: a fitted model's prediction of the open session, nothing refitted
+    (``text`` as ``contactid predict`` prints it; the FRFs drawn as after Analyze, each run tagged by its kind)."""
+
+    text: str
+    prediction: SessionPrediction
+    runs: list[SineRun]
+
+    @property
+    def predicted(self) -> dict[str, np.ndarray]:
+        return self.prediction.comparison.predicted
+
+    @property
+    def residual_map(self) -> dict[str, np.ndarray]:
+        return self.prediction.comparison.residual_map
+
+    @property
+    def other_branch(self) -> dict[str, np.ndarray]:
+        return self.prediction.comparison.other_branch
+
+    @property
+    def compared(self) -> dict[str, np.ndarray]:
+        return self.prediction.comparison.compared
+
+    @property
+    def tags(self) -> dict[str, str]:
+        kinds = {lv.control.key(): lv.kind for lv in self.prediction.levels}
+        return {r.name: KIND_WORDS[kinds[r.control.key()]] for r in self.runs}
+
 
 @dataclass
 class IdentificationView:
@@ -181,15 +220,17 @@ def _discovered(auto: AutoResult) -> list[str]:
     return out
 
 
-def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult | None = None) -> AnalysisView:
+def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult | None = None,
+                  fitted_on: FittedOn | None = None) -> AnalysisView:
     """After :meth:`Workbench.start` / ``add`` / ``undo`` and the candidate ranking, or after the automatic loop
-    (``auto``; its ranking is ``candidates``)."""
+    (``auto``; its ranking is ``candidates``); ``fitted_on``: what the saved model says it was fitted to."""
     comp = wb.compare()
     return AnalysisView(
         element_views(wb, with_laws=True), comp.error, list(comp.error_by_level), list(wb.measurements.sine),
         dict(comp.predicted), dict(comp.residual_map),
         [CandidateView(c.element, c.law, c.error, c.gain, c.significant, c.explanation) for c in candidates],
-        [HistoryView(h.step, h.action, h.error) for h in wb.history], wb.model.to_toml(),
+        [HistoryView(h.step, h.action, h.error) for h in wb.history],
+        replace(wb.model, fitted_on=fitted_on).to_toml(),
         wb.reference.text() if wb.reference is not None else "", dict(comp.other_branch), dict(comp.compared),
         [j.text() for j in comp.jumps],
         [UnexplainedView(o.element, o.finding.text(), o.finding.noise_ratio, o.error, o.error_before, o.gain)
