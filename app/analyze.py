@@ -303,6 +303,12 @@ def report_text(wb: Workbench, candidates, top: int = 5,
             out.append(f"    evidence: {r.verdict.evidence}")
         for j, term in enumerate(el.laws):
             fitted = r.fit.terms[j] if r.fit is not None else None
+            reading = r.reading(term)
+            if reading is not None:
+                rotational = r.samples.rotational
+                out.append(f"    law {term.law.name}, read as {reading.limit}: {reading.values_text(rotational)} "
+                           f"({reading.why}; {', '.join(reading.undetermined)} not determined apart)")
+                continue
             params = [_param_text(k, v, fitted) for k, v in term.values.items()]
             out.append(f"    law {term.law.name}: {', '.join(params)}")
         if el.nonparametric is not None:

@@ -90,12 +90,23 @@ def test_rules_default_to_the_documented_thresholds():
 
 
 def test_a_candidate_explanation_marks_the_parameters_the_data_do_not_determine():
-    sig = Signature(0.5, None, 0.8, -20.0, 10.0, -5.0, 2.0, 0.0, -20.0, 0.5, 6.0, (1e-5, 7e-3), False)
+    # the slip range (0.0242 rad) inside the amplitudes: an Iwan element read as itself
+    sig = Signature(0.5, None, 0.8, -20.0, 10.0, -5.0, 2.0, 0.0, -20.0, 0.5, 6.0, (1e-5, 5e-2), False)
     term = SimpleNamespace(params={"kt": 98.3, "fs": 0.85, "chi": -0.5, "beta": 0.039},
                            undetermined=("fs", "beta"))
     text = explain("tangential", "iwan", sig, term, ("N·m/rad", "rad"))
     assert "kt = 98.3, fs = 0.85 (not determined by the data), chi = -0.5, beta = 0.039 (not determined by the data)" \
         in text
+
+
+def test_a_candidate_explanation_gives_the_combination_a_law_in_its_limit_leaves_determined():
+    # the slip range beyond every amplitude: micro-slip, whose dissipation fixes fs and beta only together
+    sig = Signature(0.5, None, 0.8, -20.0, 10.0, -5.0, 2.0, 0.0, -20.0, 0.5, 6.0, (1e-5, 7e-3), False)
+    term = SimpleNamespace(params={"kt": 98.3, "fs": 0.85, "chi": -0.5, "beta": 0.039},
+                           undetermined=("fs", "beta"))
+    text = explain("tangential", "iwan", sig, term, ("N·m/rad", "rad"))
+    assert "fitted as micro-slip: kt = 98.3 N·m/rad, chi = -0.5, nu = " in text
+    assert "(fs, beta not determined apart)" in text and "fs = 0.85" not in text
 
 
 def _cubic_samples(c3: float, departing: int, seed: int = 4) -> ElementSamples:

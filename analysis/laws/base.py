@@ -88,8 +88,13 @@ class Param:
         return f"{self.name} <= {self.upper:g}" if high else ""
 
     def render_unit(self, rotational: bool = False) -> str:
-        force, length = ("N·m", "rad") if rotational else ("N", "m")
-        return self.unit.replace("{F}", force).replace("{L}", length)
+        return render_unit(self.unit, rotational)
+
+
+def render_unit(template: str, rotational: bool = False) -> str:
+    """A unit template in ``{F}`` and ``{L}`` on a translational (N, m) or rotational (N·m, rad) DOF."""
+    force, length = ("N·m", "rad") if rotational else ("N", "m")
+    return template.replace("{F}", force).replace("{L}", length)
 
 
 @dataclass(frozen=True)
@@ -106,6 +111,30 @@ class SignatureWords:
 
 EXPLANATION_FIELDS = frozenset(f.name for f in fields(SignatureWords))
 # What every concrete law class must define (the rest has defaults in Law).
+@dataclass(frozen=True)
+class LimitReading:
+    """What a fitted law is over the amplitudes measured where its values sit in one of its limits: the limit's
+    name, the combination of parameters the data determine there (name -> value, with a unit template in
+    ``{F}`` and ``{L}`` as :class:`Param`'s), why the law is read so, and the contract parameters the data do not
+    determine apart. A law read in a limit is that limit's law on these data: its other parameters are not
+    findings, and the values a fit leaves them at (1e32 for a stiffness nothing bounds) are not shown."""
+
+    limit: str
+    values: dict[str, float]
+    units: dict[str, str]
+    why: str
+    undetermined: tuple[str, ...]
+
+    def values_text(self, rotational: bool = False) -> str:
+        """``kt = 2e+05 N/m, chi = 0.3, nu = 12 N/m^2.3``."""
+        units = {k: "" if u == "1" else " " + render_unit(u, rotational) for k, u in self.units.items()}
+        return ", ".join(f"{k} = {v:.5g}{units[k]}" for k, v in self.values.items())
+
+    def to_json(self) -> dict:
+        return {"limit": self.limit, "values": dict(self.values), "why": self.why,
+                "undetermined": list(self.undetermined)}
+
+
 REQUIRED = ("name", "kind", "summary", "params", "linear", "example", "kernel", "force_text", "kbar_text",
             "explanation")
 
@@ -255,6 +284,12 @@ class Law(ABC):
         cells = (self.name, self.kind, self.parameter_text(), self.force_text, self.kbar_text, fit,
                  "yes" if self.visible_in_kbar else "no (only harmonics)")
         return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+
+    def reading(self, values: Mapping[str, float], X_min: float, X_max: float) -> LimitReading | None:
+        """The limit the fitted ``values`` put the law in over the amplitudes ``X_min..X_max`` measured, or None
+        where it is read as itself (docs/laws.md, "Limits"). Laws with a slip or softening scale that data can
+        leave outside their range override this."""
+        return None
 
     # --- parametrisation -----------------------------------------------------
     def to_fit(self, values: Mapping[str, float]) -> tuple[dict, dict]:

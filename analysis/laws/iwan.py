@@ -79,7 +79,7 @@ import numpy as np
 from numba import njit
 
 from ._special import slip_imag, slip_real
-from .base import Law, Param
+from .base import Law, LimitReading, Param
 
 MAX_REVERSALS = 64
 _HEADER = 4  # n, direction, previous x, previous force
@@ -349,3 +349,30 @@ class Iwan(Law):
     def basis(self, X, w, xs, chi, beta):
         X, w = np.broadcast_arrays(X, w)
         return iwan_unit(X, xs, chi, beta)[None]
+
+    def reading(self, values, X_min, X_max):
+        """Micro-slip where no element slips through at the largest amplitude (``X_max <= phi_max``): the
+        micro-slip forms are then exact (module docstring), kbar = kt [1 - r(chi) (nu / (pi kt)) X^(chi+1)]
+        + j (nu / pi) X^(chi+1) with r(chi) = 2 B(chi + 5/2, 3/2) (chi + 2)(chi + 3) / (chi + 1), so the data
+        determine kt, chi and the dissipation per cycle D = nu X^(chi+3), nu = 4 R / ((chi + 2)(chi + 3)), and fs
+        and beta only through nu. Coulomb friction where the whole population slips a decade below the smallest
+        amplitude (``X_min >= 10 phi_max``): kbar is then within a few per cent of 4 j fs / (pi X) and only fs is
+        determined."""
+        kt, fs, chi, beta = (float(values[k]) for k in ("kt", "fs", "chi", "beta"))
+        phi_max = float(slip_range(fs / kt, chi, beta))
+        if X_max <= phi_max:
+            rate = kt * (chi + 1.0) / ((1.0 + beta) * phi_max ** (chi + 1.0))
+            nu = 4.0 * rate / ((chi + 2.0) * (chi + 3.0))
+            return LimitReading(
+                "micro-slip", {"kt": kt, "chi": chi, "nu": nu},
+                {"kt": "{F}/{L}", "chi": "1", "nu": f"{{F}}/{{L}}^{chi + 2.0:.4g}"},
+                f"no part of the contact slips through at the largest amplitude (slip range {phi_max:.3g} against "
+                f"{X_max:.3g}): the dissipation per cycle is nu X^(chi+3)",
+                ("fs", "beta"))
+        if X_min >= 10.0 * phi_max:
+            return LimitReading(
+                "Coulomb friction", {"fs": fs}, {"fs": "{F}"},
+                f"the whole contact slips from a tenth of the smallest amplitude on (slip range {phi_max:.3g} "
+                f"against {X_min:.3g}): kbar is a dry friction's, 4 j fs / (pi X)",
+                ("kt", "chi", "beta"))
+        return None

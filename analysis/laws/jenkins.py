@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 from ._special import slip_imag, slip_real
-from .base import Law, Param
+from .base import Law, LimitReading, Param
 
 
 @njit(cache=True)
@@ -68,3 +68,15 @@ class Jenkins(Law):
     def basis(self, X, w, xs):
         X, w = np.broadcast_arrays(X, w)
         return jenkins_unit(X, xs)[None]
+
+    def reading(self, values, X_min, X_max):
+        """Coulomb friction where the slider slips from a tenth of the smallest amplitude on (``X_min >= 10 xs``):
+        kbar is then within a few per cent of 4 j fs / (pi X), and the stiffness while stuck is not determined
+        (a stiffness beyond the structure's reads the same)."""
+        kt, fs = float(values["kt"]), float(values["fs"])
+        if X_min >= 10.0 * fs / kt:
+            return LimitReading(
+                "Coulomb friction", {"fs": fs}, {"fs": "{F}"},
+                f"the slider slips from a tenth of the smallest amplitude on (slip displacement {fs / kt:.3g} "
+                f"against {X_min:.3g}): kbar is a dry friction's, 4 j fs / (pi X)", ("kt",))
+        return None

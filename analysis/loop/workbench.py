@@ -31,6 +31,7 @@ from ..fitting.fit import LawFit, fit_laws
 from ..identification.identify import identify_complex_stiffness
 from ..identification.linearity import LinearityVerdict, linearity_verdict
 from ..laws import get_law
+from ..laws.base import LimitReading
 from ..linear.reference import ReferenceReport, reference_from_random
 from ..mechanics.elements import LawTerm
 from ..mechanics.model import Model
@@ -61,6 +62,9 @@ class ElementReport:
                 entry["stderr"] = {k: (None if not np.isfinite(v) else float(v))
                                    for k, v in self.fit.terms[j].stderr.items()}
                 entry["undetermined"] = list(self.fit.terms[j].undetermined)
+            reading = self.reading(term)
+            if reading is not None:
+                entry["reading"] = reading.to_json()
             laws.append(entry)
         out = {"name": self.name, "verdict": None if self.verdict is None else
                ("linear" if self.verdict.linear else "nonlinear"),
@@ -77,6 +81,12 @@ class ElementReport:
         if element.nonparametric is not None:
             out[NONPARAMETRIC] = element.nonparametric.to_toml()
         return out
+
+    def reading(self, term: LawTerm) -> LimitReading | None:
+        """The limit a fitted term sits in over this element's amplitudes (:meth:`Law.reading`), if any."""
+        if self.samples is None or not len(self.samples.X) or not term.complete:
+            return None
+        return term.law.reading(term.values, float(self.samples.X.min()), float(self.samples.X.max()))
 
     def excluded_hz(self) -> list[float]:
         """Frequencies, Hz, of the lines the fit left out as not following the fitted laws."""

@@ -222,11 +222,15 @@ def _slope(value: float | None) -> str:
 def explain(element: str, law: str, sig: Signature, term: TermFit | None, units: tuple[str, str]) -> str:
     """One sentence: what the data show for ``element`` and why ``law`` is the physics behind it (``term``: the
     law's fitted values, stated where given)."""
+    X0, X1 = sig.X_range
     params = ""
-    if term is not None:
+    reading = None if term is None else LAWS[law].reading(term.params, X0, X1)
+    if reading is not None:             # its other parameters are no findings (docs/laws.md, "Limits")
+        params = (f"as {reading.limit}: {reading.values_text(units[1] == 'rad')} "
+                  f"({', '.join(reading.undetermined)} not determined apart)")
+    elif term is not None:
         params = ", ".join(f"{k} = {v:.4g}" + (" (not determined by the data)" if k in term.undetermined else "")
                            for k, v in term.params.items())
-    X0, X1 = sig.X_range
     head = f"'{element}' over X = {X0:.3g}..{X1:.3g} {units[1]}: "
     return head + LAWS[law].explain(signature_words(sig, units[0])) + (f"; fitted {params}" if params else "")
 

@@ -1,0 +1,47 @@
+"""The limits a fitted law can sit in over the amplitudes measured (Law.reading, docs/laws.md "Limits").
+
+Truth: each law's own describing function (checked against quadrature in tests/test_laws.py) against the
+limit's closed form written here: micro-slip kbar = kt - r(chi) (nu/pi) X^(chi+1) + j (nu/pi) X^(chi+1) with
+r(chi) = 2 B(chi + 5/2, 3/2) (chi + 2)(chi + 3) / (chi + 1); Coulomb kbar = 4 j fs / (pi X)."""
+import numpy as np
+import pytest
+from scipy.special import beta as beta_function
+
+from analysis.laws import LAWS
+
+
+@pytest.mark.parametrize("chi, beta", [(-0.5, 0.1), (0.0, 0.0), (0.6, 2.0)])
+def test_an_iwan_element_that_never_slips_through_reads_as_micro_slip_with_its_dissipation_law(chi, beta):
+    iwan = LAWS["iwan"]
+    values = {"kt": 2.0e5, "fs": 40.0, "chi": chi, "beta": beta}
+    X = np.geomspace(1e-7, 5e-5, 30)
+    reading = iwan.reading(values, X.min(), X.max())
+    assert reading.limit == "micro-slip" and reading.undetermined == ("fs", "beta")
+    kt, nu = reading.values["kt"], reading.values["nu"]
+    r = 2 * beta_function(chi + 2.5, 1.5) * (chi + 2) * (chi + 3) / (chi + 1)
+    law = iwan.describing_function(X, np.full_like(X, 100.0), **values)
+    power = nu / np.pi * X ** (chi + 1)
+    assert law.imag == pytest.approx(power, rel=1e-9)
+    assert law.real == pytest.approx(kt - r * power, rel=1e-9)
+    # beyond the slip range it is an Iwan element again
+    assert iwan.reading(values, X.min(), 1.0) is None
+
+
+@pytest.mark.parametrize("name, values", [("iwan", {"kt": 1e12, "fs": 2.0, "chi": 0.3, "beta": 1.0}),
+                                          ("jenkins", {"kt": 1e12, "fs": 2.0})])
+def test_a_slip_range_far_below_every_amplitude_reads_as_coulomb_friction(name, values):
+    law = LAWS[name]
+    X = np.geomspace(1e-5, 1e-3, 20)
+    reading = law.reading(values, X.min(), X.max())
+    assert reading.limit == "Coulomb friction" and reading.values == {"fs": 2.0} and "kt" in reading.undetermined
+    kbar = law.describing_function(X, np.full_like(X, 100.0), **values)
+    coulomb = 4 * reading.values["fs"] / (np.pi * X)
+    assert kbar.imag == pytest.approx(coulomb, rel=0.05)
+    assert np.all(np.abs(kbar.real) < 0.1 * coulomb)
+
+
+def test_a_law_inside_its_range_and_laws_without_limits_read_as_themselves():
+    X_min, X_max = 1e-5, 1e-3
+    assert LAWS["jenkins"].reading({"kt": 1e5, "fs": 10.0}, X_min, X_max) is None          # slips at 1e-4
+    assert LAWS["iwan"].reading({"kt": 1e5, "fs": 10.0, "chi": -0.5, "beta": 0.1}, X_min, X_max) is None
+    assert LAWS["cubic"].reading({"k3": 1e9}, X_min, X_max) is None
