@@ -112,14 +112,19 @@ def cmd_export(args) -> int:
         done = export_uff(args.session, args.uff, overwrite=args.overwrite, per_run=args.per_run,
                           binary=args.binary, frf_only=args.frf_only)
         print(f"wrote {done.records} records to {', '.join(str(p) for p in done.files)}")
+        for item in done.left_out:                     # what UFF58 cannot carry: said, never dropped silently
+            print(f"note: left out (no UFF58 record carries it): {item}")
     elif args.csv_long:
         from app.export_csv_long import export_csv_long
         long = export_csv_long(args.session, args.csv_long, overwrite=args.overwrite)
         print(f"wrote {len(long.runs)} stepped-sine runs to {long.path}"
               + (f" (left out, not stepped sine: {', '.join(long.left_out)})" if long.left_out else ""))
     else:
-        paths = export_csv(args.session, args.csv, overwrite=args.overwrite)
+        left_out: list[str] = []
+        paths = export_csv(args.session, args.csv, overwrite=args.overwrite, left_out=left_out)
         print(f"wrote {len(paths)} CSV files to {args.csv}")
+        for item in left_out:
+            print(f"note: left out: {item}")
     return 0
 
 
@@ -257,14 +262,13 @@ def cmd_emulate(args) -> int:
 def cmd_analyze(args) -> int:
     """Identify, fit, predict, compare and rank missing effects."""
     import json
-
     from dataclasses import replace
 
+    from analysis.loop.cross_check import cross_validate
     from analysis.prediction.held_out import predict_session
     from app.analyze import (admissibility_json, backbones, backbones_json, misfits_json, model_admissibility,
                              read_measurements, reference_only, report_text, run_workbench, run_workbench_auto,
                              session_notes, store_history)
-    from analysis.loop.cross_check import cross_validate
     from app.predict import (cross_validation_json, cross_validation_text, fitted_on, parse_levels, prediction_json,
                              prediction_text)
     from app.progress import Progress
@@ -387,8 +391,13 @@ def cmd_reference(args) -> int:
         raise InputError(f"--band takes F1 F2 in Hz with 0 < F1 < F2, got {args.band[0]:g} {args.band[1]:g}",
                          field="--band")
     reference = reference_from_level(read_measurements(args.session), args.run_name, args.band)
-    print(reference.text())
-    _write_model(args, reference.model().to_toml(), [args.session], "reference model")
+    report = reference.text()
+    try:        # the file first, then the report: a reader that closed the pipe (`| head -1`) costs no output
+        _write_model(args, reference.model().to_toml(), [args.session], "reference model")
+        print(report, flush=True)
+    except BrokenPipeError:
+        import os
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())     # nothing left to flush at exit
     return 0
 
 

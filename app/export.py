@@ -12,9 +12,13 @@ UFF58 (docs/import.md has the full description):
   length exponent 1, "m"; "rad" with exponent 0 on a rotation) over excitation force (type 13, force exponent 1,
   "N"), abscissa in Hz, lines in rising frequency (a down sweep too); evenly spaced lines (a random run) are
   written as even, others as x/y pairs;
-* contactid's per-line quantities after the FRFs as tagged records -- ``frf_std`` and ``random_error`` and the
-  held ``force_amplitude`` and displacement ``distortion`` as general functions (type 0), ``coherence`` as
-  type 6 -- so an import gives the analysis the same numbers (``frf_only`` leaves them out);
+* contactid's per-line quantities after the FRFs as tagged records -- ``frf_std`` and ``random_error``, the
+  measured ``force_amplitude`` and ``force_phase`` (rad; the import rebuilds ``force_phasor`` from the two) and
+  the displacement ``distortion`` as general functions (type 0), ``coherence`` as type 6 -- so an import gives
+  the analysis the same numbers (``frf_only`` leaves them out); the other per-line datasets of a run (a
+  campaign's own records: ``force_target``, ``settle_time``, harmonics, ...) have no UFF record and are named in
+  :attr:`UffExport.left_out`, as are phase-resonance runs (their locks carry attributes and harmonics a UFF58
+  record cannot; the import would refuse them);
 * node numbers: the session's stations (a DOF name up to its dot: ``A`` of ``A.w``, ``x1``) in natural sort
   order, numbered from 1; direction 3 (+Z) for ``*.w``, 5 (+Y rotation) for ``*.theta``, 1 (+X) otherwise;
   the DOF names themselves, the run name, force level and sweep direction (and a random run's sample rate and
@@ -32,7 +36,7 @@ from __future__ import annotations
 import csv
 import re
 from contextlib import ExitStack
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +64,7 @@ class UffExport:
 
     files: list[Path]
     records: int
+    left_out: list[str] = field(default_factory=list)      # what no record carries: runs, "<run>: <datasets>"
 
 
 @dataclass
@@ -100,6 +105,7 @@ def _response_axis(dof: str) -> _Axis:
 FORCE_AXIS = _Axis("Force", "N", 0, 1, DATA_FORCE)
 NO_AXIS = _Axis("NONE", "NONE", 0, 0, DATA_UNKNOWN)
 ONE_AXIS = _Axis("Ratio", "1", 0, 0, DATA_UNKNOWN)
+PHASE_AXIS = _Axis("Phase", "rad", 0, 0, DATA_UNKNOWN)
 
 
 def _survives(x: np.ndarray) -> np.ndarray:
@@ -138,10 +144,23 @@ def _line_quantities(run: RunData) -> list[tuple[str, str, np.ndarray, _Axis, _A
     if "force_amplitude" in run.arrays:
         out.append(("force_amplitude", run.excitation_dof, run.arrays["force_amplitude"], FORCE_AXIS, NO_AXIS,
                     FUNC_GENERAL))
+    if "force_phase" in run.arrays:
+        out.append(("force_phase", run.excitation_dof, run.arrays["force_phase"], PHASE_AXIS, NO_AXIS, FUNC_GENERAL))
     distortion = _distortion(run)
     if distortion is not None:
         out.append(("distortion", run.excitation_dof, distortion, ONE_AXIS, NO_AXIS, FUNC_GENERAL))
     return out
+
+
+def _not_carried(run: RunData, frf_only: bool) -> list[str]:
+    """The run's per-line datasets no UFF record of :func:`_line_quantities` carries (``force_phasor`` is: the
+    import rebuilds it from ``force_amplitude`` and ``force_phase``)."""
+    carried = {"force_amplitude", "force_phase", "distortion", "force_phasor"} if not frf_only else set()
+    if not frf_only:
+        carried |= {f"{q}/{d}" for q in ("frf_std", "coherence", "random_error") for d in run.sensor_dofs}
+        if "force_phase" not in run.arrays or "force_amplitude" not in run.arrays:
+            carried.discard("force_phasor")
+    return sorted(name for name in run.arrays if name not in carried)
 
 
 def welch_segment(run: RunData) -> tuple[float | None, int | None]:
@@ -231,6 +250,15 @@ def _runs_to_export(s: Session) -> list[CheckedRun]:
     return [check_run(r, source) for r in s.runs() if len(r.frequency)]
 
 
+def _exportable(runs: list[CheckedRun]) -> tuple[list[CheckedRun], list[str]]:
+    """The runs the UFF and CSV exports write, and those they leave out (named, with why): a phase-resonance
+    run's points hang on its lock attributes and per-point harmonics, which neither format carries and which
+    the import needs -- written, it would be refused on the way back."""
+    kept = [c for c in runs if c.run.kind != "phase_resonance"]
+    return kept, [f"{c.run.name} (phase resonance: not carried by the format)" for c in runs
+                  if c.run.kind == "phase_resonance"]
+
+
 def rising(run: RunData) -> RunData:
     """The run with its lines in rising frequency: modal tools take a record's abscissa as rising (sdypy-EMA's
     band cut finds no line in a falling one). A down sweep's measured order comes back on import, from its
@@ -258,9 +286,12 @@ def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool
     files: dict[Path, list[dict]] = {}
     with open_session(session_path) as s:
         software, created = s.attrs.get("software_version", ""), s.attrs.get("created", "")
-        runs = _runs_to_export(s)
+        runs, left_out = _exportable(_runs_to_export(s))
         if not runs:
-            raise InputError("has no measured FRF to export", str(session_path))
+            raise InputError("has no measured FRF to export" + (f" (left out: {', '.join(left_out)})" if left_out
+                                                                   else ""), str(session_path))
+        left_out += [f"{c.run.name}: {', '.join(names)}" for c in runs
+                     for names in [_not_carried(c.run, frf_only)] if names]
         nodes = node_numbers({d for c in runs for d in (c.run.excitation_dof, *c.run.sensor_dofs)})
         for load_case, checked in enumerate(runs, start=1):
             target = run_file(uff_path, checked.run.name) if per_run else uff_path
@@ -269,7 +300,7 @@ def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool
     for target in files:
         check_output(target, inputs=[session_path], overwrite=overwrite, field="--uff")
     _write_uff_files(files, session_path, software, overwrite)
-    return UffExport(list(files), sum(len(r) for r in files.values()))
+    return UffExport(list(files), sum(len(r) for r in files.values()), left_out)
 
 
 def _write_uff_files(files: dict[Path, list[dict]], session_path: Path, software: str, overwrite: bool) -> None:
@@ -286,11 +317,17 @@ def _write_uff_files(files: dict[Path, list[dict]], session_path: Path, software
                 raise OSError(f"{target}: writing the UFF file failed ({exc}); no export file was left") from exc
 
 
-def export_csv(session_path, directory, overwrite: bool = False) -> list[Path]:
-    """One CSV per run: frequency, Re/Im of each FRF, and every per-line scalar quantity with its unit."""
+def export_csv(session_path, directory, overwrite: bool = False, left_out: list[str] | None = None) -> list[Path]:
+    """One CSV per run: frequency, Re/Im of each FRF, and every per-line scalar quantity with its unit.
+    Phase-resonance runs are left out (:func:`_exportable`) and named in ``left_out`` where it is given."""
     session_path, directory = Path(session_path), Path(directory)
     with open_session(session_path) as s:
-        runs = _runs_to_export(s)
+        runs, skipped = _exportable(_runs_to_export(s))
+    if left_out is not None:
+        left_out += skipped
+    if not runs:
+        raise InputError("has no measured FRF to export" + (f" (left out: {', '.join(skipped)})" if skipped else ""),
+                         str(session_path))
     if directory.exists() and not directory.is_dir():
         raise InputError("is a file; --csv takes a folder (one CSV per run is written into it)", str(directory),
                          "--csv")

@@ -1,8 +1,9 @@
 """A session's stepped-sine runs in the CSV long format that ``contactid import`` reads (docs/import.md).
 
 One row per line, level and sensor DOF, with what the analysis reads of each line: the receptance, its standard
-deviation (where every run has one > 0), the force measured at the line (``force_amplitude_n``, its phase where
-stored) and how the level was held (``control_*`` for a response-controlled level, ``force_n`` otherwise).
+deviation (``std``: on the rows of each run that has one > 0 at every line, empty on the others), the force
+measured at the line (``force_amplitude_n``, its phase where stored), how the level was held (``control_*`` for a
+response-controlled level, ``force_n`` otherwise) and the run's ``status`` (complete, failed or aborted).
 Numbers are written as Python's shortest round-trip decimals, so an import gives the analysis the same numbers.
 Random runs have no place in the format (an import of it makes stepped-sine runs): they are left out and named.
 """
@@ -21,7 +22,7 @@ from app.session.writer import open_session
 from app.session.checks import CheckedRun, check_format, check_run, check_run_count
 
 COLUMNS = ["frequency_hz", "force_n", "dof", "re", "im", "direction", "force_amplitude_n", "force_phase_rad",
-           "control_dof", "control_quantity", "control_target"]
+           "control_dof", "control_quantity", "control_target", "status"]
 BYTES_PER_ROW = 200                     # generous, for the free-space check
 
 
@@ -32,6 +33,7 @@ class CsvLongExport:
     path: Path
     runs: list[str] = field(default_factory=list)
     left_out: list[str] = field(default_factory=list)
+    without_std: list[str] = field(default_factory=list)    # runs written with empty std cells (none stored > 0)
 
 
 def _checked_runs(path: Path) -> list[CheckedRun]:
@@ -41,13 +43,13 @@ def _checked_runs(path: Path) -> list[CheckedRun]:
         return [c for c in (check_run(run, str(path)) for run in s.runs()) if c.lines]
 
 
-def _with_std(runs: list[CheckedRun]) -> bool:
-    """Whether every run has a standard deviation > 0 at every line and sensor (the import takes all or none)."""
-    for c in runs:
-        for d in c.sensor_dofs:
-            std = c.run.arrays.get(f"frf_std/{d}")
-            if std is None or not (np.asarray(std[:c.lines]) > 0).all():
-                return False
+def _with_std(c: CheckedRun) -> bool:
+    """Whether the run has a standard deviation > 0 at every line and sensor (the import takes a run's std on
+    all its rows or none: a run without leaves its cells empty, the others keep theirs)."""
+    for d in c.sensor_dofs:
+        std = c.run.arrays.get(f"frf_std/{d}")
+        if std is None or not (np.asarray(std[:c.lines]) > 0).all():
+            return False
     return True
 
 
@@ -55,7 +57,8 @@ def _number(x) -> str:
     return repr(float(x))
 
 
-def _rows(checked: CheckedRun, with_std: bool):
+def _rows(checked: CheckedRun, with_std: bool | None):
+    """The run's rows; ``with_std`` None: the file has no std column, False: this run's std cells are empty."""
     run, n, control = checked.run, checked.lines, checked.control
     response = control.mode == "response"
     level = ["" if response else _number(run.force)]
@@ -67,8 +70,9 @@ def _rows(checked: CheckedRun, with_std: bool):
         for d in checked.sensor_dofs:
             h = complex(run.frf[d][i])
             row = [_number(run.frequency[i]), *level, d, _number(h.real), _number(h.imag), run.attrs["direction"],
-                   *measured, *held]
-            yield row + ([_number(run.arrays[f"frf_std/{d}"][i])] if with_std else [])
+                   *measured, *held, run.status]
+            yield row + ([_number(run.arrays[f"frf_std/{d}"][i]) if with_std else ""] if with_std is not None
+                         else [])
 
 
 def export_csv_long(session_path, path, overwrite: bool = False) -> CsvLongExport:
@@ -81,13 +85,15 @@ def export_csv_long(session_path, path, overwrite: bool = False) -> CsvLongExpor
         raise InputError("has no stepped-sine run with lines: the CSV long format holds stepped-sine levels",
                          str(session_path))
     out = CsvLongExport(path, [c.run.name for c in sine], [c.run.name for c in checked if c.run.kind != "stepped_sine"])
-    with_std = _with_std(sine)
+    with_std = {c.run.name: _with_std(c) for c in sine}
+    any_std = any(with_std.values())
+    out.without_std = [name for name, has in with_std.items() if any_std and not has]
     require_free_space(path, BYTES_PER_ROW * sum(c.lines * len(c.sensor_dofs) for c in sine) + 4096,
                        "export the CSV long format")
     with atomic_output(path, inputs=[session_path], overwrite=overwrite, field="--csv-long") as temp:
         with temp.open("w", newline="") as fh:
             writer = csv.writer(fh)
-            writer.writerow(COLUMNS + (["std"] if with_std else []))
+            writer.writerow(COLUMNS + (["std"] if any_std else []))
             for c in sine:
-                writer.writerows(_rows(c, with_std))
+                writer.writerows(_rows(c, with_std[c.run.name] if any_std else None))
     return out

@@ -232,9 +232,29 @@ def _modal(f: Fields) -> ModalStructure:
     D = f.matrix("residual_inertia", n) if f.has("residual_inertia") else np.zeros((n, n))
     inv = np.linalg.inv(shapes)                                   # Phi^-T with Phi = shapes^T
     wr = 2 * np.pi * freqs
-    M, K, C = (inv @ np.diag(d) @ inv.T for d in (np.ones(n), wr ** 2, 2 * zeta * wr))
+    with np.errstate(all="ignore"):
+        M, K, C = (inv @ np.diag(d) @ inv.T for d in (np.ones(n), wr ** 2, 2 * zeta * wr))
+    _check_realisation(f, M, K, C)
     return ModalStructure(dofs, M, K, C, set(), f"modal, {n} mode{'s' * (n > 1)}", f.source, freqs, zeta, shapes,
                           B, D)
+
+
+MAX_CONDITION = 1e12     # of a modal structure's realised mass and stiffness: beyond it no solve of the model holds
+
+
+def _check_realisation(f: Fields, M: np.ndarray, K: np.ndarray, C: np.ndarray) -> None:
+    """The mass, stiffness and damping a modal structure's shapes and frequencies realise must be finite, the
+    mass and stiffness positive definite and solvable (condition below MAX_CONDITION): shapes of 1e200 /
+    sqrt(kg) give a mass of 1e-400 kg, which is 0 in floating point, and every analysis of it fails."""
+    for key, matrix in (("shapes", M), ("frequencies", K)):
+        eig = np.linalg.eigvalsh(matrix) if np.isfinite(matrix).all() else np.array([np.nan])
+        if not (np.isfinite(eig).all() and eig.min() > 0 and eig.max() < MAX_CONDITION * eig.min()):
+            what = "mass" if key == "shapes" else "stiffness"
+            raise f.error(key, f"realise a {what} matrix that is not finite and positive definite within a condition "
+                               f"of {MAX_CONDITION:g} (eigenvalues {eig.min():.3g} to {eig.max():.3g}): no "
+                               "structure has such modes")
+    if not np.isfinite(C).all():
+        raise f.error("damping", "realises a damping matrix that is not finite")
 
 
 def _positive_list(f: Fields, key: str, n: int, positive: bool) -> np.ndarray:

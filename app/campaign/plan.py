@@ -23,6 +23,7 @@ import numpy as np
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import CONTROL_UNITS, NAME_UNITS, Control
+from analysis.common.quantities import dof_name_problem, force_problem
 from analysis.signals.frf_estimation import WelchResolution, auto_resolution, welch_averages
 from analysis.common.tables import Fields, parse_toml, read_toml_text
 
@@ -284,7 +285,7 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         lo, hi = (f.check_number("band", b, positive=True) for b in band)
         if hi <= lo:
             raise f.error("band", f"high end {hi} Hz must exceed the low end {lo} Hz")
-        random = RandomSpec(f.number("force_rms", positive=True), (lo, hi), f.number("duration", positive=True))
+        random = RandomSpec(_force(f, "force_rms"), (lo, hi), f.number("duration", positive=True))
         if random.duration > MAX_RANDOM_SECONDS:
             raise f.error("duration", f"{random.duration:g} s is more than {MAX_RANDOM_SECONDS:g} s of random "
                                       "excitation (docs/campaigns.md, limits); split it into runs of another plan")
@@ -318,7 +319,7 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
         if response is not None and drift:
             raise f.error("force_drift", "drifts a held force: a response-controlled level lets its force vary "
                                          "already")
-        force = response.force_limit if response is not None else f.number("force", positive=True)
+        force = response.force_limit if response is not None else _force(f, "force")
         sines.append(SineSpec(force, start, stop, step, f.string("direction", "up", ("up", "down", "both")),
                               refine, min_step, force_drift=drift, response=response))
     phases = [_phase_table(f, i) for i, f in enumerate(root.list_of_tables("phase_resonance"))]
@@ -335,6 +336,7 @@ def parse_plan(doc: dict, text: str = "", source: str | None = None) -> Plan:
     limits = Limits(lim.number("max_force", positive=True), lim.number("max_acceleration", positive=True),
                     _max_lines(lim))
     sines = [_default_force_limit(spec, limits) for spec in sines]
+    _check_response_targets(sines, limits, source)
     _check_line_count(sines, limits.max_lines, source)
     for i, spec in enumerate(sines):
         if spec.force * (1 + spec.force_drift) >= limits.max_force:
@@ -391,7 +393,7 @@ def _response_level(f: Fields) -> ResponseLevel | None:
         raise f.error("force", "a level holds either a force or a response amplitude (response), not both")
     quantity = f.string("quantity", "acceleration", RESPONSE_QUANTITIES)
     dof = _dof_name(f, f.string("dof"), "dof")
-    limit = f.number("force_limit", positive=True) if f.has("force_limit") else float("nan")
+    limit = _force(f, "force_limit") if f.has("force_limit") else float("nan")
     return ResponseLevel(dof, quantity, f.number("response", positive=True), limit)
 
 
@@ -406,7 +408,7 @@ def _phase_table(f: Fields, i: int) -> PhaseSpec:
     forces = f.table.get("forces")
     if not isinstance(forces, list) or not forces or len(forces) > MAX_PHASE_LEVELS:
         raise f.error("forces", f"must be a list of 1 to {MAX_PHASE_LEVELS} force amplitudes in N")
-    forces = [f.check_number("forces", v, positive=True) for v in forces]
+    forces = [_force(f, "forces", v) for v in forces]
     if any(b <= a for a, b in zip(forces, forces[1:])):
         raise f.error("forces", "must rise from level to level (the lock follows the mode up in amplitude)")
     phase = f.number("phase", 90.0, positive=True)
@@ -504,9 +506,39 @@ def _placement(root: Fields) -> Placement:
 
 
 def _dof_name(f: Fields, name: str, key: str) -> str:
-    if not name or name != name.strip() or ":" in name:
-        raise f.error(key, f"{name!r} is not a DOF name (such as x1 or A.w)")
+    problem = dof_name_problem(name)          # the one rule of every door (analysis/common/quantities.py)
+    if problem:
+        raise f.error(key, problem)
     return name
+
+
+def _force(f: Fields, key: str, value=None) -> float:
+    """A force amplitude (N) of the plan, ``f[key]`` or ``value``: a number within the range every door
+    holds forces to (analysis/common/quantities.py)."""
+    value = f.number(key) if value is None else f.check_number(key, value)
+    problem = force_problem(value)
+    if problem:
+        raise f.error(key, problem)
+    return value
+
+
+def _check_response_targets(sines: list[SineSpec], limits: "Limits", source: str | None) -> None:
+    """A response level holds its amplitude at every line: as an acceleration (``target * w^n`` for a
+    displacement, n = 2, or a velocity, n = 1, at the level's highest frequency) it must stay below the abort
+    limit ``max_acceleration``, as a force level's force stays below ``max_force``."""
+    powers = {"displacement": 2, "velocity": 1, "acceleration": 0}
+    for i, spec in enumerate(sines):
+        r = spec.response
+        if r is None:
+            continue
+        top = max(spec.start, spec.stop)
+        with np.errstate(over="ignore"):
+            acceleration = float(r.target * np.float64(2 * np.pi * top) ** powers[r.quantity])
+        if not acceleration < limits.max_acceleration:
+            at = "" if r.quantity == "acceleration" else f" ({acceleration:g} m/s^2 at {top:g} Hz)"
+            raise InputError(f"response {r.target:g} {CONTROL_UNITS[r.quantity]}{at} is not below the abort limit "
+                             f"max_acceleration = {limits.max_acceleration:g} m/s^2", source,
+                             f"[[stepped_sine]][{i}].response")
 
 
 def check_against_instruments(plan: Plan, sample_rate: float, frequency_range: tuple[float, float],

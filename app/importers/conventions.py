@@ -34,6 +34,9 @@ def apply_force_sign(run: ImportedRun, sign: float) -> None:
     if "force_phase" in run.arrays:
         unit, phase = run.arrays["force_phase"]
         run.arrays["force_phase"] = (unit, np.angle(np.exp(1j * (phase + np.pi))))
+    if "force_phasor" in run.arrays:
+        unit, phasor = run.arrays["force_phasor"]
+        run.arrays["force_phasor"] = (unit, -phasor)
 
 
 def energy_sign(h: np.ndarray) -> float | None:

@@ -22,7 +22,8 @@ from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, csv_float, in_
 
 REQUIRED = ("frequency_hz", "force_n", "dof", "re", "im")
 OPTIONAL = ("std", "direction", "force_amplitude_n", "force_phase_rad", "control_dof", "control_quantity",
-            "control_target")
+            "control_target", "status")
+STATUSES = ("complete", "failed", "aborted", "running")   # a session's run statuses (running: stored aborted)
 RESPONSE_QUANTITIES = tuple(q for q in CONTROL_UNITS if q != "force")
 
 
@@ -36,6 +37,8 @@ class _Lines:
     std: list[float] = field(default_factory=list)
     force_amplitude: list[float] = field(default_factory=list)
     force_phase: list[float] = field(default_factory=list)
+    status: str | None = None                 # the ``status`` column's word (None: the column is absent)
+    status_row: int = 0
 
 
 def _number(text: str, path: str, row: int, column: str) -> float:
@@ -92,7 +95,8 @@ def read_csv_long(path: str, options: SourceOptions) -> tuple[list[ImportedRun],
         lines = runs.setdefault((control, direction), {}).setdefault(cell["dof"], _Lines(number))
         lines.frequency.append(_number(cell["frequency_hz"], path, number, "frequency_hz"))
         lines.value.append(complex(_number(cell["re"], path, number, "re"), _number(cell["im"], path, number, "im")))
-        if "std" in cell:
+        _status(cell, lines, path, number)
+        if cell.get("std"):                # an empty cell: a run without standard deviations (all its rows)
             std = _number(cell["std"], path, number, "std")
             if std <= 0:
                 raise InputError(f"{std!r} is not a standard deviation > 0", path, f"line {number}: std")
@@ -129,6 +133,20 @@ def _control(cell: dict, path: str, row: int, excitation: str) -> Control:
     return Control("response", dof, quantity, target)
 
 
+def _status(cell: dict, lines: _Lines, path: str, row: int) -> None:
+    """The run's status from the optional ``status`` column: one word for every row of a run."""
+    if "status" not in cell:
+        return
+    word = cell["status"].lower() or "complete"
+    if word not in STATUSES:
+        raise InputError(f"{cell['status']!r} is not one of {', '.join(STATUSES)}", path, f"line {row}: status")
+    if lines.status is not None and word != lines.status:
+        raise InputError(f"status {word} differs from {lines.status} at line {lines.status_row} of the same run: "
+                         "one status a run", path, f"line {row}: status")
+    if lines.status is None:
+        lines.status, lines.status_row = word, row
+
+
 def _measured_force(cell: dict, lines: _Lines, path: str, row: int) -> None:
     """The force measured at the row's line (optional columns): amplitude > 0 N and its phase."""
     if cell.get("force_amplitude_n"):
@@ -155,8 +173,16 @@ def _run(path: str, control: Control, direction: str | None, dofs: dict[str, _Li
                              f"{first.first_row}): a level or line is missing", path,
                              f"line {lines.first_row}: frequency_hz")
         frf[dof] = np.array(lines.value)
+        if lines.std and len(lines.std) != len(lines.frequency):
+            raise InputError(f"dof {dof} at {level}: std is given on {len(lines.std)} of its {len(lines.frequency)} "
+                             "lines; give it on every line or none", path, f"line {lines.first_row}: std")
         if lines.std:
             arrays[f"frf_std/{dof}"] = ("m/N", np.array(lines.std))
+    statuses = {lines.status for lines in dofs.values()}
+    if len(statuses) > 1:
+        raise InputError(f"the DOFs at {level} give different statuses ({', '.join(sorted(map(str, statuses)))}): "
+                         "one status a run", path, f"line {first.first_row}: status")
+    status = statuses.pop() or "complete"
     arrays.update(_force_arrays(path, dofs, level))
     force = control.target
     if control.mode == "response":
@@ -172,8 +198,8 @@ def _run(path: str, control: Control, direction: str | None, dofs: dict[str, _Li
         name = response_run_name(control, direction)
     else:
         name = sine_run_name(force, direction)
-    return ImportedRun(name, kind, force, direction, options.excitation, freq, frf, arrays, source=path,
-                       records=[lines.first_row for lines in dofs.values()], control=control)
+    return ImportedRun(name, kind, force, direction, options.excitation, freq, frf, arrays, status=status,
+                       source=path, records=[lines.first_row for lines in dofs.values()], control=control)
 
 
 def _force_arrays(path: str, dofs: dict[str, _Lines], level: str) -> dict[str, tuple[str, np.ndarray]]:

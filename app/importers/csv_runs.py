@@ -23,7 +23,8 @@ from .runs import ImportedRun, check_axis, check_values, csv_float
 
 MARK = "# contactid-run"
 KEYS = ("run", "kind", "force", "direction", "status", "excitation")
-PER_LINE = re.compile(r"^(frf_std|coherence|random_error)/\S+$|^(force_amplitude|distortion)$")
+PER_LINE = re.compile(r"^(frf_std|coherence|random_error)/\S+$"
+                      r"|^(force_amplitude|force_phase|force_phasor|distortion)$")
 _COLUMN = re.compile(r"^(?:(Re|Im) )?(.+?) \[(.*)\]$")
 
 

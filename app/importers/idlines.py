@@ -2,7 +2,8 @@
 
 Every record contactid exports carries, as ``key=value`` words (values without spaces)::
 
-    id1  contactid run=<run name> quantity=<frf | frf_std | force_amplitude | distortion | coherence | random_error>
+    id1  contactid run=<run name> quantity=<frf | frf_std | force_amplitude | force_phase | distortion | coherence |
+         random_error>
     id2  rsp=<response DOF name> ref=<excitation DOF name>
     id3  <ISO 8601 time the session was created> [sample_rate=<Hz> segment_length=<samples>]
          [control=<response | open_loop> at=<DOF> [held=<displacement | velocity | acceleration> target=<SI>]]
@@ -35,7 +36,7 @@ KINDS = ("stepped_sine", "random")
 DIRECTIONS = ("up", "down", "none")
 # id-line tag -> the run attribute it carries (shorter than the attribute: an id line holds 80 characters)
 CONTROL_TAGS = {"control": "control", "at": "control_dof", "held": "control_quantity", "target": "control_target"}
-QUANTITIES = ("frf", "frf_std", "force_amplitude", "distortion", "coherence", "random_error")
+QUANTITIES = ("frf", "frf_std", "force_amplitude", "force_phase", "distortion", "coherence", "random_error")
 
 
 @dataclass

@@ -87,7 +87,18 @@ def read_source(path: str, options: SourceOptions) -> SourceFile:
         id_lines = [[str(r.fields.get(k, "")).strip() for k in ID_KEYS] for r in records]
         source = SourceFile(path, "uff58b" if binary else "uff58", size, sha, id_lines, runs, notes)
     _conventions(source, options.force_sign)
+    for run in source.runs:
+        _force_phasor(run)
     return source
+
+
+def _force_phasor(run: ImportedRun) -> None:
+    """``force_phasor`` (N, complex), the measured force as a campaign stores it, where the file carries its
+    amplitude and phase but not the phasor itself (UFF58, the CSV long format): ``amplitude * exp(j phase)``."""
+    if "force_phasor" in run.arrays or "force_amplitude" not in run.arrays or "force_phase" not in run.arrays:
+        return
+    (_, amplitude), (_, phase) = run.arrays["force_amplitude"], run.arrays["force_phase"]
+    run.arrays["force_phasor"] = ("N", np.asarray(amplitude, float) * np.exp(1j * np.asarray(phase, float)))
 
 
 def _conventions(source: SourceFile, force_sign: float) -> None:
@@ -116,8 +127,9 @@ def estimated_bytes(files: list[SourceFile]) -> int:
 
 
 def _stored_status(run: ImportedRun) -> tuple[str, str]:
-    """The status (and end reason) a run is stored with: a source's other statuses make it aborted."""
-    if run.status in ("complete", "aborted"):
+    """The status (and end reason) a run is stored with: a finished run's own (complete, failed -- measured to
+    its end but missing its plan -- or aborted); a source's other statuses make it aborted."""
+    if run.status in ("complete", "failed", "aborted"):
         return run.status, ""
     return "aborted", f"the source says status {run.status}"
 

@@ -28,7 +28,7 @@ UNITS = 164
 FREQUENCY_TYPES = (0, 18)          # unknown or frequency
 LINE_QUANTITIES = {"frf_std": ("frf_std/{dof}", "m/N"), "coherence": ("coherence/{dof}", "1"),
                    "random_error": ("random_error/{dof}", "1"), "force_amplitude": ("force_amplitude", "N"),
-                   "distortion": ("distortion", "1")}
+                   "force_phase": ("force_phase", "rad"), "distortion": ("distortion", "1")}
 
 
 @dataclass
@@ -268,6 +268,11 @@ def _line_factor(path: str, record: Record, units: FileUnits | None) -> float:
     if quantity == "force_amplitude":
         return _axis(path, record, "ordinate", FORCE_TYPES, units)[1].factor
     label = str(record.fields.get("ordinate_axis_units_lab", "")).strip()
+    if quantity == "force_phase":                       # an angle: radians, as export writes it
+        if label != "rad":
+            raise InputError(f"unit {label!r} is not rad for force_phase", path,
+                             record.where("ordinate_axis_units_lab"))
+        return 1.0
     if label.upper() not in ("", "NONE", "1"):
         raise InputError(f"unit {label!r} is not a ratio (1) for {quantity}", path,
                          record.where("ordinate_axis_units_lab"))

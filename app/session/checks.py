@@ -19,6 +19,7 @@ import numpy as np
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import CONTROL_MODES, CONTROL_UNITS, Control, RunNote
+from analysis.common.quantities import dof_name_problem, force_problem, forces_outside
 
 from app.session.writer import FORMAT_VERSION, RunData
 
@@ -83,9 +84,13 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
     force = attrs.get("force")
     if not _positive_number(force):
         raise error("attribute force", f"must be a finite force > 0 N, got {force!r}")
+    if force_problem(force):
+        raise error("attribute force", force_problem(force))
     excitation = attrs.get("excitation_dof")
     if not isinstance(excitation, str) or not excitation:
         raise error("attribute excitation_dof", f"must name a DOF, got {excitation!r}")
+    if dof_name_problem(excitation):
+        raise error("attribute excitation_dof", dof_name_problem(excitation))
     sensors = _sensor_dofs(attrs.get("sensor_dofs"), error)
     control = check_control(attrs, excitation, float(force), error)
 
@@ -162,6 +167,8 @@ def check_control(attrs: dict, excitation_dof: str, force: float, error) -> Cont
     dof = attrs.get("control_dof", excitation_dof)
     if not isinstance(dof, str) or not dof:
         raise error("attribute control_dof", f"must name a DOF, got {dof!r}")
+    if dof_name_problem(dof):
+        raise error("attribute control_dof", dof_name_problem(dof))
     if mode != "response":
         return Control(mode, dof, "force", force)
     quantity, target = attrs.get("control_quantity"), attrs.get("control_target")
@@ -203,6 +210,7 @@ class LineRule:
     quantity: str
     above: float
     inclusive: bool
+    force: bool = False             # a force amplitude: also within FORCE_RANGE (analysis/common/quantities.py)
 
     def wrong(self, values: np.ndarray) -> np.ndarray:
         low = values < self.above if self.inclusive else values <= self.above
@@ -213,7 +221,7 @@ class LineRule:
 
 
 # the per-line quantities the analysis reads besides the FRFs (app/session_data.py)
-LINE_RULES = {"force_amplitude": LineRule("a force amplitude", 0.0, False),
+LINE_RULES = {"force_amplitude": LineRule("a force amplitude", 0.0, False, force=True),
               "frf_std": LineRule("a standard deviation", 0.0, True),
               "distortion": LineRule("a distortion", 0.0, True)}
 
@@ -229,6 +237,10 @@ def _check_lines(values: np.ndarray, rule: LineRule, error, excused: np.ndarray 
     bad = np.flatnonzero(wrong if excused is None else wrong & ~excused)
     if len(bad):
         raise error(f"line {bad[0]} is {float(values[bad[0]])!r}; {rule.text()}")
+    if rule.force:                                   # the range a force has at every door (quantities.py)
+        bad = np.flatnonzero(forces_outside(values.astype(float)))
+        if len(bad):
+            raise error(f"line {bad[0]}: {force_problem(float(values[bad[0]]))}")
 
 
 def _choice(attrs: dict, key: str, choices: tuple[str, ...], error) -> str:
@@ -246,6 +258,9 @@ def _sensor_dofs(raw, error) -> list[str]:
     if not isinstance(dofs, list) or not dofs or not all(isinstance(d, str) and d for d in dofs) \
             or len(set(dofs)) != len(dofs):
         raise error("attribute sensor_dofs", f"must be a JSON list of distinct DOF names, got {raw!r}")
+    for d in dofs:
+        if dof_name_problem(d):
+            raise error("attribute sensor_dofs", dof_name_problem(d))
     return dofs
 
 

@@ -9,7 +9,9 @@ Every command that writes a file goes through here:
   half-written one;
 * :func:`require_free_space` refuses to start a write that cannot fit;
 * an existing file that must change (a session gaining its model history) is rewritten beside itself and
-  renamed over the old one (:func:`atomic_replace`), so a failure leaves it as it was.
+  renamed over the old one (:func:`atomic_replace`), so a failure leaves it as it was;
+* a path that is a symbolic link is written through: the new version replaces the file the link points to,
+  beside that file, and the link stays a link (:func:`through_links`).
 """
 from __future__ import annotations
 
@@ -105,6 +107,13 @@ def temporary_path(path, keep_suffix: bool = False) -> Path:
     return path.with_name(f"{TEMP_PREFIX}{path.name}.{os.getpid()}{TEMP_SUFFIX}")
 
 
+def through_links(path) -> Path:
+    """Where a write to ``path`` goes: the file a symbolic link (or a chain of them) points to, else ``path``.
+    A rename onto the link itself would replace the link by a regular file and leave its target as it was."""
+    path = Path(path)
+    return Path(os.path.realpath(path)) if path.is_symlink() else path
+
+
 @contextmanager
 def atomic_output(path, *, inputs: Iterable = (), overwrite: bool = False, field: str = "-o",
                   keep_suffix: bool = False) -> Iterator[Path]:
@@ -112,7 +121,7 @@ def atomic_output(path, *, inputs: Iterable = (), overwrite: bool = False, field
     ``path``; on any exception it is removed and ``path`` is left as it was.
 
     The output is checked first (:func:`check_output`)."""
-    path = check_output(path, inputs=inputs, overwrite=overwrite, field=field)
+    path = through_links(check_output(path, inputs=inputs, overwrite=overwrite, field=field))
     existed = path.exists()
     temp = temporary_path(path, keep_suffix)
     try:
@@ -142,7 +151,7 @@ def atomic_replace(path, extra_bytes: int = 0, what: str = "rewrite") -> Iterato
 
     Refuses (OSError ENOSPC, nothing written) unless the new version -- ``path``'s size plus ``extra_bytes`` --
     fits in the free space."""
-    path = Path(path)
+    path = through_links(path)
     require_free_space(path, path.stat().st_size + extra_bytes, what)
     temp = temporary_path(path)
     try:

@@ -447,10 +447,18 @@ class Session:
 LIVE_READ_ATTEMPTS = 5        # reads of a chunk a live writer may be rewriting, before it is called damaged
 
 
-def _open_for_reading(path: Path) -> h5py.File:
-    """The file opened for reading in SWMR mode (safe while it is written, and after its writer crashed)."""
+def require_session_file(path: Path) -> None:
+    """InputError naming ``path`` unless it is an existing file (not a folder): every command that reads or
+    repairs a session asks this first."""
     if not path.exists():
         raise InputError("file not found", str(path))
+    if path.is_dir():
+        raise InputError("is a folder, not a session file", str(path))
+
+
+def _open_for_reading(path: Path) -> h5py.File:
+    """The file opened for reading in SWMR mode (safe while it is written, and after its writer crashed)."""
+    require_session_file(path)
     try:
         fid = h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ,
                             fapl=swmr_read_access())
@@ -540,8 +548,7 @@ def needs_recovery(path) -> bool:
 
     InputError when the file is missing, not a session, or being written by a live process."""
     path = Path(path)
-    if not path.exists():
-        raise InputError("file not found", str(path))
+    require_session_file(path)
     if _left_open(path):
         if _locked_by_a_writer(path):
             raise InputError("is still being written by a running process; wait for it to finish", str(path))
