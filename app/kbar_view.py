@@ -1,10 +1,69 @@
-"""What the kbar plots of the report (kbar.png) and the GUI's Identify tab share: the axis an element judged linear
-is drawn on, and the fitted model drawn as a path per force level (docs/workbench.md, "kbar plots")."""
+"""What the report plots (kbar.png, frf.png, ...) and the GUI's tabs share: the colour, marker and order of the
+levels, the axis an element judged linear is drawn on, and the fitted model drawn as a path per level
+(docs/workbench.md, "kbar plots"; docs/gui.md, "Levels")."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterable, Sequence
 
 import numpy as np
+
+from analysis.common.measurements import Control
+
+LEVEL_MAP = "turbo"
+"""The ordered colour map the levels are sampled from: neighbouring levels get neighbouring hues."""
+LEVEL_SPAN = (0.05, 0.95)     # turbo's ends are near black
+MIN_CONTRAST = 3.0            # against the white background (WCAG 2.1, graphical objects): its greens would fade
+LEVEL_SYMBOLS = {"force": "o", "response": "s", "open_loop": "d"}
+"""Marker of a level's measured points by how it was held: force- and response-controlled levels apart."""
+
+
+def _luminance(rgb: np.ndarray) -> float:
+    c = np.asarray(rgb, float) / 255.0
+    c = np.where(c > 0.04045, ((c + 0.055) / 1.055) ** 2.4, c / 12.92)
+    return float(c @ [0.2126, 0.7152, 0.0722])
+
+
+def level_colours(n: int) -> list[tuple[int, int, int]]:
+    """The colours of ``n`` levels in :meth:`Control.order` (force levels by force, then response levels): LEVEL_MAP
+    sampled evenly over LEVEL_SPAN, so the order of the levels reads as the order of the hues, each darkened until
+    it stands MIN_CONTRAST:1 against white. Twelve levels stay apart (no two closer than CIE76 dE 16); many more
+    shade into each other as neighbours."""
+    import pyqtgraph as pg
+
+    cmap = pg.colormap.get(LEVEL_MAP)
+    positions = [LEVEL_SPAN[0]] if n == 1 else np.linspace(*LEVEL_SPAN, n)
+    out = []
+    for p in positions:
+        rgb = np.asarray(cmap.map(float(p), mode="byte"), float)[:3]
+        while 1.05 / (_luminance(rgb) + 0.05) < MIN_CONTRAST:
+            rgb = rgb * 0.95
+        out.append(tuple(int(v) for v in np.round(rgb)))
+    return out
+
+
+def level_symbol(control: Control) -> str:
+    return LEVEL_SYMBOLS.get(control.mode, "o")
+
+
+def ordered_levels(controls: Iterable[Control]) -> list[Control]:
+    """One Control per level (by :meth:`Control.key`), in :meth:`Control.order`."""
+    return sorted({c.key(): c for c in controls}.values(), key=Control.order)
+
+
+def level_masks(sample_level: np.ndarray, runs: Sequence) -> list[tuple[Control, np.ndarray]]:
+    """Which kbar samples belong to which level, in :meth:`Control.order`. A sample carries its run's force
+    (``ElementSamples.level``); a response-controlled run's force is its measured median, so each level gathers
+    the forces of its own runs (up and down sweeps may differ)."""
+    level = np.asarray(sample_level, float)
+    out = []
+    for control in ordered_levels(r.control for r in runs):
+        forces = [r.force for r in runs if r.control.key() == control.key()]
+        mask = np.zeros(len(level), bool)
+        for f in forces:
+            mask |= np.isclose(level, f, rtol=1e-9, atol=0.0)
+        out.append((control, mask))
+    return out
 
 FLAT_VIEW = 0.05     # an element judged linear is drawn on at least +-5 % of its mean: a flat element looks flat
 
@@ -69,31 +128,38 @@ def model_paths(X, w, level, model) -> list[ModelPath]:
     return paths
 
 
-LEGEND_OFFSETS = {"top right": (-10, 10), "top left": (10, 10), "bottom right": (-10, -10), "bottom left": (10, -10)}
+def level_path(X, w, level, model) -> ModelPath:
+    """The :func:`model_paths` of one level's samples as one path, broken between its runs (a response level's
+    up and down sweeps each carry their own median force)."""
+    paths = model_paths(X, w, level, model)
+    gap_x, gap_k = np.array([np.nan]), np.array([np.nan + 0j])
+    x = np.concatenate([a for p in paths for a in (p.X, gap_x)][:-1])
+    k = np.concatenate([a for p in paths for a in (p.kbar, gap_k)][:-1])
+    return ModelPath(paths[0].level, x, k)
 
 
-def emptiest_corner(x, y, log_x: bool = True, box: tuple[float, float] = (0.35, 0.3)) -> str:
-    """The corner of the plot (a key of LEGEND_OFFSETS) whose ``box`` (fractions of the width and height of the
-    data's range) holds the fewest points: where a legend hides the least data. Ties go to the top right."""
-    x, y = np.asarray(x, float), np.asarray(y, float)
-    if log_x:
-        x = np.log10(np.where(x > 0, x, np.nan))
-    ok = np.isfinite(x) & np.isfinite(y)
-    x, y = x[ok], y[ok]
-    if len(x) == 0:
-        return "top right"
-    u = (x - x.min()) / (np.ptp(x) or 1.0)
-    v = (y - y.min()) / (np.ptp(y) or 1.0)
-    right, top = u > 1 - box[0], v > 1 - box[1]
-    left, bottom = u < box[0], v < box[1]
-    counts = {"top right": np.sum(right & top), "top left": np.sum(left & top),
-              "bottom right": np.sum(right & bottom), "bottom left": np.sum(left & bottom)}
-    return min(counts, key=lambda k: counts[k])       # dicts keep order: the top right wins a tie
+def level_style(control: Control, colour, size: float = 5) -> dict:
+    """Plot style of a level's measured points: its colour, the marker of how it was held, no line."""
+    return {"pen": None, "symbol": level_symbol(control), "symbolSize": size, "symbolBrush": colour,
+            "symbolPen": None}
 
 
-def legend_to(legend, corner: str) -> None:
-    """Move a pyqtgraph legend into ``corner`` of its plot (a key of LEGEND_OFFSETS), remembering where it is."""
-    offset = LEGEND_OFFSETS[corner]
-    anchor = (0 if offset[0] > 0 else 1, 0 if offset[1] > 0 else 1)
-    legend.anchor(itemPos=anchor, parentPos=anchor, offset=offset)
-    legend.corner = corner
+def legend_column(layout, entries: Sequence[tuple[dict, str]], row: int, col: int, rowspan: int = 1,
+                  label_size: str = "8pt"):
+    """A legend in a cell of its own of a pyqtgraph ``layout`` (a GraphicsLayout), beside the plots and never over
+    the data: one row per ``(plot style, words)`` in the order given, at the top of its cell and as wide as its
+    longest entry."""
+    import pyqtgraph as pg
+    from PySide6.QtCore import Qt
+
+    legend = pg.LegendItem(labelTextSize=label_size, verSpacing=-4, frame=False)
+    for style, name in entries:
+        # one point: pyqtgraph styles an item's markers only once it holds data (the sample is never drawn)
+        legend.addItem(pg.PlotDataItem([0.0], [0.0], **style), name)
+    size = legend.layout.preferredSize()
+    # a layout cell stretches what it holds: held at its own size, the entries keep their spacing
+    legend.setFixedWidth(size.width())
+    legend.setFixedHeight(size.height())
+    layout.addItem(legend, row=row, col=col, rowspan=rowspan)
+    layout.layout.setAlignment(legend, Qt.AlignmentFlag.AlignTop | Qt.AlignmentFlag.AlignLeft)
+    return legend

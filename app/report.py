@@ -20,10 +20,8 @@ from analysis.common.wording import engineering
 from analysis.loop.workbench import Workbench
 
 from app.analyze import backbones, comparisons_error, element_misfits
-from app.kbar_view import LEGEND_OFFSETS, emptiest_corner, linear_axis, model_paths
-
-LEVEL_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-                 (140, 86, 75), (227, 119, 194), (127, 127, 127)]
+from app.kbar_view import (level_colours, level_masks, level_style, legend_column, linear_axis, model_paths,
+                           ordered_levels)
 
 
 def qt_application():
@@ -35,13 +33,30 @@ def qt_application():
     return QApplication.instance() or QApplication([])
 
 
-def _colour(levels: list[float], force: float):
-    return LEVEL_COLOURS[levels.index(round(force, 12)) % len(LEVEL_COLOURS)]
+class _Levels:
+    """The levels of some runs in :meth:`Control.order`, each with its colour (app/kbar_view.py: the GUI's too)."""
+
+    def __init__(self, runs: Sequence[SineRun]):
+        self.controls = ordered_levels(r.control for r in runs)
+        self._colours = {c.key(): colour for c, colour in zip(self.controls, level_colours(len(self.controls)))}
+
+    def colour(self, run_or_control):
+        control = getattr(run_or_control, "control", run_or_control)
+        return self._colours[control.key()]
+
+
+def _in_level_order(runs: Sequence[SineRun]) -> list[SineRun]:
+    """Runs as legends list them: by level (:meth:`Control.order`), up before down."""
+    return sorted(runs, key=lambda r: (r.control.order(), r.direction != "up", r.name))
 
 
 def _symbols(colour, size: int) -> dict:
     """Plot style of measured points: filled circles of ``size`` px, no line."""
     return {"pen": None, "symbol": "o", "symbolSize": size, "symbolBrush": colour, "symbolPen": None}
+
+
+def _line(colour, width: float = 2) -> dict:
+    return {"pen": {"color": colour, "width": width}}
 
 
 def _export(layout, path: Path, width: int = 1400, height: int = 900) -> Path:
@@ -135,38 +150,36 @@ def _layout():
 
 def plot_frfs(comp: Comparison, runs: Sequence[SineRun], path: Path, sensor: str | None = None,
               tags: dict[str, str] | None = None) -> Path:
-    """|h| and phase of one sensor per level: measured (symbols) and predicted (lines); ``tags`` (run name ->
+    """|h| and phase of one sensor per level: measured (markers: circles where the force was held, squares where
+    a response was) and predicted (lines), the legend beside the plots in level order; ``tags`` (run name ->
     words) are added to a run's legend entry (a prediction marks its held-out levels so)."""
-    levels = _levels(runs)
+    levels = _Levels(runs)
     sensor = sensor or runs[0].sensor_dofs[0]
     lay = _layout()
-    mag = _log_plot(lay, 0, 0, title=f"Receptance {sensor} / {runs[0].excitation_dof} at each force level: "
-                                     f"measured (dots) and model prediction (lines); FRF error {comp.error:.3g}",
+    mag = _log_plot(lay, 0, 0, title=f"Receptance {sensor} / {runs[0].excitation_dof} at each level: "
+                                     f"measured (markers) and model prediction (lines); FRF error {comp.error:.3g}",
                     y_unit="m/N")
     mag.setLabel("left", "|h|")
-    mag.addLegend(offset=(-10, 10))
     ph = lay.addPlot(row=1, col=0)
     ph.setLabel("left", "phase", units="deg")
     ph.setLabel("bottom", "frequency", units="Hz")
     ph.setXLink(mag)
-    for run in runs:
+    entries = []
+    for run in _in_level_order(runs):
         p = run.sensor_dofs.index(sensor)
         order = np.argsort(run.frequency_hz)
         f = run.frequency_hz[order]
         meas = run.receptance[order, p]
         pred = comp.predicted[run.name][order, p]
-        c = _colour(levels, run.force)
-        measured, model = _symbols(c, 5), {"pen": {"color": c, "width": 2}}
-        mag.plot(f, np.abs(meas), name=_run_name(run, tags), **measured)
+        c = levels.colour(run)
+        measured, model = level_style(run.control, c, 5), _line(c)
+        mag.plot(f, np.abs(meas), **measured)
         mag.plot(f, np.abs(pred), **model)
         ph.plot(f, np.degrees(np.angle(meas)), **measured)
         ph.plot(f, np.degrees(np.angle(pred)), **model)
+        entries.append(({**measured, **model}, _run_name(run, tags)))
+    legend_column(lay.ci, entries, row=0, col=1, rowspan=2)
     return _export(lay, path)
-
-
-def _levels(runs: Sequence[SineRun]) -> list[float]:
-    """The runs' forces, rounded as :func:`_colour` looks them up."""
-    return sorted({round(r.force, 12) for r in runs})
 
 
 def _run_name(run: SineRun, tags: dict[str, str] | None) -> str:
@@ -180,14 +193,18 @@ def plot_kbar(wb: Workbench, path: Path) -> Path:
 
 
 def kbar_layout(wb: Workbench):
-    """Re and Im of every element's kbar against its amplitude: the identified samples as dots coloured by force
+    """Re and Im of every element's kbar against its amplitude: the identified samples as markers coloured by
     level, drawn above the fitted laws, which are a black line per level through the same lines in frequency
-    order (app/kbar_view.py). An element judged linear is drawn on an axis that shows how flat it is."""
-    levels = wb.measurements.levels
+    order (app/kbar_view.py); one legend beside the plots, in level order. An element judged linear is drawn on
+    an axis that shows how flat it is."""
+    runs = wb.measurements.sine
+    levels = _Levels(runs)
     lay = _layout()
-    lay.addLabel("Equivalent complex stiffness kbar of each element against its amplitude X: identified (dots, one "
-                 "colour per force level) and the fitted laws (black line per level, in frequency order)", row=0,
-                 col=0, colspan=max(len(wb.model.elements), 1), size="11pt")
+    lay.addLabel("Equivalent complex stiffness kbar of each element against its amplitude X: identified (markers, "
+                 "one colour per level: circles force held, squares response held)<br>and the fitted laws (black "
+                 "line per level, in frequency order)", row=0, col=0, colspan=max(len(wb.model.elements), 1) + 1,
+                 size="11pt")
+    any_fitted = False
     for col, el in enumerate(wb.model.elements):
         rep = wb.reports.get(el.name)
         s = rep.samples if rep else None
@@ -199,8 +216,6 @@ def kbar_layout(wb: Workbench):
         for row, part, take in ((1, "Re", np.real), (2, "Im", np.imag)):
             plot = _log_plot(lay, row, col, x_unit=x_u)
             plot.setLabel("left", f"{part} kbar", units=k_u)
-            corner = emptiest_corner(s.X, take(s.kbar)) if s is not None else "top right"
-            plot.addLegend(offset=LEGEND_OFFSETS[corner], labelTextSize="8pt")
             panels[part] = (plot, take)
         panels["Im"][0].setLabel("bottom", "amplitude X")
         panels["Im"][0].setXLink(panels["Re"][0])
@@ -209,17 +224,16 @@ def kbar_layout(wb: Workbench):
             continue
         fitted = (el.laws or el.nonparametric is not None) and all(t.complete for t in el.laws)
         paths = model_paths(s.X, s.w, s.level, el.describing_function(s.X, s.w)) if fitted else []
+        any_fitted = any_fitted or bool(paths)
+        masks = level_masks(s.level, runs)
         for part, (plot, take) in panels.items():
             title = f"{part} kbar of {el.name} at {' - '.join(el.dofs)}{verdict}"
-            for i, p in enumerate(paths):      # under the dots: the measured points stay visible
-                line = plot.plot(p.X, take(p.kbar), pen={"color": "k", "width": 1.5}, connect="finite",
-                                 name="fitted laws" if i == 0 else None)
+            for p in paths:      # under the dots: the measured points stay visible
+                line = plot.plot(p.X, take(p.kbar), pen={"color": "k", "width": 1.5}, connect="finite")
                 line.setZValue(0)
-            for force in levels:
-                sel = np.isclose(s.level, force)
+            for control, sel in masks:
                 if sel.any():
-                    dots = plot.plot(s.X[sel], take(s.kbar[sel]), name=f"{force:g} N identified",
-                                     **_symbols(_colour(levels, force), 5))
+                    dots = plot.plot(s.X[sel], take(s.kbar[sel]), **level_style(control, levels.colour(control), 5))
                     dots.setZValue(10)
             axis = linear_axis(take(s.kbar)) if linear else None
             if axis is not None:
@@ -230,35 +244,38 @@ def kbar_layout(wb: Workbench):
                 title += (f"<br>systematic misfit: law {'above' if m.misfit < 0 else 'below'} the data at "
                           f"{engineering(m.X_range[0], x_u)}..{engineering(m.X_range[1], x_u)}")
             plot.setTitle(title, size="10pt")
+    entries = [(level_style(c, levels.colour(c), 6), f"{c.label()} identified") for c in levels.controls]
+    entries += [({"pen": {"color": "k", "width": 1.5}}, "fitted laws")] if any_fitted else []
+    legend_column(lay.ci, entries, row=1, col=max(len(wb.model.elements), 1), rowspan=2)
     return lay
 
 
 def plot_residuals(comp: Comparison, runs: Sequence[SineRun], path: Path,
                    tags: dict[str, str] | None = None) -> Path:
     """Relative FRF error per line and run, over every response the runs measured: where the model fails
-    (``tags`` as in :func:`plot_frfs`)."""
-    levels = _levels(runs)
+    (``tags`` as in :func:`plot_frfs`; the legend beside the plot, in level order)."""
+    levels = _Levels(runs)
     responses = ", ".join(dict.fromkeys(d for run in runs for d in run.sensor_dofs))
     lay = _layout()
     p = _log_plot(lay, 0, 0, title=f"Where the model fails: relative FRF error of the prediction at each frequency "
-                                   f"line and force level, over the responses {responses} "
+                                   f"line and level, over the responses {responses} "
                                    f"(force at {runs[0].excitation_dof})", y_unit="")
     p.setLabel("left", "relative FRF error")
     p.setLabel("bottom", "frequency", units="Hz")
-    p.addLegend(offset=(-10, 10))
-    shown = []
-    for run in runs:
+    shown, entries = [], []
+    for run in _in_level_order(runs):
         order = np.argsort(run.frequency_hz)
         residual = np.maximum(comp.residual_map[run.name][order], 1e-6)
         shown.append(residual)
-        p.plot(run.frequency_hz[order], residual,
-               pen={"color": _colour(levels, run.force), "width": 2},
-               name=_run_name(run, tags))
+        style = {**_line(levels.colour(run)), **level_style(run.control, levels.colour(run), 4)}
+        p.plot(run.frequency_hz[order], residual, **style)
+        entries.append((style, _run_name(run, tags)))
         other = comp.other_branch.get(run.name, np.zeros(len(order), bool))
         if other.any():                    # measured on another branch than the swept prediction (a jump)
             p.plot(run.frequency_hz[other], np.maximum(comp.residual_map[run.name][other], 1e-6), pen=None,
-                   symbol="x", symbolSize=14, symbolPen={"color": _colour(levels, run.force), "width": 2})
+                   symbol="x", symbolSize=14, symbolPen={"color": levels.colour(run), "width": 2})
     p.setYRange(*_log_range_with_ticks(np.concatenate(shown)), padding=0)
+    legend_column(lay.ci, entries, row=0, col=1)
     return _export(lay, path, height=600)
 
 
@@ -328,7 +345,7 @@ def backbone_layout(comparisons: list[BackboneComparison]):
     lay.addLabel("Natural frequency and damping ratio against response amplitude: measured (dots, a modal fit per "
                  "response-controlled level<br>or a phase-resonance point) and predicted by the model (line); "
                  f"RMS relative error: frequency {error.frequency:.3g}, damping {error.damping:.3g}",
-                 row=0, col=0, size="11pt")
+                 row=0, col=0, colspan=2, size="11pt")
     units = comparisons[0].measured.units if comparisons else ""
     freq = _log_plot(lay, 1, 0, x_unit=units)
     damp = _log_plot(lay, 2, 0, x_unit=units)
@@ -336,19 +353,19 @@ def backbone_layout(comparisons: list[BackboneComparison]):
     freq.setLabel("left", "natural frequency", units="Hz")
     damp.setLabel("left", "damping ratio")
     damp.setLabel("bottom", "response amplitude")
-    for plot in (freq, damp):
-        plot.addLegend(labelTextSize="8pt")
-    for i, c in enumerate(comparisons):
-        colour = LEVEL_COLOURS[i % len(LEVEL_COLOURS)]
+    entries = []
+    for c, colour in zip(comparisons, level_colours(len(comparisons))):
         name = f"{c.measured.quantity} at {c.measured.dof}" + \
             (f" ({c.measured.method})" if c.measured.method.startswith("phase") else "")
         a, f, z = c.measured.arrays()
         ca, cf, cz = c.curve.arrays()
         for plot, measured, predicted in ((freq, f, cf), (damp, z, cz)):
-            plot.plot(ca, predicted, pen={"color": colour, "width": 2}, name=f"{name}: model")
+            plot.plot(ca, predicted, **_line(colour))
             known = np.isfinite(measured)              # no damping where the model has no mode shape there
             if known.any():
-                plot.plot(a[known], measured[known], name=f"{name}: measured", **_symbols(colour, 9))
+                plot.plot(a[known], measured[known], **_symbols(colour, 9))
+        entries += [(_line(colour), f"{name}: model"), (_symbols(colour, 9), f"{name}: measured")]
+    legend_column(lay.ci, entries, row=1, col=1, rowspan=2)
     return lay
 
 

@@ -1,5 +1,5 @@
 """The Identify tab draws kbar by the plot rules of kbar.png: the identified dots above the fitted laws' line per
-level, a legend in every plot, an element judged linear on an axis that shows it flat."""
+level, one legend beside the plots in level order, an element judged linear on an axis that shows it flat."""
 from PySide6.QtCore import QObject, Signal
 
 from app.gui.identify_panel import IdentifyPanel
@@ -23,7 +23,7 @@ def _view(fitted: bool) -> IdentificationView:
         s = r.samples
         elements.append(ElementView(el.name, el.dofs[0], s, r.verdict.linear, "", len(s.X), 0,
                                     model=el.describing_function(s.X, s.w) if fitted else None))
-    return IdentificationView(elements, 80, False, [0.1, 0.4])
+    return IdentificationView(elements, 80, False, wb.measurements.sine)
 
 
 def _panel(qtbot, view):
@@ -34,7 +34,7 @@ def _panel(qtbot, view):
     return panel
 
 
-def test_identify_tab_draws_dots_above_the_fitted_laws_with_a_legend_in_every_plot(qtbot):
+def test_identify_tab_draws_dots_above_the_fitted_laws_with_one_legend_beside_the_plots(qtbot):
     panel = _panel(qtbot, _view(fitted=True))
     plots = panel.plots()
     assert len(plots) == 4
@@ -44,14 +44,26 @@ def test_identify_tab_draws_dots_above_the_fitted_laws_with_a_legend_in_every_pl
         lines = [c for c in items if c.opts["symbol"] is None and len(c.xData)]
         assert len(dots) == 2 and len(lines) == 2, name
         assert min(d.zValue() for d in dots) > max(line.zValue() for line in lines), name
-        legend = [label.text for _, label in plot.legend.items]
-        assert legend.count("fitted laws") == 1 and "0.1 N identified" in legend, name
+        assert plot.legend is None, name                          # nothing over the data
+        assert sorted(d.opts["symbol"] for d in dots) == ["o", "s"], name   # force held, response held
+    # level order, each named by how it was held: the response level is not "0.1 N" (its median force)
+    assert panel.legend_names() == ["0.4 N identified", "20 m/s^2 at x1 identified", "fitted laws"]
+    assert panel.graphics.ci.layout.itemAt(0, 2) is panel.legend
+    assert panel.status.text().endswith("levels 0.4 N, 20 m/s^2 at x1")
+
+
+def test_identify_tab_colours_the_levels_as_the_report_does(qtbot):
+    from app.kbar_view import level_colours
+
+    panel = _panel(qtbot, _view(fitted=False))
+    dots = {d.opts["symbol"]: d.opts["symbolBrush"].color().name() for d in panel.plots()["kbar_re_soft"]
+            .listDataItems() if len(d.xData)}
+    assert [dots["o"], dots["s"]] == ["#%02x%02x%02x" % c for c in level_colours(2)]
 
 
 def test_identify_tab_before_fitting_names_no_fitted_laws(qtbot):
     panel = _panel(qtbot, _view(fitted=False))
-    for plot in panel.plots().values():
-        assert "fitted laws" not in [label.text for _, label in plot.legend.items]
+    assert "fitted laws" not in panel.legend_names() and len(panel.legend_names()) == 2
 
 
 def test_identify_tab_shows_a_linear_element_flat(qtbot):

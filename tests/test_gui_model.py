@@ -133,3 +133,83 @@ def test_a_model_without_joints_is_no_identification_error(qtbot):
     qtbot.waitUntil(lambda: not window.lab.analysis_tasks.busy)
     qtbot.wait(50)
     assert errors == [] and window.lab.identification is None
+
+
+def _twelve_level_view():
+    """An analysis of the Brake-Reuss beam's kind of session: four force levels and eight response levels held at
+    x1, the runs named (and so listed by the session) in text order."""
+    import numpy as np
+
+    from analysis.common.measurements import Control, SineRun
+    from analysis.prediction.comparison import LevelError
+    from app.gui.results import AnalysisView, HistoryView
+
+    f = np.linspace(79.0, 81.2, 12)
+    h = (1e-4 / (1 + 1j * (f - 80.3))).reshape(-1, 1)
+    levels = [Control("force", "x1", "force", v) for v in (0.2, 0.5, 1.0, 1.5)] + \
+        [Control("response", "x1", "acceleration", v) for v in (5, 20, 30, 40, 50, 60, 70, 80)]
+    runs = sorted([SineRun(f"sine_{c.label().replace(' ', '')}_up", 0.12 + 0.03 * c.target, "up", "x1", ["x1"], f,
+                           h * (1 + 0.01 * i), control=c) for i, c in enumerate(levels)], key=lambda r: r.name)
+    return levels, AnalysisView(
+        elements=[], error=0.98, error_by_level=[LevelError(r.force, 0.5, r.control) for r in runs], runs=runs,
+        predicted={r.name: h for r in runs}, residual_map={r.name: np.full(len(f), 0.1) for r in runs},
+        candidates=[], history=[HistoryView(0, "start", 0.98)], model_toml="")
+
+
+def test_twelve_levels_fit_a_small_screen_in_level_order_in_colours_apart(qtbot):
+    from app.kbar_view import level_colours
+
+    levels, view = _twelve_level_view()
+    window = MainWindow("test")
+    qtbot.addWidget(window)
+    window.model._update(view)
+    # the legend beside the plots lists the runs as the reports do: force levels by force, then response levels
+    assert window.model.legend_names() == [f"{c.label()} up · x1" for c in levels] + ["measured at x1"]
+    assert window.model.frf.legend is window.model.legend
+    # twelve colours, the report's, none shared
+    colours = [window.palette.color(c) for c in levels]
+    assert colours == ["#%02x%02x%02x" % c for c in level_colours(12)] and len(set(colours)) == 12
+    assert "by level: 0.2 N: 0.5, 0.5 N: 0.5, 1 N: 0.5, 1.5 N: 0.5, 5 m/s^2 at x1: 0.5" in \
+        window.model.level_errors.text()
+    # no label sets the width and no tab the height past a 1366 x 768 screen (title bar and taskbar aside)
+    hint = window.minimumSizeHint()
+    assert hint.width() <= 1366 and hint.height() <= 740, hint
+
+
+@pytest.mark.slow
+def test_stop_during_discovery_keeps_the_steps_taken_and_says_what_was_not_tried(qtbot, hidden_effect_session):
+    session, model = hidden_effect_session
+    window = MainWindow("test")
+    qtbot.addWidget(window)
+    window.lab.load_model_file(str(model))
+    window.lab.open_session(str(session))
+    panel = window.model
+    with qtbot.waitSignal(window.lab.analysisUpdated, timeout=120000):
+        panel.analyze_button.click()
+    reported = []
+
+    def on_line(line: str) -> None:                 # Stop as the first law discovery chose is added
+        if line.startswith("discover ") and not reported:
+            panel.stop_button.click()
+            assert "stopping" in panel.auto_label.text() and not panel.stop_button.isEnabled()
+        if not line.startswith("discovery:"):
+            reported.append(line)
+    window.lab.autoProgress.connect(on_line)
+    with qtbot.waitSignal(window.lab.analysisUpdated, timeout=300000):
+        panel.auto_button.click()
+    view = window.lab.analysis
+    # every step shown while the loop ran is in the model the tab shows; after Stop nothing more was added
+    assert reported and len(view.history) == len(reported) + 1
+    kept = {el.name: [law.law for law in el.laws] for el in view.elements}
+    for line in reported:
+        action, what = line.split(": error")[0].split(" ", 1)
+        element, laws = what.split(":")
+        assert action == "discover" and kept[element] == laws.split("+")
+    assert view.auto[-1].startswith(f"stopped by the user: the model on this tab keeps the {len(reported)} step(s)")
+    assert "not tried:" in view.auto[-1]
+    # a law set discovery found is called discovered only where the model holds it
+    assert all(kept[line.split(":")[0][len("discovered "):]] for line in view.auto if line.startswith("discovered "))
+    # no ranking after Stop, and the empty table does not claim every law was tried
+    assert not view.ranked and panel.candidates.rowCount() == 0
+    assert panel.explanation.toPlainText().startswith("Not ranked: the automatic loop was stopped")
+    assert shown_error(window) == pytest.approx(view.history[-1].error, rel=1e-3)

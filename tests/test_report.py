@@ -6,9 +6,10 @@ from analysis.mechanics.model import load_model
 from analysis.loop.workbench import Workbench
 from types import SimpleNamespace
 
+from analysis.common.measurements import Control
 from analysis.missing.diagnosis import ElementSamples
 from analysis.common.wording import engineering
-from app.kbar_view import FLAT_VIEW, emptiest_corner, model_paths
+from app.kbar_view import FLAT_VIEW, level_colours, model_paths
 from app.report import (_label_anchor, _labelled_log_ticks, _log_axis, _log_range_with_ticks, kbar_layout,
                         qt_application, write_report)
 from test_workbench import PAPER_LAWS, model_doc, synthesise
@@ -76,7 +77,10 @@ def _kbar_workbench():
         kbar = el.describing_function(X, w) * (1 + 2e-5 * rng.standard_normal(len(X)))
         samples = ElementSamples(el.name, X, w, kbar, None, level)
         reports[el.name] = SimpleNamespace(samples=samples, verdict=SimpleNamespace(linear=linear))
-    return SimpleNamespace(model=model, reports=reports, measurements=SimpleNamespace(levels=[0.1, 0.4]))
+    # the 0.4 N level held the force; the other held 20 m/s^2 at x1, its median force 0.1 N
+    runs = [SimpleNamespace(name="held", force=0.1, control=Control("response", "x1", "acceleration", 20.0)),
+            SimpleNamespace(name="forced", force=0.4, control=Control("force", "x1", "force", 0.4))]
+    return SimpleNamespace(model=model, reports=reports, measurements=SimpleNamespace(sine=runs))
 
 
 def _panels(layout):
@@ -88,7 +92,9 @@ def _curves(plot):
     return [item for item in plot.listDataItems()]
 
 
-def test_kbar_plot_draws_the_measured_points_above_the_fitted_laws_and_a_legend_in_every_panel():
+def test_kbar_plot_draws_the_measured_points_above_the_fitted_laws_and_one_legend_beside_them():
+    import pyqtgraph as pg
+
     qt_application()
     layout = kbar_layout(_kbar_workbench())           # kept: the plots live as long as their layout
     panels = _panels(layout)
@@ -99,8 +105,32 @@ def test_kbar_plot_draws_the_measured_points_above_the_fitted_laws_and_a_legend_
         assert dots and lines
         assert min(d.zValue() for d in dots) > max(line.zValue() for line in lines)
         assert all(line.opts["pen"] is not None for line in lines)        # the model is a line, not crosses
-        names = [label.text for _, label in plot.legend.items]
-        assert "fitted laws" in names and any(n.endswith("identified") for n in names)
+        assert plot.legend is None                                        # nothing over the data
+        # circles where the force was held, squares where a response was, in the level's colour
+        assert {d.opts["symbol"] for d in dots} == {"o", "s"}
+    (legend,) = [item for item in layout.ci.items if isinstance(item, pg.LegendItem)]
+    # in level order (force levels first) and named by how each was held, not by the held level's median force
+    assert [label.text for _, label in legend.items] == ["0.4 N identified", "20 m/s^2 at x1 identified",
+                                                         "fitted laws"]
+    assert [sample.item.opts["symbol"] for sample, _ in legend.items][:2] == ["o", "s"]
+    assert layout.ci.layout.itemAt(1, 2) is legend                        # a column of its own, right of the plots
+
+
+def _cie_lab(rgb):
+    c = np.asarray(rgb, float) / 255
+    c = np.where(c > 0.04045, ((c + 0.055) / 1.055) ** 2.4, c / 12.92)
+    xyz = c @ np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]]).T
+    f = np.cbrt(xyz / [0.95047, 1.0, 1.08883])        # every level colour is far above the linear toe
+    return np.stack([116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])], -1)
+
+
+@pytest.mark.parametrize("n, apart", [(2, 50), (4, 40), (12, 15), (30, 4)])
+def test_level_colours_stay_apart_for_many_levels_and_read_on_white(n, apart):
+    lab = _cie_lab(level_colours(n))
+    distance = np.linalg.norm(lab[:, None] - lab[None], axis=-1)
+    np.fill_diagonal(distance, np.inf)
+    assert distance.min() > apart                    # CIE76 dE: 2.3 is just noticeable
+    assert lab[:, 0].max() < 65                      # no pale yellow or green on the white background
 
 
 def test_kbar_plot_draws_a_linear_element_on_an_axis_that_shows_it_flat():
@@ -124,12 +154,6 @@ def test_model_paths_follow_each_level_in_frequency_order():
     for p in paths:
         assert np.all(np.diff(-p.kbar.imag / 99.0) > 0)   # along w, never jumping between the two sides
         assert len(p.X) == 40
-
-
-def test_legend_goes_where_it_hides_least():
-    X = np.geomspace(1e-5, 1e-2, 50)
-    assert emptiest_corner(X, np.linspace(0, 9, 50)) in ("top left", "bottom right")   # a rising curve
-    assert emptiest_corner(X, np.linspace(9, 0, 50)) in ("top right", "bottom left")    # a falling one
 
 
 def test_log_axis_reaches_a_labelled_number_below_the_lowest_point():

@@ -12,13 +12,12 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt
 from PySide6.QtGui import QColor
-from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox,
-                               QHBoxLayout, QHeaderView, QLabel, QLineEdit, QListWidget, QProgressBar,
-                               QPushButton, QSplitter, QTableWidget, QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QFrame,
+                               QGroupBox, QHBoxLayout, QHeaderView, QLabel, QLineEdit, QListWidget, QProgressBar,
+                               QPushButton, QScrollArea, QSplitter, QTableWidget, QVBoxLayout, QWidget)
 
 from analysis.prediction.backbone import POWER, measured_backbone, measured_power_balance
 from analysis.common.errors import InputError
-from analysis.common.measurements import Control
 from app.models import builtin_plan_path
 from app.session import measurements_from_session
 from drivers.simulation.rig import builtin_rigs
@@ -28,7 +27,7 @@ from .lab import Lab, save_text
 from .live import ALARM_COLOR, CampaignFeed, is_alarm
 from .plan_doc import plan_document, plan_toml
 from .plots import (CHANNEL_COLORS, FrameClock, LevelPalette, Redraw, configure_plot, finite_log, random_pen,
-                    sensor_symbol)
+                    run_control, sensor_symbol)
 
 COLUMNS = ("Level", "Start", "Stop", "Step", "Dir", "Refine", "Holds", "DOF")
 COLUMN_TIPS = ("N for a force level; m/s², m/s or m for a response level (SI units)", "Hz", "Hz", "Hz",
@@ -58,10 +57,7 @@ def _line_path(m) -> str:
 
 def _level(run) -> str:
     """A live run's level for a legend: its force, or the response amplitude it holds and where."""
-    a = run.attrs
-    if a.get("control") != "response":
-        return f"{run.force:g} N"
-    return Control("response", a["control_dof"], a["control_quantity"], float(a["control_target"])).label()
+    return run_control(run).label()
 
 
 def _spin(value: float, decimals: int = 4, minimum: float = 0.0, maximum: float = 1e5) -> QDoubleSpinBox:
@@ -402,7 +398,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
         dof = run.attrs["phase_dof"]
         w = 2 * np.pi * run.frequency
         X = np.abs(run.arrays[f"harmonics/acc:{dof}"][:, 1]) / w ** 2
-        color = self.palette.color(run.force)
+        color = self.palette.color(run_control(run))
         style = {"pen": pg.mkPen(color, width=1.2), "symbol": "o", "symbolSize": 7, "symbolBrush": pg.mkBrush(color),
                  "symbolPen": None}
         self._curve(self.natural, (run.name, "locked"), name=f"phase resonance at {dof}",
@@ -455,7 +451,8 @@ class LivePlots(pg.GraphicsLayoutWidget):
                                                                                 np.degrees(np.angle(h)))
 
     def _draw_sine(self, run) -> None:
-        f, color = run.frequency, self.palette.color(run.force)
+        level = run_control(run)
+        f, color = run.frequency, self.palette.color(level)
         order = np.argsort(f)
         for p, dof in enumerate(run.sensor_dofs):
             h = run.frf[dof][order]
@@ -467,7 +464,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
         a = run.arrays
         self._curve(self.force_level, (run.name, "achieved"), pen=None, symbol="o", symbolSize=5,
                     symbolBrush=pg.mkBrush(color), symbolPen=None).setData(f, a["force_amplitude"])
-        self._curve(self.force_level, (run.name, "target"), pen=self.palette.pen(run.force, dashed=True)).setData(
+        self._curve(self.force_level, (run.name, "target"), pen=self.palette.pen(level, dashed=True)).setData(
             f[order], a["force_target"][order])
         response = [a[k] for k in a if k.startswith("thd/acc:")]
         if response:
@@ -475,7 +472,7 @@ class LivePlots(pg.GraphicsLayoutWidget):
                         symbolBrush=pg.mkBrush(color), symbolPen=None).setData(
                 f, 100 * np.max(np.stack(response), axis=0))
         if "thd/force" in a:
-            self._curve(self.thd, (run.name, "force"), pen=self.palette.pen(run.force, dashed=True)).setData(
+            self._curve(self.thd, (run.name, "force"), pen=self.palette.pen(level, dashed=True)).setData(
                 f[order], 100 * a["thd/force"][order])
         steady = a["steady"].astype(bool)
         transient = a["transient"].astype(bool) if "transient" in a else np.zeros(len(f), bool)
@@ -547,7 +544,14 @@ class AcquirePanel(QWidget):
         self.events = QListWidget()
         events_layout.addWidget(self.events)
         column.addWidget(events_box, 1)
-        splitter.addWidget(left)
+        # the plan, controls and events scroll on a short screen rather than push the window past it
+        scroll = QScrollArea()
+        scroll.setWidget(left)
+        scroll.setWidgetResizable(True)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setMinimumWidth(left.minimumSizeHint().width() + scroll.verticalScrollBar().sizeHint().width())
+        splitter.addWidget(scroll)
 
         self.live = LivePlots(lab, clock, palette)
         splitter.addWidget(self.live)

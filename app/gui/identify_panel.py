@@ -1,6 +1,7 @@
 """Identify tab: Re and Im of the equivalent complex stiffness kbar against the element amplitude X for every
-element, coloured by force level, growing while a campaign runs; after fitting, the fitted laws as a black line
-per level under the dots (app/kbar_view.py, as kbar.png draws them); an element judged linear on an axis that
+element, coloured by level (circles where the force was held, squares where a response was), growing while a
+campaign runs; after fitting, the fitted laws as a black line per level under the dots (app/kbar_view.py, as
+kbar.png draws them); one legend beside the plots, in level order; an element judged linear on an axis that
 shows it flat; the linear/nonlinear verdict with its evidence."""
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QLabel, QSplitter, QTextBrowser, QVBoxLayout, QWidget
 
 from .lab import Lab
-from app.kbar_view import emptiest_corner, legend_to, linear_axis, model_paths
+from app.kbar_view import legend_column, level_masks, level_path, level_style, linear_axis
 from .plots import FrameClock, LevelPalette, Redraw, configure_plot, scatter
 from .results import IdentificationView
 
@@ -43,6 +44,8 @@ class IdentifyPanel(QWidget):
         splitter.setSizes([1000, 420])
         self._rows: dict[str, tuple[pg.PlotItem, pg.PlotItem]] = {}
         self._curves: dict[tuple, pg.PlotDataItem] = {}
+        self.legend: pg.LegendItem | None = None
+        self._legend_entries: list = []
         self.redraw = Redraw(clock, self._draw, self)
         lab.identificationUpdated.connect(self._update)
         lab.modelChanged.connect(self._model_changed)
@@ -58,6 +61,7 @@ class IdentifyPanel(QWidget):
         self.graphics.clear()
         self._rows.clear()
         self._curves.clear()
+        self.legend, self._legend_entries = None, []
         self.verdicts.clear()
         model = self.lab.model
         self.status.setText(NO_ELEMENTS if model is not None and not model.elements else NO_IDENTIFICATION)
@@ -72,9 +76,9 @@ class IdentifyPanel(QWidget):
         self._model_changed()
         for i, name in enumerate(names):
             re_plot = configure_plot(self.graphics.addPlot(i, 0), f"{name}: Re kbar (stiffness)", "amplitude X",
-                                     None, "Re kbar", "N/m", log_x=True, legend=True)
+                                     None, "Re kbar", "N/m", log_x=True)
             im_plot = configure_plot(self.graphics.addPlot(i, 1), f"{name}: Im kbar (damping)", "amplitude X",
-                                     None, "Im kbar", "N/m", log_x=True, legend=True)
+                                     None, "Im kbar", "N/m", log_x=True)
             self._rows[name] = (re_plot, im_plot)
 
     def _draw(self) -> None:
@@ -82,6 +86,8 @@ class IdentifyPanel(QWidget):
         if view is None:
             return
         self._ensure_rows([e.name for e in view.elements])
+        if self.palette.include(view.levels):
+            self._restyle()
         for el in view.elements:
             re_plot, im_plot = self._rows[el.name]
             samples = el.samples
@@ -91,35 +97,60 @@ class IdentifyPanel(QWidget):
                     plot.setLabel("bottom", "amplitude X", units=x_unit)
                     plot.setLabel("left", f"{part} kbar", units=k_unit)
             for plot, part, name in ((re_plot, np.real, "Re"), (im_plot, np.imag, "Im")):
-                self._draw_part(el, plot, part, view.levels)
+                self._draw_part(el, plot, part, view)
                 self._set_axis(el, plot, part, name)
+        self._draw_legend(view)
         origin = "live, while the campaign runs" if view.live else "from the session"
         self.status.setText(f"kbar identified at {view.lines} stepped-sine lines ({origin}); "
-                            f"levels {', '.join(f'{f:g} N' for f in view.levels)}")
+                            f"levels {', '.join(c.label() for c in view.levels)}")
         self.verdicts.setHtml(self._verdict_html(view))
 
-    def _draw_part(self, el, plot: pg.PlotItem, part, levels: list[float]) -> None:
+    def _restyle(self) -> None:
+        """New levels recolour the others (:class:`LevelPalette`): the dots are made again in their colours."""
+        plots = {id(p): p for pair in self._rows.values() for p in pair}
+        for key in [k for k in self._curves if k[-1] != "model"]:
+            plots[key[1]].removeItem(self._curves.pop(key))
+
+    def _draw_part(self, el, plot: pg.PlotItem, part, view: IdentificationView) -> None:
         """The identified dots of each level above the fitted laws' line through the same lines."""
         samples = el.samples
-        paths = {round(p.level, 9): p for p in model_paths(samples.X, samples.w, samples.level, el.model)} \
-            if samples is not None and el.model is not None else {}
-        for level in levels:
-            key = (el.name, id(plot), level)
-            self._draw_model(plot, key + ("model",), paths.get(round(level, 9)), part)
+        masks = level_masks(samples.level, view.runs) if samples is not None else \
+            [(c, None) for c in view.levels]
+        for control, mask in masks:
+            key = (el.name, id(plot), control.key())
+            fitted = el.model is not None and mask is not None and mask.any()
+            path = level_path(samples.X[mask], samples.w[mask], samples.level[mask], el.model[mask]) \
+                if fitted else None
+            self._draw_model(plot, key + ("model",), path, part)
             curve = self._curves.get(key)
             if curve is None:
-                curve = scatter(plot, self.palette.color(level), size=5, name=f"{level:g} N identified")
+                curve = scatter(plot, self.palette.color(control), self.palette.symbol(control), size=5)
                 curve.setZValue(10)
                 self._curves[key] = curve
-            if samples is None:
+            if mask is None:
                 curve.setData([], [])
                 continue
-            mask = np.isclose(samples.level, level)
             curve.setData(samples.X[mask], part(samples.kbar[mask]))
 
+    def _draw_legend(self, view: IdentificationView) -> None:
+        """One legend for every plot of the tab, in a column of its own beside them: the levels in order, and the
+        fitted laws while they are drawn. Made again only when what it lists changes."""
+        entries = [(level_style(c, self.palette.color(c), 6), f"{c.label()} identified") for c in view.levels]
+        if any(el.model is not None and el.samples is not None for el in view.elements):
+            entries.append(({"pen": pg.mkPen("k", width=1.5)}, "fitted laws"))
+        described = [(str(style.get("symbolBrush")), name) for style, name in entries]
+        if described == self._legend_entries:
+            return
+        if self.legend is not None:
+            self.graphics.removeItem(self.legend)
+        self._legend_entries = described
+        self.legend = legend_column(self.graphics.ci, entries, row=0, col=2, rowspan=max(len(self._rows), 1))
+
+    def legend_names(self) -> list[str]:
+        return [] if self.legend is None else [label.text for _, label in self.legend.items]
+
     def _draw_model(self, plot: pg.PlotItem, key: tuple, path, part) -> None:
-        """The fitted laws along one level's lines, under its dots; the legend names them once per plot, and
-        only while they are drawn."""
+        """The fitted laws along one level's lines, under its dots."""
         line = self._curves.get(key)
         if path is None:
             if line is not None:
@@ -127,9 +158,7 @@ class IdentifyPanel(QWidget):
                 del self._curves[key]
             return
         if line is None:
-            named = not any(k[1] == key[1] and k[-1] == "model" for k in self._curves)
-            line = plot.plot([], [], pen=pg.mkPen("k", width=1.5), connect="finite",
-                             name="fitted laws" if named else None)
+            line = plot.plot([], [], pen=pg.mkPen("k", width=1.5), connect="finite")
             line.setZValue(0)
             self._curves[key] = line
         line.setData(path.X, part(path.kbar))
@@ -147,10 +176,6 @@ class IdentifyPanel(QWidget):
             title += f", linear: {axis.words()}"
         if plot.titleLabel.text != title:        # redrawn every frame while live: set only what changed
             plot.setTitle(title, size="10pt")
-        if el.samples is not None:
-            corner = emptiest_corner(el.samples.X, part(el.samples.kbar))
-            if getattr(plot.legend, "corner", None) != corner:
-                legend_to(plot.legend, corner)
 
     @staticmethod
     def _verdict_html(view: IdentificationView) -> str:

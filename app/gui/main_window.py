@@ -65,6 +65,8 @@ class MainWindow(QMainWindow):
         self.lab = Lab(software_version, self)
         self.clock = FrameClock(parent=self)
         self.palette = LevelPalette()
+        # another session, other levels: its views recolour them in order (before any view draws)
+        self.lab.sessionChanged.connect(self.palette.reset)
         self.rig = RigPanel(self.lab)
         self.acquire = AcquirePanel(self.lab, self.clock, self.palette)
         self.identify = IdentifyPanel(self.lab, self.clock, self.palette)

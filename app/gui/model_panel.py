@@ -18,6 +18,8 @@ from analysis.prediction.comparison import gain_phrase
 from analysis.mechanics.nonparametric import NAME as NONPARAMETRIC
 from app.predict import KIND_WORDS
 
+from app.kbar_view import legend_column
+
 from .lab import Lab, save_text
 from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol
 from .results import AnalysisView, PredictionView
@@ -66,10 +68,14 @@ class ModelPanel(QWidget):
         self.error_label = QLabel("FRF error: — (press Analyze)")
         self.error_label.setStyleSheet("font-size:14pt; font-weight:bold")
         self.busy_label = QLabel("")
+        # the error per level wraps under the headline: with a dozen levels one line would set the window's width
+        self.level_errors = QLabel("")
+        self.level_errors.setWordWrap(True)
         row = QHBoxLayout()
         row.addWidget(self.error_label, 1)
         row.addWidget(self.busy_label)
         layout.addLayout(row)
+        layout.addWidget(self.level_errors)
         self.jump_label = QLabel("")
         self.jump_label.setToolTip("Where the predicted response is multivalued, each measured line is compared with "
                                    "the nearer stable branch (docs/workbench.md §3); ✕ marks lines measured on "
@@ -110,11 +116,12 @@ class ModelPanel(QWidget):
         self.auto_button.clicked.connect(self._start_auto)
         self.stop_button = QPushButton("Stop")
         self.stop_button.setToolTip("End the automatic loop before its next step (the steps taken stay)")
-        self.stop_button.clicked.connect(self.lab.stop_auto)
+        self.stop_button.clicked.connect(self._stop_auto)
         self.stop_button.setEnabled(False)
         self.lab.autoProgress.connect(self._auto_line)
         self._auto_lines: list[str] = []
         self._auto_running = False
+        self._stopping = False
         self.auto_label = QLabel("")
         self.auto_label.setWordWrap(True)
         self.auto_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
@@ -133,8 +140,9 @@ class ModelPanel(QWidget):
 
         self.graphics = pg.GraphicsLayoutWidget()
         self.frf = configure_plot(self.graphics.addPlot(0, 0, colspan=2),
-                                  "Receptance |H|: measured (dots) and predicted (lines) per level",
-                                  "frequency", "Hz", "|H|", "m/N", log_y=True, legend=True)
+                                  "Receptance |H|: measured (markers) and predicted (lines) per level",
+                                  "frequency", "Hz", "|H|", "m/N", log_y=True)
+        self.legend: pg.LegendItem | None = None
         self.residual = configure_plot(self.graphics.addPlot(1, 0), "Residual map: relative error per line",
                                        "frequency", "Hz", "|H pred − H meas| / |H meas|", None, log_y=True)
         self.history = configure_plot(self.graphics.addPlot(1, 1), "Error history", "step", None,
@@ -176,21 +184,35 @@ class ModelPanel(QWidget):
     # ------------------------------------------------------------------ the automatic loop
     def _start_auto(self) -> None:
         self._auto_lines = []
+        self._stopping = False
         self._auto_running = self.lab.act(self.lab.auto)
         if self._auto_running:
             self.auto_label.setText("<b>Automatic loop</b> (running: each step appears as it is taken)")
         self._update_enabled()
 
+    def _stop_auto(self) -> None:
+        """Stop pressed: said at once, as the loop ends only before its next step (a discovery or a fit under way
+        runs to its end first)."""
+        self.lab.stop_auto()
+        self._stopping = True
+        self._show_auto_lines()
+        self._update_enabled()
+
     def _auto_line(self, line: str) -> None:
         """A step of the running loop, shown as it is taken."""
         self._auto_lines.append(line)
-        self.auto_label.setText("<br>".join(["<b>Automatic loop</b> (running)", *self._auto_lines[-12:]]))
+        self._show_auto_lines()
+
+    def _show_auto_lines(self) -> None:
+        state = ("stopping: it ends before its next step; the steps taken stay" if self._stopping else "running")
+        self.auto_label.setText("<br>".join([f"<b>Automatic loop</b> ({state})", *self._auto_lines[-12:]]))
 
     # ------------------------------------------------------------------ views
     def _model_changed(self) -> None:
         self.view = None
         self.model_label.setText(self.lab.model_label or "no model: open one, or make a starter model from the rig")
         self.error_label.setText("FRF error: — (press Analyze)")
+        self.level_errors.setText("")
         self.jump_label.setText("")
         self.auto_label.setText("")
         self.laws.clear()
@@ -199,8 +221,7 @@ class ModelPanel(QWidget):
         self.explanation.clear()
         for plot in self.plots().values():
             plot.clear()
-            if plot.legend is not None:
-                plot.legend.clear()
+        self._set_legend([])
         if self.lab.model is not None:
             for el in self.lab.model.elements:
                 where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
@@ -217,7 +238,7 @@ class ModelPanel(QWidget):
     def _show_busy(self, busy: bool) -> None:
         self.busy_label.setText("working …" if busy else "")
         if not busy:
-            self._auto_running = False
+            self._auto_running = self._stopping = False
         self._update_enabled()
 
     def _update_enabled(self) -> None:
@@ -227,7 +248,7 @@ class ModelPanel(QWidget):
         self.predict_button.setEnabled(not busy and self.lab.model is not None and self.lab.session_path is not None
                                        and not self.lab.campaign_running)
         self.auto_button.setEnabled(not busy and have_view)
-        self.stop_button.setEnabled(busy and self._auto_running)
+        self.stop_button.setEnabled(busy and self._auto_running and not self._stopping)
         self.undo_button.setEnabled(not busy and have_view and self.view.can_undo)
         self.save_button.setEnabled(have_view)
         self.starter_button.setEnabled(self.lab.rig is not None)
@@ -243,6 +264,7 @@ class ModelPanel(QWidget):
         explanation box, the FRFs and residuals drawn with each run's kind in the legend."""
         kinds = "; ".join(f"{KIND_WORDS[kind]} levels {error:.3g}" for kind, error in view.prediction.errors.items())
         self.error_label.setText(f"Prediction, nothing refitted: {kinds}")
+        self.level_errors.setText("")
         self.jump_label.setText("")
         self.explanation.setHtml(f"<pre>{html.escape(view.text)}</pre>")
         self._draw_frf(view)
@@ -259,10 +281,12 @@ class ModelPanel(QWidget):
         view = self.view
         if view is None:
             return
-        by_level = ", ".join(f"{e.label()}: {e.error:.3g}" for e in view.error_by_level)
+        levels = sorted(view.error_by_level, key=lambda e: e.control.order())
+        by_level = ", ".join(f"{e.label()}: {e.error:.3g}" for e in levels)
         single = "" if view.single_harmonic_error == view.error else \
             f"; single-harmonic {view.single_harmonic_error:.4g}, as the candidates' errors"
-        self.error_label.setText(f"FRF error {view.error:.4g}   ({by_level}{single})")
+        self.error_label.setText(f"FRF error {view.error:.4g}")
+        self.level_errors.setText(f"by level: {by_level}{single}")
         self.jump_label.setText("<br>".join(["<b>Jumps</b> (predicted fold against measured):", *view.jumps])
                                 if view.jumps else "")
         self.auto_label.setText("<br>".join(["<b>Automatic loop</b>", *view.auto]) if view.auto else "")
@@ -330,6 +354,10 @@ class ModelPanel(QWidget):
         if view.candidates:
             table.selectRow(0)
             self._show_explanation()          # row 0 may have been selected already: no selection signal
+        elif not view.ranked:
+            self.explanation.setPlainText("Not ranked: the automatic loop was stopped before it ranked the missing "
+                                          "effects. Auto goes on from the model as it is; Undo takes back its last "
+                                          "step and ranks again.")
         else:
             self.explanation.setPlainText("No candidate: every law of the library was tried" +
                                           ("; an element with a non-parametric part gets none (it explains that "
@@ -337,24 +365,45 @@ class ModelPanel(QWidget):
                                            else "."))
 
     def _draw_frf(self, view: AnalysisView | PredictionView) -> None:
+        """Measured and predicted FRFs and the residual map, runs in level order (:meth:`Control.order`, up
+        before down); the legend beside the plots names each run by how its level was held, and each sensor by
+        its marker."""
         for plot in (self.frf, self.residual):
             plot.clear()
-            if plot.legend is not None:
-                plot.legend.clear()
-        for run in view.runs:
-            color = self.palette.color(run.force)
+        self.palette.include(r.control for r in view.runs)
+        runs = sorted(view.runs, key=lambda r: (r.control.order(), r.direction != "up", r.name))
+        entries, sensors = [], {}
+        for run in runs:
+            color = self.palette.color(run.control)
             order = np.argsort(run.frequency_hz)
             f = run.frequency_hz[order]
             predicted = view.predicted[run.name][order]
             for p, dof in enumerate(run.sensor_dofs):
+                sensors.setdefault(dof, sensor_symbol(p))
                 self.frf.plot(f, finite_log(np.abs(run.receptance[order, p])), pen=None, symbol=sensor_symbol(p),
-                              symbolSize=5, symbolBrush=pg.mkBrush(color), symbolPen=None,
-                              name=f"{run.control.label()} {run.direction} · {dof}"
-                                   + (f" ({view.tags[run.name]})" if run.name in view.tags else ""))
+                              symbolSize=5, symbolBrush=pg.mkBrush(color), symbolPen=None)
                 self.frf.plot(f, finite_log(np.abs(predicted[:, p])), pen=pg.mkPen(color, width=1.5))
             self.residual.plot(f, finite_log(view.residual_map[run.name][order]), pen=pg.mkPen(color, width=1),
                                symbol="o", symbolSize=4, symbolBrush=pg.mkBrush(color), symbolPen=None)
             self._draw_other_branch(view, run, order, color)
+            entries.append(({"pen": pg.mkPen(color, width=2)},
+                            f"{run.control.label()} {run.direction} · {', '.join(run.sensor_dofs)}"
+                            + (f" ({view.tags[run.name]})" if run.name in view.tags else "")))
+        entries += [({"pen": None, "symbol": symbol, "symbolSize": 7, "symbolBrush": pg.mkBrush("#555"),
+                      "symbolPen": None}, f"measured at {dof}") for dof, symbol in sensors.items()]
+        self._set_legend(entries)
+
+    def _set_legend(self, entries) -> None:
+        """The legend in its own column right of the plots (never over the data)."""
+        if self.legend is not None:
+            self.graphics.removeItem(self.legend)
+            self.legend = None
+        if entries:
+            self.legend = legend_column(self.graphics.ci, entries, row=0, col=2, rowspan=2)
+        self.frf.legend = self.legend          # it is the FRF plot's legend, only placed beside the plots
+
+    def legend_names(self) -> list[str]:
+        return [] if self.legend is None else [label.text for _, label in self.legend.items]
 
     def _draw_other_branch(self, view: AnalysisView, run, order, color) -> None:
         """Lines measured on another branch than the swept prediction: a cross on the residual map and the

@@ -1,5 +1,5 @@
-"""Plot building blocks shared by the tabs: one colour per force level, axis set-up, PNG export, and the
-frame clock that paces every live redraw.
+"""Plot building blocks shared by the tabs: one colour per level (the report's too, app/kbar_view.py), axis set-up,
+PNG export, and the frame clock that paces every live redraw.
 
 Live data never draws itself: whoever receives it marks a :class:`Redraw` dirty, and the window-wide
 :class:`FrameClock` redraws what is dirty at most ``MAX_FPS`` times a second, so a fast stream costs the
@@ -15,6 +15,8 @@ import pyqtgraph as pg
 from pyqtgraph.exporters import ImageExporter
 from PySide6.QtCore import QObject, Qt, QTimer, Signal
 
+from analysis.common.measurements import Control
+from app.kbar_view import level_colours, level_symbol, ordered_levels
 from app.session import atomic_output
 
 MAX_FPS = 30
@@ -23,30 +25,62 @@ MAX_FPS = 30
 # white background and antialiasing off: readable in print, cheap while streaming
 pg.setConfigOptions(background="w", foreground="k", antialias=False)
 
-LEVEL_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
-                "#bcbd22", "#7f7f7f")
 SENSOR_SYMBOLS = ("o", "t", "s", "d", "star", "x")
 CHANNEL_COLORS = ("#000000", "#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b")
 
 
-class LevelPalette:
-    """A colour per force level, in the order levels first appear (stable while data arrive).
+def run_control(run) -> Control:
+    """How a session's or a live campaign's run held its level, from its attributes (docs/session-format.md):
+    force control at the run's force where they say nothing else."""
+    a = run.attrs
+    if a.get("control") == "response":
+        return Control("response", a["control_dof"], a["control_quantity"], float(a["control_target"]))
+    return Control(a.get("control") or "force", "", "force", float(run.force))
 
-    The window keeps one palette so a level has the same colour on every tab.
-    """
+
+class LevelPalette:
+    """A colour per level: the levels known to the window in :meth:`Control.order`, coloured as the report colours
+    them (:func:`app.kbar_view.level_colours`), so neighbouring levels get neighbouring hues.
+
+    The window keeps one palette so a level has the same colour on every tab. A view tells it every level of its
+    data (:meth:`include`) before drawing; a level not known yet is added where it belongs in the order, which
+    recolours the others -- a session's or a plan's levels are given all at once."""
 
     def __init__(self):
-        self._index: dict[float, int] = {}
+        self._levels: list[Control] = []
+        self._colors: dict[tuple, str] = {}
 
-    def color(self, force: float) -> str:
-        key = round(float(force), 9)
-        if key not in self._index:
-            self._index[key] = len(self._index)
-        return LEVEL_COLORS[self._index[key] % len(LEVEL_COLORS)]
+    def include(self, controls) -> bool:
+        """Know these levels too; whether any was new (the colours then changed)."""
+        known = {c.key() for c in self._levels}
+        new = [c for c in controls if c.key() not in known]
+        if not new:
+            return False
+        self._levels = ordered_levels([*self._levels, *new])
+        self._colors = {c.key(): "#%02x%02x%02x" % rgb
+                        for c, rgb in zip(self._levels, level_colours(len(self._levels)))}
+        return True
 
-    def pen(self, force: float, width: float = 1.5, dashed: bool = False):
+    def reset(self, controls=()) -> None:
+        """Forget the levels (another session): only ``controls`` are known."""
+        self._levels, self._colors = [], {}
+        self.include(controls)
+
+    @property
+    def levels(self) -> list[Control]:
+        return list(self._levels)
+
+    def color(self, control: Control) -> str:
+        self.include([control])
+        return self._colors[control.key()]
+
+    def symbol(self, control: Control) -> str:
+        """The marker of a level's measured points: circles where the force was held, squares a response."""
+        return level_symbol(control)
+
+    def pen(self, control: Control, width: float = 1.5, dashed: bool = False):
         style = {"style": Qt.PenStyle.DashLine} if dashed else {}
-        return pg.mkPen(self.color(force), width=width, **style)
+        return pg.mkPen(self.color(control), width=width, **style)
 
 
 def random_pen(index: int):

@@ -10,13 +10,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from analysis.loop.auto import AutoResult
+from analysis.loop.auto import STOPPED_BY_USER, AutoResult
 from analysis.prediction.comparison import LevelError
 from analysis.missing.diagnosis import Candidate, ElementSamples
-from analysis.common.measurements import SineRun
+from analysis.common.measurements import Control, SineRun
 from analysis.loop.workbench import Workbench
 from analysis.mechanics.model import FittedOn
 from analysis.prediction.held_out import SessionPrediction
+from app.kbar_view import ordered_levels
 from app.predict import KIND_WORDS
 
 
@@ -116,6 +117,7 @@ class AnalysisView:
     unexplained: list[UnexplainedView] = field(default_factory=list)     # elements outside the library
     auto: list[str] = field(default_factory=list)       # the steps of the last automatic loop and why it stopped
     single_harmonic_error: float = float("nan")         # the measure the candidates are judged by
+    ranked: bool = True                                 # False: stopped before the candidates were ranked
 
     @property
     def can_undo(self) -> bool:
@@ -160,12 +162,17 @@ class PredictionView:
 
 @dataclass
 class IdentificationView:
-    """The identify tab's content: kbar samples and verdicts, from ``lines`` stepped-sine lines."""
+    """The identify tab's content: kbar samples and verdicts, from ``lines`` stepped-sine lines of ``runs``."""
 
     elements: list[ElementView]
     lines: int
     live: bool = False
-    levels: list[float] = field(default_factory=list)
+    runs: list[SineRun] = field(default_factory=list)
+
+    @property
+    def levels(self) -> list[Control]:
+        """The runs' levels in :meth:`Control.order`."""
+        return ordered_levels(r.control for r in self.runs)
 
 
 def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
@@ -197,7 +204,7 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
 
 
 def _identification(elements: list[ElementView], runs: list[SineRun], live: bool) -> IdentificationView:
-    return IdentificationView(elements, sum(len(r.frequency_hz) for r in runs), live, sorted({r.force for r in runs}))
+    return IdentificationView(elements, sum(len(r.frequency_hz) for r in runs), live, list(runs))
 
 
 def identification_view(wb: Workbench, live: bool) -> IdentificationView:
@@ -211,13 +218,31 @@ def identification_of(view: AnalysisView) -> IdentificationView:
 
 
 def _discovered(auto: AutoResult) -> list[str]:
-    """One line per element whose laws discovery chose, with the sets the data cannot tell from them."""
+    """One line per element whose laws discovery chose, with the sets the data cannot tell from them; a choice the
+    loop was stopped before adding says so (the model does not hold it)."""
+    added = {s.element for s in auto.steps if s.action == "discover"}
     out = []
     for e in [] if auto.discovery is None else auto.discovery.elements:
         alike = f"; indistinguishable on these data: {', '.join('+'.join(s.laws) for s in e.equivalents)}" \
             if e.equivalents else ""
-        out.append(f"discovered {e.element}: {e.chosen.name}{alike}")
+        kept = e.element in added or not e.laws
+        out.append(f"discovered {e.element}: {e.chosen.name}{alike}" if kept else
+                   f"found for {e.element}: {e.chosen.name} -- not added (stopped before it)")
     return out
+
+
+def _stopped(auto: AutoResult) -> str:
+    """Why the loop ended; stopped by the user, what the model keeps and what was not tried."""
+    if auto.stopped != STOPPED_BY_USER:
+        return f"stopped: {auto.stopped}"
+    added = {s.element for s in auto.steps if s.action == "discover"}
+    pending = [e.element for e in ([] if auto.discovery is None else auto.discovery.elements)
+               if e.laws and e.element not in added]
+    kept = (f"the model on this tab keeps the {len(auto.steps)} step(s) taken" if auto.steps else
+            "no step was taken: the model is as it was")
+    untried = (f"adding the laws found for {', '.join(pending)}, the linear corrections and the ranking of the "
+               "missing effects" if pending else "the next ranking of the missing effects and what it would add")
+    return f"stopped by the user: {kept}; not tried: {untried}"
 
 
 def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult | None = None,
@@ -235,5 +260,7 @@ def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult |
         [j.text() for j in comp.jumps],
         [UnexplainedView(o.element, o.finding.text(), o.finding.noise_ratio, o.error, o.error_before, o.gain)
          for o in wb.unexplained()],
-        [] if auto is None else _discovered(auto) + [s.line() for s in auto.steps] + [f"stopped: {auto.stopped}"],
-        wb.single_harmonic_comparison().error)
+        [] if auto is None else _discovered(auto) + [s.line() for s in auto.steps] + [_stopped(auto)],
+        wb.single_harmonic_comparison().error,
+        # a stopped loop leaves no ranking; an empty table would read as "every law was tried"
+        auto is None or auto.stopped != STOPPED_BY_USER)

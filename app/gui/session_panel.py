@@ -19,7 +19,7 @@ from analysis.common.errors import InputError
 
 from .lab import Lab
 from .live import ALARM_COLOR, is_alarm
-from .plots import (LevelPalette, configure_plot, export_png, finite_log, random_pen, safe_file_name,
+from .plots import (LevelPalette, configure_plot, export_png, finite_log, random_pen, run_control, safe_file_name,
                     sensor_symbol)
 
 RUN_COLUMNS = ("Run", "Kind", "Force [N]", "Direction", "Status", "Lines", "From transient")
@@ -245,7 +245,7 @@ class SessionPanel(QWidget):
             if run.kind == "random":          # a continuous spectrum at one low level: grey, a style per sensor
                 style = {"pen": random_pen(p)}
             else:                             # the level's colour on every tab, sensors by symbol
-                color = self.palette.color(run.force)
+                color = self.palette.color(run_control(run))
                 style = {"pen": pg.mkPen(color, width=1.2), "symbol": sensor_symbol(p), "symbolSize": 5,
                          "symbolBrush": pg.mkBrush(color), "symbolPen": None}
             self.magnitude.plot(f, finite_log(np.abs(h[order])), name=f"{dof}", **style)
