@@ -2,6 +2,7 @@
 elements are decoupled, judged by the FRFs, equivalent sets named. Data from describing functions by quadrature
 and an fsolve balance, from RK4 integrations written in the tests, and (slow) from the project's simulator
 through the whole campaign stack."""
+import copy
 import itertools
 import json
 import tomllib
@@ -130,8 +131,7 @@ def test_a_law_whose_every_parameter_is_tied_adds_nothing_but_a_damping_of_its_o
 
 
 def test_coulomb_and_a_stiff_jenkins_element_are_named_alike_with_the_test_that_separates_them():
-    s = samples_of({"coulomb": {"fs": 0.5}}, X, W)
-    search = search_element(0, s, linear_verdict=False)
+    search = searched("laws", (("coulomb", (("fs", 0.5),)),))
     coulomb = next(x for x in search.sets if x.laws == ("coulomb",))
     jenkins = next(x for x in search.sets if x.laws == ("jenkins",))
     assert coulomb.criterion < jenkins.criterion            # the fewer parameters
@@ -205,8 +205,7 @@ def test_a_set_whose_law_is_tied_to_another_is_never_chosen_but_named_where_its_
 
 
 def test_the_shortlist_keeps_one_of_sets_that_fit_alike_and_a_determined_one():
-    s = samples_of({"coulomb": {"fs": 0.5}}, X, W)
-    search = search_element(0, s, linear_verdict=False)
+    search = searched("laws", (("coulomb", (("fs", 0.5),)),))
     short = _shortlists(search.sets, 3)
     chi = [x.chi_square for x in short[1]]
     assert len(set(np.round(chi, 6))) == len(chi)                 # no two that fit alike
@@ -223,8 +222,26 @@ def analytic_samples(k: float, c: float, k3: float, c2: float, noise=1e-3, seed=
     return ElementSamples("joint", X, W, kbar, std, np.ones(len(X)))
 
 
+_SEARCHED: dict[tuple, _Search] = {}
+
+
+def searched(kind: str, *args) -> _Search:
+    """``search_element(0, samples, linear_verdict=False)`` of the samples ``analytic_samples(*args)`` (kind
+    "analytic") or ``samples_of(args[0], X, W)`` (kind "laws", args[0] a tuple of (law, ((param, value), ...)))
+    writes. The search is a deterministic function of its samples and several tests read the same one: it is run
+    once per process and each caller gets a deep copy of its own, free to change."""
+    key = (kind, args)
+    if key not in _SEARCHED:
+        if kind == "analytic":
+            samples = analytic_samples(*args)
+        else:
+            samples = samples_of({law: dict(values) for law, values in args[0]}, X, W)
+        _SEARCHED[key] = search_element(0, samples, linear_verdict=False)
+    return copy.deepcopy(_SEARCHED[key])
+
+
 def test_a_law_whose_size_the_kbar_cannot_tell_from_zero_is_unseen():
-    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
     empty, pair = sets[()], sets["cubic", "quadratic_damping"]
     assert _unseen_laws(pair, empty) == []
@@ -449,7 +466,7 @@ class _Errors:
 
 @pytest.mark.parametrize("gain, taken", [(1.5, False), (2.0, True)])
 def test_a_step_that_adds_two_laws_must_gain_the_margin_of_each(gain, taken):
-    search = search_element(0, analytic_samples(-300.0, 0.5, 4e5, 5.0), linear_verdict=False)
+    search = searched("analytic", -300.0, 0.5, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
     one, three = sets["cubic",], sets["linear", "cubic", "quadratic_damping"]
     assert _unseen_laws(three, one) == []
@@ -462,7 +479,7 @@ def test_a_step_that_adds_two_laws_must_gain_the_margin_of_each(gain, taken):
 
 
 def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
-    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
     two, three = sets["cubic", "quadratic_damping"], sets["cubic", "quadratic_damping", "velocity_stiffness"]
     judge = _Judge.__new__(_Judge)
@@ -492,7 +509,7 @@ def test_on_data_without_harmonics_a_law_beside_others_must_lower_the_kbar_chi_s
     # every describing function gains in the FRFs (random 14 and 24 of seed 112631: a velocity stiffness beside
     # a softer joint and Coulomb friction, x2.0); a gain of x10 is beyond what that brings (random 27 of seed
     # 266231: a gap closing at a few lines, x29 in the FRFs), and is checked with harmonics instead
-    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
     one, two = sets["cubic",], sets["cubic", "quadratic_damping"]
     noise = search.scale * scipy.stats.chi2.ppf(1 - 1e-3, two.n_parameters - one.n_parameters)
@@ -510,7 +527,7 @@ def test_on_data_without_harmonics_a_law_beside_others_must_lower_the_kbar_chi_s
 
 
 def test_every_set_one_law_larger_than_the_choice_goes_to_the_frfs():
-    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
     cubic = sets["cubic",]
     larger = {s.laws for s in _extension(search, cubic, 2)} | {s.laws for s in search.by_size[2]}
@@ -523,7 +540,7 @@ def test_every_set_one_law_larger_than_the_choice_goes_to_the_frfs():
 
 
 def test_the_single_law_the_frfs_like_best_joins_the_shortlist_of_one_law():
-    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     singles = [s for s in search.sets if len(s.laws) == 1]
     outside = next(s for s in singles if s not in search.by_size[1])
     judge = _Judge.__new__(_Judge)
@@ -539,7 +556,7 @@ def test_the_single_law_the_frfs_like_best_joins_the_shortlist_of_one_law():
 def test_on_data_without_harmonics_sets_that_fit_the_kbar_alike_and_the_frfs_far_better_join_the_shortlist():
     # random case 9 of seed 275748: the capped kbar ranked a tanh spring beside Coulomb friction below a dozen
     # sets of two laws, and its FRF error was x17 lower
-    search = search_element(0, samples_of({"coulomb": {"fs": 0.5}}, X, W), linear_verdict=False)
+    search = searched("laws", (("coulomb", (("fs", 0.5),)),))
     judge = _Judge.__new__(_Judge)
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     short = list(search.by_size[2])
@@ -636,7 +653,7 @@ def test_the_frfs_part_two_sets_by_far_at_their_kbar_fits_or_by_the_margin_squar
 
 
 def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tell_them_apart():
-    search = search_element(0, analytic_samples(0.0, 0.0, 4e5, 5.0), linear_verdict=False)
+    search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     pair = next(s for s in search.sets if s.laws == ("cubic", "quadratic_damping"))
     # a set of other kinds made alike in the kbar: the same chi-square, as many parameters
     twin = LawSet(("velocity_stiffness", "coulomb"), pair.fit, pair.chi_square, pair.n_parameters)
@@ -662,7 +679,7 @@ class _MultiOf:
 def test_a_simpler_set_alike_replaces_the_choice_only_where_it_holds_with_harmonics_on_data_without_them():
     # random case 10 of seed 635793: a one-sided contact and a gap alike in the kbar and single-harmonic (0.075),
     # 0.296 and 0.019 with harmonics; as many parameters, and the tie took the contact
-    search = search_element(0, samples_of({"gap": {"k": 900.0, "gap": 0.02}}, X, W), linear_verdict=False)
+    search = searched("laws", (("gap", (("k", 900.0), ("gap", 0.02))),))
     chosen = next(x for x in search.sets if x.laws == ("gap",))
     contact = LawSet(("unilateral",), chosen.fit, chosen.chi_square, chosen.n_parameters)
     spring = LawSet(("quintic",), chosen.fit, chosen.chi_square, 1)          # simpler, alike made
@@ -697,7 +714,7 @@ class _Multi:
 def test_a_large_single_harmonic_gain_is_checked_with_harmonics_beside_a_law_on_data_without_harmonics(
         kbar_judges, before, checked):
     # x6 single-harmonically, nothing with harmonics: a law that fits the lines one harmonic cannot represent
-    search = search_element(0, analytic_samples(-300.0, 0.5, 4e5, 5.0), linear_verdict=False)
+    search = searched("analytic", -300.0, 0.5, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
     after = sets[before + ("quadratic_damping",)]
     judge = _Judge.__new__(_Judge)
@@ -714,7 +731,7 @@ def _refinement(chi_square: float, n_residuals: int) -> FrfRefinement:
 def test_a_clearance_the_frfs_overrule_only_at_its_kbar_fit_stays_first_on_data_without_harmonics():
     # random case 6 of seed 939814: a gap fitted to the capped kbar a few percent off gave an FRF error of 0.178
     # against a quintic's 0.126; refined against the FRFs, a chi-square of 1896 against 17264 over 312 residuals
-    search = search_element(0, samples_of({"gap": {"k": 900.0, "gap": 0.02}}, X, W), linear_verdict=False)
+    search = searched("laws", (("gap", (("k", 900.0), ("gap", 0.02))),))
     sets = {s.laws: s for s in search.sets}
     gap, quintic, cubic = sets["gap",], sets["quintic",], sets["cubic",]
     gap.criterion, quintic.criterion, cubic.criterion = 1.0, 2.0, 3.0
@@ -742,7 +759,7 @@ def test_a_law_beside_a_clearance_is_taken_back_where_every_element_refined_leav
         monkeypatch):
     # random case 6 of seed 939814: Anderson-Ferri friction beside a gap, x1.39 over the gap at its kbar fit;
     # with both joints refined against the FRFs x1.13 single-harmonic (x1.37 with harmonics)
-    search = search_element(0, samples_of({"gap": {"k": 900.0, "gap": 0.02}}, X, W), linear_verdict=False)
+    search = searched("laws", (("gap", (("k", 900.0), ("gap", 0.02))),))
     gap = next(s for s in search.sets if s.laws == ("gap",))
     pair = next(s for s in search.sets if len(s.laws) == 2 and "gap" in s.laws)
     other = next(n for n in pair.laws if n != "gap")

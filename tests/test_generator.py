@@ -216,8 +216,11 @@ def test_contactid_acquire_runs_a_campaign_on_a_served_generator_through_its_gua
                               stderr=subprocess.PIPE, text=True)
     try:
         urls = dict(server.stdout.readline().strip().split(": ", 1) for _ in range(2))
+        # the transient-aware lines: the path under test is the processes, the guardian and the generator's
+        # commands, not the settling, and a paced bench spends its real time waiting for the lines to settle
         (tmp_path / "plan.toml").write_text("[[stepped_sine]]\nforce = 0.5\nstart = 5.0\nstop = 6.0\nstep = 0.5\n"
-                                            "refine = false\n[limits]\nmax_force = 5.0\nmax_acceleration = 150.0\n")
+                                            "refine = false\n[settle]\nmethod = \"transient\"\n"
+                                            "[limits]\nmax_force = 5.0\nmax_acceleration = 150.0\n")
         done = subprocess.run([sys.executable, "-m", "app.cli", "acquire", str(tmp_path / "plan.toml"), "-o",
                                str(tmp_path / "g.h5"), "--shaker", urls["shaker"], "--daq", urls["daq"],
                                "--excitation", "x1", "--quiet"], cwd=root, capture_output=True, text=True,
