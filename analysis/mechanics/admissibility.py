@@ -39,9 +39,9 @@ KbarFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]      # (X, w) -> k
 
 @dataclass(frozen=True)
 class Admissibility:
-    """Per state checked: ``dissipation`` the smallest eigenvalue of D over its largest (negative: the model gives
-    energy back at that state; 0 where no element subtracts damping), ``stiffness`` the same of S;
-    ``amplitude`` (N, E) and ``w`` (N,) the states."""
+    """Per state checked: ``dissipation`` 0 where D is semidefinite, else negative by how far it is not (the
+    smallest eigenvalue over the largest; for one element, the margin ``1 + a v^T B^+ v`` of the rank-one update,
+    below), ``stiffness`` the same of S; ``amplitude`` (N, E) and ``w`` (N,) the states."""
 
     amplitude: np.ndarray
     w: np.ndarray
@@ -93,20 +93,34 @@ def admissibility(structure: Structure, vectors: Sequence[np.ndarray], functions
     kbar = np.stack([np.asarray(f(amplitude[:, e], w), complex) for e, f in enumerate(functions)], axis=1) \
         if len(functions) else np.zeros((len(w), 0), complex)
     V = np.stack(vectors, axis=1) if len(vectors) else np.zeros((structure.n, 0))
-    return Admissibility(amplitude, w, _relative_smallest(w[:, None, None] * structure.C[None], V, kbar.imag),
-                         _relative_smallest(np.broadcast_to(structure.K, (len(w),) + structure.K.shape), V,
-                                            kbar.real))
+    return Admissibility(amplitude, w, _shortfall(structure.C, w, V, kbar.imag),
+                         _shortfall(structure.K, np.ones(len(w)), V, kbar.real))
 
 
-def _relative_smallest(base: np.ndarray, V: np.ndarray, parts: np.ndarray) -> np.ndarray:
-    """Per state n, the smallest eigenvalue of ``base[n] + V diag(parts[n]) V^T`` over its largest in size. Only
-    the states where some part is negative are solved: the structure's own matrices are semidefinite (checked
-    when it is built), and adding semidefinite terms keeps them so; the others read 0."""
+def _shortfall(base: np.ndarray, scale: np.ndarray, V: np.ndarray, parts: np.ndarray) -> np.ndarray:
+    """Per state n, 0 where ``scale[n] base + V diag(parts[n]) V^T`` is semidefinite, else how far it is not.
+    ``base`` is semidefinite (checked when the structure is built) and ``scale`` positive, so only the states
+    where some part is negative can fail. One element is a rank-one update ``s B + a v v^T``, semidefinite for
+    a < 0 exactly when v lies in the range of B and ``1 + a v^T B^+ v / s >= 0`` (the matrix determinant lemma):
+    one number per state, not an eigenproblem of the structure's size for each of the thousands a search makes.
+    Several elements: the smallest eigenvalue over the largest."""
     out = np.zeros(len(parts))
     some = (parts < 0).any(axis=1)
-    if some.any():
-        A = base[some] + np.einsum("ie,ne,je->nij", V, parts[some], V)
-        eig = np.linalg.eigvalsh(0.5 * (A + np.swapaxes(A, 1, 2)))
-        scale = np.abs(eig).max(axis=1)
-        out[some] = np.divide(eig[:, 0], scale, out=np.zeros(len(eig)), where=scale > 0)
+    if not some.any():
+        return out
+    if V.shape[1] == 1:
+        lam, U = np.linalg.eigh(base)
+        proj = U.T @ V[:, 0]
+        inside = lam > TOLERANCE * max(float(lam.max()), 0.0)
+        if np.sum(proj[~inside] ** 2) > TOLERANCE * float(V[:, 0] @ V[:, 0]):
+            out[some] = -1.0            # the element moves where the structure has no stiffness or damping
+            return out
+        q = float(np.sum(proj[inside] ** 2 / lam[inside]))
+        margin = 1.0 + parts[some, 0] * q / scale[some]
+        out[some] = np.minimum(margin, 0.0)
+        return out
+    A = scale[some, None, None] * base[None] + np.einsum("ie,ne,je->nij", V, parts[some], V)
+    eig = np.linalg.eigvalsh(0.5 * (A + np.swapaxes(A, 1, 2)))
+    size = np.abs(eig).max(axis=1)
+    out[some] = np.minimum(np.divide(eig[:, 0], size, out=np.zeros(len(eig)), where=size > 0), 0.0)
     return out

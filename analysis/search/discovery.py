@@ -374,17 +374,15 @@ def search_element(index: int, samples: ElementSamples, linear_verdict: bool,
 
 
 def _refusal(s: LawSet, samples: ElementSamples, around: Surroundings | None) -> str:
-    """Why a fitted set is no discovery however it scores ('' where nothing): its fit leaves out more than
-    OUTLIER_SHARE_LIMIT of the samples as outliers (it describes a part of the data, not the element), or the
-    structure with the element at its fitted laws is not admissible at the samples' states -- it would give energy
-    back, or lose its static stiffness (analysis/mechanics/admissibility.py). The element is judged in the
-    reference alone, the other elements absent: their laws are not known yet, and a joint's own laws must not
-    rest on another's damping."""
-    if s.fit is None:
-        return ""
-    if not s.fit.describes_the_data:
-        return f"its fit leaves {100 * s.fit.outlier_share:.0f} % of the lines out as outliers"
-    if around is None:
+    """Why a fitted set is no discovery however it scores ('' where nothing): the structure with the element at
+    its fitted laws is not admissible at the samples' states -- it would give energy back, or lose its static
+    stiffness (analysis/mechanics/admissibility.py). The element is judged in the reference alone, the other
+    elements absent: their laws are not known yet, and a joint's own laws must not rest on another's damping.
+
+    A set whose fit leaves out many lines as outliers is not refused here: on data without harmonics the lines
+    where a friction sticks or a contact closes follow no describing function, and a right set leaves them out
+    (docs/fitting.md, "Outliers"); the report says when a fit leaves out more than a tenth."""
+    if s.fit is None or around is None:
         return ""
     check = admissibility(around.structure, [around.vector], [s.describing_function], samples.X[:, None], samples.w)
     if not check.passive:
