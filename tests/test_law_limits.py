@@ -45,3 +45,15 @@ def test_a_law_inside_its_range_and_laws_without_limits_read_as_themselves():
     assert LAWS["jenkins"].reading({"kt": 1e5, "fs": 10.0}, X_min, X_max) is None          # slips at 1e-4
     assert LAWS["iwan"].reading({"kt": 1e5, "fs": 10.0, "chi": -0.5, "beta": 0.1}, X_min, X_max) is None
     assert LAWS["cubic"].reading({"k3": 1e9}, X_min, X_max) is None
+
+
+def test_an_iwan_element_whose_spike_carries_the_stiffness_reads_as_the_jenkins_element_of_its_spike():
+    iwan, jenkins = LAWS["iwan"], LAWS["jenkins"]
+    values = {"kt": 1.2e5, "fs": 36.7, "chi": 0.98, "beta": 5.5e28}
+    X = np.geomspace(1e-5, 1e-3, 25)                  # stuck below 0.31 mm, slipping beyond
+    reading = iwan.reading(values, X.min(), X.max())
+    assert reading.limit == "Jenkins element" and reading.undetermined == ("chi", "beta")
+    w = np.full_like(X, 500.0)
+    as_iwan = iwan.describing_function(X, w, **values)
+    as_jenkins = jenkins.describing_function(X, w, **reading.values)
+    assert as_jenkins == pytest.approx(as_iwan, rel=1e-6, abs=1e-9 * values["kt"])

@@ -82,6 +82,7 @@ from ._special import slip_imag, slip_real
 from .base import Law, LimitReading, Param
 
 MAX_REVERSALS = 64
+SPIKE_ONLY = 1e3        # spike ratio beyond which the continuum's share of kbar is below any test's noise
 _HEADER = 4  # n, direction, previous x, previous force
 _WRITTEN = _HEADER + 2 * (MAX_REVERSALS + 1)  # the range of reversal points the last update wrote (room to push
 #                                               one before merging)
@@ -357,9 +358,17 @@ class Iwan(Law):
         determine kt, chi and the dissipation per cycle D = nu X^(chi+3), nu = 4 R / ((chi + 2)(chi + 3)), and fs
         and beta only through nu. Coulomb friction where the whole population slips a decade below the smallest
         amplitude (``X_min >= 10 phi_max``): kbar is then within a few per cent of 4 j fs / (pi X) and only fs is
-        determined."""
+        determined. First of all, a Jenkins element where the spike carries all but 1/SPIKE_ONLY of the stiffness
+        (the continuum's share of kbar below any test's noise): kt and fs of the spike are determined, chi and beta
+        not, whatever the amplitudes."""
         kt, fs, chi, beta = (float(values[k]) for k in ("kt", "fs", "chi", "beta"))
         phi_max = float(slip_range(fs / kt, chi, beta))
+        if beta >= SPIKE_ONLY:
+            spike = beta * kt / (1.0 + beta)
+            return LimitReading(
+                "Jenkins element", {"kt": spike, "fs": spike * phi_max}, {"kt": "{F}/{L}", "fs": "{F}"},
+                f"the spike carries all but 1/{1.0 + beta:.3g} of the stiffness: one slider of stiffness kt slipping "
+                f"at fs, the continuum below any test's noise", ("chi", "beta"))
         if X_max <= phi_max:
             rate = kt * (chi + 1.0) / ((1.0 + beta) * phi_max ** (chi + 1.0))
             nu = 4.0 * rate / ((chi + 2.0) * (chi + 3.0))
