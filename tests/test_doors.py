@@ -288,3 +288,146 @@ def test_an_operation_on_a_session_given_as_a_link_updates_the_real_file_and_kee
     expected = ["c.csv", "link.h5", "real"] if operation == "append" else ["link.h5", "real"]
     assert sorted(p.name for p in tmp_path.iterdir()) == expected
     assert [p.name for p in real.parent.iterdir()] == ["s.h5"]        # no temporary left beside the target
+
+
+# --------------------------------------------------------------------------- silently wrong -> refused or noted
+def _analyze_refuses(tmp_path, capsys, model_text: str, *names) -> str:
+    session, model = tmp_path / "s.h5", tmp_path / "m.toml"
+    write_session(session)
+    model.write_text(model_text)
+    assert main(["analyze", str(session), str(model), "--no-history"]) == 2
+    return one_line_error(capsys, "m.toml", *names)
+
+
+@pytest.mark.parametrize("laws", ['["cubic", "cubic"]', '[{ law = "cubic", k3 = 1e4 }, "cubic"]'])
+def test_a_law_named_twice_on_one_element_is_refused_naming_file_and_field(tmp_path, capsys, laws):
+    """``laws = ["cubic", "cubic"]`` was fitted twice: two terms no fit tells apart."""
+    _analyze_refuses(tmp_path, capsys, PAPER_STRUCTURE + f'\n[[element]]\nname = "right"\ndof = "x2"\nlaws = {laws}\n',
+                     "[[element]][0].laws[1].law", "law 'cubic' is named twice on element 'right'")
+
+
+@pytest.mark.parametrize("hz", ["1e300", "1e-9"])
+def test_a_modal_frequency_no_vibration_has_is_refused_in_the_words_of_the_session_reader(tmp_path, capsys, hz):
+    """A modal ``frequencies = [1e300]`` was accepted."""
+    from analysis.common.quantities import frequency_problem
+    err = _analyze_refuses(tmp_path, capsys, '[structure]\ntype = "modal"\ndofs = ["x2"]\n'
+                           f'frequencies = [{hz}]\ndamping = [0.01]\nshapes = [[0.7]]\n\n'
+                           '[[element]]\nname = "joint"\ndof = "x2"\nlaws = ["cubic"]\n',
+                           "[structure].frequencies", frequency_problem(float(hz)))
+    assert "1000 Hz" not in err and "1e+06 Hz" in err
+
+
+@pytest.mark.parametrize("path, words", [("springs[7].k", "no structure parameter at 'springs[7].k'"),
+                                         ("dofs", "'dofs' must be a positive number to be updated")])
+def test_a_bad_updating_path_is_refused_when_the_model_is_read_without_a_random_run(tmp_path, capsys, path, words):
+    """A bad ``[updating]`` path was accepted when the session had no random run (nothing was updated)."""
+    _analyze_refuses(tmp_path, capsys, PAPER_STRUCTURE + f'\n[updating]\nparameters = ["{path}"]\n\n'
+                     '[[element]]\nname = "right"\ndof = "x2"\nlaws = ["cubic"]\n', "[updating].parameters", words)
+
+
+def response_csv(path, force="", quantity="acceleration", dof="x2", target="5.0", dofs=("x1", "x2")):
+    """A response-controlled level in the CSV long format, its cells as given (an empty cell: not given)."""
+    rows = ["frequency_hz,force_n,dof,re,im,force_amplitude_n,control_dof,control_quantity,control_target"]
+    for i, d in enumerate(dofs):
+        rows += [f"{float(f)!r},{force},{d},{float(receptance(f)[i].real)!r},{float(receptance(f)[i].imag)!r},0.3,"
+                 f"{dof},{quantity},{target}" for f in FREQS]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_a_csv_row_with_a_force_and_a_response_target_is_refused_in_the_plans_words(tmp_path, capsys):
+    """``force_n`` and ``control_target`` on one level: ``force_n`` was dropped."""
+    from analysis.common.quantities import force_and_response
+    out = tmp_path / "s.h5"
+    assert main(["import", str(response_csv(tmp_path / "c.csv", force="0.8")), "-o", str(out),
+                 "--excitation", "x2"]) == 2
+    one_line_error(capsys, "c.csv: line 2: force_n", force_and_response("control_target"))
+    assert not out.exists()
+    assert force_and_response("response") in _plan_error(f'[[stepped_sine]]\nforce = 0.5\nresponse = 2.0\n'
+                                                         f'dof = "x2"\nstart = 1.0\nstop = 1.2\nstep = 0.1\n{LIMITS}')
+    # the level as a response alone is one
+    assert main(["import", str(response_csv(tmp_path / "c.csv")), "-o", str(out), "--excitation", "x2"]) == 0
+
+
+@pytest.mark.parametrize("column", ["control_quantity", "control_dof"])
+def test_a_csv_control_quantity_or_dof_without_a_target_is_refused_in_the_plans_words(tmp_path, capsys, column):
+    """``control_quantity`` or ``control_dof`` without a target was ignored (a force level)."""
+    from analysis.common.quantities import held_without_target
+    cells = {"quantity": "acceleration" if column == "control_quantity" else "",
+             "dof": "x2" if column == "control_dof" else ""}
+    csv = response_csv(tmp_path / "c.csv", force="0.8", target="", **cells)
+    assert main(["import", str(csv), "-o", str(tmp_path / "s.h5"), "--excitation", "x2"]) == 2
+    one_line_error(capsys, f"c.csv: line 2: {column}", held_without_target("control_target = <amplitude>"))
+    plan = f'[[stepped_sine]]\nforce = 0.5\nquantity = "velocity"\nstart = 1.0\nstop = 1.2\nstep = 0.1\n{LIMITS}'
+    assert held_without_target("response = <amplitude>") in _plan_error(plan)
+
+
+def test_a_response_held_at_a_dof_nothing_measures_is_refused_from_csv_and_from_the_uff_at_tag(tmp_path, capsys):
+    """A control DOF that nothing measures was accepted, from CSV and from the UFF ``at=`` tag."""
+    from analysis.common.quantities import control_dof_problem
+    words = control_dof_problem("response", "x9", ["x1", "x2"], "x2")
+    assert main(["import", str(response_csv(tmp_path / "c.csv", dof="x9")), "-o", str(tmp_path / "s.h5"),
+                 "--excitation", "x2"]) == 2
+    one_line_error(capsys, "c.csv: line 2: control_dof", words)
+    session = tmp_path / "good.h5"
+    assert main(["import", str(response_csv(tmp_path / "c.csv")), "-o", str(session), "--excitation", "x2"]) == 0
+    assert main(["export", str(session), "--uff", str(tmp_path / "o.uff")]) == 0
+    capsys.readouterr()
+    (uff,) = tmp_path.glob("o_*.uff")
+    assert uff.read_bytes().count(b"at=x2") >= 2             # (a binary UFF58: bytes of one length replaced)
+    uff.write_bytes(uff.read_bytes().replace(b"at=x2", b"at=x9"))
+    assert main(["import", str(uff), "-o", str(tmp_path / "b.h5")]) == 2
+    one_line_error(capsys, uff.name, "id3", "at= " + words)
+    # held= and target= belong to a response level: without control=response they were ignored
+    from analysis.common.quantities import held_without_target
+    uff.write_bytes(uff.read_bytes().replace(b"control=response at=x9", b"at=x2".ljust(22)))
+    assert main(["import", str(uff), "-o", str(tmp_path / "b.h5")]) == 2
+    one_line_error(capsys, uff.name, "id3", held_without_target("control=response"))
+    # the session reader holds its control_dof attribute to the same rule
+    with h5py.File(session, "r+") as f:
+        (run,) = f["runs"].values()
+        run.attrs["control_dof"] = "x9"
+    assert main(["export", str(session), "--csv-long", str(tmp_path / "l.csv")]) == 2
+    one_line_error(capsys, "good.h5", "attribute control_dof", words)
+
+
+def _with_measured_force(path, amplitude="0.8", phase="0.1"):
+    """The long CSV of one 0.8 N level with the force measured at each line."""
+    rows = ["frequency_hz,force_n,dof,re,im,force_amplitude_n,force_phase_rad"]
+    for i, d in enumerate(("x1", "x2")):
+        rows += [f"{float(f)!r},0.8,{d},{float(receptance(f)[i].real)!r},{float(receptance(f)[i].imag)!r},"
+                 f"{amplitude},{phase}" for f in FREQS]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_a_phase_of_1e300_rad_is_refused_at_the_csv_the_uff_and_the_session_reader(tmp_path, capsys):
+    """A phase of 1e300 rad was stored: no digit of it is left below one turn."""
+    from analysis.common.quantities import phase_problem
+    out = tmp_path / "s.h5"
+    assert main(["import", str(_with_measured_force(tmp_path / "c.csv", phase="1e300")), "-o", str(out),
+                 "--excitation", "x2"]) == 2
+    one_line_error(capsys, "c.csv: line 2: force_phase_rad", phase_problem(1e300))
+    assert not out.exists()
+    for phase in ("-3.14159", "6.283"):          # -pi..pi and 0..2 pi are both phases
+        assert phase_problem(float(phase)) is None
+    # the session reader, and through it the UFF's force_phase records (the session's own export)
+    session = tmp_path / "big.h5"
+    write_session(session)
+    with h5py.File(session, "r+") as f:
+        f["runs/sine_0.8N_up/force_phase"][3] = 1e300
+    assert main(["export", str(session), "--csv-long", str(tmp_path / "l.csv")]) == 2
+    one_line_error(capsys, "big.h5", "dataset force_phase", "line 3", phase_problem(1e300))
+
+
+def test_a_force_far_from_its_level_is_noted_at_import(tmp_path, capsys):
+    """3000 N measured on a 0.3 N level was stored without a word; it may be real (a gauge's units), so it is
+    noted, and kept."""
+    csv = _with_measured_force(tmp_path / "c.csv", amplitude="8000")
+    assert main(["import", str(csv), "-o", str(tmp_path / "s.h5"), "--excitation", "x2"]) == 0
+    out = capsys.readouterr().out
+    assert "run sine_0.8N_up: the force measured at 30 of 30 line(s) is more than 10 times off the level's 0.8 N " \
+           "(line 0: 8000 N, 1e+04 times)" in out, out
+    assert main(["import", str(_with_measured_force(tmp_path / "d.csv", amplitude="0.81")), "-o",
+                 str(tmp_path / "t.h5"), "--excitation", "x2"]) == 0
+    assert "times off" not in capsys.readouterr().out

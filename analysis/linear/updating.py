@@ -11,52 +11,21 @@ masses and E).
 from __future__ import annotations
 
 import copy
-import re
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.optimize
 
 from ..common.errors import InputError
-from ..mechanics.structures import Structure, load_structure
+from ..mechanics.structures import Structure, load_structure, split_parameter_path, structure_parameter
 
-_PATH = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)|\[(\d+)\]|\.")
-
-
-def _split(path: str) -> list[str | int]:
-    parts: list[str | int] = []
-    pos = 0
-    for m in _PATH.finditer(path):
-        if m.start() != pos:
-            break
-        pos = m.end()
-        if m.group(1):
-            parts.append(m.group(1))
-        elif m.group(2):
-            parts.append(int(m.group(2)))
-    if pos != len(path) or not parts or not isinstance(parts[0], str):
-        raise ValueError(path)
-    return parts
-
-
-def get_parameter(table: dict, path: str, source: str | None = None) -> float:
-    """The number at ``path`` in the structure table; InputError naming the path if there is none."""
-    node = table
-    try:
-        for part in _split(path):
-            node = node[part]
-    except (KeyError, IndexError, TypeError, ValueError):
-        raise InputError(f"no structure parameter at {path!r}", source, "[updating].parameters") from None
-    if isinstance(node, bool) or not isinstance(node, (int, float)) or node <= 0:
-        raise InputError(f"{path!r} must be a positive number to be updated (got {node!r})", source,
-                         "[updating].parameters")
-    return float(node)
+# the paths into ``[structure]`` are read where the model is (analysis/mechanics/structures.py), and checked then
 
 
 def set_parameter(table: dict, path: str, value: float) -> dict:
     """A deep copy of ``table`` with the number at ``path`` replaced."""
     out = copy.deepcopy(table)
-    parts = _split(path)
+    parts = split_parameter_path(path)
     node = out
     for part in parts[:-1]:
         node = node[part]
@@ -178,7 +147,7 @@ def update_parameters(table: dict, parameters: list[str], measured_hz, modes: li
     if len(parameters) > len(measured):
         raise InputError(f"{len(parameters)} parameters cannot be found from {len(measured)} frequencies",
                          source, "[updating].parameters")
-    start = np.array([get_parameter(table, p, source) for p in parameters])
+    start = np.array([structure_parameter(table, p, source) for p in parameters])
 
     def structure_of(values):
         t = table

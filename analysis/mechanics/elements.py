@@ -154,6 +154,11 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
             for key, value in values.items():
                 if key in law.param_names:      # TOML numbers only: "-750" or true is not a stiffness
                     numbers.check_number(key, value)
+            twice = next((k for k, t in enumerate(terms) if t.law.name == law.name), None)
+            if twice is not None:       # one term a law: two are one law whose parameters no fit tells apart
+                raise InputError(f"law {law.name!r} is named twice on element {name!r} (laws[{twice}] and "
+                                 f"laws[{j}]): name each law once; one term carries its whole force", source,
+                                 f"{where}.law")
             terms.append(LawTerm(law, law.check_params(values, complete, source, where)))
         part = None
         if f.has(NONPARAMETRIC):

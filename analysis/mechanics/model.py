@@ -27,7 +27,7 @@ from ..common.errors import InputError
 from ..common.tables import Fields
 from .elements import Element, LawTerm, load_elements
 from .nonparametric import NAME as NONPARAMETRIC
-from .structures import Structure, load_structure
+from .structures import Structure, load_structure, structure_parameter
 from .surroundings import surroundings_of
 
 # The top-level keys of a rig file (docs/contracts.md §3, docs/rig-simulator.md). A rig file is also a valid model
@@ -169,6 +169,10 @@ def load_model(document: dict, source: str | None = None) -> Model:
         up.where = "[updating]"
         up.unknown_keys({"parameters", "modes"})
         params = up.strings("parameters")
+        for path in params:         # checked when the model is read, whether or not a session is updated with it
+            structure_parameter(structure_table, path, source)
+        if len(set(params)) != len(params):
+            raise up.error("parameters", "names a parameter twice")
         if up.has("modes"):
             raw = up.table["modes"]
             if not isinstance(raw, list) or not all(isinstance(m, int) and m >= 1 for m in raw):

@@ -7,12 +7,14 @@ receptance matrix H(w) and the normal modes.
 from __future__ import annotations
 
 import difflib
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
 
 from ..common.errors import InputError
+from ..common.quantities import frequency_problem
 from ..common.tables import Fields
 
 BOUNDARIES = ("clamped", "pinned", "free")
@@ -164,6 +166,40 @@ class Structure:
                          self.description if description is None else description, self.source)
 
 
+_PATH = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)|\[(\d+)\]|\.")
+
+
+def split_parameter_path(path: str) -> list[str | int]:
+    parts: list[str | int] = []
+    pos = 0
+    for m in _PATH.finditer(path):
+        if m.start() != pos:
+            break
+        pos = m.end()
+        if m.group(1):
+            parts.append(m.group(1))
+        elif m.group(2):
+            parts.append(int(m.group(2)))
+    if pos != len(path) or not parts or not isinstance(parts[0], str):
+        raise ValueError(path)
+    return parts
+
+
+def structure_parameter(table: dict, path: str, source: str | None = None) -> float:
+    """The number at ``path`` in the structure table (an ``[updating]`` parameter, analysis/linear/updating.py:
+    ``"springs[1].k"``); InputError naming the path if there is none, or if it is not a positive number."""
+    node = table
+    try:
+        for part in split_parameter_path(path):
+            node = node[part]
+    except (KeyError, IndexError, TypeError, ValueError):
+        raise InputError(f"no structure parameter at {path!r}", source, "[updating].parameters") from None
+    if isinstance(node, bool) or not isinstance(node, (int, float)) or node <= 0:
+        raise InputError(f"{path!r} must be a positive number to be updated (got {node!r})", source,
+                         "[updating].parameters")
+    return float(node)
+
+
 def load_structure(table: dict, source: str | None = None) -> Structure:
     """Build a Structure from the ``[structure]`` table (a dict, as read by tomllib).
 
@@ -219,6 +255,9 @@ def _modal(f: Fields) -> ModalStructure:
         raise f.error("dofs", "must name at least one DOF, each once")
     n = len(dofs)
     freqs = _positive_list(f, "frequencies", n, positive=True)
+    for i, hz in enumerate(freqs):   # the range of every door's frequencies (analysis/common/quantities.py)
+        if frequency_problem(hz):
+            raise f.error("frequencies", f"mode {i + 1} is {frequency_problem(hz)}")
     zeta = _positive_list(f, "damping", n, positive=False)
     if (zeta >= 1).any():
         raise f.error("damping", "damping ratios must be below 1")

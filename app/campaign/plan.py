@@ -23,7 +23,7 @@ import numpy as np
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import CONTROL_UNITS, NAME_UNITS, Control
-from analysis.common.quantities import dof_name_problem, force_problem
+from analysis.common.quantities import dof_name_problem, force_and_response, force_problem, held_without_target
 from analysis.signals.frf_estimation import WelchResolution, auto_resolution, welch_averages
 from analysis.common.tables import Fields, parse_toml, read_toml_text
 
@@ -387,10 +387,10 @@ def _response_level(f: Fields) -> ResponseLevel | None:
     if not f.has("response"):
         extra = [k for k in RESPONSE_KEYS if f.has(k)]
         if extra:
-            raise f.error(extra[0], "belongs to a response-controlled level: give response = <amplitude> too")
+            raise f.error(extra[0], held_without_target("response = <amplitude>"))
         return None
     if f.has("force"):
-        raise f.error("force", "a level holds either a force or a response amplitude (response), not both")
+        raise f.error("force", force_and_response("response"))
     quantity = f.string("quantity", "acceleration", RESPONSE_QUANTITIES)
     dof = _dof_name(f, f.string("dof"), "dof")
     limit = _force(f, "force_limit") if f.has("force_limit") else float("nan")

@@ -16,6 +16,8 @@ import numpy as np
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import CONTROL_UNITS, Control
+from analysis.common.quantities import (control_dof_problem, force_and_response, force_problem, held_without_target,
+                                       phase_problem)
 
 from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, csv_float, in_sweep_order, response_run_name,
                    sine_run_name, sweep_direction)
@@ -111,12 +113,17 @@ def read_csv_long(path: str, options: SourceOptions) -> tuple[list[ImportedRun],
 def _control(cell: dict, path: str, row: int, excitation: str) -> Control:
     """The level of a row: a force level (``force_n``), or the response held where ``control_target`` is given."""
     if not cell.get("control_target"):
+        held = [c for c in ("control_quantity", "control_dof") if cell.get(c)]
+        if held:                # the words of every door (analysis/common/quantities.py)
+            raise InputError(held_without_target("control_target = <amplitude>"), path, f"line {row}: {held[0]}")
         if not cell["force_n"]:
             raise InputError("no force level", path, f"line {row}: force_n")
         force = _number(cell["force_n"], path, row, "force_n")
         if force <= 0:
             raise InputError(f"{cell['force_n']!r} is not a force amplitude > 0 N", path, f"line {row}: force_n")
         return Control("force", excitation, "force", force)
+    if cell["force_n"]:
+        raise InputError(force_and_response("control_target"), path, f"line {row}: force_n")
     target = _number(cell["control_target"], path, row, "control_target")
     if target <= 0:
         raise InputError(f"{cell['control_target']!r} is not an amplitude > 0", path, f"line {row}: control_target")
@@ -154,9 +161,14 @@ def _measured_force(cell: dict, lines: _Lines, path: str, row: int) -> None:
         if amplitude <= 0:
             raise InputError(f"{cell['force_amplitude_n']!r} is not a force amplitude > 0 N", path,
                              f"line {row}: force_amplitude_n")
+        if force_problem(amplitude):         # the rules of every door (analysis/common/quantities.py)
+            raise InputError(force_problem(amplitude), path, f"line {row}: force_amplitude_n")
         lines.force_amplitude.append(amplitude)
     if cell.get("force_phase_rad"):
-        lines.force_phase.append(_number(cell["force_phase_rad"], path, row, "force_phase_rad"))
+        phase = _number(cell["force_phase_rad"], path, row, "force_phase_rad")
+        if phase_problem(phase):
+            raise InputError(phase_problem(phase), path, f"line {row}: force_phase_rad")
+        lines.force_phase.append(phase)
 
 
 def _run(path: str, control: Control, direction: str | None, dofs: dict[str, _Lines],
@@ -178,6 +190,9 @@ def _run(path: str, control: Control, direction: str | None, dofs: dict[str, _Li
                              "lines; give it on every line or none", path, f"line {lines.first_row}: std")
         if lines.std:
             arrays[f"frf_std/{dof}"] = ("m/N", np.array(lines.std))
+    problem = control_dof_problem(control.mode, control.dof, dofs, options.excitation)
+    if problem:
+        raise InputError(problem, path, f"line {first.first_row}: control_dof")
     statuses = {lines.status for lines in dofs.values()}
     if len(statuses) > 1:
         raise InputError(f"the DOFs at {level} give different statuses ({', '.join(sorted(map(str, statuses)))}): "

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import Control
+from analysis.common.quantities import held_without_target
 
 from app.session import check_control
 
@@ -113,6 +114,9 @@ def read_control(words: dict[str, str], excitation: str, force: float, where: st
     """A level's control from its words, by the rules of a session's run attributes (``check_control``);
     errors name ``where``, ``line`` and the tag."""
     attrs = {attr: words[tag] for tag, attr in CONTROL_TAGS.items() if tag in words}
+    held = [tag for tag in ("held", "target") if tag in words]
+    if held and words.get("control", "force") in ("force", "open_loop"):      # the words of every door (analysis/common/quantities.py)
+        raise InputError(f"{held[0]}= {held_without_target('control=response')}", where, line)
     if "control_target" in attrs:
         try:
             attrs["control_target"] = float(attrs["control_target"])

@@ -21,6 +21,7 @@ import h5py
 import numpy as np
 
 from analysis.common.errors import InputError
+from analysis.common.quantities import force_level_note
 
 from app.session import (LINES_PER_CHUNK, RunData, RunSpec, SessionWriter, atomic_output, check_output, check_run,
                          open_session, require_free_space)
@@ -156,6 +157,11 @@ def check_like_a_session(source: SourceFile) -> None:
     is written: an import never stores what the analysis would refuse."""
     for run in source.runs:
         check_run(_as_stored(run), source.path)
+        mode = run.control.mode if run.control is not None else "force"
+        if mode != "response" and "force_amplitude" in run.arrays:     # a force held, or driven open loop
+            note = force_level_note(run.arrays["force_amplitude"][1], run.force)    # (analysis/common/quantities.py)
+            if note:
+                source.notes.append(f"run {run.name}: {note}")
 
 
 def safe_run_name(name: str) -> str:

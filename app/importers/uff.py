@@ -14,6 +14,7 @@ import numpy as np
 import pyuff
 
 from analysis.common.errors import InputError
+from analysis.common.quantities import control_dof_problem, phase_problem, phases_outside
 
 from .force_spectrum import attach_force_spectra, is_force_spectrum
 from .idlines import ID_KEYS, RecordTag, decode
@@ -361,6 +362,9 @@ def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions
         run.sample_rate, run.segment_length = tag.sample_rate, tag.segment_length
     if tag is not None:
         run.control = tag.control
+        problem = run.control and control_dof_problem(run.control.mode, run.control.dof, frf, first.excitation)
+        if problem:         # the rule of every door (analysis/common/quantities.py)
+            raise InputError(f"at= {problem}", path, first.record.where("id3"))
     return run
 
 
@@ -379,5 +383,8 @@ def _attach_line_quantities(path: str, runs: list[ImportedRun], extra: list[Reco
                              record.where("num_pts"))
         check_values(values, path, record.where("data"))
         key, stored_units = LINE_QUANTITIES[tag.quantity]
+        if key == "force_phase" and phases_outside(values).any():     # (analysis/common/quantities.py)
+            line = int(np.flatnonzero(phases_outside(values))[0])
+            raise InputError(f"line {line}: {phase_problem(float(values[line]))}", path, record.where("data"))
         run.arrays[key.format(dof=tag.response)] = (stored_units, values)
         run.records.append(record.number)

@@ -19,7 +19,8 @@ import numpy as np
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import CONTROL_MODES, CONTROL_UNITS, Control, RunNote
-from analysis.common.quantities import dof_name_problem, force_problem, forces_outside
+from analysis.common.quantities import (FREQUENCY_RANGE, control_dof_problem, dof_name_problem, force_problem,
+                                       forces_outside, frequency_problem, phase_problem, phases_outside)
 
 from app.session.writer import FORMAT_VERSION, RunData
 
@@ -28,8 +29,7 @@ STATUSES = ("running", "complete", "failed", "aborted")
 DIRECTIONS = {"stepped_sine": ("up", "down"), "random": ("none",), "phase_resonance": ("up",)}
 PER_HARMONIC = "harmonics/"
 MAX_RUNS = 500          # runs a session may hold for the analysis and export (plans: at most 200 force levels)
-MIN_FREQUENCY = 1e-3    # Hz: a line below or above these is a damaged dataset, not a vibration measurement
-MAX_FREQUENCY = 1e6
+MIN_FREQUENCY, MAX_FREQUENCY = FREQUENCY_RANGE    # Hz: a line beyond is a damaged dataset, not a vibration
 
 
 def check_run_count(names: list[str], source: str | None) -> None:
@@ -93,6 +93,8 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
         raise error("attribute excitation_dof", dof_name_problem(excitation))
     sensors = _sensor_dofs(attrs.get("sensor_dofs"), error)
     control = check_control(attrs, excitation, float(force), error)
+    if control_dof_problem(control.mode, control.dof, sensors, excitation):    # (analysis/common/quantities.py)
+        raise error("attribute control_dof", control_dof_problem(control.mode, control.dof, sensors, excitation))
 
     frequency = np.asarray(run.frequency)
     if frequency.ndim != 1 or frequency.dtype.kind not in "fi":
@@ -114,8 +116,7 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
     bad = np.flatnonzero(~np.isfinite(frequency[:lines]) | (frequency[:lines] < MIN_FREQUENCY)
                          | (frequency[:lines] > MAX_FREQUENCY))
     if len(bad):
-        raise error("dataset frequency", f"line {bad[0]} is {float(frequency[bad[0]]):g} Hz; frequencies must be "
-                                         f"finite, from {MIN_FREQUENCY:g} Hz to {MAX_FREQUENCY:g} Hz")
+        raise error("dataset frequency", f"line {bad[0]} is {frequency_problem(float(frequency[bad[0]]))}")
     _check_order(frequency[:lines], kind, run.attrs.get("direction"), error)
     saw_nothing = {d: _saw_nothing(run, d, lines) for d in sensors}
     for d in sensors:
@@ -211,19 +212,25 @@ class LineRule:
     above: float
     inclusive: bool
     force: bool = False             # a force amplitude: also within FORCE_RANGE (analysis/common/quantities.py)
+    phase: bool = False             # a phase: within +-MAX_PHASE, and any sign (analysis/common/quantities.py)
 
     def wrong(self, values: np.ndarray) -> np.ndarray:
+        if self.phase:
+            return ~np.isfinite(values)
         low = values < self.above if self.inclusive else values <= self.above
         return ~np.isfinite(values) | low
 
     def text(self) -> str:
+        if self.phase:
+            return f"{self.quantity} must be finite"
         return f"{self.quantity} must be finite and {'>=' if self.inclusive else '>'} {self.above:g}"
 
 
 # the per-line quantities the analysis reads besides the FRFs (app/session_data.py)
 LINE_RULES = {"force_amplitude": LineRule("a force amplitude", 0.0, False, force=True),
               "frf_std": LineRule("a standard deviation", 0.0, True),
-              "distortion": LineRule("a distortion", 0.0, True)}
+              "distortion": LineRule("a distortion", 0.0, True),
+              "force_phase": LineRule("a force phase", 0.0, True, phase=True)}
 
 
 def _line_rule(name: str) -> LineRule | None:
@@ -241,6 +248,10 @@ def _check_lines(values: np.ndarray, rule: LineRule, error, excused: np.ndarray 
         bad = np.flatnonzero(forces_outside(values.astype(float)))
         if len(bad):
             raise error(f"line {bad[0]}: {force_problem(float(values[bad[0]]))}")
+    if rule.phase:                                   # one turn either way at every door (quantities.py)
+        bad = np.flatnonzero(phases_outside(values.astype(float)))
+        if len(bad):
+            raise error(f"line {bad[0]}: {phase_problem(float(values[bad[0]]))}")
 
 
 def _choice(attrs: dict, key: str, choices: tuple[str, ...], error) -> str:
