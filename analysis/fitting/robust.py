@@ -68,7 +68,6 @@ def _fit_robust(terms, data: _Samples, opts: _Options) -> LawFit:
     limit = outlier_limit(n)
     plain = _fit_once(terms, data, opts)
     fit = min((_robust_start(terms, data, opts, plain), plain), key=lambda f: _capped_loss(f, data))
-    limit *= _typical_scatter(fit, data)
     keep = np.ones(n, bool)
     for _ in range(_ROBUST_ITERATIONS):
         new = data.distance(fit.describing_function(data.X, data.w)) ** 2 <= limit
@@ -90,17 +89,6 @@ def _fit_robust(terms, data: _Samples, opts: _Options) -> LawFit:
         fit.notes.append(f"{int((~keep).sum())} of {n} samples left out: their chi-square against the fitted laws "
                          f"exceeds {limit:.3g} (outliers at false-alarm {OUTLIER_FALSE_ALARM:g} per fit)")
     return fit
-
-
-def _typical_scatter(fit: LawFit, data: _Samples) -> float:
-    """How much more the typical sample scatters about the starting fit than its sigma says, at least 1: the
-    median chi-square share over its value for a right sigma (2 ln 2, the median of a chi-square with 2 dof).
-    An outlier departs from the typical line, not from a sigma the test does not reach: where the lines are
-    measured far more precisely than the test repeats (a mode that moves between levels), every line departs
-    from the sigma, and leaving out all but a few would fit the laws to those few. The median is that of all
-    samples, so a minority of departing lines (a friction sticking, a contact closing) leaves it at 1."""
-    share = data.distance(fit.describing_function(data.X, data.w)) ** 2
-    return max(1.0, float(np.median(share)) / (2 * math.log(2)))
 
 
 def _sizes_determined(fit: LawFit) -> int:
