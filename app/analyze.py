@@ -318,11 +318,11 @@ def report_text(wb: Workbench, candidates, top: int = 5,
             out += [f"    {d}" for d in r.fit.degeneracies] + [f"    {c}" for c in r.fit.correlated]
             left_out = r.excluded_hz()
             if not r.fit.describes_the_data:
-                out.append(f"    NOT A FIT OF THE DATA: the laws leave {len(left_out)} of {r.lines_used} lines "
-                           f"({100 * r.fit.outlier_share:.0f} %) beyond the outlier limit, more than the "
-                           f"{100 * OUTLIER_SHARE_LIMIT:.0f} % a fit may leave out: so many are not outliers but "
-                           "the data, which these laws do not describe; the values above rest on the rest: "
-                           + frequency_ranges(left_out))
+                out.append(f"    NOT A FIT OF THE DATA: {len(left_out)} of {r.lines_used} line(s) "
+                           f"({100 * r.fit.outlier_share:.0f} %) left out of the fit, their kbar not following the "
+                           f"fitted laws, more than the {100 * OUTLIER_SHARE_LIMIT:.0f} % a fit may leave out: so "
+                           "many are not outliers but the data, which these laws do not describe; the values above "
+                           "rest on the rest: " + frequency_ranges(left_out))
             elif left_out:
                 out.append(f"    {len(left_out)} line(s) left out of the fit, their kbar not following the fitted "
                            "laws (outliers): " + frequency_ranges(left_out))
