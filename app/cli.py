@@ -350,6 +350,7 @@ def cmd_predict(args) -> int:
     """A fitted model's prediction of a session, with nothing refitted."""
     import json
 
+    from app.analyze import read_measurements
     from app.predict import KIND_WORDS, prediction_json, prediction_text, run_predict
     from app.progress import Progress
 
@@ -362,15 +363,15 @@ def cmd_predict(args) -> int:
                          overwrite_flag="--overwrite")
     with Progress("predict") as progress:
         progress.phase("predicting every level")
-        _, prediction = run_predict(args.session, args.model)
+        measurements = read_measurements(args.session)
+        _, prediction = run_predict(args.session, args.model, measurements)
     if args.json:
         print(json.dumps(prediction_json(prediction), indent=1, default=float))
     else:
         print(prediction_text(prediction, Path(args.session).name, Path(args.model).name))
     if args.report:
-        from app.analyze import read_measurements
         from app.report import write_prediction_report
-        runs = read_measurements(args.session).sine
+        runs = measurements.sine
         kinds = {lv.control.key(): lv.kind for lv in prediction.levels}
         tags = {r.name: KIND_WORDS[kinds[r.control.key()]] for r in runs}
         for path in write_prediction_report(prediction.comparison, runs, prediction.backbones, Path(args.report),

@@ -79,11 +79,14 @@ def one_line_error(capsys, *names) -> str:
     return err
 
 
-def long_csv(path, dofs, force="0.8"):
-    rows = ["frequency_hz,force_n,dof,re,im"]
+def long_csv(path, dofs=("x1", "x2"), force="0.8", cells: dict[str, str] | None = None):
+    """One level in the CSV long format: the receptances at FREQS, the level's ``force`` and ``cells`` (column ->
+    the same cell on every row; an empty cell: not given)."""
+    cells = {"force_n": force, **(cells or {})}
+    rows = [",".join(["frequency_hz", "dof", "re", "im", *cells])]
     for i, dof in enumerate(dofs):
-        rows += [f"{float(f)!r},{force},{dof},{float(receptance(f)[i].real)!r},{float(receptance(f)[i].imag)!r}"
-                 for f in FREQS]
+        rows += [",".join([repr(float(f)), dof, repr(float(receptance(f)[i].real)),
+                           repr(float(receptance(f)[i].imag)), *cells.values()]) for f in FREQS]
     path.write_text("\n".join(rows) + "\n")
     return path
 
@@ -325,14 +328,10 @@ def test_a_bad_updating_path_is_refused_when_the_model_is_read_without_a_random_
                      '[[element]]\nname = "right"\ndof = "x2"\nlaws = ["cubic"]\n', "[updating].parameters", words)
 
 
-def response_csv(path, force="", quantity="acceleration", dof="x2", target="5.0", dofs=("x1", "x2")):
-    """A response-controlled level in the CSV long format, its cells as given (an empty cell: not given)."""
-    rows = ["frequency_hz,force_n,dof,re,im,force_amplitude_n,control_dof,control_quantity,control_target"]
-    for i, d in enumerate(dofs):
-        rows += [f"{float(f)!r},{force},{d},{float(receptance(f)[i].real)!r},{float(receptance(f)[i].imag)!r},0.3,"
-                 f"{dof},{quantity},{target}" for f in FREQS]
-    path.write_text("\n".join(rows) + "\n")
-    return path
+def response_csv(path, force="", quantity="acceleration", dof="x2", target="5.0"):
+    """A response-controlled level, its cells as given."""
+    return long_csv(path, force=force, cells={"force_amplitude_n": "0.3", "control_dof": dof,
+                                              "control_quantity": quantity, "control_target": target})
 
 
 def test_a_csv_row_with_a_force_and_a_response_target_is_refused_in_the_plans_words(tmp_path, capsys):
@@ -393,12 +392,7 @@ def test_a_response_held_at_a_dof_nothing_measures_is_refused_from_csv_and_from_
 
 def _with_measured_force(path, amplitude="0.8", phase="0.1"):
     """The long CSV of one 0.8 N level with the force measured at each line."""
-    rows = ["frequency_hz,force_n,dof,re,im,force_amplitude_n,force_phase_rad"]
-    for i, d in enumerate(("x1", "x2")):
-        rows += [f"{float(f)!r},0.8,{d},{float(receptance(f)[i].real)!r},{float(receptance(f)[i].imag)!r},"
-                 f"{amplitude},{phase}" for f in FREQS]
-    path.write_text("\n".join(rows) + "\n")
-    return path
+    return long_csv(path, cells={"force_amplitude_n": amplitude, "force_phase_rad": phase})
 
 
 def test_a_phase_of_1e300_rad_is_refused_at_the_csv_the_uff_and_the_session_reader(tmp_path, capsys):

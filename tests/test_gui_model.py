@@ -47,6 +47,15 @@ def hidden_effect_session(tmp_path_factory):
     return session, model
 
 
+def window_on(qtbot, session, model) -> MainWindow:
+    """The lab window with ``model`` loaded and ``session`` open."""
+    window = MainWindow("test")
+    qtbot.addWidget(window)
+    window.lab.load_model_file(str(model))
+    window.lab.open_session(str(session))
+    return window
+
+
 def shown_error(window) -> float:
     return float(re.match(r"FRF error (\S+)", window.model.error_label.text()).group(1))
 
@@ -54,10 +63,7 @@ def shown_error(window) -> float:
 @pytest.mark.slow
 def test_add_on_the_top_candidate_lowers_the_displayed_error_and_undo_restores_it(qtbot, hidden_effect_session):
     session, model = hidden_effect_session
-    window = MainWindow("test")
-    qtbot.addWidget(window)
-    window.lab.load_model_file(str(model))
-    window.lab.open_session(str(session))
+    window = window_on(qtbot, session, model)
     panel = window.model
     assert not panel.undo_button.isEnabled()
 
@@ -179,10 +185,7 @@ def test_twelve_levels_fit_a_small_screen_in_level_order_in_colours_apart(qtbot)
 @pytest.mark.slow
 def test_stop_during_discovery_keeps_the_steps_taken_and_says_what_was_not_tried(qtbot, hidden_effect_session):
     session, model = hidden_effect_session
-    window = MainWindow("test")
-    qtbot.addWidget(window)
-    window.lab.load_model_file(str(model))
-    window.lab.open_session(str(session))
+    window = window_on(qtbot, session, model)
     panel = window.model
     with qtbot.waitSignal(window.lab.analysisUpdated, timeout=120000):
         panel.analyze_button.click()
