@@ -100,9 +100,45 @@ def run_workbench_auto(session_path, model_path, adds: list[str] = (),
     return wb, run_auto(wb, progress=progress, note=note)
 
 
+def check_adds(model: Model, adds) -> None:
+    """Refuse, before any identification, an ``--add ELEMENT:LAW`` the workbench would refuse only after it: an
+    element the model has not, a law no one knows, a law the element has already (in the model file or an
+    earlier ``--add``: two terms of one law are one law whose parameters no fit tells apart, the rule of
+    ``laws = [...]``), one line naming the model file, its field and the option."""
+    from analysis.laws import get_law
+    from analysis.mechanics.nonparametric import NAME as NONPARAMETRIC
+
+    given: dict[tuple[str, str], str] = {}
+    for add in adds:
+        element, law = parse_add(add)
+        names = [e.name for e in model.elements]
+        if element not in names:
+            raise InputError(f"no element named {element!r} (elements: {', '.join(names) or 'none'})", model.source,
+                             f"--add {add}")
+        index = names.index(element)
+        el = model.elements[index]
+        if law == NONPARAMETRIC:
+            name = law
+            if el.nonparametric is not None:
+                raise InputError(f"element {element!r} has a non-parametric part already ([[element]][{index}]); "
+                                 "--add adds what the model has not", model.source, f"--add {add}")
+        else:
+            name = get_law(law, model.source, f"--add {add}").name
+            have = next((k for k, t in enumerate(el.laws) if t.law.name == name), None)
+            if have is not None:
+                raise InputError(f"element {element!r} has law {name!r} already ([[element]][{index}].laws[{have}]); "
+                                 "--add adds a law the model has not: two terms of one law are one law whose "
+                                 "parameters no fit tells apart", model.source, f"--add {add}")
+        if (element, name) in given:
+            raise InputError(f"law {name!r} is added twice to element {element!r} (also --add "
+                             f"{given[element, name]})", model.source, f"--add {add}")
+        given[element, name] = add
+
+
 def _started_workbench(session_path, model_path, adds, measurements: Measurements | None = None,
                        progress: Progress | None = None) -> Workbench:
     model = load_model(load_toml(model_path), str(model_path))
+    check_adds(model, adds)
     if measurements is None:
         measurements = read_measurements(session_path)
     if progress is not None:

@@ -260,7 +260,17 @@ def cmd_emulate(args) -> int:
 
 
 def cmd_analyze(args) -> int:
-    """Identify, fit, predict, compare and rank missing effects."""
+    """Identify, fit, predict, compare and rank missing effects. An error the analysis found in what the session
+    and the model say together (no element line well conditioned, a level no law can fit) names them both."""
+    try:
+        return _analyze(args)
+    except InputError as exc:
+        if exc.source:
+            raise
+        raise InputError(exc.message, f"{args.session} with {args.model}", exc.field) from None
+
+
+def _analyze(args) -> int:
     import json
     from dataclasses import replace
 
@@ -391,7 +401,17 @@ def cmd_reference(args) -> int:
     if args.band is not None and not (0 < args.band[0] < args.band[1] and all(map(math.isfinite, args.band))):
         raise InputError(f"--band takes F1 F2 in Hz with 0 < F1 < F2, got {args.band[0]:g} {args.band[1]:g}",
                          field="--band")
-    reference = reference_from_level(read_measurements(args.session), args.run_name, args.band)
+    measurements = read_measurements(args.session)
+    if not measurements.sine:       # said as it is, not as a drive point that no run measures
+        has = "only a random run" if measurements.random is not None else "no stepped-sine run with lines"
+        raise InputError(f"has {has}: reference fits the modes of the lowest stepped-sine level"
+                         + ("; a random run is the reference itself: `contactid analyze SESSION MODEL` fits its "
+                            "modes and updates the model's [updating] parameters" if measurements.random is not None
+                            else ""), args.session)
+    try:
+        reference = reference_from_level(measurements, args.run_name, args.band)
+    except InputError as exc:       # the level's faults are the session's: named with it
+        raise exc if exc.source else InputError(exc.message, args.session, exc.field) from None
     report = reference.text()
     try:        # the file first, then the report: a reader that closed the pipe (`| head -1`) costs no output
         _write_model(args, reference.model().to_toml(), [args.session], "reference model")
@@ -399,7 +419,31 @@ def cmd_reference(args) -> int:
     except BrokenPipeError:
         import os
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())     # nothing left to flush at exit
+    for warning in reference_warnings(reference):
+        print(f"contactid: warning: {args.output}: {warning}", file=sys.stderr)
     return 0
+
+
+POOR_REFERENCE = 0.2        # FRF error of a reference on its own level beyond which it is called poor (docs/import.md)
+
+
+def reference_warnings(reference) -> list[str]:
+    """What makes a written reference doubtful, each in one line: an FRF error on its own level beyond
+    POOR_REFERENCE (the identified kbar would carry the misfit), and a positive residual inertia at the drive
+    point (the modes below the band act as a negative mass: -1/m is what a rigid body gives)."""
+    out = []
+    if reference.frf_error > POOR_REFERENCE:
+        out.append(f"the reference misses its own level {reference.run} by an FRF error of {reference.frf_error:.3g} "
+                   f"(above {POOR_REFERENCE:g}): the laws fitted on it would carry that misfit; choose the lines "
+                   "(--band F1 F2) or the level (--run NAME)")
+    inertia = reference.table.get("residual_inertia")
+    if inertia is not None:
+        k = reference.table["dofs"].index(reference.drive)
+        if inertia[k][k] > 0:
+            out.append(f"residual_inertia at the drive point {reference.drive} is {inertia[k][k]:.3g} > 0: modes below "
+                       "the band give a negative one (a rigid mass m: -1/m); the band misses a mode or holds a "
+                       "second one (--band F1 F2)")
+    return out
 
 
 FITTED_MODEL_ALLOWANCE = 64 * 1024      # bytes: a fitted model file is a few kB of TOML
@@ -418,9 +462,14 @@ def _write_model(args, text: str, inputs: list, what: str = "fitted model") -> N
 
 def cmd_recover(args) -> int:
     """Make a session whose writer process was killed readable by any HDF5 tool."""
-    from app.session.writer import needs_recovery, open_session, recover_session
+    from app.session.writer import damaged_data, needs_recovery, open_session, recover_session
 
     if not needs_recovery(args.session):
+        damaged = damaged_data(args.session)
+        if damaged:     # not what a died writer leaves: said, rather than "nothing to recover"
+            raise InputError(f"closed normally, but its stored data fail their checksum ({'; '.join(damaged)}): "
+                             "changed after it was written, which recover cannot repair; the file is unchanged "
+                             "(a copy of it made before the damage is the way back)", args.session)
         print(f"{args.session}: closed normally, nothing to recover")
         return 0
     marked = recover_session(args.session)

@@ -115,7 +115,17 @@ def _survives(x: np.ndarray) -> np.ndarray:
 
 def _abscissa(freq: np.ndarray, run: str, binary: bool, even_allowed: bool) -> dict:
     """pyuff fields of the abscissa: even where the lines are evenly spaced and start and step survive the
-    header's E13.5, else x/y pairs (refused in ASCII where a frequency would be rounded)."""
+    header's E13.5, else x/y pairs (refused in ASCII where a frequency would be rounded).
+
+    A run of one line is written evenly spaced (pyuff needs a second abscissa for x/y pairs, and a step for the
+    header): its frequency is then the header's E13.5 start, and a frequency that does not survive it is
+    refused by name rather than rounded."""
+    if len(freq) == 1:
+        if not _survives(freq)[0]:
+            raise InputError(f"its one line at {float(freq[0])!r} Hz does not survive the 6 significant digits of "
+                             f"the UFF58 header that holds a one-line record's frequency ({ASCII_DIGITS % freq[0]}); "
+                             "export it with --csv-long or --csv", f"run {run}", "frequency")
+        return {"abscissa_spacing": 1, "x": np.array([float(freq[0]), float(freq[0]) + 1.0])}
     if even_allowed and len(freq) > 1:
         start, step = float(ASCII_DIGITS % freq[0]), float(ASCII_DIGITS % (freq[1] - freq[0]))
         if np.allclose(start + step * np.arange(len(freq)), freq, rtol=FORMAT_TOLERANCE, atol=0):
@@ -296,7 +306,11 @@ def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool
         for load_case, checked in enumerate(runs, start=1):
             target = run_file(uff_path, checked.run.name) if per_run else uff_path
             ctx = _RecordContext(rising(checked.run), checked.control, load_case, nodes, created, software, binary)
-            files.setdefault(target, []).extend(_run_records(ctx, frf_only))
+            try:
+                files.setdefault(target, []).extend(_run_records(ctx, frf_only))
+            except InputError as exc:   # a record's fault names the run; the session holding it goes first
+                raise InputError(exc.message, str(session_path), ": ".join(p for p in (exc.source, exc.field) if p)
+                                 ) from None
     for target in files:
         check_output(target, inputs=[session_path], overwrite=overwrite, field="--uff")
     _write_uff_files(files, session_path, software, overwrite)

@@ -103,8 +103,9 @@ def test_a_dof_name_that_is_no_name_is_refused_at_import_naming_file_and_field(t
     out = tmp_path / "s.h5"
     assert main(["import", str(csv), "-o", str(out), "--excitation", excitation]) == 2
     bad = next(d for d in dofs if dof_name_problem(d))
-    one_line_error(capsys, "c.csv", "sensor_dofs" if bad != excitation else "excitation_dof",
-                   dof_name_problem(bad))
+    # refused at the first row that names it, by its file line
+    first_row = 2 + len(FREQS) * dofs.index(bad)
+    one_line_error(capsys, f"c.csv: line {first_row}: dof", dof_name_problem(bad))
     assert not out.exists()
 
 
@@ -157,7 +158,7 @@ def test_a_force_no_lab_applies_is_refused_by_the_plan_and_by_the_import_in_the_
     for force in ("1e-300", "1e300"):
         csv = long_csv(tmp_path / "c.csv", ["x1", "x2"], force)
         assert main(["import", str(csv), "-o", str(tmp_path / "s.h5"), "--excitation", "x2"]) == 2
-        one_line_error(capsys, "c.csv", "attribute force", force_problem(float(force)))
+        one_line_error(capsys, "c.csv: line 2: force_n", force_problem(float(force)))     # the row that gives it
         assert not (tmp_path / "s.h5").exists()
 
 
@@ -425,3 +426,287 @@ def test_a_force_far_from_its_level_is_noted_at_import(tmp_path, capsys):
     assert main(["import", str(_with_measured_force(tmp_path / "d.csv", amplitude="0.81")), "-o",
                  str(tmp_path / "t.h5"), "--excitation", "x2"]) == 0
     assert "times off" not in capsys.readouterr().out
+
+
+# --------------------------------------------------------------------------- force spectra: silently wrong -> refused
+def _spectrum_import(tmp_path, values, func_type=12, label="N", id1="Force spectrum", x=None, *flags):
+    """A controller's UFF: the FRFs of test_force_spectrum and one force spectrum record (record 2)."""
+    from test_force_spectrum import DOFS as SPECTRUM_DOFS, _record, _spectrum, _write
+    path = tmp_path / "c.uff"
+    _write(path, [_record(), _spectrum(values, func_type, label, id1, x)])
+    out = tmp_path / "s.h5"
+    return main(["import", str(path), "-o", str(out), *SPECTRUM_DOFS, *flags]), out
+
+
+def test_a_negative_auto_spectrum_is_refused_not_its_magnitude_taken(tmp_path, capsys):
+    from test_force_spectrum import FORCE
+    power = FORCE ** 2 * np.array([1, -1, 1, 1])
+    rc, out = _spectrum_import(tmp_path, power, 2, "N^2", "Force autopower")
+    assert rc == 2 and not out.exists()
+    one_line_error(capsys, "c.uff", "record 2: data", "line 1 at 10.5 Hz", "an auto spectrum (a power, function "
+                   "type 2) is real and >= 0")
+
+
+@pytest.mark.parametrize("id1, factor", [("Force spectrum peak values (not RMS)", 1.0),
+                                         ("Force spectrum, non-RMS", 1.0),
+                                         ("Force spectrum RMS", np.sqrt(2.0)),
+                                         ("Force spectrum peak-to-peak", 0.5)])
+def test_an_id_line_that_denies_rms_is_read_as_peak(tmp_path, capsys, id1, factor):
+    """"peak values (not RMS)" was read as RMS and multiplied by sqrt 2."""
+    from app.session import open_session
+    from test_force_spectrum import FORCE
+    rc, out = _spectrum_import(tmp_path, FORCE, 12, "N", id1)
+    assert rc == 0, capsys.readouterr().err
+    with open_session(out) as s:
+        (name,) = s.run_names()
+        np.testing.assert_allclose(s.run(name).arrays["force_amplitude"], FORCE * factor, rtol=1e-12)
+
+
+def test_labels_that_say_both_peak_and_rms_are_refused(tmp_path, capsys):
+    from test_force_spectrum import FORCE
+    rc, out = _spectrum_import(tmp_path, FORCE, 12, "N", "Force spectrum peak RMS")
+    assert rc == 2 and not out.exists()
+    one_line_error(capsys, "c.uff", "record 2: id1", "its labels say rms (id1) and peak (id1)")
+
+
+def test_two_values_at_one_line_of_a_force_spectrum_are_refused(tmp_path, capsys):
+    """Two values at one line: one was used."""
+    from test_force_spectrum import LINES
+    x = np.array([10.0, 10.5, 10.5, 11.0, 11.5])
+    rc, out = _spectrum_import(tmp_path, np.array([0.14, 0.19, 0.3, 0.23, 0.2]), 12, "N", "F", x)
+    assert rc == 2 and not out.exists()
+    one_line_error(capsys, "c.uff", "record 2: x", "lines 1 and 2 are both at 10.5 Hz", "one force a line")
+    assert LINES[1] == 10.5
+
+
+def test_a_force_spectrum_beside_frfs_read_as_random_is_refused(tmp_path, capsys):
+    """A spectrum was attached to a random run with ``--kind random``."""
+    from test_force_spectrum import FORCE
+    rc, out = _spectrum_import(tmp_path, FORCE, 12, "N", "F", None, "--kind", "random", "--force-amplitude", "0.2")
+    assert rc == 2 and not out.exists()
+    one_line_error(capsys, "c.uff", "record 2: func_type", "read as a random run (--kind random)")
+
+
+def test_a_stepped_sine_csv_of_two_levels_read_as_random_is_refused(tmp_path, capsys):
+    """A stepped-sine CSV imported with ``--kind random`` became two random runs, of which ``analyze`` used one
+    without saying which; a second random run appended is refused likewise, and a session holding two is named."""
+    csv = long_csv(tmp_path / "c.csv")
+    csv.write_text(csv.read_text() + "".join(long_csv(tmp_path / "d.csv", force="1.6").read_text()
+                                             .splitlines(True)[1:]))
+    out = tmp_path / "s.h5"
+    assert main(["import", str(csv), "-o", str(out), "--excitation", "x2", "--kind", "random"]) == 2
+    one_line_error(capsys, "c.csv", "run random", "second random run", "--kind random")
+    assert not out.exists()
+    assert main(["import", str(tmp_path / "d.csv"), "-o", str(out), "--excitation", "x2", "--kind", "random"]) == 0
+    before = out.read_bytes()
+    assert main(["import", str(tmp_path / "d.csv"), "-o", str(out), "--excitation", "x2", "--kind", "random",
+                 "--append"]) == 2
+    one_line_error(capsys, "d.csv", "second random run")
+    assert out.read_bytes() == before
+    with h5py.File(out, "r+") as f:                       # a session written otherwise: the reader names both
+        f.copy(f["runs/random"], f["runs"], name="random_2")
+    assert main(["reference", str(out), "-o", str(tmp_path / "m.toml")]) == 2
+    one_line_error(capsys, "s.h5", "/runs/random_2", "runs random and random_2 are both random runs")
+
+
+# --------------------------------------------------------------------------- unclear -> one line naming file and line
+def _csv_rows(path) -> list[str]:
+    return long_csv(path).read_text().splitlines()
+
+
+@pytest.mark.parametrize("change, words", [
+    # a row of x1 moved to the end of the file: named by its own file line, not a 0-based line of the run
+    (lambda rows: rows[:5] + rows[6:] + [rows[5]],
+     ("c.csv: line 61: frequency_hz", "after 3.5 Hz (line 30) among the rows of dof x1 at 0.8 N")),
+    # a row of another level among the rows of one: that row is named, with its column
+    (lambda rows: rows[:10] + [rows[10].replace(",0.8", ",0.9")] + rows[11:],
+     ("c.csv: line 11: force_n", "the row of dof x1 at", "holds level 0.9 N, while the other rows of its run hold "
+      "0.8 N")),
+    # ' x1' beside 'x1': a line given twice, not "frequencies out of order"
+    (lambda rows: rows + [r.replace(",x1,", ", x1,") for r in rows[1:31]],
+     ("c.csv: line 62: frequency_hz", "dof x1 at 0.8 N has 1.0 Hz on line 2 already", "the dof cell ' x1' is read "
+      "as 'x1'")),
+    # a measured force that differs between the DOFs of a line: both named by file line
+    (lambda rows: [rows[0] + ",force_amplitude_n"] + [r + (",0.9" if i == 33 else ",0.8")
+                                                      for i, r in enumerate(rows[1:], 1)],
+     ("c.csv: line 34: force_amplitude_n", "dof x2 at 0.8 N has force_amplitude_n 0.9, dof x1 0.8 (line 4)")),
+])
+def test_csv_errors_name_the_file_line_of_the_row_at_fault(tmp_path, capsys, change, words):
+    """CSV errors gave a 1-based file line next to a 0-based line within the run; a row that split a level was
+    blamed on frequency_hz at another line; a DOF ' x1' beside 'x1' was "frequencies out of order"."""
+    csv = tmp_path / "c.csv"
+    csv.write_text("\n".join(change(_csv_rows(csv))) + "\n")
+    assert main(["import", str(csv), "-o", str(tmp_path / "s.h5"), "--excitation", "x2"]) == 2
+    err = one_line_error(capsys, *words)
+    assert "out of order at line" not in err
+
+
+def test_a_per_run_csv_names_the_file_line_of_a_bad_frequency(tmp_path, capsys):
+    session = tmp_path / "s.h5"
+    write_session(session)
+    assert main(["export", str(session), "--csv", str(tmp_path / "c")]) == 0
+    (csv,) = (tmp_path / "c").glob("*.csv")
+    rows = csv.read_text().splitlines()
+    rows.insert(5, "")                                    # a blank line: the file lines below it move by one
+    rows[7] = rows[7].replace(rows[7].split(",")[0], "0.5", 1)
+    csv.write_text("\n".join(rows) + "\n")
+    assert main(["import", str(csv), "-o", str(tmp_path / "b.h5")]) == 2
+    one_line_error(capsys, csv.name, "line 8: frequency [Hz]", "0.5 Hz after", "(line 7)")
+
+
+def test_a_run_of_one_line_is_exported_to_uff_and_read_back(tmp_path, capsys):
+    """A valid one-line run could not be exported to UFF, and the message was pyuff's."""
+    rows = _csv_rows(tmp_path / "c.csv")
+    (tmp_path / "c.csv").write_text("\n".join([rows[0], rows[1], rows[31]]) + "\n")
+    session = tmp_path / "s.h5"
+    assert main(["import", str(tmp_path / "c.csv"), "-o", str(session), "--excitation", "x2"]) == 0
+    for form in ("--binary", "--ascii"):
+        assert main(["export", str(session), "--uff", str(tmp_path / "o.uff"), form, "--overwrite"]) == 0, \
+            capsys.readouterr().err
+        (uff,) = tmp_path.glob("o_*.uff")
+        assert main(["import", str(uff), "-o", str(tmp_path / "b.h5"), "--overwrite"]) == 0
+        before, after = _runs(session)["sine_0.8N_up"], _runs(tmp_path / "b.h5")["sine_0.8N_up"]
+        assert np.array_equal(after["frequency"], before["frequency"]) and after["status"] == "complete"
+        # binary: every double kept; ASCII: the E20.11 of its data lines
+        np.testing.assert_allclose(after["frf/x1"], before["frf/x1"], rtol=0 if form == "--binary" else 1e-10)
+
+
+def test_reference_names_the_session_and_says_what_a_random_only_session_is(tmp_path, capsys):
+    """``reference`` errors named no file; on a random-only session it said "no stepped-sine run measures its
+    drive point"."""
+    single = tmp_path / "one.h5"
+    write_session(single, sensors=("x2",))
+    assert main(["reference", str(single), "-o", str(tmp_path / "m.toml")]) == 2
+    one_line_error(capsys, "one.h5: --band: run sine_0.8N_up: 2 mode(s) found for 1 sensor(s)")
+    random = tmp_path / "r.h5"
+    assert main(["import", str(long_csv(tmp_path / "c.csv")), "-o", str(random), "--excitation", "x2", "--kind",
+                 "random"]) == 0
+    capsys.readouterr()
+    assert main(["reference", str(random), "-o", str(tmp_path / "m.toml")]) == 2
+    err = one_line_error(capsys, "r.h5: has only a random run", "contactid analyze")
+    assert "drive point" not in err and not (tmp_path / "m.toml").exists()
+
+
+def test_reference_warns_of_a_model_that_misses_its_own_level(tmp_path, capsys):
+    """``reference`` wrote a model whose FRF error on its own level was 0.846 without a warning."""
+    session, model = tmp_path / "one.h5", tmp_path / "m.toml"
+    write_session(session, sensors=("x2",))
+    assert main(["reference", str(session), "-o", str(model), "--band", "1.9", "3.5"]) == 0
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("contactid: warning: ") and str(model) in err and err.count("\n") == 0, err
+    assert "misses its own level sine_0.8N_up by an FRF error of" in err and "--band" in err
+    assert model.exists()
+    assert main(["reference", str(session), "-o", str(tmp_path / "good.toml"), "--band", "1.0", "1.8"]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_recover_reports_damaged_data_rather_than_nothing_to_recover(tmp_path, capsys):
+    """``recover`` said "closed normally, nothing to recover" on a file with flipped data chunks, which
+    ``export`` and ``analyze`` then refused as damaged."""
+    session = tmp_path / "s.h5"
+    write_session(session)
+    with h5py.File(session, "r") as f:
+        offset = f["runs/sine_0.8N_up/frf/x1"].id.get_chunk_info(0).byte_offset
+    data = bytearray(session.read_bytes())
+    data[offset + 5] ^= 0xFF
+    session.write_bytes(bytes(data))
+    assert main(["recover", str(session)]) == 2
+    one_line_error(capsys, "s.h5", "fail their checksum", "/runs/sine_0.8N_up/frf/x1: line(s) 1-30 of 30",
+                   "the file is unchanged")
+    assert session.read_bytes() == bytes(data)
+
+
+def test_recover_repairs_a_run_left_running_under_a_live_pid_that_is_no_writer(tmp_path, capsys):
+    """A run still "running" under a live, unrelated pid: "closed normally, nothing to recover"."""
+    session = tmp_path / "s.h5"
+    _left_by_a_dead_writer(session)
+    other = subprocess.Popen(["sleep", "60"])           # alive, not Python, not holding the file
+    try:
+        with h5py.File(session, "r+") as f:
+            f.attrs["writer_pid"] = other.pid
+        assert main(["recover", str(session)]) == 0
+        assert "marked aborted and incomplete: sine_0.8N_up" in capsys.readouterr().out
+        assert _runs(session)["sine_0.8N_up"]["status"] == "aborted"
+    finally:
+        other.kill()
+        other.wait()
+
+
+# --------------------------------------------------------------------------- --add, [updating].modes
+def test_analyze_add_of_a_law_the_element_has_is_refused_before_any_work(tmp_path, capsys):
+    session, model = tmp_path / "s.h5", tmp_path / "m.toml"
+    write_session(session)
+    model.write_text(PAPER_STRUCTURE + '\n[[element]]\nname = "right"\ndof = "x2"\nlaws = ["cubic"]\n')
+    import time
+    start = time.monotonic()
+    assert main(["analyze", str(session), str(model), "--add", "right:cubic", "--no-history"]) == 2
+    one_line_error(capsys, "m.toml: --add right:cubic", "element 'right' has law 'cubic' already "
+                   "([[element]][0].laws[0])")
+    assert main(["analyze", str(session), str(model), "--add", "right:coulomb", "--add", "right:coulomb",
+                 "--no-history"]) == 2
+    one_line_error(capsys, "m.toml: --add right:coulomb", "law 'coulomb' is added twice to element 'right'")
+    assert time.monotonic() - start < 5             # refused before the identification, not after it
+
+
+@pytest.mark.parametrize("modes, words", [("[3]", "mode 3, but the structure has 2 mode(s)"),
+                                          ("[1, 1]", "names mode 1 twice"),
+                                          ("[]", "must be a list of mode numbers"),
+                                          ("[2]", "1 mode(s) cannot determine the 2 parameters")])
+def test_updating_modes_the_model_has_not_are_refused_when_it_is_read(tmp_path, capsys, modes, words):
+    parameters = '["stiffness[0][0]", "mass[1][1]"]' if modes == "[2]" else '["stiffness[0][0]"]'
+    model = tmp_path / "m.toml"
+    model.write_text(PAPER_STRUCTURE + f'\n[updating]\nparameters = {parameters}\nmodes = {modes}\n')
+    assert main(["modes", str(model)]) == 2
+    one_line_error(capsys, "m.toml: [updating].modes", words)
+
+
+def test_updating_modes_the_random_run_does_not_show_are_refused():
+    """More modes to match than the measurement shows at all: an error naming the model file and the field (an
+    untrusted mode still leaves the reference as given, with a note)."""
+    from analysis.common.measurements import RandomRun
+    from analysis.linear.reference import reference_from_random
+    from analysis.mechanics.model import load_model
+    f = np.linspace(0.9, 1.7, 200)                        # the first mode (1.27 Hz) alone
+    run = RandomRun("x2", ["x1", "x2"], f, np.array([receptance(x) for x in f]), None, None, 0.05)
+    doc = __import__("tomllib").loads(PAPER_STRUCTURE + '\n[updating]\nparameters = ["stiffness[0][0]"]\n'
+                                                        'modes = [1, 2]\n')
+    with pytest.raises(InputError) as err:
+        reference_from_random(load_model(doc, "m.toml"), run)
+    assert str(err.value).startswith("m.toml: [updating].modes: 2 modes to match, but the random run shows 1")
+    doc["updating"]["modes"] = [1]
+    assert reference_from_random(load_model(doc, "m.toml"), run).update is not None
+
+
+# --------------------------------------------------------------------------- simulate --overwrite through a link
+def test_simulate_overwrite_onto_a_link_replaces_its_target_and_keeps_the_link(tmp_path):
+    """``simulate --overwrite`` onto a symlink replaced the link with a regular file and left its target."""
+    real, link, plan = tmp_path / "real" / "s.h5", tmp_path / "link.h5", tmp_path / "p.toml"
+    real.parent.mkdir()
+    write_session(real)
+    link.symlink_to(real)
+    plan.write_text('[[stepped_sine]]\nforce = 0.8\nstart = 1.0\nstop = 1.1\nstep = 0.05\ndirection = "up"\n'
+                    + LIMITS)
+    assert main(["simulate", "paper-2dof", str(plan), "-o", str(link), "--overwrite", "--quiet"]) == 0
+    assert link.is_symlink() and link.resolve() == real.resolve()
+    assert sorted(_runs(real)) == ["sine_0.8N_up"] and len(_runs(real)["sine_0.8N_up"]["frequency"]) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.h5", "p.toml", "real"]
+    assert [p.name for p in real.parent.iterdir()] == ["s.h5"]        # no temporary left beside the target
+
+
+# --------------------------------------------------------------------------- own UFF tags
+@pytest.mark.parametrize("old, new, words", [
+    (b"status=complete", b"status=exploded", ("id4", "status=exploded is not one of complete, failed, aborted")),
+    (b"force=0.8 ", b"force=0.9 ", ("record 3: id4", "force 0.8 differs from 0.9 in record 2 of the same run")),
+    (b"convention=exp(+jwt)", b"convention=exp(-jwt)", ("id5", "is not contactid's exp(+jwt)")),
+])
+def test_own_uff_tags_that_no_run_has_or_that_records_disagree_on_are_refused(tmp_path, capsys, old, new, words):
+    """``status=exploded`` was stored as ``aborted``; records that disagreed (on ``target=``, on the level) were
+    accepted and the first won."""
+    session = tmp_path / "s.h5"
+    write_session(session)
+    assert main(["export", str(session), "--uff", str(tmp_path / "o.uff")]) == 0
+    (uff,) = tmp_path.glob("o_*.uff")
+    uff.write_bytes(uff.read_bytes().replace(old, new, 1))        # the first record only
+    assert main(["import", str(uff), "-o", str(tmp_path / "b.h5")]) == 2
+    one_line_error(capsys, uff.name, *words)
+    assert not (tmp_path / "b.h5").exists()

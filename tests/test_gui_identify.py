@@ -12,6 +12,7 @@ from test_report import _kbar_workbench
 class _Lab(QObject):
     identificationUpdated = Signal(object)
     modelChanged = Signal()
+    sessionChanged = Signal()
     model = None
 
 

@@ -40,9 +40,8 @@ def test_import_dialog_with_a_level_per_file_opens_the_session_on_the_identify_t
         dialog._accept()
     assert "low.uff: record 1: force: the file does not say the force level" in blocker.args[0]
     assert not (tmp_path / "low.h5").exists()
-    dialog = window.import_dialog()
-    dialog.add_files(files)
-    assert dialog.output.text() == str(tmp_path / "low.h5")
+    dialog = window.import_dialog()                     # as it was left, to correct
+    assert dialog.files.rowCount() == 2 and dialog.output.text() == str(tmp_path / "low.h5")
     dialog.files.item(0, 1).setText("fast")
     dialog._accept()
     assert dialog.isVisible() and "force 'fast' is not a number" in dialog.message.text()
@@ -95,10 +94,7 @@ def test_a_reversed_force_is_refused_until_the_dialog_says_so(window, qtbot, tmp
     with qtbot.waitSignal(window.lab.error, timeout=30000) as blocker:
         dialog._accept()
     assert "give --force-sign -1" in blocker.args[0]
-    dialog = window.import_dialog()
-    dialog.add_files([str(reversed_path)])
-    dialog.files.item(0, 1).setText("0.2")
-    dialog.dof_map.setPlainText("1+Z=x1\n2+Z=x2")
+    dialog = window.import_dialog()                     # as it was left: only the flag to add
     dialog.reversed_force.setChecked(True)
     with qtbot.waitSignal(window.lab.sessionChanged, timeout=30000):
         dialog._accept()

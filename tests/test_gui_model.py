@@ -120,7 +120,7 @@ def test_analyze_names_a_bad_add_by_the_option_that_gave_it(hidden_effect_sessio
     session, model = hidden_effect_session
     assert main(["analyze", str(session), str(model), "--add", "left:cubicc", "--no-history"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("contactid: error: --add left:cubicc: unknown law 'cubicc'") and "\n" not in err
+    assert err.startswith(f"contactid: error: {model}: --add left:cubicc: unknown law 'cubicc'") and "\n" not in err
     assert main(["analyze", str(session), str(model), "--add", "middle:cubic", "--no-history"]) == 2
     assert f"{model}: --add middle:cubic: no element named 'middle'" in capsys.readouterr().err
 

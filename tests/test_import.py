@@ -318,9 +318,9 @@ BAD_CSV = {
     "not a number": ("frequency_hz,force_n,dof,re,im\n1,0.5,x1,abc,-1\n", "c.csv: line 2: re: 'abc' is not a number"),
     "nan": ("frequency_hz,force_n,dof,re,im\n1,0.5,x1,nan,-1\n", "c.csv: line 2: re: 'nan' is not a finite"),
     "level missing for a DOF": ("frequency_hz,force_n,dof,re,im\n1,0.5,x1,1,-1\n2,0.5,x1,1,-1\n1,0.5,x2,1,-1\n",
-                                "c.csv: line 4: frequency_hz: dof x2 at 0.5 N has other lines than dof x1"),
+                                "c.csv: line 3: dof: dof x2 at 0.5 N has no row at 2.0 Hz, which dof x1 has"),
     "out of order": ("frequency_hz,force_n,dof,re,im\n1,0.5,x1,1,-1\n3,0.5,x1,1,-1\n2,0.5,x1,1,-1\n",
-                     "frequencies out of order at line 2"),
+                     "c.csv: line 4: frequency_hz: 2.0 Hz after 3.0 Hz (line 3)"),   # file lines only
     "unknown column": ("frequency_hz,force_n,dof,re,im,phase\n1,0.5,x1,1,-1,0\n", "c.csv: line 1: header: "),
 }
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
+from ..common.errors import InputError
 from ..common.measurements import RandomRun
 from ..mechanics.model import Model
 from ..mechanics.structures import Structure
@@ -196,6 +197,13 @@ def reference_from_random(model: Model, run: RandomRun | None) -> ReferenceRepor
     leakage = [] if run.resolution is None else [leakage_bias(f, z, run.resolution) if ok else None
                                                  for f, z, ok in zip(modal.frequency, modal.damping, trusted)]
     report = ReferenceReport(modal, None, leakage, stuck, trusted)
+    if model.updating_modes and len(modal.frequency) < len(model.updating_modes):
+        # the modes named are more than the measurement shows at all (not merely untrusted ones, which leave
+        # the reference as given, with a note): a model written for another band or another structure
+        raise InputError(f"{len(model.updating_modes)} modes to match, but the random run shows "
+                         f"{len(modal.frequency)} (at {', '.join(f'{f:.4g}' for f in modal.frequency)} Hz over "
+                         f"{run.frequency_hz.min():.4g}-{run.frequency_hz.max():.4g} Hz); name at most "
+                         f"{len(modal.frequency)}", model.source, "[updating].modes")
     if model.updating_parameters:
         report.update = _update(model, modal.frequency[trusted], report.notes)
     return report

@@ -175,8 +175,19 @@ def load_model(document: dict, source: str | None = None) -> Model:
             raise up.error("parameters", "names a parameter twice")
         if up.has("modes"):
             raw = up.table["modes"]
-            if not isinstance(raw, list) or not all(isinstance(m, int) and m >= 1 for m in raw):
+            if not isinstance(raw, list) or not raw or not all(isinstance(m, int) and not isinstance(m, bool)
+                                                                and m >= 1 for m in raw):
                 raise up.error("modes", "must be a list of mode numbers (1 = lowest)")
+            # checked when the model is read, as the parameters are: a mode the structure has not is a slip
+            # whether or not a session with a random run ever updates it
+            beyond = [m for m in raw if m > structure.n]
+            if beyond:
+                raise up.error("modes", f"mode {beyond[0]}, but the structure has {structure.n} mode(s) (one per DOF)")
+            if len(set(raw)) != len(raw):
+                raise up.error("modes", f"names mode {next(m for m in raw if raw.count(m) > 1)} twice")
+            if len(raw) < len(params):
+                raise up.error("modes", f"{len(raw)} mode(s) cannot determine the {len(params)} parameters of "
+                                        "[updating].parameters; name at least as many modes")
             modes = list(raw)
     return Model(copy.deepcopy(structure_table), structure, elements, params, modes, source, _fitted_on(root))
 

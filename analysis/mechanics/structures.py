@@ -14,7 +14,7 @@ import numpy as np
 import scipy.linalg
 
 from ..common.errors import InputError
-from ..common.quantities import frequency_problem
+from ..common.quantities import dof_name_problem, frequency_problem
 from ..common.tables import Fields
 
 BOUNDARIES = ("clamped", "pinned", "free")
@@ -200,6 +200,14 @@ def structure_parameter(table: dict, path: str, source: str | None = None) -> fl
     return float(node)
 
 
+def _dof_names(f: Fields, dofs: list[str]) -> None:
+    """The DOF names of a model hold to the rule of every door (analysis/common/quantities.py): the session
+    names its datasets by them."""
+    for d in dofs:
+        if dof_name_problem(d):
+            raise f.error("dofs", dof_name_problem(d))
+
+
 def load_structure(table: dict, source: str | None = None) -> Structure:
     """Build a Structure from the ``[structure]`` table (a dict, as read by tomllib).
 
@@ -253,6 +261,7 @@ def _modal(f: Fields) -> ModalStructure:
     dofs = f.strings("dofs")
     if not dofs or len(set(dofs)) != len(dofs):
         raise f.error("dofs", "must name at least one DOF, each once")
+    _dof_names(f, dofs)
     n = len(dofs)
     freqs = _positive_list(f, "frequencies", n, positive=True)
     for i, hz in enumerate(freqs):   # the range of every door's frequencies (analysis/common/quantities.py)
@@ -310,6 +319,7 @@ def _lumped(f: Fields) -> Structure:
         raise f.error("dofs", "must name at least one DOF")
     if len(set(dofs)) != len(dofs):
         raise f.error("dofs", "DOF names must be unique")
+    _dof_names(f, dofs)
     n = len(dofs)
     M, K = f.matrix("mass", n), f.matrix("stiffness", n)
     s = Structure(dofs, M, K, np.zeros((n, n)), set(), "lumped", f.source)

@@ -2,7 +2,8 @@
 element, coloured by level (circles where the force was held, squares where a response was), growing while a
 campaign runs; after fitting, the fitted laws as a black line per level under the dots (app/kbar_view.py, as
 kbar.png draws them); one legend beside the plots, in level order; an element judged linear on an axis that
-shows it flat; the linear/nonlinear verdict with its evidence."""
+shows it flat; the linear/nonlinear verdict with its evidence; what the samples are relative to where the analysis
+moved them, and by how much they moved."""
 from __future__ import annotations
 
 import html
@@ -20,6 +21,47 @@ from .results import IdentificationView
 NO_IDENTIFICATION = "No identification yet: run a campaign or open a session, with a model (Model tab)."
 NO_ELEMENTS = ("The model has no elements: nothing to identify. A linear structure's result is its measured FRFs "
                "(Session tab).")
+
+
+MOVED = 1e-6          # change of a sample, of the element's largest |kbar|, past which the samples moved
+
+
+def _same_lines(before: IdentificationView, after: IdentificationView) -> bool:
+    """Whether two identifications hold the same elements at the same lines (the same X): a move of their kbar is
+    then the analysis's doing, not new data."""
+    if [e.name for e in before.elements] != [e.name for e in after.elements]:
+        return False
+    for a, b in zip(before.elements, after.elements):
+        if (a.samples is None) != (b.samples is None):
+            return False
+        if a.samples is not None and (a.samples.X.shape != b.samples.X.shape or
+                                      not np.array_equal(a.samples.X, b.samples.X)):
+            return False
+    return True
+
+
+def _moved(before: IdentificationView | None, after: IdentificationView) -> str:
+    """How far the samples moved between two identifications of the same lines, as a share of the element's largest
+    |kbar| (a share of each sample would be huge where kbar crosses zero), and at the smallest X of the element that
+    moved most ("" where nothing moved, or the lines differ)."""
+    if before is None or not _same_lines(before, after):
+        return ""
+    worst = None
+    for a, b in zip(before.elements, after.elements):
+        if a.samples is None:
+            continue
+        scale = np.nanmax(np.abs(a.samples.kbar)) if len(a.samples.kbar) else 0.0
+        change = np.abs(b.samples.kbar - a.samples.kbar) / max(scale, 1e-300)
+        if len(change) and np.nanmax(change) > MOVED and (worst is None or np.nanmax(change) > worst[0]):
+            worst = (float(np.nanmax(change)), a, b)
+    if worst is None:
+        return ""
+    _, a, b = worst
+    i = int(np.argmin(a.samples.X))
+    unit = a.samples.units[0]
+    return (f"the samples moved with this analysis (its fit, not the data): {a.name} by up to {worst[0]:.1%} of "
+            f"its largest |kbar|; "
+            f"Re kbar at the smallest X {a.samples.kbar[i].real:.4g} -> {b.samples.kbar[i].real:.4g} {unit}")
 
 
 class IdentifyPanel(QWidget):
@@ -47,8 +89,11 @@ class IdentifyPanel(QWidget):
         self.legend: pg.LegendItem | None = None
         self._legend_entries: list = []
         self.redraw = Redraw(clock, self._draw, self)
+        self._moved = ""                 # how the samples moved from the identification shown before
         lab.identificationUpdated.connect(self._update)
         lab.modelChanged.connect(self._model_changed)
+        # another session: its own identification follows; nothing of the session before stays meanwhile
+        lab.sessionChanged.connect(self._model_changed)
 
     def plots(self) -> dict[str, pg.PlotItem]:
         out = {}
@@ -58,6 +103,11 @@ class IdentifyPanel(QWidget):
         return out
 
     def _model_changed(self) -> None:
+        self.view = None
+        self._moved = ""
+        self._clear()
+
+    def _clear(self) -> None:
         self.graphics.clear()
         self._rows.clear()
         self._curves.clear()
@@ -67,13 +117,14 @@ class IdentifyPanel(QWidget):
         self.status.setText(NO_ELEMENTS if model is not None and not model.elements else NO_IDENTIFICATION)
 
     def _update(self, view: IdentificationView) -> None:
+        self._moved = _moved(self.view, view)
         self.view = view
         self.redraw.request()
 
     def _ensure_rows(self, names: list[str]) -> None:
         if list(self._rows) == names:
             return
-        self._model_changed()
+        self._clear()
         for i, name in enumerate(names):
             re_plot = configure_plot(self.graphics.addPlot(i, 0), f"{name}: Re kbar (stiffness)", "amplitude X",
                                      None, "Re kbar", "N/m", log_x=True)
@@ -101,8 +152,11 @@ class IdentifyPanel(QWidget):
                 self._set_axis(el, plot, part, name)
         self._draw_legend(view)
         origin = "live, while the campaign runs" if view.live else "from the session"
+        notes = [f"kbar {view.basis}"] if view.basis else []
+        notes += [self._moved] if self._moved else []
         self.status.setText(f"kbar identified at {view.lines} stepped-sine lines ({origin}); "
-                            f"levels {', '.join(c.label() for c in view.levels)}")
+                            f"levels {', '.join(c.label() for c in view.levels)}"
+                            + "".join(f"\n{n}" for n in notes))
         self.verdicts.setHtml(self._verdict_html(view))
 
     def _restyle(self) -> None:

@@ -4,7 +4,8 @@ app.campaign.instruments) and never computes anything itself.
 
 Threads: everything here runs in the GUI thread except the campaign thread and the tasks handed to three
 runners -- instruments (connecting, probing ports, polling the output state), analysis (live identification,
-analyze / add / undo; the workbench lives on that thread only) and files (exports). A result computed for a
+analyze / add / undo, the level reference; the workbench lives on that thread only) and files (exports,
+imports, the session's measured backbones: work that only reads or writes files). A result computed for a
 session or model that has since been replaced is dropped, not shown.
 """
 from __future__ import annotations
@@ -20,6 +21,7 @@ from PySide6.QtCore import QObject, QTimer, Signal
 
 from analysis.loop.auto import run_auto
 from analysis.common.errors import InputError
+from analysis.linear.level_reference import LevelReference, reference_from_level
 from analysis.mechanics.model import FittedOn, Model, load_model
 from analysis.prediction.held_out import predict_session
 from analysis.common.tables import load_toml
@@ -28,6 +30,7 @@ from drivers import InstrumentError
 from drivers.discovery import find_instruments
 from drivers.simulation.rig import Rig, load_rig
 
+from app.analyze import read_measurements
 from app.campaign import (CampaignSummary, Instruments, Plan, check_against_instruments, emulated_instruments,
                           parse_plan, real_instruments)
 from app.export import export_csv, export_uff
@@ -36,8 +39,8 @@ from app.session import Session, atomic_output, measurements_from_session, open_
 from ..importers.store import ImportRequest, ImportResult, import_files
 from .live import CampaignFeed, LinkCounters, LiveSession, SignalRing
 from .plan_doc import plan_toml
-from .results import (AnalysisView, IdentificationView, PredictionView, analysis_view, identification_of,
-                      identification_view)
+from .results import (AnalysisView, BackboneView, IdentificationView, PredictionView, analysis_view,
+                      identification_of, identification_view, measured_backbones)
 from .workers import CampaignThread, TaskRunner
 
 log = logging.getLogger("contactid.gui")
@@ -90,6 +93,7 @@ class Lab(QObject):
     analysisUpdated = Signal(object)           # AnalysisView
     analysisBusy = Signal(bool)
     predictionUpdated = Signal(object)         # PredictionView
+    backboneUpdated = Signal(object)           # BackboneView
     autoProgress = Signal(str)                 # a line of the automatic loop as it is taken
     instrumentsBusy = Signal(bool)
     error = Signal(str)
@@ -129,9 +133,12 @@ class Lab(QObject):
         self.model_label = ""
         self.analysis: AnalysisView | None = None
         self.identification: IdentificationView | None = None
+        self.backbone: BackboneView | None = None
+        self.reference: LevelReference | None = None              # the level reference the model was made from
         self._workbench: tuple[int, Workbench] | None = None     # touched by analysis tasks only
         self._fitted_on: FittedOn | None = None                   # the analysed session and levels, for the saved model
         self._generation = 0                                      # bumped when the session or model changes
+        self._sessions = 0                                        # bumped when the session changes
         self._closed = False
         # coalesces identification requests; its interval is the least time between two live identifications
         self.identify_timer = QTimer(self, singleShot=True, interval=IDENTIFY_INTERVAL_MS)
@@ -389,15 +396,27 @@ class Lab(QObject):
         self.close_session()
         self.session, self.session_path = session, str(path)
         self._session_contents = self._contents()
-        self._bump_generation()
+        self._session_replaced()
         self.sessionChanged.emit()
         self.request_identification()
+        self._measure_backbones()
 
     def close_session(self) -> None:
         if self.session is not None:
             self.session.close()
         self.session = self.session_path = None
+        self._session_replaced()
         self.sessionChanged.emit()
+
+    def _forget_results(self) -> None:
+        """Another session or model: the results of the one before are dropped here, and results still being
+        computed for it are dropped when they arrive (the generation moves on), so no tab shows them."""
+        self.analysis = self.identification = self.backbone = None
+        self._bump_generation()
+
+    def _session_replaced(self) -> None:
+        self._sessions += 1
+        self._forget_results()
 
     def refresh_session(self) -> bool:
         """Re-read a session another process is writing; True when a run, a line or a status changed."""
@@ -409,6 +428,7 @@ class Lab(QObject):
             return False
         self._session_contents = contents
         self.request_identification()
+        self._measure_backbones()            # a response level that ended is a point more
         return True
 
     def export(self, kind: str, target: str, on_done) -> None:
@@ -427,8 +447,9 @@ class Lab(QObject):
                 return f"wrote {len(export_csv(path, target))} CSV files to {target}"
         self.file_tasks.submit(task, on_done)
 
-    def import_measurements(self, request: ImportRequest, on_done) -> None:
-        """Import other systems' files into a session in the background, then open it; ``on_done(message)``."""
+    def import_measurements(self, request: ImportRequest, on_done, on_refused=None) -> None:
+        """Import other systems' files into a session in the background, then open it; ``on_done(message)``, or
+        on a refusal ``on_refused(message)`` besides the error bar."""
         def task():
             return import_files(request)
 
@@ -436,7 +457,12 @@ class Lab(QObject):
             if self.act(self.open_session, request.output):
                 on_done(f"imported {len(result.runs)} run(s) into {Path(request.output).name}" +
                         "".join(f"\nnote: {n}" for n in result.notes))
-        self.file_tasks.submit(task, done)
+
+        def refused(message: str):
+            self.error.emit(message)
+            if on_refused is not None:
+                on_refused(message)
+        self.file_tasks.submit(task, done, refused)
 
     def _contents(self) -> list[tuple[str, str, int]]:
         return [(n, run.status, len(run.frequency))
@@ -446,20 +472,66 @@ class Lab(QObject):
     def load_model_file(self, path: str) -> None:
         self.set_model(load_model(load_toml(path), str(path)), str(path))
 
-    def set_model(self, model: Model, label: str) -> None:
-        self.model, self.model_label = model, label
-        self.analysis = None
-        self._bump_generation()
+    def set_model(self, model: Model, label: str, reference: LevelReference | None = None) -> None:
+        """Use ``model`` (``label`` names it); ``reference``: the level reference it was made from, shown with it."""
+        measured = None if self.backbone is None else self.backbone.measured
+        self.model, self.model_label, self.reference = model, label, reference
+        self._forget_results()
         self.modelChanged.emit()
         self.request_identification()
+        if measured is not None:                  # the session's curves stay; the old model's prediction goes
+            self._show_backbone(BackboneView(measured))
+
+    def make_reference(self) -> None:
+        """A modal reference fitted to the open session's lowest level, as ``contactid reference`` fits it
+        (:func:`reference_from_level`: its fit, its FRF error, the NONLINEAR warning when the next level moves),
+        then the model on it -- the joint element at the drive point without laws -- for Analyze and Auto: the
+        way in for a session without a random run."""
+        if self.session_path is None or self.campaign_running:
+            raise InputError("open a session first: a reference is fitted to a finished test's lowest level")
+        path, generation = self.session_path, self._generation
+
+        def task():
+            return reference_from_level(read_measurements(path))
+
+        def done(reference: LevelReference):
+            if generation == self._generation:
+                label = (f"reference from {Path(path).name}, run {reference.run} (modal, drive point "
+                         f"{reference.drive}), an element at the drive point")
+                self.set_model(reference.model(), label, reference)
+        self.analysis_tasks.submit(task, done)
 
     def use_starter_model(self) -> None:
         if self.rig is None:
             raise InputError("a starter model needs a simulated rig or rig file (Rig tab)")
-        self.set_model(starter_model(self.rig), f"starter model for {self.rig.name} (structure, no laws)")
+        self.set_model(starter_model(self.rig),
+                       f"starter model for {self.rig.name} (the rig's structure, an element at each joint)")
 
     def _bump_generation(self) -> None:
         self._generation += 1
+
+    # ================================================================== backbones
+    def _measure_backbones(self) -> None:
+        """The open session's measured natural frequency and damping against amplitude, without a model (in the
+        background); an analysis or a prediction adds the model's curves."""
+        path, sessions = self.session_path, self._sessions
+
+        def task():
+            return BackboneView(measured_backbones(read_measurements(path)))
+
+        def done(view: BackboneView):
+            # a model changed meanwhile leaves the session's curves valid; a model's prediction already shown
+            # holds them too
+            if sessions == self._sessions and (self.backbone is None or not self.backbone.predicted):
+                self._show_backbone(view)
+        # on the files runner, as the exports that also only read the session: an analysis task would hold Analyze
+        # and the model's buttons disabled the moment a session opens. A session the analysis refuses says so
+        # when analysed; here it only has no curves.
+        self.file_tasks.submit(task, done, lambda message: log.info("no backbone: %s", message))
+
+    def _show_backbone(self, view: BackboneView | None) -> None:
+        self.backbone = view
+        self.backboneUpdated.emit(view)
 
     # ================================================================== analysis
     def _measurement_reader(self):
@@ -547,6 +619,9 @@ class Lab(QObject):
         def done(view):
             if generation == self._generation:
                 self.predictionUpdated.emit(view)
+                backbones = view.prediction.backbones
+                self._show_backbone(BackboneView([c.measured for c in backbones], backbones,
+                                                 f"{self.model_label}, nothing refitted"))
         self.analysis_tasks.submit(task, done)
 
     def add_law(self, element: str, law: str) -> None:
@@ -593,8 +668,13 @@ class Lab(QObject):
         if generation != self._generation:
             return
         self.analysis = view
+        # an identification asked for before this analysis finished would replace its fitted one with an older
+        # state of the same data
+        self.identify_timer.stop()
         self.analysisUpdated.emit(view)
         self._show_identification(identification_of(view))
+        self._show_backbone(BackboneView([c.measured for c in view.backbones], view.backbones,
+                                         f"{self.model_label}, as fitted here"))
 
     # ================================================================== closing
     def shutdown(self, timeout_s: float = 30.0) -> None:

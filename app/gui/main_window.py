@@ -1,4 +1,4 @@
-"""The lab window: five tabs over one :class:`~app.gui.lab.Lab`, an error bar, and a close that switches the
+"""The lab window: six tabs over one :class:`~app.gui.lab.Lab`, an error bar, and a close that switches the
 output off first."""
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from PySide6.QtWidgets import (QFileDialog, QFrame, QHBoxLayout, QLabel, QMainWi
 
 from . import gc_guard
 from .acquire_panel import AcquirePanel
+from .backbone_panel import BackbonePanel
 from .identify_panel import IdentifyPanel
 from .import_dialog import ImportDialog
 from .lab import Lab
@@ -71,10 +72,11 @@ class MainWindow(QMainWindow):
         self.acquire = AcquirePanel(self.lab, self.clock, self.palette)
         self.identify = IdentifyPanel(self.lab, self.clock, self.palette)
         self.model = ModelPanel(self.lab, self.palette)
+        self.backbone = BackbonePanel(self.lab)
         self.session = SessionPanel(self.lab, self.palette, self.all_plots)
         self.tabs = QTabWidget()
         for panel, title in ((self.rig, "Rig"), (self.acquire, "Acquire"), (self.identify, "Identify"),
-                             (self.model, "Model"), (self.session, "Session")):
+                             (self.model, "Model"), (self.backbone, "Backbone"), (self.session, "Session")):
             self.tabs.addTab(panel, title)
         central = QWidget()
         layout = QVBoxLayout(central)
@@ -91,6 +93,12 @@ class MainWindow(QMainWindow):
                                                                 "campaign finished: ") + text.splitlines()[-1]))
         self.lab.sessionChanged.connect(lambda: self.statusBar().showMessage(
             f"session: {self.lab.session_path}" if self.lab.session_path else "no session"))
+        # a result that went through replaces whatever the status bar said before (an old refusal included)
+        self.lab.analysisUpdated.connect(
+            lambda view: self.statusBar().showMessage(f"analysed: FRF error {view.error:.4g}"))
+        self.lab.predictionUpdated.connect(lambda _: self.statusBar().showMessage("predicted, nothing refitted"))
+        self.lab.modelChanged.connect(lambda: self.statusBar().showMessage(f"model: {self.lab.model_label}"))
+        self._import: ImportDialog | None = None        # kept as the operator left it until an import goes through
         self.resize(1500, 950)
 
     def _menus(self) -> None:
@@ -112,23 +120,30 @@ class MainWindow(QMainWindow):
             self.tabs.setCurrentWidget(self.session)
 
     def import_dialog(self) -> ImportDialog:
-        """File > Import…: other systems' files into a session, then the Identify tab on it."""
-        dialog = ImportDialog(self.lab.software_version, self)
-        dialog.accepted.connect(lambda: self.start_import(dialog))
-        dialog.open()
-        return dialog
+        """File > Import…: other systems' files into a session, then the Identify tab on it. A refused import
+        leaves the dialog as it was, its refusal under the files, for the next File > Import… to correct; an
+        import that went through starts the next one empty."""
+        if self._import is None:
+            self._import = ImportDialog(self.lab.software_version, self)
+            self._import.accepted.connect(lambda: self.start_import(self._import))
+        self._import.open()
+        return self._import
 
     def start_import(self, dialog: ImportDialog) -> None:
         def done(message: str) -> None:
+            if self._import is dialog:
+                self._import = None
+                dialog.deleteLater()
             self.statusBar().showMessage(message.splitlines()[0])
             self.tabs.setCurrentWidget(self.identify)
-        self.lab.act(lambda: self.lab.import_measurements(dialog.request(), done))
+        dialog.message.setText("")
+        self.lab.act(lambda: self.lab.import_measurements(dialog.request(), done, dialog.message.setText))
 
     def all_plots(self) -> dict[str, pg.PlotItem]:
         """Every plot of every tab, named ``<tab>_<plot>``."""
         out = {}
         for prefix, panel in (("acquire", self.acquire), ("identify", self.identify), ("model", self.model),
-                              ("session", self.session)):
+                              ("backbone", self.backbone), ("session", self.session)):
             out.update({f"{prefix}_{name}": plot for name, plot in panel.plots().items()})
         return out
 

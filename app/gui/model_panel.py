@@ -1,8 +1,9 @@
-"""Model tab: the model's laws per element with fitted values and uncertainties, measured against predicted FRFs
-per level, the residual map, the ranked missing-effect candidates with their explanations and an Add button
-each, an Auto button that follows that advice by itself, the elements no law of the library explains with an Add
-button for their non-parametric part (docs/nonparametric.md), the error history (the error falling as effects
-are added) and undo."""
+"""Model tab: the model -- opened, made from the rig, or a modal reference fitted to the session's lowest level as
+``contactid reference`` fits it --, its laws per element with fitted values and uncertainties, measured against
+predicted FRFs per level, the residual map, the ranked missing-effect candidates with their explanations and an
+Add button each, an Auto button that follows that advice by itself, the elements no law of the library explains
+with an Add button for their non-parametric part (docs/nonparametric.md), the error history (the error falling as
+effects are added) and undo."""
 from __future__ import annotations
 
 import html
@@ -10,9 +11,10 @@ import html
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt
-from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QGroupBox, QHBoxLayout, QHeaderView, QLabel,
-                               QPushButton, QSplitter, QTableWidget, QTableWidgetItem, QTextBrowser, QTreeWidget,
-                               QTreeWidgetItem, QVBoxLayout, QWidget)
+from PySide6.QtGui import QColor, QTextCursor
+from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QFrame, QGroupBox, QHBoxLayout, QHeaderView, QLabel,
+                               QPushButton, QSplitter, QTableWidget, QTableWidgetItem, QTextBrowser,
+                               QTreeWidget, QTreeWidgetItem, QVBoxLayout, QWidget)
 
 from analysis.prediction.comparison import gain_phrase
 from analysis.mechanics.nonparametric import NAME as NONPARAMETRIC
@@ -25,6 +27,34 @@ from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol
 from .results import AnalysisView, PredictionView
 
 CANDIDATE_COLUMNS = ("Element", "Law", "Error after (1 harmonic)", "Gain", "Significant", "")
+AUTO_LINES_SHOWN = 6        # the automatic loop's lines scroll in a box this many lines high
+WARNING = "color:#d62728; font-weight:bold"
+
+
+def _laws_words(elements) -> str:
+    """Each element's laws in one line: ``left: cubic + coulomb; right: no laws``."""
+    return "; ".join(f"{name}: {' + '.join(laws) or 'no laws'}" for name, laws in elements)
+
+
+class AutoLines(QTextBrowser):
+    """The automatic loop's lines in a box of fixed height that scrolls to the newest: growing with them, the box
+    would push Auto and Stop from under the pointer while the loop runs. ``setText`` / ``text`` as a QLabel's (rich
+    text; ``text`` gives back what was set)."""
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self._text = ""
+        self.setFrameShape(QFrame.Shape.NoFrame)
+        self.setFixedHeight(AUTO_LINES_SHOWN * self.fontMetrics().lineSpacing() + 8)
+        self.viewport().setAutoFillBackground(False)     # the panel's background, as the label it replaces
+
+    def setText(self, text: str) -> None:  # noqa: N802 (the QLabel API)
+        self._text = text
+        self.setHtml(text)
+        self.moveCursor(QTextCursor.MoveOperation.End)      # the newest line in view, once laid out
+
+    def text(self) -> str:
+        return self._text
 
 
 class ModelPanel(QWidget):
@@ -40,13 +70,20 @@ class ModelPanel(QWidget):
         bar = QHBoxLayout()
         self.model_label = QLabel("no model")
         self.model_label.setWordWrap(True)
-        bar.addWidget(QLabel("<b>Model:</b>"))
-        bar.addWidget(self.model_label, 1)
+        self.model_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        bar.addWidget(QLabel("<b>Model</b>"))
+        bar.addStretch(1)
         self.open_button = QPushButton("Open model…")
         self.open_button.clicked.connect(self.open_model_dialog)
         self.starter_button = QPushButton("Starter model from rig")
         self.starter_button.setToolTip("The rig's structure with an unknown element (no laws) at each joint")
         self.starter_button.clicked.connect(lambda: self.lab.act(self.lab.use_starter_model))
+        self.reference_button = QPushButton("Reference from session")
+        self.reference_button.setToolTip("For a session without a random run: a modal structure fitted to its lowest "
+                                         "level, as contactid reference fits it (its fit, its FRF error, a NONLINEAR "
+                                         "warning when the next level moves), then the model on it with an element "
+                                         "without laws at the drive point")
+        self.reference_button.clicked.connect(lambda: self.lab.act(self.lab.make_reference))
         self.save_button = QPushButton("Save fitted model…")
         self.save_button.clicked.connect(self._save_model)
         self.analyze_button = QPushButton("Analyze")
@@ -61,10 +98,12 @@ class ModelPanel(QWidget):
         self.undo_button = QPushButton("Undo")
         self.undo_button.setToolTip("Take back the last added law")
         self.undo_button.clicked.connect(lambda: self.lab.act(self.lab.undo))
-        for b in (self.open_button, self.starter_button, self.save_button, self.analyze_button, self.predict_button,
-                  self.undo_button):
+        for b in (self.open_button, self.starter_button, self.reference_button, self.save_button,
+                  self.analyze_button, self.predict_button, self.undo_button):
             bar.addWidget(b)
         layout.addLayout(bar)
+        # under the buttons, the window's width: where the model came from, its laws, its reference's warning
+        layout.addWidget(self.model_label)
         self.error_label = QLabel("FRF error: — (press Analyze)")
         self.error_label.setStyleSheet("font-size:14pt; font-weight:bold")
         self.busy_label = QLabel("")
@@ -122,9 +161,7 @@ class ModelPanel(QWidget):
         self._auto_lines: list[str] = []
         self._auto_running = False
         self._stopping = False
-        self.auto_label = QLabel("")
-        self.auto_label.setWordWrap(True)
-        self.auto_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.auto_label = AutoLines()
         buttons = QVBoxLayout()
         buttons.addWidget(self.auto_button)
         buttons.addWidget(self.stop_button)
@@ -156,7 +193,8 @@ class ModelPanel(QWidget):
         lab.predictionUpdated.connect(self._show_prediction)
         lab.analysisBusy.connect(self._show_busy)
         lab.modelChanged.connect(self._model_changed)
-        lab.sessionChanged.connect(self._update_enabled)
+        # another session: the analysis of the one before goes (the lab dropped it), the model stays
+        lab.sessionChanged.connect(self._model_changed)
         lab.instrumentsChanged.connect(self._update_enabled)
         self._model_changed()
 
@@ -205,16 +243,24 @@ class ModelPanel(QWidget):
 
     def _show_auto_lines(self) -> None:
         state = ("stopping: it ends before its next step; the steps taken stay" if self._stopping else "running")
-        self.auto_label.setText("<br>".join([f"<b>Automatic loop</b> ({state})", *self._auto_lines[-12:]]))
+        self.auto_label.setText("<br>".join([f"<b>Automatic loop</b> ({state})",
+                                             *self._auto_lines]))
 
     # ------------------------------------------------------------------ views
     def _model_changed(self) -> None:
-        self.view = None
-        self.model_label.setText(self.lab.model_label or "no model: open one, or make a starter model from the rig")
+        """Another model or session: nothing of an analysis or prediction before stays, the model as loaded."""
+        self._clear_results()
         self.error_label.setText("FRF error: — (press Analyze)")
+        self._show_model()
+        self._update_enabled()
+
+    def _clear_results(self) -> None:
+        self.view = None
+        self.error_label.setText("")
         self.level_errors.setText("")
         self.jump_label.setText("")
         self.auto_label.setText("")
+        self._auto_lines = []
         self.laws.clear()
         self.candidates.setRowCount(0)
         self._clear_unexplained()
@@ -222,13 +268,61 @@ class ModelPanel(QWidget):
         for plot in self.plots().values():
             plot.clear()
         self._set_legend([])
+
+    def _show_model(self) -> None:
+        """The model as loaded: its name, each element's laws, and the reference it was made from."""
+        self._show_label()
+        reference = self._add_reference_item()
+        if reference is not None:
+            reference.setExpanded(True)
         if self.lab.model is not None:
             for el in self.lab.model.elements:
                 where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
                 parts = [t.law.name for t in el.laws] + ([NONPARAMETRIC] if el.nonparametric is not None else [])
                 laws = " + ".join(parts) or "no laws (identify kbar only)"
                 QTreeWidgetItem(self.laws, [f"{el.name} ({where}): {laws}"])
-        self._update_enabled()
+
+    def _show_label(self) -> None:
+        """Where the model came from, and the laws it holds now: the model as loaded, or as the analysis on this
+        tab fitted it (words from before a fit never stand beside fitted laws)."""
+        model = self.lab.model
+        if model is None:
+            self.model_label.setText("no model: open one, make a starter model from the rig, or a reference from "
+                                     "the session")
+            return
+        if self.view is not None:
+            laws = _laws_words((el.name, [law.law for law in el.laws] + ([NONPARAMETRIC] if el.nonparametric else []))
+                               for el in self.view.elements)
+            held = f"as fitted here: {laws}"
+        else:
+            laws = _laws_words((el.name, [t.law.name for t in el.laws] +
+                                ([NONPARAMETRIC] if el.nonparametric is not None else [])) for el in model.elements)
+            held = f"as loaded: {laws}" if model.elements else "no elements"
+        text = f"{html.escape(self.lab.model_label)} — {html.escape(held)}"
+        reference = self.lab.reference
+        if reference is not None:
+            fit = reference.fit
+            modes = ", ".join(f"{f:.5g} Hz, damping {z:.3g}" for f, z in zip(fit.frequency, fit.damping))
+            text += (f"<br>reference: {modes}; FRF error {reference.frf_error:.3g} on its level "
+                     f"(tree below: the whole fit)")
+            if reference.nonlinear:
+                text += (f"<br><span style='{WARNING}'>NONLINEAR already between the two lowest levels "
+                         f"({html.escape(reference.next_run)}): the reference may hold part of the joint's effect "
+                         "at this level</span>")
+        self.model_label.setText(text)
+
+    def _add_reference_item(self) -> QTreeWidgetItem | None:
+        """The reference the model was made from, as ``contactid reference`` prints it, atop the laws."""
+        reference = self.lab.reference
+        if reference is None:
+            return None
+        top = QTreeWidgetItem(self.laws, [f"structure: modal reference from run {reference.run}"])
+        for line in reference.text().splitlines()[1:]:
+            item = QTreeWidgetItem(top, [line.strip()])
+            item.setToolTip(0, line.strip())
+            if "NONLINEAR" in line:
+                item.setForeground(0, QColor("#d62728"))
+        return top
 
     def _update(self, view: AnalysisView) -> None:
         # analysis results arrive a few times a minute at most: drawn at once, not paced by the frame clock
@@ -252,6 +346,8 @@ class ModelPanel(QWidget):
         self.undo_button.setEnabled(not busy and have_view and self.view.can_undo)
         self.save_button.setEnabled(have_view)
         self.starter_button.setEnabled(self.lab.rig is not None)
+        self.reference_button.setEnabled(not busy and self.lab.session_path is not None
+                                         and not self.lab.campaign_running)
         for row in range(self.candidates.rowCount()):
             button = self.candidates.cellWidget(row, len(CANDIDATE_COLUMNS) - 1)
             if button is not None:
@@ -263,11 +359,14 @@ class ModelPanel(QWidget):
         """A prediction with nothing refitted: the pooled error of each kind of level above, the table in the
         explanation box, the FRFs and residuals drawn with each run's kind in the legend."""
         kinds = "; ".join(f"{KIND_WORDS[kind]} levels {error:.3g}" for kind, error in view.prediction.errors.items())
+        # the model predicted is the model as loaded: an analysis shown before (its fitted laws, candidates,
+        # history) is not what these numbers are of
+        self._clear_results()
+        self._show_model()
         self.error_label.setText(f"Prediction, nothing refitted: {kinds}")
-        self.level_errors.setText("")
-        self.jump_label.setText("")
         self.explanation.setHtml(f"<pre>{html.escape(view.text)}</pre>")
         self._draw_frf(view)
+        self._update_enabled()
 
     def _show_explanation(self) -> None:
         rows = {i.row() for i in self.candidates.selectedIndexes()}
@@ -286,6 +385,7 @@ class ModelPanel(QWidget):
         single = "" if view.single_harmonic_error == view.error else \
             f"; single-harmonic {view.single_harmonic_error:.4g}, as the candidates' errors"
         self.error_label.setText(f"FRF error {view.error:.4g}")
+        self._show_label()
         self.level_errors.setText(f"by level: {by_level}{single}")
         self.jump_label.setText("<br>".join(["<b>Jumps</b> (predicted fold against measured):", *view.jumps])
                                 if view.jumps else "")
@@ -299,6 +399,7 @@ class ModelPanel(QWidget):
 
     def _draw_laws(self, view: AnalysisView) -> None:
         self.laws.clear()
+        reference = self._add_reference_item()
         for el in view.elements:
             top = QTreeWidgetItem(self.laws, [f"{el.name} ({el.where}): {el.verdict}"])
             if not el.laws:
@@ -310,6 +411,8 @@ class ModelPanel(QWidget):
             if el.nonparametric:
                 QTreeWidgetItem(top, [el.nonparametric])
         self.laws.expandAll()
+        if reference is not None:        # its summary and warning stand above; the laws want the tree's room
+            reference.setExpanded(False)
 
     def _clear_unexplained(self) -> None:
         layout = self.unexplained.layout()

@@ -11,12 +11,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from analysis.loop.auto import STOPPED_BY_USER, AutoResult
+from analysis.prediction.backbone import (Backbone, BackboneComparison, measured_backbone, measured_power_balance,
+                                          phase_resonance_backbone)
 from analysis.prediction.comparison import LevelError
 from analysis.missing.diagnosis import Candidate, ElementSamples
-from analysis.common.measurements import Control, SineRun
+from analysis.common.measurements import Control, Measurements, SineRun
 from analysis.loop.workbench import Workbench
 from analysis.mechanics.model import FittedOn
 from analysis.prediction.held_out import SessionPrediction
+from app.analyze import backbone_text, backbones, comparisons_error
 from app.kbar_view import ordered_levels
 from app.predict import KIND_WORDS
 
@@ -118,6 +121,8 @@ class AnalysisView:
     auto: list[str] = field(default_factory=list)       # the steps of the last automatic loop and why it stopped
     single_harmonic_error: float = float("nan")         # the measure the candidates are judged by
     ranked: bool = True                                 # False: stopped before the candidates were ranked
+    backbones: list[BackboneComparison] = field(default_factory=list)   # measured against this model's prediction
+    kbar_basis: str = ""                                # what the kbar samples are relative to (kbar_basis())
 
     @property
     def can_undo(self) -> bool:
@@ -168,11 +173,85 @@ class IdentificationView:
     lines: int
     live: bool = False
     runs: list[SineRun] = field(default_factory=list)
+    basis: str = ""       # what the samples are relative to where a fit moved them (kbar_basis); "" plain
 
     @property
     def levels(self) -> list[Control]:
         """The runs' levels in :meth:`Control.order`."""
         return ordered_levels(r.control for r in self.runs)
+
+
+@dataclass
+class BackboneView:
+    """The Backbone tab's content: natural frequency and damping ratio against response amplitude.
+
+    ``measured`` holds every measured curve of the session -- a single-mode fit per response-controlled level, the
+    points of each phase-resonance run -- and ``comparisons`` the model's prediction of each, the very comparisons
+    ``contactid analyze`` and ``predict`` print (empty until a model is analysed or predicts); ``model`` names
+    that model."""
+
+    measured: list[Backbone]
+    comparisons: list[BackboneComparison] = field(default_factory=list)
+    model: str = ""
+
+    @property
+    def predicted(self) -> bool:
+        return bool(self.comparisons)
+
+    def text(self) -> str:
+        """The table under the plots: the command line's own text once predicted (``backbone_text``), the measured
+        points in its columns before."""
+        if self.comparisons:
+            return "\n".join(backbone_text(self.comparisons)).strip()
+        out = []
+        for bb in self.measured:
+            what = "response level(s), a single-mode fit each" if bb.method.startswith("single-mode") else \
+                f"point(s) of {bb.runs[0]}, {bb.method}"
+            out += [f"{bb.quantity} at {bb.dof} ({len(bb.points)} {what}):",
+                    f"  {'amplitude [' + bb.units + ']':>18} {'f meas [Hz]':>12} {'zeta meas':>10}"]
+            for pt in sorted(bb.points, key=lambda p: p.amplitude):
+                zeta = f"{pt.damping:10.5f}" if np.isfinite(pt.damping) else f"{'-':>10}"
+                out.append(f"  {pt.amplitude:18.4g} {pt.frequency:12.5f} {zeta}"
+                           + ("" if pt.converged else "  (lock not converged)"))
+        return "\n".join(out)
+
+    def error_words(self) -> str:
+        """The model's RMS relative errors over every measured point (as the command line states them)."""
+        if not self.comparisons:
+            return ""
+        error = comparisons_error(self.comparisons)
+        damping = f"{error.damping:.3g}" if np.isfinite(error.damping) else "- (no damping measured)"
+        return f"natural frequency {error.frequency:.3g}, damping ratio {damping}"
+
+
+def measured_backbones(measurements: Measurements) -> list[Backbone]:
+    """Every measured curve of a session without a model, as the Acquire tab draws them live: the response levels'
+    single-mode fits (:func:`measured_backbone`), and each phase-resonance run's locked points with the damping by
+    the power balance on the session's own low-level FRF (NaN where the session holds none)."""
+    out = measured_backbone(measurements.sine)
+    for run in measurements.phase:
+        curve = phase_resonance_backbone(run)
+        zeta = measured_power_balance(measurements, run)
+        if zeta is not None:
+            curve.points = [replace(p, damping=float(z)) for p, z in zip(curve.points, zeta)]
+        out.append(curve)
+    return out
+
+
+def kbar_basis(wb: Workbench) -> str:
+    """What the identified kbar is relative to where the analysis moved it away from the plain closed form on the
+    model as loaded: the structure updated from the random run, and on data without harmonics (imported FRFs) the
+    fitted model's own fundamental bias taken out once every element has fitted laws (docs/fitting.md, "The
+    fundamental's bias"). Said beside the dots, because without it a sample that moves between two analyses reads as
+    a changed measurement."""
+    out = []
+    if wb.reference is not None and wb.reference.update is not None:
+        out.append("relative to the structure updated from the random run")
+    fitted = all(el.laws and all(t.complete for t in el.laws) for el in wb.model.elements)
+    if wb.harmonics_blind and fitted and wb.model.elements:
+        out.append("on data without harmonics, less the fitted laws' own fundamental bias, so the samples move "
+                   "when the laws change (docs/fitting.md, \"The fundamental's bias\")")
+    return "; ".join(out)
 
 
 def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
@@ -203,18 +282,19 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
     return views
 
 
-def _identification(elements: list[ElementView], runs: list[SineRun], live: bool) -> IdentificationView:
-    return IdentificationView(elements, sum(len(r.frequency_hz) for r in runs), live, list(runs))
+def _identification(elements: list[ElementView], runs: list[SineRun], live: bool,
+                    basis: str = "") -> IdentificationView:
+    return IdentificationView(elements, sum(len(r.frequency_hz) for r in runs), live, list(runs), basis)
 
 
 def identification_view(wb: Workbench, live: bool) -> IdentificationView:
     """After :meth:`Workbench.identify`."""
-    return _identification(element_views(wb, with_laws=False), wb.measurements.sine, live)
+    return _identification(element_views(wb, with_laws=False), wb.measurements.sine, live, kbar_basis(wb))
 
 
 def identification_of(view: AnalysisView) -> IdentificationView:
     """The identification part of an analysis (from the session, not live)."""
-    return _identification(view.elements, view.runs, live=False)
+    return _identification(view.elements, view.runs, live=False, basis=view.kbar_basis)
 
 
 def _discovered(auto: AutoResult) -> list[str]:
@@ -263,4 +343,5 @@ def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult |
         [] if auto is None else _discovered(auto) + [s.line() for s in auto.steps] + [_stopped(auto)],
         wb.single_harmonic_comparison().error,
         # a stopped loop leaves no ranking; an empty table would read as "every law was tried"
-        auto is None or auto.stopped != STOPPED_BY_USER)
+        auto is None or auto.stopped != STOPPED_BY_USER,
+        backbones(wb), kbar_basis(wb))

@@ -4,7 +4,8 @@ A real session, not a mock-up: the window connects to the emulated paper-2dof ri
 run, two force levels, a response-controlled level and a phase-resonance run at four forces) and runs it through
 its widgets -- the Acquire and Rig tabs are taken while the phase-resonance run locks its last level, its
 natural-frequency plot grown point by point -- then analyses the session with the model that knows the structure but no law, presses Auto
-(the missing-effect loop, as ``contactid analyze --auto``), and grabs every tab. Runs offscreen unless a display is asked
+(the missing-effect loop, as ``contactid analyze --auto``), and grabs every tab (the Backbone tab with the
+response level's and the phase-resonance run's curves, measured and as the model predicts them). Runs offscreen unless a display is asked
 for with ``QT_QPA_PLATFORM``.
 """
 from __future__ import annotations
@@ -15,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-TABS = ("rig", "acquire", "identify", "model", "session")
+TABS = ("rig", "acquire", "identify", "model", "backbone", "session")
 SIZE = (1500, 950)
 # the random run's rms force (0.3 N) is above the Coulomb slip force of paper-2dof (0.1 N), so its joint moves
 PLAN = """
@@ -121,7 +122,7 @@ def take(out: Path) -> list[Path]:
         _wait(app, lambda: lab.identification is not None and not lab.identification.live, 60,
               "the identification")
         window.session.runs.selectRow(window.session.runs.rowCount() - 1)      # the highest level
-        for tab in ("identify", "model", "session"):
+        for tab in ("identify", "model", "backbone", "session"):
             grab(tab)
         if errors:
             raise RuntimeError("the window reported: " + "; ".join(errors))

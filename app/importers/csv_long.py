@@ -16,10 +16,10 @@ import numpy as np
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import CONTROL_UNITS, Control
-from analysis.common.quantities import (control_dof_problem, force_and_response, force_problem, held_without_target,
-                                       phase_problem)
+from analysis.common.quantities import (control_dof_problem, dof_name_problem, force_and_response, force_problem, frequency_problem,
+                                       held_without_target, phase_problem)
 
-from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, csv_float, in_sweep_order, response_run_name,
+from .runs import (KINDS, ImportedRun, SourceOptions, csv_float, in_sweep_order, response_run_name,
                    sine_run_name, sweep_direction)
 
 REQUIRED = ("frequency_hz", "force_n", "dof", "re", "im")
@@ -41,6 +41,8 @@ class _Lines:
     force_phase: list[float] = field(default_factory=list)
     status: str | None = None                 # the ``status`` column's word (None: the column is absent)
     status_row: int = 0
+    rows: list[int] = field(default_factory=list)      # the file line (from 1) of each line, for messages
+    cells: list[str] = field(default_factory=list)     # the ``dof`` cell of each as written (spaces kept)
 
 
 def _number(text: str, path: str, row: int, column: str) -> float:
@@ -88,14 +90,22 @@ def read_csv_long(path: str, options: SourceOptions) -> tuple[list[ImportedRun],
         if len(row) != len(columns):
             raise InputError(f"{len(row)} fields, the header has {len(columns)}", path, f"line {number}")
         cell = dict(zip(columns, (c.strip() for c in row)))
+        written_dof = row[columns.index("dof")]
         control = _control(cell, path, number, options.excitation)
         direction = cell.get("direction") or None
         if direction not in (None, "up", "down"):
             raise InputError(f"{direction!r} is not up or down", path, f"line {number}: direction")
         if not cell["dof"]:
             raise InputError("no DOF name", path, f"line {number}: dof")
+        if dof_name_problem(cell["dof"]):      # at its row, before it is compared with any other
+            raise InputError(dof_name_problem(cell["dof"]), path, f"line {number}: dof")
         lines = runs.setdefault((control, direction), {}).setdefault(cell["dof"], _Lines(number))
-        lines.frequency.append(_number(cell["frequency_hz"], path, number, "frequency_hz"))
+        hz = _number(cell["frequency_hz"], path, number, "frequency_hz")
+        if hz > 0 and frequency_problem(hz):   # (0 Hz and below: refused in the words of a receptance line)
+            raise InputError(f"{cell['frequency_hz']} is {frequency_problem(hz)}", path, f"line {number}: frequency_hz")
+        lines.frequency.append(hz)
+        lines.rows.append(number)
+        lines.cells.append(written_dof)
         lines.value.append(complex(_number(cell["re"], path, number, "re"), _number(cell["im"], path, number, "im")))
         _status(cell, lines, path, number)
         if cell.get("std"):                # an empty cell: a run without standard deviations (all its rows)
@@ -106,8 +116,71 @@ def read_csv_long(path: str, options: SourceOptions) -> tuple[list[ImportedRun],
         _measured_force(cell, lines, path, number)
     if not runs:
         raise InputError("no data rows after the header", path, f"line {header_row}")
+    for (control, direction), dofs in runs.items():
+        for dof, lines in dofs.items():
+            _check_lines(path, dof, control.label(), lines)
+    _check_levels(path, runs)
     out = [_run(path, control, direction, dofs, options) for (control, direction), dofs in runs.items()]
     return [in_sweep_order(r) for r in out], [",".join(rows[header_row - 1][1])], []
+
+
+def _key(hz: float) -> str:
+    return f"{hz:.12g}"          # one line, as the DOFs of a level are compared (to 1e-12)
+
+
+def _check_lines(path: str, dof: str, level: str, lines: _Lines) -> None:
+    """The lines of one DOF at one level, each named by its file line: above 0 Hz, each once, rising or falling
+    strictly (the order of the rows is the order measured)."""
+    seen: dict[str, int] = {}
+    for k, (hz, row) in enumerate(zip(lines.frequency, lines.rows)):
+        if hz <= 0:
+            raise InputError(f"{hz!r} Hz: receptance lines must be above 0 Hz", path, f"line {row}: frequency_hz")
+        if _key(hz) in seen:
+            first = seen[_key(hz)]
+            spelt = {repr(c) for c in (lines.cells[k], lines.cells[lines.rows.index(first)]) if c != dof}
+            note = f" (the dof cell {' and '.join(sorted(spelt))} is read as {dof!r}: spaces around a name are " \
+                   "dropped)" if spelt else ""
+            raise InputError(f"dof {dof} at {level} has {hz!r} Hz on line {first} already{note}: one row a line, DOF "
+                             "and level", path, f"line {row}: frequency_hz")
+        seen[_key(hz)] = row
+        if k >= 2 and (hz - lines.frequency[k - 1]) * (lines.frequency[1] - lines.frequency[0]) < 0:
+            raise InputError(f"{hz!r} Hz after {lines.frequency[k - 1]!r} Hz (line {lines.rows[k - 1]}) among the rows "
+                             f"of dof {dof} at {level}, which {'rise' if lines.frequency[1] > lines.frequency[0] else 'fall'}"
+                             ": the lines of a run rise or fall strictly (a row out of place?)", path,
+                             f"line {row}: frequency_hz")
+
+
+def _check_levels(path: str, runs: dict) -> None:
+    """Every DOF of a level has the same lines. A line one DOF lacks that it has at another level is a row
+    whose level columns split its level: that row is named, with the column that differs."""
+    for (control, direction), dofs in runs.items():
+        union = {}
+        for dof, lines in dofs.items():
+            for hz, row in zip(lines.frequency, lines.rows):
+                union.setdefault(_key(hz), (hz, dof, row))
+        for dof, lines in dofs.items():
+            have = {_key(hz) for hz in lines.frequency}
+            lacking = [v for k, v in union.items() if k not in have]
+            if not lacking:
+                continue
+            hz, other, other_row = lacking[0]
+            for (control2, direction2), dofs2 in runs.items():
+                elsewhere = dofs2.get(dof)
+                if elsewhere is None or (control2, direction2) == (control, direction):
+                    continue
+                rows = [r for f, r in zip(elsewhere.frequency, elsewhere.rows) if _key(f) == _key(hz)]
+                if rows:
+                    column = "direction" if control2 == control else \
+                        "force_n" if control.mode == control2.mode == "force" else "control_target"
+                    theirs, its = control.label(), control2.label()
+                    if direction2 != direction:
+                        theirs, its = f"{theirs} ({direction or 'no direction'})", f"{its} ({direction2 or 'none'})"
+                    raise InputError(f"the row of dof {dof} at {hz!r} Hz holds level {its}, while the other rows of its "
+                                     f"run hold {theirs} -- where dof {dof} then has no row at {hz!r} Hz and dof "
+                                     f"{other} has one (line {other_row}): a row's level columns must be its run's",
+                                     path, f"line {rows[0]}: {column}")
+            raise InputError(f"dof {dof} at {control.label()} has no row at {hz!r} Hz, which dof {other} has: every "
+                             "DOF of a level has the same lines (a row missing?)", path, f"line {other_row}: dof")
 
 
 def _control(cell: dict, path: str, row: int, excitation: str) -> Control:
@@ -121,6 +194,8 @@ def _control(cell: dict, path: str, row: int, excitation: str) -> Control:
         force = _number(cell["force_n"], path, row, "force_n")
         if force <= 0:
             raise InputError(f"{cell['force_n']!r} is not a force amplitude > 0 N", path, f"line {row}: force_n")
+        if force_problem(force):       # the plan's words, at the row that gives it
+            raise InputError(force_problem(force), path, f"line {row}: force_n")
         return Control("force", excitation, "force", force)
     if cell["force_n"]:
         raise InputError(force_and_response("control_target"), path, f"line {row}: force_n")
@@ -178,8 +253,7 @@ def _run(path: str, control: Control, direction: str | None, dofs: dict[str, _Li
     frf, arrays = {}, {}
     level = control.label()
     for dof, lines in dofs.items():
-        f = np.array(lines.frequency)
-        check_axis(f, path, f"line {lines.first_row}: frequency_hz (dof {dof}, level {level})")
+        f = np.array(lines.frequency)      # each DOF's lines are checked, by file line, in _check_lines
         if len(f) != len(freq) or not np.allclose(f, freq, rtol=1e-12):
             raise InputError(f"dof {dof} at {level} has other lines than dof {first_dof} (line "
                              f"{first.first_row}): a level or line is missing", path,
@@ -235,8 +309,9 @@ def _force_arrays(path: str, dofs: dict[str, _Lines], level: str) -> dict[str, t
                                  f"line {lines.first_row}: {column}")
             differ = np.flatnonzero(~np.isclose(values, first, rtol=1e-9, atol=0))
             if differ.size:
-                raise InputError(f"dof {dof} at {level}: line {int(differ[0])} has {column} {values[differ[0]]!r}, "
-                                 f"dof {first_dof} {first[differ[0]]!r}: one force a line", path,
-                                 f"line {lines.first_row}: {column}")
+                k = int(differ[0])
+                raise InputError(f"dof {dof} at {level} has {column} {values[k]!r}, dof {first_dof} {first[k]!r} (line "
+                                 f"{dofs[first_dof].rows[k]}) at {lines.frequency[k]!r} Hz: one force a line", path,
+                                 f"line {lines.rows[k]}: {column}")
         out[name] = (unit, np.array(first, float))
     return out

@@ -19,7 +19,7 @@ import numpy as np
 from analysis.common.errors import InputError
 
 from .idlines import DIRECTIONS, KINDS, read_control
-from .runs import ImportedRun, check_axis, check_values, csv_float
+from .runs import ImportedRun, check_axis, csv_float
 
 MARK = "# contactid-run"
 KEYS = ("run", "kind", "force", "direction", "status", "excitation")
@@ -60,11 +60,11 @@ def _positive(words: dict, key: str, path: str, whole: bool = False) -> float:
     return value
 
 
-def _table(rows: list[list[str]], width: int, path: str) -> np.ndarray:
-    """The numbers below the column row, as floats (line numbers from 1 in the file)."""
+def _table(rows: list[list[str]], width: int, path: str, numbers: list[int]) -> np.ndarray:
+    """The numbers below the column row, as floats (``numbers``: each row's line from 1 in the file)."""
     values = np.empty((len(rows), width))
     for i, row in enumerate(rows):
-        line = i + 4
+        line = numbers[i]
         if len(row) != width:
             raise InputError(f"{len(row)} fields, the column row has {width}", path, f"line {line}")
         for j, cell in enumerate(row):
@@ -79,14 +79,15 @@ def read_csv_run(path: str) -> tuple[list[ImportedRun], list[str], list[str]]:
     """The run of one CSV written by ``export --csv``, its run line and notes."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
-            rows = [row for row in csv.reader(fh) if row]
+            numbered = [(n, row) for n, row in enumerate(csv.reader(fh), start=1) if row]
+        rows, numbers = [row for _, row in numbered], [n for n, _ in numbered]
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise InputError(f"cannot be read as CSV ({exc})", path) from None
     if len(rows) < 4:
         raise InputError("has no line below its column row", path)
     words = _run_words(rows[1][0], path)
     force = _positive(words, "force", path)
-    table = _table(rows[3:], len(rows[2]), path)
+    table = _table(rows[3:], len(rows[2]), path, numbers[3:])
     columns: dict[str, dict[str, tuple[int, str]]] = {}
     for j, name in enumerate(rows[2]):
         m = _COLUMN.match(name.strip())
@@ -97,13 +98,16 @@ def read_csv_run(path: str) -> tuple[list[ImportedRun], list[str], list[str]]:
     if "frequency" not in columns:
         raise InputError("no column 'frequency [Hz]'", path, "line 3")
     frequency = table[:, columns.pop("frequency")["value"][0]]
-    check_axis(frequency, path, "frequency [Hz]")
+    try:
+        check_axis(frequency, path, "frequency [Hz]")
+    except InputError:      # said again by the file line of the row, as every other CSV error is
+        _refuse_axis(frequency, path, numbers[3:])
     frf, arrays, left = {}, {}, []
     for quantity, parts in columns.items():
         if quantity.startswith("frf "):
-            frf[quantity[4:]] = _values(table, parts, path, quantity)
+            frf[quantity[4:]] = _values(table, parts, path, quantity, numbers[3:])
         elif PER_LINE.match(quantity):
-            arrays[quantity] = (next(iter(parts.values()))[1], _values(table, parts, path, quantity))
+            arrays[quantity] = (next(iter(parts.values()))[1], _values(table, parts, path, quantity, numbers[3:]))
         else:
             left.append(quantity)
     if not frf:
@@ -118,7 +122,18 @@ def read_csv_run(path: str) -> tuple[list[ImportedRun], list[str], list[str]]:
     return [run], [rows[1][0]], notes
 
 
-def _values(table: np.ndarray, parts: dict, path: str, quantity: str) -> np.ndarray:
+def _refuse_axis(frequency: np.ndarray, path: str, numbers: list[int]) -> None:
+    """The frequency column's first fault (check_axis found one), named by its file line."""
+    for k, hz in enumerate(frequency):
+        if not np.isfinite(hz) or hz < 0:
+            raise InputError(f"{float(hz)!r} is not a frequency in Hz", path, f"line {numbers[k]}: frequency [Hz]")
+        if k and (hz - frequency[k - 1]) * (frequency[1] - frequency[0]) <= 0:
+            raise InputError(f"{float(hz)!r} Hz after {float(frequency[k - 1])!r} Hz (line {numbers[k - 1]}): the "
+                             "lines of a run rise or fall strictly", path, f"line {numbers[k]}: frequency [Hz]")
+    raise InputError("the lines of a run rise or fall strictly", path, "frequency [Hz]")
+
+
+def _values(table: np.ndarray, parts: dict, path: str, quantity: str, numbers: list[int]) -> np.ndarray:
     """One column, or a complex one from its Re and Im columns (both needed)."""
     if "value" in parts:
         values = table[:, parts["value"][0]]
@@ -126,5 +141,8 @@ def _values(table: np.ndarray, parts: dict, path: str, quantity: str) -> np.ndar
         values = table[:, parts["Re"][0]] + 1j * table[:, parts["Im"][0]]
     else:
         raise InputError(f"{quantity} has {' and '.join(parts)} but not both Re and Im", path, "line 3")
-    check_values(values, path, f"column {quantity} (frequency lines from 0)")
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise InputError(f"{complex(values[bad[0]]) if np.iscomplexobj(values) else float(values[bad[0]])!r} is not "
+                         "a finite number", path, f"line {numbers[int(bad[0])]}: {quantity}")
     return values

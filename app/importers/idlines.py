@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import Control
-from analysis.common.quantities import held_without_target
+from analysis.common.quantities import force_problem, held_without_target
 
 from app.session import check_control
 
@@ -37,6 +37,10 @@ KINDS = ("stepped_sine", "random")
 DIRECTIONS = ("up", "down", "none")
 # id-line tag -> the run attribute it carries (shorter than the attribute: an id line holds 80 characters)
 CONTROL_TAGS = {"control": "control", "at": "control_dof", "held": "control_quantity", "target": "control_target"}
+STATUSES = ("complete", "failed", "aborted", "running")     # a session's run statuses (running: stored aborted)
+# what every record of one run states alike, with the id line that states it
+RUN_WORDS = (("kind", "id4"), ("force", "id4"), ("direction", "id4"), ("status", "id4"), ("reference", "id2"),
+             ("records", "id5"), ("sample_rate", "id3"), ("segment_length", "id3"), ("control", "id3"))
 QUANTITIES = ("frf", "frf_std", "force_amplitude", "force_phase", "distortion", "coherence", "random_error")
 
 
@@ -171,9 +175,15 @@ def decode(ids: dict[str, str], where: str) -> RecordTag | None:
         raise InputError(f"force={values['force']!r} is not a number", where, "id4") from None
     if not (math.isfinite(force) and force > 0):
         raise InputError(f"force={values['force']} is not a force amplitude > 0 N", where, "id4")
-    for key, allowed in (("kind", KINDS), ("direction", DIRECTIONS)):
+    if force_problem(force):        # the range of every door (analysis/common/quantities.py)
+        raise InputError(f"force= {force_problem(force)}", where, "id4")
+    for key, allowed in (("kind", KINDS), ("direction", DIRECTIONS), ("status", STATUSES)):
         if values[key] not in allowed:
             raise InputError(f"{key}={values[key]} is not one of {', '.join(allowed)}", where, "id4")
+    convention = _words(ids.get("id5", "")).get("convention", CONVENTION)
+    if convention != CONVENTION:        # contactid writes one convention: another would reverse every phase
+        raise InputError(f"convention={convention} is not contactid's {CONVENTION}: the record's phases would be "
+                         "read reversed", where, "id5")
     records = _words(ids.get("id5", "")).get("records")
     if records is not None and not (records.isdigit() and int(records) > 0):
         raise InputError(f"records={records} is not a count of records", where, "id5")
@@ -182,3 +192,13 @@ def decode(ids: dict[str, str], where: str) -> RecordTag | None:
     return RecordTag(values["run"], values["quantity"], values["rsp"], values["ref"], values["kind"], force,
                      values["direction"], values["status"], int(records) if records else None, fs, segment,
                      control)
+
+
+def disagreement(tag: RecordTag, first: RecordTag) -> tuple[str, str] | None:
+    """The first word (and its id line) in which two records of one run disagree, or None: a run is one level,
+    one status, one control, and a record stating otherwise is damaged or edited -- which one is right is not
+    for the import to pick."""
+    for key, line in RUN_WORDS:
+        if getattr(tag, key) != getattr(first, key):
+            return key, line
+    return None

@@ -177,6 +177,22 @@ def _existing_runs(path: str) -> list[str]:
         return s.run_names()
 
 
+def _one_random_run(files: list[SourceFile], appended_to: str | None) -> None:
+    """A session holds one random run, the low-level reference (the analysis takes one): the import refuses a
+    second one -- such as a stepped-sine CSV of two levels read with ``--kind random`` -- rather than let the
+    analysis take either."""
+    found = [(run.name, source.path) for source in files for run in source.runs if run.kind == "random"]
+    if appended_to is not None:
+        with open_session(appended_to) as s:
+            found = [(name, appended_to) for name in s.run_names() if s.run(name).kind == "random"] + found
+    if len(found) > 1:
+        (first, where), (second, path) = found[:2]
+        how = " (--kind random: each level of the file becomes a random run)" if where == path else ""
+        raise InputError(f"would be the session's second random run, after {first} of {Path(where).name}{how}: a "
+                         "session holds one random run, the low-level reference; import one", path,
+                         f"run {second}")
+
+
 def _unique_names(files: list[SourceFile], taken: list[str], notes: list[str]) -> None:
     used = set(taken)
     for source in files:
@@ -186,7 +202,8 @@ def _unique_names(files: list[SourceFile], taken: list[str], notes: list[str]) -
             while name in used:
                 name, k = f"{base}_{k}", k + 1
             if name != run.name:
-                notes.append(f"{source.path}: run {run.name} stored as {name} (the name is taken)")
+                why = "the name is taken" if base in used else "a run's name is one HDF5 group name"
+                notes.append(f"{source.path}: run {run.name} stored as {name} ({why})")
                 run.name = name
             used.add(name)
 
@@ -210,6 +227,7 @@ def import_files(request: ImportRequest) -> ImportResult:
     else:
         check_output(request.output, inputs=inputs, overwrite=request.overwrite)
         taken = []
+    _one_random_run(files, request.output if request.append else None)
     _unique_names(files, taken, result.notes)
     runs = estimated_bytes(files)
     # --append: a copy of the session, and the new runs written beside it before they are moved into the copy

@@ -17,7 +17,7 @@ from analysis.common.errors import InputError
 from analysis.common.quantities import control_dof_problem, phase_problem, phases_outside
 
 from .force_spectrum import attach_force_spectra, is_force_spectrum
-from .idlines import ID_KEYS, RecordTag, decode
+from .idlines import ID_KEYS, RecordTag, decode, disagreement
 from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, check_values, in_sweep_order, sine_run_name,
                    sweep_direction)
 from .time_history import random_run_from_time_histories
@@ -78,8 +78,12 @@ def read_records(path: str) -> tuple[list[Record], FileUnits | None, list[str]]:
         try:
             fields = uff.read_sets(i)
         except Exception as exc:
-            raise InputError(f"cannot be read as dataset 58 ({exc}; a binary file from another system may need "
-                             "pyuff.fix_58b)", path, f"record {i + 1}") from None
+            binary = bool(uff.get_set_formats()[i])
+            start, end = (int(b) for b in uff._block_ind[i])      # where pyuff found the record, in bytes
+            hint = ("a binary file from another system may need pyuff.fix_58b" if binary else
+                    "its header or data lines hold text where a number belongs")
+            raise InputError(f"cannot be read as dataset 58 (bytes {start} to {end}: {hint}; pyuff: {exc})", path,
+                             f"record {i + 1}") from None
         _check_points(fields, path, i + 1)
         ids = {k: str(fields.get(k, "")).strip() for k in ID_KEYS}
         records.append(Record(i + 1, fields, decode(ids, f"{path}: record {i + 1}")))
@@ -166,7 +170,7 @@ def read_uff(path: str, options: SourceOptions) -> tuple[list[ImportedRun], list
     if time:
         runs.append(random_run_from_time_histories(path, [(r.number, r.fields) for r in time], options, units,
                                                    notes))
-    _attach_line_quantities(path, runs, extra, units)
+    _attach_line_quantities(path, runs, extra, units, frf)
     return [in_sweep_order(r) for r in runs], records, notes
 
 
@@ -340,6 +344,8 @@ def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions
             raise InputError(f"a second FRF of {e.response} in the same run", path, e.record.where("rsp_node"))
         frf[e.response] = e.receptance
     tag = first.record.tag
+    for e in entries[1:]:
+        _same_run(path, e.record, first.record)
     if tag is not None:
         kind, force, direction, name, status = tag.kind, tag.force, tag.direction, tag.run, tag.status
         load_case = None
@@ -368,15 +374,30 @@ def _run_from_entries(path: str, entries: list[FrfEntry], options: SourceOptions
     return run
 
 
+def _same_run(path: str, record: Record, first: Record) -> None:
+    """Records of one contactid run state its level, status and control alike (idlines.disagreement)."""
+    if record.tag is None or first.tag is None:
+        return
+    differ = disagreement(record.tag, first.tag)
+    if differ:
+        key, line = differ
+        raise InputError(f"{key} {getattr(record.tag, key)!r} differs from {getattr(first.tag, key)!r} in record "
+                         f"{first.number} of the same run {first.tag.run}: the file is damaged or edited; nothing "
+                         "imported", path, record.where(line))
+
+
 def _attach_line_quantities(path: str, runs: list[ImportedRun], extra: list[Record],
-                            units: FileUnits | None) -> None:
+                            units: FileUnits | None, frf: list[Record]) -> None:
     by_name = {r.name: r for r in runs}
+    first_of = {r.tag.run: r for r in reversed(frf) if r.tag is not None}     # each run's first FRF record
     for record in extra:
         tag = record.tag
         run = by_name.get(tag.run)
         if run is None:
             raise InputError(f"{tag.quantity} of run {tag.run}, which has no FRF record in the file", path,
                              record.where("id1"))
+        first_of.setdefault(tag.run, record)
+        _same_run(path, record, first_of[tag.run])
         values = np.asarray(record.fields["data"], float) * _line_factor(path, record, units)
         if len(values) != len(run.frequency):
             raise InputError(f"{len(values)} lines, but run {tag.run} has {len(run.frequency)}", path,

@@ -83,7 +83,8 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
     _choice(attrs, "direction", DIRECTIONS[kind], error)
     force = attrs.get("force")
     if not _positive_number(force):
-        raise error("attribute force", f"must be a finite force > 0 N, got {force!r}")
+        shown = force.item() if isinstance(force, np.generic) else force        # nan, not np.float64(nan)
+        raise error("attribute force", f"must be a finite force > 0 N, got {shown!r}")
     if force_problem(force):
         raise error("attribute force", force_problem(force))
     excitation = attrs.get("excitation_dof")

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from analysis.common.errors import InputError
 from analysis.signals.frf_noise import smoothness_noise
 from analysis.common.measurements import Control, Measurements, PhaseRun, RandomRun, SineRun, UnresolvedLines
 
@@ -26,6 +27,7 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
         check_format(session.attrs, source)
         check_run_count(session.run_names(), source)
     sine, random, unfinished, phase, unresolved = [], None, [], [], []
+    random_name = ""                  # the random run taken, to name beside a second one
     for checked in (check_run(run, source) for run in session.runs()):
         if not checked.lines or (checked.run.incomplete and not include_incomplete):
             continue
@@ -44,6 +46,11 @@ def measurements_from_session(session: Session, include_incomplete: bool = True)
             phase.append(_phase_run(run, arrays, _sine_run(run, dofs, frequency, H, arrays, checked.control)))
             continue
         if run.kind == "random":
+            if random is not None:      # the reference is one run: taking one of two would be a silent choice
+                raise InputError(f"runs {random_name} and {run.name} are both random runs: the analysis takes one "
+                                 "random run as the low-level reference; keep one in the session", source,
+                                 f"/runs/{run.name}")
+            random_name = run.name
             random = RandomRun(run.excitation_dof, dofs, frequency, H,
                                _stack(arrays, "coherence", dofs), _stack(arrays, "random_error", dofs),
                                run.force, _welch_resolution(run.attrs))

@@ -26,10 +26,12 @@ import h5py
 import numpy as np
 
 from analysis.common.errors import InputError
+from analysis.common.quantities import dof_name_problem
 
 from app.session.file import (EVENT_DTYPE, FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError,
                               append_event, mark_incomplete, now_iso)
-from app.session.outputs import NotWritten, atomic_replace, check_output, require_free_space, temporary_path, write_failure
+from app.session.outputs import (NotWritten, atomic_replace, check_output, require_free_space, temporary_path,
+                                 through_links, write_failure)
 from app.session.salvage import SalvageError, salvage, swmr_read_access
 from app.session.superblock import write_flags
 from app.session.wire import receive_reply, send_call
@@ -92,7 +94,10 @@ class SessionWriter:
     def __init__(self, path, *, overwrite: bool = False, plan_text: str = "", rig_text: str | None = None,
                  software_version: str = "", command: str = "", instruments: dict | None = None):
         self.path = check_output(path, overwrite=overwrite, field=None)
-        self.kept_path = kept_beside(self.path) if self.path.exists() else None
+        # a session given as a symbolic link is written through it: the new file replaces the link's target,
+        # from a temporary beside that target, and the link stays a link (app/session/outputs.py)
+        self.target = through_links(self.path)
+        self.kept_path = kept_beside(self.target) if self.target.exists() else None
         try:
             require_free_space(self.path, FREE_SPACE_RESERVE, "start a session")
         except OSError as exc:
@@ -104,7 +109,7 @@ class SessionWriter:
         self._proc = _start_writer_process()
         header = SessionHeader(plan_text, rig_text, software_version, command, instruments or {})
         try:
-            self._call("create", path=str(self.path), temporary=str(temporary_path(self.path)),
+            self._call("create", path=str(self.target), temporary=str(temporary_path(self.target)),
                        overwrite=overwrite, header=asdict(header),
                        kept=None if self.kept_path is None else str(self.kept_path))
         except BaseException:
@@ -422,6 +427,9 @@ class Session:
         if not isinstance(dofs, list) or not all(isinstance(d, str) for d in dofs):
             raise InputError(f"must be a JSON list of DOF names, got {attrs['sensor_dofs']!r}", str(self.path),
                              f"{where}@sensor_dofs")
+        for d in dofs:      # a name that is a path (a/b, ..) would read another dataset than its own
+            if dof_name_problem(d):
+                raise InputError(dof_name_problem(d), str(self.path), f"{where}@sensor_dofs")
         return dofs
 
     def raw(self, name: str, line: int | None = None) -> tuple[np.ndarray, list[str], float]:
@@ -505,6 +513,27 @@ def _process_alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[-1].split()[0] != "Z"
 
 
+def _may_write(pid: int, path) -> bool:
+    """Whether live process ``pid`` may be the file's writer: it has the file open, or it is a Python interpreter
+    (the writer process, or a program writing a session in-process). After a crash the system may give the
+    writer's pid to any other program (a shell, a daemon); that one is no writer, and the runs the dead writer
+    left "running" are to be recovered, not waited for. Where /proc does not tell, it may be the writer."""
+    try:
+        if "python" in Path(os.readlink(f"/proc/{pid}/exe")).name.lower():
+            return True
+        wanted = os.stat(path)
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            try:
+                held = os.stat(f"/proc/{pid}/fd/{fd}")
+            except OSError:
+                continue                                # closed meanwhile, or not a file
+            if (held.st_dev, held.st_ino) == (wanted.st_dev, wanted.st_ino):
+                return True
+    except OSError:
+        return True
+    return False
+
+
 def _writer_alive(f: h5py.File) -> bool:
     """Whether the process that writes the file is still running (on this host)."""
     if _text(f.attrs.get("writer_host", "")) != socket.gethostname():
@@ -512,7 +541,28 @@ def _writer_alive(f: h5py.File) -> bool:
     pid = int(f.attrs.get("writer_pid", -1))
     if pid <= 0:
         return False
-    return pid == os.getpid() or _process_alive(pid)
+    return pid == os.getpid() or (_process_alive(pid) and _may_write(pid, f.filename))
+
+
+def damaged_data(path) -> list[str]:
+    """The datasets of a session whose stored chunks fail their checksum (Fletcher-32), each with the lines
+    affected ("/runs/r/frf/x1: lines 1-30 of 30"): data changed after the writer closed the file, which no
+    recovery brings back (``recover`` says so rather than "nothing to recover")."""
+    found = []
+    with _open_for_reading(Path(path)) as f:
+        for ds in _datasets(f):
+            if ds.shape is None:
+                continue
+            if not ds.shape:
+                try:
+                    ds[()]
+                except OSError:
+                    found.append(f"{ds.name}: its value")
+                continue
+            lines = _damaged_lines(ds, ds.shape[0])
+            if lines:
+                found.append(f"{ds.name}: line(s) {lines} of {ds.shape[0]}")
+    return found
 
 
 def open_session(path) -> Session:
