@@ -21,7 +21,7 @@ from analysis.search.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_n
                                 _warm_start, _simplest, _preferred, _pruned_beside_clearance,
                                 law_sets,
                                 search_element)
-from analysis.search import discovery
+from analysis.search import discovery, frf_judge
 from analysis.fitting.fit import fit_laws
 from analysis.fitting.projection import _shape_coordinate
 from analysis.mechanics.elements import LawTerm
@@ -374,8 +374,8 @@ def test_a_step_to_a_clearance_judges_the_set_before_it_refined_too(monkeypatch)
     contact = _screened(("quintic", "cubic_damping", "unilateral"), rig)
     contact.chi_square = pair.chi_square - 3.0 * scipy.stats.chi2.ppf(1 - 1e-3, 2)
     search = _Search(0, rig, [pair, contact], 1.0, {})
-    for name in ("_unseen_laws", "_limit_only_laws", "_not_seen_beside_friction"):
-        monkeypatch.setattr(discovery, name, lambda *args, **kwargs: [])
+    for name in ("_unseen_laws", "_limit_only_laws", "_not_seen_beside_friction"):   # where the judge looks them up
+        monkeypatch.setattr(frf_judge, name, lambda *args, **kwargs: [])
     judge = _Judge.__new__(_Judge)
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     friction = LawSet(pair.laws + ("jenkins",), pair.fit, contact.chi_square, 5)
@@ -403,8 +403,8 @@ def test_a_step_the_kbar_calls_for_and_one_harmonic_refuses_is_judged_with_harmo
     pair = _screened(("coulomb", "tanh_softening"), rig)
     pair.chi_square = one.chi_square - kbar_fall * scipy.stats.chi2.ppf(1 - 1e-3, 1)
     search = _Search(1, rig, [one, pair], 1.0, {})
-    for name in ("_unseen_laws", "_limit_only_laws", "_not_seen_beside_friction"):
-        monkeypatch.setattr(discovery, name, lambda *args, **kwargs: [])
+    for name in ("_unseen_laws", "_limit_only_laws", "_not_seen_beside_friction"):   # where the judge looks them up
+        monkeypatch.setattr(frf_judge, name, lambda *args, **kwargs: [])
     judge = _Judge.__new__(_Judge)
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judge.single = _Errors({one.laws: 0.488, pair.laws: 0.638})
@@ -423,7 +423,7 @@ def test_a_step_the_kbar_calls_for_and_one_harmonic_refuses_is_judged_with_harmo
     # data with harmonics: the kbar criterion judges, and the single-harmonic refusal stands
     judge.kbar_judges, asked[:] = True, []
     pair.criterion = one.criterion - 10.0
-    monkeypatch.setattr(discovery, "_other_kinds", lambda *args: [])
+    monkeypatch.setattr(frf_judge, "_other_kinds", lambda *args: [])
     assert not judge.step_up(search, one, pair).taken and asked == []
 
 
@@ -770,9 +770,9 @@ def test_a_law_beside_a_clearance_is_taken_back_where_every_element_refined_leav
         def multi():
             asked.append(s.laws)
             return errors[s.laws][1]
-        return discovery._RefinedErrors(errors[s.laws][0], multi)
+        return frf_judge._RefinedErrors(errors[s.laws][0], multi)
 
-    monkeypatch.setattr(discovery, "_refined_errors", refined_errors)
+    monkeypatch.setattr(frf_judge, "_refined_errors", refined_errors)
     judge = _Judge.__new__(_Judge)
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judged = {0: pair}

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.optimize import least_squares, lsq_linear
 
 from ..common.errors import InputError
+from ..common.interrupt import check_stop
 from ..laws import Law
 from ..laws.base import Param
 from .results import Combination, Degeneracy, LawFit
@@ -229,6 +230,7 @@ class _Problem:
 
     def projected_residual(self, theta: np.ndarray) -> np.ndarray:
         """Weighted residual (2N,) with the linear parameters solved for, at theta."""
+        check_stop()            # one evaluation of a fit: where a stop asked for is heard (analysis.common.interrupt)
         A = self.design(theta)
         if not np.all(np.isfinite(A)):
             # outside the law's domain: a finite residual far worse than "no model"

@@ -15,6 +15,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from ..common.interrupt import Interrupted, stoppable
 from ..laws import LAWS
 from ..missing.diagnosis import Candidate, RankingRules
 from ..missing.modal_judge import ModalRules, judge_by_modes, measures_modes, model_error
@@ -89,20 +90,23 @@ def _modal_json(error: ModalError | None, suffix: str) -> dict:
 
 @dataclass
 class AutoResult:
-    """The steps taken and why the loop ended; ``candidates`` is the ranking it ended on."""
+    """The steps taken and why the loop ended; ``candidates`` is the ranking it ended on; ``undone``: the step a
+    stop by the user came inside of, undone ("" where the loop ended between steps)."""
 
     steps: list[AutoStep]
     stopped: str
     candidates: list[Candidate] = field(default_factory=list)
     discovery: Discovery | None = None
+    undone: str = ""
 
     def text(self) -> str:
         lines = [self.discovery.text()] if self.discovery is not None and self.discovery.elements else []
         lines += ["automatic loop:"] + [f"  {i + 1}. {s.text()}" for i, s in enumerate(self.steps)]
-        return "\n".join(lines + [f"  stopped: {self.stopped}"])
+        inside = f" during {self.undone}, which was undone" if self.undone else ""
+        return "\n".join(lines + [f"  stopped: {self.stopped}{inside}"])
 
     def to_json(self) -> dict:
-        return {"steps": [s.to_json() for s in self.steps], "stopped": self.stopped,
+        return {"steps": [s.to_json() for s in self.steps], "stopped": self.stopped, "undone": self.undone,
                 "discovery": None if self.discovery is None else self.discovery.to_json()}
 
 
@@ -319,12 +323,32 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
              stop: Callable[[], bool] | None = None) -> AutoResult:
     """Run the loop on a started workbench (``wb.start()`` called). Afterwards ``wb.model`` is the final model
     and ``wb.history`` holds every step; ``progress`` is called with each step as it is taken, ``note`` with a
-    line of text while discovery searches an element. ``stop`` is asked before every step: once it answers
-    True the loop ends there (the steps taken stay)."""
+    line of text while discovery searches an element. ``stop`` is asked before every step and, within a step, at
+    every evaluation of a fit and every line of a prediction (:mod:`analysis.common.interrupt`): once it answers
+    True the loop ends there, the step under way is undone and the steps taken stay."""
     if not wb.history:
         raise ValueError("run_auto needs a started workbench (call wb.start() first)")
     steps: list[AutoStep] = []
     stopping = stop or (lambda: False)
+    under_way = _UnderWay()
+    with stoppable(stopping):
+        try:
+            return _run(wb, rules, progress, note, stopping, steps, under_way)
+        except Interrupted:
+            wb.drop_unfinished()
+            return AutoResult(steps, STOPPED_BY_USER, [], under_way.found, under_way.what)
+
+
+@dataclass
+class _UnderWay:
+    """What the loop is doing, for the words of a stop inside a step, and what discovery found."""
+    what: str = "discovery"
+    found: Discovery | None = None
+
+
+def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[], bool], steps: list[AutoStep],
+         under_way: _UnderWay) -> AutoResult:
+    """The loop of :func:`run_auto`, telling ``under_way`` what it does."""
 
     modal = [_modal_error(wb)]          # the last step's natural frequency and damping error
 
@@ -338,20 +362,24 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
 
     found, searched = None, frozenset()
     if rules.discovery is not None:
-        found = wb.discover(rules.discovery, note)
+        under_way.what = "discovery"
+        found = under_way.found = wb.discover(rules.discovery, note)
         searched = frozenset(e.element for e in found.elements)
         pending = [e for e in found.elements if e.laws]
         for k, element in enumerate(pending):
             if stopping():
                 return AutoResult(steps, STOPPED_BY_USER, [], found)
+            under_way.what = f"the fit of {element.element}:{'+'.join(element.laws)}, found by discovery"
             before = wb.history[-1].error
             after = wb.add_laws(element.element, element.laws, action="discover").error
             still_empty = [e.element for e in pending[k + 1:]]
             take(AutoStep("discover", element.element, element.laws, before, after,
                           _discovery_reason(element, still_empty)))
+        under_way.what = "the check of discovery's laws"
         for step in _taken_back(wb, pending, rules.ranking.min_gain, rules.take_back_near_noise):
             take(step)
     if rules.linear_corrections:
+        under_way.what = "the linear corrections"
         names = wb.linear_corrections()
         if names:
             before = wb.history[-1].error
@@ -363,6 +391,7 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
     for _ in range(rules.max_steps):
         if stopping():
             return AutoResult(steps, STOPPED_BY_USER, [], found)
+        under_way.what = "the ranking of the missing effects"
         ranked = _judged(wb, wb.candidates(rules=rules.ranking), rules, found, taken_back)
         top = next((c for c in ranked if c.significant), None)
         pairs_tried = top is None and rules.pairs
@@ -371,6 +400,7 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
         if top is None:
             return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked, found)
         before = wb.history[-1].error
+        under_way.what = f"the fit of {top.name}"
         after = wb.add_laws(top.element, top.laws).error
         take(AutoStep("add pair" if len(top.laws) > 1 else "add", top.element, top.laws, before, after,
                       _reason(top)))

@@ -571,6 +571,13 @@ class Workbench:
         self._return_to(index)
         return self.record(action)
 
+    def drop_unfinished(self) -> None:
+        """The model as the last history step recorded it: what a step stopped before its record
+        (:mod:`analysis.common.interrupt`) had changed -- laws added, values refitted -- is undone, nothing
+        refitted."""
+        self._return_to(len(self.history) - 1)
+        self._offers = None
+
     def _return_to(self, index: int) -> None:
         """The fitted state history step ``index`` recorded -- laws, values, reports and the kbar bias taken out
         -- restored, not refitted: refitted, even from the values the step had, the bias correction of data

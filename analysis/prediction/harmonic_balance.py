@@ -32,6 +32,7 @@ from typing import Callable, Sequence
 import numpy as np
 import scipy.optimize
 
+from ..common.interrupt import check_stop
 from ..mechanics.elements import Element
 from ..mechanics.structures import Structure
 
@@ -152,6 +153,7 @@ def _newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray], jac: Callable[[
     R = fun(z, np.arange(len(z)))
     norm = np.linalg.norm(R, axis=1)
     for _ in range(max_iter):
+        check_stop()            # one Newton pass of the batch: where a stop asked for is heard
         active = np.flatnonzero(norm > tol)
         if not len(active):
             break
@@ -833,6 +835,7 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     converged = np.zeros(len(w), bool)
     previous = None
     for line in order:
+        check_stop()            # one line: where a stop asked for is heard
         wl, force = w[line], forces[line]
         resp = [structure.response([kk * wl], loads)[0] for kk in k]
         HE = np.stack([rsp[:, :-1] for rsp in resp])        # (H+1, n, r)

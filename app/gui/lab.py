@@ -636,7 +636,7 @@ class Lab(QObject):
         """The missing-effect loop (:func:`analysis.loop.auto.run_auto`, as ``contactid analyze --auto``) on the
         analysed model: discovery of the elements without laws, linear corrections, then the top significant
         candidate added until none is left. Each step is sent as ``autoProgress`` as it is taken;
-        :meth:`stop_auto` ends the loop before its next step."""
+        :meth:`stop_auto` ends the loop within its step under way, which is undone."""
         self._auto_stop.clear()
 
         def loop(wb):
@@ -645,7 +645,7 @@ class Lab(QObject):
         self._on_workbench(loop, lambda wb, result: analysis_view(wb, result.candidates, result, self._fitted_on))
 
     def stop_auto(self) -> None:
-        """End the automatic loop before its next step (the steps taken stay)."""
+        """End the automatic loop within its step under way, which is undone (the steps taken stay)."""
         self._auto_stop.set()
 
     def _on_workbench(self, change, view=None) -> None:

@@ -320,8 +320,15 @@ def _stopped(auto: AutoResult) -> str:
                if e.laws and e.element not in added]
     kept = (f"the model on this tab keeps the {len(auto.steps)} step(s) taken" if auto.steps else
             "no step was taken: the model is as it was")
-    untried = (f"adding the laws found for {', '.join(pending)}, the linear corrections and the ranking of the "
-               "missing effects" if pending else "the next ranking of the missing effects and what it would add")
+    if auto.undone:
+        kept += f"; {auto.undone}, under way, was undone"
+    if auto.discovery is None and auto.undone == "discovery":
+        untried = "the laws discovery would have found, the linear corrections and the ranking of the missing effects"
+    elif pending:
+        untried = (f"adding the laws found for {', '.join(pending)}, the linear corrections and the ranking of the "
+                   "missing effects")
+    else:
+        untried = "the next ranking of the missing effects and what it would add"
     return f"stopped by the user: {kept}; not tried: {untried}"
 
 
