@@ -12,11 +12,18 @@ Exit status (docs/campaigns.md, "Exit status"):
 - 4: a link or instrument failure (a port that cannot be opened, does not answer, is another instrument,
   or failed during the campaign); the message names the instrument and its port
 - 130: interrupted (Ctrl-C)
+
+Standard output that goes away (docs/contracts.md §6, "Standard output"): a reader that closes the pipe
+(``| head -1``) does not stop a command; it finishes its work, writes its files and exits with the status it
+would have had, what it could not print dropped. Standard output that cannot take more (``> /dev/full``, a full
+disk) is the same, and then said in one line on stderr, exit 2 where the command itself succeeded: its files are
+written, only its printed report is lost.
 """
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -114,11 +121,15 @@ def cmd_export(args) -> int:
         print(f"wrote {done.records} records to {', '.join(str(p) for p in done.files)}")
         for item in done.left_out:                     # what UFF58 cannot carry: said, never dropped silently
             print(f"note: left out (no UFF58 record carries it): {item}")
+        for item in done.left_out_by_choice:           # what a record would carry: the user's choice, said so
+            print(f"note: left out (--frf-only: FRF records only, as asked): {item}")
     elif args.csv_long:
         from app.export_csv_long import export_csv_long
         long = export_csv_long(args.session, args.csv_long, overwrite=args.overwrite)
         print(f"wrote {len(long.runs)} stepped-sine runs to {long.path}"
               + (f" (left out, not stepped sine: {', '.join(long.left_out)})" if long.left_out else ""))
+        for item in long.not_carried:                  # as --uff and --csv name theirs
+            print(f"note: left out (no column of the CSV long format carries it): {item}")
     else:
         left_out: list[str] = []
         paths = export_csv(args.session, args.csv, overwrite=args.overwrite, left_out=left_out)
@@ -413,12 +424,9 @@ def cmd_reference(args) -> int:
     except InputError as exc:       # the level's faults are the session's: named with it
         raise exc if exc.source else InputError(exc.message, args.session, exc.field) from None
     report = reference.text()
-    try:        # the file first, then the report: a reader that closed the pipe (`| head -1`) costs no output
-        _write_model(args, reference.model().to_toml(), [args.session], "reference model")
-        print(report, flush=True)
-    except BrokenPipeError:
-        import os
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())     # nothing left to flush at exit
+    # the file first, then the report (a stdout that went away costs no output either way: main's _Stdout)
+    _write_model(args, reference.model().to_toml(), [args.session], "reference model")
+    print(report, flush=True)
     for warning in reference_warnings(reference):
         print(f"contactid: warning: {args.output}: {warning}", file=sys.stderr)
     return 0
@@ -719,11 +727,100 @@ def _notes(exc: BaseException) -> str:
     return f"; {'; '.join(notes)}" if notes else ""
 
 
+class _Stdout:
+    """``sys.stdout`` while a command runs: where the reader went away (a closed pipe, ``| head -1``) or the
+    medium is full (``> /dev/full``), what is printed from then on is dropped -- the stream is pointed at the null
+    device, so nothing is left to fail at exit -- and the command goes on to finish its work and write its files.
+    ``lost`` says why output was lost: None, "closed" (the reader closed the pipe) or the system's words."""
+
+    def __init__(self, stream):
+        self.stream = stream
+        self.lost: str | None = None
+
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
+
+    def write(self, text: str) -> int:
+        if self.lost is None:
+            try:
+                return self.stream.write(text)
+            except OSError as exc:
+                self._lose(exc)
+        return len(text)
+
+    def flush(self) -> None:
+        try:
+            self.stream.flush()
+        except OSError as exc:
+            self._lose(exc)
+            self._flush_quietly()
+
+    def writelines(self, lines) -> None:
+        for line in lines:
+            self.write(line)
+
+    def _lose(self, exc: OSError) -> None:
+        from app.session.outputs import WRITE_ERRNOS, write_failure
+
+        if not isinstance(exc, BrokenPipeError) and exc.errno not in WRITE_ERRNOS:
+            raise exc
+        if self.lost is None:
+            self.lost = "closed" if isinstance(exc, BrokenPipeError) else write_failure(exc)
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(null, self.stream.fileno())
+            finally:
+                os.close(null)
+        except (OSError, ValueError, AttributeError):
+            pass                                    # a stream without a descriptor (a test's capture)
+
+    def _flush_quietly(self) -> None:
+        try:
+            self.stream.flush()                     # what was buffered goes to the null device now
+        except (OSError, ValueError):
+            pass
+
+
+def _stdout_lost_words(lost: str) -> str:
+    """The one line saying that standard output could not be written: what was lost, and what was not."""
+    written = sys.modules.get("app.session.outputs")
+    names = ", ".join(str(p) for p in written.committed_outputs()) if written is not None else ""
+    return (f"contactid: error: standard output: not written: {lost}; the report was not printed in full, but the "
+            "command ran to its end" + (f" and wrote {names}" if names else " (any file it writes is written)"))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    committed = sys.modules.get("app.session.outputs")
+    if committed is not None:
+        committed.committed_outputs().clear()
+    stdout = sys.stdout = _Stdout(sys.stdout)
+    stderr = sys.stderr = _Stdout(sys.stderr)      # `2>&1 | head -1`: the warnings' and progress's reader is gone too
     try:
-        return args.run(args)
+        status = _run(args)
+        stdout.flush()
+        if stdout.lost not in (None, "closed"):
+            if not getattr(args, "finished", False):     # its own error said what happened; this adds the report
+                print(f"contactid: note: standard output: not written: {stdout.lost}; the report was not printed "
+                      "in full", file=sys.stderr)
+                return status
+            print(_stdout_lost_words(stdout.lost), file=sys.stderr)
+            return status or EXIT_BAD_INPUT
+        return status
+    finally:
+        stdout.flush()
+        stderr.flush()
+        sys.stdout, sys.stderr = stdout.stream, stderr.stream
+
+
+def _run(args) -> int:
+    """Run the command; an error is one line on stderr and an exit status (the module docstring)."""
+    try:
+        status = args.run(args)
+        args.finished = True                # ran to its end (its status may still say a campaign is incomplete)
+        return status
     except InputError as exc:
         if args.debug:
             raise

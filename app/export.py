@@ -49,7 +49,7 @@ from .importers.csv_runs import MARK as CSV_RUN_MARK
 from .importers.idlines import RecordTag, control_words, encode
 from app.session import (RunData, Session, atomic_output, check_format, check_output, check_run, check_run_count,
                          displacement_distortion, open_session, require_free_space)
-from app.session.checks import CheckedRun
+from app.session.checks import CheckedRun, refuse_saw_nothing
 
 FUNC_GENERAL, FUNC_FRF, FUNC_COHERENCE = 0, 4, 6
 DATA_UNKNOWN, DATA_DISPLACEMENT, DATA_FORCE, DATA_FREQUENCY = 0, 8, 13, 18
@@ -65,6 +65,8 @@ class UffExport:
     files: list[Path]
     records: int
     left_out: list[str] = field(default_factory=list)      # what no record carries: runs, "<run>: <datasets>"
+    # what a record would carry and ``frf_only`` (``--frf-only``) chose to leave out: "<run>: <datasets>"
+    left_out_by_choice: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -162,15 +164,36 @@ def _line_quantities(run: RunData) -> list[tuple[str, str, np.ndarray, _Axis, _A
     return out
 
 
-def _not_carried(run: RunData, frf_only: bool) -> list[str]:
+def _not_carried(run: RunData, frf_only: bool = False) -> list[str]:
     """The run's per-line datasets no UFF record of :func:`_line_quantities` carries (``force_phasor`` is: the
-    import rebuilds it from ``force_amplitude`` and ``force_phase``)."""
+    import rebuilds it from ``force_amplitude`` and ``force_phase``); with ``frf_only`` also those the records
+    would carry and ``--frf-only`` leaves out (:func:`frf_only_drops` tells the two apart)."""
     carried = {"force_amplitude", "force_phase", "distortion", "force_phasor"} if not frf_only else set()
     if not frf_only:
         carried |= {f"{q}/{d}" for q in ("frf_std", "coherence", "random_error") for d in run.sensor_dofs}
         if "force_phase" not in run.arrays or "force_amplitude" not in run.arrays:
             carried.discard("force_phasor")
     return sorted(name for name in run.arrays if name not in carried)
+
+
+def frf_only_drops(run: RunData) -> list[str]:
+    """What the default UFF export carries of the run and ``--frf-only`` leaves out by the user's choice: its
+    per-line records, and the displacement ``distortion`` the analysis reads where it comes from the harmonics."""
+    dropped = sorted(set(_not_carried(run, True)) - set(_not_carried(run)))
+    if "distortion" not in dropped and _distortion(run) is not None:
+        dropped.append("distortion")
+    return dropped
+
+
+def attributes_not_carried(run: RunData) -> list[str]:
+    """The run's attributes no interchange format carries, as a note names them: why it failed or was aborted
+    (``end_reason``) and that its writer died during it (``incomplete``); the import stores the status alone."""
+    out = []
+    if run.attrs.get("end_reason"):
+        out.append(f"end_reason {str(run.attrs['end_reason'])!r}")
+    if run.attrs.get("incomplete"):
+        out.append("incomplete (its writer stopped during the run)")
+    return out
 
 
 def welch_segment(run: RunData) -> tuple[float | None, int | None]:
@@ -300,8 +323,12 @@ def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool
         if not runs:
             raise InputError("has no measured FRF to export" + (f" (left out: {', '.join(left_out)})" if left_out
                                                                    else ""), str(session_path))
+        for checked in runs:
+            refuse_saw_nothing(checked, str(session_path), "UFF58")
         left_out += [f"{c.run.name}: {', '.join(names)}" for c in runs
-                     for names in [_not_carried(c.run, frf_only)] if names]
+                     for names in [_not_carried(c.run) + attributes_not_carried(c.run)] if names]
+        chosen = [f"{c.run.name}: {', '.join(names)}" for c in runs for names in [frf_only_drops(c.run)]
+                  if frf_only and names]
         nodes = node_numbers({d for c in runs for d in (c.run.excitation_dof, *c.run.sensor_dofs)})
         for load_case, checked in enumerate(runs, start=1):
             target = run_file(uff_path, checked.run.name) if per_run else uff_path
@@ -314,7 +341,7 @@ def export_uff(session_path, uff_path, overwrite: bool = False, *, per_run: bool
     for target in files:
         check_output(target, inputs=[session_path], overwrite=overwrite, field="--uff")
     _write_uff_files(files, session_path, software, overwrite)
-    return UffExport(list(files), sum(len(r) for r in files.values()), left_out)
+    return UffExport(list(files), sum(len(r) for r in files.values()), left_out, chosen)
 
 
 def _write_uff_files(files: dict[Path, list[dict]], session_path: Path, software: str, overwrite: bool) -> None:
@@ -338,10 +365,13 @@ def export_csv(session_path, directory, overwrite: bool = False, left_out: list[
     with open_session(session_path) as s:
         runs, skipped = _exportable(_runs_to_export(s))
     if left_out is not None:
-        left_out += skipped
+        left_out += skipped + [f"{c.run.name}: {', '.join(names)}" for c in runs
+                               for names in [attributes_not_carried(c.run)] if names]
     if not runs:
         raise InputError("has no measured FRF to export" + (f" (left out: {', '.join(skipped)})" if skipped else ""),
                          str(session_path))
+    for checked in runs:
+        refuse_saw_nothing(checked, str(session_path), "the per-run CSV")
     if directory.exists() and not directory.is_dir():
         raise InputError("is a file; --csv takes a folder (one CSV per run is written into it)", str(directory),
                          "--csv")

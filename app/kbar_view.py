@@ -42,6 +42,44 @@ def level_colours(n: int) -> list[tuple[int, int, int]]:
     return out
 
 
+PANEL_LEVELS = 12
+"""The most levels one plot of FRFs holds: as many as :func:`level_colours` keeps apart. More are drawn as small
+multiples (:func:`level_panels`)."""
+LEGEND_ROWS = 24
+"""The most entries a legend stacks in one column; a longer one takes more columns, so that it fits beside plots a
+1366 x 768 screen leaves about 560 px high."""
+
+
+def level_panels(controls: Iterable[Control]) -> list[list[Control]]:
+    """The levels of a plot of FRFs shared out among small multiples, in :meth:`Control.order`.
+
+    Up to PANEL_LEVELS levels stay in one panel. More than that overlap into a band no colour tells apart, so each
+    way of holding a level (force, a response at one DOF and quantity) gets panels of its own, and each such group
+    is cut into runs of consecutive levels, as even as can be, of at most PANEL_LEVELS: a panel holds neighbours,
+    its title their range (:func:`panel_title`), and every level keeps its colour of the whole session."""
+    levels = ordered_levels(controls)
+    if len(levels) <= PANEL_LEVELS:
+        return [levels] if levels else []
+    groups: dict[tuple, list[Control]] = {}
+    for c in levels:
+        groups.setdefault(c.key()[:3], []).append(c)
+    panels = []
+    for group in groups.values():
+        count = -(-len(group) // PANEL_LEVELS)
+        bounds = np.linspace(0, len(group), count + 1).round().astype(int)
+        panels += [group[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+    return panels
+
+
+def panel_title(panel: Sequence[Control]) -> str:
+    """The levels a panel holds, by how they were held: ``0.2 N`` or ``5 ... 40 m/s^2 at x1``."""
+    if len(panel) == 1:
+        return panel[0].label()
+    first, last = panel[0].label(), panel[-1].label()
+    unit = last.split(" ", 1)[1]                    # a panel's levels share how they were held
+    return f"{first.split(' ', 1)[0]} ... {last}" if first.split(" ", 1)[1] == unit else f"{first} ... {last}"
+
+
 def level_symbol(control: Control) -> str:
     return LEVEL_SYMBOLS.get(control.mode, "o")
 
@@ -148,7 +186,7 @@ def legend_column(layout, entries: Sequence[tuple[dict, str]], row: int, col: in
                   label_size: str = "8pt"):
     """A legend in a cell of its own of a pyqtgraph ``layout`` (a GraphicsLayout), beside the plots and never over
     the data: one row per ``(plot style, words)`` in the order given, at the top of its cell and as wide as its
-    longest entry."""
+    longest entry; in as many columns as LEGEND_ROWS asks, filled column by column."""
     import pyqtgraph as pg
     from PySide6.QtCore import Qt
 
@@ -156,6 +194,17 @@ def legend_column(layout, entries: Sequence[tuple[dict, str]], row: int, col: in
     for style, name in entries:
         # one point: pyqtgraph styles an item's markers only once it holds data (the sample is never drawn)
         legend.addItem(pg.PlotDataItem([0.0], [0.0], **style), name)
+    columns = -(-len(entries) // LEGEND_ROWS)
+    if columns > 1:
+        # read down each column, as a one-column legend reads (pyqtgraph's own columns fill a row first)
+        rows = -(-len(entries) // columns)
+        for sample, label in legend.items:
+            legend.layout.removeItem(sample)
+            legend.layout.removeItem(label)
+        for k, (sample, label) in enumerate(legend.items):
+            legend.layout.addItem(sample, k % rows, 2 * (k // rows))
+            legend.layout.addItem(label, k % rows, 2 * (k // rows) + 1)
+        legend.updateSize()
     size = legend.layout.preferredSize()
     # a layout cell stretches what it holds: held at its own size, the entries keep their spacing
     legend.setFixedWidth(size.width())

@@ -20,8 +20,8 @@ from analysis.common.wording import engineering
 from analysis.loop.workbench import Workbench
 
 from app.analyze import backbones, comparisons_error, element_misfits
-from app.kbar_view import (level_colours, level_masks, level_style, legend_column, linear_axis, model_paths,
-                           ordered_levels)
+from app.kbar_view import (level_colours, level_masks, level_panels, level_style, legend_column, linear_axis,
+                           model_paths, ordered_levels, panel_title)
 
 
 def qt_application():
@@ -148,38 +148,67 @@ def _layout():
     return pg.GraphicsLayoutWidget()
 
 
+PANEL_COLUMNS = 4      # small multiples side by side in a report PNG before they take another row
+
+
 def plot_frfs(comp: Comparison, runs: Sequence[SineRun], path: Path, sensor: str | None = None,
               tags: dict[str, str] | None = None) -> Path:
     """|h| and phase of one sensor per level: measured (markers: circles where the force was held, squares where
     a response was) and predicted (lines), the legend beside the plots in level order; ``tags`` (run name ->
-    words) are added to a run's legend entry (a prediction marks its held-out levels so)."""
+    words) are added to a run's legend entry (a prediction marks its held-out levels so). More levels than one
+    plot holds are drawn as small multiples (app/kbar_view.py, :func:`level_panels`): a column of |h| over phase
+    per panel, PANEL_COLUMNS to a row, frequency axes linked, each titled by the levels it holds."""
+    lay = frf_layout(comp, runs, sensor, tags)
+    rows = 2 * (-(-len(level_panels(r.control for r in runs)) // PANEL_COLUMNS))
+    return _export(lay, path, height=900 if rows <= 2 else 450 * rows + 50)
+
+
+def frf_layout(comp: Comparison, runs: Sequence[SineRun], sensor: str | None = None,
+               tags: dict[str, str] | None = None):
+    """The plots of :func:`plot_frfs`, laid out."""
     levels = _Levels(runs)
     sensor = sensor or runs[0].sensor_dofs[0]
+    panels = level_panels(r.control for r in runs)
     lay = _layout()
-    mag = _log_plot(lay, 0, 0, title=f"Receptance {sensor} / {runs[0].excitation_dof} at each level: "
-                                     f"measured (markers) and model prediction (lines); FRF error {comp.error:.3g}",
-                    y_unit="m/N")
-    mag.setLabel("left", "|h|")
-    ph = lay.addPlot(row=1, col=0)
-    ph.setLabel("left", "phase", units="deg")
-    ph.setLabel("bottom", "frequency", units="Hz")
-    ph.setXLink(mag)
-    entries = []
-    for run in _in_level_order(runs):
-        p = run.sensor_dofs.index(sensor)
-        order = np.argsort(run.frequency_hz)
-        f = run.frequency_hz[order]
-        meas = run.receptance[order, p]
-        pred = comp.predicted[run.name][order, p]
-        c = levels.colour(run)
-        measured, model = level_style(run.control, c, 5), _line(c)
-        mag.plot(f, np.abs(meas), **measured)
-        mag.plot(f, np.abs(pred), **model)
-        ph.plot(f, np.degrees(np.angle(meas)), **measured)
-        ph.plot(f, np.degrees(np.angle(pred)), **model)
-        entries.append(({**measured, **model}, _run_name(run, tags)))
-    legend_column(lay.ci, entries, row=0, col=1, rowspan=2)
-    return _export(lay, path)
+    heading = (f"Receptance {sensor} / {runs[0].excitation_dof} at each level: measured (markers) and model "
+               f"prediction (lines); FRF error {comp.error:.3g}")
+    columns = min(len(panels), PANEL_COLUMNS)
+    top = 0
+    if len(panels) > 1:
+        lay.addLabel(heading, row=0, col=0, colspan=columns, size="11pt")
+        top = 1
+    entries, first = [], None
+    for k, panel in enumerate(panels):
+        row, col = top + 2 * (k // PANEL_COLUMNS), k % PANEL_COLUMNS
+        keys = {c.key() for c in panel}
+        mag = _log_plot(lay, row, col, title=heading if len(panels) == 1 else panel_title(panel), y_unit="m/N")
+        ph = lay.addPlot(row=row + 1, col=col)
+        if col == 0:
+            mag.setLabel("left", "|h|")
+            ph.setLabel("left", "phase", units="deg")
+        ph.setLabel("bottom", "frequency", units="Hz")
+        ph.setXLink(mag)
+        # the frequency axes linked; each panel's |h| and phase fitted to its own levels (a linked range follows
+        # the first panel's data alone and would cut the others')
+        if first is None:
+            first = mag
+        else:
+            mag.setXLink(first)
+        for run in _in_level_order([r for r in runs if r.control.key() in keys]):
+            p = run.sensor_dofs.index(sensor)
+            order = np.argsort(run.frequency_hz)
+            f = run.frequency_hz[order]
+            meas = run.receptance[order, p]
+            pred = comp.predicted[run.name][order, p]
+            c = levels.colour(run)
+            measured, model = level_style(run.control, c, 5), _line(c)
+            mag.plot(f, np.abs(meas), **measured)
+            mag.plot(f, np.abs(pred), **model)
+            ph.plot(f, np.degrees(np.angle(meas)), **measured)
+            ph.plot(f, np.degrees(np.angle(pred)), **model)
+            entries.append(({**measured, **model}, _run_name(run, tags)))
+    legend_column(lay.ci, entries, row=top, col=columns, rowspan=2 * (-(-len(panels) // PANEL_COLUMNS)))
+    return lay
 
 
 def _run_name(run: SineRun, tags: dict[str, str] | None) -> str:

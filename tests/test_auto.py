@@ -11,6 +11,8 @@ import pytest
 
 import analysis.loop.auto as auto_module
 from analysis.loop.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained, run_auto
+from analysis.loop.cross_check import cross_validate, held_out_error
+from analysis.prediction.comparison import pooled_error
 from analysis.prediction.backbone import ModalError
 from analysis.prediction.comparison import RunPrediction, compare_predictions
 from analysis.missing.diagnosis import Candidate, ElementSamples, RankingRules
@@ -109,6 +111,16 @@ def test_stiffness_and_damping_of_one_joint_are_both_found_in_independent_data(r
     assert wb.history[0].error / wb.history[-1].error >= 10
     assert len(wb.history) == 1 + len(result.steps)
     assert result.stopped.startswith("nothing significant is left")
+    # every step judged on the level its fit did not see; the right laws carry from one level to the other
+    assert all(np.isfinite(s.held_out) for s in result.steps)
+    assert result.steps[-1].held_out <= 2.0 * result.steps[-1].error_after
+    # the pooled held-out error is the two folds' (each level predicted by the fit on the other) pooled again
+    folds = cross_validate(wb, "")
+    assert [f.levels for f in folds] == [("0.5 N",), ("2 N",)]
+    pooled = pooled_error([(f.prediction.comparison, [r for r in wb.measurements.sine if r.force != float(
+        f.levels[0].split()[0])]) for f in folds])
+    assert held_out_error(wb) == pytest.approx(pooled, rel=1e-9)
+    assert result.steps[-1].held_out == pytest.approx(pooled, rel=1e-9)
 
 
 @pytest.mark.slow
@@ -216,9 +228,15 @@ def test_step_and_result_records():
     assert step.gain == 8.0
     assert step.line() == "add b:quadratic_damping: error 1 -> 0.125 (x8.00 better)"
     assert step.to_json() == {"action": "add", "element": "b", "laws": ["quadratic_damping"], "error_before": 1.0,
-                              "error_after": 0.125, "gain": 8.0, "reason": "why",
+                              "error_after": 0.125, "gain": 8.0, "reason": "why", "in_sample_error": 0.125,
+                              "held_out_error": None,
                               "backbone_error_before": None, "damping_error_before": None,
                               "backbone_error_after": None, "damping_error_after": None}
+    # judged on levels its fit did not see too: both errors, labelled
+    step.held_out = 0.25
+    assert step.line() == "add b:quadratic_damping: error 1 -> 0.125 (x8.00 better); held-out 0.25 against in-sample 0.125"
+    assert step.to_json()["held_out_error"] == 0.25 and step.to_json()["in_sample_error"] == 0.125
+    step.held_out = float("nan")
     modal = AutoStep("add", "b", ("cubic",), 1.0, 0.5, "why", ModalError(0.02, 0.3), ModalError(0.001, float("nan")))
     assert modal.line() == ("add b:cubic: error 1 -> 0.5 (x2.00 better); backbone error 0.02 -> 0.001, "
                             "damping error 0.3 -> nan")
@@ -313,6 +331,7 @@ def test_the_auto_button_runs_the_same_loop(qtbot, rk4_joint, rk4_loop):
     expected = rk4_loop[1]                 # the same loop run outside the GUI on the same data
     shown = panel.auto_label.text()
     assert all(s.line() in shown for s in expected.steps) and f"stopped: {expected.stopped}" in shown
+    assert all(s.reason.strip() in shown for s in expected.steps)       # why, where the step is shown
     assert [h.action for h in window.lab.analysis.history] == ["start"] + [
         f"{s.action} a:{'+'.join(s.laws)}" for s in expected.steps]
     assert [s.action for s in expected.steps] == ["discover"]

@@ -63,3 +63,10 @@ def test_import_reference_and_analyze_auto_on_the_measured_beam(brb, capsys):
     # how far they carry: refitted on half of the levels, each half predicting the others
     folds = result["cross_validation"]
     assert len(folds) == 4 and all(0 < f["fitted_error"] and 0 < f["held_out_error"] for f in folds)
+    # every step of the loop judged on the levels its fit did not see, beside its in-sample error
+    steps = result["auto"]["steps"]
+    assert steps and all(s["held_out_error"] > 0 and s["in_sample_error"] == s["error_after"] for s in steps)
+    # an Iwan element added by hand: read in the limit its fit lands in, no stiffness of 1e32 shown as a finding
+    assert main(["analyze", str(session), str(model), "--add", "joint:iwan", "--no-history"]) == 0
+    law = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("law iwan"))
+    assert "read as" in law and "e+3" not in law and "e+2" not in law

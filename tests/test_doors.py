@@ -94,8 +94,8 @@ def long_csv(path, dofs=("x1", "x2"), force="0.8", cells: dict[str, str] | None 
 # --------------------------------------------------------------------------- tracebacks (exit 1) -> exit 2
 @pytest.mark.parametrize("dofs, excitation", [
     ([".", "x2"], "x2"),                 # names the run's own group: the writer crashed (SessionWriteError)
-    (["a", "a/b"], "a/b"),               # a dataset and a group of one name: the writer crashed
-    (["x1", "../x2"], "../x2"),          # not a path: a DOF name, once stored as nested HDF5 groups
+    (["a", "a/b"], "a"),                 # a dataset and a group of one name: the writer crashed
+    (["x1", "../x2"], "x1"),             # not a path: a DOF name, once stored as nested HDF5 groups
     (["x" * 65, "x2"], "x2"),            # longer than any format carries
 ])
 def test_a_dof_name_that_is_no_name_is_refused_at_import_naming_file_and_field(tmp_path, capsys, dofs, excitation):
@@ -611,7 +611,7 @@ def test_recover_reports_damaged_data_rather_than_nothing_to_recover(tmp_path, c
     data[offset + 5] ^= 0xFF
     session.write_bytes(bytes(data))
     assert main(["recover", str(session)]) == 2
-    one_line_error(capsys, "s.h5", "fail their checksum", "/runs/sine_0.8N_up/frf/x1: line(s) 1-30 of 30",
+    one_line_error(capsys, "s.h5", "fail their checksum", "/runs/sine_0.8N_up/frf/x1: line(s) 0-29 of 30",
                    "the file is unchanged")
     assert session.read_bytes() == bytes(data)
 
@@ -710,3 +710,316 @@ def test_own_uff_tags_that_no_run_has_or_that_records_disagree_on_are_refused(tm
     assert main(["import", str(uff), "-o", str(tmp_path / "b.h5")]) == 2
     one_line_error(capsys, uff.name, *words)
     assert not (tmp_path / "b.h5").exists()
+
+
+# --------------------------------------------------------------------------- the audit of issue 54: each of its kind
+def _quantity_rows() -> list[list[str]]:
+    """The rows of docs/session-format.md's table of quantities, as cells."""
+    text = (ROOT / "docs/session-format.md").read_text()
+    section = text[text.index("## Quantities\n"):]
+    section = section[:section.index("\n## ", 1)]
+    return [[c.strip() for c in line.strip().strip("|").split(" | ")] for line in section.splitlines()
+            if line.startswith("| ") and not line.startswith("| quantity") and not line.startswith("|---")]
+
+
+def _bound(text: str) -> float:
+    """``1e-06``, ``1000`` or ``-2*pi`` as a number."""
+    factor, _, pi = text.partition("*")
+    return float(factor) * (np.pi if pi == "pi" else 1.0)
+
+
+def test_the_docs_table_of_quantities_states_the_ranges_the_code_enforces():
+    """docs/ holds the table of quantities with their ranges: each range there is the constant the doors ask, so
+    the doc cannot drift from the code; every range constant of quantities.py has its row."""
+    import re
+    from analysis.common import quantities
+    scalar = {"MAX_PHASE": lambda v: (-v, v), "MAX_DOF_NAME": lambda v: (1, v),
+              "FORCE_LEVEL_FACTOR": lambda v: (1 / v, v)}
+    rows = _quantity_rows()
+    assert len(rows) >= 25 and all(len(r) == 5 for r in rows), [r for r in rows if len(r) != 5]
+    checked = set()
+    for quantity, unit, accepted, rule, formats in rows:
+        assert unit and formats, quantity
+        named = re.match(r'`([A-Z_]+)(?:\["(\w+)"\])?`', rule)
+        if not named or not hasattr(quantities, named[1]):
+            continue
+        name, key = named.groups()
+        value = getattr(quantities, name)
+        expected = scalar[name](value) if name in scalar else (value[key] if key else value)
+        stated = re.match(r"`(\S+) \.\. (\S+)`", accepted)
+        assert stated, f"{quantity}: the range is not stated as `lo .. hi`: {accepted}"
+        np.testing.assert_allclose([_bound(stated[1]), _bound(stated[2])], expected, rtol=1e-12,
+                                   err_msg=f"docs/session-format.md, {quantity}: {name}{[key] if key else ''}")
+        checked.add(name)
+    constants = {n for n in vars(quantities) if n.isupper() and (n.endswith("_RANGE") or n in scalar)}
+    assert constants <= checked, f"no row of the table states {sorted(constants - checked)}"
+    for key in quantities.RESPONSE_RANGE:                 # one row per response quantity
+        assert any(f'RESPONSE_RANGE["{key}"]' in r[3] for r in rows), key
+
+
+@pytest.mark.parametrize("quantity, target", [("acceleration", "1e300"), ("acceleration", "1e-300"),
+                                              ("displacement", "2.0"), ("velocity", "1e-12")])
+def test_a_response_target_no_lab_holds_is_refused_at_the_csv(tmp_path, capsys, quantity, target):
+    """A response target of 1e300 m/s^2 (or 1e-300) was stored, exported and read back without a word."""
+    from analysis.common.quantities import response_target_problem
+    out = tmp_path / "s.h5"
+    assert main(["import", str(response_csv(tmp_path / "c.csv", quantity=quantity, target=target)), "-o", str(out),
+                 "--excitation", "x2"]) == 2
+    one_line_error(capsys, "c.csv: line 2: control_target", response_target_problem(quantity, float(target)))
+    assert not out.exists()
+
+
+def test_a_response_target_no_lab_holds_is_refused_by_the_plan_the_uff_tags_and_the_session_reader(tmp_path,
+                                                                                                    capsys):
+    from analysis.common.quantities import response_target_problem
+    words = response_target_problem("acceleration", 1e-300)
+    err = _plan_error(f'[[stepped_sine]]\nresponse = 1e-300\nquantity = "acceleration"\ndof = "x2"\nstart = 1.0\n'
+                      f'stop = 1.2\nstep = 0.1\n{LIMITS}')
+    assert err == f"p.toml: [[stepped_sine]][0].response: {words}", err
+    session = tmp_path / "good.h5"
+    assert main(["import", str(response_csv(tmp_path / "c.csv")), "-o", str(session), "--excitation", "x2"]) == 0
+    assert main(["export", str(session), "--uff", str(tmp_path / "o.uff")]) == 0
+    capsys.readouterr()
+    (uff,) = tmp_path.glob("o_*.uff")
+    uff.write_bytes(uff.read_bytes().replace(b"target=5.0", b"target=1e9"))      # one length: a binary UFF58
+    assert main(["import", str(uff), "-o", str(tmp_path / "b.h5")]) == 2
+    one_line_error(capsys, uff.name, "id3", "target= " + response_target_problem("acceleration", 1e9))
+    with h5py.File(session, "r+") as f:
+        (run,) = f["runs"].values()
+        run.attrs["control_target"] = 1e300
+    assert main(["export", str(session), "--csv-long", str(tmp_path / "l.csv")]) == 2
+    one_line_error(capsys, "good.h5", "attribute control_target", response_target_problem("acceleration", 1e300))
+
+
+def test_dof_names_in_the_uff_tags_and_the_import_options_are_refused_where_they_are_written(tmp_path, capsys):
+    """``rsp=`` and ``ref=`` were blamed on ``attribute sensor_dofs`` or on id3's ``at=``; ``--dof 1+Z=a/b`` and
+    ``--excitation a:b`` on session attributes the user never wrote."""
+    session = tmp_path / "s.h5"
+    write_session(session)
+    assert main(["export", str(session), "--uff", str(tmp_path / "o.uff")]) == 0
+    (uff,) = tmp_path.glob("o_*.uff")
+    good = uff.read_bytes()
+    for old, new in ((b"rsp=x1", b"rsp=.."), (b"ref=x2", b"ref=a/")):
+        uff.write_bytes(good.replace(old, new))
+        assert main(["import", str(uff), "-o", str(tmp_path / "b.h5")]) == 2
+        one_line_error(capsys, uff.name, "record 2: id2", f"{new[:4].decode()} {dof_name_problem(new[4:].decode())}")
+    csv = long_csv(tmp_path / "c.csv")
+    assert main(["import", str(csv), "-o", str(tmp_path / "b.h5"), "--excitation", "a:b"]) == 2
+    one_line_error(capsys, "--excitation", dof_name_problem("a:b"))
+    assert main(["import", str(uff), "-o", str(tmp_path / "b.h5"), "--dof", "1+Z=a/b"]) == 2
+    one_line_error(capsys, "--dof: 1+Z=a/b", dof_name_problem("a/b"))
+    assert not (tmp_path / "b.h5").exists()
+
+
+def test_records_that_disagree_on_the_control_are_named_in_the_words_of_the_tags(tmp_path, capsys):
+    """The message showed Python's ``Control(mode='response', ...)`` instead of the tags as written."""
+    session = tmp_path / "s.h5"
+    assert main(["import", str(response_csv(tmp_path / "c.csv")), "-o", str(session), "--excitation", "x2"]) == 0
+    assert main(["export", str(session), "--uff", str(tmp_path / "o.uff")]) == 0
+    capsys.readouterr()
+    (uff,) = tmp_path.glob("o_*.uff")
+    uff.write_bytes(uff.read_bytes().replace(b"target=5.0", b"target=6.0", 1))
+    assert main(["import", str(uff), "-o", str(tmp_path / "b.h5")]) == 2
+    err = one_line_error(capsys, uff.name, "record 3: id3", "control 'control=response at=x2 held=acceleration "
+                         "target=5.0' differs from 'control=response at=x2 held=acceleration target=6.0' in record 2")
+    assert "Control(" not in err
+
+
+@pytest.mark.parametrize("form", ["--uff", "--csv", "--csv-long"])
+def test_a_line_where_a_sensor_saw_nothing_is_refused_by_every_export_in_one_wording(tmp_path, capsys, form):
+    """NaN lines (a sensor that saw nothing: FRF and std NaN): ``--uff`` refused them, while ``--csv`` and
+    ``--csv-long`` wrote cells their own import refuses."""
+    session = tmp_path / "s.h5"
+    write_session(session)
+    with h5py.File(session, "r+") as f:
+        f["runs/sine_0.8N_up/frf/x1"][3] = np.nan
+        f["runs/sine_0.8N_up/frf_std/x1"][3] = np.nan
+    target = tmp_path / {"--uff": "o.uff", "--csv": "c", "--csv-long": "l.csv"}[form]
+    assert main(["export", str(session), form, str(target)]) == 2
+    one_line_error(capsys, "s.h5: run sine_0.8N_up, dataset frf/x1: line 3: the sensor at x1 saw nothing there",
+                   "has no value its import reads as such; nothing exported")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
+
+
+def test_csv_long_keeps_a_std_of_zero_and_the_std_of_each_dof_that_has_one(tmp_path):
+    """A std of 0 at one line (the session's rule: >= 0) made ``--csv-long`` drop the run's std without a word,
+    and the import refused a 0; a std stored for one DOF only was dropped too."""
+    session, csv, back = tmp_path / "s.h5", tmp_path / "l.csv", tmp_path / "b.h5"
+    write_session(session)
+    with h5py.File(session, "r+") as f:
+        f["runs/sine_0.8N_up/frf_std/x1"][5] = 0.0
+        del f["runs/sine_0.8N_up/frf_std/x2"]
+    assert main(["export", str(session), "--csv-long", str(csv)]) == 0
+    assert main(["import", str(csv), "-o", str(back), "--excitation", "x2"]) == 0
+    before, after = _runs(session)["sine_0.8N_up"], _runs(back)["sine_0.8N_up"]
+    assert np.array_equal(after["frf_std/x1"], before["frf_std/x1"]) and after["frf_std/x1"][5] == 0
+    assert "frf_std/x2" not in after
+
+
+@pytest.mark.parametrize("form", ["--uff", "--csv"])
+def test_an_export_names_why_a_run_failed_which_no_format_carries(tmp_path, capsys, form):
+    """A failed run's ``end_reason`` was left out without a word (the status itself comes back)."""
+    session = tmp_path / "s.h5"
+    write_session(session, levels=((0.8, True, "complete"), (1.6, False, "failed")))
+    assert main(["export", str(session), form, str(tmp_path / ("o.uff" if form == "--uff" else "c"))]) == 0
+    out = capsys.readouterr().out
+    assert "left out" in out and "sine_1.6N_up: end_reason 'the force missed its target'" in out, out
+    assert "sine_0.8N_up: end_reason" not in out
+
+
+def test_a_coherence_above_one_is_refused_at_every_door(tmp_path, capsys):
+    """A coherence of 7 read from a UFF coherence record was stored: the session reader, which every import
+    passes, holds coherence to 0..1."""
+    from analysis.common.quantities import coherence_problem
+    session = tmp_path / "s.h5"
+    write_session(session)
+    with h5py.File(session, "r+") as f:
+        f["runs/sine_0.8N_up"].create_dataset("coherence/x1", data=np.r_[np.full(3, 0.9), 7.0, np.full(26, 0.9)])
+    assert main(["export", str(session), "--csv-long", str(tmp_path / "l.csv")]) == 2
+    one_line_error(capsys, "s.h5", "dataset coherence/x1", "line 3", coherence_problem(7.0))
+    assert coherence_problem(1.0 + 1e-12) is None and coherence_problem(0.0) is None
+
+
+def test_import_of_a_folder_says_it_is_a_folder(tmp_path, capsys):
+    """``import`` of a folder said "file not found"."""
+    (tmp_path / "d.uff").mkdir()
+    assert main(["import", str(tmp_path / "d.uff"), "-o", str(tmp_path / "s.h5")]) == 2
+    one_line_error(capsys, "d.uff", "is a folder, not a file to import")
+
+
+
+# --------------------------------------------------------------------------- the audit after the pass
+def _cli(args, stdout=subprocess.PIPE, close=True) -> tuple[int, str]:
+    """Run ``contactid ARGS`` in a child; with ``close`` its stdout reader is gone before it prints (``| head
+    -0``). The exit status and stderr."""
+    child = subprocess.Popen([sys.executable, "-c", "import sys; from app.cli import main; sys.exit(main())",
+                              *map(str, args)], cwd=ROOT, stdout=stdout, stderr=subprocess.PIPE,
+                             env={**os.environ, "PYTHONPATH": str(ROOT)})
+    if close and child.stdout is not None:
+        child.stdout.close()
+    err = child.stderr.read().decode()
+    return child.wait(timeout=300), err
+
+
+@pytest.mark.parametrize("command", ["analyze", "import", "export --csv-long", "export --uff", "export --csv"])
+def test_every_command_finishes_its_work_when_the_reader_closes_the_pipe(tmp_path, command):
+    """``analyze S M -o F.toml | head -1``, ``import ... | head -0``, ``export ... | head -0``: a BrokenPipeError
+    traceback (exit 1), the files written or not depending on when the report filled the pipe."""
+    session = tmp_path / "s.h5"
+    write_session(session)
+    model = tmp_path / "m.toml"
+    model.write_text(PAPER_STRUCTURE + '\n[[element]]\nname = "right"\ndof = "x2"\nlaws = ["cubic"]\n')
+    args, made = {
+        "analyze": (["analyze", session, model, "-o", tmp_path / "f.toml", "--report", tmp_path / "plots"],
+                    [tmp_path / "f.toml", tmp_path / "plots" / "frf.png"]),
+        "import": (["import", long_csv(tmp_path / "c.csv"), "-o", tmp_path / "b.h5", "--excitation", "x2"],
+                   [tmp_path / "b.h5"]),
+        "export --csv-long": (["export", session, "--csv-long", tmp_path / "l.csv"], [tmp_path / "l.csv"]),
+        "export --uff": (["export", session, "--uff", tmp_path / "o.uff"], [tmp_path / "o_sine_0.8N_up.uff"]),
+        "export --csv": (["export", session, "--csv", tmp_path / "c"], [tmp_path / "c" / "sine_0.8N_up.csv"]),
+    }[command]
+    status, err = _cli(args)
+    assert status == 0, err
+    assert "Traceback" not in err and "Error" not in err and "error" not in err, err
+    assert all(p.exists() and p.stat().st_size for p in made), [p for p in made if not p.exists()]
+    if command == "analyze":
+        assert "[[element]]" in (tmp_path / "f.toml").read_text()
+        with h5py.File(session, "r") as f:          # the history it stores after the report is stored too
+            assert len(f["models"]) == 1
+
+
+def test_a_full_standard_output_says_what_was_written_not_that_nothing_was(tmp_path):
+    """``reference S -o M.toml > /dev/full`` said "nothing was written" although M.toml was written."""
+    session, model = tmp_path / "s.h5", tmp_path / "m.toml"
+    write_session(session)
+    with open("/dev/full", "w") as full:
+        status, err = _cli(["reference", session, "-o", model], stdout=full, close=False)
+    assert status == 2, err
+    assert 'type = "modal"' in model.read_text()
+    lines = [line for line in err.splitlines() if "warning" not in line]
+    assert len(lines) == 1 and "nothing was written" not in err and "Traceback" not in err, err
+    assert lines[0].startswith("contactid: error: standard output: not written: No space left on device"), err
+    assert f"wrote {model}" in lines[0], err
+
+
+def test_csv_long_names_what_no_column_carries(tmp_path, capsys):
+    """``export --csv-long`` left out ``distortion`` (which the analysis reads) and a failed run's ``end_reason``
+    and ``incomplete`` without a word, where ``--uff`` and ``--csv`` name theirs."""
+    session = tmp_path / "s.h5"
+    write_session(session, levels=((0.8, True, "complete"), (1.6, False, "failed")), force_target=True)
+    with h5py.File(session, "r+") as f:
+        f["runs/sine_0.8N_up"].create_dataset("distortion", data=np.full(len(FREQS), 0.01))
+        f["runs/sine_1.6N_up"].attrs["incomplete"] = True
+    assert main(["export", str(session), "--csv-long", str(tmp_path / "l.csv")]) == 0
+    notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note:")]
+    assert notes == [
+        "note: left out (no column of the CSV long format carries it): sine_0.8N_up: distortion, force_target",
+        "note: left out (no column of the CSV long format carries it): sine_1.6N_up: force_target, "
+        "end_reason 'the force missed its target', incomplete (its writer stopped during the run)"], notes
+    # what a column carries is not named: std, the measured force (its phasor is rebuilt from the two)
+    assert not any(word in " ".join(notes) for word in ("frf_std", "force_amplitude", "force_phase"))
+
+
+def test_frf_only_says_it_left_out_what_the_user_chose_to_leave_out(tmp_path, capsys):
+    """``--uff --frf-only`` said "no UFF58 record carries it" of the per-line records it was asked to drop."""
+    session = tmp_path / "s.h5"
+    write_session(session, force_target=True)
+    assert main(["export", str(session), "--uff", str(tmp_path / "o.uff"), "--frf-only"]) == 0
+    out = capsys.readouterr().out
+    assert ("note: left out (no UFF58 record carries it): sine_0.8N_up: force_target\n" in out
+            and "note: left out (--frf-only: FRF records only, as asked): sine_0.8N_up: force_amplitude, "
+                "force_phase, force_phasor, frf_std/x1, frf_std/x2\n" in out), out
+    assert main(["export", str(session), "--uff", str(tmp_path / "p.uff")]) == 0     # without it: no such note
+    assert "--frf-only" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", ["analyze", "predict"])
+@pytest.mark.parametrize("law, words", [("{ law = \"cubic\", k3 = 1e300 }", "laws[0].k3: 1e+300"),
+                                        ("{ law = \"linear\", k = 1e200, c = 0.0 }", "laws[0].k: 1e+200"),
+                                        ("{ law = \"cubic_damping\", c3 = -1e250 }", "laws[0].c3: -1e+250")])
+def test_a_law_value_no_physical_law_has_is_refused_when_the_model_is_read(tmp_path, capsys, command, law,
+                                                                          words):
+    """``k3 = 1e300``: ``predict`` and ``analyze`` printed numpy RuntimeWarnings and an FRF error of inf."""
+    import warnings
+    session, model = tmp_path / "s.h5", tmp_path / "m.toml"
+    write_session(session)
+    model.write_text(PAPER_STRUCTURE + f'\n[[element]]\nname = "right"\ndof = "x2"\nlaws = [{law}]\n')
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)        # one leaking would be an exit 1 here
+        assert main([command, str(session), str(model), *(["--no-history"] if command == "analyze" else [])]) == 2
+    one_line_error(capsys, "m.toml", f"[[element]][0].{words}", "no finite prediction", "1e+100 N")
+
+
+def test_law_values_a_lab_can_meet_are_read_and_the_rule_is_the_documented_one():
+    """The bound refuses slips, not stiff contacts: every law's example, a micro-amplitude cubic of 1e16 N/m^3, a
+    rigid stop of 1e30 N/m and a value just under the bound are read; the docs state the bound the code holds."""
+    from analysis.laws import LAWS
+    from analysis.mechanics.model import MAX_LAW_FORCE, check_law_force
+    for law in LAWS.values():
+        check_law_force(law, dict(law.example), "m.toml", "laws[0]")
+    check_law_force(LAWS["cubic"], {"k3": 1e16}, "m.toml", "laws[0]")
+    check_law_force(LAWS["gap"], {"k": 1e30, "gap": 1e-6}, "m.toml", "laws[0]")
+    check_law_force(LAWS["cubic"], {"k3": 1e99}, "m.toml", "laws[0]")
+    with pytest.raises(InputError, match=r"laws\[0\]\.k3"):
+        check_law_force(LAWS["cubic"], {"k3": 1e101}, "m.toml", "laws[0]")
+    assert MAX_LAW_FORCE == 1e100
+    docs = (ROOT / "docs/session-format.md").read_text() + (ROOT / "docs/contracts.md").read_text()
+    assert "`MAX_LAW_FORCE` = 1e100 N" in docs and "at most\n1e100 N" in docs
+
+
+def test_recover_and_the_session_reader_number_the_lines_of_a_run_alike(tmp_path, capsys):
+    """``recover`` numbered lines from 1 (``line(s) 1-30``) while the session reader numbers them from 0 (``line
+    3`` is ``frf/x1[3]``); the docs say from 0."""
+    session = tmp_path / "s.h5"
+    write_session(session)
+    with h5py.File(session, "r") as f:
+        offset = f["runs/sine_0.8N_up/frf/x1"].id.get_chunk_info(0).byte_offset
+    data = bytearray(session.read_bytes())
+    data[offset + 5] ^= 0xFF
+    session.write_bytes(bytes(data))
+    assert main(["recover", str(session)]) == 2
+    recovered = one_line_error(capsys, "line(s) 0-29 of 30")
+    assert main(["export", str(session), "--csv-long", str(tmp_path / "l.csv")]) == 2
+    read = one_line_error(capsys, "/runs/sine_0.8N_up/frf/x1", "line(s) 0-29 of 30")
+    assert "1-30" not in recovered + read
+    assert "**Lines are numbered from 0**" in (ROOT / "docs/session-format.md").read_text()

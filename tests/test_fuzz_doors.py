@@ -170,7 +170,7 @@ CELL_FAULTS = {
     "frequency_hz": ["nan", "inf", "-1", "0", "abc", "", "1e309", "1_0", "1e300", "1e-300", "0x10"],
     "re": ["nan", "inf", "abc", "", "1e309", "--1"],
     "im": ["nan", "-inf", "0x10", "1,0"],
-    "std": ["nan", "-1", "0", "abc", "inf"],
+    "std": ["nan", "-1", "abc", "inf"],
     "force_amplitude_n": ["nan", "-1", "0", "1e300", "abc", "1e-300"],
     "force_phase_rad": ["nan", "1e300", "100", "abc", "inf"],
     "direction": ["sideways", "UP", "1"],
@@ -243,6 +243,7 @@ def csv_cases() -> list[Hostile]:
         ("status empty on every row", _cell("status", "", slice(1, None)), _csv_stored()),
         ("status failed on every row", _cell("status", "failed", slice(1, None)), _csv_stored(status="failed")),
         ("negative real parts", _cell("re", "-0.001"), _csv_stored()),
+        ("std 0 at a line (no scatter: >= 0, the session's rule)", _cell("std", "0"), _csv_stored()),
     ]
     for name, content, check in not_faults:
         cases.append(Hostile(f"csv {name}", {"c.csv": content}, CSV_ARGV, (), 0, check))

@@ -235,3 +235,86 @@ def test_frequency_and_damping_against_amplitude_grow_point_by_point(window, qtb
     # the locked points' damping by the power balance, the modal constant from the 0.1 N level measured first
     zeta = live.shown(live.damping, "phase_x2_90deg", "locked")[1]
     assert len(zeta) == 3 and np.all((0 < zeta) & (zeta < 0.2))
+
+
+def test_live_legends_stand_beside_the_plots_never_over_their_data(window, qtbot):
+    """|H|, acceleration and natural frequency name their curves in legends of their own right of the plots (as the
+    Model tab does), each marker level with its words: none lies over a plot's data area."""
+    live = window.acquire.live
+    window.resize(1366, 768)
+    window.tabs.setCurrentWidget(window.acquire)
+    f = np.linspace(0.8, 3.2, 50)
+    for k, dof in enumerate(("x1", "x2")):
+        live._curve(live.acc_time, ("time", dof), pen="b", name=f"acc:{dof}").setData(-f, np.sin(f))
+        live._curve(live.magnitude, ("random", dof), pen="k", name=f"random · {dof}").setData(f, 1e-3 / f)
+        for level in ("0.4 N", "0.8 N", "2 m/s^2 at x2"):
+            live._curve(live.magnitude, (level, dof), pen=None, symbol="o", name=f"{level} up · {dof}").setData(
+                f, 1e-2 / f)
+    live._curve(live.natural, ("phase", "locked"), symbol="o", name="phase resonance at x2").setData(
+        [0.06, 0.1, 0.2], [1.26, 1.23, 1.2])
+    live._curve(live.natural, ("response levels", "x2"), symbol="d", pen=None,
+                name="response levels at x2").setData([0.02], [1.26])
+    qtbot.wait(200)
+    plots = live.plots()
+    for name, plot in plots.items():                   # every plot whole in view, the legends' column too
+        assert live.viewport().rect().contains(live.mapFromScene(plot.sceneBoundingRect()).boundingRect()), name
+    beside = {"acceleration_time": ("force_time", "acceleration_time"), "frf_magnitude": ("frf_magnitude", "frf_phase"),
+              "natural_frequency": ("natural_frequency", "damping")}
+    for name, count in (("acceleration_time", 2), ("frf_magnitude", 8), ("natural_frequency", 2)):
+        plot, legend = plots[name], live.legends[name]
+        assert plot.legend is legend and len(legend.items) == count, name
+        area = legend.sceneBoundingRect()
+        assert area.left() >= max(plots[p].vb.sceneBoundingRect().right() for p in beside[name]) - 1, name
+        assert not any(area.intersects(p.vb.sceneBoundingRect()) for p in plots.values()), name
+        shown = live.mapFromScene(area).boundingRect()
+        assert live.viewport().rect().contains(shown), (name, shown)
+        for sample, label in legend.items:             # each marker level with its words
+            assert abs(sample.sceneBoundingRect().center().y() - label.item.sceneBoundingRect().center().y()) <= 2
+    # a new campaign empties them
+    live.plots()["frf_magnitude"].legend.clear()
+    assert not live.legends["frf_magnitude"].items
+
+
+def test_the_plan_check_and_the_progress_bar_count_the_same_lines(window, tmp_path):
+    """The plan check counted the stepped-sine lines alone (97) where the progress bar counted the random run and
+    each phase-resonance level as well (0 / 100): one count now, the campaign's (Plan.planned_lines)."""
+    import re
+
+    (tmp_path / "plan.toml").write_text("[random]\nforce_rms = 0.3\nband = [0.5, 5.0]\nduration = 16.0\n" + PHASE_PLAN,
+                                        encoding="utf-8")
+    window.acquire.editor.load(tmp_path / "plan.toml")
+    plan = window.lab.plan
+    assert plan is not None and plan.random is not None and plan.phase, window.lab.plan_message
+    stepped = sum(len(spec.lines(d)) for spec, d in plan.runs)
+    assert plan.planned_lines() == stepped + 1 + 3
+    (said,) = re.findall(r"(\d+) planned lines", window.lab.plan_message)
+    progress = window.acquire.progress
+    assert int(said) == plan.planned_lines() == progress.maximum() and progress.value() == 0
+    assert progress.text() == f"0 / {said} planned lines"
+    assert f"({stepped} stepped-sine + the random run + 3 phase-resonance level(s))" in window.lab.plan_message
+    # refinement adds lines as the campaign runs: said apart from the planned ones
+    window.acquire._planned = plan.planned_lines()
+    window.acquire._on_progress(10, plan.planned_lines() + 6, 30.0, "sine_0.2N_up")
+    assert progress.maximum() == plan.planned_lines() + 6
+    assert f"({said} planned + 6 added by refinement)" in progress.format()
+
+
+def test_every_plan_cell_shows_its_whole_content_on_a_small_screen(window, qtbot):
+    window.resize(1366, 768)
+    window.tabs.setCurrentWidget(window.acquire)
+    editor = window.acquire.editor
+    editor.set_levels([{**LONG_LEVEL, "force": 0.4, "step": 0.05},
+                       {"response": 2.0, "quantity": "acceleration", "dof": "x2", "start": 1.05, "stop": 1.45,
+                        "step": 0.025, "direction": "both", "refine": False}])
+    qtbot.wait(50)
+    table = editor.table
+    for row in range(table.rowCount()):
+        for col in range(table.columnCount()):
+            cell = table.cellWidget(row, col)
+            text = cell.currentText() if hasattr(cell, "currentText") else cell.text()
+            assert cell.width() >= cell.sizeHint().width() and table.columnWidth(col) >= cell.sizeHint().width()
+            assert cell.fontMetrics().horizontalAdvance(text) <= cell.width() - 6, (row, col, text)
+    assert [table.cellWidget(1, c).text() for c in range(4)] == ["2", "1.05", "1.45", "0.025"]
+    # the table as wide as its columns at the window's default split: no column hidden to the right
+    assert table.horizontalScrollBar().maximum() == 0
+    assert editor.levels()[1]["step"] == 0.025 and editor.levels()[0]["force"] == 0.4

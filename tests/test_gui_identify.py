@@ -73,3 +73,22 @@ def test_identify_tab_shows_a_linear_element_flat(qtbot):
     low, high = flat.viewRange()[1]
     assert high - low >= 2 * FLAT_VIEW * 9.6e6 * 0.999 and "linear: samples within" in flat.titleLabel.text
     assert panel.plots()["kbar_re_soft"].vb.autoRangeEnabled()[1]
+
+
+def test_identify_legend_stands_beside_the_kbar_plots_with_each_marker_level_with_its_words(qtbot):
+    """The kbar legend sat over the data, its markers half a row below their labels: now in a column of its own
+    right of the plots (over none of them), each marker at the height of its words."""
+    panel = _panel(qtbot, _view(fitted=True))
+    panel.resize(1100, 700)
+    panel.show()
+    qtbot.wait(100)
+    legend = panel.legend
+    area = legend.sceneBoundingRect()
+    for name, plot in panel.plots().items():
+        assert not area.intersects(plot.vb.sceneBoundingRect()), name
+        assert area.left() >= plot.vb.sceneBoundingRect().right(), name
+    assert len(legend.items) == 3
+    for sample, label in legend.items:
+        marker = sample.sceneBoundingRect().center().y()
+        words = label.item.sceneBoundingRect().center().y()
+        assert abs(marker - words) <= 2, (label.text, marker, words)

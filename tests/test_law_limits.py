@@ -57,3 +57,18 @@ def test_an_iwan_element_whose_spike_carries_the_stiffness_reads_as_the_jenkins_
     as_iwan = iwan.describing_function(X, w, **values)
     as_jenkins = jenkins.describing_function(X, w, **reading.values)
     assert as_jenkins == pytest.approx(as_iwan, rel=1e-6, abs=1e-9 * values["kt"])
+
+
+def test_an_iwan_element_whose_spike_always_slips_reads_as_coulomb_friction_and_shows_no_stiffness():
+    """A spike stiffer than anything measured, slipping at a force far below the smallest amplitude's: Coulomb
+    friction, fs alone; the stiffness the fit left at 1e32 is not a finding and is not shown."""
+    iwan, coulomb = LAWS["iwan"], LAWS["coulomb"]
+    values = {"kt": 1.67e32, "fs": 0.0129, "chi": 0.9999, "beta": 9.7e28}
+    X = np.geomspace(1.1e-5, 3.2e-4, 25)
+    reading = iwan.reading(values, X.min(), X.max())
+    assert reading.limit == "Coulomb friction" and set(reading.values) == {"fs"}
+    assert reading.undetermined == ("kt", "chi", "beta") and "e+32" not in reading.values_text()
+    w = np.full_like(X, 500.0)
+    as_iwan = iwan.describing_function(X, w, **values)
+    as_coulomb = coulomb.describing_function(X, w, **{"fs": reading.values["fs"]})
+    assert as_coulomb.imag == pytest.approx(as_iwan.imag, rel=0.03)

@@ -179,3 +179,60 @@ def test_model_paths_break_where_the_amplitude_jumps():
     assert np.isnan(path.X[3]) and np.isnan(path.kbar[3].real)         # no segment from 0.12 to 0.04
     assert np.count_nonzero(np.isnan(path.X)) == 1 and list(path.X[:3]) == [0.05, 0.08, 0.12]
     assert list(path.X[4:]) == [0.04, 0.03, 0.02]
+
+
+# --- many levels: 2, 4, 12 and 30 (docs/gui.md, "Levels") -----------------------------------------------------------
+def _many_levels(count):
+    """``count`` levels of paper-2dof's kind synthesised by harmonic balance: two thirds held at a force, the rest
+    named as held at an acceleration of x2 (how a level was held is all the plots read of it)."""
+    from dataclasses import replace
+
+    forces = np.geomspace(0.1, 1.6, count)
+    data = synthesise(PAPER_LAWS, forces=tuple(forces), lines=13)
+    held = count // 3
+    runs = [run if i < count - held else
+            replace(run, name=f"sine_x2_{5 * (i + 1)}mps2_up",
+                    control=Control("response", "x2", "acceleration", 5.0 * (i + 1)))
+            for i, run in enumerate(data.sine)]
+    return replace(data, sine=runs)
+
+
+def _legend(layout):
+    import pyqtgraph as pg
+    (legend,) = [item for item in layout.ci.items if isinstance(item, pg.LegendItem)]
+    return legend
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("count", [2, 4, 12, 30])
+def test_many_levels_make_small_multiples_of_neighbours_each_told_apart_and_the_legends_fit(count):
+    from app.kbar_view import LEGEND_ROWS, PANEL_LEVELS, level_panels, ordered_levels
+    from app.report import frf_layout
+
+    wb = Workbench(load_model(model_doc(PAPER_LAWS)), _many_levels(count), harmonics=None)
+    wb.start()
+    runs = wb.measurements.sine
+    qt_application()
+    layout = frf_layout(wb.compare(), runs, "x2")
+    panels = level_panels(r.control for r in runs)
+    # one plot while it holds them, else small multiples: force and response levels apart, neighbours together
+    assert len(panels) == {2: 1, 4: 1, 12: 1, 30: 3}[count]                  # 20 force levels, 10 response
+    if count > PANEL_LEVELS:
+        assert all(len(p) <= PANEL_LEVELS and len({c.mode for c in p}) == 1 for p in panels)
+    plots = _panels(layout)
+    assert len(plots) == 2 * len(panels)
+    for panel, (mag, phase) in zip(panels, zip(plots[::2], plots[1::2])):
+        brushes = [c.opts["symbolBrush"] for c in _curves(mag) if c.opts["symbol"] is not None]
+        assert len(brushes) == len(panel) == len(set(map(str, brushes)))        # a colour per level in its panel
+        if len(panels) > 1:
+            assert panel[0].label().split(" ", 1)[0] in mag.titleLabel.text
+    # the legend names every level by how it was held, in order, in columns of at most LEGEND_ROWS
+    legend = _legend(layout)
+    names = [label.text for _, label in legend.items]
+    assert names == [f"{c.label()} up" for c in ordered_levels(r.control for r in runs)]
+    assert legend.layout.rowCount() <= LEGEND_ROWS
+    layout.resize(1400, 900)
+    layout.show()
+    qt_application().processEvents()
+    assert layout.sceneRect().contains(legend.sceneBoundingRect())
+    layout.close()

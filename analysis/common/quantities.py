@@ -11,8 +11,12 @@ what one door refuses every door refuses, in the same words:
   force gauge reads, and the analysis of such numbers overflows (a force of 1e300 N) or underflows (1e-300 N);
 * a **frequency** (Hz) -- a measured line, a modal structure's natural frequency -- lies from
   :data:`FREQUENCY_RANGE`'s 1 mHz to 1 MHz: beyond it is a damaged dataset or a typing slip, not a vibration;
+* a **response target** -- the amplitude a response-controlled level holds -- lies within
+  :data:`RESPONSE_RANGE` for its quantity (1 pm to 1 m, 1 nm/s to 1 km/s, 1 um/s^2 to 1e6 m/s^2): below, no
+  sensor resolves it; above, no shaker reaches it (a plan holds it below its own ``max_acceleration`` too);
 * a **phase** (rad) lies within +-:data:`MAX_PHASE` (2 pi: both the -pi..pi and the 0..2 pi conventions): a phase
   of 1e300 rad has no digit left below one turn;
+* a **coherence** lies within :data:`COHERENCE_RANGE` (0 to 1; above 1 by :data:`COHERENCE_ROUNDING` at most);
 * a **control DOF** is one the run measures: a response is held where a sensor measures it, a force where the
   excitation (its force gauge) or a sensor is;
 * a **level** holds a force or a response, not both; the response's quantity and DOF come with its target
@@ -35,7 +39,15 @@ _DOF_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
 FORCE_RANGE = (1e-6, 1e6)       # N: the force amplitudes (and rms forces) a lab applies and measures
 FREQUENCY_RANGE = (1e-3, 1e6)   # Hz: a measured line, a natural frequency
 MAX_PHASE = 2 * math.pi         # rad: |phase| at most one turn
+RESPONSE_RANGE = {              # SI: a response amplitude a level holds, by the quantity held
+    "displacement": (1e-12, 1.0),       # m
+    "velocity": (1e-9, 1e3),            # m/s
+    "acceleration": (1e-6, 1e6),        # m/s^2
+}
+RESPONSE_UNITS = {"displacement": "m", "velocity": "m/s", "acceleration": "m/s^2"}
 FORCE_LEVEL_FACTOR = 10.0       # a force measured on a force level beyond level * or / this is noted
+COHERENCE_RANGE = (0.0, 1.0)    # 1: an ordinary coherence, |Gxy|^2 / (Gxx Gyy)
+COHERENCE_ROUNDING = 1e-9       # above 1 by at most this: the rounding of the spectra's ratio, not a fault
 
 
 def dof_name_problem(name) -> str | None:
@@ -73,6 +85,22 @@ def forces_outside(values: np.ndarray) -> np.ndarray:
 
 
 
+def response_target_problem(quantity: str, value) -> str | None:
+    """Why ``value`` (SI units of ``quantity``: displacement, velocity or acceleration) is no response amplitude a
+    level holds, or None (a quantity not among them is the caller's to refuse)."""
+    number = _number(value)
+    unit = RESPONSE_UNITS.get(quantity, "")
+    if number is None or not math.isfinite(number) or number <= 0:
+        return f"{value!r} is not a response amplitude > 0 {unit}".rstrip()
+    if quantity not in RESPONSE_RANGE:
+        return None
+    lo, hi = RESPONSE_RANGE[quantity]
+    if not lo <= number <= hi:
+        return (f"{number:g} {unit} is outside the {quantity} amplitudes a lab holds ({lo:g} to {hi:g} {unit}: "
+                "below, no sensor resolves it; above, no shaker reaches it)")
+    return None
+
+
 def _number(value) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
         return None
@@ -108,6 +136,25 @@ def phases_outside(values: np.ndarray) -> np.ndarray:
     values = np.asarray(values, float)
     with np.errstate(invalid="ignore"):
         return np.isfinite(values) & (np.abs(values) > MAX_PHASE)
+
+
+def coherences_outside(values: np.ndarray) -> np.ndarray:
+    """Mask of the finite values outside :data:`COHERENCE_RANGE` (beyond its rounding allowance)."""
+    values = np.asarray(values, float)
+    lo, hi = COHERENCE_RANGE
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(values) & ((values < lo) | (values > hi + COHERENCE_ROUNDING))
+
+
+def coherence_problem(value) -> str | None:
+    """Why ``value`` is no coherence, or None."""
+    number = _number(value)
+    lo, hi = COHERENCE_RANGE
+    if number is None or not math.isfinite(number):
+        return f"{value!r} is not a coherence"
+    if coherences_outside(np.array([number])).any():
+        return f"{number:g} is not a coherence (from {lo:g} to {hi:g})"
+    return None
 
 
 def control_dof_problem(mode: str, dof: str, sensor_dofs, excitation_dof: str) -> str | None:

@@ -80,6 +80,7 @@ from numba import njit
 
 from ._special import slip_imag, slip_real
 from .base import Law, LimitReading, Param
+from .jenkins import Jenkins
 
 MAX_REVERSALS = 64
 SPIKE_ONLY = 1e3        # spike ratio beyond which the continuum's share of kbar is below any test's noise
@@ -360,15 +361,20 @@ class Iwan(Law):
         amplitude (``X_min >= 10 phi_max``): kbar is then within a few per cent of 4 j fs / (pi X) and only fs is
         determined. First of all, a Jenkins element where the spike carries all but 1/SPIKE_ONLY of the stiffness
         (the continuum's share of kbar below any test's noise): kt and fs of the spike are determined, chi and beta
-        not, whatever the amplitudes."""
+        not, whatever the amplitudes -- and that element is read in its own limit where it has one (Coulomb
+        friction where the spike slips from a tenth of the smallest amplitude on: then only fs is determined)."""
         kt, fs, chi, beta = (float(values[k]) for k in ("kt", "fs", "chi", "beta"))
         phi_max = float(slip_range(fs / kt, chi, beta))
         if beta >= SPIKE_ONLY:
             spike = beta * kt / (1.0 + beta)
+            alone = f"the spike carries all but 1/{1.0 + beta:.3g} of the stiffness, the continuum below any test's noise"
+            gross = Jenkins().reading({"kt": spike, "fs": spike * phi_max}, X_min, X_max)
+            if gross is not None:
+                return LimitReading(gross.limit, gross.values, gross.units, f"{alone}; {gross.why}",
+                                    ("kt", "chi", "beta"))
             return LimitReading(
                 "Jenkins element", {"kt": spike, "fs": spike * phi_max}, {"kt": "{F}/{L}", "fs": "{F}"},
-                f"the spike carries all but 1/{1.0 + beta:.3g} of the stiffness: one slider of stiffness kt slipping "
-                f"at fs, the continuum below any test's noise", ("chi", "beta"))
+                f"{alone}: one slider of stiffness kt slipping at fs", ("chi", "beta"))
         if X_max <= phi_max:
             rate = kt * (chi + 1.0) / ((1.0 + beta) * phi_max ** (chi + 1.0))
             nu = 4.0 * rate / ((chi + 2.0) * (chi + 3.0))

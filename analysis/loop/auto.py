@@ -23,6 +23,7 @@ from ..missing.unexplained import unexplained
 from ..prediction.backbone import ModalError
 from ..prediction.comparison import Comparison, gain_phrase
 from ..search.discovery import Discovery, DiscoveryRules, ElementDiscovery, WalkStep
+from .cross_check import held_out_error
 from .workbench import ElementReport, Workbench
 
 
@@ -42,6 +43,8 @@ class AutoRules:
     take_back_near_noise: float = 10.0   # a discovered law is weighed for taking back within this many times the
                                          # noise (:func:`_near_the_noise`)
     ranking: RankingRules = RankingRules()
+    # every step's model also judged on levels its fit did not see (:func:`analysis.loop.cross_check.held_out_error`)
+    held_out: bool = True
 
 
 @dataclass
@@ -57,6 +60,8 @@ class AutoStep:
     # natural frequency and damping against the measured ones (response levels, phase resonance), where measured
     modal_before: ModalError | None = None
     modal_after: ModalError | None = None
+    # the FRF error after the step on levels its fit did not see (NaN: not checked, or one level only)
+    held_out: float = float("nan")
 
     @property
     def gain(self) -> float:
@@ -69,8 +74,10 @@ class AutoStep:
         if self.modal_after is not None and self.modal_after.measured:
             modal = (f"; backbone error {self.modal_before.frequency:.3g} -> {self.modal_after.frequency:.3g}, "
                      f"damping error {self.modal_before.damping:.3g} -> {self.modal_after.damping:.3g}")
+        held = (f"; held-out {self.held_out:.3g} against in-sample {self.error_after:.3g}"
+                if np.isfinite(self.held_out) else "")
         return (f"{self.action} {what}: error {self.error_before:.3g} -> {self.error_after:.3g} "
-                f"({gain_phrase(self.gain)}){modal}")
+                f"({gain_phrase(self.gain)}){held}{modal}")
 
     def text(self) -> str:
         return f"{self.line()}\n     {self.reason}"
@@ -78,6 +85,8 @@ class AutoStep:
     def to_json(self) -> dict:
         return {"action": self.action, "element": self.element, "laws": list(self.laws),
                 "error_before": self.error_before, "error_after": self.error_after, "gain": self.gain,
+                "in_sample_error": self.error_after,
+                "held_out_error": float(self.held_out) if np.isfinite(self.held_out) else None,
                 "reason": self.reason, **_modal_json(self.modal_before, "_before"),
                 **_modal_json(self.modal_after, "_after")}
 
@@ -356,7 +365,12 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
         if modal[-1] is not None:
             step.modal_before, step.modal_after = modal[-1], _modal_error(wb)
             modal.append(step.modal_after)
-        steps.append(step)
+        try:
+            if rules.held_out:
+                under_way.what = "the held-out check of the step just taken"
+                step.held_out = held_out_error(wb)
+        finally:                        # a stop inside the check: the step is recorded and stays
+            steps.append(step)
         if progress is not None:
             progress(step)
 

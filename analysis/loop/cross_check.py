@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from ..mechanics.model import FittedOn
+from ..prediction.comparison import pooled_error
 from ..prediction.held_out import FITTED, HELD_OUT, SessionPrediction, predict_session
 from .workbench import Workbench
 
@@ -43,17 +44,33 @@ def cross_validate(wb: Workbench, created: str) -> list[Fold]:
     """The folds (up to four) of ``wb``'s model on ``wb``'s measurements (a session created at ``created``); none for a
     session with fewer than two stepped-sine levels (nothing to hold out)."""
     controls = wb.measurements.level_controls()
+    return [_fold(wb, half, created) for half in _halves(controls)] if len(controls) >= 2 else []
+
+
+def _fold(wb: Workbench, half: list, created: str) -> Fold:
+    """``wb``'s laws refitted, from their current values, by a fresh workbench on the levels ``half`` alone, and
+    every level of the session predicted by them."""
+    labels = tuple(c.label() for c in half)
+    fold = Workbench(wb.model, wb.measurements.at_levels({c.key() for c in half}), wb.distortion_limit, wb.harmonics)
+    fold.start()
+    fitted = replace(fold.model, fitted_on=FittedOn("", created, labels))
+    return Fold(labels, predict_session(fitted, wb.measurements, created, wb.harmonics))
+
+
+def held_out_error(wb: Workbench) -> float:
+    """The FRF error of ``wb``'s model on levels its fit did not see: its laws refitted on the alternate halves of
+    the levels (1, 3, 5, ... and 2, 4, 6, ...), each half predicting the other, every level's lines pooled as
+    predicted by the half that did not see it. Beside the in-sample error it says whether a step of the loop
+    describes the joint or its own lines (interpolation between levels: the cheapest check that holds every level
+    out once). NaN for a session of fewer than two stepped-sine levels."""
+    controls = wb.measurements.level_controls()
     if len(controls) < 2:
-        return []
-    folds = []
-    for half in _halves(controls):
-        labels = tuple(c.label() for c in half)
-        fold = Workbench(wb.model, wb.measurements.at_levels({c.key() for c in half}), wb.distortion_limit,
-                         wb.harmonics)
-        fold.start()
-        fitted = replace(fold.model, fitted_on=FittedOn("", created, labels))
-        folds.append(Fold(labels, predict_session(fitted, wb.measurements, created, wb.harmonics)))
-    return folds
+        return float("nan")
+    parts = []
+    for half, other in ((controls[0::2], controls[1::2]), (controls[1::2], controls[0::2])):
+        fold = _fold(wb, half, "")
+        parts.append((fold.prediction.comparison, wb.measurements.at_levels({c.key() for c in other}).sine))
+    return pooled_error(parts)
 
 
 def _halves(controls: list) -> list[list]:

@@ -23,7 +23,10 @@ import copy
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ..common.errors import InputError
+from ..common.quantities import FORCE_RANGE, FREQUENCY_RANGE, RESPONSE_RANGE
 from ..common.tables import Fields
 from .elements import Element, LawTerm, load_elements
 from .nonparametric import NAME as NONPARAMETRIC
@@ -35,6 +38,16 @@ from .surroundings import surroundings_of
 RIG_TABLES = frozenset({"name", "structure", "element", "excitation", "sensors", "noise", "shaker", "daq",
                         "generator", "simulation", "faults"})
 MODEL_TABLES = frozenset({"structure", "element", "updating", "fitted"})
+
+# A law term's values are physical when its force stays finite and at most MAX_LAW_FORCE (N; N·m on a rotation)
+# at every motion a lab measures: amplitudes X up to RESPONSE_RANGE's largest displacement (1 m; 1 rad), velocity
+# w X up to its largest velocity (1 km/s) and acceleration w^2 X up to its largest acceleration (1e6 m/s^2), at
+# frequencies across FREQUENCY_RANGE. The bound lies ninety orders above the largest force a lab applies
+# (FORCE_RANGE: 1 MN), so no value a fit or a lab gives comes near it, and far enough below where the analysis's
+# squares of forces and receptances overflow (1e154) that a prediction stays finite. A value beyond it (a cubic
+# k3 = 1e300) is a typing slip: refused when the model is read (docs/contracts.md §4; docs/session-format.md,
+# *Quantities*).
+MAX_LAW_FORCE = 1e100
 
 
 @dataclass(frozen=True)
@@ -163,6 +176,9 @@ def load_model(document: dict, source: str | None = None) -> Model:
     structure_table = root.require("structure")
     structure = load_structure(structure_table, source)
     elements = load_elements(document, structure, source, complete=False)
+    for i, el in enumerate(elements):
+        for j, term in enumerate(el.laws):
+            check_law_force(term.law, term.values, source, f"[[element]][{i}].laws[{j}]")
     params, modes = [], None
     if root.has("updating"):
         up = root.sub("updating")
@@ -199,3 +215,50 @@ def _fitted_on(root: Fields) -> FittedOn | None:
     t.where = "[fitted]"
     t.unknown_keys({"session", "session_created", "levels"})
     return FittedOn(t.string("session"), t.string("session_created"), tuple(t.strings("levels")))
+
+
+def _lab_motions() -> tuple[np.ndarray, np.ndarray]:
+    """(X, w) pairs spanning the motions a lab measures (see MAX_LAW_FORCE): amplitudes from 1e-12 to the largest
+    that the displacement, velocity and acceleration bounds of RESPONSE_RANGE allow at each frequency."""
+    w = 2 * np.pi * np.geomspace(*FREQUENCY_RANGE, 19)
+    largest = np.minimum.reduce([np.full_like(w, RESPONSE_RANGE["displacement"][1]),
+                                 RESPONSE_RANGE["velocity"][1] / w, RESPONSE_RANGE["acceleration"][1] / w ** 2])
+    X = np.geomspace(1e-12, 1.0, 13)[:, None] * largest[None, :]
+    return X.ravel(), np.broadcast_to(w, X.shape).ravel()
+
+
+def _benign(param) -> float:
+    """A value of ``param`` that adds no force: 0 where it is allowed, else 1."""
+    return 0.0 if param.admits(0.0) else 1.0
+
+
+def _largest_force(law, values: dict) -> float:
+    """The largest |force| of the law's fundamental, |kbar(X, w)| X, over the motions a lab measures (inf where
+    it is not finite); parameters not given count as adding no force."""
+    full = {p.name: values.get(p.name, _benign(p)) for p in law.params}
+    X, w = _lab_motions()
+    with np.errstate(all="ignore"):
+        try:
+            force = np.abs(law.describing_function(X, w, **full)) * X
+        except (ArithmeticError, ValueError, InputError):
+            return math.inf
+    return float(np.max(force)) if np.all(np.isfinite(force)) else math.inf
+
+
+def check_law_force(law, values: dict, source: str | None, where: str) -> None:
+    """Refuse a law term whose values make a force no contact carries (above MAX_LAW_FORCE, or not finite) at a
+    motion a lab measures, naming the parameter at fault: the first whose value, set to add no force, brings the
+    force back within the bound (the whole term where no one parameter does)."""
+    largest = _largest_force(law, values)
+    if largest <= MAX_LAW_FORCE:
+        return
+    size = "is not finite" if not math.isfinite(largest) else f"reaches {largest:.3g} N"
+    bound = (f"its force {size} at the motions a lab measures (up to {RESPONSE_RANGE['displacement'][1]:g} m, "
+             f"{RESPONSE_RANGE['velocity'][1]:g} m/s, {RESPONSE_RANGE['acceleration'][1]:g} m/s^2), above the "
+             f"{MAX_LAW_FORCE:g} N no physical law reaches (a lab applies at most {FORCE_RANGE[1]:g} N; N·m and rad "
+             "on a rotation): no finite prediction")
+    for p in law.params:
+        if p.name in values and _largest_force(law, {**values, p.name: _benign(p)}) <= MAX_LAW_FORCE:
+            raise InputError(f"{values[p.name]!r}: {bound}", source, f"{where}.{p.name}")
+    raise InputError(f"law {law.name!r} with {', '.join(f'{k} = {v!r}' for k, v in values.items())}: {bound}",
+                     source, where)

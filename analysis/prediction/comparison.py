@@ -438,10 +438,17 @@ def _line_sums(run: SineRun, compared: np.ndarray) -> tuple[np.ndarray, np.ndarr
 def error_over(comp: Comparison, runs: Sequence[SineRun]) -> float:
     """The relative FRF error of ``comp`` restricted to ``runs`` (their lines pooled, as ``error`` pools every
     run); NaN for no runs."""
+    return pooled_error([(comp, runs)])
+
+
+def pooled_error(parts: Sequence[tuple[Comparison, Sequence[SineRun]]]) -> float:
+    """The relative FRF error of several comparisons, each over its own runs, their lines pooled as one (a
+    session whose levels were predicted by different fits); NaN for no runs."""
     num = den = 0.0
-    for run in runs:
-        line_num, line_den = _line_sums(run, comp.compared[run.name])
-        num, den = num + float(line_num.sum()), den + float(line_den.sum())
+    for comp, runs in parts:
+        for run in runs:
+            line_num, line_den = _line_sums(run, comp.compared[run.name])
+            num, den = num + float(line_num.sum()), den + float(line_den.sum())
     return float(np.sqrt(num / den)) if den else float("nan")
 
 

@@ -157,8 +157,7 @@ class Campaign:
         self._gain = None              # N per V, learnt as the campaign runs
         self._transient = self._transient_lines()   # poles carry over from run to run
         self._run_lines = _RunLines()
-        self._total_lines = sum(len(spec.lines(d)) for spec, d in plan.runs) + (1 if plan.random else 0) \
-            + sum(len(p.forces) for p in plan.phase)
+        self._total_lines = plan.planned_lines()
         self._done_lines = 0
         self._added_lines = 0          # lines refinement added to the plan so far (runs before this one)
         self._t_start = 0.0

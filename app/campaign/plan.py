@@ -23,7 +23,8 @@ import numpy as np
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import CONTROL_UNITS, NAME_UNITS, Control
-from analysis.common.quantities import dof_name_problem, force_and_response, force_problem, held_without_target
+from analysis.common.quantities import (dof_name_problem, force_and_response, force_problem, held_without_target,
+                                       response_target_problem)
 from analysis.signals.frf_estimation import WelchResolution, auto_resolution, welch_averages
 from analysis.common.tables import Fields, parse_toml, read_toml_text
 
@@ -240,10 +241,21 @@ class Plan:
     def runs(self) -> list[tuple[SineSpec, str]]:
         return [(spec, d) for spec in self.sine for d in spec.directions]
 
+    def planned_lines(self) -> int:
+        """The lines the campaign's progress counts: every stepped-sine line, the random run as one and each
+        phase-resonance force level as one (refinement may add more as it runs)."""
+        return sum(len(spec.lines(d)) for spec, d in self.runs) + (1 if self.random else 0) \
+            + sum(len(p.forces) for p in self.phase)
+
     def summary(self) -> str:
-        """What the plan measures, for the plan check: runs, planned lines and the planned shaker time."""
+        """What the plan measures, for the plan check: runs, planned lines (as the progress counts them,
+        :meth:`planned_lines`) and the planned shaker time."""
         lines = sum(len(spec.lines(d)) for spec, d in self.runs)
-        parts = [f"{len(self.runs)} stepped-sine run(s), {lines} planned lines", self.planned_time().text()]
+        total = self.planned_lines()
+        extra = (["the random run"] if self.random else []) + \
+            ([f"{total - lines - bool(self.random)} phase-resonance level(s)"] if self.phase else [])
+        counted = f"{total} planned lines" + (f" ({' + '.join([f'{lines} stepped-sine', *extra])})" if extra else "")
+        parts = [f"{len(self.runs)} stepped-sine run(s), {counted}", self.planned_time().text()]
         if self.random is not None:
             parts.insert(0, f"random run {self.random.duration:g} s")
         if self.phase:
@@ -539,6 +551,8 @@ def _check_response_targets(sines: list[SineSpec], limits: "Limits", source: str
             raise InputError(f"response {r.target:g} {CONTROL_UNITS[r.quantity]}{at} is not below the abort limit "
                              f"max_acceleration = {limits.max_acceleration:g} m/s^2", source,
                              f"[[stepped_sine]][{i}].response")
+        if response_target_problem(r.quantity, r.target):     # the range of every door (quantities.py)
+            raise InputError(response_target_problem(r.quantity, r.target), source, f"[[stepped_sine]][{i}].response")
 
 
 def check_against_instruments(plan: Plan, sample_rate: float, frequency_range: tuple[float, float],

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Qt
+from PySide6.QtCore import QRectF, Qt
 from PySide6.QtGui import QColor
 from PySide6.QtWidgets import (QAbstractItemView, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QFrame,
                                QGroupBox, QHBoxLayout, QHeaderView, QLabel, QLineEdit, QListWidget, QProgressBar,
@@ -27,7 +27,7 @@ from .lab import Lab, save_text
 from .live import ALARM_COLOR, CampaignFeed, is_alarm
 from .plan_doc import plan_document, plan_toml
 from .plots import (CHANNEL_COLORS, FrameClock, LevelPalette, Redraw, configure_plot, finite_log, random_pen,
-                    run_control, sensor_symbol)
+                    run_control, sensor_symbol, shrinkable_title, side_legend)
 
 COLUMNS = ("Level", "Start", "Stop", "Step", "Dir", "Refine", "Holds", "DOF")
 COLUMN_TIPS = ("N for a force level; m/s², m/s or m for a response level (SI units)", "Hz", "Hz", "Hz",
@@ -67,6 +67,50 @@ def _spin(value: float, decimals: int = 4, minimum: float = 0.0, maximum: float 
     return spin
 
 
+class _CellSpin(QDoubleSpinBox):
+    """A number of the plan table: written without trailing zeros ("0.8", "0.025"), and as wide as what it shows,
+    so the table's columns, sized to their contents, show every digit (a spin box asks room for its maximum)."""
+
+    def textFromValue(self, value: float) -> str:  # noqa: N802 (Qt API)
+        text = self.locale().toString(float(value), "f", self.decimals())
+        point = self.locale().decimalPoint()
+        return text.rstrip("0").rstrip(point) if point in text else text
+
+    def sizeHint(self):  # noqa: N802 (Qt API)
+        hint = super().sizeHint()
+        hint.setWidth(self.fontMetrics().horizontalAdvance(max(self.text(), "0.0", key=len)) + 12)
+        return hint
+
+    def minimumSizeHint(self):  # noqa: N802 (Qt API)
+        return self.sizeHint()
+
+
+class _CellCombo(QComboBox):
+    """A choice of the plan table, as wide as the choice it shows (a combo box asks room for its longest item)."""
+
+    def sizeHint(self):  # noqa: N802 (Qt API)
+        hint = super().sizeHint()
+        longest = self.fontMetrics().horizontalAdvance(max((self.itemText(i) for i in range(self.count())),
+                                                           key=len, default=""))
+        hint.setWidth(hint.width() - longest + self.fontMetrics().horizontalAdvance(self.currentText()))
+        return hint
+
+    def minimumSizeHint(self):  # noqa: N802 (Qt API)
+        return self.sizeHint()
+
+
+class _CellLine(QLineEdit):
+    """The DOF of a plan row: as wide as its text or its placeholder, not a line edit's default width."""
+
+    def sizeHint(self):  # noqa: N802 (Qt API)
+        hint = super().sizeHint()
+        hint.setWidth(self.fontMetrics().horizontalAdvance(max(self.text(), self.placeholderText(), key=len)) + 12)
+        return hint
+
+    def minimumSizeHint(self):  # noqa: N802 (Qt API)
+        return self.sizeHint()
+
+
 def _format_eta(seconds: float | None) -> str:
     if seconds is None:
         return "ETA —"
@@ -89,7 +133,10 @@ class PlanEditor(QGroupBox):
         self.table.setHorizontalHeaderLabels(COLUMNS)
         for col, tip in enumerate(COLUMN_TIPS):
             self.table.horizontalHeaderItem(col).setToolTip(tip)
-        self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
+        # every column as wide as its cells' contents (the last one takes what is left): no digit is cut off; a
+        # narrow column of the splitter scrolls the table sideways rather than truncate its cells
+        self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        self.table.horizontalHeader().setStretchLastSection(True)
         self.table.verticalHeader().setVisible(False)
         self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
         self.table.setMinimumHeight(110)
@@ -135,28 +182,31 @@ class PlanEditor(QGroupBox):
         self.table.insertRow(row)
         for col, key in enumerate(("force", "start", "stop", "step")):
             value = level["response"] if key == "force" and "response" in level else level[key]
-            spin = _spin(value, 4 if key != "force" else 3)
+            spin = _CellSpin(decimals=4 if key != "force" else 3, minimum=0.0, maximum=1e5)
+            spin.setValue(value)
+            spin.setButtonSymbols(QDoubleSpinBox.ButtonSymbols.NoButtons)
             spin.valueChanged.connect(self._edited)
             self.table.setCellWidget(row, col, spin)
-        direction = QComboBox()
+        direction = _CellCombo()
         direction.addItems(["up", "down", "both"])
         direction.setCurrentText(level["direction"])
         direction.currentTextChanged.connect(self._edited)
         self.table.setCellWidget(row, 4, direction)
-        refine = QComboBox()
+        refine = _CellCombo()
         refine.addItems(["yes", "no"])
         refine.setCurrentText("yes" if level.get("refine", True) else "no")
         refine.setToolTip("Adaptive refinement: extra lines where the FRF changes fast (near resonance)")
         refine.currentTextChanged.connect(self._edited)
         self.table.setCellWidget(row, 5, refine)
-        holds = QComboBox()
+        holds = _CellCombo()
         holds.addItems(HOLDS)
         holds.setCurrentText(level.get("quantity", "acceleration") if "response" in level else "force")
         holds.setToolTip("What the level holds: the force, or a response amplitude at a DOF (SI units: m/s², m/s, m)")
         holds.currentTextChanged.connect(self._edited)
         self.table.setCellWidget(row, 6, holds)
-        dof = QLineEdit(level.get("dof", ""))
-        dof.setPlaceholderText("sensor DOF")
+        dof = _CellLine(level.get("dof", ""))
+        dof.setPlaceholderText("DOF")
+        dof.setToolTip("the sensor DOF whose response amplitude is held")
         dof.textChanged.connect(self._edited)
         self.table.setCellWidget(row, 7, dof)
         self._limits[row] = level.get("force_limit")     # a loaded response level's force limit, kept
@@ -201,6 +251,7 @@ class PlanEditor(QGroupBox):
     # ------------------------------------------------------------------ actions
     def _edited(self, *_) -> None:
         self.touched = True
+        self.table.resizeColumnsToContents()        # a cell's text changed its width (the header does not see it)
         self.lab.set_plan_document(self.document())
 
     def _add_clicked(self) -> None:
@@ -269,24 +320,32 @@ class LivePlots(pg.GraphicsLayoutWidget):
         self.force_time = configure_plot(self.addPlot(0, 0), "Force", "time before now", "s", "force", "N",
                                          grid=False)
         self.acc_time = configure_plot(self.addPlot(0, 1), "Acceleration", "time before now", "s",
-                                       "acceleration", "m/s²", legend=True, grid=False)
+                                       "acceleration", "m/s²", grid=False)
         self.magnitude = configure_plot(self.addPlot(1, 0), "Receptance |H|", "frequency", "Hz", "|H|", "m/N",
-                                        log_y=True, legend=True)
+                                        log_y=True)
         self.phase = configure_plot(self.addPlot(1, 1), "Receptance phase", "frequency", "Hz", "phase", "°")
-        bottom = self.addLayout(2, 0, colspan=2)
+        bottom = self.addLayout(2, 0, colspan=3)       # under the legends' column too: the titles want room
         self.force_level = configure_plot(bottom.addPlot(0, 0), "Force: achieved ●, target ┄",
                                           "frequency", "Hz", "force amplitude", "N")
         self.thd = configure_plot(bottom.addPlot(0, 1), "THD: response ●, force ┄",
                                   "frequency", "Hz", "THD", "%")
         self.settle = configure_plot(bottom.addPlot(0, 2), "Settling: waited ●, from the transient ◆, limit ×",
                                      "frequency", "Hz", "periods waited", None)
-        modal = self.addLayout(3, 0, colspan=2)
+        modal = self.addLayout(3, 0, colspan=3)
         self.natural = configure_plot(modal.addPlot(0, 0),
-                                      "Natural frequency: phase resonance ●, response levels ◆",
-                                      "displacement amplitude", "m", "frequency", "Hz", log_x=True, legend=True)
-        self.damping = configure_plot(modal.addPlot(0, 1), "Damping ratio: phase resonance ●, response levels ◆",
+                                      "Natural frequency against amplitude",
+                                      "displacement amplitude", "m", "frequency", "Hz", log_x=True)
+        self.damping = configure_plot(modal.addPlot(0, 1), "Damping ratio against amplitude",
                                       "displacement amplitude", "m", "damping ratio", None, log_x=True)
         self.damping.setXLink(self.natural)
+        # the legends in a column of their own right of the plots, never over the data (docs/gui.md, "Legends"):
+        # the channels beside the time plots, the runs and sensors beside the FRFs (for |H| and the phase alike),
+        # the phase-resonance and response levels beside the modal plots
+        self.legends = {"acceleration_time": side_legend(self.ci, self.acc_time, 0, 2),
+                        "frf_magnitude": side_legend(self.ci, self.magnitude, 1, 2),
+                        "natural_frequency": side_legend(modal, self.natural, 0, 2)}
+        for plot in self.plots().values():      # long titles are cut short rather than push the legends away
+            shrinkable_title(plot)
         self._modal_runs: tuple = ()                     # the finished response levels fitted so far
         self._locked_damping: dict[tuple, np.ndarray | None] = {}   # (run, points) -> damping by power balance
         self.phase.setXLink(self.magnitude)
@@ -296,6 +355,12 @@ class LivePlots(pg.GraphicsLayoutWidget):
         self._drawn_end = -1
         self.time_redraw = Redraw(clock, self._draw_time, self, stale=self._new_samples)
         self.lines_redraw = Redraw(clock, self._draw_lines, self)
+
+    def showEvent(self, event) -> None:  # noqa: N802 (Qt API)
+        """The plots and legends fitted to the widget once shown: sized while the titles still set the minimum
+        width (before :func:`shrinkable_title`), the layout kept that width and ran past the right edge."""
+        super().showEvent(event)
+        self.ci.setGeometry(QRectF(0, 0, self.viewport().width(), self.viewport().height()))
 
     def plots(self) -> dict[str, pg.PlotItem]:
         return {"force_time": self.force_time, "acceleration_time": self.acc_time, "frf_magnitude": self.magnitude,
@@ -557,14 +622,17 @@ class AcquirePanel(QWidget):
         splitter.addWidget(self.live)
         splitter.setStretchFactor(0, 0)
         splitter.setStretchFactor(1, 1)
-        splitter.setSizes([430, 1000])
+        splitter.setSizes([500, 1000])
         self.wait_redraw = Redraw(clock, self._draw_wait, self, stale=lambda: self.lab.campaign_running)
 
         lab.armedChanged.connect(self._show_armed)
         lab.campaignStarted.connect(self._campaign_started)
         lab.campaignFinished.connect(self._campaign_finished)
         lab.instrumentsChanged.connect(self._instruments_changed)
+        self._planned = 0                  # the lines the plan of the progress bar plans
+        lab.planChecked.connect(self._show_planned)
         self._show_armed(False, "not armed")
+        self._show_planned()
         self._update_enabled()
 
     def plots(self) -> dict[str, pg.PlotItem]:
@@ -591,9 +659,20 @@ class AcquirePanel(QWidget):
         self._update_enabled()
 
     # ------------------------------------------------------------------ campaign views
+    def _show_planned(self, *_) -> None:
+        """Before a campaign: 0 of the lines the checked plan plans, counted as its check counts them
+        (:meth:`Plan.planned_lines`, the campaign's own count)."""
+        if self.lab.campaign_running:
+            return
+        self._planned = self.lab.plan.planned_lines() if self.lab.plan is not None else 0
+        self.progress.setRange(0, max(self._planned, 1))
+        self.progress.setValue(0)
+        self.progress.setFormat("%v / %m planned lines" if self._planned else "no plan")
+
     def _campaign_started(self, feed: CampaignFeed) -> None:
         self.events.clear()
-        self.progress.setRange(0, 1)
+        self._planned = self.lab.plan.planned_lines() if self.lab.plan is not None else 0
+        self.progress.setRange(0, max(self._planned, 1))
         self.progress.setValue(0)
         self._last_line_end, self._last_line = 0, None
         self.pause_button.setText("Pause")
@@ -613,11 +692,13 @@ class AcquirePanel(QWidget):
         """Lines done against lines planned; refinement near resonance may add lines beyond the plan."""
         self.progress.setRange(0, max(total, 1))
         self.progress.setValue(min(done, total))
+        added = total - self._planned if self._planned else 0      # lines refinement added to the plan so far
         if done > total:
             self.progress.setFormat(f"{done} lines ({total} planned; refinement added {done - total})")
             self.eta_label.setText("ETA — (more lines than planned: refining near a resonance)")
         else:
-            self.progress.setFormat("%v / %m planned lines")
+            self.progress.setFormat(f"%v / %m lines ({self._planned} planned + {added} added by refinement)"
+                                    if added > 0 else "%v / %m planned lines")
             self.eta_label.setText(_format_eta(eta))
 
     def _draw_wait(self) -> None:

@@ -14,7 +14,8 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QLabel, QSplitter, QTextBrowser, QVBoxLayout, QWidget
 
 from .lab import Lab
-from app.kbar_view import legend_column, level_masks, level_path, level_style, linear_axis
+from app.kbar_view import (PANEL_LEVELS, legend_column, level_masks, level_path, level_style, linear_axis,
+                            panel_title)
 from .plots import FrameClock, LevelPalette, Redraw, configure_plot, scatter
 from .results import IdentificationView
 
@@ -62,6 +63,17 @@ def _moved(before: IdentificationView | None, after: IdentificationView) -> str:
     return (f"the samples moved with this analysis (its fit, not the data): {a.name} by up to {worst[0]:.1%} of "
             f"its largest |kbar|; "
             f"Re kbar at the smallest X {a.samples.kbar[i].real:.4g} -> {b.samples.kbar[i].real:.4g} {unit}")
+
+
+def _levels_words(levels) -> str:
+    """The levels by name while one plot holds them; more as ranges, one per way of holding them (0.05 ... 2 N,
+    20 levels), so that the line above the plots stays a line or two."""
+    if len(levels) <= PANEL_LEVELS:
+        return ", ".join(c.label() for c in levels)
+    groups: dict[tuple, list] = {}
+    for c in levels:
+        groups.setdefault(c.key()[:3], []).append(c)
+    return "; ".join(f"{panel_title(g)} ({len(g)} levels)" for g in groups.values())
 
 
 class IdentifyPanel(QWidget):
@@ -155,7 +167,7 @@ class IdentifyPanel(QWidget):
         notes = [f"kbar {view.basis}"] if view.basis else []
         notes += [self._moved] if self._moved else []
         self.status.setText(f"kbar identified at {view.lines} stepped-sine lines ({origin}); "
-                            f"levels {', '.join(c.label() for c in view.levels)}"
+                            f"levels {_levels_words(view.levels)}"
                             + "".join(f"\n{n}" for n in notes))
         self.verdicts.setHtml(self._verdict_html(view))
 
@@ -236,10 +248,11 @@ class IdentifyPanel(QWidget):
         parts = []
         for el in view.elements:
             color = "#555" if el.linear is None else ("#2ca02c" if el.linear else "#d62728")
-            parts.append(f"<h3 style='margin-bottom:2px'>{html.escape(el.name)} ({html.escape(el.where)}): "
+            name, where = html.escape(el.name, quote=False), html.escape(el.where, quote=False)
+            parts.append(f"<h3 style='margin-bottom:2px'>{name} ({where}): "
                          f"<span style='color:{color}'>{el.verdict}</span></h3>"
                          f"<p style='margin-top:0'>{el.lines_used} lines used, {el.lines_flagged} left out "
                          f"(ill-conditioned or distorted)</p>")
             if el.evidence:
-                parts.append(f"<p><b>Evidence:</b> {html.escape(el.evidence)}</p>")
+                parts.append(f"<p><b>Evidence:</b> {html.escape(el.evidence, quote=False)}</p>")
         return "".join(parts)

@@ -640,7 +640,7 @@ class Lab(QObject):
         self._auto_stop.clear()
 
         def loop(wb):
-            return run_auto(wb, progress=lambda step: self.autoProgress.emit(step.line()),
+            return run_auto(wb, progress=lambda step: self.autoProgress.emit(step.text()),
                             note=self.autoProgress.emit, stop=self._auto_stop.is_set)
         self._on_workbench(loop, lambda wb, result: analysis_view(wb, result.candidates, result, self._fitted_on))
 

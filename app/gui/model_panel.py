@@ -10,8 +10,8 @@ import html
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Qt
-from PySide6.QtGui import QColor, QTextCursor
+from PySide6.QtCore import QPointF, QRectF, Qt
+from PySide6.QtGui import QColor, QFontMetrics, QTextCursor
 from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QFrame, QGroupBox, QHBoxLayout, QHeaderView, QLabel,
                                QPushButton, QSplitter, QTableWidget, QTableWidgetItem, QTextBrowser,
                                QTreeWidget, QTreeWidgetItem, QVBoxLayout, QWidget)
@@ -20,20 +20,45 @@ from analysis.prediction.comparison import gain_phrase
 from analysis.mechanics.nonparametric import NAME as NONPARAMETRIC
 from app.predict import KIND_WORDS
 
-from app.kbar_view import legend_column
+from app.kbar_view import legend_column, level_panels, panel_title
 
 from .lab import Lab, save_text
-from .plots import LevelPalette, configure_plot, finite_log, sensor_symbol
+from .plots import LevelPalette, SpacedAxis, configure_plot, finite_log, sensor_symbol, shrinkable_title
 from .results import AnalysisView, PredictionView
 
-CANDIDATE_COLUMNS = ("Element", "Law", "Error after (1 harmonic)", "Gain", "Significant", "")
+CANDIDATE_COLUMNS = ("Element", "Law", "Error after\n(1 harmonic)", "Gain", "Significant", "")
+CANDIDATE_HEADER_TIPS = ("The element the law would be added to",
+                         ("The law of the library added (its full name in the row's tooltip where the column is "
+                          "too narrow)"),
+                         ("The FRF error with the law added and refitted, by the single-harmonic measure the "
+                          "ranking uses"),
+                         "How much the error falls against the model's single-harmonic error",
+                         "Whether the fall passes the significance test (the reason in the explanation below)",
+                         "Add the law to its element, refit and rank again")
+LAW_COLUMN = 1              # the column that gives up width (its text elided, whole in the tooltip)
 AUTO_LINES_SHOWN = 6        # the automatic loop's lines scroll in a box this many lines high
 WARNING = "color:#d62728; font-weight:bold"
+FRF_TITLE = "Receptance |H|: measured (markers) and predicted (lines) per level"
+HISTORY_GAP = 5             # pixels between an error-history point and its label
+HISTORY_LABEL_WIDTH = 150   # pixels: an error-history label's action is elided to this width ...
+HISTORY_MIN_LETTERS = 14    # ... and left out where fewer of its letters would stay
 
 
 def _laws_words(elements) -> str:
     """Each element's laws in one line: ``left: cubic + coulomb; right: no laws``."""
     return "; ".join(f"{name}: {' + '.join(laws) or 'no laws'}" for name, laws in elements)
+
+
+LAWS_ROWS = 10
+"""Rows of the laws tree shown by default, above the candidates (the user moves the splitter between them)."""
+LAWS_MIN_ROWS = 5
+"""Rows of the laws tree shown at least, whatever the candidates, the Auto lines and the explanation ask."""
+
+
+def _indented(text: str) -> str:
+    """A step and the reason under it (:meth:`analysis.loop.auto.AutoStep.text`) as the label's rich text: the
+    reason on its own line, indented, where the step is shown."""
+    return text.replace("\n", "<br>&nbsp;&nbsp;&nbsp;&nbsp;")
 
 
 class AutoLines(QTextBrowser):
@@ -70,6 +95,8 @@ class ModelPanel(QWidget):
         bar = QHBoxLayout()
         self.model_label = QLabel("no model")
         self.model_label.setWordWrap(True)
+        # rich text always: its words are HTML-escaped, and Qt's guess would show an escaped quote as "&#x27;"
+        self.model_label.setTextFormat(Qt.TextFormat.RichText)
         self.model_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         bar.addWidget(QLabel("<b>Model</b>"))
         bar.addStretch(1)
@@ -124,14 +151,17 @@ class ModelPanel(QWidget):
 
         splitter = QSplitter(Qt.Orientation.Horizontal)
         layout.addWidget(splitter, 1)
-        left = QWidget()
-        column = QVBoxLayout(left)
-        column.setContentsMargins(0, 0, 0, 0)
+        # the laws above the candidates, apart by a splitter the user can move: the candidates, the Auto lines and
+        # the explanation that come with Auto take their own share, never the laws' (LAWS_ROWS rows by default)
+        left = QSplitter(Qt.Orientation.Vertical)
+        left.setChildrenCollapsible(False)
+        self.left_splitter = left
         laws_box = QGroupBox("Laws per element (fitted value ± standard error)")
         self.laws = QTreeWidget()
         self.laws.setHeaderHidden(True)
+        self.laws.setMinimumHeight(LAWS_MIN_ROWS * self._tree_row_height() + 6)
         QVBoxLayout(laws_box).addWidget(self.laws)
-        column.addWidget(laws_box, 2)
+        left.addWidget(laws_box)
         cand_box = QGroupBox("Missing effects, best first (error after adding each one)")
         cand_layout = QVBoxLayout(cand_box)
         self.candidates = QTableWidget(0, len(CANDIDATE_COLUMNS))
@@ -139,8 +169,15 @@ class ModelPanel(QWidget):
         self.candidates.verticalHeader().setVisible(False)
         self.candidates.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
         self.candidates.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
-        self.candidates.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
-        self.candidates.horizontalHeader().setStretchLastSection(True)
+        # every column as wide as its contents but the law's, which takes the rest and elides what does not fit:
+        # all of them, the Add buttons too, stay in view at the width a 1366 px screen leaves the table
+        header = self.candidates.horizontalHeader()
+        header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        header.setSectionResizeMode(LAW_COLUMN, QHeaderView.ResizeMode.Stretch)
+        header.setStretchLastSection(False)
+        self.candidates.setTextElideMode(Qt.TextElideMode.ElideMiddle)
+        for col, tip in enumerate(CANDIDATE_HEADER_TIPS):
+            self.candidates.horizontalHeaderItem(col).setToolTip(tip)
         self.candidates.itemSelectionChanged.connect(self._show_explanation)
         self.unexplained = QWidget()            # one line and one Add button per unexplained element
         self.unexplained.setLayout(QVBoxLayout())
@@ -154,7 +191,7 @@ class ModelPanel(QWidget):
                                     "(as contactid analyze --auto)")
         self.auto_button.clicked.connect(self._start_auto)
         self.stop_button = QPushButton("Stop")
-        self.stop_button.setToolTip("End the automatic loop before its next step (the steps taken stay)")
+        self.stop_button.setToolTip("End the automatic loop now: the step under way is undone, the steps taken stay")
         self.stop_button.clicked.connect(self._stop_auto)
         self.stop_button.setEnabled(False)
         self.lab.autoProgress.connect(self._auto_line)
@@ -172,22 +209,40 @@ class ModelPanel(QWidget):
         self.explanation = QTextBrowser()
         self.explanation.setPlaceholderText("Select a candidate to read why it is proposed")
         cand_layout.addWidget(self.explanation, 1)
-        column.addWidget(cand_box, 3)
+        left.addWidget(cand_box)
+        left.setStretchFactor(0, 1)
+        left.setStretchFactor(1, 1)
+        # the default: LAWS_ROWS rows of the tree, the rest to the candidates (a 1366 x 768 screen leaves about
+        # 560 px to the two); the user moves the line between them
+        laws_height = LAWS_ROWS * self._tree_row_height() + 40        # and the box's title and frame
+        left.setSizes([laws_height, max(560 - laws_height, 260)])
         splitter.addWidget(left)
 
         self.graphics = pg.GraphicsLayoutWidget()
-        self.frf = configure_plot(self.graphics.addPlot(0, 0, colspan=2),
-                                  "Receptance |H|: measured (markers) and predicted (lines) per level",
-                                  "frequency", "Hz", "|H|", "m/N", log_y=True)
+        # the FRFs' small multiples side by side in a row of their own (one panel while one holds the levels)
+        self.frf_area = self.graphics.addLayout(0, 0, colspan=2)
+        self.frf = self._frf_plot(0)
+        self.frf_panels = [self.frf]
         self.legend: pg.LegendItem | None = None
         self.residual = configure_plot(self.graphics.addPlot(1, 0), "Residual map: relative error per line",
                                        "frequency", "Hz", "|H pred − H meas| / |H meas|", None, log_y=True)
         self.history = configure_plot(self.graphics.addPlot(1, 1), "Error history", "step", None,
                                       "FRF error", None, log_y=True)
+        self._history_labels: list[tuple] = []
+        self._history_font = self.font()
+        self._history_font.setPointSizeF(8)
+        self.history.getViewBox().sigResized.connect(self._place_history_labels)
+        # the history as wide as the residual map (not narrowed by the other's longer title): its labels want room
+        for plot in (self.residual, self.history):
+            plot.setPreferredWidth(300)
+            shrinkable_title(plot)
+        self.graphics.ci.layout.setColumnStretchFactor(0, 1)
+        self.graphics.ci.layout.setColumnStretchFactor(1, 1)
         self.graphics.ci.layout.setRowStretchFactor(0, 3)
         self.graphics.ci.layout.setRowStretchFactor(1, 2)
         splitter.addWidget(self.graphics)
-        splitter.setSizes([520, 900])
+        # the candidates' six columns want about 520 px: the plots give that much up on a 1366 px screen
+        splitter.setSizes([600, 820])
 
         lab.analysisUpdated.connect(self._update)
         lab.predictionUpdated.connect(self._show_prediction)
@@ -198,8 +253,37 @@ class ModelPanel(QWidget):
         lab.instrumentsChanged.connect(self._update_enabled)
         self._model_changed()
 
+    def _tree_row_height(self) -> int:
+        """The height of a row of the laws tree (its font's line and the item margins)."""
+        return self.laws.fontMetrics().height() + 1
+
     def plots(self) -> dict[str, pg.PlotItem]:
-        return {"frf_measured_predicted": self.frf, "residual_map": self.residual, "error_history": self.history}
+        extra = {f"frf_measured_predicted_{k + 1}": p for k, p in enumerate(self.frf_panels[1:], 1)}
+        return {"frf_measured_predicted": self.frf, **extra, "residual_map": self.residual,
+                "error_history": self.history}
+
+    def _frf_plot(self, column: int) -> pg.PlotItem:
+        # the frequency labels spaced for the panel's width: small multiples are narrow (SpacedAxis)
+        plot = configure_plot(self.frf_area.addPlot(0, column, axisItems={"bottom": SpacedAxis("bottom")}),
+                              FRF_TITLE, "frequency", "Hz",
+                              "|H|" if column == 0 else "", "m/N" if column == 0 else None, log_y=True)
+        shrinkable_title(plot)      # cut where the panel is narrow, never widening the plots
+        if column:
+            plot.setXLink(self.frf)
+        return plot
+
+    def _frf_panels(self, panels: list) -> list[pg.PlotItem]:
+        """A plot per panel of levels (:func:`level_panels`), titled by the levels it holds where there are
+        several; the panels beyond those asked for go."""
+        while len(self.frf_panels) > max(len(panels), 1):
+            self.frf_area.removeItem(self.frf_panels.pop())
+        while len(self.frf_panels) < len(panels):
+            self.frf_panels.append(self._frf_plot(len(self.frf_panels)))
+        for plot, panel in zip(self.frf_panels, panels):
+            title = FRF_TITLE if len(panels) == 1 else panel_title(panel)
+            if plot.titleLabel.text != title:
+                plot.setTitle(title, size="10pt")
+        return self.frf_panels
 
     # ------------------------------------------------------------------ actions
     def open_model_dialog(self) -> None:
@@ -229,8 +313,8 @@ class ModelPanel(QWidget):
         self._update_enabled()
 
     def _stop_auto(self) -> None:
-        """Stop pressed: said at once, as the loop ends only before its next step (a discovery or a fit under way
-        runs to its end first)."""
+        """Stop pressed: said at once; the loop ends within its next fit evaluation or predicted line
+        (:mod:`analysis.common.interrupt`), the step under way undone."""
         self.lab.stop_auto()
         self._stopping = True
         self._show_auto_lines()
@@ -242,9 +326,8 @@ class ModelPanel(QWidget):
         self._show_auto_lines()
 
     def _show_auto_lines(self) -> None:
-        state = ("stopping: it ends before its next step; the steps taken stay" if self._stopping else "running")
-        self.auto_label.setText("<br>".join([f"<b>Automatic loop</b> ({state})",
-                                             *self._auto_lines]))
+        state = ("stopping: the step under way is undone; the steps taken stay" if self._stopping else "running")
+        self.auto_label.setText("<br>".join([f"<b>Automatic loop</b> ({state})", *map(_indented, self._auto_lines)]))
 
     # ------------------------------------------------------------------ views
     def _model_changed(self) -> None:
@@ -267,6 +350,7 @@ class ModelPanel(QWidget):
         self.explanation.clear()
         for plot in self.plots().values():
             plot.clear()
+        self._history_labels = []
         self._set_legend([])
 
     def _show_model(self) -> None:
@@ -298,7 +382,7 @@ class ModelPanel(QWidget):
             laws = _laws_words((el.name, [t.law.name for t in el.laws] +
                                 ([NONPARAMETRIC] if el.nonparametric is not None else [])) for el in model.elements)
             held = f"as loaded: {laws}" if model.elements else "no elements"
-        text = f"{html.escape(self.lab.model_label)} — {html.escape(held)}"
+        text = f"{html.escape(self.lab.model_label, quote=False)} — {html.escape(held, quote=False)}"
         reference = self.lab.reference
         if reference is not None:
             fit = reference.fit
@@ -307,7 +391,8 @@ class ModelPanel(QWidget):
                      f"(tree below: the whole fit)")
             if reference.nonlinear:
                 text += (f"<br><span style='{WARNING}'>NONLINEAR already between the two lowest levels "
-                         f"({html.escape(reference.next_run)}): the reference may hold part of the joint's effect "
+                         f"({html.escape(reference.next_run, quote=False)}): the reference may hold part of the "
+                         "joint's effect "
                          "at this level</span>")
         self.model_label.setText(text)
 
@@ -364,7 +449,7 @@ class ModelPanel(QWidget):
         self._clear_results()
         self._show_model()
         self.error_label.setText(f"Prediction, nothing refitted: {kinds}")
-        self.explanation.setHtml(f"<pre>{html.escape(view.text)}</pre>")
+        self.explanation.setHtml(f"<pre>{html.escape(view.text, quote=False)}</pre>")
         self._draw_frf(view)
         self._update_enabled()
 
@@ -389,7 +474,7 @@ class ModelPanel(QWidget):
         self.level_errors.setText(f"by level: {by_level}{single}")
         self.jump_label.setText("<br>".join(["<b>Jumps</b> (predicted fold against measured):", *view.jumps])
                                 if view.jumps else "")
-        self.auto_label.setText("<br>".join(["<b>Automatic loop</b>", *view.auto]) if view.auto else "")
+        self.auto_label.setText("<br>".join(["<b>Automatic loop</b>", *map(_indented, view.auto)]) if view.auto else "")
         self._draw_laws(view)
         self._draw_unexplained(view)
         self._draw_candidates(view)
@@ -448,9 +533,11 @@ class ModelPanel(QWidget):
             cells = (c.element, c.law, f"{c.error:.4g}", gain_phrase(c.gain).replace("x", "×", 1), "yes" if c.significant else "no")
             for col, text in enumerate(cells):
                 item = QTableWidgetItem(text)
-                item.setToolTip(c.explanation)
+                item.setToolTip(f"{c.element}:{c.law}\n\n{c.explanation}")      # the law whole where elided
                 table.setItem(row, col, item)
             button = QPushButton("Add")
+            # as narrow as its word: a style's minimum button width would take the law column's room
+            button.setFixedWidth(button.fontMetrics().horizontalAdvance("Add") + 20)
             button.setToolTip(f"Add {c.law} to {c.element}, refit and rank again")
             button.clicked.connect(lambda _=False, r=row: self.add_candidate(r))
             table.setCellWidget(row, len(CANDIDATE_COLUMNS) - 1, button)
@@ -470,25 +557,29 @@ class ModelPanel(QWidget):
     def _draw_frf(self, view: AnalysisView | PredictionView) -> None:
         """Measured and predicted FRFs and the residual map, runs in level order (:meth:`Control.order`, up
         before down); the legend beside the plots names each run by how its level was held, and each sensor by
-        its marker."""
-        for plot in (self.frf, self.residual):
-            plot.clear()
+        its marker. The FRFs of more levels than one plot holds are small multiples, as frf.png's
+        (:func:`level_panels`)."""
         self.palette.include(r.control for r in view.runs)
+        panels = level_panels(r.control for r in view.runs)
+        plots = {c.key(): plot for plot, panel in zip(self._frf_panels(panels), panels) for c in panel}
+        for plot in (*self.frf_panels, self.residual):
+            plot.clear()
         runs = sorted(view.runs, key=lambda r: (r.control.order(), r.direction != "up", r.name))
         entries, sensors = [], {}
         for run in runs:
             color = self.palette.color(run.control)
+            frf = plots[run.control.key()]
             order = np.argsort(run.frequency_hz)
             f = run.frequency_hz[order]
             predicted = view.predicted[run.name][order]
             for p, dof in enumerate(run.sensor_dofs):
                 sensors.setdefault(dof, sensor_symbol(p))
-                self.frf.plot(f, finite_log(np.abs(run.receptance[order, p])), pen=None, symbol=sensor_symbol(p),
-                              symbolSize=5, symbolBrush=pg.mkBrush(color), symbolPen=None)
-                self.frf.plot(f, finite_log(np.abs(predicted[:, p])), pen=pg.mkPen(color, width=1.5))
+                frf.plot(f, finite_log(np.abs(run.receptance[order, p])), pen=None, symbol=sensor_symbol(p),
+                         symbolSize=5, symbolBrush=pg.mkBrush(color), symbolPen=None)
+                frf.plot(f, finite_log(np.abs(predicted[:, p])), pen=pg.mkPen(color, width=1.5))
             self.residual.plot(f, finite_log(view.residual_map[run.name][order]), pen=pg.mkPen(color, width=1),
                                symbol="o", symbolSize=4, symbolBrush=pg.mkBrush(color), symbolPen=None)
-            self._draw_other_branch(view, run, order, color)
+            self._draw_other_branch(view, run, order, color, frf)
             entries.append(({"pen": pg.mkPen(color, width=2)},
                             f"{run.control.label()} {run.direction} · {', '.join(run.sensor_dofs)}"
                             + (f" ({view.tags[run.name]})" if run.name in view.tags else "")))
@@ -508,7 +599,7 @@ class ModelPanel(QWidget):
     def legend_names(self) -> list[str]:
         return [] if self.legend is None else [label.text for _, label in self.legend.items]
 
-    def _draw_other_branch(self, view: AnalysisView, run, order, color) -> None:
+    def _draw_other_branch(self, view: AnalysisView, run, order, color, frf: pg.PlotItem) -> None:
         """Lines measured on another branch than the swept prediction: a cross on the residual map and the
         branch they were compared with on the FRF plot."""
         other = view.other_branch.get(run.name)
@@ -519,29 +610,121 @@ class ModelPanel(QWidget):
         self.residual.plot(f, finite_log(view.residual_map[run.name][lines]), pen=None, symbol="x", symbolSize=14,
                            symbolBrush=pg.mkBrush(color), symbolPen=pg.mkPen(color, width=2))
         for p in range(len(run.sensor_dofs)):
-            self.frf.plot(f, finite_log(np.abs(view.compared[run.name][lines, p])), pen=None, symbol="x",
-                          symbolSize=12, symbolPen=pg.mkPen(color, width=2), symbolBrush=None)
+            frf.plot(f, finite_log(np.abs(view.compared[run.name][lines, p])), pen=None, symbol="x",
+                     symbolSize=12, symbolPen=pg.mkPen(color, width=2), symbolBrush=None)
 
     def _draw_history(self, view: AnalysisView) -> None:
+        """The error after each step, a point per step numbered on the axis, each labelled with its action and
+        error (:meth:`_place_history_labels`; the whole action in the label's tooltip)."""
         self.history.clear()
         steps = np.array([h.step for h in view.history], float)
         errors = np.array([h.error for h in view.history], float)
         self.history.plot(steps, finite_log(errors), pen=pg.mkPen("#1f77b4", width=2), symbol="o", symbolSize=8,
                           symbolBrush=pg.mkBrush("#1f77b4"))
-        last = len(view.history) - 1
+        self._history_labels = []
         for h in view.history:
-            action = h.action.replace("add ", "+ ", 1)
-            # labels alternate above and below the line so neighbours with close errors do not overlap; the last
-            # one ends at its point, the first starts there, so neither leaves the plot
-            x_anchor = 1.0 if h.step == last and last > 0 else 0.0 if h.step == 0 else 0.5
-            label = pg.TextItem(f"{action}\n{h.error:.3g}", color="#333",
-                                anchor=(x_anchor, 1.15) if h.step % 2 == 0 else (x_anchor, -0.15))
+            # a white ground: where the line passes behind a label, the label stays readable
+            label = pg.TextItem("", color="#333", fill=pg.mkBrush(255, 255, 255, 215))
+            label.textItem.setFont(self._history_font)
+            label.textItem.document().setDocumentMargin(1)
+            label.setToolTip(f"step {h.step}: {h.action}; FRF error {h.error:.4g}")
+            label.setZValue(20)
             self.history.addItem(label)
             label.setPos(h.step, np.log10(h.error) if h.error > 0 else 0.0)
-        self.history.setXRange(-0.5, max(len(view.history) - 0.5, 1.5), padding=0.05)
-        logs = np.log10(errors[errors > 0]) if (errors > 0).any() else np.zeros(1)
-        span = logs.max() - logs.min()
-        # room above and below the points for their labels (view coordinates are decades on a log axis)
-        self.history.setYRange(logs.min() - 0.3 * span - 0.3, logs.max() + 0.3 * span + 0.3, padding=0)
+            self._history_labels.append((h, label))
+        self.history.setXRange(-0.5, max(len(view.history) - 0.5, 1.5), padding=0)
         ticks = [(h.step, str(h.step)) for h in view.history]
         self.history.getAxis("bottom").setTicks([ticks])
+        self._place_history_labels()
+
+    def _place_history_labels(self, *_) -> None:
+        """Fit the history's labels to the plot as it is sized now (again at every resize), none over another,
+        over a point or past the plot's edges.
+
+        A label holds the step's action (elided in the middle to HISTORY_LABEL_WIDTH, whole in the tooltip) over
+        its error, or the error alone where the action does not fit. It is centred on its point, HISTORY_GAP
+        pixels over it where the line bends down there (the point at or above the mean of its neighbours) and
+        under it where the line bends up; else on the other side, else moved along to stay inside the plot.
+        The action is elided to two steps' width at most, and left out where fewer than HISTORY_MIN_LETTERS of
+        its letters would stay. The errors are placed first, the last step's, then the first's, then the others in order, and each then
+        takes its action over it where that finds room too; an error that finds no free place is left out (its
+        point keeps its number on the axis, the label its tooltip). The error axis leaves a label's height
+        over the highest point and under the lowest."""
+        if not self._history_labels:
+            return
+        box = self.history.getViewBox()
+        width, height = box.width(), box.height()
+        if width <= 0 or height <= 0:
+            return
+        metrics = QFontMetrics(self._history_font)
+        margin = self._history_labels[0][1].textItem.document().documentMargin()
+        line = metrics.lineSpacing()
+        logs = np.array([np.log10(h.error) if h.error > 0 else np.nan for h, _ in self._history_labels])
+        known = logs[np.isfinite(logs)] if np.isfinite(logs).any() else np.zeros(1)
+        low, high = float(known.min()), float(known.max())
+        lines = 2 if (2 * line + 2 * margin + HISTORY_GAP) / height <= 0.3 else 1
+        share = min((lines * line + 2 * margin + HISTORY_GAP) / height, 0.45)
+        pad = share * max(high - low, 0.3) / (1 - 2 * share)
+        y_low, y_high = low - pad, high + pad
+        self.history.setYRange(y_low, y_high, padding=0)
+        x_low, x_high = -0.5, max(len(self._history_labels) - 0.5, 1.5)
+
+        def pixels(step: float, value: float) -> tuple[float, float]:
+            return ((step - x_low) / (x_high - x_low) * width,
+                    (y_high - (value if np.isfinite(value) else y_low)) / (y_high - y_low) * height)
+
+        points = [pixels(h.step, v) for (h, _), v in zip(self._history_labels, logs)]
+        n = len(self._history_labels)
+        order = [n - 1] + list(range(n - 1))
+
+        def sides(i: int) -> tuple[bool, bool]:
+            neighbours = [logs[j] for j in (i - 1, i + 1) if 0 <= j < n and np.isfinite(logs[j])]
+            above = not neighbours or not np.isfinite(logs[i]) or logs[i] >= np.mean(neighbours)
+            return above, not above
+
+        def place(i: int, text: str, others) -> tuple[QRectF, bool] | None:
+            x, y = points[i]
+            w = max(metrics.horizontalAdvance(t) for t in text.split("\n")) + 2 * margin + 2
+            hgt = text.count("\n") * line + metrics.height() + 2 * margin
+            left = min(max(x - w / 2, 0.0), width - w)
+            for over in sides(i):
+                top = y - HISTORY_GAP - hgt if over else y + HISTORY_GAP
+                rect = QRectF(left, top, w, hgt)
+                if left >= 0 and top >= 0 and rect.bottom() <= height and \
+                        not any(rect.intersects(r) for r in others) and \
+                        not any(rect.adjusted(-4, -4, 4, 4).contains(QPointF(*p)) for p in points):
+                    return rect, over
+            return None
+
+        # the errors first, as many as find room; then each grows its action over it where that has room too
+        texts, found = {}, {}
+        for i in order:
+            h = self._history_labels[i][0]
+            texts[i] = f"{h.error:.3g}"
+            spot = place(i, texts[i], [r for r, _ in found.values()])
+            if spot is not None:
+                found[i] = spot
+        if lines == 2:
+            for i in order:
+                if i not in found:
+                    continue
+                h = self._history_labels[i][0]
+                # at most two steps wide, so that a label reads as its own point's
+                action = metrics.elidedText(h.action.replace("add ", "+ ", 1), Qt.TextElideMode.ElideMiddle,
+                                            int(min(HISTORY_LABEL_WIDTH, 2 * width / (x_high - x_low))))
+                if len(action.replace("…", "")) < HISTORY_MIN_LETTERS:
+                    continue
+                text = f"{action}\n{texts[i]}"
+                spot = place(i, text, [r for j, (r, _) in found.items() if j != i])
+                if spot is not None:
+                    texts[i], found[i] = text, spot
+        for i, (h, label) in enumerate(self._history_labels):
+            label.setVisible(i in found)
+            if i not in found:
+                continue
+            rect, over = found[i]
+            label.setText(texts[i])
+            # the anchor in shares of the label's own size, which the text item sets (a pixel or two off ours)
+            size = label.boundingRect()
+            gap = HISTORY_GAP / max(size.height(), 1.0)
+            label.setAnchor(((points[i][0] - rect.left()) / max(size.width(), 1.0), 1.0 + gap if over else -gap))

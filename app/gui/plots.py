@@ -14,6 +14,7 @@ import numpy as np
 import pyqtgraph as pg
 from pyqtgraph.exporters import ImageExporter
 from PySide6.QtCore import QObject, Qt, QTimer, Signal
+from PySide6.QtWidgets import QSizePolicy
 
 from analysis.common.measurements import Control
 from app.kbar_view import level_colours, level_symbol, ordered_levels
@@ -118,6 +119,43 @@ class LogAxis(pg.AxisItem):
         return [f"{float(f'{x:.1g}'):g}" if k else "" for x, k in zip(numbers, keep)]
 
 
+class SpacedAxis(pg.AxisItem):
+    """A linear axis whose labels never run together on a narrow plot: the labelled ticks step by 1, 2 or 5 times a
+    power of ten, the finest step that leaves ``MIN_GAP`` px between its widest labels (pyqtgraph picks the step by
+    the plot's size alone, so a small multiple squeezes "78", "80", "82" into "788082"); finer ticks go unlabelled."""
+
+    MIN_GAP = 8
+
+    def __init__(self, orientation: str, **kwargs):
+        super().__init__(orientation, **kwargs)
+        self.setStyle(maxTextLevel=0)
+
+    def label_width(self, values, spacing: float) -> float:
+        """The widest of the labels of ``values`` at this ``spacing``, in px."""
+        from PySide6.QtGui import QFontMetricsF
+
+        metrics = QFontMetricsF(self.style.get("tickFont") or self.font())
+        strings = self.tickStrings(list(values), self.autoSIPrefixScale * self.scale, spacing)
+        return max((metrics.horizontalAdvance(text) for text in strings), default=0.0)
+
+    def tickSpacing(self, minVal, maxVal, size):  # noqa: N802, N803 (pyqtgraph API)
+        levels = super().tickSpacing(minVal, maxVal, size)
+        if not levels or size <= 0 or not maxVal > minVal or self.orientation not in ("bottom", "top"):
+            return levels
+        per_px = (maxVal - minVal) / size
+        major = levels[0][0]
+        power = 10.0 ** np.floor(np.log10(major))
+        for step in (power * m for m in (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)):
+            if step < major * (1 - 1e-9):
+                continue
+            values = np.arange(np.ceil(minVal / step), np.floor(maxVal / step) + 1) * step
+            if step / per_px >= self.label_width(values, step) + self.MIN_GAP or len(values) <= 1:
+                # finer ticks only where they divide the step (2 Hz ticks between 5 Hz labels would not line up)
+                return [(step, 0.0)] + [level for level in levels[1:] if level[0] < step and
+                                        abs(step / level[0] - round(step / level[0])) < 1e-6]
+        return levels[:1]
+
+
 def configure_plot(plot: pg.PlotItem, title: str, x_label: str, x_units: str | None, y_label: str,
                    y_units: str | None, *, log_x: bool = False, log_y: bool = False,
                    legend: bool = False, grid: bool = True) -> pg.PlotItem:
@@ -140,6 +178,44 @@ def configure_plot(plot: pg.PlotItem, title: str, x_label: str, x_units: str | N
     if legend:
         plot.addLegend(offset=(-4, 4), labelTextSize="8pt", verSpacing=-6)
     return plot
+
+
+def side_legend(layout: pg.GraphicsLayout, plot: pg.PlotItem, row: int, col: int, rowspan: int = 1,
+                min_width: int = 120) -> pg.LegendItem:
+    """The legend of a live plot in a cell of its own of ``layout``, beside the plots and never over the data, as
+    the Model tab's (:func:`app.kbar_view.legend_column`): the curves added to ``plot`` with a name list themselves
+    in it as they come, at the top of the cell, each marker level with its words. At least ``min_width`` wide, so
+    the plots do not move at every new entry."""
+    legend = pg.LegendItem(labelTextSize="8pt", verSpacing=-4, frame=False)
+    legend.setMinimumWidth(min_width)
+    # held at its own size (the cell would stretch it and spread the entries apart)
+    legend.setSizePolicy(QSizePolicy.Policy.Fixed, QSizePolicy.Policy.Fixed)
+    layout.addItem(legend, row=row, col=col, rowspan=rowspan)
+    layout.layout.setAlignment(legend, Qt.AlignmentFlag.AlignTop | Qt.AlignmentFlag.AlignLeft)
+    plot.legend = legend            # pyqtgraph adds a named curve to its plot's legend, wherever that stands
+    return legend
+
+
+def shrinkable_title(plot: pg.PlotItem) -> None:
+    """Let a plot's title be cut short rather than widen the plot: pyqtgraph makes a title's text width the
+    plot's minimum (again at every text change and resize), so side-by-side plots with long titles would push the
+    window past a small screen. Once per plot: its title's minimum width stays 0 from then on."""
+    label = plot.titleLabel
+    if getattr(label, "shrinkable", False):
+        return
+    measure = label.updateMin
+
+    def update_min() -> None:
+        measure()
+        label.setMinimumWidth(0)
+        hints = getattr(label, "_sizeHint", None)
+        if isinstance(hints, dict) and Qt.SizeHint.MinimumSize in hints:
+            hints[Qt.SizeHint.MinimumSize] = (0, hints[Qt.SizeHint.MinimumSize][1])
+        label.updateGeometry()
+
+    label.updateMin = update_min
+    label.shrinkable = True
+    update_min()
 
 
 def scatter(plot: pg.PlotItem, color: str, symbol: str = "o", size: float = 6, name: str | None = None):

@@ -347,7 +347,7 @@ def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult |
         [j.text() for j in comp.jumps],
         [UnexplainedView(o.element, o.finding.text(), o.finding.noise_ratio, o.error, o.error_before, o.gain)
          for o in wb.unexplained()],
-        [] if auto is None else _discovered(auto) + [s.line() for s in auto.steps] + [_stopped(auto)],
+        [] if auto is None else _discovered(auto) + [s.text() for s in auto.steps] + [_stopped(auto)],
         wb.single_harmonic_comparison().error,
         # a stopped loop leaves no ranking; an empty table would read as "every law was tried"
         auto is None or auto.stopped != STOPPED_BY_USER,

@@ -34,7 +34,7 @@ def protection_text(protection: Protection) -> str:
     for event, by in protection.lines():
         mark = ('<span style="color:#2ca02c">&#10003;</span>' if by
                 else '<span style="color:#d62728; font-weight:bold">&#10007;</span>')
-        rows.append(f"{mark} {html.escape(event)}: {html.escape(by or 'nothing')}")
+        rows.append(f"{mark} {html.escape(event, quote=False)}: {html.escape(by or 'nothing', quote=False)}")
     return "<br>".join(rows)
 
 

@@ -20,7 +20,7 @@ from analysis.common.errors import InputError
 from .lab import Lab
 from .live import ALARM_COLOR, is_alarm
 from .plots import (LevelPalette, configure_plot, export_png, finite_log, random_pen, run_control, safe_file_name,
-                    sensor_symbol)
+                    sensor_symbol, side_legend)
 
 RUN_COLUMNS = ("Run", "Kind", "Force [N]", "Direction", "Status", "Lines", "From transient")
 FOLLOW_INTERVAL_MS = 1000
@@ -110,10 +110,11 @@ class SessionPanel(QWidget):
 
         self.graphics = pg.GraphicsLayoutWidget()
         self.magnitude = configure_plot(self.graphics.addPlot(0, 0), "Selected run: receptance |H|", "frequency",
-                                        "Hz", "|H|", "m/N", log_y=True, legend=True)
+                                        "Hz", "|H|", "m/N", log_y=True)
         self.phase = configure_plot(self.graphics.addPlot(1, 0), "Selected run: phase", "frequency", "Hz",
                                     "phase", "°")
         self.phase.setXLink(self.magnitude)
+        self.legend = side_legend(self.graphics.ci, self.magnitude, 0, 1, rowspan=2)    # beside, not over the data
         splitter.addWidget(self.graphics)
         splitter.setSizes([560, 860])
 
@@ -223,7 +224,7 @@ class SessionPanel(QWidget):
                  f"{html.escape(str(attrs.get('software_version', '')))}</p>"]
         plan = session.provenance("plan")
         if plan:
-            lines.append(f"<p><b>Plan</b></p><pre>{html.escape(plan)}</pre>")
+            lines.append(f"<p><b>Plan</b></p><pre>{html.escape(plan, quote=False)}</pre>")
         if session.provenance("rig") is not None:
             lines.append("<p>simulated session (the rig file is kept under /provenance/rig)</p>")
         return "".join(lines)

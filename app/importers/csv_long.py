@@ -17,7 +17,7 @@ import numpy as np
 from analysis.common.errors import InputError
 from analysis.common.measurements import CONTROL_UNITS, Control
 from analysis.common.quantities import (control_dof_problem, dof_name_problem, force_and_response, force_problem, frequency_problem,
-                                       held_without_target, phase_problem)
+                                       held_without_target, phase_problem, response_target_problem)
 
 from .runs import (KINDS, ImportedRun, SourceOptions, csv_float, in_sweep_order, response_run_name,
                    sine_run_name, sweep_direction)
@@ -110,8 +110,8 @@ def read_csv_long(path: str, options: SourceOptions) -> tuple[list[ImportedRun],
         _status(cell, lines, path, number)
         if cell.get("std"):                # an empty cell: a run without standard deviations (all its rows)
             std = _number(cell["std"], path, number, "std")
-            if std <= 0:
-                raise InputError(f"{std!r} is not a standard deviation > 0", path, f"line {number}: std")
+            if std < 0:         # the session's rule (app/session/checks.py): 0 where a line shows no scatter
+                raise InputError(f"{std!r} is not a standard deviation >= 0", path, f"line {number}: std")
             lines.std.append(std)
         _measured_force(cell, lines, path, number)
     if not runs:
@@ -206,6 +206,8 @@ def _control(cell: dict, path: str, row: int, excitation: str) -> Control:
     if quantity not in RESPONSE_QUANTITIES:
         raise InputError(f"{quantity!r} is not one of {', '.join(RESPONSE_QUANTITIES)} (the response held)", path,
                          f"line {row}: control_quantity")
+    if response_target_problem(quantity, target):      # the range of every door (quantities.py)
+        raise InputError(response_target_problem(quantity, target), path, f"line {row}: control_target")
     dof = cell.get("control_dof", "")
     if not dof:
         raise InputError("no DOF named for the response held", path, f"line {row}: control_dof")

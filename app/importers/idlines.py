@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import Control
-from analysis.common.quantities import force_problem, held_without_target
+from analysis.common.quantities import dof_name_problem, force_problem, held_without_target
 
 from app.session import check_control
 
@@ -167,6 +167,9 @@ def decode(ids: dict[str, str], where: str) -> RecordTag | None:
                       ("direction", "id4"), ("status", "id4")):
         if key not in values:
             raise InputError(f"contactid record without {key}=", where, line)
+    for key in ("rsp", "ref"):         # a DOF name by the rule of every door (analysis/common/quantities.py)
+        if dof_name_problem(values[key]):
+            raise InputError(f"{key}= {dof_name_problem(values[key])}", where, "id2")
     if values["quantity"] not in QUANTITIES:
         raise InputError(f"unknown quantity {values['quantity']!r} (known: {', '.join(QUANTITIES)})", where, "id1")
     try:

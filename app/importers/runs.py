@@ -8,6 +8,7 @@ import numpy as np
 
 from analysis.common.errors import InputError
 from analysis.common.measurements import Control
+from analysis.common.quantities import dof_name_problem
 
 KINDS = {"sine": "stepped_sine", "random": "random"}
 DIRECTION_CODES = {"X": 1, "Y": 2, "Z": 3, "RX": 4, "RY": 5, "RZ": 6}
@@ -38,6 +39,8 @@ def parse_dof_map(text: str) -> DofMap:
         raise InputError(f"--dof takes NODE[+DIR]=NAME with DIR one of X Y Z RX RY RZ or 1..6 (e.g. 3+Z=A.w), "
                          f"got {text!r}", field="--dof")
     node, sign, direction, name = m.groups()
+    if dof_name_problem(name):          # the rule of every door (analysis/common/quantities.py)
+        raise InputError(f"{text.strip()}: {dof_name_problem(name)}", field="--dof")
     if direction is None:
         return DofMap(int(node), None, name)
     code = int(direction) if direction.isdigit() else DIRECTION_CODES[direction.upper()]
@@ -57,6 +60,8 @@ class SourceOptions:
     force_sign: float = 1.0              # -1: the file's force is reversed against exp(+jwt) (docs/import.md)
 
     def __post_init__(self):
+        if self.excitation is not None and dof_name_problem(self.excitation):     # the rule of every door
+            raise InputError(dof_name_problem(self.excitation), field="--excitation")
         named: dict[tuple[int, int | None], str] = {}
         for m in self.dofs:
             earlier = named.setdefault((m.node, m.direction), m.name)

@@ -71,6 +71,8 @@ def _digest(path: Path) -> tuple[int, str]:
 def read_source(path: str, options: SourceOptions) -> SourceFile:
     """One file read completely (UFF58 unless its name ends in .csv)."""
     p = Path(path)
+    if p.is_dir():
+        raise InputError("is a folder, not a file to import", path)
     if not p.is_file():
         raise InputError("file not found", path)
     size, sha = _digest(p)

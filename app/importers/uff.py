@@ -17,7 +17,7 @@ from analysis.common.errors import InputError
 from analysis.common.quantities import control_dof_problem, phase_problem, phases_outside
 
 from .force_spectrum import attach_force_spectra, is_force_spectrum
-from .idlines import ID_KEYS, RecordTag, decode, disagreement
+from .idlines import ID_KEYS, RecordTag, control_words, decode, disagreement
 from .runs import (KINDS, ImportedRun, SourceOptions, check_axis, check_values, in_sweep_order, sine_run_name,
                    sweep_direction)
 from .time_history import random_run_from_time_histories
@@ -381,7 +381,9 @@ def _same_run(path: str, record: Record, first: Record) -> None:
     differ = disagreement(record.tag, first.tag)
     if differ:
         key, line = differ
-        raise InputError(f"{key} {getattr(record.tag, key)!r} differs from {getattr(first.tag, key)!r} in record "
+        shown = [" ".join(control_words(c, path)) or "control=force" if key == "control" and c is not None else c
+                 for c in (getattr(record.tag, key), getattr(first.tag, key))]     # the tags as written
+        raise InputError(f"{key} {shown[0]!r} differs from {shown[1]!r} in record "
                          f"{first.number} of the same run {first.tag.run}: the file is damaged or edited; nothing "
                          "imported", path, record.where(line))
 

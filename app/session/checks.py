@@ -20,7 +20,8 @@ import numpy as np
 from analysis.common.errors import InputError
 from analysis.common.measurements import CONTROL_MODES, CONTROL_UNITS, Control, RunNote
 from analysis.common.quantities import (FREQUENCY_RANGE, control_dof_problem, dof_name_problem, force_problem,
-                                       forces_outside, frequency_problem, phase_problem, phases_outside)
+                                       forces_outside, frequency_problem, phase_problem, phases_outside,
+                                       response_target_problem, coherence_problem, coherences_outside)
 
 from app.session.writer import FORMAT_VERSION, RunData
 
@@ -137,6 +138,21 @@ def check_run(run: RunData, source: str | None) -> CheckedRun:
                       else None)
 
 
+def refuse_saw_nothing(checked: CheckedRun, source: str | None, form: str) -> None:
+    """InputError naming the first line where a sensor saw nothing (:attr:`CheckedRun.unresolved`), for an
+    export to ``form``: no interchange format has a cell its import reads as "saw nothing" (a NaN FRF is refused
+    there as no number), so every export refuses such a run in these words rather than write what its own
+    import refuses (docs/session-format.md, "Quantities")."""
+    if checked.unresolved is None:
+        return
+    line = int(np.flatnonzero(checked.unresolved)[0])
+    dof = next(d for d in checked.sensor_dofs if np.isnan(complex(checked.run.frf[d][line])))
+    raise InputError(f"line {line}: the sensor at {dof} saw nothing there (its FRF and standard deviation are NaN, "
+                     f"{int(checked.unresolved.sum())} line(s) of the run): {form} has no value its import reads as "
+                     "such; nothing exported (the analysis reads the session as it is)", source,
+                     f"run {checked.run.name}, dataset frf/{dof}")
+
+
 def _saw_nothing(run: RunData, dof: str, lines: int) -> np.ndarray:
     """The lines where the sensor at ``dof`` saw nothing: its FRF and its standard deviation both NaN, the mark a
     campaign stores for a fundamental below one count of the DAQ (docs/campaigns.md). A NaN FRF with a finite
@@ -180,6 +196,8 @@ def check_control(attrs: dict, excitation_dof: str, force: float, error) -> Cont
     if not _positive_number(target):
         shown = target.item() if isinstance(target, np.generic) else target      # -5.0, not np.float64(-5.0)
         raise error("attribute control_target", f"must be a finite amplitude > 0, got {shown!r}")
+    if response_target_problem(quantity, float(target)):      # the range of every door (quantities.py)
+        raise error("attribute control_target", response_target_problem(quantity, float(target)))
     return Control("response", dof, quantity, float(target))
 
 
@@ -214,6 +232,7 @@ class LineRule:
     inclusive: bool
     force: bool = False             # a force amplitude: also within FORCE_RANGE (analysis/common/quantities.py)
     phase: bool = False             # a phase: within +-MAX_PHASE, and any sign (analysis/common/quantities.py)
+    coherence: bool = False         # a coherence: also within COHERENCE_RANGE (analysis/common/quantities.py)
 
     def wrong(self, values: np.ndarray) -> np.ndarray:
         if self.phase:
@@ -231,7 +250,8 @@ class LineRule:
 LINE_RULES = {"force_amplitude": LineRule("a force amplitude", 0.0, False, force=True),
               "frf_std": LineRule("a standard deviation", 0.0, True),
               "distortion": LineRule("a distortion", 0.0, True),
-              "force_phase": LineRule("a force phase", 0.0, True, phase=True)}
+              "force_phase": LineRule("a force phase", 0.0, True, phase=True),
+              "coherence": LineRule("a coherence", 0.0, True, coherence=True)}
 
 
 def _line_rule(name: str) -> LineRule | None:
@@ -249,6 +269,10 @@ def _check_lines(values: np.ndarray, rule: LineRule, error, excused: np.ndarray 
         bad = np.flatnonzero(forces_outside(values.astype(float)))
         if len(bad):
             raise error(f"line {bad[0]}: {force_problem(float(values[bad[0]]))}")
+    if rule.coherence:                               # 0 to 1 at every door (quantities.py)
+        bad = np.flatnonzero(coherences_outside(values.astype(float)))
+        if len(bad):
+            raise error(f"line {bad[0]}: {coherence_problem(float(values[bad[0]]))}")
     if rule.phase:                                   # one turn either way at every door (quantities.py)
         bad = np.flatnonzero(phases_outside(values.astype(float)))
         if len(bad):

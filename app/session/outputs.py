@@ -33,6 +33,16 @@ FREE_SPACE_CHECK = "not enough free space to"
 WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG, errno.EIO)
 
 
+_COMMITTED: list[Path] = []
+
+
+def committed_outputs() -> list[Path]:
+    """The files :func:`atomic_output` moved into place in this process (as the command named them), so that a
+    later failure -- standard output that cannot be written -- can say what was written (app/cli.py clears it
+    when a command starts)."""
+    return _COMMITTED
+
+
 class NotWritten(InputError):
     """An output could not be written (full disk, read-only medium, a write that failed); nothing of it was left
     and a file it was to replace is unchanged. One line, exit status 2, like bad input: nothing was written."""
@@ -121,6 +131,7 @@ def atomic_output(path, *, inputs: Iterable = (), overwrite: bool = False, field
     ``path``; on any exception it is removed and ``path`` is left as it was.
 
     The output is checked first (:func:`check_output`)."""
+    named = Path(path)
     path = through_links(check_output(path, inputs=inputs, overwrite=overwrite, field=field))
     existed = path.exists()
     temp = temporary_path(path, keep_suffix)
@@ -128,6 +139,7 @@ def atomic_output(path, *, inputs: Iterable = (), overwrite: bool = False, field
         yield temp
         sync_file(temp)
         os.replace(temp, path)
+        _COMMITTED.append(named)
     except BaseException as exc:
         temp.unlink(missing_ok=True)
         if _is_write_failure(exc):

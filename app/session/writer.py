@@ -479,8 +479,9 @@ def _open_for_reading(path: Path) -> h5py.File:
 
 
 def _damaged_lines(ds: h5py.Dataset, n: int) -> str:
-    """The lines (1-based ranges, "65-128, 193-200") of the first ``n`` of ``ds`` in chunks that cannot be read
-    (a Fletcher-32 checksum failure); "" when every chunk reads."""
+    """The lines (ranges numbered from 0 as every message of the session reader numbers them -- the index an HDF5
+    reader gives the dataset: "64-127, 192-199") of the first ``n`` of ``ds`` in chunks that cannot be read (a
+    Fletcher-32 checksum failure); "" when every chunk reads."""
     step = ds.chunks[0] if ds.chunks else max(n, 1)
     ranges = []
     for start in range(0, n, step):
@@ -488,7 +489,7 @@ def _damaged_lines(ds: h5py.Dataset, n: int) -> str:
         try:
             ds[start:stop]
         except OSError:
-            ranges.append(f"{start + 1}-{stop}" if stop > start + 1 else f"{stop}")
+            ranges.append(f"{start}-{stop - 1}" if stop - 1 > start else f"{start}")
     return ", ".join(ranges)
 
 
@@ -546,7 +547,7 @@ def _writer_alive(f: h5py.File) -> bool:
 
 def damaged_data(path) -> list[str]:
     """The datasets of a session whose stored chunks fail their checksum (Fletcher-32), each with the lines
-    affected ("/runs/r/frf/x1: lines 1-30 of 30"): data changed after the writer closed the file, which no
+    affected ("/runs/r/frf/x1: line(s) 0-29 of 30", numbered from 0): data changed after the writer closed the file, which no
     recovery brings back (``recover`` says so rather than "nothing to recover")."""
     found = []
     with _open_for_reading(Path(path)) as f:
