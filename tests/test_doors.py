@@ -600,20 +600,26 @@ def test_reference_warns_of_a_model_that_misses_its_own_level(tmp_path, capsys):
     assert "warning" not in capsys.readouterr().err
 
 
-def test_recover_reports_damaged_data_rather_than_nothing_to_recover(tmp_path, capsys):
-    """``recover`` said "closed normally, nothing to recover" on a file with flipped data chunks, which
-    ``export`` and ``analyze`` then refused as damaged."""
-    session = tmp_path / "s.h5"
+def damaged_session(session) -> bytes:
+    """A session written at ``session`` with one byte of its first FRF chunk flipped; its bytes."""
     write_session(session)
     with h5py.File(session, "r") as f:
         offset = f["runs/sine_0.8N_up/frf/x1"].id.get_chunk_info(0).byte_offset
     data = bytearray(session.read_bytes())
     data[offset + 5] ^= 0xFF
     session.write_bytes(bytes(data))
+    return bytes(data)
+
+
+def test_recover_reports_damaged_data_rather_than_nothing_to_recover(tmp_path, capsys):
+    """``recover`` said "closed normally, nothing to recover" on a file with flipped data chunks, which
+    ``export`` and ``analyze`` then refused as damaged."""
+    session = tmp_path / "s.h5"
+    data = damaged_session(session)
     assert main(["recover", str(session)]) == 2
     one_line_error(capsys, "s.h5", "fail their checksum", "/runs/sine_0.8N_up/frf/x1: line(s) 0-29 of 30",
                    "the file is unchanged")
-    assert session.read_bytes() == bytes(data)
+    assert session.read_bytes() == data
 
 
 def test_recover_repairs_a_run_left_running_under_a_live_pid_that_is_no_writer(tmp_path, capsys):
@@ -1011,12 +1017,7 @@ def test_recover_and_the_session_reader_number_the_lines_of_a_run_alike(tmp_path
     """``recover`` numbered lines from 1 (``line(s) 1-30``) while the session reader numbers them from 0 (``line
     3`` is ``frf/x1[3]``); the docs say from 0."""
     session = tmp_path / "s.h5"
-    write_session(session)
-    with h5py.File(session, "r") as f:
-        offset = f["runs/sine_0.8N_up/frf/x1"].id.get_chunk_info(0).byte_offset
-    data = bytearray(session.read_bytes())
-    data[offset + 5] ^= 0xFF
-    session.write_bytes(bytes(data))
+    damaged_session(session)
     assert main(["recover", str(session)]) == 2
     recovered = one_line_error(capsys, "line(s) 0-29 of 30")
     assert main(["export", str(session), "--csv-long", str(tmp_path / "l.csv")]) == 2
