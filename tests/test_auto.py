@@ -223,6 +223,17 @@ def test_two_effects_on_two_elements_are_found_and_the_loop_stops(tmp_path, caps
     assert "automatic loop:" in out and f"stopped: {doc['auto']['stopped']}" in out
 
 
+def test_every_level_is_predicted_once_by_a_fit_that_saw_two_thirds_of_the_others():
+    from analysis.loop.cross_check import interleaved
+
+    twelve = list(range(12))
+    dealt = interleaved(twelve, 3)
+    assert [held for _, held in dealt] == [[0, 3, 6, 9], [1, 4, 7, 10], [2, 5, 8, 11]]
+    assert all(sorted(seen + held) == twelve and not set(seen) & set(held) for seen, held in dealt)
+    assert interleaved([0, 1, 2], 3) == [([1, 2], [0]), ([0, 2], [1]), ([0, 1], [2])]     # each left out in turn
+    assert interleaved([0, 1], 3) == [([1], [0]), ([0], [1])] and interleaved([0], 3) == []
+
+
 def test_step_and_result_records():
     step = AutoStep("add", "b", ("quadratic_damping",), 1.0, 0.125, "why")
     assert step.gain == 8.0

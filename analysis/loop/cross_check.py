@@ -57,20 +57,33 @@ def _fold(wb: Workbench, half: list, created: str) -> Fold:
     return Fold(labels, predict_session(fitted, wb.measurements, created, wb.harmonics))
 
 
-def held_out_error(wb: Workbench) -> float:
-    """The FRF error of ``wb``'s model on levels its fit did not see: its laws refitted on the alternate halves of
-    the levels (1, 3, 5, ... and 2, 4, 6, ...), each half predicting the other, every level's lines pooled as
-    predicted by the half that did not see it. Beside the in-sample error it says whether a step of the loop
-    describes the joint or its own lines (interpolation between levels: the cheapest check that holds every level
-    out once). NaN for a session of fewer than two stepped-sine levels."""
-    controls = wb.measurements.level_controls()
-    if len(controls) < 2:
+#: Folds of :func:`held_out_error`: the levels are dealt into at most this many, interleaved
+HELD_OUT_FOLDS = 3
+
+
+def held_out_error(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> float:
+    """The FRF error of ``wb``'s model on levels its fit did not see: the levels, in order, dealt into ``folds``
+    interleaved folds (level i into fold i mod K, K at most the number of levels), the laws refitted on all the
+    levels but one fold's, which they then predict; every level's lines pooled as predicted by the fit that did not
+    see it. Beside the in-sample error it says whether a step of the loop describes the joint or its own lines.
+    Each fit sees all but a K-th of the levels (with three levels, two of them; with twelve, eight): a fit on a
+    half or on a single level leaves laws with more parameters than it determines, and its held-out error would
+    measure that, not the model. K folds cost K refits. NaN for a session of fewer than two stepped-sine levels."""
+    dealt = interleaved(wb.measurements.level_controls(), folds)
+    if not dealt:
         return float("nan")
-    parts = []
-    for half, other in ((controls[0::2], controls[1::2]), (controls[1::2], controls[0::2])):
-        fold = _fold(wb, half, "")
-        parts.append((fold.prediction.comparison, wb.measurements.at_levels({c.key() for c in other}).sine))
-    return pooled_error(parts)
+    return pooled_error([(_fold(wb, seen, "").prediction.comparison,
+                          wb.measurements.at_levels({c.key() for c in held}).sine) for seen, held in dealt])
+
+
+def interleaved(levels: list, folds: int) -> list[tuple[list, list]]:
+    """``levels`` dealt into ``folds`` interleaved folds (level i into fold i mod K, K = min(folds, len(levels))):
+    per fold, (the levels a fit sees, the levels it predicts). Every level is predicted once; none for fewer
+    than two levels."""
+    k = min(folds, len(levels))
+    if k < 2:
+        return []
+    return [([c for j, c in enumerate(levels) if j % k != i], levels[i::k]) for i in range(k)]
 
 
 def _halves(controls: list) -> list[list]:
