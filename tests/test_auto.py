@@ -212,7 +212,8 @@ def test_two_effects_on_two_elements_are_found_and_the_loop_stops(tmp_path, caps
     assert len(searched) == 2 and all("sets of laws fitted to its kbar" in line for line in searched)
     assert [line for line in lines if line not in searched] == [
         f"auto: {s['action']} {s['element']}:{'+'.join(s['laws'])}: error {s['error_before']:.3g} -> "
-        f"{s['error_after']:.3g} (x{s['gain']:.2f} better)" for s in steps]
+        f"{s['error_after']:.3g} (x{s['gain']:.2f} better); held-out {s['held_out_error']:.3g} against in-sample "
+        f"{s['in_sample_error']:.3g}" for s in steps]
     assert {s["action"] for s in steps} == {"discover"}
     # the text report: the same steps, printed as taken and then with their reasons and the stop (the loop's
     # result from the run above, printed by the text path)
