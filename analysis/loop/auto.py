@@ -246,6 +246,7 @@ def _taken_back(wb: Workbench, found: list[ElementDiscovery], min_gain: float,
 
 
 STOPPED_BY_USER = "stopped by the user"
+DISCOVERY = "discovery"             # AutoResult.undone of a stop inside discovery
 
 
 def _modal_error(wb: Workbench) -> ModalError | None:
@@ -351,7 +352,7 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
 @dataclass
 class _UnderWay:
     """What the loop is doing, for the words of a stop inside a step, and what discovery found."""
-    what: str = "discovery"
+    what: str = DISCOVERY
     found: Discovery | None = None
 
 
@@ -376,7 +377,7 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
 
     found, searched = None, frozenset()
     if rules.discovery is not None:
-        under_way.what = "discovery"
+        under_way.what = DISCOVERY
         found = under_way.found = wb.discover(rules.discovery, note)
         searched = frozenset(e.element for e in found.elements)
         pending = [e for e in found.elements if e.laws]

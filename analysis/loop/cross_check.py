@@ -14,7 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from ..mechanics.model import FittedOn
+from ..common.measurements import Measurements
+from ..mechanics.model import FittedOn, Model
 from ..prediction.comparison import pooled_error
 from ..prediction.held_out import FITTED, HELD_OUT, SessionPrediction, predict_session
 from .workbench import Workbench
@@ -48,13 +49,23 @@ def cross_validate(wb: Workbench, created: str) -> list[Fold]:
 
 
 def _fold(wb: Workbench, half: list, created: str) -> Fold:
-    """``wb``'s laws refitted, from their current values, by a fresh workbench on the levels ``half`` alone, and
-    every level of the session predicted by them."""
+    """``wb``'s laws refitted on the levels ``half`` alone (:func:`_refitted`), and every level of the session
+    predicted by them."""
     labels = tuple(c.label() for c in half)
-    fold = Workbench(wb.model, wb.measurements.at_levels({c.key() for c in half}), wb.distortion_limit, wb.harmonics)
-    fold.start()
-    fitted = replace(fold.model, fitted_on=FittedOn("", created, labels))
+    fitted = replace(_refitted(wb, half), fitted_on=FittedOn("", created, labels))
     return Fold(labels, predict_session(fitted, wb.measurements, created, wb.harmonics))
+
+
+def _refitted(wb: Workbench, levels: list) -> Model:
+    """``wb``'s model with its laws refitted, from their current values, by a fresh workbench on ``levels``
+    alone (reference, identification, fit)."""
+    fold = Workbench(wb.model, _at(wb, levels), wb.distortion_limit, wb.harmonics)
+    fold.start()
+    return fold.model
+
+
+def _at(wb: Workbench, levels: list) -> Measurements:
+    return wb.measurements.at_levels({c.key() for c in levels})
 
 
 #: Folds of :func:`held_out_error`: the levels are dealt into at most this many, interleaved
@@ -69,11 +80,11 @@ def held_out_error(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> float:
     Each fit sees all but a K-th of the levels (with three levels, two of them; with twelve, eight): a fit on a
     half or on a single level leaves laws with more parameters than it determines, and its held-out error would
     measure that, not the model. K folds cost K refits. NaN for a session of fewer than two stepped-sine levels."""
-    dealt = interleaved(wb.measurements.level_controls(), folds)
-    if not dealt:
-        return float("nan")
-    return pooled_error([(_fold(wb, seen, "").prediction.comparison,
-                          wb.measurements.at_levels({c.key() for c in held}).sine) for seen, held in dealt])
+    parts = []
+    for seen, held in interleaved(wb.measurements.level_controls(), folds):
+        measured = _at(wb, held)            # only the levels the fit did not see are predicted
+        parts.append((predict_session(_refitted(wb, seen), measured, "", wb.harmonics).comparison, measured.sine))
+    return pooled_error(parts) if parts else float("nan")
 
 
 def interleaved(levels: list, folds: int) -> list[tuple[list, list]]:

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from analysis.loop.auto import STOPPED_BY_USER, AutoResult
+from analysis.loop.auto import DISCOVERY, STOPPED_BY_USER, AutoResult
 from analysis.prediction.backbone import (Backbone, BackboneComparison, measured_backbone, measured_power_balance,
                                           phase_resonance_backbone)
 from analysis.prediction.comparison import LevelError
@@ -322,7 +322,7 @@ def _stopped(auto: AutoResult) -> str:
             "no step was taken: the model is as it was")
     if auto.undone:
         kept += f"; {auto.undone}, under way, was undone"
-    if auto.discovery is None and auto.undone == "discovery":
+    if auto.undone == DISCOVERY:
         untried = "the laws discovery would have found, the linear corrections and the ranking of the missing effects"
     elif pending:
         untried = (f"adding the laws found for {', '.join(pending)}, the linear corrections and the ranking of the "
