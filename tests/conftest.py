@@ -1,4 +1,7 @@
+import gc
 import os
+
+import pytest
 
 # GUI tests run without a display.
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
@@ -24,3 +27,15 @@ def pytest_configure(config):
     from drivers.simulation.simulator import RigSimulator
 
     RigSimulator("paper-2dof", seed=0).advance(64)
+
+
+@pytest.fixture(autouse=True)
+def _qt_garbage_in_the_main_thread(request):
+    """After a test that made Qt objects, collect its cyclic garbage here, in the GUI thread.
+
+    Closing the last window turns automatic collection back on (app/gui/gc_guard.py); the window's Python
+    wrappers become garbage only afterwards. Left to chance, a later allocation in an emulator or worker thread
+    would run their Qt destructors there, which can crash or deadlock the worker."""
+    yield
+    if "qtbot" in request.fixturenames:
+        gc.collect()

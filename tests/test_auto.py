@@ -11,7 +11,7 @@ import pytest
 
 import analysis.loop.auto as auto_module
 from analysis.loop.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained, run_auto
-from analysis.loop.cross_check import cross_validate, held_out_error
+from analysis.loop.cross_check import NOT_CHECKED, HeldOut, cross_validate, held_out
 from analysis.prediction.comparison import pooled_error
 from analysis.prediction.backbone import ModalError
 from analysis.prediction.comparison import RunPrediction, compare_predictions
@@ -119,7 +119,7 @@ def test_stiffness_and_damping_of_one_joint_are_both_found_in_independent_data(r
     assert [f.levels for f in folds] == [("0.5 N",), ("2 N",)]
     pooled = pooled_error([(f.prediction.comparison, [r for r in wb.measurements.sine if r.force != float(
         f.levels[0].split()[0])]) for f in folds])
-    assert held_out_error(wb) == pytest.approx(pooled, rel=1e-9)
+    assert held_out(wb).error == pytest.approx(pooled, rel=1e-9)
     assert result.steps[-1].held_out == pytest.approx(pooled, rel=1e-9)
 
 
@@ -241,13 +241,15 @@ def test_step_and_result_records():
     assert step.line() == "add b:quadratic_damping: error 1 -> 0.125 (x8.00 better)"
     assert step.to_json() == {"action": "add", "element": "b", "laws": ["quadratic_damping"], "error_before": 1.0,
                               "error_after": 0.125, "gain": 8.0, "reason": "why", "in_sample_error": 0.125,
-                              "held_out_error": None,
+                              "held_out_error": None, "held_out_fold_errors": [],
                               "backbone_error_before": None, "damping_error_before": None,
                               "backbone_error_after": None, "damping_error_after": None}
     # judged on levels its fit did not see too: both errors, labelled
     step.held_out = 0.25
     assert step.line() == "add b:quadratic_damping: error 1 -> 0.125 (x8.00 better); held-out 0.25 against in-sample 0.125"
     assert step.to_json()["held_out_error"] == 0.25 and step.to_json()["in_sample_error"] == 0.125
+    step.held_out_folds = (0.2, float("nan"))
+    assert step.to_json()["held_out_fold_errors"] == [0.2, None]
     step.held_out = float("nan")
     modal = AutoStep("add", "b", ("cubic",), 1.0, 0.5, "why", ModalError(0.02, 0.3), ModalError(0.001, float("nan")))
     assert modal.line() == ("add b:cubic: error 1 -> 0.5 (x2.00 better); backbone error 0.02 -> 0.001, "
@@ -522,3 +524,29 @@ def test_the_error_in_units_of_the_noise_is_one_for_a_prediction_within_the_nois
     off = RunPrediction(1.1 * H, 1.1 * H, ok, ok, np.zeros((len(H), 1)), np.zeros((len(H), 1)))
     # 10 % off against 1 % of noise: about ten times the noise
     assert compare_predictions([run], {"sine": off}).times_the_noise == pytest.approx(10.05, rel=0.03)
+
+
+def test_a_law_is_kept_only_where_it_predicts_every_held_out_fold_better():
+    before = HeldOut(0.4, (0.3, 0.5, 0.4))
+    assert HeldOut(0.2, (0.1, 0.3, 0.2)).better_than(before)
+    # better pooled, worse on one fold: not kept, the gain was one fold's
+    assert not HeldOut(0.3, (0.05, 0.2, 0.41)).better_than(before)
+    assert not HeldOut(0.4, (0.3, 0.5, 0.4)).better_than(before)            # equal is not better
+    assert not HeldOut(float("nan"), (0.1, float("nan"), 0.2)).better_than(before)
+    assert HeldOut(0.2, (0.1, 0.3, 0.2)).better_than(HeldOut(float("nan"), (0.3, float("nan"), 0.4)))
+    assert not HeldOut(0.1, (0.1, 0.1)).better_than(before)                # other folds: not comparable
+    assert not HeldOut(0.1, (0.1,)).better_than(NOT_CHECKED)
+    why = auto_module._predicts_no_better(before, HeldOut(0.45, (0.2, 0.6, 0.5)))
+    assert why.startswith("it does not predict the levels its fits did not see better: held-out 0.45 against 0.4")
+    assert "0.6 against 0.5" in why
+    assert auto_module._predicts_no_better(before, HeldOut(0.2, (0.1, 0.3, 0.2))) == ""
+    assert auto_module._predicts_no_better(NOT_CHECKED, HeldOut(0.9, (0.9,))) == ""    # nothing held out
+
+
+def test_a_candidate_taken_back_is_held_back_before_the_measured_modes_can_call_for_it_again():
+    # not significant by its FRF gain: the measured modes' second witness would admit it, as it did the first time
+    weak = Candidate("joint", "unilateral", 0.24, 0.247, 0.0, True, "", evidence=4e7, supported=True)
+    other = Candidate("joint", "cubic", 0.1, 0.247, 0.0, True, "", evidence=1e6, supported=True, significant=True)
+    auto_module._hold_back_taken_back([weak, other], {"joint:unilateral"})
+    assert weak.held_back and not weak.significant
+    assert other.significant and not other.held_back

@@ -1,7 +1,8 @@
 """The Brake-Reuss beam's measured stepped sine (real data that cannot ship: tests/realdata.py): read from MATLAB
 into the CSV long format by the documented script, imported (the reversed force sign refused until named), the
-reference from the lowest level, and ``analyze --auto --cross-validate`` end to end (docs/import.md shows the
-numbers)."""
+reference from the lowest level, a law fitted and cross-validated over the levels, and an Iwan element added by
+hand (docs/import.md shows the numbers). The automatic loop on all twelve levels takes too long for the suite:
+benchmarks/brb_auto.py runs it and checks its targets."""
 import importlib.util
 import json
 import tomllib
@@ -40,7 +41,7 @@ def test_the_reversed_force_sign_is_refused_then_imported_with_the_flag(brb, cap
 
 
 @pytest.mark.slow
-def test_import_reference_and_analyze_auto_on_the_measured_beam(brb, capsys):
+def test_import_reference_a_law_and_an_iwan_element_on_the_measured_beam(brb, capsys):
     session, model = brb / "brb.h5", brb / "reference.toml"
     assert main(["import", str(brb / "brb.csv"), "-o", str(session), "--excitation", "x1", "--force-sign", "-1"]) == 0
     out = capsys.readouterr().out
@@ -51,21 +52,19 @@ def test_import_reference_and_analyze_auto_on_the_measured_beam(brb, capsys):
     assert "reference from run sine_x1_5mps2_up" in out and "NONLINEAR already" in out
     structure = tomllib.loads(model.read_text())["structure"]
     assert 80.0 < structure["frequencies"][0] < 80.6 and 0.001 < structure["damping"][0] < 0.003
-    assert main(["analyze", str(session), str(model), "--auto", "--json", "--no-history", "--cross-validate"]) == 0
+    assert main(["analyze", str(session), str(model), "--add", "joint:cubic_damping", "--json", "--no-history",
+                 "--cross-validate"]) == 0
     result = json.loads(capsys.readouterr().out)
     labels = [e["label"] for e in result["error_by_level"]]
     assert labels[:4] == ["0.2 N", "0.5 N", "1 N", "1.5 N"] and labels[4] == "5 m/s^2 at x1"
     level = result["error_by_level"][4]
     assert (level["control"], level["control_dof"], level["control_target"]) == ("response", "x1", 5.0)
-    assert result["error"] < 0.35
-    # a joint's laws dissipate and keep the beam standing at every line measured
+    assert result["error"] < 0.7                                 # the reference alone misses by about 1
+    # a joint's law dissipates and keeps the beam standing at every line measured
     assert result["admissibility"]["passive"] and result["admissibility"]["statically_stiff"]
-    # how far they carry: refitted on half of the levels, each half predicting the others
+    # how far it carries: refitted on half of the levels, each half predicting the others
     folds = result["cross_validation"]
     assert len(folds) == 4 and all(0 < f["fitted_error"] and 0 < f["held_out_error"] for f in folds)
-    # every step of the loop judged on the levels its fit did not see, beside its in-sample error
-    steps = result["auto"]["steps"]
-    assert steps and all(s["held_out_error"] > 0 and s["in_sample_error"] == s["error_after"] for s in steps)
     # an Iwan element added by hand: read in the limit its fit lands in, no stiffness of 1e32 shown as a finding
     assert main(["analyze", str(session), str(model), "--add", "joint:iwan", "--no-history"]) == 0
     law = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("law iwan"))

@@ -23,7 +23,7 @@ from ..missing.unexplained import unexplained
 from ..prediction.backbone import ModalError
 from ..prediction.comparison import Comparison, gain_phrase
 from ..search.discovery import Discovery, DiscoveryRules, ElementDiscovery, WalkStep
-from .cross_check import held_out_error
+from .cross_check import NOT_CHECKED, HeldOut, held_out
 from .workbench import ElementReport, Workbench
 
 
@@ -43,7 +43,8 @@ class AutoRules:
     take_back_near_noise: float = 10.0   # a discovered law is weighed for taking back within this many times the
                                          # noise (:func:`_near_the_noise`)
     ranking: RankingRules = RankingRules()
-    # every step's model also judged on levels its fit did not see (:func:`analysis.loop.cross_check.held_out_error`)
+    # every step's model judged on levels its fit did not see (:func:`analysis.loop.cross_check.held_out`), and a
+    # law kept only where its model predicts every held-out fold better than the model without it
     held_out: bool = True
 
 
@@ -60,8 +61,9 @@ class AutoStep:
     # natural frequency and damping against the measured ones (response levels, phase resonance), where measured
     modal_before: ModalError | None = None
     modal_after: ModalError | None = None
-    # the FRF error after the step on levels its fit did not see (NaN: not checked, or one level only)
+    # the FRF error after the step on levels its fit did not see (NaN: not checked, or one level only), and per fold
     held_out: float = float("nan")
+    held_out_folds: tuple[float, ...] = ()
 
     @property
     def gain(self) -> float:
@@ -87,6 +89,7 @@ class AutoStep:
                 "error_before": self.error_before, "error_after": self.error_after, "gain": self.gain,
                 "in_sample_error": self.error_after,
                 "held_out_error": float(self.held_out) if np.isfinite(self.held_out) else None,
+                "held_out_fold_errors": [float(e) if np.isfinite(e) else None for e in self.held_out_folds],
                 "reason": self.reason, **_modal_json(self.modal_before, "_before"),
                 **_modal_json(self.modal_after, "_after")}
 
@@ -158,16 +161,18 @@ def _pairs(ranked: list[Candidate], element: str, pool: int) -> list[tuple[str, 
 
 
 def _best_pair(wb: Workbench, ranked: list[Candidate], rules: AutoRules,
-               searched: frozenset[str] = frozenset()) -> Candidate | None:
+               searched: frozenset[str] = frozenset(), taken_back: set[str] = frozenset()) -> Candidate | None:
     """The best significant pair of laws on an element whose kbar is not explained, or None. Elements in
-    ``searched`` are left out: discovery already judged every set of up to three laws there."""
+    ``searched`` are left out: discovery already judged every set of up to three laws there; pairs in
+    ``taken_back`` are not offered again."""
     best = None
     for el in wb.model.elements:
         report = wb.reports.get(el.name)
         if el.name in searched or report is None or not kbar_unexplained(report, rules.unexplained_false_alarm):
             continue
         pairs = _pairs(ranked, el.name, rules.pair_pool)
-        scored = _judged(wb, wb.pair_candidates(el.name, pairs, rules.ranking) if pairs else [], rules)
+        scored = _judged(wb, wb.pair_candidates(el.name, pairs, rules.ranking) if pairs else [], rules,
+                         taken_back=taken_back)
         found = [c for c in scored if c.significant]
         if found and (best is None or found[0].bic < best.bic):
             best = found[0]
@@ -299,6 +304,19 @@ def _hold_back_against_discovery(wb: Workbench, candidates: list[Candidate], fou
             c.held_back = why
 
 
+def _predicts_no_better(before: HeldOut, after: HeldOut) -> str:
+    """Why a candidate just added is taken back for what it predicts, "" where it stays: a law enters only
+    where the model with it predicts every held-out fold better than the model without it
+    (:meth:`HeldOut.better_than`). A law that fits its own lines better and predicts the levels its fit did not
+    see no better describes those lines, not the joint. Nothing is judged where nothing could be held out."""
+    if not before.folds or after.better_than(before):
+        return ""
+    folds = ", ".join(f"{a:.3g} against {b:.3g}" for a, b in zip(after.folds, before.folds))
+    return (f"it does not predict the levels its fits did not see better: held-out {after.error:.3g} against "
+            f"{before.error:.3g} without it (per fold {folds}); a law is kept only where it predicts every "
+            "held-out fold better")
+
+
 def _falls_short(c: Candidate, before: float, after: float, min_gain: float) -> bool:
     """Whether a candidate added gained less than ``min_gain`` with the model refitted (where its significance
     rested on its gain, not on the measured modes' word). The ranking judges a candidate at its kbar fit; on data
@@ -308,17 +326,20 @@ def _falls_short(c: Candidate, before: float, after: float, min_gain: float) -> 
 
 
 def _hold_back_taken_back(candidates: list[Candidate], taken_back: set[str]) -> None:
+    """A take-back is final: the candidate is held back whatever would call for it again, significant or not
+    (the measured modes' second witness would otherwise admit it once more, as it did the first time)."""
     for c in candidates:
-        if c.significant and c.name in taken_back:
+        if c.name in taken_back:
             c.significant = False
-            c.held_back = "added before and taken back: the model refitted with it did not gain its margin"
+            c.held_back = "added before and taken back (that step says why)"
 
 
 def _judged(wb: Workbench, candidates: list[Candidate], rules: AutoRules,
             found: Discovery | None = None, taken_back: set[str] = frozenset()) -> list[Candidate]:
     """The loop's own holds on ranked candidates: a law discovery's reading of its element rules out, one
     added and taken back, a partial law held back, then the measured backbone and damping's veto and second
-    witness (:mod:`analysis.missing.modal_judge`) where the session measures them."""
+    witness (:mod:`analysis.missing.modal_judge`, which passes over what is held back) where the session measures
+    them."""
     _hold_back_against_discovery(wb, candidates, found)
     _hold_back_taken_back(candidates, taken_back)
     _hold_back_partial(wb, candidates, rules)
@@ -361,15 +382,24 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
     """The loop of :func:`run_auto`, telling ``under_way`` what it does."""
 
     modal = [_modal_error(wb)]          # the last step's natural frequency and damping error
+    current: list[HeldOut | None] = [None]   # the model's held-out error, once checked
 
-    def take(step: AutoStep) -> None:
+    def checked() -> HeldOut:
+        """The current model's held-out error (checked now if no step has been)."""
+        if current[0] is None:
+            under_way.what = "the held-out check of the model the loop starts from"
+            current[0] = held_out(wb) if rules.held_out else NOT_CHECKED
+        return current[0]
+
+    def take(step: AutoStep, known: HeldOut | None = None) -> None:
         if modal[-1] is not None:
             step.modal_before, step.modal_after = modal[-1], _modal_error(wb)
             modal.append(step.modal_after)
         try:
             if rules.held_out:
                 under_way.what = "the held-out check of the step just taken"
-                step.held_out = held_out_error(wb)
+                current[0] = known if known is not None else held_out(wb)
+                step.held_out, step.held_out_folds = current[0].error, current[0].folds
         finally:                        # a stop inside the check: the step is recorded and stays
             steps.append(step)
         if progress is not None:
@@ -411,20 +441,24 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
         top = next((c for c in ranked if c.significant), None)
         pairs_tried = top is None and rules.pairs
         if pairs_tried:
-            top = _best_pair(wb, ranked, rules, searched)
+            top = _best_pair(wb, ranked, rules, searched, taken_back)
         if top is None:
             return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked, found)
-        before = wb.history[-1].error
+        before, held_before = wb.history[-1].error, checked()
         under_way.what = f"the fit of {top.name}"
         after = wb.add_laws(top.element, top.laws).error
         take(AutoStep("add pair" if len(top.laws) > 1 else "add", top.element, top.laws, before, after,
                       _reason(top)))
         if not np.isfinite(after):
             return AutoResult(steps, f"the model with {top.name} has no prediction", [], found)
+        why = ""
         if _falls_short(top, before, after, rules.ranking.min_gain):
+            why = (f"the model refitted with it gains {gain_phrase(before / after)} ({before:.3g} -> {after:.3g}), "
+                   f"not the x{rules.ranking.min_gain:g} it gained at its kbar fit")
+        elif rules.held_out:
+            why = _predicts_no_better(held_before, checked())
+        if why:
             wb.back_to(len(wb.history) - 2, f"take back {top.name}")
-            take(AutoStep("take back", top.element, top.laws, after, wb.history[-1].error,
-                          f"the model refitted with it gains {gain_phrase(before / after)} ({before:.3g} -> "
-                          f"{after:.3g}), not the x{rules.ranking.min_gain:g} it gained at its kbar fit"))
+            take(AutoStep("take back", top.element, top.laws, after, wb.history[-1].error, why), known=held_before)
             taken_back.add(top.name)
     return AutoResult(steps, f"stopped after the {rules.max_steps} steps allowed (AutoRules.max_steps)", [], found)

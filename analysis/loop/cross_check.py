@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from ..common.measurements import Measurements
 from ..mechanics.model import FittedOn, Model
 from ..prediction.comparison import pooled_error
@@ -58,9 +60,9 @@ def _fold(wb: Workbench, half: list, created: str) -> Fold:
 
 def _refitted(wb: Workbench, levels: list) -> Model:
     """``wb``'s model with its laws refitted, from their current values, by a fresh workbench on ``levels``
-    alone (reference, identification, fit)."""
+    alone (reference, identification, fit; its own error is not computed)."""
     fold = Workbench(wb.model, _at(wb, levels), wb.distortion_limit, wb.harmonics)
-    fold.start()
+    fold.prepare()
     return fold.model
 
 
@@ -68,23 +70,46 @@ def _at(wb: Workbench, levels: list) -> Measurements:
     return wb.measurements.at_levels({c.key() for c in levels})
 
 
-#: Folds of :func:`held_out_error`: the levels are dealt into at most this many, interleaved
+#: Folds of :func:`held_out`: the levels are dealt into at most this many, interleaved
 HELD_OUT_FOLDS = 3
 
 
-def held_out_error(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> float:
+@dataclass(frozen=True)
+class HeldOut:
+    """A model's FRF error on levels its fit did not see: ``error`` over all of them pooled, ``folds`` per fold
+    (the levels one refit predicted), in fold order."""
+
+    error: float
+    folds: tuple[float, ...]
+
+    def better_than(self, other: "HeldOut") -> bool:
+        """Whether this model predicts every fold better than ``other`` did on the same folds: each fold is data
+        both fits left out, so a model that describes the joint rather than its own lines does better on each,
+        and no margin needs a number. A fold this model does not predict (NaN) is not better; one only the other
+        did not predict is."""
+        return (len(self.folds) == len(other.folds) > 0
+                and all(np.isfinite(a) and not a >= b for a, b in zip(self.folds, other.folds)))
+
+
+NOT_CHECKED = HeldOut(float("nan"), ())
+
+
+def held_out(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> HeldOut:
     """The FRF error of ``wb``'s model on levels its fit did not see: the levels, in order, dealt into ``folds``
     interleaved folds (level i into fold i mod K, K at most the number of levels), the laws refitted on all the
     levels but one fold's, which they then predict; every level's lines pooled as predicted by the fit that did not
-    see it. Beside the in-sample error it says whether a step of the loop describes the joint or its own lines.
-    Each fit sees all but a K-th of the levels (with three levels, two of them; with twelve, eight): a fit on a
-    half or on a single level leaves laws with more parameters than it determines, and its held-out error would
-    measure that, not the model. K folds cost K refits. NaN for a session of fewer than two stepped-sine levels."""
+    see it, and each fold's alone. Beside the in-sample error it says whether a step of the loop describes the
+    joint or its own lines. Each fit sees all but a K-th of the levels (with three levels, two of them; with
+    twelve, eight): a fit on a half or on a single level leaves laws with more parameters than it determines, and
+    its held-out error would measure that, not the model. K folds cost K refits. :data:`NOT_CHECKED` for a
+    session of fewer than two stepped-sine levels."""
     parts = []
     for seen, held in interleaved(wb.measurements.level_controls(), folds):
         measured = _at(wb, held)            # only the levels the fit did not see are predicted
         parts.append((predict_session(_refitted(wb, seen), measured, "", wb.harmonics).comparison, measured.sine))
-    return pooled_error(parts) if parts else float("nan")
+    if not parts:
+        return NOT_CHECKED
+    return HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts))
 
 
 def interleaved(levels: list, folds: int) -> list[tuple[list, list]]:

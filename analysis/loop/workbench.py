@@ -587,11 +587,16 @@ class Workbench:
 
     def start(self) -> HistoryStep:
         """Reference, identification and fit of the model as given; the first history step."""
+        self.prepare()
+        return self.record("start")
+
+    def prepare(self) -> None:
+        """Reference, identification and fit of the model as given, nothing recorded: a refit wanted for what
+        its model predicts elsewhere, not for its own error (whose comparison costs a prediction of every line)."""
         if self.reference is None:
             self.update_reference()
         self.identify()
         self.fit()
-        return self.record("start")
 
     def to_json(self, candidates: list[Candidate] | None = None) -> dict:
         comp = self.compare()

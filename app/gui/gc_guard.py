@@ -36,4 +36,5 @@ def release() -> None:
     if _windows == 0 and _collector is not None:
         _collector.timer.stop()
         _collector = None
+        gc.collect()              # what the windows left, collected here before any other thread may
         gc.enable()

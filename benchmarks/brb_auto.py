@@ -1,0 +1,118 @@
+"""The automatic loop on the measured Brake-Reuss beam, all 12 levels: what it finds and what it costs.
+
+    python benchmarks/brb_auto.py [--keep DIR]
+
+The beam's data cannot ship (tests/realdata.py says where to put them). The MATLAB file is written as the CSV long
+format by docs/examples/brb_to_csv.py, imported (``--excitation x1 --force-sign -1``), the reference made from the
+lowest level, and ``analyze --auto --json --no-history`` run in this process. Printed: every step with its
+in-sample and held-out error, the laws with their parameters not determined by the data, the share of lines the
+fits leave out, the FRF error, and the CPU of the loop against the CPU of the same analysis without it (the
+baseline, in the same process). Then the targets of docs/discovery.md, each met or not: at most three laws, every
+parameter determined, at most 10 % of the lines left out, FRF error at most 0.15, at most 30 s of CPU. Too long
+for the test suite (tests/test_brb_real_data.py runs the rest of the path); its figures go to
+docs/performance.md and docs/import.md.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib.util
+import io
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from app.cli import main  # noqa: E402
+from realdata import BRB_MAT, BRB_MISSING  # noqa: E402
+
+TARGETS = {"laws": 3, "left_out": 0.10, "error": 0.15, "cpu_s": 30.0}
+
+
+def cli(*args: str) -> str:
+    """``contactid`` in this process; its standard output."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        status = main(list(args))
+    if status != 0:
+        raise SystemExit(f"contactid {' '.join(args)} exited with {status}")
+    return out.getvalue()
+
+
+def prepared(folder: Path) -> tuple[Path, Path]:
+    """The beam's session and its reference model in ``folder``."""
+    spec = importlib.util.spec_from_file_location("brb_to_csv", ROOT / "docs" / "examples" / "brb_to_csv.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    script.write_csv(str(BRB_MAT), str(folder / "brb.csv"))
+    session, model = folder / "brb.h5", folder / "reference.toml"
+    cli("import", str(folder / "brb.csv"), "-o", str(session), "--excitation", "x1", "--force-sign", "-1")
+    cli("reference", str(session), "-o", str(model))
+    return session, model
+
+
+def timed(*args: str) -> tuple[dict, float]:
+    start = time.process_time()
+    result = json.loads(cli(*args))
+    return result, time.process_time() - start
+
+
+def report(result: dict, cpu: float, baseline: float) -> list[str]:
+    lines = ["steps:"]
+    for s in result["auto"]["steps"]:
+        held = "n/a" if s["held_out_error"] is None else f"{s['held_out_error']:.3g}"
+        lines.append(f"  {s['action']} {s['element']}:{'+'.join(s['laws'])}: in-sample {s['in_sample_error']:.3g}, "
+                     f"held-out {held}")
+    lines.append(f"  stopped: {result['auto']['stopped']}")
+    laws = undetermined = 0
+    worst_share = 0.0
+    for e in result["elements"]:
+        for law in e["laws"]:
+            laws += 1
+            undetermined += len(law["undetermined"])
+            values = ", ".join(f"{k} = {v:.4g}" for k, v in law["params"].items())
+            lines.append(f"  {e['name']}: {law['law']} ({values}){'; not determined: ' if law['undetermined'] else ''}"
+                         f"{', '.join(law['undetermined'])}")
+        share = len(e["lines_excluded_hz"]) / e["lines_used"] if e["lines_used"] else 0.0
+        worst_share = max(worst_share, share)
+        lines.append(f"  {e['name']}: {len(e['lines_excluded_hz'])} of {e['lines_used']} lines left out of the fit")
+    steps = result["auto"]["steps"]
+    held = next((s["held_out_error"] for s in reversed(steps) if s["held_out_error"] is not None), None)
+    lines.append(f"FRF error {result['error']:.4g}; held-out {held if held is None else f'{held:.4g}'}")
+    lines.append(f"CPU: loop {cpu:.1f} s, the analysis without it {baseline:.1f} s (x{cpu / baseline:.1f})")
+    checks = [("at most 3 laws", laws <= TARGETS["laws"]), ("every parameter determined", undetermined == 0),
+              ("at most 10 % of the lines left out", worst_share <= TARGETS["left_out"]),
+              ("FRF error at most 0.15", result["error"] <= TARGETS["error"]),
+              ("at most 30 s of CPU", cpu <= TARGETS["cpu_s"])]
+    lines += [f"target {name}: {'met' if ok else 'NOT met'}" for name, ok in checks]
+    return lines
+
+
+def run(folder: Path) -> None:
+    session, model = prepared(folder)
+    _, baseline = timed("analyze", str(session), str(model), "--json", "--no-history")
+    result, cpu = timed("analyze", str(session), str(model), "--auto", "--json", "--no-history")
+    print("\n".join(report(result, cpu, baseline)), flush=True)
+
+
+def cli_main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--keep", type=Path, help="write the session and model here (kept) instead of a temporary folder")
+    args = parser.parse_args()
+    if not BRB_MAT.exists():
+        raise SystemExit(BRB_MISSING)
+    if args.keep is not None:
+        args.keep.mkdir(parents=True, exist_ok=True)
+        run(args.keep)
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        run(Path(tmp))
+
+
+if __name__ == "__main__":
+    cli_main()
