@@ -215,6 +215,9 @@ def test_two_effects_on_two_elements_are_found_and_the_loop_stops(tmp_path, caps
         f"{s['error_after']:.3g} (x{s['gain']:.2f} better); held-out {s['held_out_error']:.3g} against in-sample "
         f"{s['in_sample_error']:.3g}" for s in steps]
     assert {s["action"] for s in steps} == {"discover"}
+    # each step's held-out error per fold, for the two levels one fold each
+    assert all(len(s["held_out_fold_errors"]) == 2 and min(s["held_out_fold_errors"]) <= s["held_out_error"]
+               <= max(s["held_out_fold_errors"]) for s in steps)
     # the text report: the same steps, printed as taken and then with their reasons and the stop (the loop's
     # result from the run above, printed by the text path)
     assert len(ran) == 1 and main(args) == 0
