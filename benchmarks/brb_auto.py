@@ -83,7 +83,7 @@ def report(result: dict, cpu: float, baseline: float) -> list[str]:
         lines.append(f"  {e['name']}: {len(e['lines_excluded_hz'])} of {e['lines_used']} lines left out of the fit")
     steps = result["auto"]["steps"]
     held = next((s["held_out_error"] for s in reversed(steps) if s["held_out_error"] is not None), None)
-    lines.append(f"FRF error {result['error']:.4g}; held-out {held if held is None else f'{held:.4g}'}")
+    lines.append(f"FRF error {result['error']:.4g}; held-out {'n/a' if held is None else f'{held:.4g}'}")
     lines.append(f"CPU: loop {cpu:.1f} s, the analysis without it {baseline:.1f} s (x{cpu / baseline:.1f})")
     checks = [("at most 3 laws", laws <= TARGETS["laws"]), ("every parameter determined", undetermined == 0),
               ("at most 10 % of the lines left out", worst_share <= TARGETS["left_out"]),

@@ -368,13 +368,13 @@ def test_error_history_labels_sit_at_their_points_inside_the_plot_and_apart(qtbo
             assert labels[i].toolTip().startswith(f"step {step}: {steps[step][0]}")
 
 
-
 def analysed_window(qtbot, session, model) -> MainWindow:
     """The window on ``session`` with ``model`` loaded and Analyze pressed and done."""
     window = window_on(qtbot, session, model)
     with qtbot.waitSignal(window.lab.analysisUpdated, timeout=120000):
         window.model.analyze_button.click()
     return window
+
 
 @pytest.mark.slow
 def test_stop_during_discovery_keeps_the_steps_taken_and_says_what_was_not_tried(qtbot, hidden_effect_session):
