@@ -14,6 +14,7 @@ from analysis.prediction.backbone import BackboneComparison, ModalError, compare
 from analysis.prediction.comparison import gain_phrase
 from analysis.common.errors import InputError
 from analysis.common.statistics import OUTLIER_SHARE_LIMIT
+from analysis.common.wording import parameter_words
 from analysis.signals.frf_noise import METHOD as NOISE_METHOD
 from analysis.missing.misfit import Misfit, systematic_misfits
 from analysis.common.measurements import Measurements
@@ -337,6 +338,10 @@ def report_text(wb: Workbench, candidates, top: int = 5,
                    f"{r.lines_flagged} left out (ill-conditioned or distorted)")
         if r.verdict is not None:
             out.append(f"    evidence: {r.verdict.evidence}")
+        if el.in_reference:
+            out.append("    measured from the reference: the reference was made from a measured level and holds the "
+                       "element's small-amplitude stiffness, so each law enters as its change from its "
+                       "small-amplitude state (docs/laws.md)")
         for j, term in enumerate(el.laws):
             fitted = r.fit.terms[j] if r.fit is not None else None
             reading = r.reading(term)
@@ -421,12 +426,10 @@ def frequency_ranges(hz: list[float]) -> str:
 
 
 def _param_text(name: str, value: float, fitted) -> str:
-    """``k3 = -742.1 ± 3.2``, or the value marked undetermined when the data do not determine it."""
+    """The parameter's words (:func:`analysis.common.wording.parameter_words`), its spread from the fit if any."""
     err = None if fitted is None else fitted.stderr.get(name)
-    spread = "" if err is None or not math.isfinite(err) else f" ± {err:.2g}"
-    if fitted is not None and name in fitted.undetermined:
-        return f"{name} = {value:.5g} (not determined by the data{spread and ':' + spread})"
-    return f"{name} = {value:.5g}{spread}"
+    undetermined = fitted is not None and name in fitted.undetermined
+    return parameter_words(name, value, err if err is None or math.isfinite(err) else None, undetermined)
 
 
 def _jump_lines(comp, runs) -> list[str]:

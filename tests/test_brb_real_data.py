@@ -5,12 +5,18 @@ hand (docs/import.md shows the numbers). The automatic loop on all twelve levels
 benchmarks/brb_auto.py runs it and checks its targets."""
 import importlib.util
 import json
+import re
 import tomllib
 from pathlib import Path
 
 import pytest
 
+from analysis.loop.workbench import Workbench
+from analysis.mechanics.model import load_model
+from app.analyze import report_text
 from app.cli import main
+from app.session import open_session
+from app.session.data import measurements_from_session
 from realdata import BRB_MAT, BRB_MISSING
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,7 +71,18 @@ def test_import_reference_a_law_and_an_iwan_element_on_the_measured_beam(brb, ca
     # how far it carries: refitted on half of the levels, each half predicting the others
     folds = result["cross_validation"]
     assert len(folds) == 4 and all(0 < f["fitted_error"] and 0 < f["held_out_error"] for f in folds)
-    # an Iwan element added by hand: read in the limit its fit lands in, no stiffness of 1e32 shown as a finding
-    assert main(["analyze", str(session), str(model), "--add", "joint:iwan", "--no-history"]) == 0
-    law = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("law iwan"))
-    assert "read as" in law and "e+3" not in law and "e+2" not in law
+    # an Iwan element added by hand, measured from the reference that holds the joint's stuck stiffness
+    # (docs/laws.md, "Measured from the reference"): finite values, and the error well below the reference's
+    # (0.668 against 0.983 on 2026-12-02; added on top of the reference it ran to kt = 1.7e32 at 0.968)
+    # (the workbench as `analyze --add joint:iwan` drives it, less the ranking of what is still missing, which
+    # would triple the test's time)
+    with open_session(session) as s:
+        measurements = measurements_from_session(s)
+    wb = Workbench(load_model(tomllib.loads(model.read_text()), str(model)), measurements)
+    wb.start()
+    wb.add("joint", "iwan")
+    out = report_text(wb, [])
+    assert "measured from the reference" in out
+    law = next(line for line in out.splitlines() if line.strip().startswith("law iwan"))
+    assert not re.search(r"e\+[1-9][0-9]", law), law
+    assert wb.history[-1].error < 0.75 * wb.history[0].error, [h.error for h in wb.history]

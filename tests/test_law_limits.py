@@ -25,6 +25,14 @@ def test_an_iwan_element_that_never_slips_through_reads_as_micro_slip_with_its_d
     assert law.real == pytest.approx(kt - r * power, rel=1e-9)
     # beyond the slip range it is an Iwan element again
     assert iwan.reading(values, X.min(), 1.0) is None
+    # measured from the reference (docs/laws.md, "Measured from the reference") the stiffness drops out as well:
+    # the same chi and nu, and kbar - kt their closed form alone
+    relative = iwan.relative().reading(values, X.min(), X.max())
+    assert relative.limit == "micro-slip" and relative.undetermined == ("kt", "fs", "beta")
+    assert relative.values == {"chi": chi, "nu": nu}
+    shifted = iwan.relative().describing_function(X, np.full_like(X, 100.0), **values)
+    assert shifted.imag == pytest.approx(power, rel=1e-9)
+    assert shifted.real == pytest.approx(-r * power, rel=1e-9)
 
 
 @pytest.mark.parametrize("name, values", [("iwan", {"kt": 1e12, "fs": 2.0, "chi": 0.3, "beta": 1.0}),

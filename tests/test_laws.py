@@ -72,9 +72,9 @@ def _law_breakpoints(name, X, values):
     return []
 
 
-def kbar_by_quadrature(name, values, X, w):
-    """kbar of law ``name`` at amplitude X and frequency w from its own kernel."""
-    law = LAWS[name]
+def kbar_by_quadrature(name, values, X, w, law=None):
+    """kbar of law ``name`` (or of ``law``, a form of it) at amplitude X and frequency w from its own kernel."""
+    law = LAWS[name] if law is None else law
     p = law.parameter_vector(**values)
     floor = 1e-13 * X * max(abs(complex(law.describing_function(X, w, **values))), 1e-300)
 
@@ -151,6 +151,34 @@ def test_describing_function_matches_quadrature_of_its_kernel(name, values, X, w
 
 def test_every_law_is_checked_against_quadrature():
     assert {c[0] for c in CASES} == set(LAWS)
+
+
+RELATIVE = [c for c in CASES if LAWS[c[0]].relative() is not LAWS[c[0]]]
+
+
+@pytest.mark.parametrize("name, values, X, w", RELATIVE, ids=[f"{c[0]}-{i}" for i, c in enumerate(RELATIVE)])
+def test_a_law_measured_from_the_reference_is_its_kernel_less_its_small_amplitude_stiffness(name, values, X, w):
+    """docs/laws.md, "Measured from the reference": the relative form's describing function is the quadrature of
+    its own kernel (f - k0 x), and k0 is the limit of the law's Re kbar as X -> 0."""
+    law, relative = LAWS[name], LAWS[name].relative()
+    assert (relative.name, relative.params, relative.from_reference, law.from_reference) == \
+        (law.name, law.params, True, False)
+    absolute = law.describing_function(X[:, None], w[None, :], **values)
+    df = relative.describing_function(X[:, None], w[None, :], **values)
+    quadrature = np.array([[kbar_by_quadrature(name, values, x, f, relative) for f in w] for x in X])
+    assert np.max(np.abs(quadrature - df) / np.abs(absolute)) <= TOLERANCE
+    k0 = relative.parameter_vector(**values)[-1]
+    np.testing.assert_allclose(absolute - df, k0, rtol=1e-12)
+    tiny = law.describing_function(1e-40 * X.min(), w, **values)     # X^(chi+1) falls slowly for chi near -1
+    assert np.all(np.abs(tiny.real / k0 - 1) < 1e-2) and np.all(np.abs(tiny.imag) < 1e-2 * k0)
+
+
+def test_the_laws_with_a_small_amplitude_stiffness_are_the_softening_and_stuck_ones():
+    """The rest have none to subtract (their kbar vanishes as X -> 0, or a slider holds rigidly): their form
+    measured from the reference is the law itself."""
+    assert {n for n, law in LAWS.items() if law.relative() is not law} == \
+        {"tanh_softening", "arctan_softening", "jenkins", "iwan"}
+    assert all(law.relative().relative() is law.relative() for law in LAWS.values())
 
 
 # --------------------------------------------------------------------------- softening laws

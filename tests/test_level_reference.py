@@ -67,7 +67,7 @@ def test_reference_from_the_lowest_level_has_the_rigs_frequency_and_damping(rk4_
     assert s["damping"][0] == pytest.approx(rk4_rig.stuck_damping(), rel=0.05)
     # mass-normalised: the modal mass is the rig's
     assert s["shapes"][0][0] ** -2 == pytest.approx(rk4_rig.M, rel=0.02)
-    assert table["element"] == [{"name": "joint", "dof": "x1", "laws": []}]
+    assert table["element"] == [{"name": "joint", "dof": "x1", "laws": [], "in_reference": True}]
     assert "reference from run sine_0.002N_up" in out
     assert "NONLINEAR already between the two lowest levels" in out          # the 0.01 N level slips
     # a named run, a band without a mode
@@ -177,3 +177,62 @@ def test_reference_from_an_emulated_campaigns_lowest_level(tmp_path, capsys):
     assert s["frequencies"][0] == pytest.approx(rk4_rig.stuck_frequency_hz(), rel=1e-3)
     assert s["damping"][0] == pytest.approx(rk4_rig.stuck_damping(), rel=0.05)
     assert "NONLINEAR already between the two lowest levels" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("in_reference", [True, False])
+def test_a_jenkins_added_to_the_lowest_levels_reference_is_measured_from_its_stuck_state(rk4_session, capsys,
+                                                                                          in_reference):
+    """The lowest level holds the joint stuck, so its reference holds the slider's stiffness kt already
+    (docs/laws.md, "Measured from the reference"). The element is marked so, and the Jenkins added by hand is
+    measured from its stuck state: the RK4 rig's kt and fs, and an FRF error far below the reference's.
+    Without the mark (the law added on top of a structure that holds kt already) the fit misses the rig."""
+    model = rk4_session.with_name(f"reference_{in_reference}.toml")
+    assert main(["reference", str(rk4_session), "-o", str(model)]) == 0
+    if not in_reference:
+        model.write_text(model.read_text().replace("in_reference = true\n", ""))
+    capsys.readouterr()
+    assert main(["analyze", str(rk4_session), str(model), "--add", "joint:jenkins", "--json", "--no-history"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    law = result["elements"][0]["laws"][0]["params"]
+    right = (law["kt"] == pytest.approx(rk4_rig.KT, rel=0.05) and law["fs"] == pytest.approx(rk4_rig.FS, rel=0.05))
+    assert right == in_reference, law
+    if in_reference:
+        assert result["error"] < 0.05, result["error"]
+
+
+LINEAR_RIG_TOML = """name = "sdof"
+[structure]
+type = "lumped"
+dofs = ["x1"]
+mass = [[1.0]]
+stiffness = [[1.0e4]]
+[excitation]
+dof = "x1"
+[sensors]
+dofs = ["x1"]
+"""
+
+
+def test_in_reference_is_read_written_and_refused_where_it_cannot_hold():
+    """docs/contracts.md §3: ``in_reference = true`` on a model's element makes its laws measured from their
+    small-amplitude state; it survives a write and a read; a rig (the truth, simulated) and a non-boolean
+    value are refused, naming the field."""
+    from drivers.simulation.rig import parse_rig
+    doc = {"structure": {"type": "lumped", "dofs": ["x1"], "mass": [[1.0]], "stiffness": [[1.0e4]]},
+           "element": [{"name": "joint", "dof": "x1", "laws": [{"law": "jenkins"}, {"law": "cubic"}],
+                        "in_reference": True}]}
+    model = load_model(doc)
+    el = model.elements[0]
+    assert el.in_reference and el.surroundings.in_reference
+    assert [t.law.from_reference for t in el.laws] == [True, False]          # a cubic has nothing to subtract
+    assert el.law("iwan").from_reference and not model.copy().elements[0].laws[1].law.from_reference
+    again = load_model(tomllib.loads(model.to_toml()))
+    assert again.elements[0].in_reference and again.elements[0].laws[0].law.from_reference
+    plain = load_model({**doc, "element": [{**doc["element"][0], "in_reference": False}]})
+    assert not plain.elements[0].laws[0].law.from_reference and "in_reference" not in plain.to_toml()
+    with pytest.raises(InputError, match=r"in_reference.*true or false"):
+        load_model({**doc, "element": [{**doc["element"][0], "in_reference": "yes"}]})
+    rig = (LINEAR_RIG_TOML + '[[element]]\nname = "joint"\ndof = "x1"\nin_reference = true\n'
+           'laws = [{ law = "jenkins", kt = 1e3, fs = 1.0 }]\n')
+    with pytest.raises(InputError, match=r"in_reference"):
+        parse_rig(rig)

@@ -108,6 +108,12 @@ class Fields:
             raise self.error(key, f"must be one of {', '.join(choices)}; got {value!r}")
         return value
 
+    def boolean(self, key: str) -> bool:
+        value = self.require(key)
+        if not isinstance(value, bool):
+            raise self.error(key, f"must be true or false, got {value!r}")
+        return value
+
     def strings(self, key: str) -> list[str]:
         value = self.require(key)
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):

@@ -62,3 +62,16 @@ def change_words(start: float, end: float, unit: str) -> tuple[str, str]:
     digits = max(3, math.ceil(math.log10(scale / abs(change))))
     return "stays", (f"near {significant(start, digits)} {unit}, {'rising' if change > 0 else 'falling'} by "
                      f"{engineering(abs(change), unit, 2)}")
+
+
+def parameter_words(name: str, value: float, stderr: float | None = None, undetermined: bool = False,
+                    unit: str = "", digits: int = 5) -> str:
+    """A fitted parameter as the user reads it: ``k3 = -742.1 ± 3.2 N/m^3``; ``beta: not determined by the data``,
+    without a value, where the data do not determine it (its value is where the fit left it: a stiffness of 1e32
+    that nothing bounds, one of two springs of which only the sum is known) -- the combinations the data do
+    determine are printed apart. ``stderr`` None or not finite: the value alone."""
+    if undetermined or (stderr is not None and not math.isfinite(stderr)):
+        return f"{name}: not determined by the data"
+    spread = "" if stderr is None else f" ± {stderr:.2g}"
+    unit = "" if unit == "1" else unit          # "1": dimensionless
+    return f"{name} = {value:.{digits}g}{spread} {unit}".rstrip()

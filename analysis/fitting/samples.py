@@ -15,8 +15,9 @@ from ..laws import Law, get_law
 from ..mechanics.elements import LawTerm
 
 
-def _resolve_terms(laws, start) -> list[tuple[Law, dict[str, float]]]:
-    """(law, starting values) per term from names, Law objects or LawTerms."""
+def _resolve_terms(laws, start, relative: bool = False) -> list[tuple[Law, dict[str, float]]]:
+    """(law, starting values) per term from names, Law objects or LawTerms; ``relative``: each law measured from
+    its small-amplitude state (:meth:`analysis.laws.base.Law.relative`), the element's reference holding it."""
     if isinstance(laws, (str, Law, LawTerm)):
         laws = [laws]
     try:
@@ -46,7 +47,7 @@ def _resolve_terms(laws, start) -> list[tuple[Law, dict[str, float]]]:
                 raise InputError(f"must be a table of parameter values, got {type(start[i]).__name__}",
                                  None, f"start[{i}]")
             values.update(start[i])
-        terms.append((law, law.check_params(values, field=where)))
+        terms.append((law.relative() if relative else law, law.check_params(values, field=where)))
     return terms
 
 

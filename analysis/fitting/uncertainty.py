@@ -117,7 +117,9 @@ def _information_criteria(chi_square: float, rank: int, n_obs: int, sigma_given:
         fit_term, k = chi_square, rank
     else:
         # Gaussian likelihood with the variance estimated as chi^2 / n: one more parameter
-        fit_term = n_obs * math.log(chi_square / n_obs) if chi_square > 0 else -math.inf
+        # a perfect fit: its variance can round to zero below the smallest float (chi^2 itself subnormal)
+        variance = chi_square / n_obs
+        fit_term = n_obs * math.log(variance) if variance > 0 else -math.inf
         k = rank + 1
     return fit_term + 2 * k, charged_criterion(fit_term, k, n_obs)
 

@@ -44,6 +44,9 @@ class ArctanSoftening(Law):
     example_amplitude = (1e-4, 1e-1)
     kernel = arctan_softening_force
 
+    def small_amplitude_basis(self, beta):
+        return np.array([beta])     # the tangent at x = 0: alpha beta
+
     def basis(self, X, w, beta):
         X, w = np.broadcast_arrays(X, w)
         z = beta * X

@@ -203,6 +203,8 @@ class Law(ABC):
     # there (analysis/mechanics/surroundings.py) rather than taken from the formula alone. Such a law is stateless,
     # velocity-free and has one linear parameter scaling its whole force.
     placed: ClassVar[bool] = False
+    # True for the law measured from its small-amplitude state (:meth:`relative`)
+    from_reference: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs):
         # A jitted function stored on a class binds like a method; keep the numba
@@ -284,6 +286,29 @@ class Law(ABC):
         cells = (self.name, self.kind, self.parameter_text(), self.force_text, self.kbar_text, fit,
                  "yes" if self.visible_in_kbar else "no (only harmonics)")
         return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+
+    # --- measured from the reference's state --------------------------------
+    def small_amplitude_basis(self, **shape) -> np.ndarray | None:
+        """The limit of :meth:`basis` as X -> 0, shape ``(len(linear),)``, real: the stiffness per linear
+        parameter the law has before anything slips, saturates or opens. None where kbar vanishes there or has
+        no finite limit (a slider that holds rigidly): nothing a reference could hold."""
+        return None
+
+    def relative(self) -> "Law":
+        """This law measured from its small-amplitude state: kbar(X, w) - kbar(0+), force f(x) - k0 x with k0 the
+        small-amplitude stiffness at the law's values (:meth:`small_amplitude_basis`). The law an element uses
+        where its reference structure was made from a measured level and so holds the element's small-amplitude
+        stiffness already (docs/laws.md, "Measured from the reference"): added to such a reference, the law
+        itself would hold it twice. The same law, name and parameters; itself where it has no small-amplitude
+        stiffness."""
+        if self.small_amplitude_basis(**_example_shape(self)) is None:
+            return self
+        if self.from_reference:
+            return self
+        cls = type(self)
+        if cls not in _RELATIVE:
+            _RELATIVE[cls] = _relative_class(cls)()
+        return _RELATIVE[cls]
 
     def reading(self, values: Mapping[str, float], X_min: float, X_max: float) -> LimitReading | None:
         """The limit the fitted ``values`` put the law in over the amplitudes ``X_min..X_max`` measured, or None
@@ -398,3 +423,59 @@ class Law(ABC):
 
     def __repr__(self) -> str:
         return f"<law {self.name}({', '.join(self.param_names)})>"
+
+
+_RELATIVE: dict[type, Law] = {}
+
+
+def _example_shape(law: Law) -> dict[str, float]:
+    return law.to_fit(law.check_params(law.example, complete=True))[1]
+
+
+def _relative_class(cls: type) -> type:
+    """The subclass of law class ``cls`` measured from its small-amplitude state (:meth:`Law.relative`): the basis
+    less its X -> 0 limit, and the kernel (and update) less ``k0 x``, with k0 appended to the kernel's
+    parameter vector after the law's own constants."""
+    law = cls()
+    contract = law.check_params(law.example, complete=True)
+    at = len(law.params) + len(law.kernel_constants(*(contract[p.name] for p in law.params)))
+    kernel = _less_stiffness(cls.kernel, at)
+    members = {
+        "from_reference": True,
+        "__doc__": f"{cls.__doc__ or cls.__name__} Measured from its small-amplitude state (Law.relative).",
+        "basis": _relative_basis,
+        "kernel_constants": _relative_constants,
+        "kernel": kernel,
+        "stick_limit": None,        # a model's law, never simulated: the simulator takes its rig's laws
+    }
+    if cls.update is not None:
+        members["update"] = _less_stiffness_update(cls.update, at)
+        members["commit"] = cls.commit
+    return type(f"Relative{cls.__name__}", (cls,), members)
+
+
+def _relative_basis(self, X, w, **shape):
+    B = super(type(self), self).basis(X, w, **shape)
+    k0 = np.asarray(super(type(self), self).small_amplitude_basis(**shape), float)
+    return B - k0.reshape((-1,) + (1,) * (B.ndim - 1))
+
+
+def _relative_constants(self, *contract):
+    base = super(type(self), self).kernel_constants(*contract)
+    linear, shape = self.to_fit(dict(zip(self.param_names, contract)))
+    k0 = super(type(self), self).small_amplitude_basis(**shape)
+    return (*base, float(sum(linear[n] * b for n, b in zip(self.linear, k0))))
+
+
+def _less_stiffness(kernel, at: int):
+    @njit
+    def relative(x, v, p, s):
+        return kernel(x, v, p, s) - p[at] * x
+    return relative
+
+
+def _less_stiffness_update(update, at: int):
+    @njit
+    def relative(x, v, p, s, out):
+        return update(x, v, p, s, out) - p[at] * x
+    return relative

@@ -348,6 +348,9 @@ class Iwan(Law):
         return {"kt": linear["kt"], "fs": linear["kt"] * shape["xs"],
                 "chi": shape["chi"], "beta": shape["beta"]}
 
+    def small_amplitude_basis(self, xs, chi, beta):
+        return np.ones(1)       # every slider stuck: the whole stiffness kt
+
     def basis(self, X, w, xs, chi, beta):
         X, w = np.broadcast_arrays(X, w)
         return iwan_unit(X, xs, chi, beta)[None]
@@ -357,12 +360,14 @@ class Iwan(Law):
         micro-slip forms are then exact (module docstring), kbar = kt [1 - r(chi) (nu / (pi kt)) X^(chi+1)]
         + j (nu / pi) X^(chi+1) with r(chi) = 2 B(chi + 5/2, 3/2) (chi + 2)(chi + 3) / (chi + 1), so the data
         determine kt, chi and the dissipation per cycle D = nu X^(chi+3), nu = 4 R / ((chi + 2)(chi + 3)), and fs
-        and beta only through nu. Coulomb friction where the whole population slips a decade below the smallest
-        amplitude (``X_min >= 10 phi_max``): kbar is then within a few per cent of 4 j fs / (pi X) and only fs is
-        determined. First of all, a Jenkins element where the spike carries all but 1/SPIKE_ONLY of the stiffness
-        (the continuum's share of kbar below any test's noise): kt and fs of the spike are determined, chi and beta
-        not, whatever the amplitudes -- and that element is read in its own limit where it has one (Coulomb
-        friction where the spike slips from a tenth of the smallest amplitude on: then only fs is determined)."""
+        and beta only through nu; measured from the reference (:meth:`Law.relative`), kbar - kt leaves kt
+        undetermined too, only chi and nu. Coulomb friction where the whole population slips a decade below the
+        smallest amplitude (``X_min >= 10 phi_max``): kbar is then within a few per cent of 4 j fs / (pi X) and
+        only fs is determined. First of all, a Jenkins element where the spike carries all but 1/SPIKE_ONLY of the
+        stiffness (the continuum's share of kbar below any test's noise): kt and fs of the spike are determined, chi
+        and beta not, whatever the amplitudes -- and that element is read in its own limit where it has one
+        (Coulomb friction where the spike slips from a tenth of the smallest amplitude on: then only fs is
+        determined)."""
         kt, fs, chi, beta = (float(values[k]) for k in ("kt", "fs", "chi", "beta"))
         phi_max = float(slip_range(fs / kt, chi, beta))
         if beta >= SPIKE_ONLY:
@@ -378,6 +383,12 @@ class Iwan(Law):
         if X_max <= phi_max:
             rate = kt * (chi + 1.0) / ((1.0 + beta) * phi_max ** (chi + 1.0))
             nu = 4.0 * rate / ((chi + 2.0) * (chi + 3.0))
+            if self.from_reference:         # kbar - kt: the stiffness kt itself is the reference's
+                return LimitReading(
+                    "micro-slip", {"chi": chi, "nu": nu}, {"chi": "1", "nu": f"{{F}}/{{L}}^{chi + 2.0:.4g}"},
+                    f"no part of the contact slips through at the largest amplitude (slip range {phi_max:.3g} "
+                    f"against {X_max:.3g}), and the stuck stiffness is the reference's: the data determine the "
+                    "dissipation per cycle nu X^(chi+3) and the softening that goes with it", ("kt", "fs", "beta"))
             return LimitReading(
                 "micro-slip", {"kt": kt, "chi": chi, "nu": nu},
                 {"kt": "{F}/{L}", "chi": "1", "nu": f"{{F}}/{{L}}^{chi + 2.0:.4g}"},

@@ -90,6 +90,9 @@ class TanhSoftening(Law):
     example_amplitude = (1e-4, 1e-1)
     kernel = tanh_softening_force
 
+    def small_amplitude_basis(self, beta):
+        return np.array([beta])     # alpha tanh(beta x) ~ alpha beta x
+
     def basis(self, X, w, beta):
         X, w = np.broadcast_arrays(X, w)
         return np.asarray(beta * tanh_fundamental(beta * X), complex)[None]

@@ -95,8 +95,10 @@ class LevelReference:
 
     def model(self) -> Model:
         """The model: this structure and the joint element at the drive point, grounded, no laws (``analyze``
-        finds them)."""
-        return Model(dict(self.table), load_structure(self.table), [Element(ELEMENT, (self.drive,), [])])
+        finds them). The structure holds the joint's stiffness at this level, so the element is marked
+        ``in_reference``: its laws are measured from their small-amplitude state."""
+        return Model(dict(self.table), load_structure(self.table),
+                     [Element(ELEMENT, (self.drive,), [], in_reference=True)])
 
 
 def response_size(run: SineRun, drive: str) -> float:

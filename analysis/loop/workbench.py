@@ -57,7 +57,7 @@ class ElementReport:
     def to_json(self, element) -> dict:
         laws = []
         for j, term in enumerate(element.laws):
-            entry = {"law": term.law.name, "params": dict(term.values)}
+            entry = {"law": term.law.name, "params": dict(term.values), "from_reference": term.law.from_reference}
             if self.fit is not None:
                 entry["stderr"] = {k: (None if not np.isfinite(v) else float(v))
                                    for k, v in self.fit.terms[j].stderr.items()}
@@ -69,7 +69,8 @@ class ElementReport:
         out = {"name": self.name, "verdict": None if self.verdict is None else
                ("linear" if self.verdict.linear else "nonlinear"),
                "evidence": "" if self.verdict is None else self.verdict.evidence,
-               "lines_used": self.lines_used, "lines_flagged": self.lines_flagged, "laws": laws}
+               "lines_used": self.lines_used, "lines_flagged": self.lines_flagged, "laws": laws,
+               "in_reference": element.in_reference}
         if self.verdict is not None:
             out["statistic"], out["threshold"] = self.verdict.statistic, self.verdict.threshold
         if self.fit is not None:
@@ -446,7 +447,7 @@ class Workbench:
         """Add ``laws`` (one, or several found together) to ``element``, refit it and record one step
         (``action``: the word the history starts the step with)."""
         el = self.model.element(element)
-        new = [get_law(law) for law in laws]
+        new = [el.law(law) for law in laws]
         for law, n in zip(laws, new):
             if any(t.law.name == n.name for t in el.laws):
                 raise InputError(f"element {element!r} already has law {law!r}", self.model.source)

@@ -19,6 +19,9 @@ from .nonparametric import NAME as NONPARAMETRIC, NonParametric
 from .structures import Structure
 from .surroundings import Surroundings, linear_part, placed_kbar, surroundings_of
 
+#: The model file's key of an element whose reference holds its small-amplitude stiffness (docs/contracts.md §4)
+IN_REFERENCE = "in_reference"
+
 
 @dataclass
 class LawTerm:
@@ -52,6 +55,14 @@ class Element:
     nonparametric: NonParametric | None = None     # what the laws leave of kbar, where no law explains it
     # the structure around the element (set where it is read into a structure): a contact law's kbar is placed in it
     surroundings: Surroundings | None = field(default=None, compare=False, repr=False)
+    # the reference structure holds the element's small-amplitude stiffness (it was made from a measured level):
+    # every law of the element is measured from its small-amplitude state (analysis.laws.base.Law.relative)
+    in_reference: bool = False
+
+    def law(self, name: str, source: str | None = None, field: str | None = None) -> Law:
+        """The law called ``name`` as this element uses it: measured from its small-amplitude state where the
+        reference holds that state (:attr:`in_reference`)."""
+        return _element_law(name, self.in_reference, source, field)
 
     @property
     def time_domain(self) -> bool:
@@ -103,6 +114,11 @@ class Element:
         return total
 
 
+def _element_law(name: str, in_reference: bool, source: str | None, field: str | None) -> Law:
+    law = get_law(name, source, field)
+    return law.relative() if in_reference else law
+
+
 def load_elements(document: dict, structure: Structure, source: str | None = None,
                   complete: bool = False) -> list[Element]:
     """Read the ``[[element]]`` array of a rig or model file.
@@ -117,7 +133,13 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
     seen: set[str] = set()
     for i, f in enumerate(root.list_of_tables("element")):
         f.where = f"[[element]][{i}]"
-        f.unknown_keys({"name", "dof", "between", "laws", NONPARAMETRIC})
+        f.unknown_keys({"name", "dof", "between", "laws", NONPARAMETRIC, IN_REFERENCE})
+        in_reference = False
+        if f.has(IN_REFERENCE):
+            if complete:
+                raise f.error(IN_REFERENCE, "a rig's element is the truth, with its whole force: it cannot be "
+                                            "measured from a reference")
+            in_reference = f.boolean(IN_REFERENCE)
         name = f.string("name")
         if not name or name != name.strip() or ":" in name:
             raise f.error("name", f"{name!r} is not an element name: give a non-empty name without a colon "
@@ -148,7 +170,7 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
                 entry = {"law": entry}
             if not isinstance(entry, dict) or "law" not in entry:
                 raise InputError("each law is a name or a table with a 'law' key", source, where)
-            law = get_law(entry["law"], source, f"{where}.law")
+            law = _element_law(entry["law"], in_reference, source, f"{where}.law")
             values = {k: v for k, v in entry.items() if k != "law"}
             numbers = Fields(values, source, where)
             for key, value in values.items():
@@ -166,7 +188,7 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
                 raise f.error(NONPARAMETRIC, "a rig's element needs laws with a time-domain force; a "
                               "non-parametric part has none and cannot be simulated")
             part = NonParametric.from_toml(f.table[NONPARAMETRIC], source, f.path(NONPARAMETRIC))
-        element = Element(name, dofs, terms, part)
-        element.surroundings = surroundings_of(structure, element.vector(structure))
+        element = Element(name, dofs, terms, part, in_reference=in_reference)
+        element.surroundings = surroundings_of(structure, element.vector(structure), in_reference)
         elements.append(element)
     return elements

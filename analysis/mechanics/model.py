@@ -28,7 +28,7 @@ import numpy as np
 from ..common.errors import InputError
 from ..common.quantities import FORCE_RANGE, FREQUENCY_RANGE, RESPONSE_RANGE
 from ..common.tables import Fields
-from .elements import Element, LawTerm, load_elements
+from .elements import IN_REFERENCE, Element, LawTerm, load_elements
 from .nonparametric import NAME as NONPARAMETRIC
 from .structures import Structure, load_structure, structure_parameter
 from .surroundings import surroundings_of
@@ -92,7 +92,7 @@ class Model:
         that has them (a copy's, sharing the receptances computed) keeps them."""
         for el in self.elements:
             if not (keep and el.surroundings is not None):
-                el.surroundings = surroundings_of(self.structure, el.vector(self.structure))
+                el.surroundings = surroundings_of(self.structure, el.vector(self.structure), el.in_reference)
 
     def element(self, name: str) -> Element:
         for el in self.elements:
@@ -104,7 +104,7 @@ class Model:
     def copy(self) -> "Model":
         return Model(copy.deepcopy(self.structure_table), self.structure,
                      [Element(e.name, e.dofs, [LawTerm(t.law, dict(t.values)) for t in e.laws], e.nonparametric,
-                             e.surroundings)
+                             e.surroundings, e.in_reference)
                       for e in self.elements],
                      list(self.updating_parameters), self.updating_modes, self.source, self.fitted_on)
 
@@ -141,6 +141,8 @@ class Model:
             laws = ", ".join("{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in t.to_toml().items()) + " }"
                              for t in el.laws)
             out.append(f"laws = [{laws}]")
+            if el.in_reference:
+                out.append(f"{IN_REFERENCE} = true")
             if el.nonparametric is not None:
                 out.append(f"{NONPARAMETRIC} = {_toml_value(el.nonparametric.to_toml())}")
         if self.fitted_on is not None:

@@ -59,6 +59,9 @@ class Surroundings:
     parallel: Callable[[np.ndarray], np.ndarray] | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
     _blocks: tuple | None = field(default=None, repr=False, compare=False)
+    # the structure was made from a measured level and holds the element's small-amplitude stiffness: the
+    # element's laws are measured from their small-amplitude state (analysis.laws.base.Law.relative)
+    in_reference: bool = False
 
     def receptance(self, W) -> np.ndarray:
         """R(W) for angular frequencies W (any shape), complex."""
@@ -84,12 +87,13 @@ class Surroundings:
     def with_parallel(self, stiffness: Callable[[np.ndarray], np.ndarray] | None) -> "Surroundings":
         """The same place with the element's amplitude-independent laws ``stiffness(W)`` in parallel (sharing
         the structure's receptances)."""
-        return Surroundings(self.structure, self.vector, stiffness, self._cache)
+        return Surroundings(self.structure, self.vector, stiffness, self._cache, in_reference=self.in_reference)
 
 
-def surroundings_of(structure: Structure, vector: np.ndarray) -> Surroundings:
-    """The structure around the element of element vector ``vector`` (``x_element = vector @ x``)."""
-    return Surroundings(structure, np.asarray(vector, float))
+def surroundings_of(structure: Structure, vector: np.ndarray, in_reference: bool = False) -> Surroundings:
+    """The structure around the element of element vector ``vector`` (``x_element = vector @ x``);
+    ``in_reference``: it holds the element's small-amplitude stiffness (:attr:`Surroundings.in_reference`)."""
+    return Surroundings(structure, np.asarray(vector, float), in_reference=in_reference)
 
 
 def linear_part(terms) -> Callable[[np.ndarray], np.ndarray] | None:

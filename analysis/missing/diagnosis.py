@@ -52,7 +52,7 @@ import scipy.stats
 from ..common.errors import InputError
 from ..common.statistics import (capped_chi_square, charged_criterion, chi_square_shares, falls_above_noise,
                                  noise_scale)
-from ..common.wording import change_words
+from ..common.wording import change_words, parameter_words
 from ..fitting.fit import LawFit, TermFit, fit_laws
 from ..fitting.friction_fundamental import chi_square_with_friction_turn, holds_friction
 from ..laws import LAWS
@@ -229,7 +229,7 @@ def explain(element: str, law: str, sig: Signature, term: TermFit | None, units:
         params = (f"as {reading.limit}: {reading.values_text(units[1] == 'rad')} "
                   f"({', '.join(reading.undetermined)} not determined apart)")
     elif term is not None:
-        params = ", ".join(f"{k} = {v:.4g}" + (" (not determined by the data)" if k in term.undetermined else "")
+        params = ", ".join(parameter_words(k, v, undetermined=k in term.undetermined, digits=4)
                            for k, v in term.params.items())
     head = f"'{element}' over X = {X0:.3g}..{X1:.3g} {units[1]}: "
     return head + LAWS[law].explain(signature_words(sig, units[0])) + (f"; fitted {params}" if params else "")

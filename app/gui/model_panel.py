@@ -489,6 +489,11 @@ class ModelPanel(QWidget):
             top = QTreeWidgetItem(self.laws, [f"{el.name} ({el.where}): {el.verdict}"])
             if not el.laws:
                 QTreeWidgetItem(top, ["no laws yet (kbar identified only)"])
+            elif el.in_reference:
+                note = QTreeWidgetItem(top, ["laws measured from their small-amplitude state (in the reference)"])
+                note.setToolTip(0, "The reference was made from a measured level and holds the element's "
+                                   "small-amplitude stiffness: each law enters as its change from that state "
+                                   "(docs/laws.md, \"Measured from the reference\").")
             for law in el.laws:
                 item = QTreeWidgetItem(top, [law.law])
                 for p in law.params:

@@ -5,7 +5,6 @@ never changes afterwards (identification and comparison make new arrays each tim
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -16,6 +15,7 @@ from analysis.prediction.backbone import (Backbone, BackboneComparison, measured
 from analysis.prediction.comparison import LevelError
 from analysis.missing.diagnosis import Candidate, ElementSamples
 from analysis.common.measurements import Control, Measurements, SineRun
+from analysis.common.wording import parameter_words
 from analysis.loop.workbench import Workbench
 from analysis.mechanics.model import FittedOn
 from analysis.prediction.held_out import SessionPrediction
@@ -33,14 +33,7 @@ class ParamView:
     undetermined: bool = False    # the data do not determine it (docs/fitting.md): its value is no finding
 
     def text(self) -> str:
-        value = f"{self.name} = {self.value:.5g} {self.unit}".rstrip()
-        if self.stderr is None:
-            return value
-        if not math.isfinite(self.stderr):
-            return value + "  (not determined by the data)"
-        if self.undetermined:
-            return value + f"  (not determined by the data: ± {self.stderr:.2g})"
-        return f"{self.name} = {self.value:.5g} ± {self.stderr:.2g} {self.unit}".rstrip()
+        return parameter_words(self.name, self.value, self.stderr, self.undetermined, self.unit)
 
 
 @dataclass(frozen=True)
@@ -63,6 +56,7 @@ class ElementView:
     laws: tuple[LawView, ...] = ()
     nonparametric: str = ""           # the non-parametric part, described; "" when the element has none
     model: np.ndarray | None = None   # the fitted laws' kbar at the samples; None before fitting
+    in_reference: bool = False        # its laws are measured from their small-amplitude state (docs/laws.md)
 
     @property
     def verdict(self) -> str:
@@ -278,7 +272,8 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
         views.append(ElementView(el.name, where, samples, None if verdict is None else verdict.linear,
                                  "" if verdict is None else verdict.evidence, report.lines_used,
                                  report.lines_flagged, tuple(laws), part,
-                                 el.describing_function(samples.X, samples.w) if fitted else None))
+                                 el.describing_function(samples.X, samples.w) if fitted else None,
+                                 el.in_reference))
     return views
 
 
