@@ -87,14 +87,21 @@ def test_import_keeps_the_force_measured_at_each_line(rk4_session):
 
 @pytest.mark.slow
 def test_lowest_level_reference_then_analyze_auto_runs_end_to_end(rk4_session, capsys):
+    """From the lowest level's reference and no law, ``analyze --auto`` finds the RK4 rig's Jenkins joint with
+    its kt and fs (docs/laws.md, "Measured from the reference")."""
     model = rk4_session.with_name("reference2.toml")
     assert main(["reference", str(rk4_session), "-o", str(model)]) == 0
     capsys.readouterr()
     assert main(["analyze", str(rk4_session), str(model), "--auto", "--json", "--no-history"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert [e["label"] for e in result["error_by_level"]] == [f"{f:g} N" for f in LEVELS]
-    assert result["error"] < 0.1
-    assert result["elements"][0]["verdict"] == "nonlinear"
+    assert result["error"] < 0.01
+    joint = result["elements"][0]
+    assert joint["verdict"] == "nonlinear" and joint["in_reference"]
+    # from no law at all, the rig's own: its joint measured from the stuck state the reference holds
+    assert [law["law"] for law in joint["laws"]] == ["jenkins"] and joint["laws"][0]["from_reference"]
+    assert joint["laws"][0]["params"]["kt"] == pytest.approx(rk4_rig.KT, rel=0.02)
+    assert joint["laws"][0]["params"]["fs"] == pytest.approx(rk4_rig.FS, rel=0.02)
 
 
 def _runs(levels, per_line: bool) -> list[SineRun]:
@@ -158,7 +165,7 @@ def test_response_controlled_levels_give_the_law_of_the_force_controlled_ones(tm
 @pytest.mark.slow
 def test_reference_from_an_emulated_campaigns_lowest_level(tmp_path, capsys):
     """The same rig emulated (tests/rigs/jenkins-sdof.toml) and measured through the drivers, no random run:
-    the reference command recovers the stuck frequency and damping."""
+    the reference command recovers the stuck frequency and damping, and the Jenkins law on it the joint's kt and fs."""
     import tomllib as toml
     from pathlib import Path
 
@@ -177,6 +184,10 @@ def test_reference_from_an_emulated_campaigns_lowest_level(tmp_path, capsys):
     assert s["frequencies"][0] == pytest.approx(rk4_rig.stuck_frequency_hz(), rel=1e-3)
     assert s["damping"][0] == pytest.approx(rk4_rig.stuck_damping(), rel=0.05)
     assert "NONLINEAR already between the two lowest levels" in capsys.readouterr().out
+    # the Jenkins joint added by hand, measured from the stuck state the reference holds: the rig's kt and fs
+    assert main(["analyze", str(session), str(model), "--add", "joint:jenkins", "--json", "--no-history"]) == 0
+    law = json.loads(capsys.readouterr().out)["elements"][0]["laws"][0]["params"]
+    assert law["kt"] == pytest.approx(rk4_rig.KT, rel=0.05) and law["fs"] == pytest.approx(rk4_rig.FS, rel=0.05)
 
 
 @pytest.mark.parametrize("in_reference", [True, False])
