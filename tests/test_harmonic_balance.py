@@ -417,7 +417,7 @@ def test_multiharmonic_converges_on_anderson_ferri_friction_and_matches_its_peri
         assert off < 0.3 * single_off, (w[i] / HZ, single_off, off)
 
 
-@pytest.mark.parametrize("lines", [25, 200])      # marched, and solved all at once (long sweeps)
+@pytest.mark.parametrize("lines", [6, 25, 200])      # marched (<= MARCHED_STEPS), and solved all at once
 def test_each_line_is_predicted_at_its_own_measured_force(lines):
     """A force per line (L, B): every line solves the explicit single-element relation at its own force, and a
     sweep at a constant force per line is the sweep at that force."""
@@ -468,13 +468,14 @@ def test_a_long_sweep_follows_the_branch_a_stepped_sine_measures_by_the_analytic
     pytest.param([{"law": "coulomb", "fs": 0.6}], marks=pytest.mark.slow),   # sticks at 0.5 N: no solution
     [{"law": "cubic", "k3": 1e4}, {"law": "quadratic_damping", "c2": 0.05}],
 ])
-def test_a_long_sweep_solved_at_once_is_the_line_by_line_march(laws, monkeypatch):
-    """The batch solution of a long sweep and the march line by line give the same phasors, convergence and
+@pytest.mark.parametrize("lines", [120, 20])      # both > MARCHED_STEPS: batch-solved
+def test_a_long_sweep_solved_at_once_is_the_line_by_line_march(laws, lines, monkeypatch):
+    """The batch solution of a sweep and the march line by line give the same phasors, convergence and
     stability flags (to Newton's tolerance), also where lines have no solution and across jumps."""
     import analysis.prediction.harmonic_balance as hb
 
     s, els = sdof(laws)
-    w = np.linspace(5.0, 25.0, 120)                 # > MARCHED_STEPS: batch-solved
+    w = np.linspace(5.0, 25.0, lines)
     forces = [0.5, 2.0]
     fast = predict_sweeps(s, els, "x", w, forces)
     monkeypatch.setattr(hb, "MARCHED_STEPS", len(w))

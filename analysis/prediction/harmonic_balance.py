@@ -285,7 +285,7 @@ def line_forces(force, n_lines: int) -> np.ndarray:
 
 
 
-MARCHED_STEPS = 64     # a sweep of at most this many lines is marched line by line: batch solves would not pay
+MARCHED_STEPS = 8      # a sweep of at most this many lines is marched line by line (benchmarks/prediction_march.py)
 COARSENING = 8        # the guess of a speculative sweep comes from the sweep over every so many lines
 SPECULATIVE_ITERATIONS = 8   # a line of the batch solves not converged in as many is left to the march
 IN_STEP = 1e-8         # two solutions of a line closer than this (relative to its linear response) are one
