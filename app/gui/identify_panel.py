@@ -43,8 +43,9 @@ def _same_lines(before: IdentificationView, after: IdentificationView) -> bool:
 
 def _moved(before: IdentificationView | None, after: IdentificationView) -> str:
     """How far the samples moved between two identifications of the same lines, as a share of the element's largest
-    |kbar| (a share of each sample would be huge where kbar crosses zero), and at the smallest X of the element that
-    moved most ("" where nothing moved, or the lines differ)."""
+    |kbar| (a share of each sample would be huge where kbar crosses zero), and the sample of the element that moved
+    most, where it moved most: its X and its kbar before and after ("" where nothing moved, or the lines
+    differ)."""
     if before is None or not _same_lines(before, after):
         return ""
     worst = None
@@ -58,11 +59,12 @@ def _moved(before: IdentificationView | None, after: IdentificationView) -> str:
     if worst is None:
         return ""
     _, a, b = worst
-    i = int(np.argmin(a.samples.X))
-    unit = a.samples.units[0]
+    i = int(np.nanargmax(np.abs(b.samples.kbar - a.samples.kbar)))
+    unit, x_unit = a.samples.units
+    before, after = a.samples.kbar[i], b.samples.kbar[i]
     return (f"the samples moved with this analysis (its fit, not the data): {a.name} by up to {worst[0]:.1%} of "
-            f"its largest |kbar|; "
-            f"Re kbar at the smallest X {a.samples.kbar[i].real:.4g} -> {b.samples.kbar[i].real:.4g} {unit}")
+            f"its largest |kbar|, most at X = {a.samples.X[i]:.3g} {x_unit}: Re kbar {before.real:.4g} -> "
+            f"{after.real:.4g}, Im kbar {before.imag:.4g} -> {after.imag:.4g} {unit}")
 
 
 def _levels_words(levels) -> str:
