@@ -1,7 +1,6 @@
 """``contactid analyze``: identify, fit, predict, compare and rank missing effects for a session and a model."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 from typing import Callable
@@ -319,6 +318,12 @@ def backbone_text(comparisons: list[BackboneComparison]) -> list[str]:
     return out
 
 
+#: Why an element marked ``in_reference`` has its laws measured from their small-amplitude state (text and GUI)
+IN_REFERENCE_WHY = ("the reference was made from a measured level and holds the element's small-amplitude "
+                    "stiffness, so each law enters as its change from its small-amplitude state (docs/laws.md, "
+                    "\"Measured from the reference\")")
+
+
 def report_text(wb: Workbench, candidates, top: int = 5,
                 comparisons: list[BackboneComparison] | None = None) -> str:
     """The analysis as a test engineer reads it (``comparisons``: :func:`backbones`, computed here if not
@@ -339,9 +344,7 @@ def report_text(wb: Workbench, candidates, top: int = 5,
         if r.verdict is not None:
             out.append(f"    evidence: {r.verdict.evidence}")
         if el.in_reference:
-            out.append("    measured from the reference: the reference was made from a measured level and holds the "
-                       "element's small-amplitude stiffness, so each law enters as its change from its "
-                       "small-amplitude state (docs/laws.md)")
+            out.append(f"    measured from the reference: {IN_REFERENCE_WHY}")
         for j, term in enumerate(el.laws):
             fitted = r.fit.terms[j] if r.fit is not None else None
             reading = r.reading(term)
@@ -427,9 +430,9 @@ def frequency_ranges(hz: list[float]) -> str:
 
 def _param_text(name: str, value: float, fitted) -> str:
     """The parameter's words (:func:`analysis.common.wording.parameter_words`), its spread from the fit if any."""
-    err = None if fitted is None else fitted.stderr.get(name)
-    undetermined = fitted is not None and name in fitted.undetermined
-    return parameter_words(name, value, err if err is None or math.isfinite(err) else None, undetermined)
+    if fitted is None:
+        return parameter_words(name, value)
+    return parameter_words(name, value, fitted.stderr.get(name), name in fitted.undetermined)
 
 
 def _jump_lines(comp, runs) -> list[str]:

@@ -301,13 +301,12 @@ class Law(ABC):
         stiffness already (docs/laws.md, "Measured from the reference"): added to such a reference, the law
         itself would hold it twice. The same law, name and parameters; itself where it has no small-amplitude
         stiffness."""
-        if self.small_amplitude_basis(**_example_shape(self)) is None:
-            return self
         if self.from_reference:
             return self
         cls = type(self)
-        if cls not in _RELATIVE:
-            _RELATIVE[cls] = _relative_class(cls)()
+        if cls not in _RELATIVE:       # decided once per law class: fits ask at every term
+            nothing = self.small_amplitude_basis(**_example_shape(self)) is None
+            _RELATIVE[cls] = self if nothing else _relative_class(cls)()
         return _RELATIVE[cls]
 
     def reading(self, values: Mapping[str, float], X_min: float, X_max: float) -> LimitReading | None:

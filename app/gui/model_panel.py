@@ -18,6 +18,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QFrame, QGroupBox
 
 from analysis.prediction.comparison import gain_phrase
 from analysis.mechanics.nonparametric import NAME as NONPARAMETRIC
+from app.analyze import IN_REFERENCE_WHY
 from app.predict import KIND_WORDS
 
 from app.kbar_view import legend_column, level_panels, panel_title
@@ -491,9 +492,7 @@ class ModelPanel(QWidget):
                 QTreeWidgetItem(top, ["no laws yet (kbar identified only)"])
             elif el.in_reference:
                 note = QTreeWidgetItem(top, ["laws measured from their small-amplitude state (in the reference)"])
-                note.setToolTip(0, "The reference was made from a measured level and holds the element's "
-                                   "small-amplitude stiffness: each law enters as its change from that state "
-                                   "(docs/laws.md, \"Measured from the reference\").")
+                note.setToolTip(0, IN_REFERENCE_WHY[0].upper() + IN_REFERENCE_WHY[1:] + ".")
             for law in el.laws:
                 item = QTreeWidgetItem(top, [law.law])
                 for p in law.params:
