@@ -485,3 +485,76 @@ def test_a_long_sweep_solved_at_once_is_the_line_by_line_march(laws, lines, monk
         scale = np.abs(b.y).max(axis=0, keepdims=True)
         assert np.abs(a.y - b.y).max() <= 1e-9 * scale.max()
         assert (np.abs(a.y - b.y) <= 1e-9 * scale).all()
+
+
+def _one_restart_after_another(sys_, fns, F, orders, step, items, y, converged, tried):
+    """The march's line as its rule states it, one Newton solve per start: from the previous line's solution,
+    then each restart of ``_restarts`` in order until one converges (after a line with no solution only the
+    linear response); ``tried`` counts the restarts solved."""
+    import analysis.prediction.harmonic_balance as hb
+
+    for b in items:
+        line = orders[b, step]
+        balance = hb._LineBalances.at(sys_, fns, np.array([line]), F[[line], [b]])
+        if step == 0:
+            starts = [balance.gF]
+        else:
+            prev = orders[b, step - 1]
+            restarts = list(hb._restarts(y[[prev], b], balance.gF))
+            starts = [y[[prev], b]] + (restarts if converged[prev, b] else restarts[:1])
+        for attempt, start in enumerate(starts):
+            sol, ok = balance.solve(start, np.array([0]))
+            tried[0] += attempt > 0
+            if attempt == 0 or ok[0]:
+                y[line, b] = sol[0]
+            if ok[0]:
+                break
+        converged[line, b] = ok[0]
+
+
+@pytest.mark.parametrize("laws, force", [
+    ([{"law": "coulomb", "fs": 0.6}], 0.5),                                # sticks: no solution at any line
+    ([{"law": "cubic", "k3": 1e4}], 2.0),                                  # jumps off its fold
+    ([{"law": "cubic", "k3": -3e3}, {"law": "quadratic_damping", "c2": 0.05}], 2.0),
+])
+def test_restarts_solved_as_one_batch_are_the_restarts_tried_one_after_another(laws, force, monkeypatch):
+    """A line that does not converge from the previous one solves all its restarts in one batch and takes the
+    first in order that converges: the phasors and flags of trying them one after another."""
+    import analysis.prediction.harmonic_balance as hb
+
+    s, els = sdof(laws)
+    w = np.linspace(5.0, 25.0, 60)
+    monkeypatch.setattr(hb, "MARCHED_STEPS", len(w))                        # every line marched
+    batch = predict_sweeps(s, els, "x", w, [force, 0.5 * force])
+    tried = [0]
+    monkeypatch.setattr(hb, "_march_step", lambda *a: _one_restart_after_another(*a, tried))
+    spec = predict_sweeps(s, els, "x", w, [force, 0.5 * force])
+    assert tried[0] > 0                                                     # restarts were needed
+    for a, b in zip(batch, spec):
+        assert (a.converged == b.converged).all() and (a.stable == b.stable).all()
+        np.testing.assert_allclose(a.y, b.y, rtol=0, atol=1e-12 * np.abs(b.y).max())
+
+
+def test_newton_takes_a_stalled_residual_as_a_solution_only_below_its_stall_tolerance():
+    """An item whose function is exact only to 5e-11 stops where no step lowers it and converges if that is
+    below ``stalled_tol``; an item with no root stops too and never converges; an exact one meets ``tol``."""
+    from analysis.prediction.harmonic_balance import _newton
+
+    def each(z):
+        exact = z[:, 0] - 1.0
+        rounded = 1e-10 * (np.floor((z[:, 1] - 1.0) / 1e-10) + 0.5)       # |f| >= 5e-11 everywhere
+        rootless = z[:, 2] ** 2 + 1.0
+        return exact, rounded, rootless
+
+    def fun(z, idx):
+        return np.stack(each(np.repeat(z, 3, axis=1)), axis=1)[np.arange(len(idx)), idx][:, None]
+
+    def jac(z, idx):
+        slope = np.where(idx == 2, 2 * z[:, 0], 1.0)
+        return np.where(slope == 0, 1e-300, slope)[:, None, None]
+
+    z0 = np.array([[3.0], [3.0], [0.5]])
+    for stalled_tol, expected in ((1e-8, [True, True, False]), (0.0, [True, False, False])):
+        z, converged = _newton(fun, jac, z0, tol=1e-11, max_iter=60, stalled_tol=stalled_tol)
+        assert converged.tolist() == expected
+        assert abs(z[0, 0] - 1) < 1e-11 and abs(z[1, 0] - 1) < 1e-9

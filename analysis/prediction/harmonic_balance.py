@@ -141,20 +141,24 @@ def _to_complex(z):
 
 
 def _newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray], jac: Callable[[np.ndarray, np.ndarray], np.ndarray],
-            z0: np.ndarray, tol: float = 1e-11, max_iter: int = 30) -> tuple[np.ndarray, np.ndarray]:
+            z0: np.ndarray, tol: float = 1e-11, max_iter: int = 30,
+            stalled_tol: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Damped Newton for a batch of independent real systems ``fun(z) = 0``, z of shape (B, m).
 
     ``fun(z, idx)`` and ``jac(z, idx)`` (shape (len(idx), m, m)) evaluate the items ``idx`` of the batch at
     their unknowns ``z``: only the items still iterating are evaluated, so a batch of many lines costs what its
     slowest items cost, not that times the batch. A backtracking line search keeps each item's residual norm
-    decreasing. Returns (z, converged).
+    decreasing; an item it cannot improve stops there. Returns (z, converged): converged where the residual norm
+    is at most ``tol``, or at most ``stalled_tol`` where no step lowers it any more (``fun``'s own rounding is
+    reached before ``tol``).
     """
     z = z0.copy()
     R = fun(z, np.arange(len(z)))
     norm = np.linalg.norm(R, axis=1)
+    stuck = np.zeros(len(z), bool)
     for _ in range(max_iter):
         check_stop()            # one Newton pass of the batch: where a stop asked for is heard
-        active = np.flatnonzero(norm > tol)
+        active = np.flatnonzero((norm > tol) & ~stuck)
         if not len(active):
             break
         J = jac(z[active], active)
@@ -177,9 +181,9 @@ def _newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray], jac: Callable[[
             if improved.all():
                 break
             alpha[left[~ok]] *= 0.5
-        if not improved.any():
-            break
-    return z, norm <= tol
+        # an item no step improves is finished: the same unknowns would give the same step again
+        stuck[active[~improved]] = True
+    return z, (norm <= tol) | (stuck & (norm <= stalled_tol))
 
 
 # --------------------------------------------------------------------------- stepped-sine prediction
@@ -288,7 +292,10 @@ def line_forces(force, n_lines: int) -> np.ndarray:
 MARCHED_STEPS = 8      # a sweep of at most this many lines is marched line by line (benchmarks/prediction_march.py)
 COARSENING = 8        # the guess of a speculative sweep comes from the sweep over every so many lines
 SPECULATIVE_ITERATIONS = 8   # a line of the batch solves not converged in as many is left to the march
-IN_STEP = 1e-8         # two solutions of a line closer than this (relative to its linear response) are one
+IN_STEP = 1e-8         # two solutions of a line closer than this (relative to its linear response) are one;
+# a residual this small where Newton can lower it no further is a solution: a placed contact's describing
+# function is only as exact as its own balance (1e-10 of X, analysis/mechanics/surroundings.py), and Newton's
+# 1e-11 lies below that
 
 
 @dataclass
@@ -320,7 +327,7 @@ class _LineBalances:
         """Newton for the items ``items`` from the phasors ``start`` (len(items), r): (phasors, converged)."""
         scale = self.scale[items, None]
         z, conv = _newton(lambda zz, i: self.residual(zz, items[i]), lambda zz, i: self.jacobian(zz, items[i]),
-                          _to_real(start / scale), max_iter=max_iter)
+                          _to_real(start / scale), max_iter=max_iter, stalled_tol=IN_STEP)
         return _to_complex(z) * scale, conv
 
 
@@ -344,38 +351,43 @@ def _sweep(sys_: CondensedSystem, fns, F, orders) -> tuple[np.ndarray, np.ndarra
 
 def _march_step(sys_: CondensedSystem, fns, F, orders, step: int, items: np.ndarray, y, converged) -> None:
     """One line of the march for the batch items ``items``: Newton from the previous line's solution, then
-    from the restarts of :func:`_restarts` for those that did not converge; ``y`` and ``converged`` are set."""
+    from the restarts of :func:`_restarts` for those that did not converge, each taking the first restart
+    in that order that converges; ``y`` and ``converged`` are set.
+
+    The restarts of all items are solved as one batch: the answer is what trying them one after the other
+    gives, at the cost of one Newton solve instead of one per restart."""
     line = orders[items, step]
     balances = _LineBalances.at(sys_, fns, line, F[line, items])
-    prev = None if step == 0 else orders[items, step - 1]
-    starts = [balances.gF] if prev is None else _restarts(y[prev, items], balances.gF)
-    ok = np.zeros(len(items), bool)
-    # where the previous line had no solution either (e.g. friction holding), one more attempt from the
-    # linear response is all that is worth trying
-    hopeless = np.zeros(len(items), bool) if prev is None else ~converged[prev, items]
-    for attempt, start in enumerate(starts):
-        todo = np.flatnonzero(~ok & ~(hopeless & (attempt > 1)))
-        if not len(todo):
-            break
-        sol, conv = balances.solve(start[todo], todo)
-        if attempt == 0:
-            y[line[todo], items[todo]] = sol  # kept, flagged, if no start converges
-        y[line[todo[conv]], items[todo[conv]]] = sol[conv]
-        ok[todo[conv]] = True
+    if step == 0:
+        sol, ok = balances.solve(balances.gF, np.arange(len(items)))
+        y[line, items], converged[line, items] = sol, ok
+        return
+    previous = y[orders[items, step - 1], items]
+    sol, ok = balances.solve(previous, np.arange(len(items)))
+    y[line, items] = sol                # kept, flagged, if no restart converges either
+    todo = np.flatnonzero(~ok)
+    if len(todo):
+        starts = _restarts(previous[todo], balances.gF[todo])                  # (A, len(todo), r)
+        # where the previous line had no solution either (e.g. friction holding), one more attempt from the
+        # linear response is all that is worth trying
+        hopeless = ~converged[orders[items[todo], step - 1], items[todo]]
+        tried = np.ones(starts.shape[:2], bool)
+        tried[1:, hopeless] = False
+        attempt, which = np.nonzero(tried)
+        rsol, rok = balances.solve(starts[attempt, which], todo[which])
+        for a, i, s_, c in zip(attempt, which, rsol, rok):   # attempts in order: the first that converges
+            if c and not ok[todo[i]]:
+                sol[todo[i]], ok[todo[i]] = s_, True
+        y[line[ok], items[ok]] = sol[ok]
     converged[line, items] = ok
 
 
-def _restarts(previous, linear):
-    """Starting points for one line of a sweep: the previous line's solution first (stay on the branch);
-    then, for a jump off a fold where that branch ends, the linear solution and the previous one scaled and
-    turned through the quadrants (the other branch has another amplitude and phase)."""
-    # made one at a time: almost every line converges from the first
-    yield previous
-    yield linear
-    yield 3.0 * previous
-    for a in (1.0, 3.0):
-        for phi in (np.pi / 2, np.pi, -np.pi / 2):
-            yield previous * a * np.exp(1j * phi)
+def _restarts(previous, linear) -> np.ndarray:
+    """Starting points (A, B, r) for lines of a sweep that did not converge from the previous line's solution:
+    the linear solution, then the previous one scaled and turned through the quadrants -- for a jump off a fold
+    where the branch ends, the other branch has another amplitude and phase."""
+    turns = [a * np.exp(1j * phi) for a in (1.0, 3.0) for phi in (np.pi / 2, np.pi, -np.pi / 2)]
+    return np.stack([linear, 3.0 * previous] + [previous * t for t in turns])
 
 
 def _speculative_sweep(sys_: CondensedSystem, fns, F, orders, y, converged) -> None:
