@@ -497,7 +497,10 @@ def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, wo
     return -1 if worst > 1.0 else _MAX_NEWTON
 
 
-@njit(cache=True, _nrt=False, inline="always")
+# The bracketed fallback (this function and the next two) runs at few steps. Compiled as calls of their own
+# instead of inlined into the loop, they take 16 s off the loop's first compile (36.6 -> 20.7 s on a fresh
+# clone), and the loop runs no slower (docs/performance.md, "First compile of the integration loop").
+@njit(cache=True, _nrt=False)
 def _signed_residual(laws, S, S_probe, y_free, D, mode, sigma, gv, work):
     """Residual of a single free element at residual force ``gv`` (signed), and its size in tolerances.
 
@@ -510,7 +513,7 @@ def _signed_residual(laws, S, S_probe, y_free, D, mode, sigma, gv, work):
     return res[0], worst
 
 
-@njit(cache=True, _nrt=False, inline="always")
+@njit(cache=True, _nrt=False)
 def _bracketed(laws, S, S_trial, S_probe, y_free, D, mode, sigma, g, x, v, F, work):
     """Fallback of a single free element whose Newton iteration failed: bisection on the residual's sign change.
 
@@ -562,7 +565,7 @@ def _bracketed(laws, S, S_trial, S_probe, y_free, D, mode, sigma, g, x, v, F, wo
     return True
 
 
-@njit(cache=True, _nrt=False, inline="always")
+@njit(cache=True, _nrt=False)
 def _bracket_fallback(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, work, jac_valid):
     """After a failed Newton iteration: :func:`_bracketed` where it applies (one element, not stuck)."""
     if r != 1 or mode[0] == STICK:
