@@ -363,8 +363,7 @@ def _march_step(sys_: CondensedSystem, fns, F, orders, step: int, items: np.ndar
         y[line, items], converged[line, items] = sol, ok
         return
     previous = y[orders[items, step - 1], items]
-    sol, ok = balances.solve(previous, np.arange(len(items)))
-    y[line, items] = sol                # kept, flagged, if no restart converges either
+    sol, ok = balances.solve(previous, np.arange(len(items)))    # kept, flagged, where no restart converges
     todo = np.flatnonzero(~ok)
     if len(todo):
         starts = _restarts(previous[todo], balances.gF[todo])                  # (A, len(todo), r)
@@ -373,13 +372,12 @@ def _march_step(sys_: CondensedSystem, fns, F, orders, step: int, items: np.ndar
         hopeless = ~converged[orders[items[todo], step - 1], items[todo]]
         tried = np.ones(starts.shape[:2], bool)
         tried[1:, hopeless] = False
-        attempt, which = np.nonzero(tried)
+        attempt, which = np.nonzero(tried)                      # attempt by attempt, so in order per item
         rsol, rok = balances.solve(starts[attempt, which], todo[which])
-        for a, i, s_, c in zip(attempt, which, rsol, rok):   # attempts in order: the first that converges
-            if c and not ok[todo[i]]:
-                sol[todo[i]], ok[todo[i]] = s_, True
-        y[line[ok], items[ok]] = sol[ok]
-    converged[line, items] = ok
+        won = np.flatnonzero(rok)
+        winners, first = np.unique(which[won], return_index=True)             # each item's first that converged
+        sol[todo[winners]], ok[todo[winners]] = rsol[won[first]], True
+    y[line, items], converged[line, items] = sol, ok
 
 
 def _restarts(previous, linear) -> np.ndarray:

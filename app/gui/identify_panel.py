@@ -61,10 +61,10 @@ def _moved(before: IdentificationView | None, after: IdentificationView) -> str:
     _, a, b = worst
     i = int(np.nanargmax(np.abs(b.samples.kbar - a.samples.kbar)))
     unit, x_unit = a.samples.units
-    before, after = a.samples.kbar[i], b.samples.kbar[i]
+    was, now = a.samples.kbar[i], b.samples.kbar[i]
     return (f"the samples moved with this analysis (its fit, not the data): {a.name} by up to {worst[0]:.1%} of "
-            f"its largest |kbar|, most at X = {a.samples.X[i]:.3g} {x_unit}: Re kbar {before.real:.4g} -> "
-            f"{after.real:.4g}, Im kbar {before.imag:.4g} -> {after.imag:.4g} {unit}")
+            f"its largest |kbar|, most at X = {a.samples.X[i]:.3g} {x_unit}: Re kbar {was.real:.4g} -> "
+            f"{now.real:.4g}, Im kbar {was.imag:.4g} -> {now.imag:.4g} {unit}")
 
 
 def _levels_words(levels) -> str:
