@@ -535,6 +535,39 @@ def test_restarts_solved_as_one_batch_are_the_restarts_tried_one_after_another(l
         np.testing.assert_allclose(a.y, b.y, rtol=0, atol=1e-12 * np.abs(b.y).max())
 
 
+def test_attempts_after_an_items_first_converged_one_are_needless_and_stop_where_they_are():
+    """Restarts in one batch: once an attempt of an item converges, its later attempts stop (their answer is
+    never taken) while its earlier ones go on to their end, so the first converged attempt is what solving
+    every attempt to its end gives."""
+    from analysis.prediction.harmonic_balance import _after_the_first, _newton
+
+    which = np.array([0, 1, 0, 1, 0])                     # attempt by attempt: item 0 at rows 0, 2, 4
+    needless = _after_the_first(which)
+    assert needless(np.array([False, True, True, False, True])).tolist() == [False, False, False, True, True]
+    assert not needless(np.zeros(5, bool)).any()
+
+    # three attempts of one item: x^2 = 4 from far (slow) and from near (fast), and z = 0 with a Jacobian 100 x
+    # too steep (1 % closer per step, all 30 steps when solved to its end); once the second has converged the
+    # first goes on to its end and the third stops
+    calls = []
+
+    def fun(z, idx):
+        calls.append(idx.copy())
+        return np.where(idx[:, None] == 2, z, z ** 2 - 4.0)
+
+    def jac(z, idx):
+        return np.where(idx[:, None, None] == 2, 100.0, 2 * z[:, :, None])
+
+    z0 = np.array([[1e3], [3.0], [1.0]])
+    z, converged = _newton(fun, jac, z0, needless=_after_the_first(np.zeros(3, int)))
+    alone, _ = _newton(fun, jac, z0[:1])
+    assert converged.tolist() == [True, True, False] and z[0, 0] == alone[0, 0] == pytest.approx(2.0)
+    second_done = next(k for k, idx in enumerate(calls) if k > 0 and 1 not in idx)
+    assert all(2 not in idx for idx in calls[second_done:]) and 0 in calls[-1]
+    solved_to_its_end, _ = _newton(fun, jac, z0)
+    assert abs(solved_to_its_end[2, 0]) < abs(z[2, 0])                  # it did stop early
+
+
 def test_newton_takes_a_stalled_residual_as_a_solution_only_below_its_stall_tolerance():
     """An item whose function is exact only to 5e-11 stops where no step lowers it and converges if that is
     below ``stalled_tol``; an item with no root stops too and never converges; an exact one meets ``tol``."""

@@ -23,6 +23,7 @@ from numba import njit
 from ..common.errors import InputError
 from ..common.statistics import capped_chi_square
 from ..laws import Law, Param
+from ..laws.base import broadcast
 from ..mechanics.elements import LawTerm
 from ..mechanics.surroundings import Surroundings
 from .fit import fit_laws
@@ -49,7 +50,7 @@ class ConstantInPhaseForce(Law):
     kernel = _in_phase_force
 
     def basis(self, X, w):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.asarray(4.0 / (math.pi * X), complex)[None]
 
 

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..common.statistics import OUTLIER_SHARE_LIMIT
 from ..laws import Law
+from ..laws.base import broadcast
 from ..mechanics.elements import LawTerm
 from ..mechanics.surroundings import Surroundings, placed_kbar
 
@@ -263,5 +264,5 @@ class LawFit:
 
     def describing_function(self, X, w) -> np.ndarray:
         """kbar of the fitted sum of laws, complex, broadcast over X and w (rad/s)."""
-        X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
+        X, w = broadcast(np.asarray(X, float), np.asarray(w, float))
         return sum((t.describing_function(X, w) for t in self.terms), np.zeros(X.shape, complex))

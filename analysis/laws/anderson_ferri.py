@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 
 @njit(cache=True)
@@ -50,5 +50,5 @@ class AndersonFerri(Law):
     stick_limit = anderson_ferri_stick_limit
 
     def basis(self, X, w):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.stack([1j / X, np.full(X.shape, 1j), 1j * w])

@@ -19,7 +19,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 # beta is the law's shape parameter: the same object in both lists
 _BETA = Param("beta", "1/{L}", "inverse of the softening displacement", lower=0.0, lower_open=True)
@@ -48,6 +48,6 @@ class ArctanSoftening(Law):
         return np.array([beta])     # the tangent at x = 0: alpha beta
 
     def basis(self, X, w, beta):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         z = beta * X
         return np.asarray(2.0 * beta / (1.0 + np.sqrt(1.0 + z * z)), complex)[None]

@@ -162,6 +162,17 @@ def _march(kernel, x, v, p, s):
     return f
 
 
+def broadcast(X, w) -> tuple[np.ndarray, np.ndarray]:
+    """Amplitudes ``X`` and lines ``w`` broadcast to one shape; returned as they are where they have it already
+    (a solver's batch: the common case, where ``np.broadcast_arrays``'s overhead costs more than a small law's
+    arithmetic)."""
+    X, w = np.asarray(X), np.asarray(w)
+    if X.shape == w.shape:
+        return X, w
+    X, w = np.broadcast_arrays(X, w)
+    return X, w
+
+
 class Law(ABC):
     """Base class of the element laws; one subclass (and one module) per law."""
 

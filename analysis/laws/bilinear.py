@@ -10,7 +10,7 @@ reports the pair as non-identifiable). Both basis functions are 1/2.
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 
 @njit(cache=True)
@@ -35,6 +35,6 @@ class Bilinear(Law):
     kernel = bilinear_force
 
     def basis(self, X, w):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         half = np.full(X.shape, 0.5 + 0j)
         return np.stack([half, half])

@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 
 @njit(cache=True)
@@ -44,5 +44,5 @@ class Coulomb(Law):
     stick_limit = coulomb_stick_limit
 
     def basis(self, X, w):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.asarray(4j / (math.pi * X), complex)[None]

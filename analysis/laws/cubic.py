@@ -2,7 +2,7 @@
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 
 @njit(cache=True)
@@ -23,5 +23,5 @@ class Cubic(Law):
     kernel = cubic_force
 
     def basis(self, X, w):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return (0.75 * X**2)[None].astype(complex)

@@ -5,7 +5,7 @@ Describing function: kbar = j (3/4) c3 w^3 X^2.
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 
 @njit(cache=True)
@@ -27,5 +27,5 @@ class CubicDamping(Law):
     kernel = cubic_damping_force
 
     def basis(self, X, w):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.asarray(0.75j * w**3 * X**2, complex)[None]

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from ._special import slip_real
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 # the clearance is the law's shape parameter: the same object in both lists
 _GAP = Param("gap", "{L}", "clearance on either side", lower=0.0)
@@ -44,5 +44,5 @@ class Gap(Law):
     kernel = gap_force
 
     def basis(self, X, w, gap):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.asarray(2.0 * slip_real((X - gap) / (2.0 * X)), complex)[None]

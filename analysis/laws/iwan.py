@@ -79,7 +79,7 @@ import numpy as np
 from numba import njit
 
 from ._special import slip_imag, slip_real
-from .base import Law, LimitReading, Param
+from .base import Law, LimitReading, Param, broadcast
 from .jenkins import Jenkins
 
 MAX_REVERSALS = 64
@@ -352,7 +352,7 @@ class Iwan(Law):
         return np.ones(1)       # every slider stuck: the whole stiffness kt
 
     def basis(self, X, w, xs, chi, beta):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return iwan_unit(X, xs, chi, beta)[None]
 
     def reading(self, values, X_min, X_max):

@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 from ._special import slip_imag, slip_real
-from .base import Law, LimitReading, Param
+from .base import Law, LimitReading, Param, broadcast
 
 
 @njit(cache=True)
@@ -69,7 +69,7 @@ class Jenkins(Law):
         return np.ones(1)       # stuck: the slider's stiffness kt
 
     def basis(self, X, w, xs):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return jenkins_unit(X, xs)[None]
 
     def reading(self, values, X_min, X_max):

@@ -2,7 +2,7 @@
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 
 @njit(cache=True)
@@ -27,5 +27,5 @@ class Linear(Law):
     kernel = linear_force
 
     def basis(self, X, w):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.stack([np.ones(X.shape, complex), 1j * w.astype(complex)])

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 
 @njit(cache=True)
@@ -29,5 +29,5 @@ class QuadraticDamping(Law):
     kernel = quadratic_damping_force
 
     def basis(self, X, w):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.asarray(1j * (8.0 / (3.0 * math.pi)) * w**2 * X, complex)[None]

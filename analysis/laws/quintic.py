@@ -5,7 +5,7 @@ Describing function: kbar = (5/8) k5 X^4 (real: the force is single-valued in x)
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 
 @njit(cache=True)
@@ -28,5 +28,5 @@ class Quintic(Law):
     kernel = quintic_force
 
     def basis(self, X, w):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.asarray(0.625 * X**4, complex)[None]

@@ -28,7 +28,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(20)
 
@@ -94,5 +94,5 @@ class TanhSoftening(Law):
         return np.array([beta])     # alpha tanh(beta x) ~ alpha beta x
 
     def basis(self, X, w, beta):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.asarray(beta * tanh_fundamental(beta * X), complex)[None]

@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 from ._special import slip_real
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 # the clearance is the law's shape parameter: the same object in both lists
 _GAP = Param("gap", "{L}", "clearance (> 0) or preload displacement (< 0)")
@@ -48,5 +48,5 @@ class Unilateral(Law):
     placed = True
 
     def basis(self, X, w, gap):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.asarray(slip_real((X - gap) / (2.0 * X)), complex)[None]

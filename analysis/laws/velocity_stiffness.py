@@ -9,7 +9,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .base import Law, Param
+from .base import Law, Param, broadcast
 
 
 @njit(cache=True)
@@ -35,5 +35,5 @@ class VelocityStiffness(Law):
     kernel = velocity_stiffness_force
 
     def basis(self, X, w):
-        X, w = np.broadcast_arrays(X, w)
+        X, w = broadcast(X, w)
         return np.asarray(w, complex)[None]

@@ -15,6 +15,7 @@ import numpy as np
 from ..common.errors import InputError
 from ..common.tables import Fields
 from ..laws import Law, get_law
+from ..laws.base import broadcast
 from .nonparametric import NAME as NONPARAMETRIC, NonParametric
 from .structures import Structure
 from .surroundings import Surroundings, linear_part, placed_kbar, surroundings_of
@@ -100,7 +101,7 @@ class Element:
     def describing_function(self, X, w) -> np.ndarray:
         """Sum of the law terms' kbar and the non-parametric part's (0 when the element has neither); the contact
         laws' kbar placed in the element's surroundings (analysis/mechanics/surroundings.py) where the element has them."""
-        X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
+        X, w = broadcast(np.asarray(X, float), np.asarray(w, float))
         total = np.zeros(X.shape, complex)
         around = self.placed_surroundings()
         placed = [t for t in self.laws if around is not None and t.law.placed and t.complete]

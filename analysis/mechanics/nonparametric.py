@@ -34,6 +34,7 @@ import numpy as np
 from ..common.errors import InputError
 from ..common.statistics import part_weight
 from ..common.tables import Fields
+from ..laws.base import broadcast
 
 NAME = "nonparametric"          # how --add and the model file name it
 KNOTS = 16                      # knots in ln X (fewer where the samples have fewer distinct amplitudes)
@@ -94,7 +95,7 @@ class NonParametric:
 
     def describing_function(self, X, w) -> np.ndarray:
         """kbar of the part at amplitudes X and lines w (broadcast), clamped to the knot ranges."""
-        X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
+        X, w = broadcast(np.asarray(X, float), np.asarray(w, float))
         u = np.clip(np.log(np.maximum(X, 1e-300)), *np.log(self.X_range))
         out = np.full(X.shape, self.values[0]) if self._s is None else self._s(u)
         if self._p is not None:

@@ -31,6 +31,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from ..laws import Law
+from ..laws.base import broadcast
 from .structures import Structure
 
 #: Harmonics balanced besides the fundamental (0, 2, ..., N). On a single mass 5 are within 0.01 % of the
@@ -121,7 +122,7 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
     last step, far from any measured one: a fit moves away from where its model has no balance. (Given the
     contact alone's kbar there instead, the fits settled where the balance fails, every evaluation paying the
     full count of steps: several times the Newton work.)"""
-    X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
+    X, w = broadcast(np.asarray(X, float), np.asarray(w, float))
     shape = X.shape
     X, w = X.ravel(), w.ravel()
     p = [(law, law.parameter_vector(**values)) for law, values in terms]

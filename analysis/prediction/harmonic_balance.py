@@ -141,8 +141,8 @@ def _to_complex(z):
 
 
 def _newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray], jac: Callable[[np.ndarray, np.ndarray], np.ndarray],
-            z0: np.ndarray, tol: float = 1e-11, max_iter: int = 30,
-            stalled_tol: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+            z0: np.ndarray, tol: float = 1e-11, max_iter: int = 30, stalled_tol: float = 0.0,
+            needless: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Damped Newton for a batch of independent real systems ``fun(z) = 0``, z of shape (B, m).
 
     ``fun(z, idx)`` and ``jac(z, idx)`` (shape (len(idx), m, m)) evaluate the items ``idx`` of the batch at
@@ -151,14 +151,20 @@ def _newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray], jac: Callable[[
     decreasing; an item it cannot improve stops there. Returns (z, converged): converged where the residual norm
     is at most ``tol``, or at most ``stalled_tol`` where no step lowers it any more (``fun``'s own rounding is
     reached before ``tol``).
+
+    ``needless(converged)``, where given, names the items (mask) whose answer no longer matters once the items
+    ``converged`` have converged; they stop where they are (their flags say where they were left).
     """
     z = z0.copy()
     R = fun(z, np.arange(len(z)))
     norm = np.linalg.norm(R, axis=1)
     stuck = np.zeros(len(z), bool)
+    dropped = np.zeros(len(z), bool)
     for _ in range(max_iter):
         check_stop()            # one Newton pass of the batch: where a stop asked for is heard
-        active = np.flatnonzero((norm > tol) & ~stuck)
+        if needless is not None:
+            dropped |= needless((norm <= tol) | (stuck & (norm <= stalled_tol)))
+        active = np.flatnonzero((norm > tol) & ~stuck & ~dropped)
         if not len(active):
             break
         J = jac(z[active], active)
@@ -323,11 +329,13 @@ class _LineBalances:
         scale = self.scale[idx]
         return _residual_jacobian(_to_complex(z) * scale[:, None], self.w[idx], self.G[idx], self.fns, 1e-9 * scale)
 
-    def solve(self, start: np.ndarray, items: np.ndarray, max_iter: int = 30) -> tuple[np.ndarray, np.ndarray]:
-        """Newton for the items ``items`` from the phasors ``start`` (len(items), r): (phasors, converged)."""
+    def solve(self, start: np.ndarray, items: np.ndarray, max_iter: int = 30,
+              needless: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Newton for the items ``items`` from the phasors ``start`` (len(items), r): (phasors, converged);
+        ``needless`` as for :func:`_newton`."""
         scale = self.scale[items, None]
         z, conv = _newton(lambda zz, i: self.residual(zz, items[i]), lambda zz, i: self.jacobian(zz, items[i]),
-                          _to_real(start / scale), max_iter=max_iter, stalled_tol=IN_STEP)
+                          _to_real(start / scale), max_iter=max_iter, stalled_tol=IN_STEP, needless=needless)
         return _to_complex(z) * scale, conv
 
 
@@ -373,11 +381,22 @@ def _march_step(sys_: CondensedSystem, fns, F, orders, step: int, items: np.ndar
         tried = np.ones(starts.shape[:2], bool)
         tried[1:, hopeless] = False
         attempt, which = np.nonzero(tried)                      # attempt by attempt, so in order per item
-        rsol, rok = balances.solve(starts[attempt, which], todo[which])
+        rsol, rok = balances.solve(starts[attempt, which], todo[which], needless=_after_the_first(which))
         won = np.flatnonzero(rok)
         winners, first = np.unique(which[won], return_index=True)             # each item's first that converged
         sol[todo[winners]], ok[todo[winners]] = rsol[won[first]], True
     y[line, items], converged[line, items] = sol, ok
+
+
+def _after_the_first(which: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """For attempts of items ``which`` (in order per item): the attempts that come after one of their item's that
+    has converged. Only an item's first converged attempt is taken, so these need not be solved on: an attempt
+    before it may still converge and is solved to its end, and the answer is what solving them all gives."""
+    def needless(converged: np.ndarray) -> np.ndarray:
+        first = np.full(which.max() + 1, len(which))
+        np.minimum.at(first, which[converged], np.flatnonzero(converged))
+        return np.arange(len(which)) > first[which]
+    return needless
 
 
 def _restarts(previous, linear) -> np.ndarray:

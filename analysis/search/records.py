@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..fitting.fit import LawFit
+from ..laws.base import broadcast
 from ..missing.diagnosis import RankingRules
 from ..prediction.comparison import gain_phrase
 
@@ -49,7 +50,7 @@ class LawSet:
         return "+".join(self.laws) if self.laws else "no law"
 
     def describing_function(self, X, w) -> np.ndarray:
-        X, w = np.broadcast_arrays(np.asarray(X, float), np.asarray(w, float))
+        X, w = broadcast(np.asarray(X, float), np.asarray(w, float))
         return self.fit.describing_function(X, w) if self.fit is not None else np.zeros(X.shape, complex)
 
 
