@@ -39,6 +39,7 @@ the linear law already reproduces is not proposed by the diagnosis).
 """
 from __future__ import annotations
 
+import functools
 import math
 import string
 from abc import ABC, abstractmethod
@@ -152,14 +153,22 @@ KINDS = {
 }
 
 
-# Not disk-cached: the cache key of a function taking another jitted function includes its address, so a
-# cached copy would never be reused and the cache would only grow. Compiling per law costs ~0.1 s once per process.
-@njit
-def _march(kernel, x, v, p, s):
-    f = np.empty(x.shape[0])
-    for i in range(x.shape[0]):
-        f[i] = kernel(x[i], v[i], p, s)
-    return f
+@functools.lru_cache(maxsize=None)
+def _marcher(kernel):
+    """The march of a sampled history through one law's kernel, compiled with the kernel fixed.
+
+    Passed as an argument, a jitted kernel is typed anew by numba at every call (about 25 us: more than a
+    512-sample march of most laws, and the AFT and a placed contact's balance march thousands of times);
+    fixed, a call passes only arrays. Not disk-cached: the cache key of a function holding another jitted
+    function includes its address, so a cached copy would never be reused and the cache would only grow.
+    Compiling per law costs ~0.1 s once per process."""
+    @njit
+    def march(x, v, p, s):
+        f = np.empty(x.shape[0])
+        for i in range(x.shape[0]):
+            f[i] = kernel(x[i], v[i], p, s)
+        return f
+    return march
 
 
 def broadcast(X, w) -> tuple[np.ndarray, np.ndarray]:
@@ -429,7 +438,7 @@ class Law(ABC):
         """:meth:`force` with the kernel's parameter vector ``p`` (:meth:`parameter_vector`) already built: for
         solvers that evaluate the force many times at the same values."""
         s = self.initial_state(p) if state is None else state
-        return _march(self.kernel, np.ascontiguousarray(x, float), np.ascontiguousarray(v, float), p, s)
+        return _marcher(self.kernel)(np.ascontiguousarray(x, float), np.ascontiguousarray(v, float), p, s)
 
     def __repr__(self) -> str:
         return f"<law {self.name}({', '.join(self.param_names)})>"
