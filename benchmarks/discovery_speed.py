@@ -37,6 +37,7 @@ from numba import njit
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
 
 import analysis.fitting.robust as robust  # noqa: E402
 import analysis.prediction.harmonic_balance as hb  # noqa: E402
@@ -50,13 +51,9 @@ from app.campaign.plan import parse_plan  # noqa: E402
 from app.session.data import measurements_from_session  # noqa: E402
 from app.session.writer import open_session  # noqa: E402
 from drivers.simulation.rig import load_rig  # noqa: E402
+from paper_structure import PAPER_STRUCTURE  # noqa: E402
 
-MODEL = """[structure]
-type = "lumped"
-dofs = ["x1", "x2"]
-mass = [[1.0, 0.0], [0.0, 2.0]]
-stiffness = [[200.0, -100.0], [-100.0, 200.0]]
-
+MODEL = PAPER_STRUCTURE + """
 [[element]]
 name = "left"
 dof = "x1"
