@@ -123,23 +123,45 @@ def baseline_discovery(measurements) -> tuple[float, list[str], float]:
             setattr(module, name, value)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--session", type=Path, help="a session of the plan above (simulated if not given)")
-    ap.add_argument("--pairs", type=int, default=2, help="baseline and current runs, alternated (default 2)")
-    args = ap.parse_args()
+def paper_measurements(path: Path | None):
+    """The measurements of a session of the plan above: ``path``'s, or a fresh campaign's."""
     with tempfile.TemporaryDirectory() as tmp:
-        path = args.session or session(Path(tmp) / "paper-2dof.h5")
-        with open_session(path) as s:
-            measurements = measurements_from_session(s)
-    discovery(measurements)         # warm: numba's law kernels and every lazy import, paid once
-    for pair in range(args.pairs):  # alternated: a shared machine's speed drifts by 10-20 % over minutes
-        old, new = baseline_discovery(measurements), discovery(measurements)
-        for label, (cpu, steps, error) in (("baseline", old), ("now", new)):
-            print(f"{label:9s} {cpu:7.1f} s CPU  final error {error:.6g}")
-            for line in steps:
-                print(f"          {line}")
-        print(f"ratio     x{old[0] / new[0]:.2f}  (same steps: {old[1] == new[1]})")
+        with open_session(path or session(Path(tmp) / "paper-2dof.h5")) as s:
+            return measurements_from_session(s)
+
+
+def alternated(pairs: int, baseline, current, show) -> None:
+    """``baseline()`` and ``current()`` run in turn ``pairs`` times after one warming run of ``current`` (numba's
+    law kernels and every lazy import, paid once), each pair shown by ``show(old, new)``: a shared machine's speed
+    drifts by 10-20 % over minutes."""
+    current()
+    for _ in range(pairs):
+        old = baseline()
+        show(old, current())
+
+
+def _show(old, new) -> None:
+    for label, (cpu, steps, error) in (("baseline", old), ("now", new)):
+        print(f"{label:9s} {cpu:7.1f} s CPU  final error {error:.6g}")
+        for line in steps:
+            print(f"          {line}")
+    print(f"ratio     x{old[0] / new[0]:.2f}  (same steps: {old[1] == new[1]})")
+
+
+def benchmark_main(description: str, default_pairs: int, runs, show) -> None:
+    """The command line of a benchmark on a session of the plan above (``--session``, ``--pairs``):
+    ``runs(measurements)`` gives its (baseline, current) pair of runs, alternated (:func:`alternated`)."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--session", type=Path, help="a session of discovery_speed.py's plan (simulated if not given)")
+    ap.add_argument("--pairs", type=int, default=default_pairs,
+                    help=f"baseline and current runs, alternated (default {default_pairs})")
+    args = ap.parse_args()
+    alternated(args.pairs, *runs(paper_measurements(args.session)), show)
+
+
+def main() -> None:
+    benchmark_main(__doc__.splitlines()[0], 2,
+                   lambda m: (lambda: baseline_discovery(m), lambda: discovery(m)), _show)
 
 
 if __name__ == "__main__":

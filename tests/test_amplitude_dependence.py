@@ -2,6 +2,7 @@
 and the verdict it overrules (analysis.loop.workbench._overruled)."""
 
 import numpy as np
+import pytest
 
 from analysis.missing.diagnosis import ElementSamples
 from analysis.search.discovery import AmplitudeDependence, amplitude_dependence
@@ -36,6 +37,7 @@ def test_a_damping_law_is_found_on_every_draw_where_the_verdict_misses_some():
     assert all(d.chi_square_drop > d.threshold for d in found)
 
 
+@pytest.mark.slow
 def test_no_law_is_found_on_a_linear_element():
     assert all(amplitude_dependence(_samples(0.0, seed)) is None for seed in range(40))
 

@@ -55,6 +55,7 @@ def test_a_set_combines_laws_of_different_kinds_only():
     assert ("cubic", "quintic") not in pairs and ("cubic", "coulomb") in pairs
 
 
+@pytest.mark.slow
 def test_the_kbar_criterion_picks_the_true_pair_and_charges_the_third_law():
     s = samples_of({"cubic": {"k3": 4e5}, "quadratic_damping": {"c2": 5.0}}, X, W)
     search = search_element(0, s, linear_verdict=False)
@@ -117,6 +118,7 @@ def test_a_linear_verdict_admits_only_laws_without_amplitude_dependence():
     assert search.sets[0].laws == ("linear",)
 
 
+@pytest.mark.slow
 def test_a_law_whose_every_parameter_is_tied_adds_nothing_but_a_damping_of_its_own_stays():
     # an Iwan element in micro-slip beside a linear spring and damper: the spring trades with the Iwan's stick
     # stiffness, the damper is the linear law's own (a reference whose damping is wrong at the joint)
@@ -130,6 +132,7 @@ def test_a_law_whose_every_parameter_is_tied_adds_nothing_but_a_damping_of_its_o
     assert any(x.laws == ("linear", "iwan") for x in kept.sets)
 
 
+@pytest.mark.slow
 def test_coulomb_and_a_stiff_jenkins_element_are_named_alike_with_the_test_that_separates_them():
     search = searched("laws", (("coulomb", (("fs", 0.5),)),))
     coulomb = next(x for x in search.sets if x.laws == ("coulomb",))
@@ -142,6 +145,7 @@ def test_coulomb_and_a_stiff_jenkins_element_are_named_alike_with_the_test_that_
     assert text.startswith("a lower level would") or text.startswith("no test")
 
 
+@pytest.mark.slow
 def test_a_set_with_one_law_more_of_the_same_kinds_that_fits_as_well_is_named():
     # random case 36 of seed 779606: a linear spring beside an arctan spring that only begins to saturate at the
     # largest amplitude; a saturating spring alone fits as well, and so does a linear spring with a softening cubic
@@ -170,6 +174,7 @@ def test_a_set_with_one_law_more_of_the_same_kinds_that_fits_as_well_is_named():
         assert ("linear", "cubic") not in [x.laws for x in _indistinguishable(judge, search, chosen)]
 
 
+@pytest.mark.slow
 def test_a_set_whose_law_is_tied_to_another_is_never_chosen_but_named_where_its_laws_are_seen():
     # a linear spring beside an arctan spring that saturates by a few per cent over the amplitudes measured: the
     # linear law's stiffness trades with the arctan's alpha beta, so linear + a saturating spring is tied
@@ -240,6 +245,7 @@ def searched(kind: str, *args) -> _Search:
     return copy.deepcopy(_SEARCHED[key])
 
 
+@pytest.mark.slow
 def test_a_law_whose_size_the_kbar_cannot_tell_from_zero_is_unseen():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
@@ -676,6 +682,7 @@ class _MultiOf:
         return type("Comparison", (), {"error": self.errors[choice[0].laws]})()
 
 
+@pytest.mark.slow
 def test_a_simpler_set_alike_replaces_the_choice_only_where_it_holds_with_harmonics_on_data_without_them():
     # random case 10 of seed 635793: a one-sided contact and a gap alike in the kbar and single-harmonic (0.075),
     # 0.296 and 0.019 with harmonics; as many parameters, and the tie took the contact
@@ -832,6 +839,7 @@ def test_a_model_with_its_laws_gets_no_discovery():
     assert result.discovery.elements == [] and result.steps == []
 
 
+@pytest.mark.slow
 def test_discovery_can_be_switched_off():
     from analysis.loop.auto import AutoRules
     from test_nonparametric import library_force, measured, started

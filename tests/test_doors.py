@@ -907,7 +907,8 @@ def _cli(args, stdout=subprocess.PIPE, close=True) -> tuple[int, str]:
     return child.wait(timeout=300), err
 
 
-@pytest.mark.parametrize("command", ["analyze", "import", "export --csv-long", "export --uff", "export --csv"])
+@pytest.mark.parametrize("command", [pytest.param("analyze", marks=pytest.mark.slow), "import", "export --csv-long",
+                                     "export --uff", "export --csv"])
 def test_every_command_finishes_its_work_when_the_reader_closes_the_pipe(tmp_path, command):
     """``analyze S M -o F.toml | head -1``, ``import ... | head -0``, ``export ... | head -0``: a BrokenPipeError
     traceback (exit 1), the files written or not depending on when the report filled the pipe."""

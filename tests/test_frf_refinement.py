@@ -88,3 +88,48 @@ def test_a_law_s_range_holds_where_the_frfs_pull_beyond_it():
     out = refine_against_frfs(p, 0, [LawTerm(get_law("gap"), {"k": 50.0, "gap": 1e-5})], [["k", "gap"]], {})
     assert out.terms[0].values["k"] >= 0.0 and out.terms[0].values["gap"] >= 0.0
     assert out.terms[0].values["k"] < 1.0
+
+
+def _stepped_predictions(forces, monkeypatch):
+    """Predictions of a hardening joint's sweeps both ways at ``forces``: at k3, at k3 one percent up swept, and at
+    k3 one percent up started from the first (``near``); and the sweeps the last one made."""
+    import analysis.prediction.harmonic_balance as hb
+
+    runs = [SineRun(f"sine_{F:g}N_{d}", F, d, "x2", ["x1", "x2"], FREQS, np.ones((len(FREQS), 2), complex), None)
+            for F in forces for d in ("up", "down")]
+    p = _predictor(runs)
+    base = p.predict([LawTerm(get_law("cubic"), {"k3": 3.0e5}).describing_function])
+    stepped = [LawTerm(get_law("cubic"), {"k3": 3.0e5 * 1.01}).describing_function]
+    swept = p.predict(stepped)
+    sweeps = []
+    for name in ("_speculative_sweep", "_march_step"):
+        monkeypatch.setattr(hb, name, lambda *a, f=getattr(hb, name): sweeps.append(a) or f(*a))
+    return base, swept, p.predict(stepped, near=base), sweeps
+
+
+def _alike(near, swept):
+    for name, s in swept.items():
+        for got, want in ((near[name].swept, s.swept), (near[name].opposite, s.opposite)):
+            assert np.abs(got - want).max() <= 1e-6 * np.abs(want).max(), name      # Newton's tolerance
+        assert (near[name].swept_ok == s.swept_ok).all() and (near[name].opposite_ok == s.opposite_ok).all()
+
+
+def test_a_prediction_started_a_hair_away_is_the_swept_one_without_a_sweep(monkeypatch):
+    """A finite difference's step predicted from the prediction at the point it steps from (``near``): where that
+    converged at every line, Newton from it at every line at once gives what the whole sweep gives."""
+    base, swept, near, sweeps = _stepped_predictions((0.5, 2.0), monkeypatch)
+    assert all(b.swept_ok.all() and b.opposite_ok.all() for b in base.values())
+    assert not sweeps
+    _alike(near, swept)
+    # the step moved the solutions by far more than the solver's tolerance
+    moved = [np.abs(swept[n].swept - base[n].swept).max() / np.abs(base[n].swept).max() for n in base]
+    assert max(moved) > 1e-4
+
+
+def test_a_sweep_that_failed_a_hair_away_is_swept_again(monkeypatch):
+    # at 10 N the down sweep jumps and fails a line: in each group of runs (up, down) that sweep alone of the four
+    # (two levels, both ways) is swept again
+    base, swept, near, sweeps = _stepped_predictions((2.0, 10.0), monkeypatch)
+    assert not all(b.opposite_ok.all() for b in base.values())
+    assert sweeps and all(force.shape[1] == 1 for _, _, force, *_ in sweeps)
+    _alike(near, swept)

@@ -243,6 +243,7 @@ def _assert_same(a, b, where="analysis"):
         assert a == b, where
 
 
+@pytest.mark.slow
 def test_how_each_level_was_held_survives_every_export_and_import(tmp_path, capsys):
     """A force-controlled and a response-controlled level, exported by UFF (default flags), per-run CSV and
     the long CSV, imported back: the same runs (names, control, FRFs, force per line) and the same analysis."""

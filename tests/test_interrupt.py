@@ -62,6 +62,7 @@ def test_a_fit_stops_at_its_next_evaluation():
     assert stop.asked == 3                          # no evaluation after the stop was heard
 
 
+@pytest.mark.slow
 def test_stop_inside_discovery_leaves_the_model_as_started(rk4_joint):  # noqa: F811
     wb = started(rk4_joint, element("a", "x1", ""))
     asked = Countdown(after=10 ** 9)

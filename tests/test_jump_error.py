@@ -75,6 +75,7 @@ def test_an_early_jump_does_not_dominate_the_error_of_the_right_model(analysed):
     assert swept_only_error(wb, after) > 3 * after.error
 
 
+@pytest.mark.slow
 def test_the_jump_is_reported_in_the_text_and_the_json(analysed):
     wb, _, after = analysed
     text = report_text(wb, [])
@@ -93,6 +94,7 @@ def test_gain_phrases():
     assert gain_phrase(1 / 1.25) == "x1.25 worse"
 
 
+@pytest.mark.slow
 def test_the_model_tab_shows_the_jump_and_marks_the_line(qtbot, analysed):
     from app.gui.main_window import MainWindow
     from app.gui.results import analysis_view

@@ -56,6 +56,7 @@ def rk4_session(tmp_path_factory, rk4_levels):
     return session
 
 
+@pytest.mark.slow
 def test_reference_from_the_lowest_level_has_the_rigs_frequency_and_damping(rk4_session, capsys):
     model = rk4_session.with_name("reference.toml")
     assert main(["reference", str(rk4_session), "-o", str(model)]) == 0
@@ -75,6 +76,7 @@ def test_reference_from_the_lowest_level_has_the_rigs_frequency_and_damping(rk4_
     assert "--run" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_import_keeps_the_force_measured_at_each_line(rk4_session):
     from app.session import open_session
     from app.session.data import measurements_from_session
@@ -190,6 +192,7 @@ def test_reference_from_an_emulated_campaigns_lowest_level(tmp_path, capsys):
     assert law["kt"] == pytest.approx(rk4_rig.KT, rel=0.05) and law["fs"] == pytest.approx(rk4_rig.FS, rel=0.05)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("in_reference", [True, False])
 def test_a_jenkins_added_to_the_lowest_levels_reference_is_measured_from_its_stuck_state(rk4_session, capsys,
                                                                                           in_reference):

@@ -156,6 +156,7 @@ def test_a_level_that_does_not_lock_is_stored_unconverged_and_fails_the_run(tmp_
         assert run.arrays["lock_iterations"][0] == 2 and abs(run.arrays["phase_error"][0]) > 1.0
 
 
+@pytest.mark.slow
 def test_analyze_compares_the_locked_points_with_the_fitted_model_s_backbone(tmp_path, capsys):
     import json
 

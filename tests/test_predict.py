@@ -219,6 +219,7 @@ def test_the_fitted_table_round_trips_and_is_checked():
         load_model(doc, "m.toml")
 
 
+@pytest.mark.slow
 def test_cross_validation_tells_a_law_that_follows_the_amplitude_from_one_that_fits_its_lines(sessions, capsys):
     folds = {}
     for law in ("cubic", "linear"):

@@ -2,6 +2,8 @@
 import io
 import time
 
+import pytest
+
 from app.progress import Progress
 
 
@@ -44,6 +46,7 @@ def test_a_short_command_prints_nothing():
     assert log.getvalue() == ""
 
 
+@pytest.mark.slow
 def test_analyze_writes_plain_progress_lines_in_a_log(tmp_path, capsys, monkeypatch):
     """``analyze`` with stderr not a terminal: plain lines naming its phases, and the report on stdout."""
     import app.progress

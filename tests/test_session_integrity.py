@@ -434,6 +434,7 @@ def test_a_checksum_failure_names_only_the_damaged_chunk(tmp_path):
     assert f"line(s) {LINES_PER_CHUNK}-{2 * LINES_PER_CHUNK - 1} of {2 * LINES_PER_CHUNK + 10}" in str(caught.value)
 
 
+@pytest.mark.slow
 def test_a_session_written_without_checksums_is_still_read(copies, capsys):
     session, model = copies
     with h5py.File(session, "r+") as f:                  # as sessions were written before checksums

@@ -41,8 +41,8 @@ import numpy as np
 from ..common.measurements import Control, Measurements, SineRun
 from ..common.statistics import chi_square_noise_bound, outlier_limit
 from ..mechanics.model import Model
-from .harmonic_balance import (CondensedSystem, KbarFunction, condense, continue_response, predict_multiharmonic,
-                               predict_sweeps, single_harmonic_distortion)
+from .harmonic_balance import (CondensedSystem, KbarFunction, NearStart, condense, continue_response,
+                               predict_multiharmonic, predict_sweeps, single_harmonic_distortion)
 
 
 @dataclass(frozen=True)
@@ -272,18 +272,23 @@ class Predictor:
     def _functions(self, kbar_fns):
         return list(kbar_fns) if kbar_fns is not None else [e.describing_function for e in self.model.elements]
 
-    def predict(self, kbar_fns: Sequence[KbarFunction] | None = None) -> dict[str, RunPrediction]:
+    def predict(self, kbar_fns: Sequence[KbarFunction] | None = None,
+                near: dict[str, RunPrediction] | None = None) -> dict[str, RunPrediction]:
         """Both sweeps of every run at the sensors, for the given element describing functions (default: the
-        model elements' laws)."""
+        model elements' laws). ``near``: the predictions for describing functions a hair away, each sweep started
+        from them at every line (a finite difference's step; :func:`predict_sweeps`)."""
         fns = self._functions(kbar_fns)
         out = {}
         for key, runs in self._groups.items():
             exc, direction, freqs = key
             system = self._system(key)
             other = "down" if direction == "up" else "up"
+            start = None if near is None else NearStart(
+                np.stack([near[r.name].y for r in runs] + [near[r.name].opposite_y for r in runs], axis=1),
+                np.stack([near[r.name].swept_ok for r in runs] + [near[r.name].opposite_ok for r in runs], axis=1))
             swept, opposite = predict_sweeps(self.model.structure, self.model.elements, exc, system.w,
                                              np.stack([r.force_per_line for r in runs], axis=1), (direction, other),
-                                             fns, system)
+                                             fns, system, start)
             for b, run in enumerate(runs):
                 rows = self._rows[run.name]
                 out[run.name] = RunPrediction(swept.receptance[:, b, rows], opposite.receptance[:, b, rows],

@@ -22,7 +22,10 @@ from scipy.optimize import least_squares
 from ..common.errors import InputError
 from ..common.statistics import part_weight
 from ..mechanics.elements import LawTerm
-from .comparison import Predictor, kbar_functions_with
+from .comparison import Predictor, compare_predictions, kbar_functions_with
+
+
+DIFF_STEP = 1e-4       # relative step of the Jacobian's differences, in the scaled parameters
 
 
 @dataclass(frozen=True)
@@ -75,26 +78,52 @@ def refine_against_frfs(predictor: Predictor, index: int, terms: list[LawTerm], 
             out[j].values[n] = float(v)
         return out
 
-    def residuals(x) -> np.ndarray:
+    def predicted(x, near=None) -> tuple[dict | None, np.ndarray]:
+        """The predictions at scaled parameters ``x`` (None where the law refuses them) and their residuals."""
         kbar = terms_function(trial(x))
         try:
-            comp = predictor.compare(kbar_functions_with(predictor.model.elements, {**others, index: kbar}))
+            predictions = predictor.predict(kbar_functions_with(predictor.model.elements, {**others, index: kbar}),
+                                            near)
         except InputError:                    # values the law refuses (beyond what its bounds say): far off
-            return np.full(n_residuals, 1e3)
+            return None, np.full(n_residuals, 1e3)
+        comp = compare_predictions(runs, predictions)
         parts = []
         for run in runs:
             d = weights[run.name] * (comp.compared[run.name] - run.receptance)
             parts += [d.real.ravel(), d.imag.ravel()]
         r = np.concatenate(parts)
         # a line the prediction fails at counts as far off, not as nothing
-        return np.where(np.isfinite(r), r, 1e3)
+        return predictions, np.where(np.isfinite(r), r, 1e3)
+
+    last: list = [None, None, None]           # x, predictions, residuals of the latest evaluation
+
+    def residuals(x) -> np.ndarray:
+        last[:] = [np.array(x), *predicted(x)]
+        return last[2]
+
+    def jacobian(x) -> np.ndarray:
+        """Forward differences of :func:`residuals` (backward at an upper bound), each step's prediction started
+        from the one at ``x`` (:meth:`Predictor.predict`'s ``near``): a few Newton steps per line instead of a
+        sweep."""
+        if last[0] is None or not np.array_equal(last[0], x):
+            residuals(x)
+        base, r0 = last[1], last[2]
+        J = np.empty((r0.size, x.size))
+        for k in range(x.size):
+            h = DIFF_STEP * (1.0 if x[k] >= 0 else -1.0) * max(1.0, abs(x[k]))
+            if not lower[k] <= x[k] + h <= upper[k]:
+                h = -h
+            xh = np.array(x, float)
+            xh[k] += h
+            J[:, k] = (predicted(xh, base)[1] - r0) / (xh[k] - x[k])
+        return J
 
     n_residuals = 2 * sum(np.size(run.receptance) for run in runs)
     if not keys:
         r = residuals(start)
         return FrfRefinement(trial(start), [{} for _ in terms], float(r @ r), r.size, 1)
     # a chi-square of hundreds is decided to within one unit: 1e-3 of it
-    sol = least_squares(residuals, start, bounds=(lower, upper), diff_step=1e-4, ftol=1e-3, xtol=1e-4,
+    sol = least_squares(residuals, start, jac=jacobian, bounds=(lower, upper), ftol=1e-3, xtol=1e-4,
                         max_nfev=max_evaluations)
     n, p = sol.jac.shape
     chi2 = float(2 * sol.cost)

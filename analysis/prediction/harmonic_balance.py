@@ -252,12 +252,18 @@ def predict_sweep(structure: Structure, elements: Sequence[Element], excitation_
 
 def predict_sweeps(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, force,
                    directions: Sequence[str] = ("up", "down"), kbar_fns: Sequence[KbarFunction] | None = None,
-                   system: CondensedSystem | None = None) -> list[SweepPrediction]:
+                   system: CondensedSystem | None = None,
+                   near: NearStart | None = None) -> list[SweepPrediction]:
     """:func:`predict_sweep` for several sweep directions over the same lines, solved in one batch (every
     direction and force level advances one line per step): one prediction per direction.
 
     Where the response is multivalued the two directions follow different stable branches, so the up and
     down sweeps together give every stable solution a stepped sine can measure there.
+
+    ``near``, where given, holds a prediction of the same lines, forces and directions (items: each direction's
+    levels in turn) for describing functions a hair away, a finite difference's step: each sweep converged and
+    stable at every line there is solved at all its lines at once from it, on its branches, and swept only where
+    that fails (:func:`_from_near`).
     """
     for direction in directions:
         if direction not in ("up", "down"):
@@ -271,7 +277,7 @@ def predict_sweeps(structure: Structure, elements: Sequence[Element], excitation
     F = np.tile(per_line, (1, D))                                                    # (L, D B)
     orders = np.repeat(np.stack([np.argsort(w) if d == "up" else np.argsort(-w) for d in directions]),
                        per_line.shape[1], axis=0)                                    # (D B, L)
-    y, converged = _sweep(sys_, fns, F, orders)
+    y, converged = _sweep(sys_, fns, F, orders, near)
     L, B, r = len(w), F.shape[1], len(fns)
     floor = 1e-9 * np.abs(sys_.g[:, None, :] * F[:, :, None]).max(axis=2).reshape(-1)
     kb = _kbar(fns, y.reshape(L * B, r), np.repeat(w, B), floor).reshape(L, B, r)
@@ -339,22 +345,60 @@ class _LineBalances:
         return _to_complex(z) * scale, conv
 
 
-def _sweep(sys_: CondensedSystem, fns, F, orders) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class NearStart:
+    """The element phasors ``y`` (L, B, r) of a prediction a hair away and where they are converged and stable,
+    ``ok`` (L, B): where :func:`predict_sweeps` starts a finite difference's step."""
+
+    y: np.ndarray
+    ok: np.ndarray
+
+
+def _sweep(sys_: CondensedSystem, fns, F, orders, near: NearStart | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Newton along each batch item's own line order ``orders[b]`` (B, S), each line at its force ``F`` (L, B) and
     started from the previous line's solution: the element phasors (L, B, r) and convergence flags (L, B), at the
     lines of ``orders``.
 
     A short sweep is marched line by line. A long one is solved at all its lines at once and then checked to be
-    what the march gives (:func:`_speculative_sweep`): the same solutions, without a Python step per line."""
+    what the march gives (:func:`_speculative_sweep`): the same solutions, without a Python step per line.
+    ``near``: items solved at every line from a prediction a hair away (:func:`_from_near`), the rest swept."""
     B, S = orders.shape
     y = np.zeros((len(sys_.w), B, len(fns)), complex)
     converged = np.zeros((len(sys_.w), B), bool)
+    if near is not None:
+        rest = np.flatnonzero(~_from_near(sys_, fns, F, near, y, converged))
+        if len(rest):
+            y[:, rest], converged[:, rest] = _sweep(sys_, fns, F[:, rest], orders[rest])
+        return y, converged
     if S <= MARCHED_STEPS:
         for step in range(S):
             _march_step(sys_, fns, F, orders, step, np.arange(B), y, converged)
     else:
         _speculative_sweep(sys_, fns, F, orders, y, converged)
     return y, converged
+
+
+def _from_near(sys_: CondensedSystem, fns, F, near: NearStart, y, converged) -> np.ndarray:
+    """The items (mask (B,)) whose solution a hair away converged and was stable at every line and from which
+    Newton converges at every line again; ``y`` and ``converged`` are set there.
+
+    A step of a finite difference moves each solution by about the step, so Newton from it converges in a few
+    iterations at every line at once, and stays on the branch the prediction it was taken at follows: the
+    difference is the derivative along those branches, not a jump moved to the next line by the step."""
+    L, B = F.shape
+    items = np.flatnonzero(near.ok.all(axis=0))
+    done = np.zeros(B, bool)
+    if not len(items):
+        return done
+    lines, which = np.repeat(np.arange(L), len(items)), np.tile(items, L)
+    balances = _LineBalances.at(sys_, fns, lines, F[lines, which])
+    sol, ok = balances.solve(near.y[lines, which], np.arange(len(lines)), SPECULATIVE_ITERATIONS)
+    whole = ok.reshape(L, len(items)).all(axis=0)
+    taken = items[whole]
+    y[:, taken] = sol.reshape(L, len(items), -1)[:, whole]
+    converged[:, taken] = True
+    done[taken] = True
+    return done
 
 
 def _march_step(sys_: CondensedSystem, fns, F, orders, step: int, items: np.ndarray, y, converged) -> None:
