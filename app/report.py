@@ -308,16 +308,18 @@ def plot_residuals(comp: Comparison, runs: Sequence[SineRun], path: Path,
     return _export(lay, path, height=600)
 
 
-def _log_range_with_ticks(values, headroom: float = 0.05) -> tuple[float, float]:
+def _log_range_with_ticks(values, headroom: float = 0.05, footroom: float = 0.0) -> tuple[float, float]:
     """The view (log10 low, log10 high) of a log axis showing ``values``: it reaches down to the nearest value
-    below the lowest point that the axis labels (:func:`_labelled_log_ticks`: a reader reads the lowest point
-    against a number under it), and ``headroom`` of the span above the highest."""
+    that the axis labels (:func:`_labelled_log_ticks`: a reader reads the lowest point against a number under it)
+    at least ``footroom`` of the span below the lowest point (room for a label under it), and ``headroom`` of the
+    span above the highest."""
     lo, hi = float(np.log10(np.min(values))), float(np.log10(np.max(values)))
-    high = hi + headroom * max(hi - lo, 0.3)
-    decade = np.floor(lo)
+    span = max(hi - lo, 0.3)
+    high = hi + headroom * span
+    decade = np.floor(lo - footroom * span)
     # the 1-2-5 values below the lowest point, nearest first
     for low in decade + np.log10([5.0, 2.0, 1.0, 0.5, 0.2, 0.1]):
-        if low <= lo and min(_labelled_log_ticks(low, high)) <= low + 1e-9:
+        if low <= lo - footroom * span and min(_labelled_log_ticks(low, high)) <= low + 1e-9:
             return float(low), float(high)
     return float(decade - 1), float(high)
 
@@ -347,7 +349,8 @@ def plot_history(wb: Workbench, path: Path) -> Path:
            symbolBrush=(31, 119, 180))
     p.getAxis("bottom").setTicks([[(i, h.action.replace("add ", "+")) for i, h in enumerate(wb.history)]])
     p.setXRange(-0.5, len(wb.history) - 0.5, padding=0)   # room for the first and last step's names
-    low, high = _log_range_with_ticks(errors, headroom=0.12)   # room above for a label over the highest point
+    # room above for a label over the highest point, below for one under the lowest
+    low, high = _log_range_with_ticks(errors, headroom=0.12, footroom=0.12)
     p.setYRange(low, high, padding=0)
     p.setLabel("left", "relative FRF error")
     for i, e in enumerate(errors):

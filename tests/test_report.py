@@ -161,6 +161,10 @@ def test_log_axis_reaches_a_labelled_number_below_the_lowest_point():
         low, high = _log_range_with_ticks(np.array(values))
         assert min(_labelled_log_ticks(low, high)) <= np.log10(min(values))
         assert high >= np.log10(max(values))
+    # a history's lowest point just above a labelled number: the axis goes on below it, for the label under it
+    low, high = _log_range_with_ticks(np.array([1.23, 1.2, 0.0102]), headroom=0.12, footroom=0.12)
+    assert low <= np.log10(0.0102) - 0.12 * (np.log10(1.23) - np.log10(0.0102))
+    assert min(_labelled_log_ticks(low, high)) <= low + 1e-9
 
 
 def test_history_labels_sit_off_the_line():
