@@ -316,10 +316,11 @@ def _log_range_with_ticks(values, headroom: float = 0.05, footroom: float = 0.0)
     lo, hi = float(np.log10(np.min(values))), float(np.log10(np.max(values)))
     span = max(hi - lo, 0.3)
     high = hi + headroom * span
-    decade = np.floor(lo - footroom * span)
+    below = lo - footroom * span
+    decade = np.floor(below)
     # the 1-2-5 values below the lowest point, nearest first
     for low in decade + np.log10([5.0, 2.0, 1.0, 0.5, 0.2, 0.1]):
-        if low <= lo - footroom * span and min(_labelled_log_ticks(low, high)) <= low + 1e-9:
+        if low <= below and min(_labelled_log_ticks(low, high)) <= low + 1e-9:
             return float(low), float(high)
     return float(decade - 1), float(high)
 

@@ -95,19 +95,21 @@ def refine_against_frfs(predictor: Predictor, index: int, terms: list[LawTerm], 
         # a line the prediction fails at counts as far off, not as nothing
         return predictions, np.where(np.isfinite(r), r, 1e3)
 
-    last: list = [None, None, None]           # x, predictions, residuals of the latest evaluation
+    last = None                               # the latest evaluation: (x, predictions, residuals)
 
     def residuals(x) -> np.ndarray:
-        last[:] = [np.array(x), *predicted(x)]
-        return last[2]
+        nonlocal last
+        predictions, r = predicted(x)
+        last = (np.array(x), predictions, r)
+        return r
 
     def jacobian(x) -> np.ndarray:
         """Forward differences of :func:`residuals` (backward at an upper bound), each step's prediction started
         from the one at ``x`` (:meth:`Predictor.predict`'s ``near``): a few Newton steps per line instead of a
         sweep."""
-        if last[0] is None or not np.array_equal(last[0], x):
+        if last is None or not np.array_equal(last[0], x):
             residuals(x)
-        base, r0 = last[1], last[2]
+        _, base, r0 = last
         J = np.empty((r0.size, x.size))
         for k in range(x.size):
             h = DIFF_STEP * (1.0 if x[k] >= 0 else -1.0) * max(1.0, abs(x[k]))
