@@ -26,6 +26,7 @@ def _samples(c3: float, seed: int, std: float = 25.0) -> ElementSamples:
     return ElementSamples("b", X, w, kbar, np.full(X.size, std), np.repeat([0.5, 2.0], 50), False)
 
 
+@pytest.mark.slow
 def test_a_damping_law_is_found_on_every_draw_where_the_verdict_misses_some():
     verdicts, found = [], []
     for seed in range(8):

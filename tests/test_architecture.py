@@ -123,6 +123,7 @@ def test_no_import_cycle_anywhere():
     assert _cycles(graph) == []
 
 
+@pytest.mark.slow
 def test_imports_follow_the_layering():
     wrong = [f"{m} imports {target}" for m in MODULES if _layer(m) in ALLOWED
              for target in sorted(_imports(m, runtime_only=False))

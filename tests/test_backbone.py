@@ -64,6 +64,7 @@ def jenkins_kbar_by_quadrature(kt: float, fs: float, X: float, n: int = 200_000)
     return complex(real, dissipated / (np.pi * X ** 2))
 
 
+@pytest.mark.slow
 def test_jenkins_frequency_and_damping_follow_its_describing_function_by_quadrature():
     kt, fs = 2000.0, 1.0                  # slips beyond fs / kt = 0.5 mm
     s, els = sdof([{"law": "jenkins", "kt": kt, "fs": fs}])
@@ -166,6 +167,7 @@ def test_the_power_balance_needs_no_model_where_the_session_measured_a_low_level
     assert measured_power_balance(Measurements(random=elsewhere), run) is None
 
 
+@pytest.mark.slow
 def test_a_jenkins_oscillator_s_phase_resonance_damping_is_its_equivalent_damping_by_quadrature():
     """At 90 deg the first harmonic balances: m w^2 = K + Re kbar(X) and F = (C w + Im kbar) X (kbar by
     quadrature of the loop here). The truth is the equivalent viscous damping of the energy dissipated per

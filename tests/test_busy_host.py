@@ -60,6 +60,7 @@ def test_a_reply_late_twice_over_fails_the_request_naming_both_waits():
         scpi.ask(io, "OUTP?")
 
 
+@pytest.mark.slow
 def test_an_in_process_instrument_slower_than_the_timeout_by_the_wall_clock_is_not_late(monkeypatch):
     """A reply the emulator takes 2.5 s of wall time to make -- as on a machine busy with other work -- is
     not late: the host's deadline counts the emulator's idle time only (without that, 1 s and 1 s more)."""
@@ -78,6 +79,7 @@ def test_an_in_process_instrument_slower_than_the_timeout_by_the_wall_clock_is_n
     assert slow.is_set()
 
 
+@pytest.mark.slow
 def test_an_in_process_instrument_that_stays_silent_still_times_out():
     with emulated_instruments(load_rig("paper-2dof")) as inst:
         inst.emulator.inject("shaker", {"drop": 1.0})

@@ -127,6 +127,7 @@ def test_a_run_that_cannot_reach_its_force_fails_and_exits_3(tmp_path):
         assert any("target 2 N (-50.00 %, tolerance 1 %)" in e["message"] for e in s.events())
 
 
+@pytest.mark.slow
 def test_a_run_whose_lines_sit_at_the_settling_limit_fails():
     rig = load_rig(RIGS / "linear-shaker.toml")
     text = "[[stepped_sine]]\nforce = 0.5\nstart = 6.0\nstop = 7.0\nstep = 0.5\nrefine = false\n" \
@@ -170,6 +171,7 @@ def test_the_first_line_approaches_its_force_from_below(tmp_path):
         assert 0.5 * gain[1] / gain[0] > 1.0    # the old start, target / last gain, breached the 1 N limit
 
 
+@pytest.mark.slow
 def test_a_sensor_that_saw_nothing_is_stored_as_nan_not_zero(tmp_path):
     assert np.isnan(stored_frf({"a": 0j, "b": 1 + 2j})["a"]) and stored_frf({"b": 1 + 2j})["b"] == 1 + 2j
     # paper-2dof: at 0.05 N the friction on x2 (0.1 N) holds it: the accelerometers read exactly 0
@@ -224,6 +226,7 @@ def test_progress_counts_planned_plus_added_lines_and_writes_plain_lines_to_a_lo
     assert len(counts) > 5 and all(int(d) <= int(p) + int(a or 0) for d, p, a in counts)
 
 
+@pytest.mark.slow
 def test_a_link_lost_mid_run_names_the_instrument_and_is_an_instrument_failure(tmp_path):
     rig = load_rig(RIGS / "linear-shaker.toml")
     text = "[[stepped_sine]]\nforce = 0.5\nstart = 6.0\nstop = 9.0\nstep = 0.5\n[limits]\nmax_force = 5.0\n" \

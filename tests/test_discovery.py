@@ -99,6 +99,7 @@ def test_a_one_sided_contact_that_closes_near_the_largest_amplitude_is_fitted_at
     assert found >= 4
 
 
+@pytest.mark.slow
 def test_a_set_starts_from_the_fits_of_its_smaller_sets():
     s = samples_of({"gap": {"k": 900.0, "gap": 0.02}}, X, W)
     search = search_element(0, s, linear_verdict=False, rules=DiscoveryRules(max_laws=2))
@@ -133,6 +134,7 @@ def test_a_law_whose_every_parameter_is_tied_adds_nothing_but_a_damping_of_its_o
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_coulomb_and_a_stiff_jenkins_element_are_named_alike_with_the_test_that_separates_them():
     search = searched("laws", (("coulomb", (("fs", 0.5),)),))
     coulomb = next(x for x in search.sets if x.laws == ("coulomb",))
@@ -209,6 +211,8 @@ def test_a_set_whose_law_is_tied_to_another_is_never_chosen_but_named_where_its_
     assert worse not in _indistinguishable(judge, search, chosen)
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_the_shortlist_keeps_one_of_sets_that_fit_alike_and_a_determined_one():
     search = searched("laws", (("coulomb", (("fs", 0.5),)),))
     short = _shortlists(search.sets, 3)
@@ -234,7 +238,8 @@ def searched(kind: str, *args) -> _Search:
     """``search_element(0, samples, linear_verdict=False)`` of the samples ``analytic_samples(*args)`` (kind
     "analytic") or ``samples_of(args[0], X, W)`` (kind "laws", args[0] a tuple of (law, ((param, value), ...)))
     writes. The search is a deterministic function of its samples and several tests read the same one: it is run
-    once per process and each caller gets a deep copy of its own, free to change."""
+    once per process and each caller gets a deep copy of its own, free to change. Its callers are one xdist group
+    (``searched``), so that one worker runs them all and each search once, not once on every worker."""
     key = (kind, args)
     if key not in _SEARCHED:
         if kind == "analytic":
@@ -246,6 +251,7 @@ def searched(kind: str, *args) -> _Search:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_a_law_whose_size_the_kbar_cannot_tell_from_zero_is_unseen():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
@@ -471,6 +477,8 @@ class _Errors:
 
 
 @pytest.mark.parametrize("gain, taken", [(1.5, False), (2.0, True)])
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_a_step_that_adds_two_laws_must_gain_the_margin_of_each(gain, taken):
     search = searched("analytic", -300.0, 0.5, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
@@ -484,6 +492,8 @@ def test_a_step_that_adds_two_laws_must_gain_the_margin_of_each(gain, taken):
     assert taken or step.why == "less than the x1.69 required"          # 1.3 for each of the two laws added
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
@@ -509,6 +519,8 @@ def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
 
 
 @pytest.mark.parametrize("fall, after, taken", [(0.9, 0.05, False), (1.1, 0.05, True), (0.9, 0.01, True)])
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_on_data_without_harmonics_a_law_beside_others_must_lower_the_kbar_chi_square_above_the_noise(
         fall, after, taken):
     # the criterion does not judge there; a law beside the laws taken that fits part of the lines departing from
@@ -532,6 +544,8 @@ def test_on_data_without_harmonics_a_law_beside_others_must_lower_the_kbar_chi_s
     assert judge.step_up(search, empty, one).taken
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_every_set_one_law_larger_than_the_choice_goes_to_the_frfs():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
@@ -545,6 +559,8 @@ def test_every_set_one_law_larger_than_the_choice_goes_to_the_frfs():
     assert len(_extension(search, sets[()], 1)) <= 1
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_the_single_law_the_frfs_like_best_joins_the_shortlist_of_one_law():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     singles = [s for s in search.sets if len(s.laws) == 1]
@@ -559,6 +575,8 @@ def test_the_single_law_the_frfs_like_best_joins_the_shortlist_of_one_law():
     assert search.by_size[1] == before + [outside]
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_on_data_without_harmonics_sets_that_fit_the_kbar_alike_and_the_frfs_far_better_join_the_shortlist():
     # random case 9 of seed 275748: the capped kbar ranked a tanh spring beside Coulomb friction below a dozen
     # sets of two laws, and its FRF error was x17 lower
@@ -590,6 +608,7 @@ class _Otherwise(dict):
         return 0.5
 
 
+@pytest.mark.slow
 def test_a_linear_verdict_is_set_aside_where_the_frfs_show_a_law_of_the_amplitude_beyond_doubt():
     # random case 45 of seed 635793: cubic damping at a joint whose kbar is small beside the structure's, too
     # little in its kbar for the verdict, x10.5 in the FRFs
@@ -658,6 +677,8 @@ def test_the_frfs_part_two_sets_by_far_at_their_kbar_fits_or_by_the_margin_squar
     assert judge.frfs_part_refined(search) is None
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tell_them_apart():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     pair = next(s for s in search.sets if s.laws == ("cubic", "quadratic_damping"))
@@ -683,6 +704,7 @@ class _MultiOf:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_a_simpler_set_alike_replaces_the_choice_only_where_it_holds_with_harmonics_on_data_without_them():
     # random case 10 of seed 635793: a one-sided contact and a gap alike in the kbar and single-harmonic (0.075),
     # 0.296 and 0.019 with harmonics; as many parameters, and the tie took the contact
@@ -718,6 +740,8 @@ class _Multi:
 
 @pytest.mark.parametrize("kbar_judges, before, checked", [(True, ("cubic",), False), (False, (), False),
                                                           (False, ("cubic",), True)])
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_a_large_single_harmonic_gain_is_checked_with_harmonics_beside_a_law_on_data_without_harmonics(
         kbar_judges, before, checked):
     # x6 single-harmonically, nothing with harmonics: a law that fits the lines one harmonic cannot represent
@@ -735,6 +759,8 @@ def _refinement(chi_square: float, n_residuals: int) -> FrfRefinement:
     return FrfRefinement([], [], chi_square, n_residuals, 1)
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_a_clearance_the_frfs_overrule_only_at_its_kbar_fit_stays_first_on_data_without_harmonics():
     # random case 6 of seed 939814: a gap fitted to the capped kbar a few percent off gave an FRF error of 0.178
     # against a quintic's 0.126; refined against the FRFs, a chi-square of 1896 against 17264 over 312 residuals
@@ -762,6 +788,8 @@ def test_a_clearance_the_frfs_overrule_only_at_its_kbar_fit_stays_first_on_data_
     assert _preferred(judge, search, [gap, quintic, cubic], empty) == [gap] and asked == []
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("searched")
 def test_a_law_beside_a_clearance_is_taken_back_where_every_element_refined_leaves_it_less_than_the_margin(
         monkeypatch):
     # random case 6 of seed 939814: Anderson-Ferri friction beside a gap, x1.39 over the gap at its kbar fit;
@@ -831,6 +859,7 @@ def test_an_empty_model_of_a_joint_gets_its_stiffness_and_its_damping():
     assert "model discovery" in result.text()
 
 
+@pytest.mark.slow
 def test_a_model_with_its_laws_gets_no_discovery():
     from test_nonparametric import library_force, measured, started
 
@@ -848,6 +877,7 @@ def test_discovery_can_be_switched_off():
     assert result.discovery is None and all(s.action != "discover" for s in result.steps)
 
 
+@pytest.mark.slow
 def test_a_linear_rig_with_empty_joints_gets_nothing():
     # no joint force at all: the kbar is noise about zero, no set earns its parameters
     from test_nonparametric import measured, started
@@ -858,6 +888,7 @@ def test_a_linear_rig_with_empty_joints_gets_nothing():
     assert len(wb.history) == 1
 
 
+@pytest.mark.slow
 def test_the_search_is_a_record_with_every_set():
     s = samples_of({"cubic": {"k3": 4e5}}, X, W)
     search = search_element(3, s, False, DiscoveryRules(max_laws=2))

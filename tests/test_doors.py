@@ -118,6 +118,7 @@ def test_the_plan_holds_dof_names_to_the_same_rule_in_the_same_words():
         assert dof_name_problem(good) is None
 
 
+@pytest.mark.slow
 def test_reference_writes_its_model_before_it_prints_so_a_closed_pipe_costs_nothing(tmp_path):
     """``contactid reference S -o M.toml | head -1``: the model was never written (BrokenPipeError)."""
     session, model = tmp_path / "s.h5", tmp_path / "m.toml"
@@ -206,6 +207,7 @@ def _runs(path) -> dict[str, dict]:
     return out
 
 
+@pytest.mark.slow
 def test_uff_export_carries_the_measured_force_phase_and_phasor_and_names_what_it_leaves_out(tmp_path, capsys):
     """The default UFF export dropped ``force_phase`` and ``force_phasor`` without a word."""
     session = tmp_path / "s.h5"
@@ -221,6 +223,7 @@ def test_uff_export_carries_the_measured_force_phase_and_phasor_and_names_what_i
 
 
 @pytest.mark.parametrize("form", ["--uff", "--csv"])
+@pytest.mark.slow
 def test_phase_resonance_runs_are_left_out_by_name_and_what_is_written_imports_back(tmp_path, capsys, form):
     """Phase-resonance runs were exported by ``--uff`` and ``--csv``, and then refused by the import."""
     session = tmp_path / "s.h5"
@@ -239,6 +242,7 @@ def test_phase_resonance_runs_are_left_out_by_name_and_what_is_written_imports_b
     assert not list(tmp_path.glob("x*"))
 
 
+@pytest.mark.slow
 def test_csv_long_keeps_each_runs_std_and_a_failed_run_stays_failed(tmp_path):
     """``--csv-long`` dropped the ``std`` of every run as soon as one run had none, and turned a ``failed`` run
     into ``complete``."""
@@ -554,6 +558,7 @@ def test_a_per_run_csv_names_the_file_line_of_a_bad_frequency(tmp_path, capsys):
     one_line_error(capsys, csv.name, "line 8: frequency [Hz]", "0.5 Hz after", "(line 7)")
 
 
+@pytest.mark.slow
 def test_a_run_of_one_line_is_exported_to_uff_and_read_back(tmp_path, capsys):
     """A valid one-line run could not be exported to UFF, and the message was pyuff's."""
     rows = _csv_rows(tmp_path / "c.csv")
@@ -684,6 +689,7 @@ def test_updating_modes_the_random_run_does_not_show_are_refused():
 
 
 # --------------------------------------------------------------------------- simulate --overwrite through a link
+@pytest.mark.slow
 def test_simulate_overwrite_onto_a_link_replaces_its_target_and_keeps_the_link(tmp_path):
     """``simulate --overwrite`` onto a symlink replaced the link with a regular file and left its target."""
     real, link, plan = tmp_path / "real" / "s.h5", tmp_path / "link.h5", tmp_path / "p.toml"
@@ -847,6 +853,7 @@ def test_a_line_where_a_sensor_saw_nothing_is_refused_by_every_export_in_one_wor
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
 
 
+@pytest.mark.slow
 def test_csv_long_keeps_a_std_of_zero_and_the_std_of_each_dof_that_has_one(tmp_path):
     """A std of 0 at one line (the session's rule: >= 0) made ``--csv-long`` drop the run's std without a word,
     and the import refused a 0; a std stored for one DOF only was dropped too."""
@@ -909,6 +916,7 @@ def _cli(args, stdout=subprocess.PIPE, close=True) -> tuple[int, str]:
 
 @pytest.mark.parametrize("command", [pytest.param("analyze", marks=pytest.mark.slow), "import", "export --csv-long",
                                      "export --uff", "export --csv"])
+@pytest.mark.slow
 def test_every_command_finishes_its_work_when_the_reader_closes_the_pipe(tmp_path, command):
     """``analyze S M -o F.toml | head -1``, ``import ... | head -0``, ``export ... | head -0``: a BrokenPipeError
     traceback (exit 1), the files written or not depending on when the report filled the pipe."""
@@ -935,6 +943,7 @@ def test_every_command_finishes_its_work_when_the_reader_closes_the_pipe(tmp_pat
             assert len(f["models"]) == 1
 
 
+@pytest.mark.slow
 def test_a_full_standard_output_says_what_was_written_not_that_nothing_was(tmp_path):
     """``reference S -o M.toml > /dev/full`` said "nothing was written" although M.toml was written."""
     session, model = tmp_path / "s.h5", tmp_path / "m.toml"
@@ -949,6 +958,7 @@ def test_a_full_standard_output_says_what_was_written_not_that_nothing_was(tmp_p
     assert f"wrote {model}" in lines[0], err
 
 
+@pytest.mark.slow
 def test_csv_long_names_what_no_column_carries(tmp_path, capsys):
     """``export --csv-long`` left out ``distortion`` (which the analysis reads) and a failed run's ``end_reason``
     and ``incomplete`` without a word, where ``--uff`` and ``--csv`` name theirs."""

@@ -58,6 +58,7 @@ def test_95_percent_intervals_cover_the_truth_95_percent_of_the_time(case, sigma
         assert abs(c - 0.95) <= MARGIN, (key, c)
 
 
+@pytest.mark.slow
 def test_the_outlier_excluding_fit_leaves_clean_samples_alone_and_still_covers():
     laws, amplitudes = CASES["cubic+coulomb"]
     measured, lost = coverage(laws, amplitudes, exclude_outliers=True, seed=2)

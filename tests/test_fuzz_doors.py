@@ -250,6 +250,7 @@ def csv_cases() -> list[Hostile]:
     return cases
 
 
+@pytest.mark.slow
 def test_the_csv_door_refuses_every_malformed_input_in_one_line(tmp_path, inputs):
     _run_all(csv_cases(), tmp_path, inputs)
 
@@ -350,6 +351,7 @@ def uff_cases() -> list[Hostile]:
 
 
 @pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")   # pyuff, reading an inf
+@pytest.mark.slow
 def test_the_uff_door_refuses_every_malformed_input_in_one_line(tmp_path, inputs):
     _run_all(uff_cases(), tmp_path, inputs)
 
@@ -575,6 +577,7 @@ def _empty_hdf5() -> bytes:
     return data.getvalue()
 
 
+@pytest.mark.slow
 def test_the_session_door_refuses_every_malformed_input_in_one_line(tmp_path, inputs):
     _run_all(session_cases(), tmp_path, inputs)
 

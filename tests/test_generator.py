@@ -90,6 +90,7 @@ def arms_and_disarms(rig, shaker):
     assert not rig.shaker.output_on
 
 
+@pytest.mark.slow
 def test_a_generator_without_its_guardian_is_not_armed_unless_unguarded():
     with EmulatedRig(RigDouble(), paced=False, name="gen-tcp", shaker_model="33500B") as rig, \
             EmulatorServer(rig, "tcp") as server:

@@ -1,5 +1,6 @@
 """``contactid gui`` from the command line: the window opens on the built-in simulated rig and the exit status
 is 0 when it is closed; inconsistent instrument options are refused before any window opens."""
+import pytest
 from PySide6.QtCore import QTimer
 from PySide6.QtWidgets import QApplication
 
@@ -7,6 +8,7 @@ from app.cli import main
 from app.gui.main_window import MainWindow
 
 
+@pytest.mark.slow
 def test_gui_opens_on_the_simulated_rig_and_closes_cleanly(qapp, tmp_path):
     seen = {}
 

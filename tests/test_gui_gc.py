@@ -3,9 +3,12 @@ destroys Qt objects deadlocks against the GUI thread)."""
 import gc
 import threading
 
+import pytest
+
 from app.gui.main_window import MainWindow
 
 
+@pytest.mark.slow
 def test_collection_is_left_to_the_gui_thread_while_a_window_is_open(qtbot):
     assert gc.isenabled()
     window = MainWindow()

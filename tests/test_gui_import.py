@@ -31,6 +31,7 @@ def window(qtbot):
     return w
 
 
+@pytest.mark.slow
 def test_import_dialog_with_a_level_per_file_opens_the_session_on_the_identify_tab(window, qtbot, tmp_path):
     files = [controller_file(tmp_path / "low.uff"), controller_file(tmp_path / "high.uff")]
     dialog = window.import_dialog()
@@ -81,6 +82,7 @@ def test_the_records_of_one_reference_are_picked_per_file(window, tmp_path):
     assert dialog.isVisible() and "--records takes record numbers" in dialog.message.text()
 
 
+@pytest.mark.slow
 def test_a_reversed_force_is_refused_until_the_dialog_says_so(window, qtbot, tmp_path):
     reversed_path = tmp_path / "rev.uff"                # the controller's force sign reversed: every FRF negated
     sets = pyuff.UFF(controller_file(tmp_path / "low.uff")).read_sets()

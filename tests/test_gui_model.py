@@ -97,6 +97,7 @@ def test_add_on_the_top_candidate_lowers_the_displayed_error_and_undo_restores_i
     assert all(not el.laws for el in window.lab.analysis.elements)
 
 
+@pytest.mark.slow
 def test_a_model_that_does_not_fit_the_session_is_a_message(qtbot, hidden_effect_session, tmp_path):
     session, _ = hidden_effect_session
     wrong = tmp_path / "wrong.toml"
@@ -125,6 +126,7 @@ def test_analyze_names_a_bad_add_by_the_option_that_gave_it(hidden_effect_sessio
     assert f"{model}: --add middle:cubic: no element named 'middle'" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_model_without_joints_is_no_identification_error(qtbot):
     """A linear rig (a structure and no elements) gives FRFs and nothing to identify: no error banner."""
     window = MainWindow("test")
@@ -168,6 +170,7 @@ def _level_view(levels):
         candidates=[], history=[HistoryView(0, "start", 0.98)], model_toml="")
 
 
+@pytest.mark.slow
 def test_twelve_levels_fit_a_small_screen_in_level_order_in_colours_apart(qtbot):
     from app.kbar_view import level_colours
 
@@ -200,6 +203,7 @@ def _on_a_small_screen(qtbot, view) -> MainWindow:
     return window
 
 
+@pytest.mark.slow
 def test_thirty_levels_are_small_multiples_of_neighbours_and_their_legend_stays_on_a_small_screen(qtbot):
     from analysis.common.measurements import Control
     from app.kbar_view import level_panels, panel_title
@@ -229,6 +233,7 @@ def test_thirty_levels_are_small_multiples_of_neighbours_and_their_legend_stays_
     assert len(panel.frf_panels) == 1 and panel.frf.titleLabel.text.startswith("Receptance")
 
 
+@pytest.mark.slow
 def test_the_model_line_shows_an_apostrophe_as_itself(qtbot):
     """The model's origin ("the rig's structure") was escaped for an HTML attribute: the label read "rig&#x27;s"."""
     from PySide6.QtGui import QTextDocument
@@ -258,6 +263,7 @@ def _tick_labels(plot):
     return sorted((rect.left(), rect.right(), text) for rect, _, text in texts)
 
 
+@pytest.mark.slow
 def test_the_narrow_frf_panels_of_thirty_levels_keep_their_frequency_labels_apart(qtbot):
     from analysis.common.measurements import Control
 
@@ -283,6 +289,7 @@ def test_the_narrow_frf_panels_of_thirty_levels_keep_their_frequency_labels_apar
                 assert left - right >= 6, (span, plot.titleLabel.text, text, following, plot.vb.width())
 
 
+@pytest.mark.slow
 def test_every_candidate_column_and_add_button_is_in_view_on_a_1366_px_screen(qtbot):
     from app.gui.results import CandidateView
 
@@ -306,6 +313,7 @@ def test_every_candidate_column_and_add_button_is_in_view_on_a_1366_px_screen(qt
     assert table.horizontalHeaderItem(4).text() == "Significant" and table.horizontalHeaderItem(4).toolTip()
 
 
+@pytest.mark.slow
 def test_the_laws_tree_keeps_ten_rows_after_auto_on_a_small_screen_and_its_share_can_be_moved(qtbot):
     from app.gui.results import CandidateView, ElementView, LawView, ParamView, UnexplainedView
 
@@ -334,6 +342,7 @@ def test_the_laws_tree_keeps_ten_rows_after_auto_on_a_small_screen_and_its_share
     assert splitter.sizes()[0] < total // 3 and tree.viewport().height() >= 4 * rows
 
 
+@pytest.mark.slow
 def test_error_history_labels_sit_at_their_points_inside_the_plot_and_apart(qtbot):
     import numpy as np
     import pyqtgraph as pg

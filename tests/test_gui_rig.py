@@ -59,6 +59,7 @@ def test_real_instruments_over_socket_urls(qtbot, served_instruments):
     assert not window.acquire.start_button.isEnabled()
 
 
+@pytest.mark.slow
 def test_a_port_that_does_not_answer_is_a_message(qtbot):
     window = MainWindow("test")
     qtbot.addWidget(window)

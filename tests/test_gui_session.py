@@ -86,6 +86,7 @@ def finished_session(tmp_path):
     return path, f
 
 
+@pytest.mark.slow
 def test_exports_through_the_buttons(window, qtbot, tmp_path, monkeypatch, finished_session):
     path, f = finished_session
     window.lab.open_session(str(path))

@@ -53,6 +53,7 @@ def drawn(plot) -> int:
     return sum(0 if x is None else len(x) for x in xs)
 
 
+@pytest.mark.slow
 def test_an_import_drops_the_results_of_the_session_before(window, qtbot, tmp_path):
     window.lab.open_session(finished_session(tmp_path / "before.h5"))
     analysed(window)
@@ -83,6 +84,7 @@ def test_an_import_drops_the_results_of_the_session_before(window, qtbot, tmp_pa
         "This session holds no response-controlled level")
 
 
+@pytest.mark.slow
 def test_an_old_error_leaves_the_status_bar_when_an_analysis_goes_through(window):
     window.show_error("open a session first")
     assert window.statusBar().currentMessage() == "open a session first"
@@ -90,6 +92,7 @@ def test_an_old_error_leaves_the_status_bar_when_an_analysis_goes_through(window
     assert window.statusBar().currentMessage() == f"analysed: FRF error {view.error:.4g}"
 
 
+@pytest.mark.slow
 def test_a_refused_import_reopens_as_the_operator_left_it(window, qtbot, tmp_path):
     files = [controller_file(tmp_path / "low.uff"), controller_file(tmp_path / "high.uff")]
     dialog = window.import_dialog()
@@ -110,6 +113,7 @@ def test_a_refused_import_reopens_as_the_operator_left_it(window, qtbot, tmp_pat
     assert window.import_dialog().files.rowCount() == 0       # an import that went through: the next starts empty
 
 
+@pytest.mark.slow
 def test_auto_and_stop_stay_where_they_are_while_the_loop_reports(window, qtbot):
     window.resize(1366, 768)
     window.show()
@@ -130,6 +134,7 @@ def test_auto_and_stop_stay_where_they_are_while_the_loop_reports(window, qtbot)
     assert bar.maximum() > 0 and bar.maximum() - bar.value() < panel.auto_label.fontMetrics().lineSpacing()
 
 
+@pytest.mark.slow
 def test_the_model_line_names_the_laws_the_tab_shows(window):
     window.lab.rig = load_rig("paper-2dof")
     window.lab.use_starter_model()
@@ -143,6 +148,7 @@ def test_the_model_line_names_the_laws_the_tab_shows(window):
     assert text.startswith("starter model for paper-2dof")
 
 
+@pytest.mark.slow
 def test_a_prediction_replaces_the_analysis_shown_before(window):
     analysed(window)
     assert window.model.history.listDataItems()

@@ -92,6 +92,7 @@ def _steady_state(rhs, w, periods_settle, n_per_period=512):
     return spectrum
 
 
+@pytest.mark.slow
 def test_multiharmonic_duffing_matches_time_integration():
     # near the 1/3 superharmonic resonance the third harmonic is ~15 % of the fundamental
     k3, c, w, F = 4e4, 2.0, 3.4, 5.0
@@ -447,6 +448,7 @@ def _duffing_amplitudes(w, force, k=100.0, m=1.0, c=0.2, k3=1e4):
     return out
 
 
+@pytest.mark.slow
 def test_a_long_sweep_follows_the_branch_a_stepped_sine_measures_by_the_analytic_relation():
     """2000 lines (solved all at once and checked against the march, harmonic_balance._speculative_sweep): a
     hardening Duffing oscillator's up sweep stays on the largest amplitude until its fold, the down sweep on the
@@ -513,7 +515,7 @@ def _one_restart_after_another(sys_, fns, F, orders, step, items, y, converged, 
 
 
 @pytest.mark.parametrize("laws, force", [
-    ([{"law": "coulomb", "fs": 0.6}], 0.5),                                # sticks: no solution at any line
+    pytest.param([{"law": "coulomb", "fs": 0.6}], 0.5, marks=pytest.mark.slow),   # sticks: no solution at any line
     ([{"law": "cubic", "k3": 1e4}], 2.0),                                  # jumps off its fold
     ([{"law": "cubic", "k3": -3e3}, {"law": "quadratic_damping", "c2": 0.05}], 2.0),
 ])

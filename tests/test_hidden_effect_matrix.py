@@ -58,6 +58,7 @@ def test_the_rig_and_model_files_differ_by_the_hidden_laws_only():
     assert rig["noise"]["acceleration"] == rig["noise"]["force"] == 0.001
 
 
+@pytest.mark.slow
 def test_the_integrator_gives_the_analytic_receptance_of_a_linear_rig():
     # no laws: X = (K - w^2 M + j w C)^-1 F e_q, the steady state the integrator must settle to
     c = mc.case("2dof nothing missing (linear rig)")
@@ -148,6 +149,7 @@ def test_a_representative_case_is_diagnosed_right(name, tmp_path):
     assert outcome.error_fall >= mc.GOAL_FALL, outcome.errors
 
 
+@pytest.mark.slow
 def test_a_random_clearance_is_drawn_to_close_at_the_amplitude_its_joint_reaches():
     # the gap is a fraction (0.2-0.5) of the joint's amplitude with the case's other laws, not of its linear
     # amplitude, which a damping or a friction can keep the joint far below (seed 112631 random 22 and 23)
@@ -166,6 +168,7 @@ def test_a_random_clearance_is_drawn_to_close_at_the_amplitude_its_joint_reaches
     assert dict(case.laws[2].values)["k"] == pytest.approx(1.403e3, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_a_random_hardening_power_law_is_sized_at_the_amplitude_its_joint_reaches():
     # seed 957188 random 28: a quintic sized at the joint's linear amplitude added 4.7 N/m at the largest
     # amplitude reached, within the kbar's noise, where a gap and a linear law at the other joint held the joint
@@ -184,6 +187,7 @@ def test_a_random_hardening_power_law_is_sized_at_the_amplitude_its_joint_reache
     assert not rd._reach_sized(mc._law("a", "cubic", k3=-1e6)) and rd._reach_sized(mc._law("a", "cubic", k3=1e6))
 
 
+@pytest.mark.slow
 def test_a_random_saturating_spring_saturates_at_the_amplitude_its_joint_reaches():
     # seed 344719 random 23: a tanh spring drawn to saturate at its joint's linear amplitude had saturated by
     # 0.8 % of its initial stiffness at the 2.7 mm reached beside quadratic damping and a quintic, within the
@@ -199,6 +203,7 @@ def test_a_random_saturating_spring_saturates_at_the_amplitude_its_joint_reaches
     assert values["beta"] == pytest.approx(145.1, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_a_random_softening_cubic_is_drawn_so_that_its_joint_cannot_escape_within_its_amplitude():
     # seed 266231 random 3: a softening cubic of k3 = -8.4e6 N/m^3 between two masses ran away in the integrator
     # (the joint's stiffness e K e is 3-4 x the stiffness the structure gives it, 1 / e K^-1 e)

@@ -212,6 +212,7 @@ def test_units_dataset_164_applies_where_the_labels_are_empty(tmp_path):
         np.testing.assert_allclose(s.run("sine_0.5N_up").frf["a"], h, rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_time_histories_become_a_random_run_through_the_projects_estimator(tmp_path):
     """Force and accelerations of a multisine through the linear 2-DOF system (its exact steady state)."""
     rng = np.random.default_rng(0)

@@ -104,6 +104,7 @@ def test_bad_control_and_force_columns_name_the_line(tmp_path, capsys, column, v
     assert "b.csv: line 5: " + message in err
 
 
+@pytest.mark.slow
 def test_export_csv_long_carries_the_force_per_line_and_the_control_back(tmp_path, capsys):
     session = tmp_path / "s.h5"
     w = SessionWriter(session, software_version="t")

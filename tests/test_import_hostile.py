@@ -290,6 +290,7 @@ def test_an_existing_output_is_refused_naming_imports_own_flag(exported, tmp_pat
     assert existing.read_bytes() == b"kept"
 
 
+@pytest.mark.slow
 def test_the_free_space_wanted_is_estimated_from_the_data(tmp_path):
     from app.importers.runs import SourceOptions
     from app.importers.store import estimated_bytes, read_source

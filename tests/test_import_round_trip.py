@@ -138,6 +138,7 @@ def test_the_default_export_holds_every_line_exactly_and_modal_tools_read_each_f
 
 
 @pytest.mark.parametrize("route", ["uff", "csv"])
+@pytest.mark.slow
 def test_what_the_analysis_reads_survives_export_and_import(tmp_path, route):
     """A short session with everything the analysis uses: FRFs, their noise, the force held, harmonics, and a
     random run's coherence, random error and Welch resolution; exported with the default flags (UFF) or as CSV,

@@ -140,6 +140,7 @@ def test_the_right_law_fitted_to_its_own_kbar_raises_no_alarm_over_many_seeds():
 
 
 # ---------------------------------------------------------------------- on FRFs
+@pytest.mark.slow
 def test_a_joint_outside_the_library_is_flagged_with_its_signature():
     wb = started([{"law": "linear"}], measured(outside_force))
     offers = wb.unexplained()
@@ -182,6 +183,7 @@ def test_the_nonparametric_part_follows_the_true_kbar_and_finds_the_viscous_freq
     assert all(c.element != "joint" for c in wb.candidates())
 
 
+@pytest.mark.slow
 def test_a_library_joint_with_its_law_fitted_is_not_flagged_over_several_seeds():
     laws = [{"law": "cubic"}, {"law": "quadratic_damping"}]
     for seed in range(4):
@@ -338,6 +340,7 @@ def write_session(path, data: Measurements):
     writer.close()
 
 
+@pytest.mark.slow
 def test_analyze_adds_the_nonparametric_part_from_the_command_line(tmp_path, capsys):
     from app.cli import main
     from app.session.writer import open_session, read_model_history

@@ -38,6 +38,7 @@ def displacement(run, dof):
     return np.abs(run.arrays[f"harmonics/acc:{dof}"][:, 1]) / w ** 2
 
 
+@pytest.mark.slow
 def test_the_lock_follows_the_duffing_backbone_up_its_branch(tmp_path):
     with emulated_instruments(load_rig(RIGS / "hardening.toml"), seed=1) as inst:
         summary = run_plan(plan(HARDENING_PLAN), inst, tmp_path / "s.h5")
@@ -83,6 +84,7 @@ def test_paper_2dof_locks_on_the_first_mode_s_backbone(tmp_path):
     assert run.frequency[-1] < 0.95 * run.frequency[0]            # the softening cubics: the mode comes down
 
 
+@pytest.mark.slow
 def test_an_abort_during_a_lock_switches_off_and_keeps_the_points_measured(tmp_path):
     box = {}
 
@@ -144,6 +146,7 @@ def test_a_phase_lock_at_a_dof_without_accelerometer_is_refused_before_arming(tm
     assert not (tmp_path / "s.h5").exists()
 
 
+@pytest.mark.slow
 def test_a_level_that_does_not_lock_is_stored_unconverged_and_fails_the_run(tmp_path):
     text = HARDENING_PLAN.replace("start = 10.0", "start = 9.0\nmax_iterations = 2")
     with emulated_instruments(load_rig(RIGS / "hardening.toml"), seed=1) as inst:

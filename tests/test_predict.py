@@ -131,6 +131,7 @@ def test_a_linear_law_fitted_on_low_levels_is_seen_to_fail_on_the_held_out_ones(
     assert "held out" in text and "better than it predicts others" in text
 
 
+@pytest.mark.slow
 def test_analyze_with_fit_levels_prints_the_same_prediction_predict_gives(fitted_low, capsys):
     capsys.readouterr()
     assert main(["analyze", str(fitted_low / "duffing.h5"), str(fitted_low / "cubic.toml"), "--no-history",
@@ -143,6 +144,7 @@ def test_analyze_with_fit_levels_prints_the_same_prediction_predict_gives(fitted
     assert len(json.loads(json.dumps(analysed))["levels"]) == len(AMPLITUDES)
 
 
+@pytest.mark.slow
 def test_predict_on_the_fitted_session_gives_the_error_analyze_gave_nothing_refitted(sessions, capsys):
     capsys.readouterr()
     assert main(["analyze", str(sessions / "duffing.h5"), str(sessions / "cubic.toml"), "--no-history", "--json",
@@ -164,6 +166,7 @@ def test_another_session_is_unseen_and_a_model_that_does_not_say_is_unknown(fitt
     assert {lv["kind"] for lv in out["levels"]} == {"unknown"} and out["fitted_on"] is None
 
 
+@pytest.mark.slow
 def test_predict_writes_its_plots_and_refuses_to_overwrite_them(fitted_low, tmp_path, capsys):
     folder = tmp_path / "new" / "report"
     args = ["predict", str(fitted_low / "duffing.h5"), str(fitted_low / "cubic_low.toml"), "--report", str(folder)]
@@ -239,6 +242,7 @@ def test_cross_validation_tells_a_law_that_follows_the_amplitude_from_one_that_f
     assert "describes its own levels better than it predicts others" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_the_model_tab_predicts_with_nothing_refitted_and_saves_what_it_was_fitted_to(fitted_low, qtbot, tmp_path):
     from app.gui.main_window import MainWindow
 

@@ -136,6 +136,7 @@ def test_the_session_records_the_control_of_each_run(hardening_session):
 
 
 # ----------------------------------------------------------------------------- paper-beam (Iwan joint)
+@pytest.mark.slow
 def test_paper_beam_holds_an_acceleration_at_the_drive_point(tmp_path):
     text = ('[[stepped_sine]]\nresponse = 10.0\ndof = "A.w"\nstart = 52.25\nstop = 53.25\nstep = 0.25\n'
             'refine = false\n[limits]\nmax_force = 5.0\nmax_acceleration = 400.0\n')
@@ -226,6 +227,7 @@ laws = ["cubic"]
 """
 
 
+@pytest.mark.slow
 def test_analyze_reports_frequency_and_damping_against_response_amplitude(hardening_session, tmp_path, capsys):
     import json
 

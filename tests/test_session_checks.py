@@ -125,6 +125,7 @@ def test_sound_session_is_analysed_without_notes(capsys, files):
     assert linear["k"] == pytest.approx(K_TRUE, rel=1e-6) and linear["c"] == pytest.approx(C_TRUE, rel=1e-6)
 
 
+@pytest.mark.slow
 def test_run_recovered_after_a_crash_is_analysed_with_a_note(capsys, files):
     session, model = files
     with h5py.File(session, "r+") as f:          # what recovery leaves: the line in progress reached frf/x1 only
@@ -151,6 +152,7 @@ def test_aborted_run_is_noted_with_its_reason(capsys, files):
     assert rc == 0 and f"note: run {RUN} was aborted (limit max_force); its 12 lines" in out
 
 
+@pytest.mark.slow
 def test_failed_run_is_read_and_noted_with_its_reason(capsys, files):
     # a run that ran to its end but missed its force target is kept and analysed, never taken as complete
     session, model = files
@@ -163,6 +165,7 @@ def test_failed_run_is_read_and_noted_with_its_reason(capsys, files):
     assert note["status"] == "failed" and note["lines"] == 12
 
 
+@pytest.mark.slow
 def test_lines_where_a_sensor_saw_nothing_are_left_out_with_a_note(capsys, files):
     """A campaign stores a fundamental below one count of the DAQ as NaN, FRF and standard deviation both: those
     lines hold no FRF to analyse and are left out, named; the other lines give the joint as before. A NaN FRF

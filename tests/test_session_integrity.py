@@ -272,6 +272,7 @@ def _closed_on_a_full_disk(tmp_path):
     return path
 
 
+@pytest.mark.slow
 def test_recover_of_a_run_closed_on_a_full_disk_leaves_out_the_reads_that_do_not_finish(tmp_path, capsys,
                                                                                           monkeypatch):
     import app.session.salvage as salvage
@@ -293,6 +294,7 @@ def test_recover_of_a_run_closed_on_a_full_disk_leaves_out_the_reads_that_do_not
     assert main(["export", str(session), "--csv", str(tmp_path / "csv")]) == 0
 
 
+@pytest.mark.slow
 def test_recover_gives_up_in_one_line_when_too_many_reads_do_not_finish(tmp_path, capsys, monkeypatch):
     import app.session.salvage as salvage
 

@@ -160,6 +160,7 @@ def test_malformed_toml_names_the_file(tmp_path):
 
 
 # --- definiteness: a property of the structure, not of its units or mesh ------------------------------------
+@pytest.mark.slow
 def test_fine_clamped_beam_is_accepted_and_still_a_cantilever():
     # its stiffness eigenvalues span 4e-14 of each other: a fixed ratio of 1e-12 of them called it singular;
     # it is not (its diagonally scaled reciprocal condition number is 2.5e-13, a rigid-body mode's 1e-17)

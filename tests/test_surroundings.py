@@ -66,6 +66,7 @@ def integrated_kbar(w, force, periods=40):
     return abs(X1), f1 / X1
 
 
+@pytest.mark.slow
 def test_placed_kbar_is_the_fundamental_of_a_time_integration():
     """The contact's mean and its harmonics move the mass; kbar placed in the structure is the integration's,
     the describing function alone is 15-25 % off near resonance, and the mean alone without the harmonics 4-6 %."""
