@@ -134,7 +134,6 @@ def test_a_law_whose_every_parameter_is_tied_adds_nothing_but_a_damping_of_its_o
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_coulomb_and_a_stiff_jenkins_element_are_named_alike_with_the_test_that_separates_them():
     search = searched("laws", (("coulomb", (("fs", 0.5),)),))
     coulomb = next(x for x in search.sets if x.laws == ("coulomb",))
@@ -212,7 +211,6 @@ def test_a_set_whose_law_is_tied_to_another_is_never_chosen_but_named_where_its_
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_the_shortlist_keeps_one_of_sets_that_fit_alike_and_a_determined_one():
     search = searched("laws", (("coulomb", (("fs", 0.5),)),))
     short = _shortlists(search.sets, 3)
@@ -238,8 +236,7 @@ def searched(kind: str, *args) -> _Search:
     """``search_element(0, samples, linear_verdict=False)`` of the samples ``analytic_samples(*args)`` (kind
     "analytic") or ``samples_of(args[0], X, W)`` (kind "laws", args[0] a tuple of (law, ((param, value), ...)))
     writes. The search is a deterministic function of its samples and several tests read the same one: it is run
-    once per process and each caller gets a deep copy of its own, free to change. Its callers are one xdist group
-    (``searched``), so that one worker runs them all and each search once, not once on every worker."""
+    once per process and each caller gets a deep copy of its own, free to change."""
     key = (kind, args)
     if key not in _SEARCHED:
         if kind == "analytic":
@@ -251,7 +248,6 @@ def searched(kind: str, *args) -> _Search:
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_a_law_whose_size_the_kbar_cannot_tell_from_zero_is_unseen():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
@@ -478,7 +474,6 @@ class _Errors:
 
 @pytest.mark.parametrize("gain, taken", [(1.5, False), (2.0, True)])
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_a_step_that_adds_two_laws_must_gain_the_margin_of_each(gain, taken):
     search = searched("analytic", -300.0, 0.5, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
@@ -493,7 +488,6 @@ def test_a_step_that_adds_two_laws_must_gain_the_margin_of_each(gain, taken):
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
@@ -520,7 +514,6 @@ def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
 
 @pytest.mark.parametrize("fall, after, taken", [(0.9, 0.05, False), (1.1, 0.05, True), (0.9, 0.01, True)])
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_on_data_without_harmonics_a_law_beside_others_must_lower_the_kbar_chi_square_above_the_noise(
         fall, after, taken):
     # the criterion does not judge there; a law beside the laws taken that fits part of the lines departing from
@@ -545,7 +538,6 @@ def test_on_data_without_harmonics_a_law_beside_others_must_lower_the_kbar_chi_s
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_every_set_one_law_larger_than_the_choice_goes_to_the_frfs():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
@@ -560,7 +552,6 @@ def test_every_set_one_law_larger_than_the_choice_goes_to_the_frfs():
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_the_single_law_the_frfs_like_best_joins_the_shortlist_of_one_law():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     singles = [s for s in search.sets if len(s.laws) == 1]
@@ -576,7 +567,6 @@ def test_the_single_law_the_frfs_like_best_joins_the_shortlist_of_one_law():
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_on_data_without_harmonics_sets_that_fit_the_kbar_alike_and_the_frfs_far_better_join_the_shortlist():
     # random case 9 of seed 275748: the capped kbar ranked a tanh spring beside Coulomb friction below a dozen
     # sets of two laws, and its FRF error was x17 lower
@@ -678,7 +668,6 @@ def test_the_frfs_part_two_sets_by_far_at_their_kbar_fits_or_by_the_margin_squar
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tell_them_apart():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     pair = next(s for s in search.sets if s.laws == ("cubic", "quadratic_damping"))
@@ -704,7 +693,6 @@ class _MultiOf:
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_a_simpler_set_alike_replaces_the_choice_only_where_it_holds_with_harmonics_on_data_without_them():
     # random case 10 of seed 635793: a one-sided contact and a gap alike in the kbar and single-harmonic (0.075),
     # 0.296 and 0.019 with harmonics; as many parameters, and the tie took the contact
@@ -741,7 +729,6 @@ class _Multi:
 @pytest.mark.parametrize("kbar_judges, before, checked", [(True, ("cubic",), False), (False, (), False),
                                                           (False, ("cubic",), True)])
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_a_large_single_harmonic_gain_is_checked_with_harmonics_beside_a_law_on_data_without_harmonics(
         kbar_judges, before, checked):
     # x6 single-harmonically, nothing with harmonics: a law that fits the lines one harmonic cannot represent
@@ -760,7 +747,6 @@ def _refinement(chi_square: float, n_residuals: int) -> FrfRefinement:
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_a_clearance_the_frfs_overrule_only_at_its_kbar_fit_stays_first_on_data_without_harmonics():
     # random case 6 of seed 939814: a gap fitted to the capped kbar a few percent off gave an FRF error of 0.178
     # against a quintic's 0.126; refined against the FRFs, a chi-square of 1896 against 17264 over 312 residuals
@@ -789,7 +775,6 @@ def test_a_clearance_the_frfs_overrule_only_at_its_kbar_fit_stays_first_on_data_
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("searched")
 def test_a_law_beside_a_clearance_is_taken_back_where_every_element_refined_leaves_it_less_than_the_margin(
         monkeypatch):
     # random case 6 of seed 939814: Anderson-Ferri friction beside a gap, x1.39 over the gap at its kbar fit;
