@@ -343,6 +343,8 @@ def report_text(wb: Workbench, candidates, top: int = 5,
                    f"{r.lines_flagged} left out (ill-conditioned or distorted)")
         if r.verdict is not None:
             out.append(f"    evidence: {r.verdict.evidence}")
+        if r.yardstick is not None:
+            out.append(f"    {r.yardstick.text(r.samples.units[0] if r.samples else 'N/m')}")
         if el.in_reference:
             out.append(f"    measured from the reference: {IN_REFERENCE_WHY}")
         for j, term in enumerate(el.laws):

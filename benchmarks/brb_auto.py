@@ -78,6 +78,10 @@ def report(result: dict, cpu: float, baseline: float) -> list[str]:
             values = ", ".join(f"{k} = {v:.4g}" for k, v in law["params"].items())
             lines.append(f"  {e['name']}: {law['law']} ({values}){'; not determined: ' if law['undetermined'] else ''}"
                          f"{', '.join(law['undetermined'])}")
+        if "yardstick" in e:
+            y = e["yardstick"]
+            lines.append(f"  {e['name']}: judged by the {y['ruled_by'].replace('_', ' ')} (between runs "
+                         f"{y['between_runs_std']:.4g}, line noise {y['line_noise_std']:.4g})")
         share = len(e["lines_excluded_hz"]) / e["lines_used"] if e["lines_used"] else 0.0
         worst_share = max(worst_share, share)
         lines.append(f"  {e['name']}: {len(e['lines_excluded_hz'])} of {e['lines_used']} lines left out of the fit")

@@ -92,3 +92,19 @@ def test_identify_legend_stands_beside_the_kbar_plots_with_each_marker_level_wit
         marker = sample.sceneBoundingRect().center().y()
         words = label.item.sceneBoundingRect().center().y()
         assert abs(marker - words) <= 2, (label.text, marker, words)
+
+
+def test_identify_tab_says_which_yardstick_judged_each_element(qtbot):
+    """Under each element's evidence, the yardstick its verdict, outliers and intervals were judged by, in the
+    words of the text report (docs/fitting.md, "The yardstick")."""
+    from dataclasses import replace
+
+    from analysis.identification.between_runs import BetweenRuns
+
+    view = _view(fitted=False)
+    judged = [BetweenRuns(0.0, 2.0, 0, 0, 1.0, False), BetweenRuns(430.0, 13.0, 64, 64, 5e-20, True)]
+    view = IdentificationView([replace(e, yardstick=j.text()) for e, j in zip(view.elements, judged)], 80, False,
+                              view.runs)
+    shown = _panel(qtbot, view).verdicts.toPlainText()
+    assert "Yardstick: the line noise (2 N/m); the scatter between runs is not measurable" in shown
+    assert "Yardstick: the scatter between runs, 430 N/m (33x the line noise of 13 N/m" in shown

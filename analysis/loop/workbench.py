@@ -28,6 +28,7 @@ import numpy as np
 from ..common.errors import InputError
 from ..common.measurements import Measurements, SineRun
 from ..fitting.fit import LawFit, fit_laws
+from ..identification.between_runs import BetweenRuns, between_runs
 from ..identification.identify import identify_complex_stiffness
 from ..identification.linearity import LinearityVerdict, linearity_verdict
 from ..laws import get_law
@@ -53,6 +54,7 @@ class ElementReport:
     lines_used: int
     lines_flagged: int
     fit: LawFit | None = None
+    yardstick: BetweenRuns | None = None    # the scatter between runs against the line noise; None without noise
 
     def to_json(self, element) -> dict:
         laws = []
@@ -73,6 +75,8 @@ class ElementReport:
                "in_reference": element.in_reference}
         if self.verdict is not None:
             out["statistic"], out["threshold"] = self.verdict.statistic, self.verdict.threshold
+        if self.yardstick is not None:
+            out["yardstick"] = self.yardstick.to_json()
         if self.fit is not None:
             out["not_identifiable"] = [d.to_json() for d in self.fit.degeneracies]
             out["correlated"] = [c.to_json() for c in self.fit.correlated]
@@ -158,7 +162,8 @@ class Workbench:
     """Carry one model through identification, fitting, comparison and the missing-effect loop."""
 
     def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.05,
-                 harmonics: HarmonicCriterion | None = HarmonicCriterion()):
+                 harmonics: HarmonicCriterion | None = HarmonicCriterion(),
+                 yardsticks: dict[str, BetweenRuns] | None = None):
         if not measurements.sine:
             raise InputError("the session has no stepped-sine run to identify from")
         missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
@@ -168,6 +173,8 @@ class Workbench:
         self.measurements = measurements
         self.distortion_limit = distortion_limit   # lines whose displacement THD is larger: left out
         self.harmonics = harmonics                 # which lines are predicted multi-harmonically (None: none)
+        # element -> the scatter between runs measured on the whole test, for a workbench on part of its levels
+        self._given_yardsticks = dict(yardsticks or {})
         self.reference: ReferenceReport | None = None
         self.reports: dict[str, ElementReport] = {}
         self.history: list[HistoryStep] = []
@@ -221,6 +228,7 @@ class Workbench:
         self.reports = {}
         for el in els:
             samples = ElementSamples.joined(per[el.name])
+            yardstick = self._yardstick(samples, self._given_yardsticks.get(el.name))
             X = samples.X
             verdict = None
             if len(X) >= 4:
@@ -233,8 +241,31 @@ class Workbench:
                 if verdict is not None and verdict.linear:
                     verdict = _overruled(verdict, amplitude_dependence(samples, robust=self.harmonics_blind))
             self.reports[el.name] = ElementReport(el.name, samples if len(X) else None, verdict, len(X),
-                                                  flagged[el.name])
+                                                  flagged[el.name], yardstick=yardstick)
         return self.reports
+
+    def yardsticks(self) -> dict[str, BetweenRuns]:
+        """Element -> the scatter between runs its samples were judged by (elements without noise left out)."""
+        return {name: r.yardstick for name, r in self.reports.items() if r.yardstick is not None}
+
+    @staticmethod
+    def _yardstick(samples: ElementSamples, given: BetweenRuns | None) -> BetweenRuns | None:
+        """The scatter between runs of an element's samples (``given``: measured on the whole test, for a
+        workbench on part of its levels); where it rules over the line noise, the samples' standard deviations take
+        it on (``sqrt(std^2 + tau^2)``), so that every judgement downstream -- the verdict, the fits' outliers and
+        intervals, discovery's criteria -- is relative to how well the test repeats
+        (:mod:`analysis.identification.between_runs`). None where the samples carry no noise.
+
+        A refit on part of the levels inherits the whole test's: how well the test repeats is a property of the
+        test, not of the laws, and a part of its runs overlaps too little to measure it (a half of twelve levels
+        gives six groups, too few for the sign test), so each part would otherwise be judged by another noise
+        than the whole and its held-out error would measure the difference."""
+        if samples.kbar_std is None or not len(samples.X):
+            return None
+        yardstick = given if given is not None else between_runs(samples.X, samples.w, samples.kbar,
+                                                                  samples.kbar_std)
+        samples.kbar_std = yardstick.combined(samples.kbar_std)
+        return yardstick
 
     def _identified_runs(self) -> list[tuple[SineRun, np.ndarray]]:
         """Every run identified from, with the level of each line: the stepped-sine runs (their level), then the

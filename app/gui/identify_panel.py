@@ -257,4 +257,6 @@ class IdentifyPanel(QWidget):
                          f"(ill-conditioned or distorted)</p>")
             if el.evidence:
                 parts.append(f"<p><b>Evidence:</b> {html.escape(el.evidence, quote=False)}</p>")
+            if el.yardstick:
+                parts.append(f"<p>{html.escape(el.yardstick[0].upper() + el.yardstick[1:], quote=False)}</p>")
         return "".join(parts)

@@ -57,6 +57,7 @@ class ElementView:
     nonparametric: str = ""           # the non-parametric part, described; "" when the element has none
     model: np.ndarray | None = None   # the fitted laws' kbar at the samples; None before fitting
     in_reference: bool = False        # its laws are measured from their small-amplitude state (docs/laws.md)
+    yardstick: str = ""               # which noise judged it: the line noise or the scatter between runs
 
     @property
     def verdict(self) -> str:
@@ -273,7 +274,9 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
                                  "" if verdict is None else verdict.evidence, report.lines_used,
                                  report.lines_flagged, tuple(laws), part,
                                  el.describing_function(samples.X, samples.w) if fitted else None,
-                                 el.in_reference))
+                                 el.in_reference,
+                                 "" if report.yardstick is None or samples is None
+                                 else report.yardstick.text(samples.units[0])))
     return views
 
 

@@ -1,0 +1,173 @@
+"""The scatter between runs: how well the test repeats itself, measured from the kbar samples.
+
+A line's noise (the FRF estimate's, carried through the identification) says how precisely one run measured that
+line. It says nothing about how well a second run would repeat it: a bolted joint settles, the temperature drifts,
+the fixture moves, and on a real structure the mode moves by a fraction of its half-power bandwidth between runs.
+That spread is the yardstick a model of the joint has to be judged against; where it dwarfs the line noise, a
+judgement against the line noise finds every law significant and every line an outlier.
+
+The rule: **an element's kbar is a function of its amplitude at each line** (the describing-function hypothesis
+every law of docs/laws.md obeys). Two runs that measured one line at nearly the same amplitude must agree within
+their noise; how far they disagree beyond it is the scatter between runs. The same line measured by repeated
+levels, by up and down sweeps, or by a force-controlled level crossing a response-controlled one all give such
+pairs. This is :func:`analysis.identification.linearity.scatter_std` turned by ninety degrees: there, neighbouring
+lines of one run give the line noise; here, neighbouring runs at one line give the scatter between runs.
+
+At each line the samples are sorted by ``u = ln X`` and taken four at a time (disjoint groups, in order). Within a
+group spanning at most a factor ``SPAN`` in amplitude, the combination ``c . kbar`` of the four that vanishes for
+any quadratic in ``u`` (the third divided difference, ``|c| = 1``) leaves the noise and the scatter between runs:
+
+    E|c . kbar|^2 = sum_i c_i^2 std_i^2 + tau^2,
+
+with ``tau^2`` the variance of the scatter between runs (complex, circular, like ``std``). It leaves also the
+cubic term of kbar's curvature in ``u``: at most about ``0.3 %`` of kbar for the steepest law over a factor of two
+(Coulomb friction's ``1 / X``), so what it estimates is the test's own repeatability plus that small share of
+model-form error. Over ``n`` groups:
+
+- ``tau^2`` is estimated part by part, ``tau^2 = tau_re^2 + tau_im^2``, each the median of the part's square less
+  its line noise ``sum c^2 std^2 / 2``, over the median of chi-square with one degree of freedom (0.455): a
+  median, so a few groups across a jump between branches do not move it; part by part, because a test's scatter
+  need not be circular -- a stiffness that wanders moves Re kbar alone, and a median of ``|c . kbar|^2`` taken as
+  exponential would read it 19 % low;
+- it **rules** where the groups depart from the line noise beyond chance (a sign test: under the line noise alone
+  each ``|c . kbar|^2 / sum c^2 std^2`` exceeds ``ln 2`` with probability one half; the count above is binomial,
+  judged at ``false_alarm``) *and* ``tau`` exceeds the median line noise. Otherwise the line noise rules.
+
+Where it rules, each sample's standard deviation becomes ``sqrt(std^2 + tau^2)`` (:meth:`BetweenRuns.combined`):
+significance, outliers and intervals are then relative to how well the test repeats, not to how precisely one run
+measured a line. Where fewer than four runs measured a line within a factor ``SPAN``, nothing is estimated: a
+plan of levels a factor of two apart, one sweep each, cannot tell the joint from the test's drift, and the report
+says the line noise ruled for want of runs that overlap.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.stats
+
+from ..common.wording import engineering
+
+GROUP = 4                 # samples per group: the combination cancels a quadratic in ln X
+SPAN = 2.0                # the largest amplitude ratio within a group, where the cubic term stays small
+SHARED_LINE = 1.0e-9      # relative: lines closer than this are one line
+DEFAULT_FALSE_ALARM = 1.0e-3
+MEDIAN_CHI2_1 = float(scipy.stats.chi2.median(1))   # 0.455: median of a real Gaussian part squared, in its variance
+
+
+@dataclass(frozen=True)
+class BetweenRuns:
+    """The scatter between runs of one element's kbar, and whether it rules over the line noise.
+
+    Attributes
+    ----------
+    tau : float
+        Standard deviation of the scatter between runs, ``sqrt(E|delta kbar|^2)``, N/m (N·m/rad); 0 when not
+        estimated or below the noise.
+    line_noise : float
+        Median standard deviation of the samples' line noise over the groups, N/m.
+    groups : int
+        Groups of four runs at one line within a factor ``SPAN`` in amplitude.
+    above : int
+        Groups whose combination exceeds its line-noise median (``ln 2`` times its variance).
+    p_value : float
+        Probability of at least ``above`` of ``groups`` under the line noise alone (1 with no groups).
+    rules : bool
+        The scatter between runs is the yardstick: significant at the false alarm and larger than the line noise.
+    """
+
+    tau: float
+    line_noise: float
+    groups: int
+    above: int
+    p_value: float
+    rules: bool
+
+    def combined(self, std: np.ndarray) -> np.ndarray:
+        """``sqrt(std^2 + tau^2)`` where the scatter between runs rules, else ``std`` unchanged; shape of ``std``."""
+        std = np.asarray(std, float)
+        return np.sqrt(std**2 + self.tau**2) if self.rules else std
+
+    def text(self, stiffness_unit: str = "N/m") -> str:
+        """One sentence: which yardstick ruled, and why."""
+        if not self.groups:
+            return (f"yardstick: the line noise ({engineering(self.line_noise)} {stiffness_unit}); the scatter "
+                    f"between runs is not measurable: no four runs measured one line within a factor {SPAN:g} "
+                    "in amplitude")
+        if self.rules:
+            return (f"yardstick: the scatter between runs, {engineering(self.tau)} {stiffness_unit} "
+                    f"({self.tau / max(self.line_noise, 1e-300):.0f}x the line noise of "
+                    f"{engineering(self.line_noise)} {stiffness_unit}; {self.above} of {self.groups} groups of "
+                    f"four runs at one line depart from it, p = {self.p_value:.1g}): significance, outliers and "
+                    "intervals are judged against it")
+        return (f"yardstick: the line noise ({engineering(self.line_noise)} {stiffness_unit}); the runs repeat "
+                f"within it ({self.above} of {self.groups} groups of four runs at one line above its median, "
+                f"p = {self.p_value:.2g})")
+
+    def to_json(self) -> dict:
+        return {"ruled_by": "between_runs" if self.rules else "line_noise", "between_runs_std": self.tau,
+                "line_noise_std": self.line_noise, "groups": self.groups, "groups_above": self.above,
+                "p_value": self.p_value}
+
+
+def between_runs(X, w, kbar, kbar_std, *, false_alarm: float = DEFAULT_FALSE_ALARM) -> BetweenRuns:
+    """The scatter between runs of one element's kbar samples (module docstring).
+
+    Parameters
+    ----------
+    X, w : array_like, shape (N,)
+        Amplitudes (m or rad, > 0) and angular frequencies (rad/s) of the samples.
+    kbar : array_like, shape (N,), complex
+        Identified complex stiffness, N/m (N·m/rad).
+    kbar_std : array_like, shape (N,)
+        Line noise ``sqrt(E|delta kbar|^2)`` of each sample.
+    false_alarm : float
+        Probability that runs repeating within their line noise are said to scatter.
+    """
+    X, w = np.asarray(X, float), np.asarray(w, float)
+    kbar, std = np.asarray(kbar, complex), np.asarray(kbar_std, float)
+    residual, variance = _groups(np.log(X), w, kbar, std)
+    if not residual.size:
+        return BetweenRuns(0.0, float(np.median(std)) if std.size else 0.0, 0, 0, 1.0, False)
+    ratio = np.abs(residual) ** 2 / np.maximum(variance, 1e-300)
+    above = int((ratio > math.log(2.0)).sum())
+    p_value = float(scipy.stats.binom.sf(above - 1, residual.size, 0.5))
+    tau = math.sqrt(sum(max(float(np.median(part**2 - variance / 2)) / MEDIAN_CHI2_1, 0.0)
+                        for part in (residual.real, residual.imag)))
+    line_noise = float(np.sqrt(np.median(variance)))
+    return BetweenRuns(tau, line_noise, int(residual.size), above, p_value,
+                       rules=p_value < false_alarm and tau > line_noise)
+
+
+def _groups(u: np.ndarray, w: np.ndarray, kbar: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``c . kbar`` (complex) and ``sum c^2 std^2`` of every disjoint group of ``GROUP`` samples at one line within a
+    factor ``SPAN`` in amplitude, taken in order of ``u`` along each line; shapes (n,)."""
+    order = np.lexsort((u, w))
+    w_sorted = w[order]
+    new_line = np.concatenate([[True], np.diff(w_sorted) > SHARED_LINE * max(float(np.abs(w).max(initial=0)), 1.0)])
+    starts = np.flatnonzero(new_line)
+    ends = np.append(starts[1:], order.size)
+    residual, variance = [], []
+    for start, end in zip(starts, ends):
+        members = order[start:end]
+        j = 0
+        while j + GROUP <= members.size:
+            group = members[j:j + GROUP]
+            nodes = u[group]
+            if nodes[-1] - nodes[0] > math.log(SPAN) or np.diff(nodes).min() <= 0:
+                j += 1
+                continue
+            c = _divided_difference(nodes)
+            residual.append(c @ kbar[group])
+            variance.append(float(np.sum(c**2 * std[group] ** 2)))
+            j += GROUP
+    return np.asarray(residual, complex), np.asarray(variance, float)
+
+
+def _divided_difference(nodes: np.ndarray) -> np.ndarray:
+    """Weights of the highest divided difference over ``nodes`` (distinct), scaled to unit length: the
+    combination that vanishes for every polynomial of degree ``len(nodes) - 2``."""
+    c = np.array([1.0 / np.prod([nodes[a] - nodes[b] for b in range(nodes.size) if b != a])
+                  for a in range(nodes.size)])
+    return c / np.linalg.norm(c)
