@@ -829,16 +829,25 @@ def _jump_correction(f: np.ndarray, y: np.ndarray, v: np.ndarray, theta: np.ndar
     changes across the two neighbouring intervals counts: a continuous force that bends there (a Jenkins
     slider sticking, quadratic damping) changes by about as much beside it and is left as sampled."""
     n = len(theta)
-    df = np.roll(f, -1, axis=0) - f                          # change across interval m: samples m and m + 1
+    df = np.empty_like(f)                                    # change across interval m: samples m and m + 1
+    np.subtract(f[1:], f[:-1], out=df[:-1])
+    np.subtract(f[:1], f[-1:], out=df[-1:])
     out = np.zeros((len(k), f.shape[1]), complex)
-    placed = np.zeros(f.shape, bool)                         # an interval's jump is placed once
+    placed = None                                            # an interval's jump is placed once
     for u in (v, y):
-        after = np.roll(u, -1, axis=0)
-        m, col = np.nonzero((u * after < 0) & ~placed)
-        placed[m, col] = True
-        beside = np.abs(df[(m - 1) % n, col]) + np.abs(df[(m + 1) % n, col])
-        jump = df[m, col] - 0.5 * (df[(m - 1) % n, col] + df[(m + 1) % n, col])
-        real = np.abs(jump) > JUMP_RATIO * beside            # a force that only bends there: left alone
+        after = np.concatenate((u[1:], u[:1]))
+        crossing = u * after < 0
+        if placed is not None:
+            crossing &= ~placed
+        m, col = np.nonzero(crossing)
+        if not m.size:
+            continue
+        placed = crossing if placed is None else placed | crossing
+        before, beyond = df[(m - 1) % n, col], df[(m + 1) % n, col]
+        jump = df[m, col] - 0.5 * (before + beyond)
+        real = np.abs(jump) > JUMP_RATIO * (np.abs(before) + np.abs(beyond))   # a force that only bends: left alone
+        if not real.any():                                   # the common case, decided before any phasor is made
+            continue
         m, col, jump = m[real], col[real], jump[real]
         s = u[m, col] / (u[m, col] - after[m, col])
         mid = theta[m] + np.pi / n
