@@ -31,6 +31,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 import scipy.optimize
+from numba import njit
 
 from ..common.interrupt import check_stop
 from ..mechanics.elements import Element
@@ -827,34 +828,38 @@ def _jump_correction(f: np.ndarray, y: np.ndarray, v: np.ndarray, theta: np.ndar
     adds ``(2/n) jump (1/2 - s) (sin k theta + j cos k theta)`` at its middle (half that for the mean). The
     phasors are then continuous in the motion to O(1/n^2). Only a jump larger than ``JUMP_RATIO`` times the
     changes across the two neighbouring intervals counts: a continuous force that bends there (a Jenkins
-    slider sticking, quadratic damping) changes by about as much beside it and is left as sampled."""
-    n = len(theta)
-    df = np.empty_like(f)                                    # change across interval m: samples m and m + 1
-    np.subtract(f[1:], f[:-1], out=df[:-1])
-    np.subtract(f[:1], f[-1:], out=df[-1:])
-    out = np.zeros((len(k), f.shape[1]), complex)
-    placed = None                                            # an interval's jump is placed once
-    for u in (v, y):
-        after = np.concatenate((u[1:], u[:1]))
-        crossing = u * after < 0
-        if placed is not None:
-            crossing &= ~placed
-        m, col = np.nonzero(crossing)
-        if not m.size:
-            continue
-        placed = crossing if placed is None else placed | crossing
-        before, beyond = df[(m - 1) % n, col], df[(m + 1) % n, col]
-        jump = df[m, col] - 0.5 * (before + beyond)
-        real = np.abs(jump) > JUMP_RATIO * (np.abs(before) + np.abs(beyond))   # a force that only bends: left alone
-        if not real.any():                                   # the common case, decided before any phasor is made
-            continue
-        m, col, jump = m[real], col[real], jump[real]
-        s = u[m, col] / (u[m, col] - after[m, col])
-        mid = theta[m] + np.pi / n
-        held = jump * (0.5 - s) / n
-        phasor = 2 * held[:, None] * (np.sin(np.outer(mid, k)) + 1j * np.cos(np.outer(mid, k)))
-        phasor[:, 0] = held
-        np.add.at(out.T, col, phasor)                        # the jumps of each element summed
+    slider sticking, quadratic damping) changes by about as much beside it and is left as sampled.
+
+    Compiled (:func:`_placed_jumps`): it runs at every AFT evaluation, and as numpy calls on a few sign changes it
+    cost more than the laws' own forces."""
+    return _placed_jumps(f, y, v, theta, k, JUMP_RATIO)
+
+
+@njit(cache=True)
+def _placed_jumps(f, y, v, theta, k, ratio):
+    """:func:`_jump_correction`'s sum, element by element: each interval where the velocity, or else the
+    displacement, changes sign, its jump placed where the sign changes; (len(k), r) complex."""
+    n, r = f.shape
+    out = np.zeros((k.size, r), np.complex128)
+    for c in range(r):
+        for which in range(2):
+            u = v if which == 0 else y
+            for m in range(n):
+                a, b = u[m, c], u[(m + 1) % n, c]
+                if not a * b < 0:
+                    continue
+                if which == 1 and v[m, c] * v[(m + 1) % n, c] < 0:
+                    continue                                  # an interval's jump is placed once
+                before = f[m, c] - f[(m - 1) % n, c]
+                beyond = f[(m + 2) % n, c] - f[(m + 1) % n, c]
+                jump = f[(m + 1) % n, c] - f[m, c] - 0.5 * (before + beyond)
+                if not abs(jump) > ratio * (abs(before) + abs(beyond)):
+                    continue                                  # a force that only bends there: left alone
+                held = jump * (0.5 - a / (a - b)) / n
+                mid = theta[m] + np.pi / n
+                out[0, c] += held
+                for h in range(1, k.size):
+                    out[h, c] += 2 * held * complex(np.sin(mid * k[h]), np.cos(mid * k[h]))
     return out
 
 
