@@ -29,6 +29,15 @@ def pytest_configure(config):
     RigSimulator("paper-2dof", seed=0).advance(64)
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """An acceptance case is slow too, so that the fast set (``-m "not slow"``), whose ``-m`` replaces the
+    configuration's, leaves it out as README's test command does."""
+    for item in items:
+        if item.get_closest_marker("acceptance"):
+            item.add_marker(pytest.mark.slow)
+
+
 @pytest.fixture(autouse=True)
 def _qt_garbage_in_the_main_thread(request):
     """After a test that made Qt objects, collect its cyclic garbage here, in the GUI thread.

@@ -189,7 +189,7 @@ def replayed_on_second_call(monkeypatch):
     return kept
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_two_effects_on_two_elements_are_found_and_the_loop_stops(tmp_path, capsys, monkeypatch):
     from app.cli import main
 
@@ -355,7 +355,7 @@ def test_the_auto_button_runs_the_same_loop(qtbot, rk4_joint, rk4_loop):
 
 
 # ------------------------------------------------------------------------------------------------ jump rig
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_the_jump_rig_adds_coulomb_and_no_quintic(tmp_path):
     from test_jump_error import PLAN, RIG_ELEMENTS
 
@@ -367,7 +367,7 @@ def test_the_jump_rig_adds_coulomb_and_no_quintic(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ paper beam
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_the_paper_beam_loop_ends_on_iwan(tmp_path):
     """The demo's rig and quick plan: the tangential contact is an Iwan element and nothing else."""
     from analysis.common.tables import load_toml

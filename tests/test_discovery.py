@@ -818,7 +818,7 @@ def test_a_law_beside_a_clearance_is_taken_back_where_every_element_refined_leav
     assert _pruned_beside_clearance(judge, {0: search}, judged) == {} and judged[0] is pair
 
 # ------------------------------------------------------------------------------------------- the whole path
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_an_empty_model_of_a_joint_gets_its_stiffness_and_its_damping():
     # single-harmonic data by quadrature and fsolve (tests/test_nonparametric.py): cubic spring and quadratic
     # damping at x1, three levels
@@ -913,7 +913,7 @@ def assert_the_paper_laws(wb, result):
             assert got[element][law].values[name] == pytest.approx(true, rel=0.015), (element, law, name)
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 @pytest.mark.parametrize("levels", [(0.8,), (0.4, 0.8)])
 def test_the_paper_2dof_from_an_empty_model(levels, tmp_path):
     """The paper's own example from a model with no law, through the emulated rig and the drivers: the four

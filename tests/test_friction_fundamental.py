@@ -54,7 +54,7 @@ def test_a_turned_friction_with_the_force_fits_to_the_noise_and_a_plain_one_gain
         capped_chi_square(np.abs(alone.normalized_residuals) ** 2), abs=12.0)
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_on_independent_rk4_receptances_the_turn_is_there_and_the_rigs_laws_are_seen_beside_it():
     """The paper's 2-DOF integrated by the plain RK4 of tests/test_paper_frfs_alone.py (Coulomb as a steep tanh,
     receptances only): the right joint's kbar leaves the sliding describing function by a force in phase with

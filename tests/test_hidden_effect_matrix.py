@@ -140,7 +140,7 @@ def test_the_published_table_is_the_last_full_run():
     assert section in (ROOT / "docs/workbench.md").read_text(encoding="utf-8")
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 # the two-element 2-DOF case runs in tests/test_auto.py; here the 3-DOF chain from the independent integrator
 @pytest.mark.parametrize("name", ["rk4 3dof cubic between masses"])
 def test_a_representative_case_is_diagnosed_right(name, tmp_path):
@@ -226,7 +226,7 @@ def test_a_random_softening_cubic_is_drawn_so_that_its_joint_cannot_escape_withi
     assert softening >= 3
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_the_loop_adds_no_law_beside_a_contact_that_only_fits_its_closing_lines(tmp_path):
     # seed 786947 random 17: a one-sided contact alone, on RK4 receptances without harmonics; discovery takes the
     # contact and refuses cubic damping beside it (its kbar's capped chi-square falls within the noise); the loop
@@ -239,7 +239,7 @@ def test_the_loop_adds_no_law_beside_a_contact_that_only_fits_its_closing_lines(
     assert scored.outcome.right and not scored.outcome.false_alarms, mc.progress_line(1, 1, scored.outcome, 0)
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_a_contact_s_corrected_fit_reaches_the_fixed_point_the_frfs_prefer(tmp_path, monkeypatch):
     # seed 735527 random 13: quadratic damping + a one-sided contact, RK4 receptances without harmonics. The kbar
     # fit and every corrected pass from it stay at a contact half as stiff as the rig's; started from the laws
@@ -268,7 +268,7 @@ def test_a_contact_s_corrected_fit_reaches_the_fixed_point_the_frfs_prefer(tmp_p
     assert error < kbar_error / 20
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_a_law_beside_a_gap_that_the_refitted_model_does_not_need_is_taken_back(tmp_path):
     # seed 735527 random 9: a gap alone, RK4 receptances without harmonics. Discovery stepped from a one-sided
     # contact to a law beside the gap and never tried the gap alone; refitted, the model does not miss the law

@@ -87,7 +87,7 @@ def test_import_keeps_the_force_measured_at_each_line(rk4_session):
     assert run.force == 0.03 and run.control.mode == "force"
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_lowest_level_reference_then_analyze_auto_runs_end_to_end(rk4_session, capsys):
     """From the lowest level's reference and no law, ``analyze --auto`` finds the RK4 rig's Jenkins joint with
     its kt and fs (docs/laws.md, "Measured from the reference")."""
@@ -137,7 +137,7 @@ def test_a_force_drifting_25_percent_is_analysed_like_one_held(rk4_levels):
     assert abs(nominal["fs"] / rk4_rig.FS - 1) > 0.1 and nominal_error > 10 * error
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_response_controlled_levels_give_the_law_of_the_force_controlled_ones(tmp_path, rk4_levels):
     """Levels holding 20, 50 and 100 um at x1 (the force per line what the controller needed), imported from CSV:
     the law their kbar gives is the rig's and that of the force-controlled levels."""

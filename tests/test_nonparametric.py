@@ -195,7 +195,7 @@ def test_a_library_joint_with_its_law_fitted_is_not_flagged_over_several_seeds()
     assert [o.element for o in offers] == ["joint"] and offers[0].finding.trends.re_X_sigma > 3
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_the_nonparametric_error_is_far_below_the_best_library_law():
     data = measured(outside_force)
     wb = started([], data)

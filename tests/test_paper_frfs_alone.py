@@ -122,7 +122,7 @@ def test_the_left_out_lines_are_reported_in_the_text_and_the_json(clean):
     assert all(law["undetermined"] == [] for law in right["laws"])
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_table_1_from_receptances_alone_and_an_empty_model(clean):
     """The same data, a model with no law at either element: discovery finds the four laws (docs/discovery.md),
     within 1.5 % and with intervals that cover, as with the laws known."""

@@ -159,7 +159,7 @@ def test_a_one_sided_law_must_have_one_scaling_parameter_and_no_state():
                 return np.zeros((2,) + np.shape(X))
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_discovery_places_a_contact_and_finds_it_alone():
     """A contact's kbar placed in its structure (with noise): placed, discovery's best set is the contact alone;
     with the formula alone a law of another kind has to fill the placement's difference."""

@@ -40,7 +40,7 @@ def synthesise(truth_laws, forces=(0.4, 0.8), seed=0, lines=49, structure=STRUCT
     return Measurements(runs)
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_missing_effect_loop_recovers_the_paper_laws_and_the_error_falls():
     # the two dissipative effects missing, one at each element
     wb = workbench(load_model(model_doc({"left": [{"law": "cubic"}], "right": [{"law": "cubic"}]})),
@@ -63,7 +63,7 @@ def test_missing_effect_loop_recovers_the_paper_laws_and_the_error_falls():
     assert laws["right"]["cubic"]["k3"] == pytest.approx(-750, rel=1e-2)
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_first_candidate_explains_dry_friction_with_the_measured_slope():
     wb = workbench(load_model(model_doc({"left": PAPER_LAWS["left"], "right": [{"law": "cubic"}]})),
                    synthesise(PAPER_LAWS))
