@@ -46,6 +46,18 @@ def test_a_drift_per_line_of_known_size_is_measured_and_rules():
     assert "the scatter between runs" in found.text() and found.to_json()["ruled_by"] == "between_runs"
 
 
+def test_one_line_measured_by_runs_whose_frequencies_differ_in_their_last_digits_is_one_line():
+    """Imported runs give the same line with frequencies that differ by rounding (1e-13 here): those samples are
+    one line, taken in amplitude order along it, and give as many groups as when the frequencies are equal."""
+    X, w, k, s, _ = _campaign(np.geomspace(1.0, 1.2**11, 12), 5e-4, 150.0, seed=11, per_line=True)
+    exact = between_runs(X, w, k, s)
+    # each run's lines off by its own last digits, the smallest amplitudes the highest: w order is not X order
+    runs = np.repeat(np.arange(12), w.size // 12)
+    rounded = w * (1.0 + 1e-13 * (11 - runs))
+    found = between_runs(X, rounded, k, s)
+    assert exact.groups >= 40 and found.groups == exact.groups and found.tau == pytest.approx(exact.tau)
+
+
 def test_a_drift_per_run_is_measured_to_its_order_on_every_seed():
     """Each run offset by one drift of 150 N/m over all its lines (a structure that settled between runs): twelve
     runs realise only twelve offsets, whose groups of four give about nine independent values, so the estimate

@@ -67,6 +67,34 @@ def test_an_iwan_element_whose_spike_carries_the_stiffness_reads_as_the_jenkins_
     assert as_jenkins == pytest.approx(as_iwan, rel=1e-6, abs=1e-9 * values["kt"])
 
 
+@pytest.mark.parametrize("chi", [-0.4, 0.13, 0.9])
+def test_measured_from_the_reference_a_stuck_spike_of_any_size_leaves_the_continuum_s_micro_slip(chi):
+    """Measured from the reference a stuck spike adds nothing to kbar - kt, however stiff: a fit can run kt and
+    beta off together and keep the continuum's kt / (1 + beta) finite. What the data determine is then the
+    continuum's micro-slip (chi, nu), not a Jenkins element of the spike's 6e13 N/m."""
+    iwan = LAWS["iwan"].relative()
+    continuum, phi_max = 3.0e4, 2.0e-3                 # the continuum's stiffness kt / (1 + beta), its slip range
+    beta = 2.0e9                                      # kbar - kt then holds kt's rounding, 6e13 * 1e-16 N/m
+    kt = continuum * (1.0 + beta)
+    # phi_max = fs/kt (chi + 2)(1 + beta)/(chi + 1 + beta (chi + 2)) (analysis/laws/iwan.py slip_range)
+    fs = phi_max * kt * (chi + 1.0 + beta * (chi + 2.0)) / ((chi + 2.0) * (1.0 + beta))
+    values = {"kt": kt, "fs": fs, "chi": chi, "beta": beta}
+    X = np.geomspace(2e-6, 2e-4, 25)                  # every slider stuck beyond 2 mm: nothing slips through
+    reading = iwan.reading(values, X.min(), X.max())
+    assert reading.limit == "micro-slip" and reading.undetermined == ("kt", "fs", "beta")
+    assert "e+13" not in reading.values_text() and set(reading.values) == {"chi", "nu"}
+    nu = reading.values["nu"]
+    r = 2 * beta_function(chi + 2.5, 1.5) * (chi + 2) * (chi + 3) / (chi + 1)
+    # the closed form against the law's own describing function, the continuum alone carrying its departure
+    shifted = iwan.describing_function(X, np.full_like(X, 100.0), **values)
+    power = nu / np.pi * X ** (chi + 1)
+    assert shifted.imag == pytest.approx(power, rel=1e-6)
+    assert shifted.real == pytest.approx(-r * power, rel=1e-6, abs=8 * np.finfo(float).eps * kt)   # kt - kt
+    # the same element not measured from the reference holds kt itself: there the spike's stiffness is seen
+    # and the continuum is a 1/(1 + beta) share of it, the spike's Jenkins element
+    assert LAWS["iwan"].reading(values, X.min(), X.max()).limit == "Jenkins element"
+
+
 def test_an_iwan_element_whose_spike_always_slips_reads_as_coulomb_friction_and_shows_no_stiffness():
     """A spike stiffer than anything measured, slipping at a force far below the smallest amplitude's: Coulomb
     friction, fs alone; the stiffness the fit left at 1e32 is not a finding and is not shown."""

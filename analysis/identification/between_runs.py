@@ -48,10 +48,10 @@ import numpy as np
 import scipy.stats
 
 from ..common.wording import engineering
+from .linearity import line_labels
 
 GROUP = 4                 # samples per group: the combination cancels a quadratic in ln X
 SPAN = 2.0                # the largest amplitude ratio within a group, where the cubic term stays small
-SHARED_LINE = 1.0e-9      # relative: lines closer than this are one line
 DEFAULT_FALSE_ALARM = 1.0e-3
 MEDIAN_CHI2_1 = float(scipy.stats.chi2.median(1))   # 0.455: median of a real Gaussian part squared, in its variance
 
@@ -143,9 +143,9 @@ def between_runs(X, w, kbar, kbar_std, *, false_alarm: float = DEFAULT_FALSE_ALA
 def _groups(u: np.ndarray, w: np.ndarray, kbar: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``c . kbar`` (complex) and ``sum c^2 std^2`` of every disjoint group of ``GROUP`` samples at one line within a
     factor ``SPAN`` in amplitude, taken in order of ``u`` along each line; shapes (n,)."""
-    order = np.lexsort((u, w))
-    w_sorted = w[order]
-    new_line = np.concatenate([[True], np.diff(w_sorted) > SHARED_LINE * max(float(np.abs(w).max(initial=0)), 1.0)])
+    line = line_labels(w)
+    order = np.lexsort((u, line))          # by line, then by amplitude along it, whatever the last digits of w
+    new_line = np.concatenate([[True], np.diff(line[order]) != 0])
     starts = np.flatnonzero(new_line)
     ends = np.append(starts[1:], order.size)
     residual, variance = [], []

@@ -198,7 +198,7 @@ def linearity_verdict(X, w, kbar, kbar_std=None, *, level=None, false_alarm: flo
         raise InputError(f"false_alarm must lie in (0, 1), got {false_alarm}", field="false_alarm")
     if model not in ("auto", "per_line", "polynomial"):
         raise InputError(f"model must be 'auto', 'per_line' or 'polynomial', got {model!r}", field="model")
-    line = _line_labels(w)
+    line = line_labels(w)
     if kbar_std is None:
         std = scatter_std(w, kbar, level)
     else:
@@ -338,8 +338,12 @@ def _samples(X, w, kbar):
     return X, w, kbar
 
 
-def _line_labels(w: np.ndarray) -> np.ndarray:
-    """Integer label per sample; samples within the tolerance share a label."""
+def line_labels(w: np.ndarray) -> np.ndarray:
+    """Integer label per sample, shape of ``w`` (N,): samples whose lines (rad/s) lie within
+    ``SHARED_LINE_TOLERANCE`` of the largest, one after another, share a label -- one line measured by several runs,
+    whose frequencies may differ in their last digits."""
+    if not w.size:
+        return np.zeros(0, int)
     order = np.argsort(w, kind="stable")
     new_line = np.diff(w[order]) > SHARED_LINE_TOLERANCE * w.max()
     labels = np.empty(w.size, int)

@@ -367,10 +367,13 @@ class Iwan(Law):
         stiffness (the continuum's share of kbar below any test's noise): kt and fs of the spike are determined, chi
         and beta not, whatever the amplitudes -- and that element is read in its own limit where it has one
         (Coulomb friction where the spike slips from a tenth of the smallest amplitude on: then only fs is
-        determined)."""
+        determined). Measured from the reference, where nothing slips through, the continuum is read whatever the
+        spike's share: the stuck stiffness is then the reference's and never seen, so the continuum is not
+        negligible beside it, and all the data see is the continuum's micro-slip, kbar - kt = its departure."""
         kt, fs, chi, beta = (float(values[k]) for k in ("kt", "fs", "chi", "beta"))
         phi_max = float(slip_range(fs / kt, chi, beta))
-        if beta >= SPIKE_ONLY:
+        stuck_stiffness_unseen = self.from_reference and X_max <= phi_max
+        if beta >= SPIKE_ONLY and not stuck_stiffness_unseen:
             spike = beta * kt / (1.0 + beta)
             alone = f"the spike carries all but 1/{1.0 + beta:.3g} of the stiffness, the continuum below any test's noise"
             gross = Jenkins().reading({"kt": spike, "fs": spike * phi_max}, X_min, X_max)
