@@ -6,8 +6,8 @@ Runs ``python -m pytest -m acceptance`` (one worker per core, as README's test c
 case -- passed or failed, its seconds -- then the count and the wall time. An acceptance case runs model discovery
 or the missing-effect loop end to end on one simulated, integrated or measured case and checks what the product
 concludes there: the laws found, their values against the truth, the error's fall. README's test command leaves
-these cases out (``-m 'not acceptance'`` in pyproject.toml): the suite checks every rule and component on its own
-in ten minutes, and this run checks the whole path on the cases, in about as long again. Run it before a change
+these cases out (``-m 'not acceptance'`` in pyproject.toml): the suite checks every rule and component on its own,
+and this run checks the whole path on the cases (docs/performance.md, "The test suite", has both times). Run it before a change
 to analysis/ lands, and record its line in docs/performance.md. Exit status: pytest's (0 when every case passed).
 """
 from __future__ import annotations
@@ -20,16 +20,14 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+_OUTCOMES = (("failure", "FAILED"), ("error", "ERROR"), ("skipped", "skipped"))     # JUnit element -> outcome
 
 
 def cases(junit: Path) -> list[tuple[str, str, float]]:
     """(test id, outcome, seconds) of every case in a JUnit XML report, in the order run."""
     out = []
     for case in ET.parse(junit).getroot().iter("testcase"):
-        outcome = "passed"
-        for tag in ("failure", "error", "skipped"):
-            if case.find(tag) is not None:
-                outcome = {"failure": "FAILED", "error": "ERROR", "skipped": "skipped"}[tag]
+        outcome = next((name for tag, name in _OUTCOMES if case.find(tag) is not None), "passed")
         module = case.get("classname", "").replace(".", "/") + ".py"
         out.append((f"{module}::{case.get('name')}", outcome, float(case.get("time", 0.0))))
     return out
