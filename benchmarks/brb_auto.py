@@ -74,10 +74,16 @@ def report(result: dict, cpu: float, baseline: float) -> list[str]:
     for e in result["elements"]:
         for law in e["laws"]:
             laws += 1
-            undetermined += len(law["undetermined"])
-            values = ", ".join(f"{k} = {v:.4g}" for k, v in law["params"].items())
-            lines.append(f"  {e['name']}: {law['law']} ({values}){'; not determined: ' if law['undetermined'] else ''}"
-                         f"{', '.join(law['undetermined'])}")
+            # a law read in a limit is reported as the limit's combination; what the limit leaves open is no finding
+            reading = law.get("reading")
+            open_in_limit = set(reading["undetermined"]) if reading else set()
+            left_open = [k for k in law["undetermined"] if k not in open_in_limit]
+            undetermined += len(left_open)
+            shown = reading["values"] if reading else law["params"]
+            values = ", ".join(f"{k} = {v:.4g}" for k, v in shown.items())
+            name = f"{law['law']} read as {reading['limit']}" if reading else law["law"]
+            lines.append(f"  {e['name']}: {name} ({values}){'; not determined: ' if left_open else ''}"
+                         f"{', '.join(left_open)}")
         if "yardstick" in e:
             y = e["yardstick"]
             lines.append(f"  {e['name']}: judged by the {y['ruled_by'].replace('_', ' ')} (between runs "

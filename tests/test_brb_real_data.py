@@ -90,4 +90,11 @@ def test_import_reference_a_law_and_an_iwan_element_on_the_measured_beam(brb, ca
     assert "measured from the reference" in out and "yardstick: the scatter between runs" in out
     law = next(line for line in out.splitlines() if line.strip().startswith("law iwan"))
     assert not re.search(r"e\+[1-9][0-9]", law), law
+    # and in JSON: what the limit leaves open is null, listed as undetermined, never a number
+    joint = next(el for el in wb.model.elements if el.name == "joint")
+    iwan = next(entry for entry in wb.reports["joint"].to_json(joint)["laws"] if entry["law"] == "iwan")
+    assert iwan["reading"]["limit"] == "micro-slip", iwan
+    for name in iwan["reading"]["undetermined"]:
+        assert iwan["params"][name] is None and name in iwan["undetermined"]
+    assert all(v is None or abs(v) < 1e15 for v in iwan["params"].values()), iwan["params"]
     assert wb.history[-1].error < 0.75 * wb.history[0].error, [h.error for h in wb.history]

@@ -59,12 +59,20 @@ class ElementReport:
     def to_json(self, element) -> dict:
         laws = []
         for j, term in enumerate(element.laws):
-            entry = {"law": term.law.name, "params": dict(term.values), "from_reference": term.law.from_reference}
-            if self.fit is not None:
-                entry["stderr"] = {k: (None if not np.isfinite(v) else float(v))
-                                   for k, v in self.fit.terms[j].stderr.items()}
-                entry["undetermined"] = list(self.fit.terms[j].undetermined)
             reading = self.reading(term)
+            # a parameter its limit leaves open is no finding (docs/laws.md, "Limits"): null, as in the text;
+            # the model file keeps the fitted value, which the prediction needs
+            open_in_limit = set() if reading is None else set(reading.undetermined)
+            entry = {"law": term.law.name,
+                     "params": {k: (None if k in open_in_limit else v) for k, v in term.values.items()},
+                     "from_reference": term.law.from_reference}
+            undetermined = set(open_in_limit)
+            if self.fit is not None:
+                entry["stderr"] = {k: (None if k in open_in_limit or not np.isfinite(v) else float(v))
+                                   for k, v in self.fit.terms[j].stderr.items()}
+                undetermined |= set(self.fit.terms[j].undetermined)
+            if self.fit is not None or reading is not None:
+                entry["undetermined"] = [k for k in term.values if k in undetermined]
             if reading is not None:
                 entry["reading"] = reading.to_json()
             laws.append(entry)
