@@ -203,6 +203,14 @@ def test_tanh_quadrature_matches_exact_series(z):
     assert tanh_fundamental(z) == pytest.approx(tanh_fundamental_by_series(z), rel=1e-10)
 
 
+def test_tanh_fundamental_is_the_series_on_both_sides_of_where_its_large_amplitude_expansion_takes_over():
+    z = np.array([150.0, 199.9, 200.0, 200.1, 260.0, 1e4, 1e8])
+    exact = np.array([tanh_fundamental_by_series(v) for v in z[:-1]] + [4 / (math.pi * 1e8)])
+    np.testing.assert_allclose(tanh_fundamental(z), exact, rtol=1e-13)
+    # samples on both sides at once: each is evaluated as alone
+    np.testing.assert_allclose(tanh_fundamental(z), [tanh_fundamental(np.array([v]))[0] for v in z], rtol=1e-15)
+
+
 @pytest.mark.parametrize("name", ["tanh_softening", "arctan_softening"])
 def test_softening_laws_small_amplitude_limit(name):
     alpha, beta = 3.0, 250.0
