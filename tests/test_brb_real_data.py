@@ -77,8 +77,10 @@ def test_import_reference_a_law_and_an_iwan_element_on_the_measured_beam(brb, ca
     folds = result["cross_validation"]
     assert len(folds) == 4 and all(0 < f["fitted_error"] and 0 < f["held_out_error"] for f in folds)
     # an Iwan element added by hand, measured from the reference that holds the joint's stuck stiffness
-    # (docs/laws.md, "Measured from the reference"): finite values, and the error well below the reference's
-    # (0.668 against 0.983 on 2026-12-02; added on top of the reference it ran to kt = 1.7e32 at 0.968)
+    # (docs/laws.md, "Measured from the reference"): finite values, every line kept, and the error less than half
+    # the reference's (0.399 against 0.983 on 2026-12-03; added on top of the reference it ran to kt = 1.7e32 at
+    # 0.968, and measured from it, while its departure from the stuck stiffness was lost to round-off, to kt =
+    # 4e16, 44 % of the lines left out, at 0.462)
     # (the workbench as `analyze --add joint:iwan` drives it, less the ranking of what is still missing, which
     # would triple the test's time)
     with open_session(session) as s:
@@ -88,13 +90,13 @@ def test_import_reference_a_law_and_an_iwan_element_on_the_measured_beam(brb, ca
     wb.add("joint", "iwan")
     out = report_text(wb, [])
     assert "measured from the reference" in out and "yardstick: the scatter between runs" in out
+    assert "NOT A FIT OF THE DATA" not in out
     law = next(line for line in out.splitlines() if line.strip().startswith("law iwan"))
     assert not re.search(r"e\+[1-9][0-9]", law), law
-    # and in JSON: what the limit leaves open is null, listed as undetermined, never a number
+    assert wb.history[-1].error < 0.5 * wb.history[0].error, [h.error for h in wb.history]
+    # and in JSON: every value shown is finite and of a joint's size
     joint = next(el for el in wb.model.elements if el.name == "joint")
-    iwan = next(entry for entry in wb.reports["joint"].to_json(joint)["laws"] if entry["law"] == "iwan")
-    assert iwan["reading"]["limit"] == "micro-slip", iwan
-    for name in iwan["reading"]["undetermined"]:
-        assert iwan["params"][name] is None and name in iwan["undetermined"]
-    assert all(v is None or abs(v) < 1e15 for v in iwan["params"].values()), iwan["params"]
-    assert wb.history[-1].error < 0.75 * wb.history[0].error, [h.error for h in wb.history]
+    reported = wb.reports["joint"].to_json(joint)
+    (iwan,) = reported["laws"]
+    assert all(v is None or abs(v) < 1e12 for v in iwan["params"].values()), iwan["params"]
+    assert reported["lines_excluded_share"] <= 0.10 and reported["fit_describes_data"]

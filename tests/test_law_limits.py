@@ -108,3 +108,21 @@ def test_an_iwan_element_whose_spike_always_slips_reads_as_coulomb_friction_and_
     as_iwan = iwan.describing_function(X, w, **values)
     as_coulomb = coulomb.describing_function(X, w, **{"fs": reading.values["fs"]})
     assert as_coulomb.imag == pytest.approx(as_iwan.imag, rel=0.03)
+
+
+def test_the_json_of_a_law_read_in_a_limit_gives_what_the_limit_leaves_open_as_null():
+    """A Jenkins element whose slider slips at every amplitude measured is Coulomb friction: fs is a finding, kt
+    (any stiffness beyond the structure's) is not, and the JSON says so as the text does (docs/contracts.md)."""
+    from analysis.loop.workbench import ElementReport
+    from analysis.mechanics.elements import Element, LawTerm
+    from analysis.missing.diagnosis import ElementSamples
+
+    X = np.geomspace(1e-3, 1e-2, 12)
+    values = {"kt": 3.2e18, "fs": 2.0}
+    kbar = LAWS["jenkins"].describing_function(X, np.full_like(X, 100.0), **values)
+    samples = ElementSamples("joint", X, np.full_like(X, 100.0), kbar, np.full(X.size, 1e-3), np.ones(X.size))
+    joint = Element("joint", ("x1",), [LawTerm(LAWS["jenkins"], dict(values))])
+    (entry,) = ElementReport("joint", samples, None, X.size, 0).to_json(joint)["laws"]
+    assert entry["reading"]["limit"] == "Coulomb friction" and entry["reading"]["undetermined"] == ["kt"]
+    assert entry["params"] == {"kt": None, "fs": 2.0} and entry["undetermined"] == ["kt"]
+    assert joint.laws[0].values["kt"] == 3.2e18          # the model keeps it: the prediction runs the law itself

@@ -285,6 +285,33 @@ def test_iwan_microslip_matches_the_density_integral(chi, beta):
     assert np.allclose(kbar.imag, imag, rtol=1e-10)
 
 
+@pytest.mark.parametrize("chi, beta", [(-0.5, 0.1), (0.15, 20.0), (1.0, 0.0)])
+def test_iwan_measured_from_the_reference_keeps_its_micro_slip_departure_at_any_stiffness(chi, beta):
+    """The Iwan element less its stuck stiffness, below the slip range: Re = R X^(chi+1) (c(chi) - 1/(chi+1)),
+    Im as above (the density integral, c(chi) by quadrature), to 1e-10 down to X = 1e-20 phi_max and with kt =
+    1e18 -- where kbar less kt by subtraction keeps nothing of a departure below 1e-16 of kt."""
+    kt, fs = 1.0e18, 1.0e13
+    phi = slip_range(fs / kt, chi, beta)
+    R = kt * (chi + 1) / ((1 + beta) * phi ** (chi + 1))
+
+    def integrand(psi):
+        s = 0.5 * (1 - math.cos(psi))
+        return s**chi * (psi - 0.5 * math.sin(2 * psi)) / math.pi * 0.5 * math.sin(psi)
+
+    c_chi = quad(integrand, 0.0, math.pi, epsabs=0, epsrel=1e-13, limit=200)[0]
+    X = np.geomspace(1e-20, 0.5, 9) * phi
+    real = R * X ** (chi + 1) * (c_chi - 1 / (chi + 1))
+    imag = 4 * R * X ** (chi + 1) / (math.pi * (chi + 2) * (chi + 3))
+    kbar = LAWS["iwan"].relative().describing_function(X, 1.0, kt=kt, fs=fs, chi=chi, beta=beta)
+    np.testing.assert_allclose(kbar.real, real, rtol=1e-10)
+    np.testing.assert_allclose(kbar.imag, imag, rtol=1e-10)
+    # slipping through, it is the law less kt (the macro-slip forms subtract it)
+    X = np.array([1.5, 4.0, 30.0]) * phi
+    np.testing.assert_allclose(LAWS["iwan"].relative().describing_function(X, 1.0, kt=kt, fs=fs, chi=chi, beta=beta),
+                               LAWS["iwan"].describing_function(X, 1.0, kt=kt, fs=fs, chi=chi, beta=beta) - kt,
+                               rtol=1e-12)
+
+
 GAUSS_400 = np.polynomial.legendre.leggauss(400)
 
 

@@ -314,6 +314,16 @@ class Law(ABC):
         no finite limit (a slider that holds rigidly): nothing a reference could hold."""
         return None
 
+    def basis_from_small_amplitude(self, X, w, **shape) -> np.ndarray:
+        """:meth:`basis` less :meth:`small_amplitude_basis`, shape ``(len(linear),) + X.shape``: what the law
+        measured from the reference adds. By subtraction here; a law whose basis is its small-amplitude value
+        plus a departure that vanishes as X -> 0 computes the departure itself where the subtraction would lose
+        it to round-off (a fit can run the linear parameter to 1e16 and more, where a relative departure below
+        1e-16 is then a finite stiffness)."""
+        B = self.basis(X, w, **shape)
+        k0 = np.asarray(self.small_amplitude_basis(**shape), float)
+        return B - k0.reshape((-1,) + (1,) * (B.ndim - 1))
+
     def relative(self) -> "Law":
         """This law measured from its small-amplitude state: kbar(X, w) - kbar(0+), force f(x) - k0 x with k0 the
         small-amplitude stiffness at the law's values (:meth:`small_amplitude_basis`). The law an element uses
@@ -463,6 +473,7 @@ def _relative_class(cls: type) -> type:
         "from_reference": True,
         "__doc__": f"{cls.__doc__ or cls.__name__} Measured from its small-amplitude state (Law.relative).",
         "basis": _relative_basis,
+        "measured_from": law,       # the law itself, whose basis this one's is less its small-amplitude state
         "kernel_constants": _relative_constants,
         "kernel": kernel,
         "stick_limit": None,        # a model's law, never simulated: the simulator takes its rig's laws
@@ -474,9 +485,7 @@ def _relative_class(cls: type) -> type:
 
 
 def _relative_basis(self, X, w, **shape):
-    B = super(type(self), self).basis(X, w, **shape)
-    k0 = np.asarray(super(type(self), self).small_amplitude_basis(**shape), float)
-    return B - k0.reshape((-1,) + (1,) * (B.ndim - 1))
+    return self.measured_from.basis_from_small_amplitude(X, w, **shape)
 
 
 def _relative_constants(self, *contract):

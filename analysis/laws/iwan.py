@@ -102,7 +102,6 @@ class _Constants(NamedTuple):
     curvature: float   # 1 / ((1 + beta) (chi + 2)): the backbone is kt u (1 - curvature (u / phi_max)^exponent)
 
 
-@njit(cache=True)
 def slip_range(xs, chi, beta):
     """phi_max: largest slip displacement of the population, for ``xs = fs / kt``."""
     return xs * (1.0 + beta) / (beta + (chi + 1.0) / (chi + 2.0))
@@ -272,7 +271,7 @@ def iwan_commit(out, s):
     s[_WRITTEN + 1] = out[_WRITTEN + 1]
 
 
-def iwan_unit(X, xs, chi, beta) -> np.ndarray:
+def iwan_unit(X, xs, chi, beta, less_stuck: bool = False) -> np.ndarray:
     """kbar / kt of the four-parameter Iwan model (complex, shape of ``X``).
 
     Parameters
@@ -283,6 +282,9 @@ def iwan_unit(X, xs, chi, beta) -> np.ndarray:
         fs / kt, m or rad (>= 0).
     chi, beta : float
         Density exponent (-1 < chi <= 1) and spike ratio (>= 0).
+    less_stuck : bool
+        kbar / kt - 1 instead: the departure from the stuck stiffness, computed as such below the slip range
+        (where it is a power of X, subtracting 1 would lose it to round-off below 1e-16).
     """
     from scipy.special import beta as beta_function, hyp2f1    # here: `contactid laws` starts without scipy
 
@@ -297,8 +299,10 @@ def iwan_unit(X, xs, chi, beta) -> np.ndarray:
     micro = X <= phi_max
     u = X[micro] / phi_max
     ue = u**e
-    out[micro] = (1.0 - 8.0 * full_beta * stuck_fraction / math.pi * ue
+    out[micro] = ((0.0 if less_stuck else 1.0) - 8.0 * full_beta * stuck_fraction / math.pi * ue
                   + 1j * 4.0 * e * stuck_fraction / (math.pi * (chi + 2.0) * (chi + 3.0)) * ue)
+    if micro.all():             # no element slips through: the macro-slip forms are not needed (nor paid for)
+        return out
 
     m = phi_max / X[~micro]
     # B_m(a, 3/2) / m^(chi+1) = m^(3/2) 2F1(a, -1/2; a+1; m) / a, a = chi + 5/2: no 0/0 at m -> 0
@@ -307,7 +311,7 @@ def iwan_unit(X, xs, chi, beta) -> np.ndarray:
     re_jenkins, im_jenkins = slip_real(m), slip_imag(m)
     continuous = (stuck_fraction * (re_jenkins - 8.0 / math.pi * partial)
                   + 1j * (4.0 / math.pi) * e * stuck_fraction * (m / (chi + 2.0) - m * m / (chi + 3.0)))
-    out[~micro] = continuous + spike_fraction * (re_jenkins + 1j * im_jenkins)
+    out[~micro] = continuous + spike_fraction * (re_jenkins + 1j * im_jenkins) - (1.0 if less_stuck else 0.0)
     return out
 
 
@@ -354,6 +358,10 @@ class Iwan(Law):
     def basis(self, X, w, xs, chi, beta):
         X, w = broadcast(X, w)
         return iwan_unit(X, xs, chi, beta)[None]
+
+    def basis_from_small_amplitude(self, X, w, xs, chi, beta):
+        X, w = broadcast(X, w)
+        return iwan_unit(X, xs, chi, beta, less_stuck=True)[None]
 
     def reading(self, values, X_min, X_max):
         """Micro-slip where no element slips through at the largest amplitude (``X_max <= phi_max``): the
