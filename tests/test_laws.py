@@ -211,6 +211,22 @@ def test_tanh_fundamental_is_the_series_on_both_sides_of_where_its_large_amplitu
     np.testing.assert_allclose(tanh_fundamental(z), [tanh_fundamental(np.array([v]))[0] for v in z], rtol=1e-15)
 
 
+@pytest.mark.parametrize("name, z4", [("tanh_softening", 1 / 12), ("arctan_softening", 1 / 8)])
+def test_a_saturating_spring_measured_from_the_reference_keeps_its_departure_at_the_smallest_amplitudes(name, z4):
+    """kbar - alpha beta = alpha beta (-z^2/4 + c z^4 + O(z^6)), z = beta X, from the laws' Taylor series (tanh
+    u = u - u^3/3 + ..., arctan's closed form): computed as such down to z = 1e-9, where the subtraction keeps
+    nothing of it, and the same as the subtraction where that is exact enough."""
+    law = LAWS[name].relative()
+    alpha, beta = 2.0, 1.0e3
+    z = np.geomspace(1e-9, 1e-3, 7)
+    kbar = law.describing_function(z / beta, 1.0, alpha=alpha, beta=beta)
+    np.testing.assert_allclose(kbar.real, alpha * beta * (-z ** 2 / 4 + z4 * z ** 4), rtol=1e-12)
+    assert not kbar.imag.any()
+    z = np.array([0.05, 0.0999, 0.1, 0.1001, 0.2, 1.0, 30.0, 500.0])
+    whole = LAWS[name].describing_function(z / beta, 1.0, alpha=alpha, beta=beta).real - alpha * beta
+    np.testing.assert_allclose(law.describing_function(z / beta, 1.0, alpha=alpha, beta=beta).real, whole, rtol=1e-11)
+
+
 @pytest.mark.parametrize("name", ["tanh_softening", "arctan_softening"])
 def test_softening_laws_small_amplitude_limit(name):
     alpha, beta = 3.0, 250.0

@@ -51,3 +51,9 @@ class ArctanSoftening(Law):
         X, w = broadcast(X, w)
         z = beta * X
         return np.asarray(2.0 * beta / (1.0 + np.sqrt(1.0 + z * z)), complex)[None]
+
+    def basis_from_small_amplitude(self, X, w, beta):
+        # 2 beta / (1 + s) - beta = -beta z^2 / (1 + s)^2, s = sqrt(1 + z^2): no cancellation at small z
+        X, w = broadcast(X, w)
+        z = beta * X
+        return np.asarray(-beta * z * z / (1.0 + np.sqrt(1.0 + z * z)) ** 2, complex)[None]
