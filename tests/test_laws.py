@@ -279,6 +279,15 @@ def test_iwan_uniform_density_reduces_to_the_classical_microslip_result():
     assert np.allclose(kbar.imag, 2 * kt * X / (3 * math.pi * phi), rtol=1e-13)
 
 
+def _iwan_c_chi(chi: float) -> float:
+    """c(chi) = int_0^1 s^chi ReJ(s) ds by quadrature, with s = (1 - cos psi)/2 (ReJ: the unit Jenkins element)."""
+    def integrand(psi):
+        s = 0.5 * (1 - math.cos(psi))
+        return s**chi * (psi - 0.5 * math.sin(2 * psi)) / math.pi * 0.5 * math.sin(psi)
+
+    return quad(integrand, 0.0, math.pi, epsabs=0, epsrel=1e-13, limit=200)[0]
+
+
 @pytest.mark.parametrize("chi, beta", [(-0.5, 0.1), (0.0, 0.0), (-0.95, 2.0), (1.0, 0.5)])
 def test_iwan_microslip_matches_the_density_integral(chi, beta):
     """Re = R X^(chi+1) c(chi) + R (phi_max^(chi+1) - X^(chi+1))/(chi+1) + S, with c(chi) by quadrature."""
@@ -287,11 +296,7 @@ def test_iwan_microslip_matches_the_density_integral(chi, beta):
     R = kt * (chi + 1) / ((1 + beta) * phi ** (chi + 1))
     S = beta * kt / (1 + beta)
 
-    def integrand(psi):  # s^chi ReJ(s) ds with s = (1 - cos psi)/2
-        s = 0.5 * (1 - math.cos(psi))
-        return s**chi * (psi - 0.5 * math.sin(2 * psi)) / math.pi * 0.5 * math.sin(psi)
-
-    c_chi = quad(integrand, 0.0, math.pi, epsabs=0, epsrel=1e-13, limit=200)[0]
+    c_chi = _iwan_c_chi(chi)
     assert c_chi == pytest.approx((1 - 8 * beta_function(chi + 2.5, 1.5) / math.pi) / (chi + 1), rel=1e-11)
     X = np.geomspace(1e-4, 1.0, 7) * phi
     real = R * X ** (chi + 1) * c_chi + R * (phi ** (chi + 1) - X ** (chi + 1)) / (chi + 1) + S
@@ -310,11 +315,7 @@ def test_iwan_measured_from_the_reference_keeps_its_micro_slip_departure_at_any_
     phi = slip_range(fs / kt, chi, beta)
     R = kt * (chi + 1) / ((1 + beta) * phi ** (chi + 1))
 
-    def integrand(psi):
-        s = 0.5 * (1 - math.cos(psi))
-        return s**chi * (psi - 0.5 * math.sin(2 * psi)) / math.pi * 0.5 * math.sin(psi)
-
-    c_chi = quad(integrand, 0.0, math.pi, epsabs=0, epsrel=1e-13, limit=200)[0]
+    c_chi = _iwan_c_chi(chi)
     X = np.geomspace(1e-20, 0.5, 9) * phi
     real = R * X ** (chi + 1) * (c_chi - 1 / (chi + 1))
     imag = 4 * R * X ** (chi + 1) / (math.pi * (chi + 2) * (chi + 3))

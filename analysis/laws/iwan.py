@@ -296,10 +296,12 @@ def iwan_unit(X, xs, chi, beta, less_stuck: bool = False) -> np.ndarray:
     full_beta = beta_function(chi + 2.5, 1.5)
     out = np.empty(X.shape, complex)
 
+    stuck = 0.0 if less_stuck else 1.0         # kbar / kt with every slider stuck, or nothing of it
+
     micro = X <= phi_max
     u = X[micro] / phi_max
     ue = u**e
-    out[micro] = ((0.0 if less_stuck else 1.0) - 8.0 * full_beta * stuck_fraction / math.pi * ue
+    out[micro] = (stuck - 8.0 * full_beta * stuck_fraction / math.pi * ue
                   + 1j * 4.0 * e * stuck_fraction / (math.pi * (chi + 2.0) * (chi + 3.0)) * ue)
     if micro.all():             # no element slips through: the macro-slip forms are not needed (nor paid for)
         return out
@@ -311,7 +313,7 @@ def iwan_unit(X, xs, chi, beta, less_stuck: bool = False) -> np.ndarray:
     re_jenkins, im_jenkins = slip_real(m), slip_imag(m)
     continuous = (stuck_fraction * (re_jenkins - 8.0 / math.pi * partial)
                   + 1j * (4.0 / math.pi) * e * stuck_fraction * (m / (chi + 2.0) - m * m / (chi + 3.0)))
-    out[~micro] = continuous + spike_fraction * (re_jenkins + 1j * im_jenkins) - (1.0 if less_stuck else 0.0)
+    out[~micro] = continuous + spike_fraction * (re_jenkins + 1j * im_jenkins) + (stuck - 1.0)
     return out
 
 

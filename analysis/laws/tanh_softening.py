@@ -109,14 +109,15 @@ def tanh_departure(z) -> np.ndarray:
     """G(z) - 1 (:func:`tanh_fundamental`) without the cancellation of the subtraction at small z: its Taylor
     series below z = 0.1, the quadrature less 1 above. Same shape as ``z`` (>= 0)."""
     z = np.asarray(z, float)
-    z2 = z * z
-    series = np.zeros_like(z)
+    flat = z.ravel()
+    z2 = flat * flat
+    series = np.zeros_like(flat)
     for c in reversed(_DEPARTURE):          # Horner in z^2
         series = series * z2 + c
-    small = z < _SERIES_Z
-    if small.all():
-        return series * z2
-    return np.where(small, series * z2, tanh_fundamental(np.where(small, 1.0, z)) - 1.0)
+    out = series * z2
+    large = flat >= _SERIES_Z
+    out[large] = tanh_fundamental(flat[large]) - 1.0
+    return out.reshape(z.shape)
 
 
 class TanhSoftening(Law):
