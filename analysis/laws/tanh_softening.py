@@ -83,8 +83,8 @@ def tanh_fundamental(z) -> np.ndarray:
     flat = z.ravel()
     out = np.empty(flat.shape)
     large = flat > _LARGE_Z
-    zl = flat[large]
-    out[large] = (4.0 / math.pi) / zl * (1.0 - _C0 / zl ** 2 - 0.5 * _C1 / zl ** 4)
+    r = 1.0 / flat[large]                   # powers of 1/z: no overflow however large z
+    out[large] = (4.0 / math.pi) * r * (1.0 - _C0 * r * r - 0.5 * _C1 * (r * r) ** 2)
     small = ~large
     if small.any():
         zs = flat[small]
@@ -110,13 +110,14 @@ def tanh_departure(z) -> np.ndarray:
     series below z = 0.1, the quadrature less 1 above. Same shape as ``z`` (>= 0)."""
     z = np.asarray(z, float)
     flat = z.ravel()
-    z2 = flat * flat
-    series = np.zeros_like(flat)
-    for c in reversed(_DEPARTURE):          # Horner in z^2
-        series = series * z2 + c
-    out = series * z2
+    out = np.empty(flat.shape)
     large = flat >= _SERIES_Z
     out[large] = tanh_fundamental(flat[large]) - 1.0
+    z2 = flat[~large] ** 2
+    series = np.zeros_like(z2)
+    for c in reversed(_DEPARTURE):          # Horner in z^2
+        series = series * z2 + c
+    out[~large] = series * z2
     return out.reshape(z.shape)
 
 
