@@ -326,6 +326,20 @@ class SimulatorState:
     time: float
 
 
+@dataclass(frozen=True)
+class _ChunkRecord:
+    """What one chunk of :meth:`RigSimulator.advance` keeps for its :class:`BlockTruth`, built only if read: the
+    state in the integration's coordinates (n, nz) and the law forces (n, r) at the DAQ instants, the unfiltered
+    channels (n, n_channels), the generator output (n,), the system integrated and the chunk's first sample."""
+
+    first_sample: int
+    w_daq: np.ndarray
+    f_daq: np.ndarray
+    channels: np.ndarray
+    drive: np.ndarray
+    system: object
+
+
 @dataclass
 class BlockTruth:
     """Noise-free truth of the last block, at the DAQ instants (before the anti-alias filter).
@@ -455,7 +469,8 @@ class RigSimulator:
         self._mean_square = np.zeros(1 + n_s)
         self._samples = 0
         self.clip_counts = np.zeros(1 + n_s, np.int64)
-        self.truth: BlockTruth | None = None
+        self._truth: BlockTruth | None = None
+        self._truth_chunks: list[_ChunkRecord] = []
         # generator
         self._frequency = 0.0
         self._phase = 0.0
@@ -591,21 +606,31 @@ class RigSimulator:
         n = int(n)
         if n < 0:
             raise ValueError("n must be >= 0")
-        blocks, truths = [], []
+        blocks, records = [], []
         done = 0
         while done < n or (n == 0 and not blocks):
             chunk = min(_CHUNK, n - done)
-            block, truth = self._advance_chunk(chunk)
+            block, record = self._advance_chunk(chunk)
             blocks.append(block)
-            truths.append(truth)
+            records.append(record)
             done += chunk
-        self.truth = truths[0] if len(truths) == 1 else BlockTruth(
-            *(np.concatenate([getattr(t, name) for t in truths])
-              for name in ("time", "q", "qdot", "element_force", "channels", "drive")),
-            self.model, self.rig.structure.dofs)
+        self._truth, self._truth_chunks = None, records
         return blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
 
-    def _advance_chunk(self, n: int) -> tuple[np.ndarray, BlockTruth]:
+    @property
+    def truth(self) -> BlockTruth | None:
+        """Noise-free truth of the last :meth:`advance` (None before the first). Built when read: an emulated
+        campaign never reads it, and the coordinates and element forces at the DAQ instants cost a tenth of
+        a modal rig's block."""
+        if self._truth is None and self._truth_chunks:
+            truths = [self._chunk_truth(record) for record in self._truth_chunks]
+            self._truth = truths[0] if len(truths) == 1 else BlockTruth(
+                *(np.concatenate([getattr(t, name) for t in truths])
+                  for name in ("time", "q", "qdot", "element_force", "channels", "drive")),
+                self.model, self.rig.structure.dofs)
+        return self._truth
+
+    def _advance_chunk(self, n: int) -> tuple[np.ndarray, _ChunkRecord]:
         n_steps = n * self.oversample
         self._jacobian_valid[0] = 0  # the step matrices may have changed (amplifier on/off)
         u = self._drive(n_steps)
@@ -639,21 +664,26 @@ class RigSimulator:
         self._advance_generator(n_steps)
         clean = kernels.fir_decimate(internal, self._fir_history, self._taps, self.oversample)
         block = self._sensors(clean)
-        nq = self.model.n
-        time = (self._samples + np.arange(n)) / self.sample_rate
-        z_daq = w_daq @ system.T[:2 * nq].T if system.modal else w_daq
         # the DAQ instants are the first internal step of every group: their channels are already computed
-        element_force = f_daq
+        record = _ChunkRecord(self._samples, w_daq, f_daq, internal[::self.oversample],
+                              u[: 2 * n_steps: 2 * self.oversample].copy(), system)
+        self._samples += n
+        return block, record
+
+    def _chunk_truth(self, record: _ChunkRecord) -> BlockTruth:
+        """The :class:`BlockTruth` of one chunk from what :meth:`_advance_chunk` kept of it."""
+        n, nq = len(record.w_daq), self.model.n
+        time = (record.first_sample + np.arange(n)) / self.sample_rate
+        system = record.system
+        z_daq = record.w_daq @ system.T[:2 * nq].T if system.modal else record.w_daq
+        element_force = record.f_daq
         if len(self._active) < len(self.rig.elements):
             element_force = np.zeros((n, len(self.rig.elements)))
-            element_force[:, self._active] = f_daq
+            element_force[:, self._active] = record.f_daq
             if len(self._springs):
                 element_force[:, self._springs] = z_daq[:, :2 * nq] @ self._spring_rows
-        truth = BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), element_force,
-                           internal[::self.oversample].copy(), u[: 2 * n_steps: 2 * self.oversample],
-                           self.model, self.rig.structure.dofs)
-        self._samples += n
-        return block, truth
+        return BlockTruth(time, z_daq[:, :nq].copy(), z_daq[:, nq:2 * nq].copy(), element_force,
+                          record.channels.copy(), record.drive, self.model, self.rig.structure.dofs)
 
     def _sensors(self, clean: np.ndarray) -> np.ndarray:
         """Noise relative to each channel's running rms, then the ADC (range, resolution)."""
