@@ -79,11 +79,10 @@ def measure(frequency_hz: np.ndarray, force: np.ndarray, periods: int = 100) -> 
 def campaign(nominal_forces, frequency_hz, drift: float = 0.0, periods: int = 100) -> list[Level]:
     """One rising sweep per nominal force, the force drifting by +-drift around it."""
     f = np.asarray(frequency_hz, float)
-    out = []
-    for i, F0 in enumerate(nominal_forces):
-        force = drifting(F0, len(f), drift, phase=i)
-        out.append(Level(f, force, measure(f, force, periods)))
-    return out
+    forces = [drifting(F0, len(f), drift, phase=i) for i, F0 in enumerate(nominal_forces)]
+    # every line of every level integrated at once: the lines are independent, and a step costs the same
+    receptances = np.split(measure(np.tile(f, len(forces)), np.concatenate(forces), periods), len(forces))
+    return [Level(f, force, h) for force, h in zip(forces, receptances)]
 
 
 def response_controlled(targets, frequency_hz, iterations: int = 7, periods: int = 100) -> list[Level]:
@@ -91,23 +90,24 @@ def response_controlled(targets, frequency_hz, iterations: int = 7, periods: int
     is corrected from the linear guess by secant steps on log |X| against log F (|X| grows with F), ``iterations``
     times; what is recorded is the last force and its response."""
     f = np.asarray(frequency_hz, float)
-    w = 2 * np.pi * f
+    # every line of every level corrected at once (the lines are independent)
+    lines = np.tile(f, len(targets))
+    target = np.repeat(np.asarray(targets, float), len(f))
+    w = 2 * np.pi * lines
     linear = np.abs(1.0 / (K + KT - M * w ** 2 + 1j * C * w))
-    out = []
-    for target in targets:
-        log_f = np.log(target / linear)
-        log_x = np.log(np.abs(measure(f, np.exp(log_f), periods)) * np.exp(log_f))
-        slope = np.ones_like(f)
-        for _ in range(iterations - 1):
-            step = (np.log(target) - log_x) / slope
-            new_f = log_f + step
-            new_x = np.log(np.abs(measure(f, np.exp(new_f), periods)) * np.exp(new_f))
-            moved = np.abs(step) > 1e-9
-            slope = np.where(moved, np.clip((new_x - log_x) / np.where(moved, step, 1.0), 0.2, 5.0), slope)
-            log_f, log_x = new_f, new_x
-        force = np.exp(log_f)
-        out.append(Level(f, force, measure(f, force, periods)))
-    return out
+    log_f = np.log(target / linear)
+    log_x = np.log(np.abs(measure(lines, np.exp(log_f), periods)) * np.exp(log_f))
+    slope = np.ones_like(lines)
+    for _ in range(iterations - 1):
+        step = (np.log(target) - log_x) / slope
+        new_f = log_f + step
+        new_x = np.log(np.abs(measure(lines, np.exp(new_f), periods)) * np.exp(new_f))
+        moved = np.abs(step) > 1e-9
+        slope = np.where(moved, np.clip((new_x - log_x) / np.where(moved, step, 1.0), 0.2, 5.0), slope)
+        log_f, log_x = new_f, new_x
+    force = np.exp(log_f)
+    receptance = measure(lines, force, periods)
+    return [Level(f, fl, h) for fl, h in zip(np.split(force, len(targets)), np.split(receptance, len(targets)))]
 
 
 def write_csv(path, levels: list[Level], nominal_forces, per_line_force: bool = True,

@@ -44,13 +44,16 @@ def steady_receptance(freqs, forces, k3=0.0, c2=0.0, settle_seconds=40.0, per_pe
     X0 = np.linalg.solve(K - w[:, None, None] ** 2 * M + 1j * w[:, None, None] * C,
                          np.broadcast_to([0.0, 1.0], (len(w), 2))[..., None])[..., 0] * F[:, None]
 
+    Minv = np.linalg.inv(M)
+    # the linear part as one matrix on the state (x, v): d/dt (x, v) = (v, -Minv (K x + C v)) + the loads
+    linear = np.block([[np.zeros((2, 2)), np.eye(2)], [-Minv @ K, -Minv @ C]]).T
+
     def rhs(t, y):
-        x, v = y[:, :2], y[:, 2:]
-        f = x @ K.T + v @ C.T
-        f[:, 0] += (joint(x[:, 0], v[:, 0]) if joint is not None
-                    else k3 * x[:, 0] ** 3 + c2 * np.abs(v[:, 0]) * v[:, 0])
-        f[:, 1] -= F * np.sin(w * t)
-        return np.hstack([v, -f @ np.linalg.inv(M).T])
+        x1, v1 = y[:, 0], y[:, 2]
+        joint_force = joint(x1, v1) if joint is not None else k3 * x1 ** 3 + c2 * np.abs(v1) * v1
+        dy = y @ linear
+        dy[:, 2:] += np.multiply.outer(F * np.sin(w * t), Minv[:, 1]) - np.multiply.outer(joint_force, Minv[:, 0])
+        return dy
 
     y, t = np.hstack([X0.imag, w[:, None] * X0.real]), np.zeros(len(w))
     fundamental = np.zeros((len(w), 2), complex)

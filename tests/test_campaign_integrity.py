@@ -14,20 +14,17 @@ import numpy as np
 import pytest
 
 import drivers
-from app.campaign.engine import CampaignListener, _added, stored_frf
-from app.campaign.instruments import emulated_instruments, real_instruments
+from app.campaign.engine import _added, stored_frf
+from app.campaign.instruments import emulated_instruments
 from app.campaign.measure import ProgressBar, run_plan
 from app.campaign.plan import parse_plan
 from app.session.writer import open_session
 from drivers.interfaces import Block
-from drivers.serve import serve_emulator
 from drivers.simulation.rig import load_rig
-from drivers.simulation.simulator import RigSimulator
+from served_rig import FIVE_LINES, ForcePeaks, fixed_count_acquisition, served_paper_2dof
 
 RIGS = Path(__file__).parent / "rigs"
 ROOT = Path(__file__).resolve().parents[1]
-FIVE_LINES = "[[stepped_sine]]\nforce = 0.8\nstart = 1.0\nstop = 3.0\nstep = 0.5\nrefine = false\n" \
-             "[limits]\nmax_force = 5.0\nmax_acceleration = 50.0\n"
 # one DOF on an ideal force source of 0.1 N/V: at most 1 N from the generator's 10 V
 WEAK_SOURCE = """
 name = "weak-source"
@@ -60,22 +57,8 @@ def cli(*args, cwd=ROOT):
 @pytest.fixture
 def tcp_emulator():
     """paper-2dof served over TCP (fast) from a thread of this process: {"shaker": url, "daq": url}."""
-    urls, stop = {}, threading.Event()
-    announced = threading.Event()
-
-    def announce(line):
-        role, url = line.split(": ")
-        urls[role] = url
-        announced.set() if len(urls) == 2 else None
-
-    thread = threading.Thread(target=serve_emulator, args=(RigSimulator(load_rig("paper-2dof")),),
-                              kwargs={"transport": "tcp", "port": 0, "fast": True, "announce": announce,
-                                      "stop": stop}, daemon=True)
-    thread.start()
-    assert announced.wait(60)
-    yield urls
-    stop.set()
-    thread.join(10)
+    with served_paper_2dof() as urls:
+        yield urls
 
 
 @pytest.mark.slow
@@ -137,18 +120,6 @@ def test_a_run_whose_lines_sit_at_the_settling_limit_fails():
     Path(inst.emulator.name + ".h5").unlink()
     assert summary.runs == {"sine_0.5N_up": "failed"} and not summary.complete
     assert "3 of 3 line(s) hit the settling limit" in summary.failed["sine_0.5N_up"]
-
-
-class ForcePeaks(CampaignListener):
-    def __init__(self):
-        self.peak = {}
-        self.run = None
-
-    def run_started(self, name, spec):
-        self.run = name
-
-    def block(self, block):
-        self.peak[self.run] = max(self.peak.get(self.run, 0.0), float(np.abs(block.data[:, 0]).max()))
 
 
 @pytest.mark.slow
@@ -258,24 +229,15 @@ def test_the_demo_stops_with_3_on_an_incomplete_campaign(monkeypatch, tmp_path, 
 
 @pytest.mark.slow
 def test_fixed_count_settling_over_a_fast_tcp_emulator_holds_every_line_and_never_overshoots(tmp_path, tcp_emulator):
-    """issue 13: `[settle] fixed_periods = 10` on paper-2dof served by `emulate --fast` over TCP failed or
-    aborted in 5 of 24 acquisitions, and drove the force past its 0.8 N target in 24 of 24 (1.6 to 4.8 N).
-    Six acquisitions in a row on one served rig: every one complete, every line within the control
-    tolerance, the force never above its target (the approach from 0.05 V doubles to exactly 0.8 V). The
-    completeness check alone misses a run of the old loop with probability 5/6 per run, (5/6)^6 = 0.33 in
-    all; the force peak caught every run measured, so six runs miss it with probability below 1e-4 if each
-    escapes with 1/5 (the 95 % bound of 0 in 24 is 0.12)."""
-    text = FIVE_LINES.replace("[limits]", "[settle]\nfixed_periods = 10\n[limits]")
-    for attempt in range(6):
-        peaks = ForcePeaks()
-        with real_instruments(tcp_emulator["shaker"], tcp_emulator["daq"], "x2") as inst:
-            summary = run_plan(plan(text), inst, tmp_path / f"f{attempt}.h5", listener=peaks)
-        assert summary.complete, f"acquisition {attempt}: {summary.text()}"
-        assert peaks.peak["sine_0.8N_up"] <= 0.8 * 1.01, f"acquisition {attempt}: {peaks.peak}"
-        with open_session(tmp_path / f"f{attempt}.h5") as s:
-            force = s.run("sine_0.8N_up").arrays["force_amplitude"]
-        assert len(force) == 5
-        np.testing.assert_allclose(force, 0.8, rtol=0.01, err_msg=f"acquisition {attempt}")
+    """`[settle] fixed_periods = 10` on paper-2dof served by `emulate --fast` over TCP once failed or aborted in 5
+    of 24 acquisitions, and drove the force past its 0.8 N target in 24 of 24 (1.6 to 4.8 N). Three acquisitions
+    in a row on one served rig: every one complete, every line within the control tolerance, the force never
+    above its target (the approach from 0.05 V doubles to exactly 0.8 V). The force peak caught every such run
+    measured: three runs miss a loop that overshoots with probability below 0.01 if each escapes with 1/5 (the
+    95 % bound of 0 in 24 is 0.12). The failure rate over many acquisitions is benchmarks/fixed_count_settling.py's
+    (docs/performance.md)."""
+    for attempt in range(3):
+        assert fixed_count_acquisition(tcp_emulator, tmp_path / f"f{attempt}.h5") == [], f"acquisition {attempt}"
 
 
 class LaggingBench:

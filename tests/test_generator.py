@@ -217,9 +217,10 @@ def test_contactid_acquire_runs_a_campaign_on_a_served_generator_through_its_gua
                               stderr=subprocess.PIPE, text=True)
     try:
         urls = dict(server.stdout.readline().strip().split(": ", 1) for _ in range(2))
-        # the transient-aware lines: the path under test is the processes, the guardian and the generator's
-        # commands, not the settling, and a paced bench spends its real time waiting for the lines to settle
-        (tmp_path / "plan.toml").write_text("[[stepped_sine]]\nforce = 0.5\nstart = 5.0\nstop = 6.0\nstep = 0.5\n"
+        # the path under test is the processes, the guardian and the generator's commands, not the settling, and
+        # a paced bench spends real time on every period: the transient-aware lines, above the rig's modes (the
+        # first line's force loop waits 80 periods, 16 s at 5 Hz and 4 s at 20 Hz)
+        (tmp_path / "plan.toml").write_text("[[stepped_sine]]\nforce = 0.5\nstart = 20.0\nstop = 21.0\nstep = 0.5\n"
                                             "refine = false\n[settle]\nmethod = \"transient\"\n"
                                             "[limits]\nmax_force = 5.0\nmax_acceleration = 150.0\n")
         done = subprocess.run([sys.executable, "-m", "app.cli", "acquire", str(tmp_path / "plan.toml"), "-o",

@@ -1,5 +1,6 @@
 """Fuzz corpus: sessions edited, truncated and bit-flipped (made from a small simulated session), run against
 every command that reads a session; a refusal is one line naming the file, exit 2, and no file changes."""
+import hashlib
 import io
 
 import h5py
@@ -81,13 +82,20 @@ COMMANDS = [("analyze", "{d}/s.h5", "{d}/model.toml", "--no-history"),
 RECOVER = ("recover", "{d}/s.h5")
 
 
+_EDITED: dict[tuple[int, bytes], bytes] = {}
+
+
 def edited(edit):
-    """The simulated session with ``edit`` applied (made when the case runs)."""
+    """The simulated session with ``edit`` applied (made when the case runs, once per edit and session: every
+    command that reads a session gets the same bytes, and thousands of runs take seconds to write)."""
     def make(inputs) -> bytes:
-        buffer = io.BytesIO(inputs["session"])
-        with h5py.File(buffer, "r+") as f:
-            edit(f)
-        return buffer.getvalue()
+        key = (id(edit), hashlib.sha256(inputs["session"]).digest())
+        if key not in _EDITED:
+            buffer = io.BytesIO(inputs["session"])
+            with h5py.File(buffer, "r+") as f:
+                edit(f)
+            _EDITED[key] = buffer.getvalue()
+        return _EDITED[key]
     return make
 
 
