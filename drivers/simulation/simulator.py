@@ -664,9 +664,10 @@ class RigSimulator:
         self._advance_generator(n_steps)
         clean = kernels.fir_decimate(internal, self._fir_history, self._taps, self.oversample)
         block = self._sensors(clean)
-        # the DAQ instants are the first internal step of every group: their channels are already computed
+        # the DAQ instants are the first internal step of every group: their channels are already computed (views:
+        # internal and u are made afresh for every chunk)
         record = _ChunkRecord(self._samples, w_daq, f_daq, internal[::self.oversample],
-                              u[: 2 * n_steps: 2 * self.oversample].copy(), system)
+                              u[: 2 * n_steps: 2 * self.oversample], system)
         self._samples += n
         return block, record
 
