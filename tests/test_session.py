@@ -69,6 +69,71 @@ def test_reader_follows_a_run_being_written(tmp_path):
     w.close()
 
 
+def test_the_reader_setting_made_past_h5py_holds_h5py_lock(monkeypatch):
+    """HDF5 is not built thread-safe; h5py serialises every call into it with one lock. A call made past h5py
+    (through ctypes) must hold that lock too, or it corrupts another thread's call into HDF5."""
+    import threading
+
+    from h5py._objects import phil
+
+    from app.session import salvage
+    free_to_others = []
+
+    class Library:
+        def H5Pset_metadata_read_attempts(self, fapl, attempts):      # noqa: N802 (HDF5's name)
+            def other_thread():
+                got = phil.acquire(False)
+                free_to_others.append(got)
+                if got:
+                    phil.release()
+            t = threading.Thread(target=other_thread)
+            t.start()
+            t.join()
+    monkeypatch.setattr(salvage, "_hdf5_library", lambda: Library())
+    salvage.swmr_read_access()
+    assert free_to_others == [False]
+
+
+READ_IN_THREADS = """
+import sys, threading, time
+import numpy as np
+from app.session.writer import RunSpec, SessionWriter, open_session
+path, seconds = sys.argv[1], float(sys.argv[2])
+w = SessionWriter(path, software_version="test")
+w.begin_run(RunSpec("r", "stepped_sine", 0.8, "up", "x2", ["x1"], 100.0, ["force"], ["N"]))
+for i in range(20):
+    w.append_line(1.0 + i, {"x1": complex(i, 1)})
+w.end_run("complete")
+w.close()
+stop, reads, errors = time.monotonic() + seconds, [], []
+def reader():
+    try:
+        while time.monotonic() < stop:
+            with open_session(path) as s:
+                assert len(s.run("r").frequency) == 20
+            reads.append(1)
+    except Exception as exc:
+        errors.append(repr(exc))
+threads = [threading.Thread(target=reader) for _ in range(4)]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join()
+print(len(reads), errors)
+"""
+
+
+@pytest.mark.slow
+def test_sessions_opened_and_read_by_four_threads_at_once(tmp_path):
+    """A GUI reads one session in several threads (the followed file, a backbone, an export): every open and
+    read completes, none fails or crashes the process."""
+    done = subprocess.run([sys.executable, "-c", READ_IN_THREADS, str(tmp_path / "s.h5"), "3"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    reads, errors = done.stdout.split(" ", 1)
+    assert int(reads) > 100 and errors.strip() == "[]"
+
+
 def line(w, i):
     w.append_line(1.0 + i, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8, "harmonics/force": np.zeros(4)})
 

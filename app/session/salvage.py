@@ -13,6 +13,7 @@ checksum fails, by default for hours in all.
 from __future__ import annotations
 
 import ctypes
+import functools
 import io
 import json
 import os
@@ -24,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
+from h5py._objects import phil
 
 from app.session.superblock import clear_write_flags
 
@@ -44,6 +46,7 @@ MAX_STALLS = 8
 STALLED = "reading it did not finish"
 
 
+@functools.cache
 def _hdf5_library():
     """The HDF5 library h5py runs on (to reach a file-access setting h5py does not wrap), or None."""
     try:
@@ -60,7 +63,10 @@ def swmr_read_access() -> h5py.h5p.PropFAID:
     fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
     library = _hdf5_library()
     if library is not None and hasattr(library, "H5Pset_metadata_read_attempts"):
-        library.H5Pset_metadata_read_attempts(ctypes.c_int64(fapl.id), ctypes.c_uint(SWMR_READ_ATTEMPTS))
+        # HDF5 is not built thread-safe: h5py's lock serialises every call into it, and this one, made past
+        # h5py, must hold that lock too, or it corrupts a call another thread is making (a crash)
+        with phil:
+            library.H5Pset_metadata_read_attempts(ctypes.c_int64(fapl.id), ctypes.c_uint(SWMR_READ_ATTEMPTS))
     return fapl
 
 
