@@ -593,3 +593,51 @@ def test_newton_takes_a_stalled_residual_as_a_solution_only_below_its_stall_tole
         z, converged = _newton(fun, jac, z0, tol=1e-11, max_iter=60, stalled_tol=stalled_tol)
         assert converged.tolist() == expected
         assert abs(z[0, 0] - 1) < 1e-11 and abs(z[1, 0] - 1) < 1e-9
+
+
+CHAIN2 = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 1.0]],
+          "stiffness": [[3000.0, -1000.0], [-1000.0, 2000.0]], "rayleigh": [0.3, 1.0e-4]}
+
+
+@pytest.mark.parametrize("laws, second", [
+    ([{"law": "anderson_ferri", "a": 0.1, "b": 30.0, "c": 0.0}], None),
+    ([{"law": "jenkins", "kt": 500.0, "fs": 0.2}], [{"law": "cubic", "k3": 3e6}]),
+    ([{"law": "gap", "k": 3000.0, "gap": 0.002}], None),
+    ([{"law": "iwan", "kt": 800.0, "fs": 0.3, "chi": -0.5, "beta": 0.1}], None),
+])
+def test_the_lines_solved_all_at_once_are_each_line_solved_on_its_own(laws, second):
+    """Started from the single-harmonic solution, each line's multi-harmonic balance is independent of the
+    others': the batch (Broyden from a difference Jacobian) lands where scipy's hybr lands from the same start,
+    line by line, to the balance's tolerance."""
+    from analysis.prediction.harmonic_balance import _MultiharmonicLines
+    s = load_structure(CHAIN2)
+    spec = [{"name": "b", "dof": "x2", "laws": laws}] + ([{"name": "a", "dof": "x1", "laws": second}] if second else [])
+    els = load_elements({"element": spec}, s, None, True)
+    w = 2 * np.pi * np.arange(5.0, 11.01, 0.4)
+    single = predict_sweep(s, els, "x2", w, 0.5)
+    mh = predict_multiharmonic(s, els, "x2", w, 0.5, 7, 512, y_start=single.y[:, 0])
+    lines = _MultiharmonicLines(s, els, "x2", w, np.full(len(w), 0.5), 7, 512)
+    start = np.zeros((len(w), 8, len(els)), complex)
+    start[:, 1] = single.y[:, 0]
+    alone = np.array([lines.solve_one(i, start[i]) for i in range(len(w))])
+    ok = np.linalg.norm(lines.residual(alone, np.arange(len(w))), axis=1) < 1e-8
+    assert mh.converged[ok].all() and ok.sum() >= len(w) - 1
+    each = lines.unpack(alone, np.arange(len(w)))
+    scale = np.abs(mh.element_harmonics[:, 1]).max()
+    np.testing.assert_allclose(mh.element_harmonics[ok], each[ok], rtol=0, atol=1e-7 * scale)
+
+
+def test_a_periodic_march_is_the_second_period_of_the_motion_marched_twice_from_rest():
+    """Rows are independent periodic motions: each is marched from rest, its last period kept; a law without
+    state needs one period."""
+    from analysis.laws import LAWS
+    theta = 2 * np.pi * np.arange(64) / 64
+    X = np.array([[0.5e-3], [2e-3], [4e-3]])
+    x, v = X * np.sin(theta), 30.0 * X * np.cos(theta)
+    for name, values in (("jenkins", {"kt": 500.0, "fs": 0.2}), ("cubic", {"k3": 3e6})):
+        law = LAWS[name]
+        p = law.parameter_vector(**values)
+        rows = law.march_periodic(x, v, p)
+        for b in range(len(X)):
+            twice = law.march(np.tile(x[b], 2), np.tile(v[b], 2), p)
+            np.testing.assert_allclose(rows[b], twice[64:], rtol=0, atol=1e-14)

@@ -171,6 +171,26 @@ def _marcher(kernel):
     return march
 
 
+@functools.lru_cache(maxsize=None)
+def _periodic_marcher(kernel):
+    """:func:`_marcher` over periodic motions: each row of (B, T) samples of one period is marched ``periods``
+    times from the state ``s0`` and the force of the last period kept (a hysteretic law settles on its closed
+    loop in the first); the rows independent of one another (a solver's trial motions, one per line and per
+    perturbation, in one call)."""
+    @njit
+    def march_periods(x, v, p, s0, periods):
+        f = np.empty(x.shape)
+        for b in range(x.shape[0]):
+            s = s0.copy()
+            for _ in range(periods - 1):
+                for i in range(x.shape[1]):
+                    kernel(x[b, i], v[b, i], p, s)
+            for i in range(x.shape[1]):
+                f[b, i] = kernel(x[b, i], v[b, i], p, s)
+        return f
+    return march_periods
+
+
 def broadcast(X, w) -> tuple[np.ndarray, np.ndarray]:
     """Amplitudes ``X`` and lines ``w`` broadcast to one shape; returned as they are where they have it already
     (a solver's batch: the common case, where ``np.broadcast_arrays``'s overhead costs more than a small law's
@@ -449,6 +469,12 @@ class Law(ABC):
         solvers that evaluate the force many times at the same values."""
         s = self.initial_state(p) if state is None else state
         return _marcher(self.kernel)(np.ascontiguousarray(x, float), np.ascontiguousarray(v, float), p, s)
+
+    def march_periodic(self, x, v, p: np.ndarray) -> np.ndarray:
+        """The force over the second period of each row of ``x``, ``v`` (B, T: one period of a periodic motion),
+        marched twice from rest; a law without state once. The rows are independent of one another."""
+        return _periodic_marcher(self.kernel)(np.ascontiguousarray(x, float), np.ascontiguousarray(v, float), p,
+                                              self.initial_state(p), 2 if self.n_state else 1)
 
     def __repr__(self) -> str:
         return f"<law {self.name}({', '.join(self.param_names)})>"

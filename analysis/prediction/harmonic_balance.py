@@ -193,6 +193,63 @@ def _newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray], jac: Callable[[
     return z, (norm <= tol) | (stuck & (norm <= stalled_tol))
 
 
+def _quasi_newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                  jac: Callable[[np.ndarray, np.ndarray], np.ndarray], z0: np.ndarray, tol: float,
+                  stalled_tol: float, max_iter: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_newton` (the same arguments and result) for systems whose Jacobian costs many residuals (a
+    difference Jacobian): Broyden's update of each item's Jacobian after every step taken, and a fresh ``jac``
+    only where a step from an updated one does not lower the residual norm; an item whose fresh Jacobian gives
+    no such step stops there.
+
+    Broyden's ("good") update makes the Jacobian map the step taken ``s`` to the residual change ``y`` and
+    leaves it unchanged across ``s``: ``J += (y - J s) s^T / (s^T s)``."""
+    z = z0.copy()
+    B = len(z)
+    R = fun(z, np.arange(B))
+    norm = np.linalg.norm(R, axis=1)
+    J = np.zeros((B,) + z.shape[1:] * 2)
+    fresh = norm > tol
+    first = np.flatnonzero(fresh)
+    if len(first):
+        J[first] = jac(z[first], first)
+    stuck = np.zeros(B, bool)
+    for _ in range(max_iter):
+        check_stop()            # one pass of the batch: where a stop asked for is heard
+        active = np.flatnonzero((norm > tol) & ~stuck)
+        if not len(active):
+            break
+        try:
+            dz = np.linalg.solve(J[active], -R[active][..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            dz = np.einsum("bij,bj->bi", np.linalg.pinv(J[active]), -R[active])
+        alpha = np.ones(len(active))
+        improved = np.zeros(len(active), bool)
+        for _ in range(8):
+            left = np.flatnonzero(~improved)
+            items = active[left]
+            z_try = z[items] + alpha[left, None] * dz[left]
+            R_try = fun(z_try, items)
+            n_try = np.linalg.norm(R_try, axis=1)
+            ok = n_try < norm[items]
+            take = items[ok]
+            step, change = z_try[ok] - z[take], R_try[ok] - R[take]
+            J[take] += np.einsum("bi,bj->bij", change - np.einsum("bij,bj->bi", J[take], step), step) \
+                / np.einsum("bi,bi->b", step, step)[:, None, None]
+            z[take], R[take], norm[take] = z_try[ok], R_try[ok], n_try[ok]
+            fresh[take] = False
+            improved[left[ok]] = True
+            if improved.all():
+                break
+            alpha[left[~ok]] *= 0.5
+        failed = active[~improved]
+        stuck[failed[fresh[failed]]] = True
+        renew = failed[~fresh[failed]]
+        if len(renew):
+            J[renew] = jac(z[renew], renew)
+            fresh[renew] = True
+    return z, (norm <= tol) | (stuck & (norm <= stalled_tol))
+
+
 # --------------------------------------------------------------------------- stepped-sine prediction
 @dataclass
 class SweepPrediction:
@@ -772,15 +829,29 @@ class MultiharmonicResponse:
 
 
 def element_force_history(element: Element, y: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Time-domain force of an element's laws along (y, v), from rest; 1-D arrays. An element with a
-    non-parametric part has no time-domain force (:mod:`analysis.mechanics.nonparametric`): refused, never half a force."""
+    """Time-domain force of an element's laws along (y, v), from rest; 1-D arrays."""
+    total = np.zeros_like(y)
+    for term in _time_domain_laws(element):
+        total += term.law.force(y, v, **term.values)
+    return total
+
+
+def element_force_periodic(element: Element, y: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The force of an element's laws over one period of each periodic motion ``y``, ``v`` (B, T), on its closed
+    loop (:meth:`analysis.laws.base.Law.march_periodic`)."""
+    total = np.zeros(y.shape)
+    for term in _time_domain_laws(element):
+        total += term.law.march_periodic(y, v, term.law.parameter_vector(**term.values))
+    return total
+
+
+def _time_domain_laws(element: Element):
+    """The element's laws, whose time-domain forces sum to its force. An element with a non-parametric part has
+    no time-domain force (:mod:`analysis.mechanics.nonparametric`): refused, never half a force."""
     if not element.time_domain:
         raise ValueError(f"element {element.name!r} has a non-parametric part: it has no time-domain force, so it "
                          "cannot be marched nor predicted with harmonics")
-    total = np.zeros_like(y)
-    for term in element.laws:
-        total += term.law.force(y, v, **term.values)
-    return total
+    return element.laws
 
 
 #: A force change across the sampling interval of a sign change of the velocity or the displacement counts as a
@@ -803,21 +874,32 @@ class _AFT:
 
     def forces(self, Yk: np.ndarray, w: float) -> np.ndarray:
         """Element force phasors (H+1, r) of the motion with element phasors ``Yk`` (H+1, r) at w."""
+        return self.forces_rows(Yk[None], np.array([w], float))[0]
+
+    def forces_rows(self, Yk: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Element force phasors (B, H+1, r) of B motions with element phasors ``Yk`` (B, H+1, r) at lines ``w``
+        (B,): one compiled march per element for the whole batch, in (B, r, n) order so that the transforms are
+        one matrix product each."""
         S, C, k, n = self.S, self.C, self.k, self.n_time
-        y_t = Yk[0].real[None, :] + S[:, 1:] @ Yk[1:].real + C[:, 1:] @ Yk[1:].imag
-        v_t = w * ((C[:, 1:] * k[1:]) @ Yk[1:].real - (S[:, 1:] * k[1:]) @ Yk[1:].imag)
-        f = np.empty_like(y_t)
+        B, r = Yk.shape[0], Yk.shape[2]
+        A = np.swapaxes(Yk, 1, 2).reshape(B * r, -1)                        # (B r, H+1)
+        re, im = A[:, 1:].real, A[:, 1:].imag
+        y_t = (A[:, :1].real + re @ S[:, 1:].T + im @ C[:, 1:].T).reshape(B, r, n)
+        v_t = (np.repeat(w, r)[:, None] * (re @ (C[:, 1:] * k[1:]).T - im @ (S[:, 1:] * k[1:]).T)).reshape(B, r, n)
+        f = np.empty((B, r, n))
         for i, el in enumerate(self.elements):
-            f[:, i] = element_force_history(el, np.tile(y_t[:, i], 2), np.tile(v_t[:, i], 2))[n:]
-        Fk = 2.0 / n * (S.T @ f + 1j * (C.T @ f))
-        Fk[0] = f.mean(axis=0)
-        return Fk + _jump_correction(f, y_t, v_t, self.theta, k)
+            f[:, i] = element_force_periodic(el, y_t[:, i], v_t[:, i])
+        flat = f.reshape(B * r, n)
+        Fk = (2.0 / n * (flat @ S + 1j * (flat @ C))).reshape(B, r, -1)
+        Fk[:, :, 0] = flat.mean(axis=1).reshape(B, r)
+        return np.swapaxes(Fk, 1, 2) + _jump_correction(f, y_t, v_t, self.theta, k)
 
 
 def _jump_correction(f: np.ndarray, y: np.ndarray, v: np.ndarray, theta: np.ndarray, k: np.ndarray) -> np.ndarray:
     """What moving each force jump from the middle of its sampling interval (where the sum over the samples puts
-    it) to where it is adds to the force phasors (H+1, r). The laws' forces jump where the velocity changes sign
-    (friction) or the displacement does (velocity stiffness, ``|x'| sgn(x)``).
+    it) to where it is adds to the force phasors (B, H+1, r) of the B motions ``f``, ``y``, ``v`` (B, r, n). The
+    laws' forces jump where the velocity changes sign (friction) or the displacement does (velocity stiffness,
+    ``|x'| sgn(x)``).
 
     The plain sum over ``n`` samples places a jump on the sampling grid, so the phasors move in steps of about
     ``jump / n`` as the sign change crosses a sample: the balance residual is discontinuous, and Newton stalls
@@ -837,29 +919,32 @@ def _jump_correction(f: np.ndarray, y: np.ndarray, v: np.ndarray, theta: np.ndar
 
 @njit(cache=True)
 def _placed_jumps(f, y, v, theta, k, ratio):
-    """:func:`_jump_correction`'s sum, element by element: each interval where the velocity, or else the
-    displacement, changes sign, its jump placed where the sign changes; (len(k), r) complex."""
-    n, r = f.shape
-    out = np.zeros((k.size, r), np.complex128)
-    for c in range(r):
-        for which in range(2):
-            u = v if which == 0 else y
-            for m in range(n):
-                a, b = u[m, c], u[(m + 1) % n, c]
-                if not a * b < 0:
-                    continue
-                if which == 1 and v[m, c] * v[(m + 1) % n, c] < 0:
-                    continue                                  # an interval's jump is placed once
-                before = f[m, c] - f[(m - 1) % n, c]
-                beyond = f[(m + 2) % n, c] - f[(m + 1) % n, c]
-                jump = f[(m + 1) % n, c] - f[m, c] - 0.5 * (before + beyond)
-                if not abs(jump) > ratio * (abs(before) + abs(beyond)):
-                    continue                                  # a force that only bends there: left alone
-                held = jump * (0.5 - a / (a - b)) / n
-                mid = theta[m] + np.pi / n
-                out[0, c] += held
-                for h in range(1, k.size):
-                    out[h, c] += 2 * held * complex(np.sin(mid * k[h]), np.cos(mid * k[h]))
+    """:func:`_jump_correction`'s sum, motion by motion and element by element: each interval where the
+    velocity, or else the displacement, changes sign, its jump placed where the sign changes; (B, len(k), r)
+    complex."""
+    B, r, n = f.shape
+    out = np.zeros((B, k.size, r), np.complex128)
+    for q in range(B):
+        for c in range(r):
+            for which in range(2):
+                u = v[q, c] if which == 0 else y[q, c]
+                for m in range(n):
+                    a, b = u[m], u[(m + 1) % n]
+                    if not a * b < 0:
+                        continue
+                    if which == 1 and v[q, c, m] * v[q, c, (m + 1) % n] < 0:
+                        continue                                  # an interval's jump is placed once
+                    fc = f[q, c]
+                    before = fc[m] - fc[(m - 1) % n]
+                    beyond = fc[(m + 2) % n] - fc[(m + 1) % n]
+                    jump = fc[(m + 1) % n] - fc[m] - 0.5 * (before + beyond)
+                    if not abs(jump) > ratio * (abs(before) + abs(beyond)):
+                        continue                                  # a force that only bends there: left alone
+                    held = jump * (0.5 - a / (a - b)) / n
+                    mid = theta[m] + np.pi / n
+                    out[q, 0, c] += held
+                    for h in range(1, k.size):
+                        out[q, h, c] += 2 * held * complex(np.sin(mid * k[h]), np.cos(mid * k[h]))
     return out
 
 
@@ -899,64 +984,127 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     """Harmonic balance with ``n_harmonics`` harmonics and the mean, forces by AFT (:class:`_AFT`), at one
     force amplitude or one per line (``force`` shape (L,)).
 
-    Newton (scipy ``hybr``) runs at each line from the previous line's solution, starting from the
-    single-harmonic solution; with ``y_start`` (single-harmonic element phasors, (L, r)) every line starts from
-    its own, which picks the branch where the response is multivalued.
+    With ``y_start`` (single-harmonic element phasors, (L, r)) every line starts from its own, which picks the
+    branch where the response is multivalued, and the lines are independent: they are solved all at once by
+    Broyden's method from a difference Jacobian (:func:`_quasi_newton`, :class:`_MultiharmonicLines`), and a line
+    that does not converge so
+    is solved on its own by scipy's ``hybr`` from the same start. Without it Newton (``hybr``) runs at each line
+    from the previous line's solution, the first started from the single-harmonic solution.
     """
     w = np.atleast_1d(np.asarray(w, float))
     H = int(n_harmonics)
     if H < 1 or n_time < 4 * H + 2:
         raise ValueError("need n_harmonics >= 1 and n_time >= 4 n_harmonics + 2")
-    r = len(elements)
-    E, loads = _element_loads(structure, elements, excitation_dof)
-    aft = _AFT(elements, H, n_time)
-    k = aft.k
     forces = np.broadcast_to(np.asarray(force, float), w.shape)
-    order = np.argsort(w) if direction == "up" else np.argsort(-w)
-    # the single-harmonic solution starts the first line; later lines start from the previous one
-    if y_start is None:
-        single = predict_sweep(structure, elements, excitation_dof, w[order[:1]], forces[order[0]],
-                               direction).y[0, 0]
-    out = np.zeros((len(w), H + 1, structure.n), complex)
-    motion, element_forces = np.zeros((2, len(w), H + 1, r), complex)
-    converged = np.zeros(len(w), bool)
-    previous = None
-    for line in order:
-        check_stop()            # one line: where a stop asked for is heard
-        wl, force = w[line], forces[line]
-        resp = [structure.response([kk * wl], loads)[0] for kk in k]
-        HE = np.stack([rsp[:, :-1] for rsp in resp])        # (H+1, n, r)
-        Hq = np.stack([rsp[:, -1] for rsp in resp])          # (H+1, n)
-        G = np.einsum("ni,knj->kij", E, HE)
-        g1 = E.T @ Hq[1]
-        scale = max(np.abs(g1).max() * force, 1e-300)
+    lines = _MultiharmonicLines(structure, elements, excitation_dof, w, forces, H, n_time)
+    z = np.zeros((len(w), lines.size))
+    if y_start is not None:
+        start = np.zeros((len(w), H + 1, len(elements)), complex)
+        start[:, 1] = y_start
+        z, _ = _quasi_newton(lines.residual, lines.jacobian, lines.pack(start, np.arange(len(w))),
+                             MULTIHARMONIC_TOLERANCE, MULTIHARMONIC_CONVERGED)
+        left = np.linalg.norm(lines.residual(z, np.arange(len(w))), axis=1) >= MULTIHARMONIC_CONVERGED
+        for line in np.flatnonzero(left):
+            check_stop()        # one line: where a stop asked for is heard
+            z[line] = lines.solve_one(line, start[line])
+    else:
+        order = np.argsort(w) if direction == "up" else np.argsort(-w)
+        start = np.zeros((len(elements) and H + 1, len(elements)), complex)
+        start[1] = predict_sweep(structure, elements, excitation_dof, w[order[:1]], forces[order[0]],
+                                 direction).y[0, 0]
+        for line in order:
+            check_stop()
+            z[line] = lines.solve_one(line, start)
+            start = lines.unpack(z[line:line + 1], np.array([line]))[0]
+    return lines.response(z)
 
-        def unpack(z):
-            Yk = np.zeros((H + 1, r), complex)
-            Yk[0] = z[:r]
-            Yk[1:] = (z[r:r + H * r] + 1j * z[r + H * r:]).reshape(H, r)
-            return Yk * scale
 
-        def pack(Yk):
-            Yk = Yk / scale
-            return np.r_[Yk[0].real, Yk[1:].real.ravel(), Yk[1:].imag.ravel()]
+MULTIHARMONIC_TOLERANCE = 1e-12
+"""Residual norm (relative to the line's linear response) where the batched multi-harmonic Newton stops."""
+MULTIHARMONIC_CONVERGED = 1e-8
+"""Residual norm below which a multi-harmonic line counts as converged (a friction force's sampled jumps leave
+a residual of about their rounding)."""
+_AFT_BATCH_VALUES = 4_000_000
+"""Samples of trial motion marched per batch of AFT evaluations (memory: a few arrays of this many floats)."""
 
-        def residual(z):
-            Yk = unpack(z)
-            R = Yk + np.einsum("kij,kj->ki", G, aft.forces(Yk, wl))
-            R[1] -= g1 * force
-            return pack(R)
 
-        if previous is None or y_start is not None:
-            start = np.zeros((H + 1, r), complex)
-            start[1] = single if y_start is None else y_start[line]
-        else:
-            start = previous
-        sol = scipy.optimize.root(residual, pack(start), method="hybr", options={"xtol": 1e-12})
-        Yk = unpack(sol.x)
-        Fk = aft.forces(Yk, wl)
-        motion[line], element_forces[line] = Yk, Fk
-        out[line] = np.einsum("kn,k->kn", Hq, np.r_[0.0, force, np.zeros(H - 1)]) - np.einsum("knr,kr->kn", HE, Fk)
-        converged[line] = sol.success and np.linalg.norm(residual(sol.x)) < 1e-8
-        previous = Yk
-    return MultiharmonicResponse(w, out, converged, motion, element_forces)
+class _MultiharmonicLines:
+    """The multi-harmonic balance of lines ``w`` in real unknowns scaled by each line's linear response:
+    ``z = [Y_0, Re Y_1..H, Im Y_1..H] / scale`` (r element phasors each), and the residual
+
+        R_k = Y_k + G_k F_k(Y) - delta_k1 g F,      G_k = E^T H(k w) E,  g = E^T H(w) e_q,
+
+    with ``F_k`` the element forces' harmonics by AFT. Rows of a batch name their line (``idx``), so the
+    solver evaluates any set of lines, each as often as it needs."""
+
+    def __init__(self, structure: Structure, elements: Sequence[Element], excitation_dof: str, w: np.ndarray,
+                 forces: np.ndarray, H: int, n_time: int):
+        self.w, self.forces, self.H, self.r = w, forces, H, len(elements)
+        self.size = self.r * (2 * H + 1)
+        E, loads = _element_loads(structure, elements, excitation_dof)
+        self.aft = _AFT(elements, H, n_time)
+        k = self.aft.k
+        resp = structure.response((k[None, :] * w[:, None]).ravel(), loads).reshape(len(w), H + 1, structure.n, -1)
+        self.HE, self.Hq = resp[..., :-1], resp[..., -1]                  # (L, H+1, n, r), (L, H+1, n)
+        self.G = np.einsum("ni,lknj->lkij", E, self.HE)                   # (L, H+1, r, r)
+        self.gF = np.einsum("ni,ln->li", E, self.Hq[:, 1]) * forces[:, None]
+        self.scale = np.maximum(np.abs(self.gF).max(axis=1, initial=0.0), 1e-300)
+        self._rows = max(1, _AFT_BATCH_VALUES // (2 * n_time * max(self.r, 1)))
+
+    def unpack(self, z: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        B, H, r = len(z), self.H, self.r
+        Yk = np.zeros((B, H + 1, r), complex)
+        Yk[:, 0] = z[:, :r]
+        Yk[:, 1:] = (z[:, r:r + H * r] + 1j * z[:, r + H * r:]).reshape(B, H, r)
+        return Yk * self.scale[idx, None, None]
+
+    def pack(self, Yk: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        Yk = Yk / self.scale[idx, None, None]
+        B = len(Yk)
+        return np.concatenate([Yk[:, 0].real, Yk[:, 1:].real.reshape(B, -1), Yk[:, 1:].imag.reshape(B, -1)], axis=1)
+
+    def element_forces(self, Yk: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """AFT forces of the rows (B, H+1, r), in batches of at most ``_AFT_BATCH_VALUES`` samples."""
+        out = np.empty_like(Yk)
+        for a in range(0, len(Yk), self._rows):
+            out[a:a + self._rows] = self.aft.forces_rows(Yk[a:a + self._rows], self.w[idx[a:a + self._rows]])
+        return out
+
+    def residual(self, z: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """R of the rows ``z`` (B, size) at their lines ``idx`` (B,), scaled as z."""
+        Yk = self.unpack(z, idx)
+        R = Yk + (self.G[idx] @ self.element_forces(Yk, idx)[..., None])[..., 0]
+        R[:, 1] -= self.gF[idx]
+        return self.pack(R, idx)
+
+    def jacobian(self, z: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """dR/dz of the rows by forward differences, every row and its perturbations in one batch; (B, size,
+        size)."""
+        B, m = z.shape
+        h = _DIFFERENCE_STEP * np.maximum(np.abs(z), 1.0)
+        trial = np.repeat(z[:, None, :], m + 1, axis=1)
+        trial[:, 1:] += h[:, :, None] * np.eye(m)[None]
+        R = self.residual(trial.reshape(B * (m + 1), m), np.repeat(idx, m + 1)).reshape(B, m + 1, m)
+        return np.swapaxes((R[:, 1:] - R[:, :1]) / h[:, :, None], 1, 2)
+
+    def solve_one(self, line: int, start: np.ndarray) -> np.ndarray:
+        """The unknowns of one line by scipy's ``hybr`` from the element phasors ``start`` (H+1, r)."""
+        idx = np.array([line])
+        sol = scipy.optimize.root(lambda z: self.residual(z[None], idx)[0], self.pack(start[None], idx)[0],
+                                  method="hybr", options={"xtol": 1e-12})
+        return sol.x
+
+    def response(self, z: np.ndarray) -> MultiharmonicResponse:
+        idx = np.arange(len(z))
+        converged = np.linalg.norm(self.residual(z, idx), axis=1) < MULTIHARMONIC_CONVERGED
+        Yk = self.unpack(z, idx)
+        Fk = self.element_forces(Yk, idx)
+        drive = np.zeros((len(z), self.H + 1))
+        drive[:, 1] = self.forces
+        out = self.Hq * drive[:, :, None] - (self.HE @ Fk[..., None])[..., 0]
+        return MultiharmonicResponse(self.w, out, converged, Yk, Fk)
+
+
+_DIFFERENCE_STEP = 1.5e-8
+"""Forward-difference step of the multi-harmonic Jacobian, relative to an unknown (and to the line's linear
+response where the unknown is smaller): the square root of the double's rounding."""

@@ -899,10 +899,9 @@ def fir_decimate(samples, history, taps, factor):
             for j in range(L):
                 acc += reversed_taps[j] * first[j]
             out[k, c] = acc
-    if H > 0:
-        if n >= H:
-            history[:, :] = samples[n - H:, :]
-        else:
-            history[: H - n, :] = history[n:, :].copy()
-            history[H - n:, :] = samples
+    # the last H inputs become the history, element by element: a slice assignment would compile numba's
+    # shape-mismatch message (string formatting, seconds of compilation on a fresh install)
+    for i in range(H):
+        for c in range(nch):
+            history[i, c] = joined[c, n + i]
     return out
