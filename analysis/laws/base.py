@@ -178,16 +178,16 @@ def _periodic_marcher(kernel):
     loop in the first); the rows independent of one another (a solver's trial motions, one per line and per
     perturbation, in one call)."""
     @njit
-    def march_periods(x, v, p, s0, periods):
-        f = np.empty(x.shape)
+    def march_periods(x, v, p, s0, s, periods, f):
+        # the state and the output passed in, copied by loops: no allocation to compile
         for b in range(x.shape[0]):
-            s = s0.copy()
+            for j in range(s0.shape[0]):
+                s[j] = s0[j]
             for _ in range(periods - 1):
                 for i in range(x.shape[1]):
                     kernel(x[b, i], v[b, i], p, s)
             for i in range(x.shape[1]):
                 f[b, i] = kernel(x[b, i], v[b, i], p, s)
-        return f
     return march_periods
 
 
@@ -473,8 +473,11 @@ class Law(ABC):
     def march_periodic(self, x, v, p: np.ndarray) -> np.ndarray:
         """The force over the second period of each row of ``x``, ``v`` (B, T: one period of a periodic motion),
         marched twice from rest; a law without state once. The rows are independent of one another."""
-        return _periodic_marcher(self.kernel)(np.ascontiguousarray(x, float), np.ascontiguousarray(v, float), p,
-                                              self.initial_state(p), 2 if self.n_state else 1)
+        x, v = np.ascontiguousarray(x, float), np.ascontiguousarray(v, float)
+        s0 = self.initial_state(p)
+        f = np.empty(x.shape)
+        _periodic_marcher(self.kernel)(x, v, p, s0, np.empty_like(s0), 2 if self.n_state else 1, f)
+        return f
 
     def __repr__(self) -> str:
         return f"<law {self.name}({', '.join(self.param_names)})>"
