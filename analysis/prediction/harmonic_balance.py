@@ -1009,7 +1009,7 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
             z[line] = lines.solve_one(line, start[line])
     else:
         order = np.argsort(w) if direction == "up" else np.argsort(-w)
-        start = np.zeros((len(elements) and H + 1, len(elements)), complex)
+        start = np.zeros((H + 1, len(elements)), complex)
         start[1] = predict_sweep(structure, elements, excitation_dof, w[order[:1]], forces[order[0]],
                                  direction).y[0, 0]
         for line in order:
