@@ -2,7 +2,7 @@
 
     python benchmarks/multiharmonic_batch.py
 
-``analysis.prediction.harmonic_balance.predict_multiharmonic`` started from each line's single-harmonic solution
+``analysis.prediction.multiharmonic.predict_multiharmonic`` started from each line's single-harmonic solution
 (what the comparison with harmonics and the fundamental's bias ask) solves every line at once: Broyden's method
 from a difference Jacobian, every row of the batch and its perturbations marched through the laws in one compiled
 call per element (``_quasi_newton``, ``_MultiharmonicLines``). The baseline, run in this process, is how it was
@@ -27,7 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from analysis import load_elements, load_structure  # noqa: E402
-from analysis.prediction.harmonic_balance import _MultiharmonicLines, predict_multiharmonic, predict_sweep  # noqa: E402
+from analysis.prediction.harmonic_balance import predict_sweep  # noqa: E402
+from analysis.prediction.multiharmonic import _MultiharmonicLines, predict_multiharmonic  # noqa: E402
 
 CHAIN = {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 1.0]],
          "stiffness": [[3000.0, -1000.0], [-1000.0, 2000.0]], "rayleigh": [0.3, 1.0e-4]}

@@ -11,7 +11,8 @@ import pytest
 from analysis import load_elements, load_structure
 from analysis.prediction.comparison import HarmonicCriterion, Predictor
 from analysis.common.statistics import capped_chi_square
-from analysis.prediction.harmonic_balance import predict_multiharmonic, predict_sweep
+from analysis.prediction.harmonic_balance import predict_sweep
+from analysis.prediction.multiharmonic import predict_multiharmonic
 from analysis.identification.identify import identify_complex_stiffness
 from analysis.common.measurements import Measurements, SineRun
 from analysis.mechanics.model import load_model

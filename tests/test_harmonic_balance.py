@@ -6,8 +6,8 @@ from scipy.integrate import solve_ivp
 
 from analysis import load_elements, load_structure
 from analysis.prediction.comparison import HarmonicCriterion
-from analysis.prediction.harmonic_balance import (_AFT, continue_response, predict_multiharmonic, predict_sweep, predict_sweeps,
-                                       single_harmonic_distortion)
+from analysis.prediction.harmonic_balance import continue_response, predict_sweep, predict_sweeps
+from analysis.prediction.multiharmonic import _AFT, predict_multiharmonic, single_harmonic_distortion
 
 SDOF = {"type": "lumped", "dofs": ["x"], "mass": [[1.0]], "stiffness": [[100.0]], "damping": [[0.2]]}
 
@@ -609,7 +609,7 @@ def test_the_lines_solved_all_at_once_are_each_line_solved_on_its_own(laws, seco
     """Started from the single-harmonic solution, each line's multi-harmonic balance is independent of the
     others': the batch (Broyden from a difference Jacobian) lands where scipy's hybr lands from the same start,
     line by line, to the balance's tolerance."""
-    from analysis.prediction.harmonic_balance import _MultiharmonicLines
+    from analysis.prediction.multiharmonic import _MultiharmonicLines
     s = load_structure(CHAIN2)
     spec = [{"name": "b", "dof": "x2", "laws": laws}] + ([{"name": "a", "dof": "x1", "laws": second}] if second else [])
     els = load_elements({"element": spec}, s, None, True)

@@ -15,7 +15,7 @@ from analysis import InputError
 from analysis.missing.diagnosis import ElementSamples
 from analysis.fitting.fit import fit_laws
 from analysis.mechanics.elements import LawTerm
-from analysis.prediction.harmonic_balance import element_force_history
+from analysis.prediction.multiharmonic import element_force_history
 from analysis.laws import LAWS
 from analysis.common.measurements import Measurements, SineRun
 from analysis.mechanics.model import load_model

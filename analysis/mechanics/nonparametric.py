@@ -22,7 +22,7 @@ extrapolated. :meth:`NonParametric.outside` tells which amplitudes were clamped,
 
 The part has a describing function only. It has no time-domain force -- nothing says how the force moves
 within a cycle, nor what hysteresis produced the measured Im kbar -- so an element carrying one cannot be
-simulated nor predicted with harmonics (:func:`analysis.prediction.harmonic_balance.element_force_history` refuses it):
+simulated nor predicted with harmonics (:func:`analysis.prediction.multiharmonic.element_force_history` refuses it):
 it is not a law class (analysis/laws/base.py requires a kernel) but a second kind of element part.
 """
 from __future__ import annotations

@@ -41,8 +41,8 @@ import numpy as np
 from ..common.measurements import Control, Measurements, SineRun
 from ..common.statistics import chi_square_noise_bound, outlier_limit
 from ..mechanics.model import Model
-from .harmonic_balance import (CondensedSystem, KbarFunction, NearStart, condense, continue_response,
-                               predict_multiharmonic, predict_sweeps, single_harmonic_distortion)
+from .harmonic_balance import CondensedSystem, KbarFunction, NearStart, condense, continue_response, predict_sweeps
+from .multiharmonic import predict_multiharmonic, single_harmonic_distortion
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,7 @@ class LevelError:
 class HarmonicCriterion:
     """Which lines the single-harmonic balance cannot represent well enough (docs/workbench.md §3): those whose
     displacement THD -- measured at the sensors, or implied by the single-harmonic solution itself
-    (:func:`analysis.prediction.harmonic_balance.single_harmonic_distortion`) -- exceeds ``limit``, and the multivalued
+    (:func:`analysis.prediction.multiharmonic.single_harmonic_distortion`) -- exceeds ``limit``, and the multivalued
     lines (near a fold the fundamental is so sensitive that harmonics of 0.2 % move it by 2 %). They are
     predicted with ``n_harmonics`` harmonics and the mean, forces sampled at ``n_time`` points per period (a
     friction force's sign change is placed to 1/n_time of the period)."""
