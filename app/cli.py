@@ -28,6 +28,12 @@ import sys
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+# One BLAS thread, unless the environment asks for more: the numerics are many small matrices (a contact's balance
+# at every sample, a stack of 17 x 17 solves), where OpenBLAS's threads wait more than they compute and take the
+# core a campaign, the GUI or the session writer needs (the Brake-Reuss beam's loop: 479 -> 247 s of CPU, the same
+# result; docs/performance.md, "One BLAS thread"). Set before anything loads numpy, which reads it once.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 # Only light modules here: each command imports what it uses, so that `--help` and `laws` start fast
 # (docs/performance.md, "Start-up"; tests/test_public_api.py checks what they import).
 from analysis.common.errors import InputError

@@ -41,3 +41,16 @@ def test_the_cli_spells_the_emulated_shaker_models_as_the_emulator_has_them():
     from app.cli import EMULATED_SHAKER_MODELS
     from drivers.emulator.core import SHAKER_MODELS
     assert EMULATED_SHAKER_MODELS == tuple(SHAKER_MODELS)
+
+
+@pytest.mark.parametrize("asked, expected", [(None, "1"), ("3", "3")])
+def test_the_command_line_runs_one_blas_thread_unless_the_environment_asks(asked, expected):
+    """OpenBLAS reads its thread count once, when numpy loads it: the command line's module sets it before
+    anything loads numpy, and keeps a count the user set."""
+    import os
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if asked is not None:
+        env["OPENBLAS_NUM_THREADS"] = asked
+    probe = "import os, sys, app.cli; print('numpy' in sys.modules, os.environ.get('OPENBLAS_NUM_THREADS'))"
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True, env=env)
+    assert out.stdout.split() == ["False", expected]
