@@ -196,10 +196,10 @@ def _newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray], jac: Callable[[
 def _quasi_newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray],
                   jac: Callable[[np.ndarray, np.ndarray], np.ndarray], z0: np.ndarray, tol: float,
                   stalled_tol: float, max_iter: int = 40) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_newton` (the same arguments and result) for systems whose Jacobian costs many residuals (a
-    difference Jacobian): Broyden's update of each item's Jacobian after every step taken, and a fresh ``jac``
-    only where a step from an updated one does not lower the residual norm; an item whose fresh Jacobian gives
-    no such step stops there.
+    """:func:`_newton` (its ``fun``, ``jac``, tolerances and result) for systems whose Jacobian costs many
+    residuals (a difference Jacobian): Broyden's update of each item's Jacobian after every step taken, and a
+    fresh ``jac`` only where a step from an updated one does not lower the residual norm; an item whose fresh
+    Jacobian gives no such step stops there.
 
     Broyden's ("good") update makes the Jacobian map the step taken ``s`` to the residual change ``y`` and
     leaves it unchanged across ``s``: ``J += (y - J s) s^T / (s^T s)``."""
