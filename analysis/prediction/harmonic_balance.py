@@ -168,29 +168,44 @@ def _newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray], jac: Callable[[
         active = np.flatnonzero((norm > tol) & ~stuck & ~dropped)
         if not len(active):
             break
-        J = jac(z[active], active)
-        try:
-            dz = np.linalg.solve(J, -R[active][..., None])[..., 0]
-        except np.linalg.LinAlgError:  # a singular Jacobian (exactly at a fold): least-norm step
-            dz = np.einsum("bij,bj->bi", np.linalg.pinv(J), -R[active])
-        alpha = np.ones(len(active))
-        improved = np.zeros(len(active), bool)
-        for _ in range(12):
-            left = np.flatnonzero(~improved)
-            items = active[left]
-            z_try = z[items] + alpha[left, None] * dz[left]
-            R_try = fun(z_try, items)
-            n_try = np.linalg.norm(R_try, axis=1)
-            ok = n_try < norm[items]
-            take = items[ok]
-            z[take], R[take], norm[take] = z_try[ok], R_try[ok], n_try[ok]
-            improved[left[ok]] = True
-            if improved.all():
-                break
-            alpha[left[~ok]] *= 0.5
+        improved = _line_search(fun, z, R, norm, active, _direction(jac(z[active], active), R[active]), 12)
         # an item no step improves is finished: the same unknowns would give the same step again
         stuck[active[~improved]] = True
     return z, (norm <= tol) | (stuck & (norm <= stalled_tol))
+
+
+def _direction(J: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The Newton step ``-J^-1 R`` of each item (J (B, m, m), R (B, m)); where a Jacobian is singular (exactly at
+    a fold), the least-norm step."""
+    try:
+        return np.linalg.solve(J, -R[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        return np.einsum("bij,bj->bi", np.linalg.pinv(J), -R)
+
+
+def _line_search(fun, z: np.ndarray, R: np.ndarray, norm: np.ndarray, active: np.ndarray, dz: np.ndarray,
+                 halvings: int, taken: Callable | None = None) -> np.ndarray:
+    """Backtracking along ``dz`` for the items ``active``: each item's step halved until its residual norm
+    falls, at most ``halvings`` times. ``z``, ``R`` and ``norm`` are updated in place where it falls;
+    ``taken(items, step, change)`` hears of each step taken before that. Returns which of ``active`` improved."""
+    alpha = np.ones(len(active))
+    improved = np.zeros(len(active), bool)
+    for _ in range(halvings):
+        left = np.flatnonzero(~improved)
+        items = active[left]
+        z_try = z[items] + alpha[left, None] * dz[left]
+        R_try = fun(z_try, items)
+        n_try = np.linalg.norm(R_try, axis=1)
+        ok = n_try < norm[items]
+        take = items[ok]
+        if taken is not None:
+            taken(take, z_try[ok] - z[take], R_try[ok] - R[take])
+        z[take], R[take], norm[take] = z_try[ok], R_try[ok], n_try[ok]
+        improved[left[ok]] = True
+        if improved.all():
+            break
+        alpha[left[~ok]] *= 0.5
+    return improved
 
 
 def _quasi_newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray],
@@ -213,34 +228,18 @@ def _quasi_newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray],
     if len(first):
         J[first] = jac(z[first], first)
     stuck = np.zeros(B, bool)
+
+    def broyden(take, step, change):
+        J[take] += np.einsum("bi,bj->bij", change - np.einsum("bij,bj->bi", J[take], step), step) \
+            / np.einsum("bi,bi->b", step, step)[:, None, None]
+        fresh[take] = False
+
     for _ in range(max_iter):
         check_stop()            # one pass of the batch: where a stop asked for is heard
         active = np.flatnonzero((norm > tol) & ~stuck)
         if not len(active):
             break
-        try:
-            dz = np.linalg.solve(J[active], -R[active][..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            dz = np.einsum("bij,bj->bi", np.linalg.pinv(J[active]), -R[active])
-        alpha = np.ones(len(active))
-        improved = np.zeros(len(active), bool)
-        for _ in range(8):
-            left = np.flatnonzero(~improved)
-            items = active[left]
-            z_try = z[items] + alpha[left, None] * dz[left]
-            R_try = fun(z_try, items)
-            n_try = np.linalg.norm(R_try, axis=1)
-            ok = n_try < norm[items]
-            take = items[ok]
-            step, change = z_try[ok] - z[take], R_try[ok] - R[take]
-            J[take] += np.einsum("bi,bj->bij", change - np.einsum("bij,bj->bi", J[take], step), step) \
-                / np.einsum("bi,bi->b", step, step)[:, None, None]
-            z[take], R[take], norm[take] = z_try[ok], R_try[ok], n_try[ok]
-            fresh[take] = False
-            improved[left[ok]] = True
-            if improved.all():
-                break
-            alpha[left[~ok]] *= 0.5
+        improved = _line_search(fun, z, R, norm, active, _direction(J[active], R[active]), 8, broyden)
         failed = active[~improved]
         stuck[failed[fresh[failed]]] = True
         renew = failed[~fresh[failed]]
