@@ -352,7 +352,11 @@ def report_text(wb: Workbench, candidates, top: int = 5,
             reading = r.reading(term)
             if reading is not None:
                 rotational = r.samples.rotational
-                out.append(f"    law {term.law.name}, read as {reading.limit}: {reading.values_text(rotational)} "
+                # the errors of the limit's own fit where the law was taken in it, else the law's
+                found = None if fitted is None else (fitted.limit or fitted)
+                shown = reading.values_text(rotational, None if found is None else found.stderr,
+                                            () if found is None else found.undetermined)
+                out.append(f"    law {term.law.name}, read as {reading.limit}: {shown} "
                            f"({reading.why}; {', '.join(reading.undetermined)} not determined apart)")
                 continue
             params = [_param_text(k, v, fitted) for k, v in term.values.items()]

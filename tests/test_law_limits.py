@@ -2,7 +2,8 @@
 
 Truth: each law's own describing function (checked against quadrature in tests/test_laws.py) against the
 limit's closed form written here: micro-slip kbar = kt - r(chi) (nu/pi) X^(chi+1) + j (nu/pi) X^(chi+1) with
-r(chi) = 2 B(chi + 5/2, 3/2) (chi + 2)(chi + 3) / (chi + 1); Coulomb kbar = 4 j fs / (pi X)."""
+r(chi) = 2 B(chi + 5/2, 3/2) (chi + 2)(chi + 3) / (chi + 1), read as the dissipation per cycle at the largest
+amplitude, D = pi X_max^2 Im kbar(X_max) = nu X_max^(chi+3); Coulomb kbar = 4 j fs / (pi X)."""
 import numpy as np
 import pytest
 from scipy.special import beta as beta_function
@@ -17,7 +18,9 @@ def test_an_iwan_element_that_never_slips_through_reads_as_micro_slip_with_its_d
     X = np.geomspace(1e-7, 5e-5, 30)
     reading = iwan.reading(values, X.min(), X.max())
     assert reading.limit == "micro-slip" and reading.undetermined == ("fs", "beta")
-    kt, nu = reading.values["kt"], reading.values["nu"]
+    kt, D = reading.values["kt"], reading.values["D"]
+    nu = reading.values["nu"]
+    assert D == pytest.approx(nu * X.max() ** (chi + 3))
     r = 2 * beta_function(chi + 2.5, 1.5) * (chi + 2) * (chi + 3) / (chi + 1)
     law = iwan.describing_function(X, np.full_like(X, 100.0), **values)
     power = nu / np.pi * X ** (chi + 1)
@@ -26,10 +29,10 @@ def test_an_iwan_element_that_never_slips_through_reads_as_micro_slip_with_its_d
     # beyond the slip range it is an Iwan element again
     assert iwan.reading(values, X.min(), 1.0) is None
     # measured from the reference (docs/laws.md, "Measured from the reference") the stiffness drops out as well:
-    # the same chi and nu, and kbar - kt their closed form alone
+    # the same chi and D, and kbar - kt their closed form alone
     relative = iwan.relative().reading(values, X.min(), X.max())
     assert relative.limit == "micro-slip" and relative.undetermined == ("kt", "fs", "beta")
-    assert relative.values == {"chi": chi, "nu": nu}
+    assert relative.values == {"chi": chi, "nu": pytest.approx(nu), "D": D}
     shifted = iwan.relative().describing_function(X, np.full_like(X, 100.0), **values)
     assert shifted.imag == pytest.approx(power, rel=1e-9)
     assert shifted.real == pytest.approx(-r * power, rel=1e-9)
@@ -71,7 +74,7 @@ def test_an_iwan_element_whose_spike_carries_the_stiffness_reads_as_the_jenkins_
 def test_measured_from_the_reference_a_stuck_spike_of_any_size_leaves_the_continuum_s_micro_slip(chi):
     """Measured from the reference a stuck spike adds nothing to kbar - kt, however stiff: a fit can run kt and
     beta off together and keep the continuum's kt / (1 + beta) finite. What the data determine is then the
-    continuum's micro-slip (chi, nu), not a Jenkins element of the spike's 6e13 N/m."""
+    continuum's micro-slip (chi, D), not a Jenkins element of the spike's 6e13 N/m."""
     iwan = LAWS["iwan"].relative()
     continuum, phi_max = 3.0e4, 2.0e-3                 # the continuum's stiffness kt / (1 + beta), its slip range
     beta = 2.0e9                                      # kbar - kt then holds kt's rounding, 6e13 * 1e-16 N/m
@@ -82,8 +85,9 @@ def test_measured_from_the_reference_a_stuck_spike_of_any_size_leaves_the_contin
     X = np.geomspace(2e-6, 2e-4, 25)                  # every slider stuck beyond 2 mm: nothing slips through
     reading = iwan.reading(values, X.min(), X.max())
     assert reading.limit == "micro-slip" and reading.undetermined == ("kt", "fs", "beta")
-    assert "e+13" not in reading.values_text() and set(reading.values) == {"chi", "nu"}
+    assert "e+13" not in reading.values_text() and set(reading.values) == {"chi", "nu", "D"}
     nu = reading.values["nu"]
+    assert reading.values["D"] == pytest.approx(nu * X.max() ** (chi + 3))
     r = 2 * beta_function(chi + 2.5, 1.5) * (chi + 2) * (chi + 3) / (chi + 1)
     # the closed form against the law's own describing function, the continuum alone carrying its departure
     shifted = iwan.describing_function(X, np.full_like(X, 100.0), **values)

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..common.statistics import OUTLIER_SHARE_LIMIT
+from ..common.statistics import OUTLIER_SHARE_LIMIT, capped_chi_square
 from ..laws import Law
 from ..laws.base import broadcast
 from ..mechanics.elements import LawTerm
@@ -49,6 +49,10 @@ class TermFit:
     surroundings : Surroundings or None
         Where a contact law was fitted placed in its structure (``fit_laws(surroundings=...)``): the
         structure around the element with the element's amplitude-independent laws; its kbar is placed there.
+    limit : TermFit or None
+        Where the law was taken in a limit the data cannot tell it from (:mod:`analysis.fitting.limits`): the fit
+        of the limit's own form, whose parameters are the combination the data determine; ``params`` are then the
+        law placed in that limit, and the parameters the limit leaves open have no finite ``stderr``.
     """
 
     law: Law
@@ -58,6 +62,7 @@ class TermFit:
     fit_params: dict[str, float]
     undetermined: tuple[str, ...] = ()
     surroundings: Surroundings | None = None
+    limit: "TermFit | None" = None
 
     @property
     def size_unseen(self) -> bool:
@@ -247,6 +252,15 @@ class LawFit:
         """At most OUTLIER_SHARE_LIMIT of the samples left out (:data:`analysis.common.statistics.OUTLIER_SHARE_LIMIT`):
         beyond it the laws follow a part of the data, and the fit is no description of the element."""
         return self.outlier_share <= OUTLIER_SHARE_LIMIT
+
+    @property
+    def judged_chi_square(self) -> float:
+        """The chi-square fits of the same samples are compared by: capped at the outlier limit per sample
+        (:func:`analysis.common.statistics.capped_chi_square`) where the fit left samples out, so that a fit gains
+        nothing by leaving out more; the plain chi-square otherwise."""
+        if self.excluded is None:
+            return self.chi_square
+        return capped_chi_square(np.abs(self.normalized_residuals) ** 2)
 
     @property
     def reduced_chi_square(self) -> float:

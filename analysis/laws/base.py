@@ -50,6 +50,7 @@ import numpy as np
 from numba import njit
 
 from ..common.errors import InputError
+from ..common.wording import parameter_words
 
 
 @dataclass(frozen=True)
@@ -126,10 +127,14 @@ class LimitReading:
     why: str
     undetermined: tuple[str, ...]
 
-    def values_text(self, rotational: bool = False) -> str:
-        """``kt = 2e+05 N/m, chi = 0.3, nu = 12 N/m^2.3``."""
-        units = {k: "" if u == "1" else " " + render_unit(u, rotational) for k, u in self.units.items()}
-        return ", ".join(f"{k} = {v:.5g}{units[k]}" for k, v in self.values.items())
+    def values_text(self, rotational: bool = False, stderr: Mapping[str, float] | None = None,
+                    undetermined: tuple[str, ...] = ()) -> str:
+        """``kt = 2e+05 N/m, chi = 0.3, D = 1.2e-06 N·m``; with the standard errors of a fit of the limit's own
+        form (:class:`LimitForm`), each value with its spread, and the ones that fit leaves open not shown."""
+        stderr = stderr or {}
+        return ", ".join(parameter_words(k, v, stderr.get(k), k in undetermined,
+                                         render_unit(self.units[k], rotational), digits=5)
+                         for k, v in self.values.items())
 
     def to_json(self) -> dict:
         return {"limit": self.limit, "values": dict(self.values), "why": self.why,
@@ -365,6 +370,14 @@ class Law(ABC):
         leave outside their range override this."""
         return None
 
+    def limit_forms(self, X_max: float) -> tuple["LimitForm", ...]:
+        """The law's limits over amplitudes up to ``X_max`` that leave a flat direction in its own parameters,
+        each as a law of the combination the data then determine (:class:`LimitForm`). A fit of the law is
+        refitted as each form, and the form taken where the law fits no better by more than the noise explains
+        (:func:`analysis.fitting.limits.settle_in_limits`): the law is then read in that limit whatever point of
+        the flat direction its own fit stopped at. None for most laws."""
+        return ()
+
     # --- parametrisation -----------------------------------------------------
     def to_fit(self, values: Mapping[str, float]) -> tuple[dict, dict]:
         """Contract parameters -> (linear, shape) fit parameters."""
@@ -488,6 +501,21 @@ _RELATIVE: dict[type, Law] = {}
 
 def _example_shape(law: Law) -> dict[str, float]:
     return law.to_fit(law.check_params(law.example, complete=True))[1]
+
+
+class LimitForm(Law):
+    """A law's limit as a law of the combination the data determine there: fitted like any law (its own contract
+    parameters are that combination), never simulated; :meth:`law_values` places it back in the law it is a limit
+    of, for the model to predict with."""
+
+    kernel = None
+    force_text = "the limit of the law it belongs to (a fit form, never simulated)"
+    explanation = "{re} and {im}"
+
+    @abstractmethod
+    def law_values(self, values: Mapping[str, float]) -> dict[str, float] | None:
+        """The contract values of the law this is a limit of that sit in the limit with the combination
+        ``values``; None where no values of that law do."""
 
 
 def _relative_class(cls: type) -> type:

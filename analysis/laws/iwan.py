@@ -79,7 +79,7 @@ import numpy as np
 from numba import njit
 
 from ._special import slip_imag, slip_real
-from .base import Law, LimitReading, Param, broadcast
+from .base import Law, LimitForm, LimitReading, Param, broadcast
 from .jenkins import Jenkins
 
 MAX_REVERSALS = 64
@@ -354,6 +354,9 @@ class Iwan(Law):
         return {"kt": linear["kt"], "fs": linear["kt"] * shape["xs"],
                 "chi": shape["chi"], "beta": shape["beta"]}
 
+    def limit_forms(self, X_max):
+        return (MicroSlip(X_max, self.from_reference),)
+
     def small_amplitude_basis(self, xs, chi, beta):
         return np.ones(1)       # every slider stuck: the whole stiffness kt
 
@@ -369,10 +372,13 @@ class Iwan(Law):
         """Micro-slip where no element slips through at the largest amplitude (``X_max <= phi_max``): the
         micro-slip forms are then exact (module docstring), kbar = kt [1 - r(chi) (nu / (pi kt)) X^(chi+1)]
         + j (nu / pi) X^(chi+1) with r(chi) = 2 B(chi + 5/2, 3/2) (chi + 2)(chi + 3) / (chi + 1), so the data
-        determine kt, chi and the dissipation per cycle D = nu X^(chi+3), nu = 4 R / ((chi + 2)(chi + 3)), and fs
+        determine kt, chi and the dissipation per cycle nu X^(chi+3), nu = 4 R / ((chi + 2)(chi + 3)), and fs
         and beta only through nu; measured from the reference (:meth:`Law.relative`), kbar - kt leaves kt
-        undetermined too, only chi and nu. Coulomb friction where the whole population slips a decade below the
-        smallest amplitude (``X_min >= 10 phi_max``): kbar is then within a few per cent of 4 j fs / (pi X) and
+        undetermined too, only chi and nu. Beside nu the reading gives D, the dissipation per cycle at the largest
+        amplitude measured (nu X_max^(chi+3)): nu is its value at a unit amplitude, decades away from the data, and
+        so correlates with chi beyond any use, where D at the data's edge does not; the micro-slip form
+        (:class:`MicroSlip`) is fitted in D, whose error is the one printed. Coulomb friction where the whole
+        population slips a decade below the smallest amplitude (``X_min >= 10 phi_max``): kbar is then within a few per cent of 4 j fs / (pi X) and
         only fs is determined. First of all, a Jenkins element where the spike carries all but 1/SPIKE_ONLY of the
         stiffness (the continuum's share of kbar below any test's noise): kt and fs of the spike are determined, chi
         and beta not, whatever the amplitudes -- and that element is read in its own limit where it has one
@@ -396,17 +402,20 @@ class Iwan(Law):
         if X_max <= phi_max:
             rate = kt * (chi + 1.0) / ((1.0 + beta) * phi_max ** (chi + 1.0))
             nu = 4.0 * rate / ((chi + 2.0) * (chi + 3.0))
+            D = float(nu * X_max ** (chi + 3.0))
+            nu_unit = f"{{F}}/{{L}}^{chi + 2.0:.4g}"
             if self.from_reference:         # kbar - kt: the stiffness kt itself is the reference's
                 return LimitReading(
-                    "micro-slip", {"chi": chi, "nu": nu}, {"chi": "1", "nu": f"{{F}}/{{L}}^{chi + 2.0:.4g}"},
+                    "micro-slip", {"chi": chi, "nu": nu, "D": D}, {"chi": "1", "nu": nu_unit, "D": "{F}·{L}"},
                     f"no part of the contact slips through at the largest amplitude (slip range {phi_max:.3g} "
                     f"against {X_max:.3g}), and the stuck stiffness is the reference's: the data determine the "
-                    "dissipation per cycle nu X^(chi+3) and the softening that goes with it", ("kt", "fs", "beta"))
+                    f"dissipation per cycle, D (X / {X_max:.3g})^(chi+3), and the softening that goes with it",
+                    ("kt", "fs", "beta"))
             return LimitReading(
-                "micro-slip", {"kt": kt, "chi": chi, "nu": nu},
-                {"kt": "{F}/{L}", "chi": "1", "nu": f"{{F}}/{{L}}^{chi + 2.0:.4g}"},
+                "micro-slip", {"kt": kt, "chi": chi, "nu": nu, "D": D},
+                {"kt": "{F}/{L}", "chi": "1", "nu": nu_unit, "D": "{F}·{L}"},
                 f"no part of the contact slips through at the largest amplitude (slip range {phi_max:.3g} against "
-                f"{X_max:.3g}): the dissipation per cycle is nu X^(chi+3)",
+                f"{X_max:.3g}): the dissipation per cycle is D (X / {X_max:.3g})^(chi+3)",
                 ("fs", "beta"))
         if X_min >= 10.0 * phi_max:
             return LimitReading(
@@ -415,3 +424,69 @@ class Iwan(Law):
                 f"against {X_min:.3g}): kbar is a dry friction's, 4 j fs / (pi X)",
                 ("kt", "chi", "beta"))
         return None
+
+
+#: Where the stuck stiffness is the reference's, micro-slip leaves the slip range open above the largest amplitude
+#: measured; the model places it this many times beyond, so that it carries the power law the data determine over
+#: the decade a prediction may reach, as the Coulomb reading takes a decade for "far" (:meth:`Iwan.reading`)
+SLIP_RANGE_BEYOND = 10.0
+
+
+class MicroSlip(LimitForm):
+    """The Iwan joint in micro-slip up to the largest amplitude ``X_max`` of the data: no element slips through,
+    and kbar = kt + D (X / X_max)^(chi+1) (-r(chi) + j) / (pi X_max^2) (:meth:`Iwan.reading`), D the dissipation
+    per cycle at X_max. Measured from the reference (``relative``) kt is the reference's, and the form is
+    D and chi alone.
+
+    Placed back in the Iwan (:meth:`law_values`) with no spike (beta = 0, the continuum alone): with kt known the
+    continuum's slip range follows from D, and the form has no Iwan where it falls below X_max (the data ask for
+    more dissipation than a contact of stiffness kt can give without slipping through); measured from the
+    reference the slip range is put SLIP_RANGE_BEYOND times X_max, and kt follows from it."""
+
+    name = "iwan"
+    kind = "friction"
+    summary = "the Iwan joint's micro-slip limit"
+    kbar_text = "kt + D (X / X_max)^(chi+1) (-r(chi) + j) / (pi X_max^2)"
+    params = (Param("kt", "{F}/{L}", "stiffness while fully stuck", lower=0.0, lower_open=True), _CHI,
+              Param("D", "{F}·{L}", "dissipation per cycle at the largest amplitude measured", lower=0.0))
+    linear = ("kt", "D")
+    shape = (_CHI,)
+    example = {"kt": 1.0e5, "chi": -0.5, "D": 1e-6}
+
+    def __init__(self, X_max: float, relative: bool = False):
+        self.X_max = float(X_max)
+        self.from_reference = relative
+        if relative:
+            self.params = self.params[1:]
+            self.linear = ("D",)
+            self.example = {"chi": -0.5, "D": 1e-6}
+
+    def relative(self) -> "MicroSlip":
+        return self if self.from_reference else MicroSlip(self.X_max, True)
+
+    def small_amplitude_basis(self, chi):
+        return None if self.from_reference else np.array([1.0, 0.0])
+
+    def basis(self, X, w, chi):
+        X, w = broadcast(X, w)
+        # the Iwan's own departure below its slip range, at no spike and the slip range X_max, per unit D
+        xs = self.X_max * (chi + 1.0) / (chi + 2.0)
+        per_kt = self.X_max ** 2 * 4.0 * (chi + 1.0) / ((chi + 2.0) * (chi + 3.0))     # D / kt there
+        departure = iwan_unit(X, xs, chi, 0.0, less_stuck=True) / per_kt
+        return departure[None] if self.from_reference else np.stack([np.ones(X.shape, complex), departure])
+
+    def law_values(self, values):
+        chi, D = float(values["chi"]), float(values["D"])
+        e = chi + 1.0
+        rate = D / self.X_max ** (chi + 3.0) * (chi + 2.0) * (chi + 3.0) / 4.0    # R of the continuum
+        if not (rate > 0.0 and math.isfinite(rate)):
+            return None
+        if self.from_reference:
+            phi_max = SLIP_RANGE_BEYOND * self.X_max
+            kt = rate * phi_max ** e / e
+        else:
+            kt = float(values["kt"])
+            phi_max = (kt * e / rate) ** (1.0 / e)
+            if not phi_max >= self.X_max:
+                return None
+        return {"kt": kt, "fs": kt * phi_max * e / (chi + 2.0), "chi": chi, "beta": 0.0}

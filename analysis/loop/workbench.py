@@ -28,6 +28,7 @@ import numpy as np
 from ..common.errors import InputError
 from ..common.measurements import Measurements, SineRun
 from ..fitting.fit import LawFit, fit_laws
+from ..fitting.limits import settle_in_limits
 from ..identification.between_runs import BetweenRuns, between_runs
 from ..identification.identify import identify_complex_stiffness
 from ..identification.linearity import LinearityVerdict, linearity_verdict
@@ -75,6 +76,10 @@ class ElementReport:
                 entry["undetermined"] = [k for k in term.values if k in undetermined]
             if reading is not None:
                 entry["reading"] = reading.to_json()
+                found = None if self.fit is None else self.fit.terms[j].limit
+                if found is not None:       # the limit's own fit: the errors of the combination it determines
+                    entry["reading"]["stderr"] = {k: float(found.stderr[k]) for k in reading.values
+                                                  if k in found.stderr}
             laws.append(entry)
         out = {"name": self.name, "verdict": None if self.verdict is None else
                ("linear" if self.verdict.linear else "nonlinear"),
@@ -305,9 +310,13 @@ class Workbench:
             if s is None:
                 raise InputError(f"element {el.name!r} has no well-conditioned line to fit its laws to")
             if el.laws:
-                report.fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std,
-                                      exclude_outliers=self.harmonics_blind, surroundings=el.surroundings)
-                el.laws = [LawTerm(t.law, dict(report.fit.terms[j].params)) for j, t in enumerate(el.laws)]
+                fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std,
+                               exclude_outliers=self.harmonics_blind, surroundings=el.surroundings)
+                settled = settle_in_limits(fit, el.laws, s.X, s.w, s.kbar, s.kbar_std,
+                                           false_alarm=RankingRules().false_alarm,
+                                           exclude_outliers=self.harmonics_blind, surroundings=el.surroundings)
+                report.fit = settled.fit
+                el.laws = [LawTerm(t.law, v) for t, v in zip(el.laws, settled.values)]
             if el.nonparametric is not None:
                 self._fit_nonparametric(el)
 

@@ -103,8 +103,7 @@ def _fit_set(samples: ElementSamples, laws: tuple[str, ...], rules: DiscoveryRul
     except InputError:
         return None                                   # too few samples for this many parameters
     tied = len(laws) > 1 and any(_adds_nothing(fit, j, rules.max_correlation) for j in range(len(laws)))
-    chi2 = capped_chi_square(np.abs(fit.normalized_residuals) ** 2) if robust else fit.chi_square
-    return LawSet(laws, fit, chi2, fit.n_parameters, tied=tied)
+    return LawSet(laws, fit, fit.judged_chi_square, fit.n_parameters, tied=tied)
 
 
 def _separate(s: LawSet | None) -> bool:

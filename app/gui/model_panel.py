@@ -494,7 +494,9 @@ class ModelPanel(QWidget):
                 note = QTreeWidgetItem(top, ["laws measured from their small-amplitude state (in the reference)"])
                 note.setToolTip(0, IN_REFERENCE_WHY[0].upper() + IN_REFERENCE_WHY[1:] + ".")
             for law in el.laws:
-                item = QTreeWidgetItem(top, [law.law])
+                item = QTreeWidgetItem(top, [f"{law.law}, read as {law.limit}" if law.limit else law.law])
+                if law.why:
+                    item.setToolTip(0, law.why)
                 for p in law.params:
                     QTreeWidgetItem(item, [p.text()])
             if el.nonparametric:

@@ -16,6 +16,7 @@ from analysis.prediction.comparison import LevelError
 from analysis.missing.diagnosis import Candidate, ElementSamples
 from analysis.common.measurements import Control, Measurements, SineRun
 from analysis.common.wording import parameter_words
+from analysis.laws.base import render_unit
 from analysis.loop.workbench import Workbench
 from analysis.mechanics.model import FittedOn
 from analysis.prediction.held_out import SessionPrediction
@@ -40,6 +41,8 @@ class ParamView:
 class LawView:
     law: str
     params: tuple[ParamView, ...]
+    limit: str = ""        # the limit the law is read in over the amplitudes measured (docs/laws.md, "Limits")
+    why: str = ""          # why it is read so, and what the limit leaves open
 
 
 @dataclass(frozen=True)
@@ -258,12 +261,7 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
         laws = []
         if with_laws:
             for j, term in enumerate(el.laws):
-                units = {p.name: p.render_unit(rotational) for p in term.law.params}
-                stderr = report.fit.terms[j].stderr if report.fit is not None else {}
-                loose = report.fit.terms[j].undetermined if report.fit is not None else ()
-                laws.append(LawView(term.law.name, tuple(ParamView(k, float(v), stderr.get(k), units.get(k, ""),
-                                                                   k in loose)
-                                                         for k, v in term.values.items())))
+                laws.append(_law_view(report, j, term, rotational))
         where = el.dofs[0] if el.grounded else f"{el.dofs[0]}-{el.dofs[1]}"
         verdict = report.verdict
         part = el.nonparametric.describe("rad" if rotational else "m") if with_laws and el.nonparametric else ""
@@ -278,6 +276,27 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
                                  "" if report.yardstick is None or samples is None
                                  else report.yardstick.text(samples.units[0])))
     return views
+
+
+def _law_view(report, j: int, term, rotational: bool) -> LawView:
+    """A fitted law as the user reads it: its parameters with their errors, or, where its values sit in one of its
+    limits, the combination the data determine there (with the errors of the limit's own fit where it was fitted
+    in it), as the text of ``analyze`` gives it."""
+    fitted = report.fit.terms[j] if report.fit is not None else None
+    reading = report.reading(term)
+    if reading is None:
+        units = {p.name: p.render_unit(rotational) for p in term.law.params}
+        values, found = term.values, fitted
+    else:
+        units = {k: render_unit(u, rotational) for k, u in reading.units.items()}
+        values, found = reading.values, None if fitted is None else (fitted.limit or fitted)
+    stderr = found.stderr if found is not None else {}
+    loose = found.undetermined if found is not None else ()
+    params = tuple(ParamView(k, float(v), stderr.get(k), units.get(k, ""), k in loose) for k, v in values.items())
+    if reading is None:
+        return LawView(term.law.name, params)
+    return LawView(term.law.name, params, reading.limit,
+                   f"{reading.why}; {', '.join(reading.undetermined)} not determined apart")
 
 
 def _identification(elements: list[ElementView], runs: list[SineRun], live: bool,

@@ -1,0 +1,82 @@
+"""A law read in a limit the data cannot tell it from: the limit fitted as its own law of the combination it
+determines, and taken where the law fits no better (docs/fitting.md, "Limits the data cannot tell apart").
+
+Near a limit a law keeps a flat direction: an Iwan joint that never slips through at the amplitudes measured has
+its kbar set by the stuck stiffness, the density's exponent and the dissipation's size alone, and its slip force
+and spike slide along a valley of equal fit. Where its own fit stops in that valley depends on the start and the
+search, not on the data; so would the reading of its parameters. Each law names such limits
+(:meth:`analysis.laws.base.Law.limit_forms`) as laws of the combination the data determine there. The element's
+set is refitted with the law replaced by the form; where the law's own fit does not fall below the form's by more
+than the noise explains for the parameters the law adds (:func:`analysis.common.statistics.falls_above_noise`),
+the data cannot tell the law from its limit, and the form's fit is kept: its parameters are the combination with
+its errors, and the law's values placed in the limit (:meth:`analysis.laws.base.LimitForm.law_values`) are the
+model's.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..common.errors import InputError
+from ..common.statistics import falls_above_noise, noise_scale
+from ..mechanics.elements import LawTerm
+from ..mechanics.surroundings import Surroundings
+from .fit import fit_laws
+from .results import LawFit, TermFit
+
+
+@dataclass(frozen=True)
+class Settled:
+    """A fit with every law the data cannot tell from one of its limits taken in that limit: ``fit`` (a term in
+    a limit is its law placed there, with the fit of the limit's own form as :attr:`TermFit.limit`), ``values``
+    the contract values of each of the element's laws."""
+
+    fit: LawFit
+    values: list[dict[str, float]]
+
+
+def settle_in_limits(fit: LawFit, laws: list[LawTerm], X, w, kbar, sigma, *, false_alarm: float,
+                     exclude_outliers: bool = False, surroundings: Surroundings | None = None) -> Settled:
+    """``fit`` of the terms ``laws`` to the samples (X, w, kbar, sigma: as :func:`analysis.fitting.fit.fit_laws`
+    takes them, with the same ``exclude_outliers`` and ``surroundings``), each law in turn refitted as each of its
+    limit forms over the samples' amplitudes, the others from their fitted values, and the form taken where the
+    law's fit does not fall below it by more than the noise explains at ``false_alarm``: ``s^2 chi2_q(p)`` on the
+    chi-square of the fits compared (:attr:`LawFit.judged_chi_square`), ``p`` the parameters the law adds, ``s^2``
+    the law's fit's reduced chi-square where above 1. A form whose fit leaves out more lines than a fit may
+    (:attr:`LawFit.describes_the_data`) does not stand for a law's fit that does not: it describes part of the
+    data, and a capped chi-square can prefer that part to all of it."""
+    values = [dict(t.params) for t in fit.terms]
+    X_max = float(np.max(X))
+    n_obs = 2 * len(np.atleast_1d(X))
+    for j, term in enumerate(laws):
+        for form in term.law.limit_forms(X_max):
+            trial = [LawTerm(t.law, v) for t, v in zip(laws, values)]
+            trial[j] = LawTerm(form, {p.name: values[j][p.name] for p in form.shape if p.name in values[j]})
+            try:
+                limit = fit_laws(trial, X, w, kbar, sigma, exclude_outliers=exclude_outliers,
+                                 surroundings=surroundings)
+            except InputError:
+                continue
+            placed_back = limit.terms[j].law.law_values(limit.terms[j].params)
+            if placed_back is None or (fit.describes_the_data and not limit.describes_the_data):
+                continue
+            scale = noise_scale(fit.judged_chi_square, n_obs, fit.n_parameters)
+            if falls_above_noise(limit.judged_chi_square, fit.judged_chi_square,
+                                 fit.n_parameters - limit.n_parameters, scale, false_alarm):
+                continue
+            fit = replace(limit, terms=[*limit.terms[:j], _in_limit(fit.terms[j], limit.terms[j], placed_back),
+                                        *limit.terms[j + 1:]])
+            values = [dict(t.params) for t in fit.terms]
+            break
+    return Settled(fit, values)
+
+
+def _in_limit(own: TermFit, form: TermFit, placed: dict[str, float]) -> TermFit:
+    """The law of ``own`` placed in its limit (contract values ``placed``), carrying ``form``, the fit of the
+    limit's own form: a parameter of both keeps the form's error; one the form does not have is left open."""
+    names = own.law.param_names
+    stderr = {n: form.stderr.get(n, math.inf) for n in names}
+    undetermined = tuple(n for n in names if n not in form.params or n in form.undetermined)
+    return TermFit(own.law, own.label, placed, stderr, {}, undetermined, own.surroundings, limit=form)
