@@ -117,3 +117,33 @@ def test_the_lab_shows_a_law_taken_in_its_limit_as_the_combination_with_the_erro
     form = settled.fit.terms[0].limit
     assert shown["D"].stderr == form.stderr["D"] and shown["D"].unit == "N·m" and not shown["D"].undetermined
     assert "±" in shown["chi"].text()
+
+
+def test_beside_a_linear_spring_the_stuck_stiffness_is_placed_and_the_spring_keeps_the_sum_the_data_determine():
+    """A linear spring and an Iwan joint in micro-slip add the same constant to kbar: the data determine k + kt,
+    not each. The form places the Iwan's slip range a decade beyond the largest amplitude and the spring takes the
+    difference, so the model's kbar is the form fit's at every sample."""
+    iwan, linear = LAWS["iwan"], LAWS["linear"]
+    X = np.geomspace(1e-6, 7e-3, 60)
+    truth = {"kt": 152.0, "fs": 3.0, "chi": -0.5, "beta": 0.1}
+    assert slip_range(truth["fs"] / truth["kt"], truth["chi"], truth["beta"]) > 5 * X.max()
+    rng = np.random.default_rng(8)
+    w = np.full_like(X, 330.0)
+    kbar = iwan.describing_function(X, w, **truth) + linear.describing_function(X, w, k=-50.0, c=0.0)
+    sigma = 0.003 * np.abs(kbar)
+    kbar = kbar + sigma / np.sqrt(2) * (rng.standard_normal(X.size) + 1j * rng.standard_normal(X.size))
+    terms = [LawTerm(linear, {}), LawTerm(iwan, {})]
+    fit = fit_laws(terms, X, w, kbar, sigma)
+    settled = settle_in_limits(fit, terms, X, w, kbar, sigma, false_alarm=1e-3)
+    form = settled.fit.terms[1].limit
+    assert form is not None and "kt" in form.undetermined and {"chi", "D"}.isdisjoint(form.undetermined)
+    for name, value in (("chi", truth["chi"]), ("D", _dissipation(iwan, truth, X.max()))):
+        assert abs(form.params[name] - value) < 4 * form.stderr[name], name
+    spring, joint = settled.values
+    assert slip_range(joint["fs"] / joint["kt"], joint["chi"], joint["beta"]) == \
+        pytest.approx(SLIP_RANGE_BEYOND * X.max())
+    (combination,) = next(d for d in settled.fit.degeneracies if "iwan.kt" in d.parameters).determined
+    assert spring["k"] + joint["kt"] == pytest.approx(combination.value, rel=1e-9)
+    model = linear.describing_function(X, w, **spring) + iwan.describing_function(X, w, **joint)
+    # the residuals of the form's fit are the model's: nothing of the fit moved in placing it
+    assert np.abs(model - kbar - settled.fit.residuals).max() < 1e-9 * np.abs(kbar).max()

@@ -59,18 +59,49 @@ def settle_in_limits(fit: LawFit, laws: list[LawTerm], X, w, kbar, sigma, *, fal
                                  surroundings=surroundings)
             except InputError:
                 continue
-            placed_back = limit.terms[j].law.law_values(limit.terms[j].params)
+            shared = _shared_stiffness(limit, j)
+            form_fit = limit.terms[j]
+            placed_back = form_fit.law.law_values(form_fit.params, stiffness_seen=shared is None)
             if placed_back is None or (fit.describes_the_data and not limit.describes_the_data):
                 continue
             scale = noise_scale(fit.judged_chi_square, n_obs, fit.n_parameters)
             if falls_above_noise(limit.judged_chi_square, fit.judged_chi_square,
                                  fit.n_parameters - limit.n_parameters, scale, false_alarm):
                 continue
-            fit = replace(limit, terms=[*limit.terms[:j], _in_limit(fit.terms[j], limit.terms[j], placed_back),
-                                        *limit.terms[j + 1:]])
+            terms = list(limit.terms)
+            terms[j] = _in_limit(fit.terms[j], form_fit, placed_back)
+            if shared is not None:          # the sum the data determine is kept
+                i, name = shared
+                stiffness = form_fit.law.stiffness
+                moved = dict(terms[i].params)
+                moved[name] -= placed_back[stiffness] - form_fit.params[stiffness]
+                terms[i] = replace(terms[i], params=moved)
+            fit = replace(limit, terms=terms)
             values = [dict(t.params) for t in fit.terms]
             break
     return Settled(fit, values)
+
+
+def _shared_stiffness(fit: LawFit, j: int) -> tuple[int, str] | None:
+    """(term, parameter) of the linear parameter of another law that ``fit`` determines only in a sum with term
+    ``j``'s :attr:`LimitForm.stiffness` (one degeneracy of the two, its one determined combination their sum: a
+    linear spring beside a friction law's stuck stiffness); None where there is none."""
+    form = fit.terms[j]
+    if form.law.stiffness is None:
+        return None
+    own = f"{form.label}.{form.law.stiffness}"
+    for d in fit.degeneracies:
+        if own not in d.parameters or len(d.parameters) != 2 or len(d.determined) != 1:
+            continue
+        other = next(p for p in d.parameters if p != own)
+        coefficients = d.determined[0].coefficients
+        if not math.isclose(coefficients.get(own, 0.0), coefficients.get(other, 0.0), rel_tol=1e-6):
+            continue
+        label, name = other.rsplit(".", 1)
+        for i, t in enumerate(fit.terms):
+            if i != j and t.label == label and name in t.law.linear and name in t.params:
+                return i, name
+    return None
 
 
 def _in_limit(own: TermFit, form: TermFit, placed: dict[str, float]) -> TermFit:

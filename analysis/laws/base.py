@@ -511,11 +511,15 @@ class LimitForm(Law):
     kernel = None
     force_text = "the limit of the law it belongs to (a fit form, never simulated)"
     explanation = "{re} and {im}"
+    # the form's small-amplitude stiffness, where it has one: a linear spring beside it adds the same column
+    stiffness: str | None = None
 
     @abstractmethod
-    def law_values(self, values: Mapping[str, float]) -> dict[str, float] | None:
+    def law_values(self, values: Mapping[str, float], stiffness_seen: bool = True) -> dict[str, float] | None:
         """The contract values of the law this is a limit of that sit in the limit with the combination
-        ``values``; None where no values of that law do."""
+        ``values``; None where no values of that law do. ``stiffness_seen`` False: the data determine the form's
+        :attr:`stiffness` only in a sum with another law's, and the law is placed with a stiffness of its own
+        choosing (the other law takes the difference)."""
 
 
 def _relative_class(cls: type) -> type:

@@ -440,8 +440,9 @@ class MicroSlip(LimitForm):
 
     Placed back in the Iwan (:meth:`law_values`) with no spike (beta = 0, the continuum alone): with kt known the
     continuum's slip range follows from D, and the form has no Iwan where it falls below X_max (the data ask for
-    more dissipation than a contact of stiffness kt can give without slipping through); measured from the
-    reference the slip range is put SLIP_RANGE_BEYOND times X_max, and kt follows from it."""
+    more dissipation than a contact of stiffness kt can give without slipping through); where kt is not seen --
+    measured from the reference, or determined only in a sum with a linear spring beside it -- the slip range
+    is put SLIP_RANGE_BEYOND times X_max, and kt follows from it."""
 
     name = "iwan"
     kind = "friction"
@@ -452,6 +453,7 @@ class MicroSlip(LimitForm):
     linear = ("kt", "D")
     shape = (_CHI,)
     example = {"kt": 1.0e5, "chi": -0.5, "D": 1e-6}
+    stiffness = "kt"
 
     def __init__(self, X_max: float, relative: bool = False):
         self.X_max = float(X_max)
@@ -460,6 +462,7 @@ class MicroSlip(LimitForm):
             self.params = self.params[1:]
             self.linear = ("D",)
             self.example = {"chi": -0.5, "D": 1e-6}
+            self.stiffness = None
 
     def relative(self) -> "MicroSlip":
         return self if self.from_reference else MicroSlip(self.X_max, True)
@@ -475,13 +478,13 @@ class MicroSlip(LimitForm):
         departure = iwan_unit(X, xs, chi, 0.0, less_stuck=True) / per_kt
         return departure[None] if self.from_reference else np.stack([np.ones(X.shape, complex), departure])
 
-    def law_values(self, values):
+    def law_values(self, values, stiffness_seen=True):
         chi, D = float(values["chi"]), float(values["D"])
         e = chi + 1.0
         rate = D / self.X_max ** (chi + 3.0) * (chi + 2.0) * (chi + 3.0) / 4.0    # R of the continuum
         if not (rate > 0.0 and math.isfinite(rate)):
             return None
-        if self.from_reference:
+        if self.from_reference or not stiffness_seen:
             phi_max = SLIP_RANGE_BEYOND * self.X_max
             kt = rate * phi_max ** e / e
         else:
