@@ -352,8 +352,7 @@ def report_text(wb: Workbench, candidates, top: int = 5,
             reading = r.reading(term)
             if reading is not None:
                 rotational = r.samples.rotational
-                # the errors of the limit's own fit where the law was taken in it, else the law's
-                found = None if fitted is None else (fitted.limit or fitted)
+                found = None if fitted is None else fitted.findings
                 shown = reading.values_text(rotational, None if found is None else found.stderr,
                                             () if found is None else found.undetermined)
                 out.append(f"    law {term.law.name}, read as {reading.limit}: {shown} "

@@ -44,16 +44,16 @@ def test_an_iwan_element_that_never_slips_through_is_fitted_as_its_micro_slip_li
     w, kbar, sigma = _samples(iwan, TRUTH, X, 0.005, seed)
     for start in ({"fs": 10.0, "chi": 0.0, "beta": 0.1}, {"fs": 500.0, "chi": -0.8, "beta": 20.0}):
         _, settled = _settled(iwan, X, w, kbar, sigma, start)
-        own, term = settled.fit.terms[0], settled.fit.terms[0].limit
+        own, term = settled.terms[0], settled.terms[0].limit
         assert isinstance(term.law, MicroSlip) and term.undetermined == ()
         # the law itself, placed in the limit: what the limit leaves open has no error and is not determined
-        assert own.law is iwan and own.params == settled.values[0] and own.undetermined == ("fs", "beta")
+        assert own.law is iwan and own.undetermined == ("fs", "beta")
         assert own.stderr["chi"] == term.stderr["chi"] and not np.isfinite(own.stderr["fs"])
         truth = {"kt": TRUTH["kt"], "chi": TRUTH["chi"], "D": _dissipation(iwan, TRUTH, X.max())}
         for name, value in truth.items():
             assert abs(term.params[name] - value) < 4 * term.stderr[name], name
         # the model's Iwan sits in the limit, with the form's kbar, and reads as it with the form's values
-        placed = settled.values[0]
+        placed = settled.terms[0].params
         assert placed["beta"] == 0.0
         assert iwan.describing_function(X, w, **placed) == pytest.approx(term.describing_function(X, w), rel=1e-9)
         reading = iwan.reading(placed, X.min(), X.max())
@@ -66,13 +66,13 @@ def test_measured_from_the_reference_the_micro_slip_limit_is_the_dissipation_law
     X = np.geomspace(1e-7, 5e-5, 40)
     w, kbar, sigma = _samples(iwan, TRUTH, X, 0.02, 5)
     _, settled = _settled(iwan, X, w, kbar, sigma, {"fs": 10.0, "chi": 0.0, "beta": 0.1})
-    term = settled.fit.terms[0].limit
+    term = settled.terms[0].limit
     assert set(term.params) == {"chi", "D"} and term.undetermined == ()
-    assert settled.fit.terms[0].undetermined == ("kt", "fs", "beta")
+    assert settled.terms[0].undetermined == ("kt", "fs", "beta")
     assert abs(term.params["chi"] - TRUTH["chi"]) < 4 * term.stderr["chi"]
     D = _dissipation(iwan, TRUTH, X.max())
     assert abs(term.params["D"] - D) < 4 * term.stderr["D"]
-    placed = settled.values[0]
+    placed = settled.terms[0].params
     assert slip_range(placed["fs"] / placed["kt"], placed["chi"], placed["beta"]) == \
         pytest.approx(SLIP_RANGE_BEYOND * X.max())
     assert iwan.describing_function(X, w, **placed) == pytest.approx(term.describing_function(X, w), rel=1e-9)
@@ -88,8 +88,8 @@ def test_an_iwan_element_that_slips_through_keeps_its_own_fit():
     assert slip_range(values["fs"] / values["kt"], values["chi"], values["beta"]) < 0.5 * X.max()
     w, kbar, sigma = _samples(iwan, values, X, 0.005, 6)
     fit, settled = _settled(iwan, X, w, kbar, sigma, {"fs": 10.0, "chi": 0.0, "beta": 0.1})
-    assert settled.fit is fit and settled.values[0] == fit.terms[0].params
-    assert iwan.reading(settled.values[0], X.min(), X.max()) is None
+    assert settled is fit
+    assert iwan.reading(settled.terms[0].params, X.min(), X.max()) is None
 
 
 def test_a_micro_slip_form_that_asks_for_more_dissipation_than_its_stiffness_allows_has_no_iwan():
@@ -108,13 +108,13 @@ def test_the_lab_shows_a_law_taken_in_its_limit_as_the_combination_with_the_erro
     X = np.geomspace(1e-7, 5e-5, 40)
     w, kbar, sigma = _samples(iwan, TRUTH, X, 0.02, 7)
     _, settled = _settled(iwan, X, w, kbar, sigma, {"fs": 10.0, "chi": 0.0, "beta": 0.1})
-    term = LawTerm(iwan, settled.values[0])
-    report = SimpleNamespace(fit=settled.fit, reading=lambda t: t.law.reading(t.values, X.min(), X.max()))
+    term = LawTerm(iwan, settled.terms[0].params)
+    report = SimpleNamespace(fit=settled, reading=lambda t: t.law.reading(t.values, X.min(), X.max()))
     view = _law_view(report, 0, term, rotational=False)
     assert view.limit == "micro-slip" and "kt, fs, beta not determined apart" in view.why
     shown = {p.name: p for p in view.params}
     assert set(shown) == {"chi", "nu", "D"}                     # the combination, not kt, fs, beta
-    form = settled.fit.terms[0].limit
+    form = settled.terms[0].limit
     assert shown["D"].stderr == form.stderr["D"] and shown["D"].unit == "N·m" and not shown["D"].undetermined
     assert "±" in shown["chi"].text()
 
@@ -135,15 +135,15 @@ def test_beside_a_linear_spring_the_stuck_stiffness_is_placed_and_the_spring_kee
     terms = [LawTerm(linear, {}), LawTerm(iwan, {})]
     fit = fit_laws(terms, X, w, kbar, sigma)
     settled = settle_in_limits(fit, terms, X, w, kbar, sigma, false_alarm=1e-3)
-    form = settled.fit.terms[1].limit
+    form = settled.terms[1].limit
     assert form is not None and "kt" in form.undetermined and {"chi", "D"}.isdisjoint(form.undetermined)
     for name, value in (("chi", truth["chi"]), ("D", _dissipation(iwan, truth, X.max()))):
         assert abs(form.params[name] - value) < 4 * form.stderr[name], name
-    spring, joint = settled.values
+    spring, joint = (t.params for t in settled.terms)
     assert slip_range(joint["fs"] / joint["kt"], joint["chi"], joint["beta"]) == \
         pytest.approx(SLIP_RANGE_BEYOND * X.max())
-    (combination,) = next(d for d in settled.fit.degeneracies if "iwan.kt" in d.parameters).determined
+    (combination,) = next(d for d in settled.degeneracies if "iwan.kt" in d.parameters).determined
     assert spring["k"] + joint["kt"] == pytest.approx(combination.value, rel=1e-9)
     model = linear.describing_function(X, w, **spring) + iwan.describing_function(X, w, **joint)
     # the residuals of the form's fit are the model's: nothing of the fit moved in placing it
-    assert np.abs(model - kbar - settled.fit.residuals).max() < 1e-9 * np.abs(kbar).max()
+    assert np.abs(model - kbar - settled.residuals).max() < 1e-9 * np.abs(kbar).max()

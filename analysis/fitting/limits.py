@@ -15,7 +15,7 @@ model's.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -27,18 +27,8 @@ from .fit import fit_laws
 from .results import LawFit, TermFit
 
 
-@dataclass(frozen=True)
-class Settled:
-    """A fit with every law the data cannot tell from one of its limits taken in that limit: ``fit`` (a term in
-    a limit is its law placed there, with the fit of the limit's own form as :attr:`TermFit.limit`), ``values``
-    the contract values of each of the element's laws."""
-
-    fit: LawFit
-    values: list[dict[str, float]]
-
-
 def settle_in_limits(fit: LawFit, laws: list[LawTerm], X, w, kbar, sigma, *, false_alarm: float,
-                     exclude_outliers: bool = False, surroundings: Surroundings | None = None) -> Settled:
+                     exclude_outliers: bool = False, surroundings: Surroundings | None = None) -> LawFit:
     """``fit`` of the terms ``laws`` to the samples (X, w, kbar, sigma: as :func:`analysis.fitting.fit.fit_laws`
     takes them, with the same ``exclude_outliers`` and ``surroundings``), each law in turn refitted as each of its
     limit forms over the samples' amplitudes, the others from their fitted values, and the form taken where the
@@ -46,14 +36,15 @@ def settle_in_limits(fit: LawFit, laws: list[LawTerm], X, w, kbar, sigma, *, fal
     chi-square of the fits compared (:attr:`LawFit.judged_chi_square`), ``p`` the parameters the law adds, ``s^2``
     the law's fit's reduced chi-square where above 1. A form whose fit leaves out more lines than a fit may
     (:attr:`LawFit.describes_the_data`) does not stand for a law's fit that does not: it describes part of the
-    data, and a capped chi-square can prefer that part to all of it."""
-    values = [dict(t.params) for t in fit.terms]
+    data, and a capped chi-square can prefer that part to all of it. Returns the fit with every law taken in its
+    limit there (:func:`_in_limit`); its terms' ``params`` are the model's values either way."""
     X_max = float(np.max(X))
     n_obs = 2 * len(np.atleast_1d(X))
     for j, term in enumerate(laws):
         for form in term.law.limit_forms(X_max):
-            trial = [LawTerm(t.law, v) for t, v in zip(laws, values)]
-            trial[j] = LawTerm(form, {p.name: values[j][p.name] for p in form.shape if p.name in values[j]})
+            trial = [LawTerm(t.law, f.params) for t, f in zip(laws, fit.terms)]
+            own = fit.terms[j].params
+            trial[j] = LawTerm(form, {p.name: own[p.name] for p in form.shape if p.name in own})
             try:
                 limit = fit_laws(trial, X, w, kbar, sigma, exclude_outliers=exclude_outliers,
                                  surroundings=surroundings)
@@ -77,9 +68,8 @@ def settle_in_limits(fit: LawFit, laws: list[LawTerm], X, w, kbar, sigma, *, fal
                 moved[name] -= placed_back[stiffness] - form_fit.params[stiffness]
                 terms[i] = replace(terms[i], params=moved)
             fit = replace(limit, terms=terms)
-            values = [dict(t.params) for t in fit.terms]
             break
-    return Settled(fit, values)
+    return fit
 
 
 def _shared_stiffness(fit: LawFit, j: int) -> tuple[int, str] | None:

@@ -65,6 +65,12 @@ class TermFit:
     limit: "TermFit | None" = None
 
     @property
+    def findings(self) -> "TermFit":
+        """The fit whose parameters and errors are what the data determine: the limit's own form where the law
+        was taken in a limit (:attr:`limit`), else this one."""
+        return self.limit or self
+
+    @property
     def size_unseen(self) -> bool:
         """Whether the samples leave the law's size open: every linear parameter (its force scale) has a 95 %
         interval that holds zero, or no finite error. Such a law fits nothing of the samples."""

@@ -312,11 +312,10 @@ class Workbench:
             if el.laws:
                 fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std,
                                exclude_outliers=self.harmonics_blind, surroundings=el.surroundings)
-                settled = settle_in_limits(fit, el.laws, s.X, s.w, s.kbar, s.kbar_std,
-                                           false_alarm=RankingRules().false_alarm,
-                                           exclude_outliers=self.harmonics_blind, surroundings=el.surroundings)
-                report.fit = settled.fit
-                el.laws = [LawTerm(t.law, v) for t, v in zip(el.laws, settled.values)]
+                report.fit = settle_in_limits(fit, el.laws, s.X, s.w, s.kbar, s.kbar_std,
+                                              false_alarm=RankingRules().false_alarm,
+                                              exclude_outliers=self.harmonics_blind, surroundings=el.surroundings)
+                el.laws = [LawTerm(t.law, dict(report.fit.terms[j].params)) for j, t in enumerate(el.laws)]
             if el.nonparametric is not None:
                 self._fit_nonparametric(el)
 

@@ -289,7 +289,7 @@ def _law_view(report, j: int, term, rotational: bool) -> LawView:
         values, found = term.values, fitted
     else:
         units = {k: render_unit(u, rotational) for k, u in reading.units.items()}
-        values, found = reading.values, None if fitted is None else (fitted.limit or fitted)
+        values, found = reading.values, None if fitted is None else fitted.findings
     stderr = found.stderr if found is not None else {}
     loose = found.undetermined if found is not None else ()
     params = tuple(ParamView(k, float(v), stderr.get(k), units.get(k, ""), k in loose) for k, v in values.items())
