@@ -352,9 +352,8 @@ def report_text(wb: Workbench, candidates, top: int = 5,
             reading = r.reading(term)
             if reading is not None:
                 rotational = r.samples.rotational
-                found = None if fitted is None else fitted.findings
-                shown = reading.values_text(rotational, None if found is None else found.stderr,
-                                            () if found is None else found.undetermined)
+                shown = (reading.values_text(rotational) if fitted is None
+                         else fitted.reading_words(reading, rotational))
                 out.append(f"    law {term.law.name}, read as {reading.limit}: {shown} "
                            f"({reading.why}; {', '.join(reading.undetermined)} not determined apart)")
                 continue

@@ -1,5 +1,6 @@
 """The named decisions of the missing-effect ranking (support, significance, order) on hand-made candidates,
 and the per-run samples joined into one set."""
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -10,6 +11,7 @@ from analysis.missing.diagnosis import (Candidate, ElementSamples, RankingRules,
                                 _fits_only_departing_lines, _Leader, _rank_key, _significant, _supported, explain)
 from analysis.mechanics.elements import LawTerm
 from analysis.fitting.fit import fit_laws
+from analysis.fitting.results import TermFit
 from analysis.laws import LAWS
 
 RULES = RankingRules()
@@ -92,8 +94,7 @@ def test_rules_default_to_the_documented_thresholds():
 def test_a_candidate_explanation_marks_the_parameters_the_data_do_not_determine():
     # the slip range (0.0242 rad) inside the amplitudes: an Iwan element read as itself
     sig = Signature(0.5, None, 0.8, -20.0, 10.0, -5.0, 2.0, 0.0, -20.0, 0.5, 6.0, (1e-5, 5e-2), False)
-    term = SimpleNamespace(params={"kt": 98.3, "fs": 0.85, "chi": -0.5, "beta": 0.039},
-                           undetermined=("fs", "beta"))
+    term = _iwan_term(undetermined=("fs", "beta"))
     text = explain("tangential", "iwan", sig, term, ("N·m/rad", "rad"))
     assert "kt = 98.3, fs: not determined by the data, chi = -0.5, beta: not determined by the data" in text
 
@@ -101,11 +102,26 @@ def test_a_candidate_explanation_marks_the_parameters_the_data_do_not_determine(
 def test_a_candidate_explanation_gives_the_combination_a_law_in_its_limit_leaves_determined():
     # the slip range beyond every amplitude: micro-slip, whose dissipation fixes fs and beta only together
     sig = Signature(0.5, None, 0.8, -20.0, 10.0, -5.0, 2.0, 0.0, -20.0, 0.5, 6.0, (1e-5, 7e-3), False)
-    term = SimpleNamespace(params={"kt": 98.3, "fs": 0.85, "chi": -0.5, "beta": 0.039},
-                           undetermined=("fs", "beta"))
+    term = _iwan_term(undetermined=("fs", "beta"))
     text = explain("tangential", "iwan", sig, term, ("N·m/rad", "rad"))
-    assert "fitted as micro-slip: kt = 98.3 N·m/rad, chi = -0.5, nu = " in text
+    assert "fitted as micro-slip: kt = 98.3 ± 0.98 N·m/rad, chi = -0.5 ± 0.005, nu = " in text
     assert "(fs, beta not determined apart)" in text and "fs = 0.85" not in text
+
+
+def test_a_limit_the_fit_leaves_a_value_of_open_words_it_as_not_determined():
+    # micro-slip beside a linear spring that shares its stiffness: kt at 1e26 is where the fit left it, no finding
+    sig = Signature(0.5, None, 0.8, -20.0, 10.0, -5.0, 2.0, 0.0, -20.0, 0.5, 6.0, (1e-5, 7e-3), False)
+    term = _iwan_term(kt=1.27e26, fs=0.85 * 1.27e26 / 98.3, undetermined=("kt", "fs", "beta"))
+    text = explain("tangential", "iwan", sig, term, ("N·m/rad", "rad"))
+    assert "fitted as micro-slip: kt: not determined by the data, chi = -0.5 ± 0.005, nu = " in text
+    assert "1.27e+26" not in text
+
+
+def _iwan_term(kt: float = 98.3, fs: float = 0.85, undetermined: tuple[str, ...] = ()) -> TermFit:
+    """A fitted Iwan element, its errors 1 % except where ``undetermined``."""
+    params = {"kt": kt, "fs": fs, "chi": -0.5, "beta": 0.039}
+    stderr = {k: math.inf if k in undetermined else 0.01 * abs(v) for k, v in params.items()}
+    return TermFit(LAWS["iwan"], "iwan", params, stderr, dict(params), undetermined)
 
 
 def _cubic_samples(c3: float, departing: int, seed: int = 4) -> ElementSamples:

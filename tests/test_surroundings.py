@@ -233,3 +233,31 @@ def test_a_sample_without_a_balance_is_given_up_and_leaves_the_others_as_they_ar
     assert len(steps) == surroundings._MAX_ITERATIONS and steps[-1] == 1      # the one without a balance
     assert np.all(np.isfinite(got))
     np.testing.assert_allclose(got[1:], balanced, rtol=1e-9)
+
+
+def test_a_balance_starts_from_the_last_one_at_its_samples_and_answers_as_from_nothing(monkeypatch):
+    """A fit asks the same samples at parameters a step apart: the balance starts from the one solved there last
+    and takes fewer steps, and every sample gets the kbar it gets from no harmonics -- the one without a balance
+    too, started again from nothing, so that no answer depends on the evaluations before it."""
+    w0 = np.sqrt(K_S / M_S)
+    stiff = {"k": 5 * K_S, "gap": 0.002}
+    X, w = np.array([0.01, 0.01, 0.01, 0.006]), np.array([w0 / 2, 0.3 * w0, 1.5 * w0, 0.9 * w0])
+    nearby = {"k": stiff["k"] * (1 + 1e-6), "gap": stiff["gap"]}
+    cold = {}
+    for name, values in (("stiff", stiff), ("nearby", nearby)):
+        _, (fresh,) = sdof([{"law": "unilateral", **stiff}])
+        cold[name] = placed_kbar([(UNILATERAL, values)], X, w, fresh.surroundings)
+    _, (el,) = sdof([{"law": "unilateral", **stiff}])
+    placed_kbar([(UNILATERAL, stiff)], X, w, el.surroundings)
+    steps = []
+    force_and_tangent = surroundings._force_and_tangent
+    monkeypatch.setattr(surroundings, "_force_and_tangent",
+                        lambda *a: steps.append(len(a[1])) or force_and_tangent(*a))
+    warm = placed_kbar([(UNILATERAL, nearby)], X, w, el.surroundings)
+    np.testing.assert_allclose(warm[1:], cold["nearby"][1:], rtol=1e-9)
+    # the sample without a balance: its answer from nothing (a stalled Newton's last step, to its rounding)
+    np.testing.assert_allclose(warm[0], cold["nearby"][0], rtol=1e-7)
+    assert not np.allclose(cold["nearby"][0], cold["stiff"][0], rtol=1e-7)     # and not the start's answer
+    assert steps[:surroundings._WARM_ITERATIONS].count(4) < surroundings._WARM_ITERATIONS  # the others converged
+    # and a copy of the place with laws in parallel shares what was solved
+    assert el.surroundings.with_parallel(None).starts is el.surroundings.starts

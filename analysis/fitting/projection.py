@@ -34,6 +34,8 @@ RANK_RTOL = 1e-8
 # Relative step of the central differences for the shape columns of the Jacobian
 # (~ eps^(1/3): balances truncation against round-off).
 _DIFF_STEP = 6e-6
+# Design columns kept per law of a fit (the last values of its shape asked: a point and its steps)
+_KEPT_BASES = 8
 # Start-range widening beyond the sampled amplitude range, factor each side.
 _WIDEN = 3.0
 # least_squares sets its first trust radius to |x0|: a start at the origin of the search
@@ -187,6 +189,7 @@ class _Problem:
         self.linear_names = [f"{b.label}.{n}" for b in self.blocks for n in b.law.linear]
         self.shape_names = [f"{b.label}.{p.name}" for b in self.blocks for p in b.law.shape]
         self.linear_lower, self.linear_upper, self.linear_lower_open = _linear_bounds(self.blocks, n_lin)
+        self._kept: dict[int, dict[bytes, np.ndarray]] = {}
         # Columns of laws without shape parameters never change: build them once.
         self.design_fixed = np.zeros((2 * X.size, n_lin))
         for blk in self.blocks:
@@ -201,11 +204,26 @@ class _Problem:
     def design(self, theta: np.ndarray) -> np.ndarray:
         """Weighted real design (2N, n_linear) for the shape vector theta (natural units)."""
         A = self.design_fixed.copy()
-        for blk in self.blocks:
+        for i, blk in enumerate(self.blocks):
             if blk.law.shape:
-                shape = dict(zip((p.name for p in blk.law.shape), theta[blk.shape]))
-                A[:, blk.linear] = self._weighted(blk.law.basis(self.X, self.w, **shape))
+                A[:, blk.linear] = self._columns(i, blk, theta[blk.shape])
         return A
+
+    def _columns(self, i: int, blk: _Block, shape: np.ndarray) -> np.ndarray:
+        """Block ``i``'s weighted design columns at its shape values, kept for the last few values asked: a
+        finite-difference step or a grid point moves one law's shape at a time, and the other laws' bases, a
+        harmonic balance each for a placed contact, would otherwise be built again unchanged."""
+        kept = self._kept.setdefault(i, {})
+        key = shape.tobytes()
+        columns = kept.pop(key, None)
+        if columns is not None:
+            kept[key] = columns         # the most recently asked last: the first is the one to drop
+        else:
+            values = dict(zip((p.name for p in blk.law.shape), shape))
+            columns = kept[key] = self._weighted(blk.law.basis(self.X, self.w, **values))
+            if len(kept) > _KEPT_BASES:
+                del kept[next(iter(kept))]
+        return columns
 
     def solve_linear(self, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Weighted linear least squares for the linear parameters; (values, at_bound mask).

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..common.statistics import OUTLIER_SHARE_LIMIT, capped_chi_square
 from ..laws import Law
-from ..laws.base import broadcast
+from ..laws.base import LimitReading, broadcast
 from ..mechanics.elements import LawTerm
 from ..mechanics.surroundings import Surroundings, placed_kbar
 
@@ -69,6 +69,13 @@ class TermFit:
         """The fit whose parameters and errors are what the data determine: the limit's own form where the law
         was taken in a limit (:attr:`limit`), else this one."""
         return self.limit or self
+
+    def reading_words(self, reading: LimitReading, rotational: bool = False) -> str:
+        """The values of ``reading`` (this law read in a limit) as the user reads them: with the errors of
+        :attr:`findings`, and what that fit leaves open worded as not determined (a stiffness of 1e26 that a
+        linear spring beside it shares is no finding)."""
+        found = self.findings
+        return reading.values_text(rotational, found.stderr, found.undetermined)
 
     @property
     def size_unseen(self) -> bool:

@@ -45,6 +45,9 @@ N_TIME = 128
 # structure at one of its modes: its residual stalls at a few % of X however damped the steps), and keeps its
 # last step (:func:`placed_kbar`).
 _MAX_ITERATIONS = 12
+# Newton steps from the balance last solved at the same samples before a sample starts again from no harmonics:
+# a nearby solution converges in 2-3 (one step where the contact's closed part over the cycle is unchanged)
+_WARM_ITERATIONS = 4
 # Relative change of the harmonics (to X) below which the balance has converged
 _TOLERANCE = 1e-10
 
@@ -60,6 +63,7 @@ class Surroundings:
     parallel: Callable[[np.ndarray], np.ndarray] | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
     _blocks: tuple | None = field(default=None, repr=False, compare=False)
+    starts: "_Starts" = field(default_factory=lambda: _Starts(), repr=False, compare=False)
     # the structure was made from a measured level and holds the element's small-amplitude stiffness: the
     # element's laws are measured from their small-amplitude state (analysis.laws.base.Law.relative)
     in_reference: bool = False
@@ -88,7 +92,27 @@ class Surroundings:
     def with_parallel(self, stiffness: Callable[[np.ndarray], np.ndarray] | None) -> "Surroundings":
         """The same place with the element's amplitude-independent laws ``stiffness(W)`` in parallel (sharing
         the structure's receptances)."""
-        return Surroundings(self.structure, self.vector, stiffness, self._cache, in_reference=self.in_reference)
+        return Surroundings(self.structure, self.vector, stiffness, self._cache, starts=self.starts,
+                            in_reference=self.in_reference)
+
+
+class _Starts:
+    """The balances last solved at a few sets of samples (:func:`placed_kbar`), shared by a place and its copies
+    with other laws in parallel: a fit asks the same samples again and again, at parameters a step apart."""
+
+    SIZE = 8
+
+    def __init__(self):
+        self._z: dict[tuple, np.ndarray] = {}
+
+    def get(self, key: tuple) -> np.ndarray | None:
+        return self._z.get(key)
+
+    def keep(self, key: tuple, z: np.ndarray) -> None:
+        self._z.pop(key, None)
+        self._z[key] = z
+        while len(self._z) > self.SIZE:
+            del self._z[next(iter(self._z))]
 
 
 def surroundings_of(structure: Structure, vector: np.ndarray, in_reference: bool = False) -> Surroundings:
@@ -130,9 +154,41 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
     R = around.blocks(w, cycle)
     fundamental = X[:, None] * np.sin(cycle.theta)[None, :]
     scale = np.maximum(X, 1e-300)
-    z = np.zeros((X.size, cycle.size))
-    active = np.ones(X.size, bool)
-    for _ in range(_MAX_ITERATIONS):
+    key = (X.tobytes(), w.tobytes(), n_harmonics, n_time)
+    z, left = around.starts.get(key), None
+    if z is not None:
+        # a balance solved at these samples before (a fit's evaluations differ by a step of its parameters) is
+        # where this one starts; a sample it does not bring to convergence within a few steps starts again from
+        # no harmonics, and so does every sample where a step fails, so that a balance's answer never depends on
+        # which evaluation came before
+        z = z.copy()
+        left = _balance(p, cycle, R, fundamental, scale, z, np.ones(X.size, bool), _WARM_ITERATIONS)
+        if left is None:
+            z = None
+        elif left.any():
+            z[left] = 0.0
+            left = _balance(p, cycle, R, fundamental, scale, z, left, _MAX_ITERATIONS)
+    if z is None:
+        z = np.zeros((X.size, cycle.size))
+        left = _balance(p, cycle, R, fundamental, scale, z, np.ones(X.size, bool), _MAX_ITERATIONS)
+    if left is None:
+        # a contact pulling (k < 0) as hard as the structure holds it: no static balance, no kbar
+        return np.full(shape, np.nan, complex)
+    around.starts.keep(key, z)
+    f = _force(p, fundamental + z @ cycle.Phi.T)
+    # fundamental phasor of Im(F e^{jwt}) per docs/contracts.md §1: f ~ A sin + B cos -> kbar = (A + j B) / X
+    a = 2.0 / n_time * f @ np.sin(cycle.theta)
+    b = 2.0 / n_time * f @ np.cos(cycle.theta)
+    return ((a + 1j * b) / scale).reshape(shape)
+
+
+def _balance(p, cycle: "_Cycle", R: np.ndarray, fundamental: np.ndarray, scale: np.ndarray, z: np.ndarray,
+             active: np.ndarray, iterations: int) -> np.ndarray | None:
+    """At most ``iterations`` Newton steps of the balance of :func:`placed_kbar` for the samples ``active`` (S,),
+    ``z`` (S, size) updated in place from where it stands. Returns the samples not converged (S,) bool, None where
+    a Jacobian is singular."""
+    active = active.copy()
+    for _ in range(iterations):
         x = fundamental[active] + z[active] @ cycle.Phi.T
         f, tangent = _force_and_tangent(p, x, scale[active])
         step = z[active] + (R[active] @ (f @ cycle.P.T)[..., None])[..., 0]
@@ -142,18 +198,13 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
         try:
             step[touching] = np.linalg.solve(jacobian, step[touching][..., None])[..., 0]
         except np.linalg.LinAlgError:
-            # a contact pulling (k < 0) as hard as the structure holds it: no static balance, no kbar
-            return np.full(shape, np.nan, complex)
+            return None
         z[active] -= step
         still = np.max(np.abs(step), axis=1) > _TOLERANCE * scale[active]
-        if not still.any():
-            break
         active[np.flatnonzero(active)[~still]] = False
-    f = _force(p, fundamental + z @ cycle.Phi.T)
-    # fundamental phasor of Im(F e^{jwt}) per docs/contracts.md §1: f ~ A sin + B cos -> kbar = (A + j B) / X
-    a = 2.0 / n_time * f @ np.sin(cycle.theta)
-    b = 2.0 / n_time * f @ np.cos(cycle.theta)
-    return ((a + 1j * b) / scale).reshape(shape)
+        if not active.any():
+            break
+    return active
 
 
 @functools.lru_cache(maxsize=8)

@@ -226,7 +226,7 @@ def explain(element: str, law: str, sig: Signature, term: TermFit | None, units:
     params = ""
     reading = None if term is None else LAWS[law].reading(term.params, X0, X1)
     if reading is not None:             # its other parameters are no findings (docs/laws.md, "Limits")
-        params = (f"as {reading.limit}: {reading.values_text(units[1] == 'rad')} "
+        params = (f"as {reading.limit}: {term.reading_words(reading, units[1] == 'rad')} "
                   f"({', '.join(reading.undetermined)} not determined apart)")
     elif term is not None:
         params = ", ".join(parameter_words(k, v, undetermined=k in term.undetermined, digits=4)
