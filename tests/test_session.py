@@ -3,6 +3,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -132,6 +133,85 @@ def test_sessions_opened_and_read_by_four_threads_at_once(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     reads, errors = done.stdout.split(" ", 1)
     assert int(reads) > 100 and errors.strip() == "[]"
+
+
+
+def three_chunk_session(path) -> tuple[np.ndarray, np.ndarray]:
+    """A finished session of one random run of 150 lines (three chunks of LINES_PER_CHUNK); its frequencies and
+    its FRF at x1 as written."""
+    frequency, frf = 20.0 + 0.15 * np.arange(150), (1.0 + np.arange(150)) * (1 - 1j) * 1e-6
+    w = SessionWriter(path, software_version="test")
+    w.begin_run(RunSpec("random", "random", 0.1, "none", "x1", ["x1"], 100.0, ["force"], ["N"]))
+    w.write_arrays({"frequency": frequency, "frf/x1": frf})
+    w.end_run("complete")
+    w.close()
+    return frequency, frf
+
+
+class WatchedLock:
+    """The session readers' lock, telling ``waiting`` when a thread has to wait for it."""
+
+    def __init__(self, waiting):
+        self.lock, self.waiting = threading.RLock(), waiting
+
+    def __enter__(self):
+        if not self.lock.acquire(blocking=False):
+            self.waiting.set()
+            self.lock.acquire()
+
+    def __exit__(self, *exc):
+        self.lock.release()
+
+
+def test_a_session_read_in_one_thread_while_another_reads_it_reads_what_the_file_holds(tmp_path, monkeypatch):
+    """The window reads the session it opens while the analysis worker reads it too. HDF5 refreshing a dataset
+    (a SWMR reader's refresh) that another handle of the process holds open reads every chunk of it as the first
+    from then on (line 64 read as line 0). Here the second thread's read starts while the first one is in the
+    middle of its own, its datasets open and refreshed: it must wait for it, and both read the file's lines."""
+    from app.session import writer
+
+    path = tmp_path / "s.h5"
+    frequency, frf = three_chunk_session(path)
+    either = threading.Event()           # the second reader waits for the first, or has read already
+    monkeypatch.setattr(writer, "_SESSION_FILES", WatchedLock(either), raising=False)
+    first, second = open_session(path), open_session(path)
+    read = {}
+
+    def second_reader():
+        try:
+            read["second"] = second.run("random")
+        finally:
+            either.set()
+    other = threading.Thread(target=second_reader)
+    lines = writer.Session._lines
+
+    def in_the_middle(self, ds, n):
+        if self is first and not other.is_alive() and not either.is_set():
+            other.start()
+            assert either.wait(60), "the second reader neither read nor waited"
+        return lines(self, ds, n)
+    monkeypatch.setattr(writer.Session, "_lines", in_the_middle)
+    read["first"] = first.run("random")
+    other.join()
+    first.close()
+    second.close()
+    for which in ("first", "second"):
+        np.testing.assert_array_equal(read[which].frequency, frequency, err_msg=which)
+        np.testing.assert_array_equal(read[which].frf["x1"], frf, err_msg=which)
+
+
+def test_a_refused_read_leaves_no_dataset_of_the_session_open(tmp_path):
+    """A dataset handle outliving its read (kept by the error's traceback) would be open when another thread's
+    read refreshes the dataset: a read that fails closes what it opened before it lets the next one start."""
+    path = tmp_path / "s.h5"
+    three_chunk_session(path)
+    with h5py.File(path, "r+") as f:
+        del f["runs/random/frf/x1"]
+    with open_session(path) as s:
+        with pytest.raises(InputError, match="frf/x1: missing dataset") as refused:
+            s.run("random")
+        assert refused.value.__traceback__ is not None
+        assert h5py.h5f.get_obj_count(s._file.id, h5py.h5f.OBJ_DATASET) == 0
 
 
 def line(w, i):

@@ -10,6 +10,7 @@ readable by any tool with those runs marked ``status = "aborted"``, ``incomplete
 """
 from __future__ import annotations
 
+import functools
 import json
 import os
 import socket
@@ -17,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -232,6 +234,38 @@ def _start_writer_process() -> subprocess.Popen:
 
 
 # --------------------------------------------------------------------------- reader
+# Held by every read of a session in this process, whatever thread or Session makes it (see one_reader)
+_SESSION_FILES = threading.RLock()
+
+
+def one_reader(read):
+    """``read`` (a :class:`Session` method or a function reading a session with h5py) made while no other read
+    of a session runs in this process, every HDF5 object it opened closed before the next one starts.
+
+    A SWMR reader refreshes a dataset (H5Drefresh) to see the lines its writer appended. HDF5 keeps one chunk
+    index per dataset for all the handles the process has open on it -- in any thread, file object or Session --
+    and a refresh made while a second handle is open leaves that index reading every chunk as the first: from
+    line 64 on (LINES_PER_CHUNK) a run reads its first 64 lines over and over, with no error (h5py issue 2803).
+    h5py's lock makes each HDF5 call atomic, not a read of a run (open, refresh, read); the window reads the
+    session it opens in its own thread while the backbones' and the analysis's workers read it in theirs, so
+    their reads are serialised here. A read's handles live in its own frames: its return frees them, and the
+    frames of an error it raises are cleared here, before the lock is let go."""
+    @functools.wraps(read)
+    def serialised(*args, **kwargs):
+        with _SESSION_FILES:
+            before = sys.exc_info()[1]               # an error the caller is handling: not this read's
+            try:
+                return read(*args, **kwargs)
+            except BaseException as exc:
+                seen: set[int] = set()
+                while exc is not None and exc is not before and id(exc) not in seen:
+                    seen.add(id(exc))
+                    traceback.clear_frames(exc.__traceback__)
+                    exc = exc.__cause__ or exc.__context__
+                raise
+    return serialised
+
+
 REQUIRED_RUN_ATTRS = ("kind", "force", "direction", "status", "excitation_dof", "sensor_dofs")
 
 
@@ -281,8 +315,10 @@ class Session:
 
     Use :meth:`refresh` to see lines appended since opening. Anything the file lacks or cannot give (a missing
     run attribute or dataset, a truncated or damaged file) is an InputError naming the file and the object.
+    Sessions may be read in several threads at once: every method touching the file is :func:`one_reader`.
     """
 
+    @one_reader
     def __init__(self, path):
         self.path = Path(path)
         self._file = _open_for_reading(self.path)
@@ -296,6 +332,7 @@ class Session:
             self._file.close()
             raise
 
+    @one_reader
     def close(self) -> None:
         self._file.close()
 
@@ -324,6 +361,7 @@ class Session:
             raise InputError(f"missing {what} (the session is incomplete or damaged)", str(self.path), where)
         return obj
 
+    @one_reader
     def refresh(self) -> bool:
         """Reopen to see runs and lines added since opening (SWMR readers must reopen to see new objects).
 
@@ -340,10 +378,12 @@ class Session:
         return True
 
     @property
+    @one_reader
     def attrs(self) -> dict:
         with self._reading("/ (root attributes)"):
             return _attrs(self._file)
 
+    @one_reader
     def provenance(self, key: str) -> str | None:
         with self._reading(f"/provenance/{key}"):
             prov = self._file.get("provenance")
@@ -351,10 +391,12 @@ class Session:
                 return None
             return _text(prov[key][()])
 
+    @one_reader
     def run_names(self) -> list[str]:
         with self._reading("/runs"):
             return list(self._object("/runs", h5py.Group).keys())
 
+    @one_reader
     def events(self) -> list[dict]:
         with self._reading("/events"):
             ev = self._object("/events")
@@ -362,34 +404,41 @@ class Session:
             return [{"time": float(r["time"]), "iso_time": _text(r["iso_time"]), "run": _text(r["run"]),
                      "kind": _text(r["kind"]), "message": _text(r["message"])} for r in ev[()]]
 
+    @one_reader
     def run(self, name: str) -> RunData:
         where = f"/runs/{name}"
         with self._reading(where):
             g = self._object(where, h5py.Group)
             attrs = _attrs(g)
             dofs = self._run_attrs(where, attrs)
-            # refresh every dataset before any is read: a handle opened before another handle's refresh
-            # reads stale chunk addresses in SWMR mode
+            # each dataset opened once, and refreshed before any is read: a refresh made while another handle
+            # of the dataset is open spoils its chunk index (one_reader). Loops, not comprehensions: a
+            # comprehension's closure would keep the handles past an error's cleared frames.
+            datasets = {}
             for ds in _datasets(g):
+                datasets[ds.name[len(g.name) + 1:]] = ds
                 ds.refresh()
-            n = self._object(f"{where}/frequency").shape[0]
+            n = self._run_dataset(datasets, where, "frequency").shape[0]
             arrays, units, lines = {}, {}, {}
-            for ds in _datasets(g):
-                rel = ds.name[len(g.name) + 1:]
+            for rel, ds in datasets.items():
                 units[rel] = _text(ds.attrs.get("units", ""))
                 if not rel.startswith("raw/"):
                     lines[rel] = ds.shape[0] if ds.shape else 0
                 if rel.startswith(("frf/", "raw/")) or rel == "frequency":
                     continue
                 arrays[rel] = self._lines(ds, n)
-            frf = {dof: self._read(f"{where}/frf/{dof}", n) for dof in dofs}
-            frequency = self._read(f"{where}/frequency", n)
+            frf = {}
+            for dof in dofs:
+                frf[dof] = self._lines(self._run_dataset(datasets, where, f"frf/{dof}"), n)
+            frequency = self._lines(datasets["frequency"], n)
         incomplete = attrs["status"] == "running" and not self.writer_alive or bool(attrs.get("incomplete", False))
         return RunData(name, attrs, frequency, frf, arrays, units, incomplete, lines)
 
-    def _read(self, where: str, n: int) -> np.ndarray:
-        """The first ``n`` entries of the dataset at ``where``."""
-        return self._lines(self._object(where), n)
+    def _run_dataset(self, datasets: dict[str, h5py.Dataset], where: str, rel: str) -> h5py.Dataset:
+        """The run's dataset ``rel`` among its ``datasets``; InputError naming it when it is missing."""
+        if rel not in datasets:
+            self._object(f"{where}/{rel}")          # raises, naming a missing dataset as every read names it
+        return datasets[rel]
 
     def _lines(self, ds: h5py.Dataset, n: int) -> np.ndarray:
         """The first ``n`` lines of ``ds``; a chunk whose checksum fails is an InputError naming the dataset and
@@ -432,6 +481,7 @@ class Session:
                 raise InputError(dof_name_problem(d), str(self.path), f"{where}@sensor_dofs")
         return dofs
 
+    @one_reader
     def raw(self, name: str, line: int | None = None) -> tuple[np.ndarray, list[str], float]:
         """Raw samples of a run (or of one line), their channel names and the sample rate."""
         where = f"/runs/{name}/raw"
@@ -571,6 +621,7 @@ def _writer_alive(f: h5py.File) -> bool:
     return pid == os.getpid() or (_process_alive(pid) and _may_write(pid, f.filename))
 
 
+@one_reader
 def damaged_data(path) -> list[str]:
     """The datasets of a session whose stored chunks fail their checksum (Fletcher-32), each with the lines
     affected ("/runs/r/frf/x1: line(s) 0-29 of 30", numbered from 0): data changed after the writer closed the file, which no
@@ -617,6 +668,7 @@ def _locked_by_a_writer(path: Path) -> bool:
     return False
 
 
+@one_reader
 def needs_recovery(path) -> bool:
     """Whether plain HDF5 readers refuse the session because its writer died with it open, or its writer is gone
     and left a run "running" (a write that failed while the run was being closed, after the file's flags were
@@ -760,6 +812,7 @@ def _levels(dataset) -> list[dict]:
     return json.loads(_text(raw)) if raw is not None else [{} for _ in range(len(dataset))]
 
 
+@one_reader
 def read_model_history(session: Session) -> list[dict]:
     """Every stored analysis: ``{"name", "created", "model_source", "steps": [{"action", "error", "model",
     "error_by_level", "levels"}]}``, ``error_by_level`` as ``[[force N, error], ...]`` and ``levels`` how each was
