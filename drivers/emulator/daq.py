@@ -82,6 +82,7 @@ class DaqFirmware(Firmware):
         if self.acquiring:
             self.stop_acquisition()
         self.scan = list(range(self.n_channels))
+        self._all = list(range(self.n_channels))
         self.sensitivity = np.full(self.n_channels, DEFAULT_SENSITIVITY)
         self.input_range = np.full(self.n_channels, DEFAULT_RANGE)
         self.points = int(min(MAX_POINTS, max(16, round(FRAME_SECONDS * self.rig.sample_rate))))
@@ -92,7 +93,10 @@ class DaqFirmware(Firmware):
         scan = self.scan
         lsb = self.rig.lsb[scan]
         limit = np.minimum(np.floor(self.input_range[scan] / self.sensitivity[scan] / lsb), INT32_MAX)
-        counts = np.rint(data[:, scan] / lsb)
+        counts = np.rint((data if len(scan) == data.shape[1] and scan == self._all else data[:, scan]) / lsb)
+        if len(counts) and (np.abs(counts).max(axis=0) <= limit).all():
+            # nothing saturates (every frame of a campaign within its ranges): no clip, no per-row flags
+            return counts.astype(np.int32), np.zeros(len(counts), dtype=bool)
         saturated = np.abs(counts) > limit
         np.clip(counts, -limit, limit, out=counts)
         return counts.astype(np.int32), saturated.any(axis=1)
@@ -105,14 +109,22 @@ class DaqFirmware(Firmware):
         """Samples of all channels, shape (n, n_channels), just produced by the backend."""
         if self.acquiring:
             counts, saturated = self.quantise(data)
-            self._unframed = np.concatenate([self._unframed, counts]) if self._unframed.size else counts
-            self._unframed_over = np.concatenate([self._unframed_over, saturated])
-            while self._unframed.shape[0] >= self.points:
-                self._emit(self._unframed[:self.points], self._unframed_over[:self.points])
-                self._unframed = self._unframed[self.points:]
-                self._unframed_over = self._unframed_over[self.points:]
+            if not self._unframed.size and counts.shape[0] == self.points:
+                # a fast reader asks for one frame at a time: framed as it comes, without the buffer's copies
+                self._emit(counts, saturated)
+            else:
+                self._frame_buffered(counts, saturated)
         if self._capture is not None and not self._capture.done:
             self._capture.add(data)
+
+    def _frame_buffered(self, counts: np.ndarray, saturated: np.ndarray) -> None:
+        """Append to the samples not yet framed and emit every whole frame they hold."""
+        self._unframed = np.concatenate([self._unframed, counts]) if self._unframed.size else counts
+        self._unframed_over = np.concatenate([self._unframed_over, saturated])
+        while self._unframed.shape[0] >= self.points:
+            self._emit(self._unframed[:self.points], self._unframed_over[:self.points])
+            self._unframed = self._unframed[self.points:]
+            self._unframed_over = self._unframed_over[self.points:]
 
     def _emit(self, counts: np.ndarray, saturated: np.ndarray) -> None:
         flags = (FLAG_OVERRUN if self._overrun_pending else 0) | (FLAG_OVERLOAD if saturated.any() else 0)
