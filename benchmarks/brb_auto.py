@@ -94,6 +94,10 @@ def report(result: dict, cpu: float, baseline: float) -> list[str]:
     steps = result["auto"]["steps"]
     held = next((s["held_out_error"] for s in reversed(steps) if s["held_out_error"] is not None), None)
     lines.append(f"FRF error {result['error']:.4g}; held-out {'n/a' if held is None else f'{held:.4g}'}")
+    floor = result.get("error_floor") or {}
+    if floor.get("total") is not None:
+        lines.append(f"the FRF error the test itself allows: {floor['total']:.4g} (between runs "
+                     f"{floor['between_runs']:.4g}, line noise {floor['line_noise'] or float('nan'):.4g})")
     lines.append(f"CPU: loop {cpu:.1f} s, the analysis without it {baseline:.1f} s (x{cpu / baseline:.1f})")
     checks = [("at most 3 laws", laws <= TARGETS["laws"]), ("every parameter determined", undetermined == 0),
               ("at most 10 % of the lines left out", worst_share <= TARGETS["left_out"]),

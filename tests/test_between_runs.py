@@ -209,3 +209,49 @@ def test_runs_that_repeat_leave_the_line_noise_ruling_and_a_refit_on_part_inheri
     part = _workbench(drifting, whole.yardsticks(), half)
     assert part.reports["spring"].yardstick is whole.reports["spring"].yardstick
     assert not _workbench(drifting, None, half).reports["spring"].yardstick.rules    # 6 runs: too few groups
+
+
+@pytest.mark.slow
+def test_the_frf_error_a_right_model_shows_against_runs_that_repeat_poorly_is_the_floor_reported(drifting, tmp_path):
+    """The cubic at its fitted k3 is the joint's law; against the drifting runs its FRF error is what the wandering
+    stiffness and the line noise alone give. The floor the workbench reports is that error, and its two parts are
+    what the session was written with: the line noise 0.2 %, and the wander carried to the FRFs by the formula,
+    dh = -h^2 dk, computed here from the receptance written, not by the product."""
+    wb = _workbench(drifting)
+    floor, error = wb.error_floor, wb.compare().error
+    assert floor.ruled_by == ("spring",)
+    assert floor.line_noise == pytest.approx(2e-3, rel=0.05)
+    w = 2 * np.pi * FREQUENCY
+    h = np.concatenate([1.0 / (K + 0.75 * K3 * a**2 - M * w**2 + 1j * C * w) for a in LEVELS])
+    written = DRIFT * math.sqrt(np.sum(np.abs(h) ** 4) / np.sum(np.abs(h) ** 2))
+    assert floor.between_runs == pytest.approx(written, rel=0.3)       # tau is itself estimated within 25 %
+    assert error == pytest.approx(floor.total, rel=0.3)
+    assert "the model is within what the test repeats" in floor.text(error)
+    # runs that repeat: no scatter between runs is carried, and the floor is the line noise
+    steady = tmp_path / "steady.h5"
+    _write_drifting_session(steady, 0.0, seed=3)
+    calm = _workbench(steady)
+    assert calm.error_floor.ruled_by == () and calm.error_floor.between_runs == 0.0
+    assert calm.error_floor.total == pytest.approx(2e-3, rel=0.05)
+
+
+def test_the_floor_is_the_spread_a_scatter_of_kbar_gives_the_frfs_by_monte_carlo():
+    """One grounded element at the driven DOF, kbar scattered from run to run by a complex Gaussian of variance
+    tau^2: the FRF error of the exact receptance h / (1 + dk h) against h, averaged over draws, is the floor, to
+    first order in tau |h| (here at most 0.05)."""
+    from analysis.identification.between_runs import RunSensitivity, frf_error_floor
+
+    rng = np.random.default_rng(11)
+    w = np.linspace(20.0, 40.0, 60)
+    h = 1.0 / (900.0 - w**2 + 1j * 0.6 * w)                 # the structure with its element, m/N
+    tau = 0.05 / np.max(np.abs(h))
+    yardstick = BetweenRuns(tau, tau / 30, 40, 40, 1e-12, True)
+    floor = frf_error_floor([RunSensitivity(h[:, None], None, (-h**2)[:, None, None])], [yardstick], ["e"])
+    dk = tau / math.sqrt(2) * (rng.standard_normal((20000, w.size)) + 1j * rng.standard_normal((20000, w.size)))
+    drawn = math.sqrt(np.mean(np.sum(np.abs(h / (1 + dk * h) - h) ** 2, axis=1)) / np.sum(np.abs(h) ** 2))
+    assert floor.between_runs == pytest.approx(drawn, rel=0.02)
+    assert math.isnan(floor.line_noise) and floor.total == floor.between_runs and floor.ruled_by == ("e",)
+    # a yardstick that does not rule carries nothing
+    quiet = BetweenRuns(tau, tau / 30, 40, 3, 0.9, False)
+    unruled = frf_error_floor([RunSensitivity(h[:, None], None, (-h**2)[:, None, None])], [quiet], ["e"])
+    assert unruled.between_runs == 0.0 and unruled.ruled_by == ()

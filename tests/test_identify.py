@@ -297,3 +297,27 @@ def test_dependent_elements_and_structure_inputs_are_rejected():
     with pytest.raises(InputError, match="not finite at 1 lines"):
         identify_complex_stiffness(s, np.where(np.arange(3)[:, None] == 1, np.nan, measured),
                                    ["a", "b", "c"], "a", ["a"], w=w)
+
+
+def test_the_frfs_move_with_each_elements_kbar_as_the_exact_receptance_does():
+    """``frf_per_kbar`` against central differences of the receptance of the structure with its elements,
+    inverted in full here: a grounded element and one between two DOFs of a damped 3-DOF chain, three sensors."""
+    M = np.diag([1.0, 2.0, 1.5])
+    K = np.array([[3000.0, -1000.0, 0.0], [-1000.0, 2500.0, -1500.0], [0.0, -1500.0, 1500.0]])
+    C = 0.002 * K
+    w = np.linspace(10.0, 80.0, 40)
+    E = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    kbar = np.array([400 + 80j, 250 + 30j])
+
+    def receptance(k):
+        Z = K[None] - w[:, None, None] ** 2 * M[None] + 1j * w[:, None, None] * C[None] + (E * k) @ E.T
+        return np.linalg.inv(Z)
+
+    H = receptance(np.zeros(2))
+    rows, q = [0, 1, 2], 1
+    ident = identify_complex_stiffness(H, receptance(kbar)[:, rows, q], rows, q, [(0,), (1, 2)])
+    for j in range(2):
+        step = np.zeros(2, complex)
+        step[j] = 1e-3
+        expected = (receptance(kbar + step)[:, rows, q] - receptance(kbar - step)[:, rows, q]) / 2e-3
+        np.testing.assert_allclose(ident.frf_per_kbar[:, :, j], expected, rtol=0, atol=1e-6 * np.abs(expected).max())

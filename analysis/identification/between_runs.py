@@ -171,3 +171,82 @@ def _divided_difference(nodes: np.ndarray) -> np.ndarray:
     c = np.array([1.0 / np.prod([nodes[a] - nodes[b] for b in range(nodes.size) if b != a])
                   for a in range(nodes.size)])
     return c / np.linalg.norm(c)
+
+
+@dataclass(frozen=True)
+class RunSensitivity:
+    """What one run's FRFs are and how they move with the elements' kbar, for :func:`frf_error_floor`.
+
+    ``receptance`` (L, P) complex, m/N: the measured FRFs; ``std`` (L, P) or None: their noise, ``sqrt(E|n|^2)``;
+    ``frf_per_kbar`` (L, P, r) complex, m/N per N/m: ``d hbar / d kbar`` of each element
+    (:attr:`analysis.identification.identify.ComplexStiffnessIdentification.frf_per_kbar`)."""
+
+    receptance: np.ndarray
+    std: np.ndarray | None
+    frf_per_kbar: np.ndarray
+
+
+@dataclass(frozen=True)
+class ErrorFloor:
+    """The relative FRF error a model right in every law would still show against these runs: the FRFs' own noise
+    and, where it rules, the scatter of the elements' kbar between runs carried to the FRFs (first order). A model
+    at its floor describes the joint as well as the test repeats itself; a law cannot be told apart below it.
+
+    ``between_runs`` and ``line_noise``: each part's share, in the FRF error's own measure (docs/workbench.md §5:
+    ``sqrt(sum |delta h|^2 / sum |h|^2)`` over every line of every stepped-sine run); ``line_noise`` NaN where
+    the runs carry no noise estimate; ``ruled_by`` the elements whose scatter between runs ruled."""
+
+    between_runs: float
+    line_noise: float
+    ruled_by: tuple[str, ...]
+
+    @property
+    def total(self) -> float:
+        parts = [p for p in (self.between_runs, self.line_noise) if np.isfinite(p)]
+        return math.sqrt(sum(p * p for p in parts)) if parts else float("nan")
+
+    def text(self, error: float) -> str:
+        """One sentence: the floor beside the model's FRF error ``error``, and which part sets it."""
+        noise = f"the FRFs' noise {self.line_noise:.3g}" if np.isfinite(self.line_noise) else "no FRF noise measured"
+        if self.ruled_by:
+            parts = f"the scatter between runs at {', '.join(self.ruled_by)} {self.between_runs:.3g}, {noise}"
+        else:
+            parts = noise
+        at = ("the model is within what the test repeats: no law can be told apart below it"
+              if error <= FLOOR_REACHED * self.total else
+              f"x{error / self.total:.3g} above it") if self.total > 0 else ""
+        return f"FRF error the test itself allows: {self.total:.3g} ({parts}); {at}"
+
+    def to_json(self) -> dict:
+        return {"total": _number(self.total), "between_runs": _number(self.between_runs),
+                "line_noise": _number(self.line_noise), "ruled_by": list(self.ruled_by)}
+
+
+# A model's error within this factor of its floor is at it (the floor is a first-order estimate)
+FLOOR_REACHED = 1.1
+
+
+def _number(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
+
+
+def frf_error_floor(runs: list[RunSensitivity], yardsticks: list[BetweenRuns | None],
+                    names: list[str]) -> ErrorFloor:
+    """The :class:`ErrorFloor` of ``runs`` with the elements' scatter between runs ``yardsticks`` (one per element,
+    in the columns' order; None or not ruling: none carried), ``names`` the elements'. Each element's kbar is taken
+    to scatter independently from run to run with variance ``tau^2``, so a line's FRFs scatter by
+    ``sum_i |d hbar_p / d kbar_i|^2 tau_i^2`` (first order); a line where an element's kbar is not finite
+    contributes no scatter, so the floor errs low."""
+    tau2 = np.array([y.tau ** 2 if y is not None and y.rules else 0.0 for y in yardsticks])
+    spread = noise = total = 0.0
+    noise_known = bool(runs) and all(r.std is not None for r in runs)
+    for run in runs:
+        total += float(np.sum(np.abs(run.receptance) ** 2))
+        moved = np.abs(np.nan_to_num(run.frf_per_kbar, nan=0.0)) ** 2 @ tau2
+        spread += float(np.sum(moved))
+        if noise_known:
+            noise += float(np.sum(np.asarray(run.std, float) ** 2))
+    if total <= 0.0:
+        return ErrorFloor(float("nan"), float("nan"), ())
+    ruled = tuple(n for n, y in zip(names, yardsticks) if y is not None and y.rules)
+    return ErrorFloor(math.sqrt(spread / total), math.sqrt(noise / total) if noise_known else float("nan"), ruled)

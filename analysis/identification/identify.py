@@ -88,6 +88,12 @@ class ComplexStiffnessIdentification:
         ``sqrt(diag(kbar_cov))``, N/m; Re and Im each have ``kbar_std / sqrt(2)``.
     element_names : list of str
         One label per element, in the order of the columns.
+    frf_per_kbar : ndarray, shape (L, P, r), complex
+        ``d hbar_{p,q} / d kbar_i``, m/N per N/m: the first-order change of each measured FRF per unit change
+        of each element's kbar, ``-(hbar E)_{p,i} hbar_e_i`` with ``hbar E = H_{P,A} (I + diag(kbar) E^T H E)^-1``
+        the structure with its elements answering a unit force pair at element i (Woodbury). What a scatter of
+        kbar between runs does to the FRFs (:func:`analysis.identification.between_runs.frf_error_floor`); NaN
+        where kbar is.
     """
 
     kbar: np.ndarray
@@ -103,6 +109,7 @@ class ComplexStiffnessIdentification:
     kbar_cov: np.ndarray | None
     kbar_std: np.ndarray | None
     element_names: list[str]
+    frf_per_kbar: np.ndarray | None = None
 
 
 def identify_complex_stiffness(reference, measured, rows: Sequence, column, elements: Sequence, *,
@@ -220,6 +227,21 @@ def identify_complex_stiffness(reference, measured, rows: Sequence, column, elem
     ill = ((cond > cond_limit) | antiresonance.any(axis=1) | ~(sensitivity <= cond_limit).all(axis=1)
            | ~np.isfinite(kbar).all(axis=1))
 
+    # hbar E = H_{P,A} (I + K B)^-1, K = diag(kbar): the elements' own answer to a force pair at each of them
+    coupling = np.eye(r)[None] + kbar[:, :, None] * B
+    answer = np.full(G.shape, np.nan, complex)
+    finite = np.isfinite(coupling).all(axis=(1, 2))
+    try:
+        answer[finite] = np.swapaxes(np.linalg.solve(np.swapaxes(coupling[finite], 1, 2),
+                                                     np.swapaxes(G[finite], 1, 2)), 1, 2)
+    except np.linalg.LinAlgError:       # (I + K B) is the damped structure with its elements: singular at no line
+        for line in np.flatnonzero(finite):
+            try:
+                answer[line] = np.linalg.solve(coupling[line].T, G[line].T).T
+            except np.linalg.LinAlgError:
+                pass
+    frf_per_kbar = -answer * hbar_e[:, None, :]
+
     kbar_cov = kbar_std = residual_chi2 = None
     if std is not None:
         residual_chi2 = 2.0 * np.sum(np.abs(weight * fit_error) ** 2, axis=1)
@@ -231,7 +253,7 @@ def identify_complex_stiffness(reference, measured, rows: Sequence, column, elem
         amplitude=None if force_amplitude is None else magnitude * force_amplitude[:, None],
         cond=cond, sensitivity=sensitivity, antiresonance=antiresonance, ill_conditioned=ill, residual=residual,
         residual_dof=2 * (len(row_idx) - r), residual_chi2=residual_chi2,
-        kbar_cov=kbar_cov, kbar_std=kbar_std, element_names=element_names)
+        kbar_cov=kbar_cov, kbar_std=kbar_std, element_names=element_names, frf_per_kbar=frf_per_kbar)
 
 
 # --- input checking ----------------------------------------------------------------

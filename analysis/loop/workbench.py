@@ -29,7 +29,7 @@ from ..common.errors import InputError
 from ..common.measurements import Measurements, SineRun
 from ..fitting.fit import LawFit, fit_laws
 from ..fitting.limits import settle_in_limits
-from ..identification.between_runs import BetweenRuns, between_runs
+from ..identification.between_runs import BetweenRuns, ErrorFloor, RunSensitivity, between_runs, frf_error_floor
 from ..identification.identify import identify_complex_stiffness
 from ..identification.linearity import LinearityVerdict, linearity_verdict
 from ..laws import get_law
@@ -198,6 +198,8 @@ class Workbench:
         # run -> (lines, elements): the model's own harmonics in the identified kbar, taken out of the samples on
         # data without harmonics (:meth:`_correct_fundamental_bias`)
         self._kbar_bias: dict[str, np.ndarray] = {}
+        # the FRF error a model right in every law would show: the FRFs' noise and the scatter between runs
+        self.error_floor: ErrorFloor | None = None
         self._states: dict[int, _FittedState] = {}   # history index -> the fitted state it recorded
 
     # ------------------------------------------------------------------ reference
@@ -218,6 +220,7 @@ class Workbench:
             raise InputError("the model has no [[element]] to identify", self.model.source)
         per: dict[str, list[ElementSamples]] = {e.name: [] for e in els}
         flagged = {e.name: 0 for e in els}
+        sensitivities = []
         for run, level in self._identified_runs():
             if len(run.sensor_dofs) < len(els):
                 raise InputError(f"run {run.name} measured {len(run.sensor_dofs)} FRF(s) but the model has "
@@ -226,6 +229,8 @@ class Workbench:
             ident = identify_complex_stiffness(self.model.structure, run.receptance, run.sensor_dofs,
                                                run.excitation_dof, els, w=run.w, force=run.force_per_line,
                                                noise_std=std)
+            if any(run is r for r in self.measurements.sine):     # the runs the FRF error pools
+                sensitivities.append(RunSensitivity(run.receptance, std, ident.frf_per_kbar))
             bias = self._kbar_bias.get(run.name)
             if bias is not None and bias.shape == ident.kbar.shape:
                 ident.kbar = ident.kbar - bias
@@ -255,6 +260,8 @@ class Workbench:
                     verdict = _overruled(verdict, amplitude_dependence(samples, robust=self.harmonics_blind))
             self.reports[el.name] = ElementReport(el.name, samples if len(X) else None, verdict, len(X),
                                                   flagged[el.name], yardstick=yardstick)
+        self.error_floor = frf_error_floor(sensitivities, [self.reports[e.name].yardstick for e in els],
+                                           [e.name for e in els])
         return self.reports
 
     def yardsticks(self) -> dict[str, BetweenRuns]:
@@ -655,7 +662,8 @@ class Workbench:
                "unexplained": [o.to_json() for o in self.unexplained()],
                "history": [h.to_json() for h in self.history],
                "unfinished_runs": [note.to_json() for note in self.measurements.unfinished],
-               "unresolved_lines": [note.to_json() for note in self.measurements.unresolved]}
+               "unresolved_lines": [note.to_json() for note in self.measurements.unresolved],
+               "error_floor": None if self.error_floor is None else self.error_floor.to_json()}
         if self.reference is not None:
             out["reference"] = self.reference.to_json()
         return out

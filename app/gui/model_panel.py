@@ -472,7 +472,8 @@ class ModelPanel(QWidget):
             f"; single-harmonic {view.single_harmonic_error:.4g}, as the candidates' errors"
         self.error_label.setText(f"FRF error {view.error:.4g}")
         self._show_label()
-        self.level_errors.setText(f"by level: {by_level}{single}")
+        floor = f"\n{view.error_floor}" if view.error_floor else ""
+        self.level_errors.setText(f"by level: {by_level}{single}{floor}")
         self.jump_label.setText("<br>".join(["<b>Jumps</b> (predicted fold against measured):", *view.jumps])
                                 if view.jumps else "")
         self.auto_label.setText("<br>".join(["<b>Automatic loop</b>", *map(_indented, view.auto)]) if view.auto else "")

@@ -121,6 +121,7 @@ class AnalysisView:
     ranked: bool = True                                 # False: stopped before the candidates were ranked
     backbones: list[BackboneComparison] = field(default_factory=list)   # measured against this model's prediction
     kbar_basis: str = ""                                # what the kbar samples are relative to (kbar_basis())
+    error_floor: str = ""                               # the FRF error the test itself allows, beside the model's
 
     @property
     def can_undo(self) -> bool:
@@ -368,4 +369,9 @@ def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult |
         wb.single_harmonic_comparison().error,
         # a stopped loop leaves no ranking; an empty table would read as "every law was tried"
         auto is None or auto.stopped != STOPPED_BY_USER,
-        backbones(wb), kbar_basis(wb))
+        backbones(wb), kbar_basis(wb), _error_floor(wb, comp.error))
+
+
+def _error_floor(wb: Workbench, error: float) -> str:
+    floor = wb.error_floor
+    return floor.text(error) if floor is not None and np.isfinite(floor.total) else ""
