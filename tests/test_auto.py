@@ -448,6 +448,63 @@ def test_a_discovered_law_that_brings_its_margin_stays_and_data_with_harmonics_a
     assert list(auto_module._taken_back(blind, [_found("a")], 1.3, 10.0)) == [] and blind.taken == []
 
 
+class _Predicting(_Trial):
+    """A workbench stand-in for the held-out check of discovery's laws: the held-out folds of the model as it
+    stands, and without each law, are given (keyed by the laws the model then holds)."""
+
+    def __init__(self, laws: list[str], folds: dict[frozenset, tuple[float, ...]]):
+        super().__init__(laws, 0.01, {})
+        del self.without                # the method below, not the errors of the take-back rule's stand-in
+        self.folds, self.out = folds, None
+
+    def take_back(self, element, law):
+        self.laws.remove(law)
+        self.taken.append(law)
+        self.history.append(SimpleNamespace(error=0.01))
+        return self.history[-1]
+
+    def without(self, element, law):
+        import contextlib
+
+        @contextlib.contextmanager
+        def block():
+            self.out = law
+            try:
+                yield self
+            finally:
+                self.out = None
+        return block()
+
+    def held(self) -> HeldOut:
+        laws = frozenset(n for n in self.laws if n != self.out)
+        folds = self.folds[laws]
+        return HeldOut(float(np.mean(folds)), folds)
+
+
+def test_a_discovered_law_is_kept_only_where_it_predicts_every_held_out_fold_better(monkeypatch):
+    """Discovery's laws meet the loop's own rule: a law whose model, refitted without it, predicts a held-out fold
+    as well is taken back (of two that fail, the one whose absence predicts best first, then the other weighed
+    again), and a law that predicts every fold better stays."""
+    folds = {frozenset({"cubic_damping", "quintic", "gap"}): (0.02, 0.03),
+             frozenset({"cubic_damping", "gap"}): (0.02, 0.025),      # without the quintic: better on one fold
+             frozenset({"cubic_damping", "quintic"}): (0.02, 0.035),  # without the gap: as good on one fold
+             frozenset({"quintic", "gap"}): (0.3, 0.4),
+             frozenset({"cubic_damping"}): (0.05, 0.07),
+             frozenset({"gap"}): (0.3, 0.5)}
+    wb = _Predicting(["cubic_damping", "quintic", "gap"], folds)
+    monkeypatch.setattr(auto_module, "held_out", lambda w: w.held())
+    current = [wb.held()]
+    taken = []
+    for step, alone in auto_module._predicting_no_better(wb, [_found("a")], lambda: current[0]):
+        taken.append(step)
+        current[0] = alone
+    assert wb.taken == ["quintic"] and wb.laws == ["cubic_damping", "gap"]
+    assert "held-out 0.025 against 0.0225 without it" in taken[0].reason
+    # nothing held out (one level): nothing judged
+    single = _Predicting(["quintic"], {frozenset({"quintic"}): (), frozenset(): ()})
+    assert list(auto_module._predicting_no_better(single, [_found("a")], lambda: NOT_CHECKED)) == []
+
+
 def test_no_law_is_taken_back_while_the_model_is_far_from_the_noise():
     # seed 735527 random 4: another joint's Coulomb friction missing, 95 times the noise; refitted without its
     # true Coulomb friction, this joint gave 0.272 against 0.287 with it

@@ -213,6 +213,36 @@ def _discovery_reason(found: ElementDiscovery, still_empty: list[str]) -> str:
     return reason
 
 
+def _predicting_no_better(wb: Workbench, found: list[ElementDiscovery],
+                          checked: Callable[[], HeldOut]) -> Iterator[tuple[AutoStep, HeldOut]]:
+    """Each law discovery found kept only where the model with it predicts every held-out fold better than the
+    model refitted without it: the rule every law the loop adds meets (:func:`_predicts_no_better`). Discovery
+    chooses a set by its kbar and by the FRFs of the lines the set was fitted to; a law that only bends the fit to
+    those lines -- a stiffness law standing in for the structure's misfit at another element, one law writing
+    another's curvature again -- predicts the levels its fit did not see no better, or worse. Of an element's
+    laws that fail, the one whose absence predicts best is taken back first and the rest weighed again
+    (``checked``: the current model's held-out error). Yields each take-back with the held-out error of the
+    model after it."""
+    for element in found:
+        while laws := [t.law.name for t in wb.model.element(element.element).laws]:
+            current = checked()
+            if not current.folds:
+                return
+            failing = []
+            for law in laws:
+                with wb.without(element.element, law):
+                    alone = held_out(wb)
+                why = _predicts_no_better(alone, current)
+                if why:
+                    failing.append((alone.error, law, alone, why))
+            if not failing:
+                break
+            _, law, alone, why = min(failing, key=lambda f: f[0])
+            error = wb.history[-1].error
+            after = wb.take_back(element.element, law).error
+            yield AutoStep("take back", element.element, (law,), error, after, why), alone
+
+
 def _near_the_noise(comp: Comparison, near: float) -> bool:
     """Whether the model predicts the FRFs within ``near`` times the noise (:attr:`Comparison.times_the_noise`):
     only then does a law's share of the error say what it brings. Where another law is missing the model's error
@@ -406,6 +436,7 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             progress(step)
 
     found, searched = None, frozenset()
+    taken_back: set[str] = set()       # laws added and taken back, by discovery's check or the loop's: not added again
     if rules.discovery is not None:
         under_way.what = DISCOVERY
         found = under_way.found = wb.discover(rules.discovery, note)
@@ -423,6 +454,11 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
         under_way.what = "the check of discovery's laws"
         for step in _taken_back(wb, pending, rules.ranking.min_gain, rules.take_back_near_noise):
             take(step)
+        if rules.held_out:
+            under_way.what = "the held-out check of discovery's laws"
+            for step, alone in _predicting_no_better(wb, pending, checked):
+                take(step, known=alone)
+                taken_back.add(f"{step.element}:{step.laws[0]}")
     if rules.linear_corrections:
         under_way.what = "the linear corrections"
         names = wb.linear_corrections()
@@ -432,7 +468,6 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             take(AutoStep("linear correction", ", ".join(names), ("linear",), before, after,
                           "linear verdict with a constant kbar offset: the reference is wrong there (the "
                           "corrections are coupled, so they are applied together)"))
-    taken_back: set[str] = set()       # candidates added and taken back: not added again
     for _ in range(rules.max_steps):
         if stopping():
             return AutoResult(steps, STOPPED_BY_USER, [], found)

@@ -20,8 +20,9 @@ came from.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -512,12 +513,20 @@ class Workbench:
     def error_without(self, element: str, law: str) -> float:
         """The model's error (:meth:`compare`) with ``law`` taken off ``element`` and that element refitted; the
         model, its fits and its history are left as they were."""
+        with self.without(element, law):
+            return self.compare().error
+
+    @contextmanager
+    def without(self, element: str, law: str) -> Iterator["Workbench"]:
+        """This workbench with ``law`` taken off ``element`` and that element refitted, for as long as the block
+        runs; then the model, its fits and its history as they were (nothing recorded), whatever the block
+        raised."""
         el = self.model.element(element)
         state, caches = self._fitted_state(), (self._comparison, self._single, self._offers)
         el.laws = [t for t in el.laws if t.law.name != law]
         try:
             self.fit([element])
-            return self.compare().error
+            yield self
         finally:
             self._restore(state)
             self._comparison, self._single, self._offers = caches
