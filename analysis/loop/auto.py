@@ -226,7 +226,7 @@ def _predicting_no_better(wb: Workbench, found: list[ElementDiscovery],
     for element in found:
         while laws := [t.law.name for t in wb.model.element(element.element).laws]:
             current = checked()
-            if not current.folds:
+            if not current.judges:
                 return
             failing = []
             for law in laws:
@@ -338,8 +338,9 @@ def _predicts_no_better(before: HeldOut, after: HeldOut) -> str:
     """Why a candidate just added is taken back for what it predicts, "" where it stays: a law enters only
     where the model with it predicts every held-out fold better than the model without it
     (:meth:`HeldOut.better_than`). A law that fits its own lines better and predicts the levels its fit did not
-    see no better describes those lines, not the joint. Nothing is judged where nothing could be held out."""
-    if not before.folds or after.better_than(before):
+    see no better describes those lines, not the joint. Nothing is judged where the folds' fits saw too few
+    levels to determine a law (:attr:`HeldOut.judges`: two levels, each fit seeing one)."""
+    if not before.judges or after.better_than(before):
         return ""
     folds = ", ".join(f"{a:.3g} against {b:.3g}" for a, b in zip(after.folds, before.folds))
     return (f"it does not predict the levels its fits did not see better: held-out {after.error:.3g} against "

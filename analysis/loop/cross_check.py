@@ -75,13 +75,25 @@ def _at(wb: Workbench, levels: list) -> Measurements:
 HELD_OUT_FOLDS = 3
 
 
+#: The fewest levels a fold's fit must see for its held-out error to judge a law: a fit on one level cannot
+#: determine a law that level does not show (a clearance that closes, a quintic, at the other level only), and
+#: what it predicts there measures that, not the law
+LEVELS_TO_JUDGE = 2
+
+
 @dataclass(frozen=True)
 class HeldOut:
     """A model's FRF error on levels its fit did not see: ``error`` over all of them pooled, ``folds`` per fold
-    (the levels one refit predicted), in fold order."""
+    (the levels one refit predicted), in fold order; ``seen`` the fewest levels any fold's fit saw."""
 
     error: float
     folds: tuple[float, ...]
+    seen: int = 0
+
+    @property
+    def judges(self) -> bool:
+        """Whether these folds can judge a law (:data:`LEVELS_TO_JUDGE`)."""
+        return bool(self.folds) and self.seen >= LEVELS_TO_JUDGE
 
     def better_than(self, other: "HeldOut") -> bool:
         """Whether this model predicts every fold better than ``other`` did on the same folds: each fold is data
@@ -104,13 +116,14 @@ def held_out(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> HeldOut:
     twelve, eight): a fit on a half or on a single level leaves laws with more parameters than it determines, and
     its held-out error would measure that, not the model. K folds cost K refits. :data:`NOT_CHECKED` for a
     session of fewer than two stepped-sine levels."""
-    parts = []
+    parts, fewest = [], None
     for seen, held in interleaved(wb.measurements.level_controls(), folds):
         measured = _at(wb, held)            # only the levels the fit did not see are predicted
         parts.append((predict_session(_refitted(wb, seen), measured, "", wb.harmonics).comparison, measured.sine))
+        fewest = len(seen) if fewest is None else min(fewest, len(seen))
     if not parts:
         return NOT_CHECKED
-    return HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts))
+    return HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts), fewest)
 
 
 def interleaved(levels: list, folds: int) -> list[tuple[list, list]]:
