@@ -382,7 +382,7 @@ def report_text(wb: Workbench, candidates, top: int = 5,
                ", ".join(f"{e.label()}: {e.error:.3g}" for e in comp.error_by_level) + ")" +
                ("" if single == comp.error else
                 f"; single-harmonic {single:.4g}, the measure the candidates below are judged by"))
-    if wb.error_floor is not None and np.isfinite(wb.error_floor.total):
+    if wb.error_floor is not None:
         out.append(wb.error_floor.text(comp.error))
     worst = max(comp.residual_map, key=lambda n: comp.residual_map[n].max())
     i = int(comp.residual_map[worst].argmax())

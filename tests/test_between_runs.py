@@ -253,5 +253,9 @@ def test_the_floor_is_the_spread_a_scatter_of_kbar_gives_the_frfs_by_monte_carlo
     assert math.isnan(floor.line_noise) and floor.total == floor.between_runs and floor.ruled_by == ("e",)
     # a yardstick that does not rule carries nothing
     quiet = BetweenRuns(tau, tau / 30, 40, 3, 0.9, False)
-    unruled = frf_error_floor([RunSensitivity(h[:, None], None, (-h**2)[:, None, None])], [quiet], ["e"])
+    std = 1e-3 * np.abs(h)[:, None]
+    unruled = frf_error_floor([RunSensitivity(h[:, None], std, (-h**2)[:, None, None])], [quiet], ["e"])
     assert unruled.between_runs == 0.0 and unruled.ruled_by == ()
+    assert unruled.total == pytest.approx(1e-3, rel=1e-12)          # the FRFs' noise alone
+    # and with no noise measured either, there is no floor to state
+    assert frf_error_floor([RunSensitivity(h[:, None], None, (-h**2)[:, None, None])], [quiet], ["e"]) is None

@@ -19,6 +19,7 @@ from scipy.optimize import least_squares, lsq_linear
 
 from ..common.errors import InputError
 from ..common.interrupt import check_stop
+from ..common.recent import Recent
 from ..laws import Law
 from ..laws.base import Param
 from .results import Combination, Degeneracy, LawFit
@@ -189,7 +190,7 @@ class _Problem:
         self.linear_names = [f"{b.label}.{n}" for b in self.blocks for n in b.law.linear]
         self.shape_names = [f"{b.label}.{p.name}" for b in self.blocks for p in b.law.shape]
         self.linear_lower, self.linear_upper, self.linear_lower_open = _linear_bounds(self.blocks, n_lin)
-        self._kept: dict[int, dict[bytes, np.ndarray]] = {}
+        self._kept: dict[int, Recent[np.ndarray]] = {}
         # Columns of laws without shape parameters never change: build them once.
         self.design_fixed = np.zeros((2 * X.size, n_lin))
         for blk in self.blocks:
@@ -213,16 +214,12 @@ class _Problem:
         """Block ``i``'s weighted design columns at its shape values, kept for the last few values asked: a
         finite-difference step or a grid point moves one law's shape at a time, and the other laws' bases, a
         harmonic balance each for a placed contact, would otherwise be built again unchanged."""
-        kept = self._kept.setdefault(i, {})
+        kept = self._kept.setdefault(i, Recent(_KEPT_BASES))
         key = shape.tobytes()
-        columns = kept.pop(key, None)
-        if columns is not None:
-            kept[key] = columns         # the most recently asked last: the first is the one to drop
-        else:
+        columns = kept.get(key)
+        if columns is None:
             values = dict(zip((p.name for p in blk.law.shape), shape))
-            columns = kept[key] = self._weighted(blk.law.basis(self.X, self.w, **values))
-            if len(kept) > _KEPT_BASES:
-                del kept[next(iter(kept))]
+            columns = kept.keep(key, self._weighted(blk.law.basis(self.X, self.w, **values)))
         return columns
 
     def solve_linear(self, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

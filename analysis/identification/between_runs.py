@@ -202,19 +202,17 @@ class ErrorFloor:
 
     @property
     def total(self) -> float:
-        parts = [p for p in (self.between_runs, self.line_noise) if np.isfinite(p)]
-        return math.sqrt(sum(p * p for p in parts)) if parts else float("nan")
+        return math.hypot(self.between_runs, np.nan_to_num(self.line_noise))
 
     def text(self, error: float) -> str:
         """One sentence: the floor beside the model's FRF error ``error``, and which part sets it."""
         noise = f"the FRFs' noise {self.line_noise:.3g}" if np.isfinite(self.line_noise) else "no FRF noise measured"
-        if self.ruled_by:
-            parts = f"the scatter between runs at {', '.join(self.ruled_by)} {self.between_runs:.3g}, {noise}"
+        parts = (f"the scatter between runs at {', '.join(self.ruled_by)} {self.between_runs:.3g}, {noise}"
+                 if self.ruled_by else noise)
+        if error <= FLOOR_REACHED * self.total:
+            at = "the model is within what the test repeats: no law can be told apart below it"
         else:
-            parts = noise
-        at = ("the model is within what the test repeats: no law can be told apart below it"
-              if error <= FLOOR_REACHED * self.total else
-              f"x{error / self.total:.3g} above it") if self.total > 0 else ""
+            at = f"x{error / self.total:.3g} above it"
         return f"FRF error the test itself allows: {self.total:.3g} ({parts}); {at}"
 
     def to_json(self) -> dict:
@@ -231,12 +229,13 @@ def _number(value: float) -> float | None:
 
 
 def frf_error_floor(runs: list[RunSensitivity], yardsticks: list[BetweenRuns | None],
-                    names: list[str]) -> ErrorFloor:
+                    names: list[str]) -> ErrorFloor | None:
     """The :class:`ErrorFloor` of ``runs`` with the elements' scatter between runs ``yardsticks`` (one per element,
     in the columns' order; None or not ruling: none carried), ``names`` the elements'. Each element's kbar is taken
     to scatter independently from run to run with variance ``tau^2``, so a line's FRFs scatter by
     ``sum_i |d hbar_p / d kbar_i|^2 tau_i^2`` (first order); a line where an element's kbar is not finite
-    contributes no scatter, so the floor errs low."""
+    contributes no scatter, so the floor errs low. None where neither part is measured (no FRF noise and no
+    scatter between runs ruling) or there is no FRF."""
     tau2 = np.array([y.tau ** 2 if y is not None and y.rules else 0.0 for y in yardsticks])
     spread = noise = total = 0.0
     noise_known = bool(runs) and all(r.std is not None for r in runs)
@@ -246,7 +245,7 @@ def frf_error_floor(runs: list[RunSensitivity], yardsticks: list[BetweenRuns | N
         spread += float(np.sum(moved))
         if noise_known:
             noise += float(np.sum(np.asarray(run.std, float) ** 2))
-    if total <= 0.0:
-        return ErrorFloor(float("nan"), float("nan"), ())
     ruled = tuple(n for n, y in zip(names, yardsticks) if y is not None and y.rules)
+    if total <= 0.0 or not (ruled or noise_known):
+        return None
     return ErrorFloor(math.sqrt(spread / total), math.sqrt(noise / total) if noise_known else float("nan"), ruled)

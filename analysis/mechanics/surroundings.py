@@ -30,6 +30,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..common.recent import Recent
 from ..laws import Law
 from ..laws.base import broadcast
 from .structures import Structure
@@ -48,6 +49,8 @@ _MAX_ITERATIONS = 12
 # Newton steps from the balance last solved at the same samples before a sample starts again from no harmonics:
 # a nearby solution converges in 2-3 (one step where the contact's closed part over the cycle is unchanged)
 _WARM_ITERATIONS = 4
+# Sets of samples whose last balance is kept
+_STARTS_KEPT = 8
 # Relative change of the harmonics (to X) below which the balance has converged
 _TOLERANCE = 1e-10
 
@@ -63,7 +66,9 @@ class Surroundings:
     parallel: Callable[[np.ndarray], np.ndarray] | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
     _blocks: tuple | None = field(default=None, repr=False, compare=False)
-    starts: "_Starts" = field(default_factory=lambda: _Starts(), repr=False, compare=False)
+    # the balances last solved at a few sets of samples (placed_kbar), shared with the copies of with_parallel: a
+    # fit asks the same samples again and again, at parameters a step apart
+    starts: Recent = field(default_factory=lambda: Recent(_STARTS_KEPT), repr=False, compare=False)
     # the structure was made from a measured level and holds the element's small-amplitude stiffness: the
     # element's laws are measured from their small-amplitude state (analysis.laws.base.Law.relative)
     in_reference: bool = False
@@ -94,25 +99,6 @@ class Surroundings:
         the structure's receptances)."""
         return Surroundings(self.structure, self.vector, stiffness, self._cache, starts=self.starts,
                             in_reference=self.in_reference)
-
-
-class _Starts:
-    """The balances last solved at a few sets of samples (:func:`placed_kbar`), shared by a place and its copies
-    with other laws in parallel: a fit asks the same samples again and again, at parameters a step apart."""
-
-    SIZE = 8
-
-    def __init__(self):
-        self._z: dict[tuple, np.ndarray] = {}
-
-    def get(self, key: tuple) -> np.ndarray | None:
-        return self._z.get(key)
-
-    def keep(self, key: tuple, z: np.ndarray) -> None:
-        self._z.pop(key, None)
-        self._z[key] = z
-        while len(self._z) > self.SIZE:
-            del self._z[next(iter(self._z))]
 
 
 def surroundings_of(structure: Structure, vector: np.ndarray, in_reference: bool = False) -> Surroundings:

@@ -369,9 +369,4 @@ def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult |
         wb.single_harmonic_comparison().error,
         # a stopped loop leaves no ranking; an empty table would read as "every law was tried"
         auto is None or auto.stopped != STOPPED_BY_USER,
-        backbones(wb), kbar_basis(wb), _error_floor(wb, comp.error))
-
-
-def _error_floor(wb: Workbench, error: float) -> str:
-    floor = wb.error_floor
-    return floor.text(error) if floor is not None and np.isfinite(floor.total) else ""
+        backbones(wb), kbar_basis(wb), "" if wb.error_floor is None else wb.error_floor.text(comp.error))
