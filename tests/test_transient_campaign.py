@@ -84,40 +84,42 @@ def test_predicted_start_drive_spares_the_corrections_across_the_shaker_resonanc
     run = runs["sine_0.5N_up"]
     assert summary.lines_off_target == 0 and len(run["f"]) == 49
     assert run["control_steps"][1:].sum() <= 6, run["control_steps"]
-    assert np.abs(run["frf"] / receptance(rig, run["f"]) - 1).max() < 1e-3
+    assert np.abs(run["frf"] / receptance(rig, run["f"]) - 1).max() < 2e-3          # the settle tolerance
 
 
 @pytest.mark.slow
-def test_hardening_rig_waits_where_harmonics_show_and_stays_on_the_branch(tmp_path):
-    """Up and down through the jumps of a Duffing oscillator: every line on the branch the waiting path finds,
-    the lines with harmonics (the jump among them) measured by waiting, the others as accurately as waiting."""
+def test_hardening_rig_takes_lines_with_harmonics_from_their_sequence_and_stays_on_the_branch(tmp_path):
+    """Up and down through the jumps of a Duffing oscillator: every line on the branch the waiting path finds;
+    the lines with harmonics taken from their phasor sequence and the others from their fit of modes, each within
+    the tolerance of the settled value, as the waiting lines are (so within twice it of them); a line that
+    waited says why."""
     rig = load_rig(RIGS / "hardening.toml")
     _, steady, _, transient, events = both(tmp_path, rig, 0.5, 8.0, 13.0, 0.25, "both")
     for name in ("sine_0.5N_up", "sine_0.5N_down"):
         a, b = steady[name], transient[name]
         np.testing.assert_allclose(b["f"], a["f"], rtol=1e-4)
         ratio = np.abs(b["frf"][:, 0] / a["frf"][:, 0] - 1)
-        assert np.all(ratio[b["transient"]] < 3e-3), (name, ratio)     # both within the 2e-3 tolerance
+        assert np.all(ratio[b["transient"]] < 4e-3), (name, ratio)     # both within the 2e-3 tolerance
         assert np.all(ratio < 0.02), (name, ratio)                      # a jump changes it several times over
-        assert np.all(~b["transient"][a["thd"] > 2e-3])                 # twice the harmonics the fit accepts
-        jump = np.argmax(np.abs(np.diff(np.log(np.abs(a["frf"][:, 0])))))
-        assert not b["transient"][jump:jump + 2].any()
-        assert any(f"{name}: {b['f'][jump + 1]:.4f} Hz waited for the transient: harmonics" in e for e in events)
-        assert b["transient"].sum() >= 5
+        assert b["transient"][a["thd"] > 2e-3].sum() >= 3               # lines with harmonics, from the sequence
+        assert b["transient"].mean() >= 0.8
+        for f in b["f"][~b["transient"]]:
+            assert any(f"{name}: {f:.4f} Hz waited for the transient: " in e for e in events)
 
 
 @pytest.mark.slow
-def test_friction_rig_waits_where_it_should_and_no_line_leaves_the_settled_value(tmp_path):
-    """Stick-slip and a hardening cubic: harmonics at every line, so every line waits, with its reason."""
+def test_friction_rig_takes_lines_from_their_sequence_and_no_line_leaves_the_settled_value(tmp_path):
+    """Stick-slip and a hardening cubic: harmonics at every line, so no fit of modes; the phasor sequence takes
+    lines within the tolerance of the waiting path's values, and a line it refuses waits, with its reason."""
     rig = load_rig(RIGS / "stiff-friction.toml")
     _, steady, _, transient, events = both(tmp_path, rig, 1.0, 2.0, 3.0, 0.25, "up")
     a, b = steady["sine_1N_up"], transient["sine_1N_up"]
-    assert not b["transient"][a["thd"] > 2e-3].any()
+    assert b["transient"].sum() >= 2
     for f in b["f"][~b["transient"]]:
         assert any(f"sine_1N_up: {f:.4f} Hz waited for the transient: " in e for e in events)
     with np.errstate(invalid="ignore"):
         change = np.nanmax(np.abs(b["frf"] / a["frf"] - 1), axis=1)
-    assert np.all(change < 3e-3), change
+    assert np.all(change < 4e-3), change
 
 
 def test_start_drive_follows_the_predicted_gain_within_one_correction_step():

@@ -125,7 +125,8 @@ def _steady_harmonics(data, f):
 
 @pytest.mark.slow
 def test_a_hardening_spring_is_refused_and_the_reason_said():
-    """A Duffing oscillator near its jump: the modes fitted to a line of the linear structure do not hold."""
+    """A Duffing oscillator near its jump, from rest: the modes fitted to a line of the linear structure do not
+    hold, and its phasor sequence, far from the orbit over six records, does not yet settle on a limit."""
     f = 8.0
     law = lambda x: 4e7 * x**3   # noqa: E731  (hardening: 0.75 k3 X^2 several times k at X ~ 1e-2 m)
     data = integrate(law, f, 30)
@@ -136,7 +137,19 @@ def test_a_hardening_spring_is_refused_and_the_reason_said():
     made = [d for d in decisions if d is not None]
     assert made and not any(d.accepted for d in made)
     assert all(("harmonics" in d.reason) or ("do not describe" in d.reason) or ("changes" in d.reason)
-               for d in made)
+               or ("phasor" in d.reason) for d in made)
+    assert "harmonics" in made[0].reason
+
+
+def test_a_channel_held_at_zero_leaves_the_fit_finite():
+    """A DOF friction holds reads exactly zero: its phasors are zero with a finite std, the others unchanged."""
+    t = np.arange(int(10 * FS / F_LINE)) / FS
+    y = analytic(t)
+    with_zero = np.column_stack([y, np.zeros(len(t))])
+    a = fit_transient(t - t[-1], y, F_LINE, POLES)
+    b = fit_transient(t - t[-1], with_zero, F_LINE, POLES)
+    assert np.all(np.isfinite(b.std)) and np.all(b.phasors[:, 2] == 0)
+    assert np.allclose(b.phasors[:, :2], a.phasors, rtol=1e-9, atol=1e-12)
 
 
 def test_no_poles_no_fit():

@@ -207,7 +207,10 @@ def _phasors_and_std(A, coef, residual, x, tau, n_harmonics):
     Y[0] = coef[0]
     Y[1:] = coef[1:n_forced:2] + 1j * coef[2:n_forced:2]
     s2 = np.sum(residual**2, axis=0) / max(n - p - len(x) / channels, 1)   # per channel
-    s2 = np.where(s2 > 0, s2, np.finfo(float).tiny)
+    # channels are in units of their own spread, so round-off is eps: a channel held at exactly zero (a DOF
+    # friction holds, below one count of the DAQ) fits with no residual, and a smaller floor weighs it so that
+    # J^T J overflows
+    s2 = np.maximum(s2, np.finfo(float).eps ** 2)
     # whole-problem Jacobian, rows weighted by each channel's noise: [block-diagonal A | shared pole columns]
     D = _free_derivatives(x, tau, coef[n_forced:]) if len(x) else np.empty((n, channels, 0))
     J = np.zeros((n * channels, p * channels + len(x)))

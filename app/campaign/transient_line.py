@@ -17,10 +17,33 @@ takes the forced part as the steady state when the fit says its model holds:
   one), both relative to their part of the record: noise is alike everywhere, a wrong model of the transient
   is not.
 
-Otherwise the line waits as the steady path does, and the reason is kept for the line's record. The poles come
+A line whose records show harmonics goes to the **phasor sequence** (analysis/signals/phasor_sequence.py): its
+harmonic phasors over consecutive windows of WINDOW_PERIODS periods converge to the steady state geometrically,
+by the Floquet multipliers of the orbit the structure approaches, linear or not. The sequence's limit is taken
+when it is
+
+- **nonlinear**: the limit itself shows harmonics. The first record's do not tell alone: where the poles known
+  miss a mode, the fit of modes puts the free response it cannot describe into the harmonics;
+- **converging**: every multiplier whose term is above the noise inside the unit circle by a margin (near a
+  jump one approaches it);
+- **within its error budget**: the limit's error has two parts, and together they stay within the tolerance:
+  what the model misses, measured by how much the limit changes with the windows it is fitted to -- started
+  later, without a quarter or a half of its windows (HEAD_SHARES: its head, where the deviation from the orbit
+  is largest and its linearisation holds least), or ended a record earlier (so at least two records in a row
+  must agree) -- and the noise, three standard deviations of the FRFs (from the covariance of limits,
+  amplitudes and multipliers together). Where both are of a size, either alone within the tolerance leaves
+  the sum beyond it.
+
+A line without harmonics that the fit of modes refuses waits: its free response is one of modes, and a
+refusal says the poles known are not all of them, which the line's settled free response then teaches (a line
+taken from its sequence teaches none, and the start drives predicted without the mode miss). Every line the
+estimates refuse waits as the steady path does, and the reason is kept for the line's record. The poles come
 from the measurement itself: a line that ended by waiting hands its free response (its records minus the settled
-forced response) to a matrix pencil; an accepted line hands on its refined poles. So the first line of a
-campaign waits, and the lines after it are measured from their transients. (A random run's modal fit is not used:
+forced response) to a matrix pencil; a line the fit took hands on its refined poles. So the first line of a
+campaign waits -- the free response of a settled line gives the poles; the few records of a sequence, less
+the limit's error, give spurious ones, and the start drives predicted from them miss -- and the lines after it
+are measured from their transients. A line taken from its sequence hands on nothing: its free response need not
+be modal. (A random run's modal fit is not used:
 with a voltage-driven shaker the free response has the poles of structure and shaker together, back-EMF damping
 included, which the force-to-acceleration FRF does not show.)
 """
@@ -31,6 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.signals.harmonics import total_harmonic_distortion
+from analysis.signals.phasor_sequence import fit_sequence, window_phasors
 from analysis.signals.transient_fit import fit_transient, free_response_poles
 
 MIN_RECORDS = 1          # records a transient fit needs (the consistency check drops the first half of one)
@@ -38,6 +62,10 @@ MAX_FIT_RECORDS = 8      # a line not accepted within this many records waits as
 THD_SHARE = 0.5          # harmonics above this share of the tolerance say the structure is not linear here
 WHITENESS = 2.0          # misfit in the head of the window / in its tail, both relative to their part's rms
 MODEL_SHARE = 0.05       # misfit in the head / the free response fitted there
+WINDOW_PERIODS = 2       # periods per phasor of the sequence: the shortest window whose harmonics stay apart
+                         # where the period is not a whole number of samples
+SEQUENCE_WINDOWS = 60    # the sequence's latest windows (the oldest are furthest from the orbit)
+HEAD_SHARES = (0.25, 0.5)  # shares of the sequence's windows its consistency checks drop
 
 
 @dataclass
@@ -45,13 +73,11 @@ class TransientEstimate:
     """One fit of a line's records: the forced response and whether it stands for the steady state.
 
     ``phasors`` and ``std`` (n_harmonics + 1, channels) are at the first sample of the line's last record (the
-    origin of the steady path's harmonics); ``residual_rms`` (channels) is what the fit leaves unexplained,
-    channel units; ``frf_std`` is the largest relative standard deviation of the FRFs; ``reason`` says why the
-    estimate was not taken ("" when it was)."""
+    origin of the steady path's harmonics); ``frf_std`` is the largest relative standard deviation of the FRFs;
+    ``reason`` says why the estimate was not taken ("" when it was)."""
 
     phasors: np.ndarray
     std: np.ndarray
-    residual_rms: np.ndarray
     frf_std: float
     accepted: bool
     reason: str
@@ -83,30 +109,35 @@ class TransientLines:
         self.reason = ""                                # why the line in progress is waiting
         self._records: list = []
         self._nonlinear = False                         # the line in progress showed harmonics
+        self._previous_limit = None                     # its phasor sequence's limit one record before
 
     @property
     def fitting(self) -> bool:
-        """Whether the line in progress is one the fit may take: poles known, no harmonics shown."""
+        """Whether the line in progress is one the fit of modes may take: poles known, no harmonics shown."""
         return len(self.poles) > 0 and not self._nonlinear
 
     def restart(self) -> None:
         """A new line, or the drive changed: the records so far hold another forcing."""
         self._records = []
         self._nonlinear = False
+        self._previous_limit = None
         self.last = None
         self.reason = "no poles known yet" if not len(self.poles) else ""
 
     def add(self, rec, frequency: float) -> TransientEstimate | None:
         """Add a record; the estimate of the line's steady state if the records allow one (else None)."""
         self._records.append(rec)
-        if not len(self.poles):
+        if not len(self.poles):          # the line waits: its free response gives the poles for the rest
             self.reason = "no poles known yet"
             return None
-        if self._nonlinear or not MIN_RECORDS <= len(self._records) <= MAX_FIT_RECORDS:
-            return None
-        estimate = self._estimate(frequency)
-        self.last = estimate
-        self.reason = estimate.reason
+        estimate = None
+        if not self._nonlinear and MIN_RECORDS <= len(self._records) <= MAX_FIT_RECORDS:
+            estimate = self._estimate(frequency)          # finds the harmonics, if any, in the first record
+        if self._nonlinear:
+            estimate = self._sequence(frequency) or estimate
+        if estimate is not None:
+            self.last = estimate
+            self.reason = estimate.reason
         return estimate
 
     def learn(self, frequency: float, harmonics: np.ndarray) -> None:
@@ -124,14 +155,48 @@ class TransientLines:
             self.poles = poles
 
     # ----- the decisions, one function each --------------------------------------------------------
+    def _sequence(self, frequency: float) -> TransientEstimate | None:
+        """The limit of the line's phasor sequence, or None where its records hold too few windows."""
+        run = self._contiguous()
+        origin = run[-1].first_sample - run[0].first_sample
+        P, noise = window_phasors(np.concatenate([r.data for r in run]), self.sample_rate, frequency,
+                                  WINDOW_PERIODS, self.n_harmonics, origin)
+        P, noise = P[-SEQUENCE_WINDOWS:], noise[-SEQUENCE_WINDOWS:]
+        fit = fit_sequence(P, noise)
+        heads = [max(1, int(share * len(P))) for share in HEAD_SHARES]
+        later = [fit_sequence(P[h:], noise[h:]) for h in heads] if fit is not None else [None]
+        if any(f is None for f in later):
+            return None
+        frf_std = self._relative_std(fit.limit[1], fit.std[1])
+        # the fundamentals' ratios and the force magnitude do not depend on the time origin, so the limit of the
+        # record before (referred to its own first sample) compares as it is
+        others = [f.limit[1] for f in later] + [self._previous_limit]
+        change = max(_change(fit.limit[1], b, self.force_index, self.sensor_index) if b is not None else np.inf
+                     for b in others)
+        self._previous_limit = fit.limit[1]
+        reason = self._linear(fit.limit) or self._diverging(fit) or self._beyond_budget(frf_std, change)
+        return TransientEstimate(fit.limit, fit.std, frf_std, not reason, reason)
+
+    def _linear(self, limit: np.ndarray) -> str:
+        if not self._distorted(limit):
+            return ("no harmonics in the steady state: a linear line, whose free response teaches the poles "
+                    "once it settled")
+        return ""
+
+    @staticmethod
+    def _diverging(fit) -> str:
+        if not fit.converging:
+            return f"phasors not converging (a Floquet multiplier of magnitude {fit.slowest:.4f})"
+        return ""
+
     def _estimate(self, frequency: float) -> TransientEstimate:
         t, y = self._window(self._records)
         first = self._head()
         quick = fit_transient(t, y, frequency, self.poles, self.n_harmonics, refine=False)
         distorted = self._distorted(quick.phasors)
-        if distorted:                    # a nonlinear line stays nonlinear: it waits without more fits
+        if distorted:                    # a nonlinear line stays nonlinear: no more fits of modes, its sequence
             self._nonlinear = True
-            return TransientEstimate(quick.phasors, quick.std, quick.residual_rms, np.nan, False, distorted)
+            return TransientEstimate(quick.phasors, quick.std, np.nan, False, distorted)
         full = fit_transient(t, y, frequency, self.poles, self.n_harmonics)
         later = fit_transient(t[first:], y[first:], frequency, full.poles, self.n_harmonics, refine=False)
         frf_std = self._relative_std(full.phasors[1], full.std[1])
@@ -139,7 +204,15 @@ class TransientLines:
                   or self._distorted(full.phasors) or self._unexplained(full, y, first))
         if not reason:
             self.poles = full.poles
-        return TransientEstimate(full.phasors, full.std, full.residual_rms, frf_std, not reason, reason)
+        return TransientEstimate(full.phasors, full.std, frf_std, not reason, reason)
+
+    def _beyond_budget(self, relative_std: float, change: float) -> str:
+        """The sequence's error budget: what its model misses -- the change of the limit with the windows it is
+        fitted to -- and its noise (three standard deviations) add up to the tolerance at most."""
+        if not change + 3 * relative_std <= self.tolerance:
+            return (f"phasor sequence's limit uncertain: it changes by {change:.1e} with the windows fitted, "
+                    f"3 std = {3 * relative_std:.1e}")
+        return ""
 
     def _imprecise(self, relative_std: float) -> str:
         if 3 * relative_std > self.tolerance:

@@ -1,0 +1,171 @@
+"""The steady state a sequence of harmonic phasors converges to, with its uncertainty: a transient model that holds
+for nonlinear structures.
+
+A structure driven by a sine of period ``T`` that approaches a stable periodic steady state deviates from it, once
+the deviation is small, by the response of the structure linearised about that orbit: a linear system with
+T-periodic coefficients. By Floquet theory its state, seen once per period, evolves by a fixed matrix -- the
+monodromy matrix, whose eigenvalues are the Floquet multipliers -- so every harmonic phasor ``P_n`` of every
+channel, taken over windows of whole periods that follow one another, converges as
+
+    P_n = P_inf + sum_k a_k mu_k^n,        n = 0 .. N-1,  |mu_k| < 1,                                 (1)
+
+with multipliers ``mu_k`` shared by all channels and harmonics (one orbit) and amplitudes ``a_k`` per phasor. A
+linear structure is the special case ``mu_k = exp(s_k W)`` (``s_k`` its poles, ``W`` the window length); a
+hardening spring, a friction joint that sticks and slips, a contact that opens, each move the multipliers with
+the amplitude, which is why the line is fitted on its own and no poles are carried from the lines before. Near a
+jump or a bifurcation a multiplier approaches the unit circle, and the model says so instead of extrapolating.
+
+The multipliers come from a matrix pencil (Hua and Sarkar 1990) on the differences ``P_{n+1} - P_n``, which
+removes ``P_inf``: every phasor weighed by its noise, the order from the singular values above that noise. Given
+them, ``P_inf`` and the ``a_k`` follow from one weighted linear least-squares solve, and ``P_inf``'s standard
+deviation from its covariance.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from analysis.signals.harmonics import HarmonicProjector
+
+MAX_MULTIPLIERS = 8        # Floquet multipliers fitted at most (two per mode of the lowest four)
+NOISE_EDGE = 2.0           # a singular value counts as signal above this many times the noise's largest
+UNIT_CIRCLE = 0.999        # a multiplier this close to 1 in magnitude decays too slowly to extrapolate
+
+
+@dataclass
+class SequenceFit:
+    """The limit of a phasor sequence by (1).
+
+    Attributes
+    ----------
+    limit : ndarray, complex, shape of one phasor block (e.g. (n_harmonics + 1, channels))
+        ``P_inf``, in the phasors' units and at their time origin.
+    std : ndarray, float, same shape
+        Standard deviation of each element of ``limit`` (the larger of the noise given and the misfit).
+    multipliers : ndarray, complex, (K,)
+        The ``mu_k``, per window.
+    residual : float
+        Root-mean-square misfit of (1) in units of the given noise (about 1 where the model holds).
+    last_terms : ndarray, float, (K,)
+        Largest ``|a_k mu_k^(N-1)|`` over the phasors, in units of the noise: what each multiplier's term still
+        holds in the last window.
+    """
+
+    limit: np.ndarray
+    std: np.ndarray
+    multipliers: np.ndarray
+    residual: float
+    last_terms: np.ndarray
+
+    @property
+    def converging(self) -> bool:
+        """Every multiplier whose term is still above the noise lies well inside the unit circle: the sequence
+        has a limit (1) can extrapolate to. (A term within the noise is no finding, whatever its multiplier.)"""
+        return bool(np.all((np.abs(self.multipliers) < UNIT_CIRCLE) | (self.last_terms <= 1.0)))
+
+    @property
+    def slowest(self) -> float:
+        """The largest magnitude of a multiplier whose term is above the noise (0 where none is)."""
+        return float(np.max(np.abs(self.multipliers)[self.last_terms > 1.0], initial=0.0))
+
+
+def fit_sequence(phasors, noise) -> SequenceFit | None:
+    """Fit (1) to ``phasors`` (N, ...) complex, window by window, each element with the standard deviation
+    ``noise`` (broadcast to ``phasors``, > 0). None when the sequence is too short to hold a multiplier and
+    still leave a degree of freedom per phasor (N < 4)."""
+    P = np.asarray(phasors, complex)
+    N = P.shape[0]
+    if N < 4:
+        return None
+    shape = P.shape[1:]
+    sigma = np.broadcast_to(np.asarray(noise, float), P.shape).reshape(N, -1)
+    # the smallest: a window's noise estimate (its residual) also holds what of the transient its harmonics do
+    # not describe, most in the first windows; an underestimate only raises the order, and the misfit below
+    # puts the standard deviation back where it belongs
+    scale = np.maximum(np.min(sigma, axis=0), np.finfo(float).tiny)
+    Z = P.reshape(N, -1) / scale                     # each phasor in units of its noise
+    mu = _multipliers(np.diff(Z, axis=0), max_order=min(MAX_MULTIPLIERS, (N - 2) // 2))
+    n = np.arange(N)
+    V = np.column_stack([np.ones(N), *(m ** n for m in mu)])
+    coef, *_ = np.linalg.lstsq(V, Z, rcond=None)
+    misfit = Z - V @ coef
+    m_count, K = Z.shape[1], len(mu)
+    dof = max(N * m_count - m_count * (K + 1) - K, 1)
+    residual = float(np.sqrt(np.sum(np.abs(misfit) ** 2) / dof))
+    # the misfit inflates the noise where the model does not hold, never deflates it below what was measured
+    std = scale * np.sqrt(_limit_variance(V, coef, mu)) * max(residual, 1.0)
+    last_terms = np.max(np.abs(V[-1, 1:, None] * coef[1:]), axis=1) if K else np.empty(0)
+    return SequenceFit((coef[0] * scale).reshape(shape), std.reshape(shape), mu, residual, last_terms)
+
+
+def _limit_variance(V: np.ndarray, coef: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """Variance of each ``P_inf`` (unit noise) from the covariance of the whole problem -- limits, amplitudes and
+    multipliers together -- so that a multiplier the sequence determines poorly (a short sequence, two close
+    multipliers) widens the limit's uncertainty as it should. (1) is analytic in every parameter, so with
+    circular complex noise the covariance is (J^H J)^-1; the multipliers' block is eliminated (Schur
+    complement) phasor by phasor."""
+    N, m = V.shape[0], coef.shape[1]
+    K = len(mu)
+    if K == 0:
+        return np.full(m, 1.0 / N)
+    G = np.linalg.pinv(V.conj().T @ V)                # (K + 1, K + 1): the linear block, the same for every phasor
+    n = np.arange(N)[:, None]
+    dV = n * mu ** np.maximum(n - 1, 0)               # (N, K): d mu_k^n / d mu_k
+    # per phasor j the multipliers' columns are dV * a_kj; the coupling to its linear parameters V^H dV a_j
+    B = np.einsum("nl,nk,kj->jlk", V.conj(), dV, coef[1:])          # (m, K + 1, K)
+    D = (dV.conj().T @ dV) * np.einsum("kj,lj->kl", coef[1:].conj(), coef[1:])   # (K, K), all phasors
+    S = D - np.einsum("jlk,lp,jpq->kq", B.conj(), G, B)             # Schur complement of the linear blocks
+    S_inv = np.linalg.pinv(S)
+    GB = np.einsum("lp,jpk->jlk", G, B)[:, 0, :]                    # (m, K): row 0 of G B_j
+    return np.real(G[0, 0] + np.einsum("jk,kq,jq->j", GB, S_inv, GB.conj()))
+
+
+def _multipliers(D: np.ndarray, max_order: int) -> np.ndarray:
+    """The ``mu`` of ``D_n = sum_k b_k mu_k^n`` (D: (N - 1, m), unit noise per element before differencing) by a
+    matrix pencil over every column at once; the order is the number of singular values above the noise's edge
+    (a Gaussian matrix of r x c entries of standard deviation s has singular values up to about
+    s (sqrt(r) + sqrt(c))), at most ``max_order``."""
+    M = D.shape[0]
+    if max_order < 1 or M < 3:
+        return np.empty(0, complex)
+    L = max(min(M // 2, M - 2), 1)
+    H = np.vstack([np.lib.stride_tricks.sliding_window_view(D[:, c], L + 1) for c in range(D.shape[1])])
+    _, s, Vh = np.linalg.svd(H, full_matrices=False)
+    edge = NOISE_EDGE * np.sqrt(2.0) * (np.sqrt(H.shape[0]) + np.sqrt(H.shape[1]))
+    order = min(int(np.sum(s > edge)), max_order, L)
+    if order == 0:
+        return np.empty(0, complex)
+    # rows of H are sums of b mu^i [1, mu, .., mu^L]: the first rows of Vh span them (unconjugated), and the
+    # shift between their first L and last L entries is the multipliers
+    V = Vh[:order].T                                  # (L + 1, order)
+    mu = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
+    return mu[np.abs(mu) > 0]
+
+
+def window_phasors(data, sample_rate: float, frequency: float, window_periods: int, n_harmonics: int,
+                   origin: int):
+    """Harmonic phasors of consecutive windows of ``window_periods`` periods of ``data`` (samples, channels),
+    uniformly sampled. Every window's phasors are referred to one time origin, the sample ``origin`` of
+    ``data`` (so a steady state gives the same phasor in every window); windows start at the nearest sample to
+    a whole number of periods and hold the same number of samples (least squares, so a fraction of a sample is
+    no leakage).
+
+    Returns (phasors (N, n_harmonics + 1, channels), noise (N, 1, channels): each fundamental's standard
+    deviation from its window's residual, 2 rms / sqrt(samples))."""
+    y = np.asarray(data, float)
+    per_window = window_periods * sample_rate / frequency
+    n = int(np.ceil(per_window))                      # at least the periods asked
+    count = int((y.shape[0] - n) // per_window) + 1 if y.shape[0] >= n else 0
+    if count < 1:
+        return np.empty((0, n_harmonics + 1, y.shape[1]), complex), np.empty((0, 1, y.shape[1]))
+    project = HarmonicProjector(frequency, sample_rate, n, n_harmonics)
+    starts = np.round(np.arange(count) * per_window).astype(int)
+    h = np.arange(n_harmonics + 1)[:, None]
+    P, noise = [], []
+    for s in starts:
+        H = project(y[s:s + n])
+        # the window's phasors are at its first sample s: moved to the common origin
+        P.append(H.amplitudes * np.exp(1j * 2 * np.pi * frequency * h * (origin - s) / sample_rate))
+        noise.append(2 * H.residual_rms / np.sqrt(n))
+    return np.array(P), np.array(noise)[:, None, :]

@@ -1,0 +1,156 @@
+"""The limit of a sequence of harmonic phasors (analysis/signals/phasor_sequence.py) and the stepped-sine lines with
+harmonics taken from it (app/campaign/transient_line.py): against sequences written from the model, a steady sine
+written from its phasors, and nonlinear oscillators integrated by solve_ivp (not the project's simulator) until
+they settle."""
+import numpy as np
+import pytest
+import scipy.integrate
+
+from analysis.signals.phasor_sequence import fit_sequence, window_phasors
+from app.campaign.acquisition import Record
+from app.campaign.transient_line import TransientLines
+
+FS = 512.0
+
+
+def test_limit_and_multipliers_of_a_written_sequence_and_its_std_covers_the_error():
+    """P_n = P_inf + a1 mu1^n + a2 mu2^n + noise, 8 phasors: the limit within its std as often as a normal error
+    is, and the multipliers found."""
+    mu = np.array([0.85 * np.exp(0.4j), 0.7 * np.exp(-1.1j)])
+    z = []
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        limit = rng.normal(size=8) + 1j * rng.normal(size=8)
+        a = 3 * (rng.normal(size=(2, 8)) + 1j * rng.normal(size=(2, 8)))
+        n = np.arange(30)[:, None]
+        noise = 1e-3
+        P = limit + (mu[0] ** n) * a[0] + (mu[1] ** n) * a[1]
+        P = P + noise * (rng.normal(size=P.shape) + 1j * rng.normal(size=P.shape)) / np.sqrt(2)
+        fit = fit_sequence(P, noise)
+        assert fit.converging
+        assert np.allclose(np.sort_complex(fit.multipliers), np.sort_complex(mu), atol=1e-3)
+        z.append(np.abs(fit.limit - limit) / fit.std)
+    z = np.concatenate(z)
+    # |complex normal| / std: 3 std holds about 99 % of them; a std too small by x2 would leave 11 % outside
+    assert np.mean(z <= 3) > 0.97, np.mean(z <= 3)
+
+
+def test_a_sequence_that_does_not_decay_is_not_converging():
+    """An undamped beat (|mu| = 1) has no limit to extrapolate to."""
+    n = np.arange(40)[:, None]
+    P = 1.0 + 0.5 * np.exp(0.3j * n) * np.ones((1, 4))
+    assert not fit_sequence(P, 1e-6).converging
+    assert fit_sequence(P[:3], 1e-6) is None                  # too short to hold a multiplier
+
+
+def test_window_phasors_of_a_steady_sine_are_its_phasors_at_the_origin():
+    """Harmonics of a sine at a frequency with a fraction of a sample per period: every window gives the
+    written phasors, referred to the sample named as origin."""
+    f, Y = 9.37, np.array([0.2, 1.0 - 0.5j, 0.0, 0.03j, 0.0, 0.0])
+    t = np.arange(2000) / FS
+    y = Y[0].real + sum(np.imag(Y[h] * np.exp(2j * np.pi * f * h * t)) for h in range(1, 6))
+    origin = 1500
+    P, noise = window_phasors(np.column_stack([y, 2 * y]), FS, f, 2, 5, origin)
+    at_origin = Y * np.exp(2j * np.pi * f * np.arange(6) * origin / FS)
+    assert P.shape == (int((2000 - round(2 * FS / f)) // (2 * FS / f)) + 1, 6, 2)
+    assert np.allclose(P[:, :, 0], at_origin, atol=1e-12)
+    assert np.allclose(P[:, :, 1], 2 * at_origin, atol=1e-12)
+    assert np.all(noise < 1e-12)
+
+
+# ----- nonlinear oscillators, integrated independently ---------------------------------------------------------
+M, K, C, FORCE = 1.0, 3947.8, 1.5, 0.5        # the hardening rig's oscillator (tests/rigs/hardening.toml)
+
+
+def duffing(x):
+    return 4.0e7 * x**3
+
+
+def friction(v):
+    return 0.05 * np.tanh(v / 2e-4)             # Coulomb friction of 10 % of the force, smoothed at 0.2 mm/s
+
+
+def switched(law, velocity_law, f1, f2, settle_periods, periods):
+    """Force and acceleration at FS after the drive moves from f1 (settled for ``settle_periods``) to f2 with
+    continuous phase, as a sweep's next line; DOP853 at tight tolerances, and a DAQ's noise added (1e-4 N,
+    1e-3 m/s^2 rms)."""
+    def rhs(w, phase):
+        def f(t, s):
+            x, v = s
+            force = FORCE * np.sin(w * t + phase)
+            return [v, (force - C * v - K * x - law(x) - velocity_law(v)) / M]
+        return f
+    w1, w2 = 2 * np.pi * f1, 2 * np.pi * f2
+    T1 = settle_periods / f1
+    first = scipy.integrate.solve_ivp(rhs(w1, 0.0), (0, T1), [0.0, 0.0], method="DOP853", rtol=1e-10,
+                                      atol=1e-13)
+    t = np.arange(int(round(periods * FS / f2))) / FS
+    phase = w1 * T1
+    second = scipy.integrate.solve_ivp(rhs(w2, phase), (0, t[-1]), first.y[:, -1], t_eval=t, method="DOP853",
+                                       rtol=1e-10, atol=1e-13)
+    acc = np.array([rhs(w2, phase)(ti, si)[1] for ti, si in zip(t, second.y.T)])
+    noise = np.random.default_rng(7).standard_normal((len(t), 2)) * [1e-4, 1e-3]
+    return np.column_stack([FORCE * np.sin(w2 * t + phase), acc]) + noise
+
+
+def records(data, frequency, periods_per_record=5):
+    n = int(round(periods_per_record * FS / frequency))
+    return [Record(data[i:i + n], i, FS, False) for i in range(0, len(data) - n + 1, n)]
+
+
+def settled_frf(data, frequency, origin):
+    """The accelerance of the last two periods, the steady state the line converges to, at sample ``origin``."""
+    P, _ = window_phasors(data[-2 * int(round(2 * FS / frequency)):], FS, frequency, 2, 5,
+                          origin - (len(data) - 2 * int(round(2 * FS / frequency))))
+    return P[-1, 1, 1] / P[-1, 1, 0]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("law, velocity_law, f1, f2", [
+    (duffing, lambda v: 0.0, 9.8, 10.0),         # THD 2e-3, the multipliers moved by the amplitude
+    (duffing, lambda v: 0.0, 10.0, 10.2),        # THD 5e-3, further up the branch
+    (lambda x: 0.0, friction, 9.4, 9.6),         # sticking at the turning points
+], ids=["duffing-10.0", "duffing-10.2", "friction-9.6"])
+def test_a_line_with_harmonics_is_taken_from_its_sequence_within_the_tolerance(law, velocity_law, f1, f2):
+    """The fit of modes refuses the line (harmonics); the phasor sequence takes it once its limit is precise and
+    consistent, within the tolerance of the oscillator's settled response, in fewer periods than settling takes."""
+    tolerance = 2e-3
+    data = switched(law, velocity_law, f1, f2, 300, 300)
+    meter = TransientLines(FS, 5, tolerance, force_index=0, sensor_index=[1])
+    meter.poles = np.array([-0.75 + 1j * np.sqrt(K / M - 0.75**2)])     # the linear oscillator's pole
+    meter.restart()
+    taken = None
+    for rec in records(data, f2):
+        estimate = meter.add(rec, f2)
+        if estimate is not None and estimate.accepted:
+            taken = (rec, estimate)
+            break
+        assert estimate is None or estimate.reason, "a refusal says why"
+    assert taken is not None, meter.reason
+    rec, estimate = taken
+    assert 2 * np.linalg.norm(estimate.phasors[2:, 1]) > tolerance * abs(estimate.phasors[1, 1])   # harmonics
+    frf = estimate.phasors[1, 1] / estimate.phasors[1, 0]
+    truth = settled_frf(data, f2, rec.first_sample)
+    last = rec.data[:, :]
+    assert abs(frf / truth - 1) <= tolerance
+    assert 3 * estimate.frf_std <= tolerance
+    periods = (rec.first_sample + len(last)) * f2 / FS
+    # the record the line was taken at still holds more of the transient than the tolerance
+    P, _ = window_phasors(rec.data, FS, f2, 2, 5, 0)
+    assert periods <= 100
+    assert abs((P[0, 1, 1] / P[0, 1, 0]) / truth - 1) > tolerance or periods <= 10
+
+
+def test_a_linear_line_whose_transient_the_poles_known_do_not_describe_waits():
+    """Neither estimate takes a linear line with a strong transient of a mode the poles known miss: the fit of
+    modes leaves that transient in the harmonics of its first record, but the sequence's limit shows none, so
+    the line is linear and waits; its settled free response then teaches the pole."""
+    data = switched(lambda x: 0.0, lambda v: 0.0, 6.0, 9.4, 5, 40)       # a strong transient
+    meter = TransientLines(FS, 5, 2e-3, force_index=0, sensor_index=[1])
+    meter.poles = np.array([-0.2 + 2j * np.pi * 6.0])                    # not the oscillator's
+    meter.restart()
+    estimates = [meter.add(rec, 9.4) for rec in records(data, 9.4)]
+    assert estimates[0] is not None and not estimates[0].accepted
+    assert "harmonics" in estimates[0].reason
+    assert not any(e is not None and e.accepted for e in estimates), [e and e.reason for e in estimates]
+    assert any(e is not None and e.reason.startswith("no harmonics in the steady state") for e in estimates)
