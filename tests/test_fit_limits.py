@@ -99,6 +99,12 @@ def test_a_micro_slip_form_that_asks_for_more_dissipation_than_its_stiffness_all
     assert form.law_values({"kt": 1e5, "chi": 0.0, "D": 10.0}) is None
 
 
+def test_a_micro_slip_form_whose_slip_range_is_beyond_any_number_has_no_iwan():
+    """Near chi = -1 the slip range (kt (chi + 1) / R)^(1 / (chi + 1)) overflows a float: no Iwan, no error."""
+    form = MicroSlip(1e-4)
+    assert form.law_values({"kt": 1e9, "chi": -1.0 + 1e-4, "D": 1e-6}) is None
+
+
 def test_the_lab_shows_a_law_taken_in_its_limit_as_the_combination_with_the_errors_of_the_limit_s_fit():
     from types import SimpleNamespace
 

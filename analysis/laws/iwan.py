@@ -489,7 +489,9 @@ class MicroSlip(LimitForm):
             kt = rate * phi_max ** e / e
         else:
             kt = float(values["kt"])
-            phi_max = (kt * e / rate) ** (1.0 / e)
-            if not phi_max >= self.X_max:
+            # near chi = -1 the power is large: a slip range beyond any float is no Iwan that can be placed
+            with np.errstate(over="ignore"):
+                phi_max = float(np.power(kt * e / rate, 1.0 / e))
+            if not (phi_max >= self.X_max and math.isfinite(phi_max)):
                 return None
         return {"kt": kt, "fs": kt * phi_max * e / (chi + 2.0), "chi": chi, "beta": 0.0}
