@@ -154,3 +154,13 @@ def test_a_linear_line_whose_transient_the_poles_known_do_not_describe_waits():
     assert "harmonics" in estimates[0].reason
     assert not any(e is not None and e.accepted for e in estimates), [e and e.reason for e in estimates]
     assert any(e is not None and e.reason.startswith("no harmonics in the steady state") for e in estimates)
+
+
+@pytest.mark.parametrize("length", [200, 273, 274, 275, 1000, 1001])
+def test_windows_fit_inside_the_data_whatever_its_length(length):
+    """Windows start at the sample nearest a whole number of periods: as many as end inside the data."""
+    f = 9.37
+    P, _ = window_phasors(np.ones((length, 2)), FS, f, 2, 5, 0)
+    per_window, n = 2 * FS / f, int(np.ceil(2 * FS / f))
+    assert round((len(P) - 1) * per_window) + n <= length < round(len(P) * per_window) + n
+    assert np.allclose(P[:, 0, :], 1.0)

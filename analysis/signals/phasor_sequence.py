@@ -156,11 +156,11 @@ def window_phasors(data, sample_rate: float, frequency: float, window_periods: i
     y = np.asarray(data, float)
     per_window = window_periods * sample_rate / frequency
     n = int(np.ceil(per_window))                      # at least the periods asked
-    count = int((y.shape[0] - n) // per_window) + 1 if y.shape[0] >= n else 0
-    if count < 1:
+    starts = np.round(np.arange(int(y.shape[0] // per_window) + 1) * per_window).astype(int)
+    starts = starts[starts + n <= y.shape[0]]
+    if not len(starts):
         return np.empty((0, n_harmonics + 1, y.shape[1]), complex), np.empty((0, 1, y.shape[1]))
     project = HarmonicProjector(frequency, sample_rate, n, n_harmonics)
-    starts = np.round(np.arange(count) * per_window).astype(int)
     h = np.arange(n_harmonics + 1)[:, None]
     P, noise = [], []
     for s in starts:
