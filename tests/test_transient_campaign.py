@@ -157,3 +157,38 @@ def test_after_an_amplitude_change_only_a_line_that_waits_skips_periods_beyond_t
     meter.transient.add(SimpleNamespace(data=data, first_sample=0), 8.0)
     assert meter.transient.reason.startswith("harmonics")
     assert meter._margin_periods() == CHANGE_MARGIN_PERIODS
+
+
+def _records_converging(multipliers, n, limit=1.0 - 0.5j, size=0.02, noise=1e-3):
+    """Records whose FRF converges to ``limit`` as limit + size sum_k mu_k^i (i = 0..n-1), force constant, each
+    with the relative noise ``noise`` (the records' own estimate)."""
+    from app.campaign.stepped_sine import RecordAnalysis
+    out = []
+    for i in range(n):
+        h = limit + size * sum(mu**i for mu in multipliers)
+        out.append(RecordAnalysis(1.0 + 0j, {"x": h}, {"x": noise * abs(h)}, np.zeros((6, 2), complex), noise,
+                                  np.zeros(2), 8.0, np.zeros((0, 2))))
+    return out
+
+
+def test_transient_aware_waiting_is_not_fooled_by_a_beat():
+    """Two modes that beat (multipliers 0.95 e^(+-0.3j) per record) make the size of the changes rise and fall.
+    Where they fall for three records their ratio, extrapolated as one real geometric series, says the rest is
+    within the tolerance while the FRF is still 4-10 x the tolerance from its limit: the waiting path of
+    method "steady" takes such a line. The transient-aware method judges the rest by the sequence's limit and
+    takes the line only once it is within the tolerance."""
+    from app.campaign.plan import SettleSpec
+    from app.campaign.stepped_sine import LineMeter
+    from app.campaign.transient_line import TransientLines
+    tol, noise = 2e-3, 1e-4
+    meter = object.__new__(LineMeter)
+    meter.settle, meter.sensor_dofs, meter.transient = SettleSpec(tolerance=tol), ["x"], None
+    history = _records_converging([0.95 * np.exp(0.3j), 0.95 * np.exp(-0.3j)], 200, noise=noise)
+    rest = [abs(r.frf["x"] / (1.0 - 0.5j) - 1) for r in history]
+    fooled = [n for n in range(4, 201) if meter._steady(history[:n]) and rest[n - 1] > 4 * tol]
+    assert len(fooled) >= 2                                    # the ratio rule (method "steady")
+    meter.transient = TransientLines(512.0, 5, tol, 0, [1])
+    for n in fooled:
+        assert not meter._steady(history[:n]), n
+    settled = next(n for n in range(4, 201) if meter._steady(history[:n]))
+    assert rest[settled - 1] <= tol                            # within the tolerance when taken

@@ -43,6 +43,7 @@ from typing import Callable
 import numpy as np
 
 from analysis.signals.harmonics import HarmonicProjector, harmonics_at, sine_fit, total_harmonic_distortion
+from analysis.signals.phasor_sequence import fit_sequence
 
 from analysis.common.measurements import response_amplitude
 
@@ -453,6 +454,10 @@ class LineMeter:
         is left the changes stop shrinking, so three successive changes all within the tolerance and within
         three times the estimated noise also count as settled (the noise estimate, the fit residual, is
         inflated while a transient lasts, hence three in a row).
+
+        The transient-aware method (``[settle] method = "transient"``), which models transients, judges the
+        rest by its model instead of a ratio (:meth:`_rest_within_noise`): where two modes beat, the changes
+        fall for three records while the response is still far from its limit, and the ratio is fooled.
         """
         if self.settle.fixed_periods:
             return len(history) * self.settle.block_periods >= self.settle.fixed_periods
@@ -461,12 +466,35 @@ class LineMeter:
         c1, c2, c3 = (self._change(history[-k], history[-k - 1]) for k in (1, 2, 3))
         if c1 > self.settle.tolerance:
             return False
-        if c1 < c2 < c3:
+        if self.transient is not None:
+            if self._rest_within_noise(history):
+                return True
+        elif c1 < c2 < c3:
             ratio = max(c1 / c2, c2 / c3)
             if c1 * ratio / (1.0 - ratio) <= self.settle.tolerance:
                 return True
         noise = [max(history[-k].noise, history[-k - 1].noise) for k in (1, 2, 3)]
         return all(c <= min(3.0 * n, self.settle.tolerance) for c, n in zip((c1, c2, c3), noise))
+
+    def _rest_within_noise(self, history: list["RecordAnalysis"]) -> bool:
+        """Whether what is left of the transient is within the last record's own noise and, with the limit's
+        three standard deviations, within the tolerance. The records' FRFs since the drive changed converge as
+        ``H_n = H_inf + sum_k a_k mu_k^n`` (analysis/signals/phasor_sequence.py: a linear structure's modes, a
+        nonlinear one's Floquet multipliers near its orbit; complex, so a beat is followed). The rest must be
+        within the noise, not only the tolerance: it has one sign over the lines near a resonance, so above the
+        noise the identification sees it across lines (a rest just within the tolerance read as a law in a
+        trial). False where the sequence shows no converging limit."""
+        H = np.array([[r.frf[d] for d in self.sensor_dofs] for r in history])
+        noise = np.array([[r.frf_std[d] for d in self.sensor_dofs] for r in history])
+        fit = fit_sequence(H, np.maximum(noise, np.finfo(float).tiny))
+        if fit is None or not fit.converging:
+            return False
+        rest = np.abs(H[-1] - fit.limit)
+        size = np.abs(fit.limit)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            budget = np.where(size > 0, (rest + 3 * fit.std) / size, np.inf)
+        held = (size == 0) & (H[-1] == 0)                               # a DOF held at exactly zero throughout
+        return bool(np.all(held | ((budget <= self.settle.tolerance) & (rest <= noise[-1]))))
 
     def _change(self, a: "RecordAnalysis", b: "RecordAnalysis") -> float:
         # magnitudes for the force (its phase depends on where the record starts), ratios for the FRFs
