@@ -1,9 +1,9 @@
 """Shaker time of transient-aware line measurement against today's steady-state detection and the fixed
 300-period practice, at equal FRF accuracy.
 
-    python benchmarks/transient_speed.py [--rigs linear,hardening,friction]
+    python benchmarks/transient_speed.py [--rigs light,linear,hardening,friction,sticking]
 
-Three rigs through the full in-process stack (drivers + emulated instruments):
+The rigs, each through the full in-process stack (drivers + emulated instruments):
 
 - **light**: tests/rigs/light-linear.toml (the structure of the friction rig below without its elements: modes
   1.59 and 2.76 Hz, zeta 0.5 and 0.29 %, an ideal force source), 1-3.5 Hz in 0.05 Hz steps at 0.5 N.
@@ -21,7 +21,7 @@ Three rigs through the full in-process stack (drivers + emulated instruments):
 - **friction**: tests/rigs/stiff-friction.toml (hardening cubic and Coulomb friction, modes 1.59 and 2.76 Hz,
   zeta 0.3-0.5 %), 1-3.5 Hz in 0.125 Hz steps at 1 N, up and down. Accuracy as for hardening: on this lightly
   damped rig 300 periods are about six decay times of the first mode, and the practice itself misses the
-  settled value by up to 1 %.
+  settled value by up to 1.2 %.
 
 Lines with harmonics are taken from their phasor sequence (app/campaign/transient_line.py), the others from
 their fit of modes.
@@ -136,8 +136,7 @@ def main() -> None:
             err, wrong = accuracy(rig, runs, reference)
             n = sum(len(r[0]) for r in runs.values())
             via = sum(int(np.sum(r[2])) for r in runs.values())
-            shown = f"{err:.1e}"
-            print(f"{name:32s} {shaker:9.1f} {fixed / shaker:8.1f}x {today / shaker:8.1f}x {records:10.1f} {shown:>12s} "
+            print(f"{name:32s} {shaker:9.1f} {fixed / shaker:8.1f}x {today / shaker:8.1f}x {records:10.1f} {err:12.1e} "
                   f"{wrong:9d} {via:4d}/{n:<5d} {wall:7.1f}")
     print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
 

@@ -259,3 +259,6 @@ def test_the_floor_is_the_spread_a_scatter_of_kbar_gives_the_frfs_by_monte_carlo
     assert unruled.total == pytest.approx(1e-3, rel=1e-12)          # the FRFs' noise alone
     # and with no noise measured either, there is no floor to state
     assert frf_error_floor([RunSensitivity(h[:, None], None, (-h**2)[:, None, None])], [quiet], ["e"]) is None
+    # nor with FRFs measured without noise and no scatter: a floor of zero states nothing (and divides nothing)
+    exact = RunSensitivity(h[:, None], np.zeros((len(h), 1)), (-h**2)[:, None, None])
+    assert frf_error_floor([exact], [quiet], ["e"]) is None

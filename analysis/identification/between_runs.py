@@ -235,7 +235,8 @@ def frf_error_floor(runs: list[RunSensitivity], yardsticks: list[BetweenRuns | N
     to scatter independently from run to run with variance ``tau^2``, so a line's FRFs scatter by
     ``sum_i |d hbar_p / d kbar_i|^2 tau_i^2`` (first order); a line where an element's kbar is not finite
     contributes no scatter, so the floor errs low. None where neither part is measured (no FRF noise and no
-    scatter between runs ruling) or there is no FRF."""
+    scatter between runs ruling), where both are zero (noise-free FRFs: no floor to compare with), or there is
+    no FRF."""
     tau2 = np.array([y.tau ** 2 if y is not None and y.rules else 0.0 for y in yardsticks])
     spread = noise = total = 0.0
     noise_known = bool(runs) and all(r.std is not None for r in runs)
@@ -248,4 +249,5 @@ def frf_error_floor(runs: list[RunSensitivity], yardsticks: list[BetweenRuns | N
     ruled = tuple(n for n, y in zip(names, yardsticks) if y is not None and y.rules)
     if total <= 0.0 or not (ruled or noise_known):
         return None
-    return ErrorFloor(math.sqrt(spread / total), math.sqrt(noise / total) if noise_known else float("nan"), ruled)
+    floor = ErrorFloor(math.sqrt(spread / total), math.sqrt(noise / total) if noise_known else float("nan"), ruled)
+    return floor if floor.total > 0.0 else None

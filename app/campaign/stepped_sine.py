@@ -486,7 +486,7 @@ class LineMeter:
         trial). False where the sequence shows no converging limit."""
         H = np.array([[r.frf[d] for d in self.sensor_dofs] for r in history])
         noise = np.array([[r.frf_std[d] for d in self.sensor_dofs] for r in history])
-        fit = fit_sequence(H, np.maximum(noise, np.finfo(float).tiny))
+        fit = fit_sequence(H, noise)
         if fit is None or not fit.converging:
             return False
         rest = np.abs(H[-1] - fit.limit)
