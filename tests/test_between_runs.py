@@ -186,6 +186,10 @@ def test_a_test_that_repeats_poorly_is_judged_by_its_scatter_and_its_intervals_c
     wb = _workbench(drifting)
     report = wb.reports["spring"]
     assert report.yardstick.rules and report.yardstick.tau == pytest.approx(DRIFT, rel=0.25)
+    # the session's stiffness wanders, its damping does not: the scatter lies in Re kbar, and its parts say so
+    tau_re, tau_im = report.yardstick.tau_parts
+    assert tau_re == pytest.approx(DRIFT, rel=0.25) and tau_im < 0.25 * DRIFT
+    assert report.yardstick.to_json()["between_runs_std_parts"] == [tau_re, tau_im]
     fit = report.fit.terms[0]
     assert report.fit.outlier_share <= 0.10
     assert abs(fit.params["k3"] - K3) < 3 * fit.stderr["k3"], (fit.params["k3"], fit.stderr["k3"])

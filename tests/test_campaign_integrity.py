@@ -143,6 +143,26 @@ def test_the_first_line_approaches_its_force_from_below(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_run_that_starts_where_another_held_its_level_starts_at_half_that_drive(tmp_path):
+    """Up then down: the down run's first line is the up run's last, at the same force, so the drive that held it
+    says what it needs. It starts at half that drive (one correction) instead of approaching from 0.05 V; the up
+    run, with nothing measured at its first line, still approaches from below."""
+    rig = load_rig(RIGS / "linear-shaker.toml")
+    text = ("[[stepped_sine]]\nforce = 0.5\nstart = 12.0\nstop = 12.2\nstep = 0.1\ndirection = \"both\"\n"
+            "refine = false\n[limits]\nmax_force = 2.0\nmax_acceleration = 150.0\n")
+    peaks = ForcePeaks()
+    with emulated_instruments(rig) as inst:
+        summary = run_plan(plan(text), inst, tmp_path / "o.h5", listener=peaks)
+    assert summary.complete, summary.text()
+    assert peaks.peak["sine_0.5N_down"] < 0.5 * 1.1
+    with open_session(tmp_path / "o.h5") as s:
+        up, down = (s.run(n).arrays for n in ("sine_0.5N_up", "sine_0.5N_down"))
+    assert up["control_steps"][0] >= 3                     # 0.05 V doubled towards the 0.5 N it needs
+    assert down["control_steps"][0] <= 1
+    np.testing.assert_allclose(down["drive"][0], up["drive"][-1], rtol=0.05)
+
+
+@pytest.mark.slow
 def test_a_sensor_that_saw_nothing_is_stored_as_nan_not_zero(tmp_path):
     assert np.isnan(stored_frf({"a": 0j, "b": 1 + 2j})["a"]) and stored_frf({"b": 1 + 2j})["b"] == 1 + 2j
     # paper-2dof: at 0.05 N the friction on x2 (0.1 N) holds it: the accelerometers read exactly 0

@@ -102,9 +102,9 @@ def test_identify_tab_says_which_yardstick_judged_each_element(qtbot):
     from analysis.identification.between_runs import BetweenRuns
 
     view = _view(fitted=False)
-    judged = [BetweenRuns(0.0, 2.0, 0, 0, 1.0, False), BetweenRuns(430.0, 13.0, 64, 64, 5e-20, True)]
+    judged = [BetweenRuns(0.0, 2.0, 0, 0, 1.0, False), BetweenRuns(430.0, 13.0, 64, 64, 5e-20, True, 0.16)]
     view = IdentificationView([replace(e, yardstick=j.text()) for e, j in zip(view.elements, judged)], 80, False,
                               view.runs)
     shown = _panel(qtbot, view).verdicts.toPlainText()
     assert "Yardstick: the line noise (2 N/m); the scatter between runs is not measurable" in shown
-    assert "Yardstick: the scatter between runs, 430 N/m (33x the line noise of 13 N/m" in shown
+    assert "Yardstick: the scatter between runs, 430 N/m (Re 394.1, Im 172; 33x the line noise of 13 N/m" in shown

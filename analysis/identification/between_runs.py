@@ -35,8 +35,10 @@ model-form error. Over ``n`` groups:
 
 Where it rules, each sample's standard deviation becomes ``sqrt(std^2 + tau^2)`` (:meth:`BetweenRuns.combined`):
 significance, outliers and intervals are then relative to how well the test repeats, not to how precisely one run
-measured a line. Where fewer than four runs measured a line within a factor ``SPAN``, nothing is estimated: a
-plan of levels a factor of two apart, one sweep each, cannot tell the joint from the test's drift, and the report
+measured a line. Its parts are reported (:attr:`BetweenRuns.tau_parts`): where the mode's frequency wanders
+between runs the scatter lies in Re kbar, and the dissipation repeats better. The samples keep the circular sum
+(docs/fitting.md, "The yardstick": weighing each part by its own scatter was measured and not taken). Where fewer
+than four runs measured a line within a factor ``SPAN``, nothing is estimated: a plan of levels a factor of two apart, one sweep each, cannot tell the joint from the test's drift, and the report
 says the line noise ruled for want of runs that overlap.
 """
 from __future__ import annotations
@@ -75,6 +77,8 @@ class BetweenRuns:
         Probability of at least ``above`` of ``groups`` under the line noise alone (1 with no groups).
     rules : bool
         The scatter between runs is the yardstick: significant at the false alarm and larger than the line noise.
+    im_share : float
+        The imaginary part's share of ``tau^2`` (``tau_im^2 / tau^2``; 0.5: circular).
     """
 
     tau: float
@@ -83,6 +87,12 @@ class BetweenRuns:
     above: int
     p_value: float
     rules: bool
+    im_share: float = 0.5
+
+    @property
+    def tau_parts(self) -> tuple[float, float]:
+        """``(tau_re, tau_im)``, N/m."""
+        return self.tau * math.sqrt(1.0 - self.im_share), self.tau * math.sqrt(self.im_share)
 
     def combined(self, std: np.ndarray) -> np.ndarray:
         """``sqrt(std^2 + tau^2)`` where the scatter between runs rules, else ``std`` unchanged; shape of ``std``."""
@@ -96,8 +106,10 @@ class BetweenRuns:
                     f"between runs is not measurable: no four runs measured one line within a factor {SPAN:g} "
                     "in amplitude")
         if self.rules:
+            re, im = self.tau_parts
             return (f"yardstick: the scatter between runs, {engineering(self.tau)} {stiffness_unit} "
-                    f"({self.tau / max(self.line_noise, 1e-300):.0f}x the line noise of "
+                    f"(Re {engineering(re)}, Im {engineering(im)}; "
+                    f"{self.tau / max(self.line_noise, 1e-300):.0f}x the line noise of "
                     f"{engineering(self.line_noise)} {stiffness_unit}; {self.above} of {self.groups} groups of "
                     f"four runs at one line depart from it, p = {self.p_value:.1g}): significance, outliers and "
                     "intervals are judged against it")
@@ -107,6 +119,7 @@ class BetweenRuns:
 
     def to_json(self) -> dict:
         return {"ruled_by": "between_runs" if self.rules else "line_noise", "between_runs_std": self.tau,
+                "between_runs_std_parts": list(self.tau_parts),
                 "line_noise_std": self.line_noise, "groups": self.groups, "groups_above": self.above,
                 "p_value": self.p_value}
 
@@ -133,11 +146,13 @@ def between_runs(X, w, kbar, kbar_std, *, false_alarm: float = DEFAULT_FALSE_ALA
     ratio = np.abs(residual) ** 2 / np.maximum(variance, 1e-300)
     above = int((ratio > math.log(2.0)).sum())
     p_value = float(scipy.stats.binom.sf(above - 1, residual.size, 0.5))
-    tau = math.sqrt(sum(max(float(np.median(part**2 - variance / 2)) / MEDIAN_CHI2_1, 0.0)
-                        for part in (residual.real, residual.imag)))
+    tau_re2, tau_im2 = (max(float(np.median(part**2 - variance / 2)) / MEDIAN_CHI2_1, 0.0)
+                        for part in (residual.real, residual.imag))
+    tau = math.sqrt(tau_re2 + tau_im2)
     line_noise = float(np.sqrt(np.median(variance)))
     return BetweenRuns(tau, line_noise, int(residual.size), above, p_value,
-                       rules=p_value < false_alarm and tau > line_noise)
+                       rules=p_value < false_alarm and tau > line_noise,
+                       im_share=tau_im2 / (tau_re2 + tau_im2) if tau > 0 else 0.5)
 
 
 def _groups(u: np.ndarray, w: np.ndarray, kbar: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

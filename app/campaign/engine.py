@@ -38,7 +38,8 @@ from app.campaign.transient_line import TransientLines
 BLOCK_SECONDS = 0.5           # longest DAQ frame/block: the abort limits are checked at least this often
 BLOCK_POINTS = (64, 256)      # ...within these sizes (small frames cost throughput, large ones latency)
 START_DRIVE = 0.05            # V peak: the first line of every sine run starts at most here...
-START_FRACTION = 0.5          # ...or at this fraction of the drive the last gain predicts, if less
+START_FRACTION = 0.5          # ...or at this fraction of the drive the last gain predicts, if less (of the
+                              # drive that held the same level at the same line earlier in the campaign, if any)
 MISSED_FORCE = 0.05           # a line this far (relative) from its target (force or response) fails its run
 UNSETTLED_SHARE = 0.5         # ...and so does a run with at least this share of lines at the settling limit
 RAMP_OUT_PERIODS = 10         # the drive ramps to zero over this many periods of the last line before OFF
@@ -155,6 +156,7 @@ class Campaign:
         self._events: queue.SimpleQueue = queue.SimpleQueue()
         self._guard: OutputGuard | None = None
         self._gain = None              # N per V, learnt as the campaign runs
+        self._held_drives: dict[tuple, float] = {}   # (Hz, what is held) -> the drive that held it on target
         self._transient = self._transient_lines()   # poles carry over from run to run
         self._run_lines = _RunLines()
         self._total_lines = plan.planned_lines()
@@ -420,7 +422,7 @@ class Campaign:
             planned = spec.lines(direction)
             f, stop = planned[0], planned[-1]
             sign = 1.0 if direction == "up" else -1.0
-            drive = self._start_drive(spec.force)
+            drive = self._start_drive(spec.force, self._held_drives.get(_line_key(f, _held(spec, 0))))
             self.shaker.set_sine(f, drive)
             guard.arm()
             self._log("operator", f"armed: {name}")
@@ -440,6 +442,7 @@ class Campaign:
                     gains.append((m.frequency, self._gain))
                     if m.on_target:
                         lines_drive.append((m.frequency, m.drive))
+                        self._held_drives[_line_key(f, m.held)] = m.drive
                     self._store_line(name, index, m)
                     index += 1
                     self._progress(name, added_before + _added(planned, f, sign, index))
@@ -533,10 +536,15 @@ class Campaign:
         return TransientLines(self.daq.sample_rate, N_HARMONICS, self.plan.settle.tolerance,
                               channels.index("force"), [channels.index(f"acc:{d}") for d in self.sensor_dofs])
 
-    def _start_drive(self, force: float) -> float:
+    def _start_drive(self, force: float, held_before: float | None = None) -> float:
         """The drive of a run's first line: low. A gain learnt at another frequency or level says little
         here (an electrodynamic shaker's N/V varies several times across a sweep), so the loop approaches
-        the target from a level that cannot reach the abort limits (docs/campaigns.md)."""
+        the target from a level that cannot reach the abort limits (docs/campaigns.md). ``held_before``: the
+        drive that held the same level at the same line earlier in the campaign (the other direction of a
+        sweep), which does say: the run starts at START_FRACTION of it, as safe as any line's start (a line
+        starts from the drive its neighbour needed) without the approach's corrections."""
+        if held_before is not None:
+            return min(START_FRACTION * held_before, self.shaker.amplitude_range[1])
         drive = min(START_DRIVE, self.shaker.amplitude_range[1] / 10)
         if self._gain:
             drive = min(drive, START_FRACTION * force / self._gain)
@@ -677,6 +685,11 @@ def _held_text(m: LineMeasurement) -> str:
     limit = " (at the force limit)" if abs(m.force) >= 0.999 * m.held.force_limit else ""
     return (f"{m.held.quantity} at {m.held.dof} {m.level:.4g} {units}, target {m.held.target:g} {units}; "
             f"force {abs(m.force):.4g} N{limit}")
+
+
+def _line_key(frequency: float, held: HeldLevel) -> tuple:
+    """A line and what it holds, as a key: the same generator frequency (to 1e-9) and the same target."""
+    return round(frequency, 9), held.quantity, held.dof, held.target
 
 
 def _held(spec: SineSpec, index: int) -> HeldLevel:

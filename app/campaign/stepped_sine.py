@@ -549,7 +549,7 @@ class LineMeter:
         estimate: TransientEstimate | None = self.transient.add(rec, frequency) if self.transient else None
         if estimate is None or not estimate.accepted:
             return None
-        return self._analysis(estimate.phasors, estimate.std[1], frequency, rec.data)
+        return self._analysis(estimate.phasors, estimate.fundamental_std(self.sensor_index), frequency, rec.data)
 
     def _learn_poles(self, out: "RecordAnalysis") -> None:
         """A line that waited: its free response gives the poles for the lines after it."""

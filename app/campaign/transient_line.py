@@ -74,13 +74,28 @@ class TransientEstimate:
 
     ``phasors`` and ``std`` (n_harmonics + 1, channels) are at the first sample of the line's last record (the
     origin of the steady path's harmonics); ``frf_std`` is the largest relative standard deviation of the FRFs;
-    ``reason`` says why the estimate was not taken ("" when it was)."""
+    ``reason`` says why the estimate was not taken ("" when it was); ``miss`` the relative size of what the
+    estimate's model misses: the largest change of the FRFs with the data fitted (without the head, a record
+    earlier) and, for the fit of modes, the harmonics (a nonlinear element changes the decay with the amplitude by
+    about as much as it makes harmonics: module docstring, "linear")."""
 
     phasors: np.ndarray
     std: np.ndarray
     frf_std: float
     accepted: bool
     reason: str
+    miss: float = 0.0
+
+    def fundamental_std(self, sensor_index: list[int]) -> np.ndarray:
+        """The fundamentals' standard deviations (channels,), each sensor's with the model's miss added: the
+        noise alone says how well the records determine the model's limit, not how far the limit is from the
+        steady state, and an uncertainty without it was exceeded by the settled value at more than half the
+        lines of a hardening sweep (benchmarks/transient_speed.py). The waiting path adds its last change the
+        same way."""
+        std = np.array(self.std[1], float)
+        miss = np.abs(self.phasors[1][sensor_index]) * min(self.miss, 1.0)
+        std[sensor_index] = np.hypot(std[sensor_index], miss)
+        return std
 
 
 class TransientLines:
@@ -175,7 +190,7 @@ class TransientLines:
                      for b in others)
         self._previous_limit = fit.limit[1]
         reason = self._linear(fit.limit) or self._diverging(fit) or self._beyond_budget(frf_std, change)
-        return TransientEstimate(fit.limit, fit.std, frf_std, not reason, reason)
+        return TransientEstimate(fit.limit, fit.std, frf_std, not reason, reason, change)
 
     def _linear(self, limit: np.ndarray) -> str:
         if not self._distorted(limit):
@@ -200,11 +215,13 @@ class TransientLines:
         full = fit_transient(t, y, frequency, self.poles, self.n_harmonics)
         later = fit_transient(t[first:], y[first:], frequency, full.poles, self.n_harmonics, refine=False)
         frf_std = self._relative_std(full.phasors[1], full.std[1])
-        reason = (self._imprecise(frf_std) or self._inconsistent(full.phasors[1], later.phasors[1])
+        change = _change(full.phasors[1], later.phasors[1], self.force_index, self.sensor_index)
+        reason = (self._imprecise(frf_std) or self._inconsistent(change)
                   or self._distorted(full.phasors) or self._unexplained(full, y, first))
         if not reason:
             self.poles = full.poles
-        return TransientEstimate(full.phasors, full.std, frf_std, not reason, reason)
+        miss = float(np.hypot(change, self._thd(full.phasors)))
+        return TransientEstimate(full.phasors, full.std, frf_std, not reason, reason, miss)
 
     def _beyond_budget(self, relative_std: float, change: float) -> str:
         """The sequence's error budget: what its model misses -- the change of the limit with the windows it is
@@ -219,14 +236,16 @@ class TransientLines:
             return f"transient fit too uncertain (3 std = {3 * relative_std:.1e})"
         return ""
 
-    def _inconsistent(self, a: np.ndarray, b: np.ndarray) -> str:
-        change = _change(a, b, self.force_index, self.sensor_index)
+    def _inconsistent(self, change: float) -> str:
         if not change <= self.tolerance:
             return f"transient fit changes by {change:.1e} without its head"
         return ""
 
+    def _thd(self, phasors: np.ndarray) -> float:
+        return float(np.max(total_harmonic_distortion(phasors[:, self.sensor_index])))
+
     def _distorted(self, phasors: np.ndarray) -> str:
-        thd = float(np.max(total_harmonic_distortion(phasors[:, self.sensor_index])))
+        thd = self._thd(phasors)
         if not thd <= THD_SHARE * self.tolerance:
             return f"harmonics (THD {thd:.1e}): not linear here"
         return ""
