@@ -60,9 +60,10 @@ def _fold(wb: Workbench, half: list, created: str) -> Fold:
 
 def _refitted(wb: Workbench, levels: list) -> Model:
     """``wb``'s model with its laws refitted, from their current values, by a fresh workbench on ``levels``
-    alone (reference, identification, fit; its own error is not computed), its samples judged by the whole test's
-    scatter between runs (:meth:`Workbench._yardstick`)."""
-    fold = Workbench(wb.model, _at(wb, levels), wb.distortion_limit, wb.harmonics, wb.yardsticks())
+    alone (reference, identification, fit; its own error is not computed; started at the whole test's fit), its
+    samples judged by the whole test's scatter between runs (:meth:`Workbench._yardstick`)."""
+    fold = Workbench(wb.model, _at(wb, levels), wb.distortion_limit, wb.harmonics, wb.yardsticks(),
+                     started_at_fit=True)
     fold.prepare()
     return fold.model
 

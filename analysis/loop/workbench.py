@@ -177,7 +177,7 @@ class Workbench:
 
     def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.05,
                  harmonics: HarmonicCriterion | None = HarmonicCriterion(),
-                 yardsticks: dict[str, BetweenRuns] | None = None):
+                 yardsticks: dict[str, BetweenRuns] | None = None, started_at_fit: bool = False):
         if not measurements.sine:
             raise InputError("the session has no stepped-sine run to identify from")
         missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
@@ -189,6 +189,9 @@ class Workbench:
         self.harmonics = harmonics                 # which lines are predicted multi-harmonically (None: none)
         # element -> the scatter between runs measured on the whole test, for a workbench on part of its levels
         self._given_yardsticks = dict(yardsticks or {})
+        # the model's values are where a fit of the whole test settled (a held-out check's refit on part of its
+        # levels): no restart from the FRF-refined laws (:meth:`_corrected_from_refined`)
+        self._started_at_fit = started_at_fit
         self.reference: ReferenceReport | None = None
         self.reports: dict[str, ElementReport] = {}
         self.history: list[HistoryStep] = []
@@ -382,9 +385,13 @@ class Workbench:
         (:func:`analysis.prediction.frf_refinement.refine_against_frfs`, single-harmonic), a corrected pass can
         reach the right one. So where an element has a clearance law, the corrected fit is
         also started from its FRF-refined laws, and the fixed point the FRFs with harmonics prefer by the margin
-        a law must bring (``RankingRules.min_gain``) is kept (``error``: the current fit's, with harmonics)."""
+        a law must bring (``RankingRules.min_gain``) is kept (``error``: the current fit's, with harmonics).
+
+        A workbench started at a fit (``started_at_fit``: a held-out check refitting the model on part of its
+        levels) makes no such restart: its laws start at the fixed point the whole test's FRFs preferred, and the
+        restart is for fits started elsewhere (on the beam it was most of a held-out check's cost)."""
         at = [i for i, el in enumerate(self.model.elements) if any(t.law.kind == "clearance" for t in el.laws)]
-        if not at:
+        if not at or self._started_at_fit:
             return
         before = self._fitted_state()
         for i in at:
