@@ -122,24 +122,28 @@ def test_a_run_whose_lines_sit_at_the_settling_limit_fails():
     assert "3 of 3 line(s) hit the settling limit" in summary.failed["sine_0.5N_up"]
 
 
+def _on_the_shaker_rig(tmp_path, text: str) -> tuple[dict, dict]:
+    """``text`` run on the voltage-driven rig, complete: each run's peak force and its arrays, by run name."""
+    peaks = ForcePeaks()
+    with emulated_instruments(load_rig(RIGS / "linear-shaker.toml")) as inst:
+        summary = run_plan(plan(text), inst, tmp_path / "o.h5", listener=peaks)
+    assert summary.complete, summary.text()
+    with open_session(tmp_path / "o.h5") as s:
+        return peaks.peak, {name: s.run(name).arrays for name in s.run_names()}
+
+
 @pytest.mark.slow
 def test_the_first_line_approaches_its_force_from_below(tmp_path):
     """A gain learnt at the structure's resonance (an electrodynamic shaker gives little force there) would
     drive the next run, at the drive point's anti-resonance (more than twice the N/V), far over its abort limit; the
     first line starts low and approaches its target instead."""
-    rig = load_rig(RIGS / "linear-shaker.toml")
-    text = ("[[stepped_sine]]\nforce = 0.1\nstart = 7.0\nstop = 7.2\nstep = 0.1\nrefine = false\n"
-            "[[stepped_sine]]\nforce = 0.5\nstart = 10.0\nstop = 10.2\nstep = 0.1\nrefine = false\n"
-            "[limits]\nmax_force = 1.0\nmax_acceleration = 150.0\n")
-    peaks = ForcePeaks()
-    with emulated_instruments(rig) as inst:
-        summary = run_plan(plan(text), inst, tmp_path / "o.h5", listener=peaks)
-    assert summary.complete, summary.text()
-    assert peaks.peak["sine_0.5N_up"] < 0.5 * 1.1
-    with open_session(tmp_path / "o.h5") as s:
-        first, second = (s.run(n).arrays for n in ("sine_0.1N_up", "sine_0.5N_up"))
-        gain = (first["force_amplitude"][-1] / first["drive"][-1], second["force_amplitude"][0] / second["drive"][0])
-        assert 0.5 * gain[1] / gain[0] > 1.0    # the old start, target / last gain, breached the 1 N limit
+    peak, runs = _on_the_shaker_rig(tmp_path, "[[stepped_sine]]\nforce = 0.1\nstart = 7.0\nstop = 7.2\nstep = 0.1\n"
+                                    "refine = false\n[[stepped_sine]]\nforce = 0.5\nstart = 10.0\nstop = 10.2\n"
+                                    "step = 0.1\nrefine = false\n[limits]\nmax_force = 1.0\nmax_acceleration = 150.0\n")
+    assert peak["sine_0.5N_up"] < 0.5 * 1.1
+    first, second = runs["sine_0.1N_up"], runs["sine_0.5N_up"]
+    gain = (first["force_amplitude"][-1] / first["drive"][-1], second["force_amplitude"][0] / second["drive"][0])
+    assert 0.5 * gain[1] / gain[0] > 1.0    # the old start, target / last gain, breached the 1 N limit
 
 
 @pytest.mark.slow
@@ -147,16 +151,11 @@ def test_a_run_that_starts_where_another_held_its_level_starts_at_half_that_driv
     """Up then down: the down run's first line is the up run's last, at the same force, so the drive that held it
     says what it needs. It starts at half that drive (one correction) instead of approaching from 0.05 V; the up
     run, with nothing measured at its first line, still approaches from below."""
-    rig = load_rig(RIGS / "linear-shaker.toml")
-    text = ("[[stepped_sine]]\nforce = 0.5\nstart = 12.0\nstop = 12.2\nstep = 0.1\ndirection = \"both\"\n"
-            "refine = false\n[limits]\nmax_force = 2.0\nmax_acceleration = 150.0\n")
-    peaks = ForcePeaks()
-    with emulated_instruments(rig) as inst:
-        summary = run_plan(plan(text), inst, tmp_path / "o.h5", listener=peaks)
-    assert summary.complete, summary.text()
-    assert peaks.peak["sine_0.5N_down"] < 0.5 * 1.1
-    with open_session(tmp_path / "o.h5") as s:
-        up, down = (s.run(n).arrays for n in ("sine_0.5N_up", "sine_0.5N_down"))
+    peak, runs = _on_the_shaker_rig(tmp_path, "[[stepped_sine]]\nforce = 0.5\nstart = 12.0\nstop = 12.2\nstep = 0.1\n"
+                                    "direction = \"both\"\nrefine = false\n[limits]\nmax_force = 2.0\n"
+                                    "max_acceleration = 150.0\n")
+    assert peak["sine_0.5N_down"] < 0.5 * 1.1
+    up, down = runs["sine_0.5N_up"], runs["sine_0.5N_down"]
     assert up["control_steps"][0] >= 3                     # 0.05 V doubled towards the 0.5 N it needs
     assert down["control_steps"][0] <= 1
     np.testing.assert_allclose(down["drive"][0], up["drive"][-1], rtol=0.05)

@@ -38,8 +38,9 @@ significance, outliers and intervals are then relative to how well the test repe
 measured a line. Its parts are reported (:attr:`BetweenRuns.tau_parts`): where the mode's frequency wanders
 between runs the scatter lies in Re kbar, and the dissipation repeats better. The samples keep the circular sum
 (docs/fitting.md, "The yardstick": weighing each part by its own scatter was measured and not taken). Where fewer
-than four runs measured a line within a factor ``SPAN``, nothing is estimated: a plan of levels a factor of two apart, one sweep each, cannot tell the joint from the test's drift, and the report
-says the line noise ruled for want of runs that overlap.
+than four runs measured a line within a factor ``SPAN``, nothing is estimated: a plan of levels a factor of two
+apart, one sweep each, cannot tell the joint from the test's drift, and the report says the line noise ruled for
+want of runs that overlap.
 """
 from __future__ import annotations
 
