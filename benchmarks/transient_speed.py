@@ -119,10 +119,9 @@ def accuracy(rig, runs, reference) -> tuple[float, int]:
     return worst, wrong
 
 
-def element_kbar(rig_path: Path, session: Path) -> dict:
-    """Run name -> (kbar, kbar_std), shape (L, r): every line of the session identified with the rig's structure as
-    the reference and its elements as the unknowns."""
-    model = load_model(tomllib.loads(rig_path.read_text()), str(rig_path))
+def element_kbar(model, session: Path) -> dict:
+    """Run name -> (kbar, kbar_std), shape (L, r): every line of the session identified with the rig's structure
+    (``model``, the rig file read as a model) as the reference and its elements as the unknowns."""
     out = {}
     for run in read_measurements(session).sine:
         ident = identify_complex_stiffness(model.structure, run.receptance, run.sensor_dofs, run.excitation_dof,
@@ -153,17 +152,18 @@ def main() -> None:
     print(f"load average at start: {os.getloadavg()[0]:.1f}")
     for key in args.rigs.split(","):
         case = CASES[key]
-        rig = load_rig(ROOT / "tests" / "rigs" / case[0])
+        rig_path = ROOT / "tests" / "rigs" / case[0]
+        rig = load_rig(rig_path)
+        model = load_model(tomllib.loads(rig_path.read_text()), str(rig_path))
         linear = key in ("light", "linear")
         methods = METHODS + (TIGHT if linear else [])
         results, kbars = {}, {}
-        rig_path = ROOT / "tests" / "rigs" / case[0]
-        for n, (name, settle) in enumerate(methods):
-            results[name] = sweep(rig, case, settle, tmp / f"{key}-{n}.h5")
+        for number, (name, settle) in enumerate(methods):
+            results[name] = sweep(rig, case, settle, tmp / f"{key}-{number}.h5")
             if not linear:
-                kbars[name] = element_kbar(rig_path, tmp / f"{key}-{n}.h5")
+                kbars[name] = element_kbar(model, tmp / f"{key}-{number}.h5")
         reference = None if linear else sweep(rig, case, REFERENCE, tmp / f"{key}-reference.h5")[3]
-        kbar_reference = None if linear else element_kbar(rig_path, tmp / f"{key}-reference.h5")
+        kbar_reference = None if linear else element_kbar(model, tmp / f"{key}-reference.h5")
         fixed = results[METHODS[0][0]][0]
         today = results[METHODS[1][0]][0]
         print(f"\n{key} ({case[0]}, {case[2]:g}-{case[3]:g} Hz step {case[4]:g}, {case[1]:g} N, {case[5]}); "

@@ -333,9 +333,7 @@ class LineMeter:
             out = self._analyse(rec.data, frequency, fit_frequency=True)
             self._learn_poles(out)
             # what is left of the transient is uncertain by about the last change: part of the FRF's std
-            settling = self._change(history[-1], history[-2]) if len(history) > 1 else 1.0
-            for d in self.sensor_dofs:
-                out.frf_std[d] = float(np.hypot(out.frf_std[d], abs(out.frf[d]) * min(settling, 1.0)))
+            self._add_miss(out, self._change(history[-1], history[-2]) if len(history) > 1 else 1.0)
             wait.steady = steady
             return self._transient_line(self._line(frequency, target_force, out, wait, rec, before))
 
@@ -549,7 +547,15 @@ class LineMeter:
         estimate: TransientEstimate | None = self.transient.add(rec, frequency) if self.transient else None
         if estimate is None or not estimate.accepted:
             return None
-        return self._analysis(estimate.phasors, estimate.fundamental_std(self.sensor_index), frequency, rec.data)
+        return self._add_miss(self._analysis(estimate.phasors, estimate.std[1], frequency, rec.data), estimate.miss)
+
+    def _add_miss(self, out: "RecordAnalysis", miss: float) -> "RecordAnalysis":
+        """``out`` with ``miss`` (relative, at most 1) of each FRF added to its standard deviation: what is left of
+        the transient (a waiting line's last change) or what an estimate's model misses. The noise alone says how
+        well the records determine the FRF, not how far it still is from the steady state."""
+        for d in self.sensor_dofs:
+            out.frf_std[d] = float(np.hypot(out.frf_std[d], abs(out.frf[d]) * min(miss, 1.0)))
+        return out
 
     def _learn_poles(self, out: "RecordAnalysis") -> None:
         """A line that waited: its free response gives the poles for the lines after it."""

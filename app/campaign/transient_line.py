@@ -86,17 +86,6 @@ class TransientEstimate:
     reason: str
     miss: float = 0.0
 
-    def fundamental_std(self, sensor_index: list[int]) -> np.ndarray:
-        """The fundamentals' standard deviations (channels,), each sensor's with the model's miss added: the
-        noise alone says how well the records determine the model's limit, not how far the limit is from the
-        steady state, and an uncertainty without it was exceeded by the settled value at more than half the
-        lines of a hardening sweep (benchmarks/transient_speed.py). The waiting path adds its last change the
-        same way."""
-        std = np.array(self.std[1], float)
-        miss = np.abs(self.phasors[1][sensor_index]) * min(self.miss, 1.0)
-        std[sensor_index] = np.hypot(std[sensor_index], miss)
-        return std
-
 
 class TransientLines:
     """The poles known so far and the records of the line in progress.
