@@ -11,6 +11,7 @@ from analysis.prediction.harmonic_balance import predict_sweep
 from analysis.laws import get_law
 from analysis.laws.base import Law, Param
 from analysis.laws.unilateral import unilateral_force
+from analysis.common.small_solve import solve_small
 from analysis.mechanics import surroundings
 from analysis.mechanics.surroundings import _cycle, placed_kbar
 
@@ -206,14 +207,34 @@ def test_a_model_places_its_elements_in_its_own_structure():
 
 
 @pytest.mark.parametrize("n_harmonics, n_time", [(9, 128), (1, 16), (5, 64), (3, 4096)])
-def test_the_tangent_blocks_from_one_fft_are_the_product_they_replace(n_harmonics, n_time):
+def test_the_tangent_blocks_from_fourier_coefficients_are_the_product_they_replace(n_harmonics, n_time):
     """``P diag(t) Phi`` from the Fourier coefficients of t is the direct product to rounding, for tangents that
     switch along the cycle as a contact's does."""
     cycle = _cycle(n_harmonics, n_time)
     rng = np.random.default_rng(n_time)
-    t = rng.random((6, n_time)) * (rng.random((6, n_time)) > 0.4) * 1e3
-    direct = (cycle.P[None] * t[:, None, :]) @ cycle.Phi
-    np.testing.assert_allclose(cycle.tangent_blocks(t), direct, rtol=0, atol=1e-12 * np.max(np.abs(direct)))
+    for t in rng.random((6, n_time)) * (rng.random((6, n_time)) > 0.4) * 1e3:
+        direct = cycle.P @ (t[:, None] * cycle.Phi)
+        got = np.empty((cycle.size, cycle.size))
+        surroundings._tangent_block(t, cycle.trig, cycle.first, cycle.first_sign, cycle.second,
+                                    cycle.second_sign, np.empty(cycle.trig.shape[1]), got)
+        np.testing.assert_allclose(got, direct, rtol=0, atol=1e-12 * np.max(np.abs(direct)))
+
+
+def test_the_small_solve_of_the_balance_and_the_simulator_is_lapacks():
+    """The compiled loops' own elimination (partial pivoting) against numpy's solve, on random systems of the
+    balance's size and on ones as ill-conditioned as a contact at a mode makes them; an exactly singular one and
+    a non-finite one are reported."""
+    rng = np.random.default_rng(3)
+    for size, condition in [(17, 1.0), (17, 1e-8), (9, 1.0), (2, 1.0)]:
+        A = np.eye(size) + rng.normal(size=(size, size))
+        A[:, 0] = A[:, 1] + condition * A[:, 0]
+        b = rng.normal(size=size)
+        x = np.empty(size)
+        assert solve_small(A.copy(), b.copy(), x, size)
+        np.testing.assert_allclose(A @ x, b, atol=1e-9 * np.abs(A).max() * np.abs(x).max())
+        np.testing.assert_allclose(x, np.linalg.solve(A, b), rtol=1e-6 if condition < 1 else 1e-12)
+    assert not solve_small(np.ones((4, 4)), np.ones(4), np.empty(4), 4)
+    assert not solve_small(np.full((2, 2), np.nan), np.ones(2), np.empty(2), 2)
 
 
 def test_a_sample_without_a_balance_is_given_up_and_leaves_the_others_as_they_are(monkeypatch):
@@ -225,12 +246,10 @@ def test_a_sample_without_a_balance_is_given_up_and_leaves_the_others_as_they_ar
     _, (el,) = sdof([{"law": "unilateral", **stiff}])
     X, w = np.array([0.01, 0.01, 0.01]), np.array([w0 / 2, 0.3 * w0, 1.5 * w0])
     balanced = placed_kbar([(UNILATERAL, stiff)], X[1:], w[1:], el.surroundings)
-    steps = []
-    force_and_tangent = surroundings._force_and_tangent
-    monkeypatch.setattr(surroundings, "_force_and_tangent",
-                        lambda *a: steps.append(len(a[1])) or force_and_tangent(*a))
+    steps = _counting_steps(monkeypatch)
     got = placed_kbar([(UNILATERAL, stiff)], X, w, el.surroundings)
-    assert len(steps) == surroundings._MAX_ITERATIONS and steps[-1] == 1      # the one without a balance
+    assert steps[0][0] == surroundings._MAX_ITERATIONS                  # the one without a balance
+    assert max(steps[0][1:]) < surroundings._MAX_ITERATIONS
     assert np.all(np.isfinite(got))
     np.testing.assert_allclose(got[1:], balanced, rtol=1e-9)
 
@@ -249,15 +268,32 @@ def test_a_balance_starts_from_the_last_one_at_its_samples_and_answers_as_from_n
         cold[name] = placed_kbar([(UNILATERAL, values)], X, w, fresh.surroundings)
     _, (el,) = sdof([{"law": "unilateral", **stiff}])
     placed_kbar([(UNILATERAL, stiff)], X, w, el.surroundings)
-    steps = []
-    force_and_tangent = surroundings._force_and_tangent
-    monkeypatch.setattr(surroundings, "_force_and_tangent",
-                        lambda *a: steps.append(len(a[1])) or force_and_tangent(*a))
+    steps = _counting_steps(monkeypatch)
     warm = placed_kbar([(UNILATERAL, nearby)], X, w, el.surroundings)
     np.testing.assert_allclose(warm[1:], cold["nearby"][1:], rtol=1e-9)
     # the sample without a balance: its answer from nothing (a stalled Newton's last step, to its rounding)
     np.testing.assert_allclose(warm[0], cold["nearby"][0], rtol=1e-7)
     assert not np.allclose(cold["nearby"][0], cold["stiff"][0], rtol=1e-7)     # and not the start's answer
-    assert steps[:surroundings._WARM_ITERATIONS].count(4) < surroundings._WARM_ITERATIONS  # the others converged
+    # the warm start: the others converge within its few steps, and fewer than from nothing
+    warm_steps = steps[0]
+    assert np.all(warm_steps[1:] < surroundings._WARM_ITERATIONS)
+    cold_steps = _counting_steps(monkeypatch)
+    _, (fresh,) = sdof([{"law": "unilateral", **stiff}])
+    placed_kbar([(UNILATERAL, nearby)], X, w, fresh.surroundings)
+    assert np.all(warm_steps[1:] < cold_steps[0][1:])
     # and a copy of the place with laws in parallel shares what was solved
     assert el.surroundings.with_parallel(None).starts is el.surroundings.starts
+
+
+def _counting_steps(monkeypatch) -> list:
+    """The Newton steps each sample takes in every solve of the balances made from now (one array per solve)."""
+    steps = []
+    solve = surroundings._Balance.solve
+
+    def counted(self, z, active, iterations):
+        left = solve(self, z, active, iterations)
+        steps.append(self.steps.copy())
+        return left
+
+    monkeypatch.setattr(surroundings._Balance, "solve", counted)
+    return steps

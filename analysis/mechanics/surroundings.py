@@ -29,8 +29,10 @@ from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
+from numba import njit
 
 from ..common.recent import Recent
+from ..common.small_solve import solve_small
 from ..laws import Law
 from ..laws.base import broadcast
 from .structures import Structure
@@ -53,6 +55,8 @@ _WARM_ITERATIONS = 4
 _STARTS_KEPT = 8
 # Relative change of the harmonics (to X) below which the balance has converged
 _TOLERANCE = 1e-10
+# The balance's sums may be reordered (vectorised): its answer is converged to _TOLERANCE, far above their rounding
+_REASSOCIATE = {"reassoc", "contract"}
 
 
 @dataclass
@@ -86,12 +90,14 @@ class Surroundings:
             return R
         return R / (1.0 + R * self.parallel(W))
 
-    def blocks(self, w: np.ndarray, cycle: "_Cycle") -> np.ndarray:
-        """The real receptance blocks of :meth:`_Cycle.receptance_blocks` at the harmonics of the lines ``w``; the
-        last lines asked are kept (a fit asks the same samples' lines many times)."""
+    def at_harmonics(self, w: np.ndarray, cycle: "_Cycle") -> np.ndarray:
+        """R at the harmonics balanced (:attr:`_Cycle.harmonics`) of the lines ``w``, shape (S, H) complex, the static
+        one real; the last lines asked are kept (a fit asks the same samples' lines many times)."""
         key = (w.tobytes(), cycle.harmonics.tobytes(), id(self.parallel))
         if self._blocks is None or self._blocks[0] != key:
-            self._blocks = (key, cycle.receptance_blocks(self.receptance(w[:, None] * cycle.harmonics[None, :])))
+            R = np.array(self.receptance(w[:, None] * cycle.harmonics[None, :]), complex)
+            R[:, 0] = R[:, 0].real
+            self._blocks = (key, R)
         return self._blocks[1]
 
     def with_parallel(self, stiffness: Callable[[np.ndarray], np.ndarray] | None) -> "Surroundings":
@@ -137,9 +143,7 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
     X, w = X.ravel(), w.ravel()
     p = [(law, law.parameter_vector(**values)) for law, values in terms]
     cycle = _cycle(n_harmonics, n_time)
-    R = around.blocks(w, cycle)
-    fundamental = X[:, None] * np.sin(cycle.theta)[None, :]
-    scale = np.maximum(X, 1e-300)
+    balance = _Balance(p, cycle, around.at_harmonics(w, cycle), X)
     key = (X.tobytes(), w.tobytes(), n_harmonics, n_time)
     z, left = around.starts.get(key), None
     if z is not None:
@@ -148,49 +152,159 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
         # no harmonics, and so does every sample where a step fails, so that a balance's answer never depends on
         # which evaluation came before
         z = z.copy()
-        left = _balance(p, cycle, R, fundamental, scale, z, np.ones(X.size, bool), _WARM_ITERATIONS)
+        left = balance.solve(z, np.ones(X.size, bool), _WARM_ITERATIONS)
         if left is None:
             z = None
         elif left.any():
             z[left] = 0.0
-            left = _balance(p, cycle, R, fundamental, scale, z, left, _MAX_ITERATIONS)
+            left = balance.solve(z, left, _MAX_ITERATIONS)
     if z is None:
         z = np.zeros((X.size, cycle.size))
-        left = _balance(p, cycle, R, fundamental, scale, z, np.ones(X.size, bool), _MAX_ITERATIONS)
+        left = balance.solve(z, np.ones(X.size, bool), _MAX_ITERATIONS)
     if left is None:
         # a contact pulling (k < 0) as hard as the structure holds it: no static balance, no kbar
         return np.full(shape, np.nan, complex)
     around.starts.keep(key, z)
-    f = _force(p, fundamental + z @ cycle.Phi.T)
+    f = _force(p, balance.fundamental + z @ cycle.Phi.T)
     # fundamental phasor of Im(F e^{jwt}) per docs/contracts.md §1: f ~ A sin + B cos -> kbar = (A + j B) / X
     a = 2.0 / n_time * f @ np.sin(cycle.theta)
     b = 2.0 / n_time * f @ np.cos(cycle.theta)
-    return ((a + 1j * b) / scale).reshape(shape)
+    return ((a + 1j * b) / balance.scale).reshape(shape)
 
 
-def _balance(p, cycle: "_Cycle", R: np.ndarray, fundamental: np.ndarray, scale: np.ndarray, z: np.ndarray,
-             active: np.ndarray, iterations: int) -> np.ndarray | None:
-    """At most ``iterations`` Newton steps of the balance of :func:`placed_kbar` for the samples ``active`` (S,),
-    ``z`` (S, size) updated in place from where it stands. Returns the samples not converged (S,) bool, None where
-    a Jacobian is singular."""
-    active = active.copy()
-    for _ in range(iterations):
-        x = fundamental[active] + z[active] @ cycle.Phi.T
-        f, tangent = _force_and_tangent(p, x, scale[active])
-        step = z[active] + (R[active] @ (f @ cycle.P.T)[..., None])[..., 0]
-        # where the contact never touches over the cycle the residual is its own step (the Jacobian is I)
-        touching = np.any(tangent != 0.0, axis=1)
-        jacobian = np.eye(cycle.size) + R[active][touching] @ cycle.tangent_blocks(tangent[touching])
-        try:
-            step[touching] = np.linalg.solve(jacobian, step[touching][..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            return None
-        z[active] -= step
-        still = np.max(np.abs(step), axis=1) > _TOLERANCE * scale[active]
-        active[np.flatnonzero(active)[~still]] = False
-        if not active.any():
-            break
-    return active
+class _Balance:
+    """The balance of :func:`placed_kbar` at S samples: the placed laws (kernel parameter vectors), the cycle,
+    the receptance ``R`` (S, H) at the harmonics balanced and the element's fundamental ``X sin(theta)`` (S, T)."""
+
+    def __init__(self, laws: list[tuple[Law, np.ndarray]], cycle: "_Cycle", R: np.ndarray, X: np.ndarray):
+        self.cycle = cycle
+        self.R = np.ascontiguousarray(R.real), np.ascontiguousarray(R.imag)
+        self.fundamental = X[:, None] * np.sin(cycle.theta)[None, :]
+        self.scale = np.maximum(X, 1e-300)
+        self.p = np.concatenate([vector for _, vector in laws]).astype(float)
+        self._newton = _newton_of(tuple(law.kernel for law, _ in laws), tuple(len(vector) for _, vector in laws))
+        self.steps = np.zeros(X.size, np.int64)      # Newton steps each sample took in the last solve
+
+    def solve(self, z: np.ndarray, active: np.ndarray, iterations: int) -> np.ndarray | None:
+        """At most ``iterations`` Newton steps for the samples ``active`` (S,), ``z`` (S, size) updated in place
+        from where it stands. Returns the samples not converged (S,) bool, None where a Jacobian is singular."""
+        c = self.cycle
+        left = active.copy()
+        singular = self._newton(self.p, c.Phi, c.P, c.trig, c.first, c.first_sign, c.second, c.second_sign,
+                                *self.R, self.fundamental, self.scale, z, left, iterations, _TOLERANCE,
+                                self.steps)
+        return None if singular else left
+
+
+@functools.lru_cache(maxsize=None)
+def _newton_of(kernels: tuple, sizes: tuple):
+    """The Newton loop of the balance, sample by sample, compiled with the placed laws' kernels fixed (as
+    analysis.laws.base._marcher, and not disk-cached for its reason: a few tenths of a second once per process
+    and set of laws). One sample's step, on its unknowns z (size,):
+
+        x = X sin(theta) + Phi z,   r = z + R P f(x),   (I + R P diag(f'(x)) Phi) dz = r,   z -= dz
+
+    ``f'`` by central differences (h = 1e-7 X); where the contact never touches over the cycle (f' = 0) the
+    Jacobian is I. A sample stops when max|dz| <= tolerance X; ``left[i]`` stays True for one that has not within
+    ``iterations``; ``steps[i]`` counts its steps. Returns True where a Jacobian was singular (the others then
+    stand where they are). Per sample, not per batch: the solver's calls are mostly of a handful of samples,
+    where a batch's array operations cost far more than the arithmetic."""
+    force = _summed(kernels, sizes)
+
+    @njit(fastmath=_REASSOCIATE)
+    def newton(p, Phi, P, trig, first, first_sign, second, second_sign, R_re, R_im, fundamental, scale, z, left,
+               iterations, tolerance, steps):
+        n_time, size = Phi.shape
+        state = np.zeros(1)
+        f, t = np.empty(n_time), np.empty(n_time)
+        pf, r, dz, coefficients = np.empty(size), np.empty(size), np.empty(size), np.empty(trig.shape[1])
+        block, jacobian = np.empty((size, size)), np.empty((size, size))
+        for i in range(z.shape[0]):
+            steps[i] = 0
+            if not left[i]:
+                continue
+            h = 1e-7 * scale[i]
+            for _ in range(iterations):
+                steps[i] += 1
+                touching = False
+                for n in range(n_time):
+                    xn = fundamental[i, n]
+                    for j in range(size):
+                        xn += Phi[n, j] * z[i, j]
+                    f[n] = force(xn, p, state)
+                    t[n] = (force(xn + h, p, state) - force(xn - h, p, state)) / (2.0 * h)
+                    touching = touching or t[n] != 0.0
+                for j in range(size):
+                    harmonic = 0.0
+                    for n in range(n_time):
+                        harmonic += P[j, n] * f[n]
+                    pf[j] = harmonic
+                _receptance_times(R_re[i], R_im[i], pf, r)
+                for j in range(size):
+                    r[j] += z[i, j]
+                if touching:
+                    _tangent_block(t, trig, first, first_sign, second, second_sign, coefficients, block)
+                    for k in range(size):                   # I + R block, R acting on each column
+                        _receptance_times(R_re[i], R_im[i], block[:, k], jacobian[:, k])
+                        jacobian[k, k] += 1.0
+                    if not solve_small(jacobian, r, dz, size):
+                        return True
+                    r[:] = dz
+                largest = 0.0
+                for j in range(size):
+                    z[i, j] -= r[j]
+                    largest = max(largest, abs(r[j]))
+                if not largest > tolerance * scale[i]:
+                    left[i] = False
+                    break
+        return False
+
+    return newton
+
+
+def _summed(kernels: tuple, sizes: tuple):
+    """One compiled force ``f(x, p, state)`` of placed laws (no velocity, no state) acting together, ``p`` their
+    parameter vectors end to end."""
+    head, n = kernels[0], sizes[0]
+    if len(kernels) == 1:
+        @njit
+        def one(x, p, state):
+            return head(x, 0.0, p, state)
+        return one
+    rest = _summed(kernels[1:], sizes[1:])
+
+    @njit
+    def both(x, p, state):
+        return head(x, 0.0, p[:n], state) + rest(x, p[n:], state)
+    return both
+
+
+@njit(cache=True)
+def _receptance_times(R_re, R_im, v, out):
+    """``out = R v`` for the receptance at the harmonics balanced (H,) acting on unknowns or harmonics ``v``
+    (size,) = [mean, Re, Im of harmonic 2, ...]: the static one on the mean, each other one as the complex product
+    on its pair (Re x_n + j Im x_n = R(n w) (Re f_n + j Im f_n))."""
+    out[0] = R_re[0] * v[0]
+    for j in range(1, R_re.shape[0]):
+        a, b = v[2 * j - 1], v[2 * j]
+        out[2 * j - 1] = R_re[j] * a - R_im[j] * b
+        out[2 * j] = R_im[j] * a + R_re[j] * b
+
+
+@njit(cache=True)
+def _tangent_block(t, trig, first, first_sign, second, second_sign, coefficients, out):
+    """``P diag(t) Phi`` for one tangent t (T,) into ``out`` (size, size): each entry a sum of two Fourier
+    coefficients of t (:func:`_trig_products`), ``coefficients = t trig`` the means of t cos k theta and
+    t sin k theta (``trig``: :attr:`_Cycle.trig`), instead of a (size, T) by (T, size) product."""
+    coefficients[:] = 0.0
+    for n in range(t.shape[0]):
+        if t[n] != 0.0:                 # a contact's tangent is zero where it is open
+            for k in range(trig.shape[1]):
+                coefficients[k] += trig[n, k] * t[n]
+    for a in range(out.shape[0]):
+        for b in range(out.shape[1]):
+            out[a, b] = (first_sign[a, b] * coefficients[first[a, b]]
+                         + second_sign[a, b] * coefficients[second[a, b]])
 
 
 @functools.lru_cache(maxsize=8)
@@ -211,32 +325,15 @@ class _Cycle:
         self.P = np.vstack([np.full(n_time, 1.0 / n_time)]
                            + [r for pair in zip(2.0 / n_time * np.cos(n), -2.0 / n_time * np.sin(n)) for r in pair])
         self.size = self.Phi.shape[1]
-        self._products = _trig_products(self.harmonics)
-
-    def tangent_blocks(self, tangent: np.ndarray) -> np.ndarray:
-        """``P diag(t) Phi`` for each row t of ``tangent`` (S, T): the harmonics of the force that a change of
-        each unknown makes, shape (S, size, size). Each entry is a sum of t against a product of two harmonics,
-        i.e. a Fourier coefficient of t up to twice the highest harmonic (:func:`_trig_products`): one FFT per
-        sample instead of a (size, T) by (T, size) product, the same numbers to rounding."""
-        spectrum = np.fft.rfft(tangent, axis=1)[:, :2 * self.harmonics[-1] + 1] / tangent.shape[1]
-        coefficients = np.concatenate([spectrum.real, -spectrum.imag], axis=1)     # mean of t cos k, t sin k
-        (first, first_sign), (second, second_sign) = self._products
-        return first_sign * coefficients[:, first] + second_sign * coefficients[:, second]
-
-    def receptance_blocks(self, R: np.ndarray) -> np.ndarray:
-        """Complex receptances (S, H) at the harmonics -> the real (S, size, size) matrix acting on ``P f``."""
-        out = np.zeros((R.shape[0], self.size, self.size))
-        out[:, 0, 0] = R[:, 0].real                # the static receptance is real
-        for j in range(1, len(self.harmonics)):
-            i = 2 * j - 1
-            out[:, i, i] = out[:, i + 1, i + 1] = R[:, j].real
-            out[:, i, i + 1] = -R[:, j].imag
-            out[:, i + 1, i] = R[:, j].imag
-        return out
+        # the means of t cos k theta, then of t sin k theta, k = 0 .. twice the highest harmonic, as ``t @ trig``;
+        # and where each entry of ``P diag(t) Phi`` takes its two (:func:`_tangent_block`)
+        k = self.theta[:, None] * np.arange(2 * self.harmonics[-1] + 1)[None, :]
+        self.trig = np.hstack([np.cos(k), np.sin(k)]) / n_time
+        (self.first, self.first_sign), (self.second, self.second_sign) = _trig_products(self.harmonics)
 
 
 def _trig_products(harmonics: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """Where each entry of ``P diag(t) Phi`` (:meth:`_Cycle.tangent_blocks`) takes its two Fourier coefficients of
+    """Where each entry of ``P diag(t) Phi`` (:func:`_tangent_block`) takes its two Fourier coefficients of
     t, and with which factors: indices into ``[c_0 .. c_K, s_0 .. s_K]`` (c_k, s_k the means of t cos k theta and
     t sin k theta, K twice the highest harmonic), from the row's and the column's function by
 
@@ -275,10 +372,3 @@ def _force(laws: list[tuple[Law, np.ndarray]], x: np.ndarray) -> np.ndarray:
     flat = x.ravel()
     v = np.zeros_like(flat)
     return sum(law.march(flat, v, p) for law, p in laws).reshape(x.shape)
-
-
-def _force_and_tangent(laws: list[tuple[Law, np.ndarray]], x, scale) -> tuple[np.ndarray, np.ndarray]:
-    """Force and its central-difference slope in x (the contact's tangent stiffness) along x."""
-    h = 1e-7 * scale[:, None]
-    f = _force(laws, x)
-    return f, (_force(laws, x + h) - _force(laws, x - h)) / (2 * h)

@@ -28,6 +28,8 @@ from numba import carray, cfunc, njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from analysis.common.small_solve import solve_small
+
 # element modes of the friction solver
 FREE = 0     # no dry-friction term: smooth law forces only
 STICK = 1    # dry friction holds the element: relative velocity zero
@@ -309,35 +311,6 @@ def _stick_limits(laws, x, out):
 
 
 @njit(cache=True, _nrt=False, inline="always")
-def _solve_small(J, b, out, n):
-    """Solve J out = b (n x n, partial pivoting); J and b are overwritten. False if singular."""
-    for c in range(n):
-        p = c
-        best = abs(J[c, c])
-        for i in range(c + 1, n):
-            if abs(J[i, c]) > best:
-                best = abs(J[i, c])
-                p = i
-        if best == 0.0 or not math.isfinite(best):
-            return False
-        if p != c:
-            for j in range(n):
-                J[c, j], J[p, j] = J[p, j], J[c, j]
-            b[c], b[p] = b[p], b[c]
-        for i in range(c + 1, n):
-            f = J[i, c] / J[c, c]
-            for j in range(c, n):
-                J[i, j] -= f * J[c, j]
-            b[i] -= f * b[c]
-    for i in range(n - 1, -1, -1):
-        acc = b[i]
-        for j in range(i + 1, n):
-            acc -= J[i, j] * out[j]
-        out[i] = acc / J[i, i]
-    return True
-
-
-@njit(cache=True, _nrt=False, inline="always")
 def _element_motion(y_free, D, g, r, x, v):
     """Element displacement and velocity at the step end for residual forces g."""
     for e in range(r):
@@ -457,7 +430,7 @@ def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, wo
             for j in range(r):
                 J[e, j] = jac[e, j]
             rhs[e] = -res[e]
-        if not _solve_small(J, rhs, step, r):
+        if not solve_small(J, rhs, step, r):
             if fresh:
                 return -1
             jac_valid[0] = 0
