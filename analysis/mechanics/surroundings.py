@@ -239,13 +239,13 @@ def _newton_of(kernels: tuple, sizes: tuple):
                     for n in range(n_time):
                         harmonic += P[j, n] * f[n]
                     pf[j] = harmonic
-                _receptance_times(R_re[i], R_im[i], pf, r)
+                _receptance_times(R_re[i], R_im[i], pf.reshape(size, 1), r.reshape(size, 1))
                 for j in range(size):
                     r[j] += z[i, j]
                 if touching:
                     _tangent_block(t, trig, first, first_sign, second, second_sign, coefficients, block)
-                    for k in range(size):                   # I + R block, R acting on each column
-                        _receptance_times(R_re[i], R_im[i], block[:, k], jacobian[:, k])
+                    _receptance_times(R_re[i], R_im[i], block, jacobian)    # I + R block
+                    for k in range(size):
                         jacobian[k, k] += 1.0
                     if not solve_small(jacobian, r, dz, size):
                         return True
@@ -281,14 +281,15 @@ def _summed(kernels: tuple, sizes: tuple):
 
 @njit(cache=True)
 def _receptance_times(R_re, R_im, v, out):
-    """``out = R v`` for the receptance at the harmonics balanced (H,) acting on unknowns or harmonics ``v``
-    (size,) = [mean, Re, Im of harmonic 2, ...]: the static one on the mean, each other one as the complex product
-    on its pair (Re x_n + j Im x_n = R(n w) (Re f_n + j Im f_n))."""
-    out[0] = R_re[0] * v[0]
-    for j in range(1, R_re.shape[0]):
-        a, b = v[2 * j - 1], v[2 * j]
-        out[2 * j - 1] = R_re[j] * a - R_im[j] * b
-        out[2 * j] = R_im[j] * a + R_re[j] * b
+    """``out = R v`` for the receptance at the harmonics balanced (H,) acting on the columns of ``v`` (size, m),
+    rows [mean, Re, Im of harmonic 2, ...]: the static one on the mean, each other one as the complex product on
+    its pair (Re x_n + j Im x_n = R(n w) (Re f_n + j Im f_n))."""
+    for c in range(v.shape[1]):
+        out[0, c] = R_re[0] * v[0, c]
+        for j in range(1, R_re.shape[0]):
+            a, b = v[2 * j - 1, c], v[2 * j, c]
+            out[2 * j - 1, c] = R_re[j] * a - R_im[j] * b
+            out[2 * j, c] = R_im[j] * a + R_re[j] * b
 
 
 @njit(cache=True)
