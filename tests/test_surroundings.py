@@ -11,7 +11,7 @@ from analysis.prediction.harmonic_balance import predict_sweep
 from analysis.laws import get_law
 from analysis.laws.base import Law, Param
 from analysis.laws.unilateral import unilateral_force
-from analysis.common.small_solve import solve_small
+from analysis.common.small_solve import NOT_FINITE, SINGULAR, SOLVED, solve_small
 from analysis.mechanics import surroundings
 from analysis.mechanics.surroundings import _cycle, placed_kbar
 
@@ -51,9 +51,9 @@ def test_mean_alone_is_the_static_balance_in_closed_form():
     assert np.all(got.real < 0.9 * UNILATERAL.describing_function(X, 20.0, **CONTACT).real)
 
 
-def integrated_kbar(w, force, periods=40):
+def integrated_kbar(w, force, periods=40, contact=contact):
     """kbar of the contact from a time integration of the SDOF from rest: fundamental of its force over the
-    fundamental of its displacement, over the last ten periods."""
+    fundamental of its displacement, over the last ten periods; returns the amplitude and kbar."""
     T = 2 * np.pi / w
 
     def rhs(t, y):
@@ -230,11 +230,49 @@ def test_the_small_solve_of_the_balance_and_the_simulator_is_lapacks():
         A[:, 0] = A[:, 1] + condition * A[:, 0]
         b = rng.normal(size=size)
         x = np.empty(size)
-        assert solve_small(A.copy(), b.copy(), x, size)
+        assert solve_small(A.copy(), b.copy(), x, size) == SOLVED
         np.testing.assert_allclose(A @ x, b, atol=1e-9 * np.abs(A).max() * np.abs(x).max())
         np.testing.assert_allclose(x, np.linalg.solve(A, b), rtol=1e-6 if condition < 1 else 1e-12)
-    assert not solve_small(np.ones((4, 4)), np.ones(4), np.empty(4), 4)
-    assert not solve_small(np.full((2, 2), np.nan), np.ones(2), np.empty(2), 2)
+    assert solve_small(np.ones((4, 4)), np.ones(4), np.empty(4), 4) == SINGULAR
+    assert solve_small(np.full((2, 2), np.nan), np.ones(2), np.empty(2), 2) == NOT_FINITE
+    assert solve_small(np.array([[1.0, 0.0], [0.0, np.inf]]), np.ones(2), np.empty(2), 2) == NOT_FINITE
+
+
+def test_a_sample_of_bad_numbers_is_nan_and_the_others_are_as_alone():
+    """One amplitude NaN among the samples: that sample's kbar is NaN, every other one is the kbar it has asked
+    alone, and the place's next balance at the same samples starts the bad one from nothing."""
+    _, (el,) = sdof([{"law": "unilateral", **CONTACT}])
+    w0 = np.sqrt(K_S / M_S)
+    X = np.array([0.01, 0.02, 0.005, np.nan])
+    w = np.array([0.7, 0.9, 1.2, 1.0]) * w0
+    with np.errstate(invalid="ignore"):
+        got = placed_kbar([(UNILATERAL, CONTACT)], X, w, el.surroundings)
+        again = placed_kbar([(UNILATERAL, CONTACT)], X, w, el.surroundings)
+    assert np.isnan(got[3]) and np.isnan(again[3])
+    for i in range(3):
+        _, (alone,) = sdof([{"law": "unilateral", **CONTACT}])
+        np.testing.assert_allclose(got[i], placed_kbar([(UNILATERAL, CONTACT)], X[i], w[i], alone.surroundings),
+                                   rtol=1e-9)
+    np.testing.assert_allclose(again[:3], got[:3], rtol=1e-9)
+
+
+def test_placed_laws_of_one_element_act_together():
+    """Two one-sided contacts at the same gap are one of the summed stiffness; at different gaps their balance
+    is not the sum of each one's alone (they share the mean), and it is the fundamental of a time integration."""
+    split = [(UNILATERAL, {"k": 300.0, "gap": CONTACT["gap"]}), (UNILATERAL, {"k": 500.0, "gap": CONTACT["gap"]})]
+    _, (el,) = sdof([{"law": "unilateral", **CONTACT}])
+    w0 = np.sqrt(K_S / M_S)
+    X, w = np.array([0.006, 0.01, 0.02]), np.array([0.8, 1.1, 0.95]) * w0
+    np.testing.assert_allclose(placed_kbar(split, X, w, el.surroundings),
+                               placed_kbar([(UNILATERAL, CONTACT)], X, w, el.surroundings), rtol=1e-9)
+    apart = [(UNILATERAL, {"k": 300.0, "gap": 0.003}), (UNILATERAL, {"k": 500.0, "gap": 0.006})]
+    hz = 4.6
+    amplitude, expected = integrated_kbar(2 * np.pi * hz, 4.0,
+                                          contact=lambda x: contact(x, 300.0, 0.003) + contact(x, 500.0, 0.006))
+    both = placed_kbar(apart, amplitude, 2 * np.pi * hz, el.surroundings)
+    assert abs(both - expected) < 1e-2 * abs(expected), (both, expected)
+    each = sum(placed_kbar([term], amplitude, 2 * np.pi * hz, el.surroundings) for term in apart)
+    assert abs(each - expected) > 5 * abs(both - expected)
 
 
 def test_a_sample_without_a_balance_is_given_up_and_leaves_the_others_as_they_are(monkeypatch):

@@ -6,15 +6,23 @@ than one call into LAPACK and allocates nothing (no runtime needed: the simulato
 compiled forms of the one function: :func:`solve_small_inline`, inlined where the caller is disk-cached (the
 simulator's loop, compiled once per clone), and :func:`solve_small`, a call, where the caller is compiled in
 every process (a balance with its laws' kernels fixed): inlining there costs seconds of compile per process.
+
+Both forms are compiled from the one function with the same options but ``inline``, and numba keys a disk-cached
+function by its source, not its options: keep the two forms' other options identical. The simulator's disk cache
+(drivers/simulation/kernels.py) is keyed by that file alone and does not see an edit here: after editing this
+function, clear drivers/simulation/__pycache__ (or touch kernels.py) so that the simulator recompiles it.
 """
 import math
 
 from numba import njit
 
+SOLVED, SINGULAR, NOT_FINITE = 0, 1, 2
+
 
 def _solve_small(J, b, out, n):
-    """Solve J out = b (n x n, partial pivoting); J and b are overwritten. False if singular (a pivot exactly zero,
-    as LAPACK's gesv reports it) or not finite."""
+    """Solve J out = b (n x n, partial pivoting); J and b are overwritten. Returns SOLVED, SINGULAR (a pivot exactly
+    zero, as LAPACK's gesv reports it) or NOT_FINITE (a pivot inf or NaN: the system holds a non-finite entry),
+    so that a caller can tell a singular system from one made of bad numbers."""
     for c in range(n):
         p = c
         best = abs(J[c, c])
@@ -22,8 +30,10 @@ def _solve_small(J, b, out, n):
             if abs(J[i, c]) > best:
                 best = abs(J[i, c])
                 p = i
-        if best == 0.0 or not math.isfinite(best):
-            return False
+        if best == 0.0:
+            return SINGULAR
+        if not math.isfinite(best):
+            return NOT_FINITE
         if p != c:
             for j in range(n):
                 J[c, j], J[p, j] = J[p, j], J[c, j]
@@ -38,7 +48,7 @@ def _solve_small(J, b, out, n):
         for j in range(i + 1, n):
             acc -= J[i, j] * out[j]
         out[i] = acc / J[i, i]
-    return True
+    return SOLVED
 
 
 solve_small = njit(cache=True, _nrt=False)(_solve_small)

@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 
 from ..common.recent import Recent
-from ..common.small_solve import solve_small
+from ..common.small_solve import NOT_FINITE, SINGULAR, solve_small
 from ..laws import Law
 from ..laws.base import broadcast
 from .structures import Structure
@@ -69,7 +69,7 @@ class Surroundings:
     vector: np.ndarray
     parallel: Callable[[np.ndarray], np.ndarray] | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
-    _blocks: tuple | None = field(default=None, repr=False, compare=False)
+    _at_harmonics: tuple | None = field(default=None, repr=False, compare=False)
     # the balances last solved at a few sets of samples (placed_kbar), shared with the copies of with_parallel: a
     # fit asks the same samples again and again, at parameters a step apart
     starts: Recent = field(default_factory=lambda: Recent(_STARTS_KEPT), repr=False, compare=False)
@@ -94,11 +94,11 @@ class Surroundings:
         """R at the harmonics balanced (:attr:`_Cycle.harmonics`) of the lines ``w``, shape (S, H) complex, the static
         one real; the last lines asked are kept (a fit asks the same samples' lines many times)."""
         key = (w.tobytes(), cycle.harmonics.tobytes(), id(self.parallel))
-        if self._blocks is None or self._blocks[0] != key:
+        if self._at_harmonics is None or self._at_harmonics[0] != key:
             R = np.array(self.receptance(w[:, None] * cycle.harmonics[None, :]), complex)
             R[:, 0] = R[:, 0].real
-            self._blocks = (key, R)
-        return self._blocks[1]
+            self._at_harmonics = (key, R)
+        return self._at_harmonics[1]
 
     def with_parallel(self, stiffness: Callable[[np.ndarray], np.ndarray] | None) -> "Surroundings":
         """The same place with the element's amplitude-independent laws ``stiffness(W)`` in parallel (sharing
@@ -164,7 +164,7 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
     if left is None:
         # a contact pulling (k < 0) as hard as the structure holds it: no static balance, no kbar
         return np.full(shape, np.nan, complex)
-    around.starts.keep(key, z)
+    around.starts.keep(key, np.where(np.isfinite(z), z, 0.0))     # a NaN sample starts again from none
     f = _force(p, balance.fundamental + z @ cycle.Phi.T)
     # fundamental phasor of Im(F e^{jwt}) per docs/contracts.md §1: f ~ A sin + B cos -> kbar = (A + j B) / X
     a = 2.0 / n_time * f @ np.sin(cycle.theta)
@@ -199,8 +199,8 @@ class _Balance:
 @functools.lru_cache(maxsize=None)
 def _newton_of(kernels: tuple, sizes: tuple):
     """The Newton loop of the balance, sample by sample, compiled with the placed laws' kernels fixed (as
-    analysis.laws.base._marcher, and not disk-cached for its reason: a few tenths of a second once per process
-    and set of laws). One sample's step, on its unknowns z (size,):
+    analysis.laws.base._marcher, and not disk-cached for its reason: about 1 s once per process and set of laws,
+    more where it is a process's first compile). One sample's step, on its unknowns z (size,):
 
         x = X sin(theta) + Phi z,   r = z + R P f(x),   (I + R P diag(f'(x)) Phi) dz = r,   z -= dz
 
@@ -247,13 +247,18 @@ def _newton_of(kernels: tuple, sizes: tuple):
                     _receptance_times(R_re[i], R_im[i], block, jacobian)    # I + R block
                     for k in range(size):
                         jacobian[k, k] += 1.0
-                    if not solve_small(jacobian, r, dz, size):
+                    status = solve_small(jacobian, r, dz, size)
+                    if status == SINGULAR:
                         return True
-                    r[:] = dz
+                    if status == NOT_FINITE:
+                        r[:] = np.nan
+                    else:
+                        r[:] = dz
                 largest = 0.0
                 for j in range(size):
                     z[i, j] -= r[j]
-                    largest = max(largest, abs(r[j]))
+                    if not abs(r[j]) <= largest:        # NaN wins: a sample of bad numbers stops, NaN
+                        largest = abs(r[j])
                 if not largest > tolerance * scale[i]:
                     left[i] = False
                     break

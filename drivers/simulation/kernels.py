@@ -28,7 +28,7 @@ from numba import carray, cfunc, njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from analysis.common.small_solve import solve_small_inline
+from analysis.common.small_solve import SOLVED, solve_small_inline
 
 # element modes of the friction solver
 FREE = 0     # no dry-friction term: smooth law forces only
@@ -430,7 +430,7 @@ def _newton(laws, S, S_trial, S_probe, y_free, D, r, mode, sigma, g, x, v, F, wo
             for j in range(r):
                 J[e, j] = jac[e, j]
             rhs[e] = -res[e]
-        if not solve_small_inline(J, rhs, step, r):
+        if solve_small_inline(J, rhs, step, r) != SOLVED:
             if fresh:
                 return -1
             jac_valid[0] = 0
