@@ -250,10 +250,8 @@ def _newton_of(kernels: tuple, sizes: tuple):
                     status = solve_small(jacobian, r, dz, size)
                     if status == SINGULAR:
                         return True
-                    if status == NOT_FINITE:
-                        r[:] = np.nan
-                    else:
-                        r[:] = dz
+                    for j in range(size):       # element by element: a slice copy compiles numba's
+                        r[j] = dz[j] if status != NOT_FINITE else np.nan    # shape-error message, seconds a process
                 largest = 0.0
                 for j in range(size):
                     z[i, j] -= r[j]
