@@ -260,3 +260,42 @@ def test_todays_performance_table_names_real_benchmarks():
     scripts = re.findall(r"python (benchmarks/\w+\.py)", table)
     assert len(scripts) >= 10
     assert [s for s in scripts if not (ROOT / s).is_file()] == []
+
+
+def _compiled_functions(tree: ast.AST):
+    """The functions of a module compiled by numba: decorated with ``njit`` (bare or called)."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef) and any("njit" in ast.unparse(d) for d in node.decorator_list):
+            yield node
+
+
+def _slice_copies(function: ast.FunctionDef) -> list[int]:
+    """Lines of ``function`` that assign an expression (not a number) to a slice of an array."""
+    lines = []
+    for node in ast.walk(function):
+        if isinstance(node, (ast.Assign, ast.AugAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            sliced = any(isinstance(t, ast.Subscript) and any(isinstance(s, ast.Slice) for s in ast.walk(t.slice))
+                         for t in targets)
+            number = isinstance(node.value, ast.Constant) or (
+                isinstance(node.value, ast.UnaryOp) and isinstance(node.value.operand, ast.Constant))
+            if sliced and not number:
+                lines.append(node.lineno)
+    return lines
+
+
+def test_no_compiled_loop_copies_a_slice_from_an_array():
+    """A slice assigned from an array makes numba compile the text of its shape-mismatch error (string
+    formatting, about 3 s of CPU): once per clone in a disk-cached loop, in every process in one compiled per
+    process (docs/performance.md). Compiled loops copy element by element."""
+    found = {f"{path.relative_to(ROOT)}:{line}"
+             for path in MODULES.values()
+             for function in _compiled_functions(ast.parse(path.read_text()))
+             for line in _slice_copies(function)}
+    assert not found, sorted(found)
+
+
+def test_the_slice_copy_check_bites():
+    tree = ast.parse("@njit\ndef f(a, b):\n    a[:] = 0.0\n    a[1:] = b\n    a[0] = b[0]\n")
+    (function,) = _compiled_functions(tree)
+    assert _slice_copies(function) == [4]
