@@ -263,9 +263,14 @@ def test_todays_performance_table_names_real_benchmarks():
 
 
 def _compiled_functions(tree: ast.AST):
-    """The functions of a module compiled by numba: decorated with ``njit`` (bare or called)."""
+    """The functions of a module compiled by numba: decorated with ``njit`` (bare or called), or passed to it
+    (``njit(...)(function)``)."""
+    passed = {node.args[0].id for node in ast.walk(tree)
+              if isinstance(node, ast.Call) and "njit" in ast.unparse(node.func)
+              and node.args and isinstance(node.args[0], ast.Name)}
     for node in ast.walk(tree):
-        if isinstance(node, ast.FunctionDef) and any("njit" in ast.unparse(d) for d in node.decorator_list):
+        if isinstance(node, ast.FunctionDef) and (node.name in passed
+                                                  or any("njit" in ast.unparse(d) for d in node.decorator_list)):
             yield node
 
 
@@ -299,3 +304,5 @@ def test_the_slice_copy_check_bites():
     tree = ast.parse("@njit\ndef f(a, b):\n    a[:] = 0.0\n    a[1:] = b\n    a[0] = b[0]\n")
     (function,) = _compiled_functions(tree)
     assert _slice_copies(function) == [4]
+    tree = ast.parse("def g(a, b):\n    a[:] = b\n\ndef h(a, b):\n    a[:] = b\n\nG = njit(cache=True)(g)\n")
+    assert [f.name for f in _compiled_functions(tree)] == ["g"]
