@@ -335,26 +335,29 @@ def test_a_law_that_leaves_its_element_unexplained_must_gain_much_alone():
 
 
 @pytest.mark.slow
-def test_the_auto_button_runs_the_same_loop(qtbot, rk4_joint, rk4_loop):
+def test_the_auto_button_runs_the_same_loop(qtbot, rk4_joint):
+    """From the joint's stiffness alone (discovery from nothing is the fixture's loop, and the GUI's Stop tests
+    run it through the button): the loop adds the damping, and the tab shows what the same loop outside it did."""
     from app.gui.main_window import MainWindow
     from app.gui.results import analysis_view
 
+    stiffness_only = element("a", "x1", '"cubic"')
     window = MainWindow("test")
     qtbot.addWidget(window)
-    wb = started(rk4_joint, element("a", "x1", ""))
+    wb = started(rk4_joint, stiffness_only)
     window.lab._workbench = (window.lab._generation, wb)       # as Analyze leaves it
     window.model._update(analysis_view(wb, []))
     panel = window.model
     assert panel.auto_button.isEnabled()
     with qtbot.waitSignal(window.lab.analysisUpdated, timeout=300000):
         panel.auto_button.click()
-    expected = rk4_loop[1]                 # the same loop run outside the GUI on the same data
+    expected = run_auto(started(rk4_joint, stiffness_only))   # the same loop run outside the GUI on the same data
     shown = panel.auto_label.text()
     assert all(s.line() in shown for s in expected.steps) and f"stopped: {expected.stopped}" in shown
     assert all(s.reason.strip() in shown for s in expected.steps)       # why, where the step is shown
     assert [h.action for h in window.lab.analysis.history] == ["start"] + [
         f"{s.action} a:{'+'.join(s.laws)}" for s in expected.steps]
-    assert [s.action for s in expected.steps] == ["discover"]
+    assert [(s.action, s.laws) for s in expected.steps] == [("add", ("quadratic_damping",))]
 
 
 # ------------------------------------------------------------------------------------------------ jump rig

@@ -19,11 +19,10 @@ from scipy.optimize import least_squares, lsq_linear
 
 from ..common.errors import InputError
 from ..common.interrupt import check_stop
-from ..common.recent import Recent
 from ..laws import Law
 from ..laws.base import Param
 from .results import Combination, Degeneracy, LawFit
-from .samples import _Options, _Samples
+from .samples import _Bases, _Options, _Samples
 from .uncertainty import (_column_norms, _correlated_pairs, _covariance, _information_criteria, _mark_undetermined,
                           _term_fits)
 
@@ -35,8 +34,6 @@ RANK_RTOL = 1e-8
 # Relative step of the central differences for the shape columns of the Jacobian
 # (~ eps^(1/3): balances truncation against round-off).
 _DIFF_STEP = 6e-6
-# Design columns kept per law of a fit (the last values of its shape asked: a point and its steps)
-_KEPT_BASES = 8
 # Start-range widening beyond the sampled amplitude range, factor each side.
 _WIDEN = 3.0
 # least_squares sets its first trust radius to |x0|: a start at the origin of the search
@@ -170,8 +167,9 @@ class _Block:
 class _Problem:
     """Weighted variable-projection problem of one element's samples."""
 
-    def __init__(self, terms, X, w, kbar, w_re, w_im, rank_rtol):
+    def __init__(self, terms, X, w, kbar, w_re, w_im, rank_rtol, bases: _Bases, rows: np.ndarray | None):
         self.X, self.w = X, w
+        self.bases, self.rows = bases, rows
         self.w_re, self.w_im = w_re, w_im
         self.rank_rtol = rank_rtol
         self.b = np.concatenate([kbar.real * w_re, kbar.imag * w_im])
@@ -190,12 +188,11 @@ class _Problem:
         self.linear_names = [f"{b.label}.{n}" for b in self.blocks for n in b.law.linear]
         self.shape_names = [f"{b.label}.{p.name}" for b in self.blocks for p in b.law.shape]
         self.linear_lower, self.linear_upper, self.linear_lower_open = _linear_bounds(self.blocks, n_lin)
-        self._kept: dict[int, Recent[np.ndarray]] = {}
         # Columns of laws without shape parameters never change: build them once.
         self.design_fixed = np.zeros((2 * X.size, n_lin))
         for blk in self.blocks:
             if not blk.law.shape:
-                self.design_fixed[:, blk.linear] = self._weighted(blk.law.basis(X, w))
+                self.design_fixed[:, blk.linear] = self._columns(blk, np.zeros(0))
 
     def _weighted(self, basis: np.ndarray) -> np.ndarray:
         """Complex basis (p, N) -> weighted real design columns (2N, p)."""
@@ -205,22 +202,17 @@ class _Problem:
     def design(self, theta: np.ndarray) -> np.ndarray:
         """Weighted real design (2N, n_linear) for the shape vector theta (natural units)."""
         A = self.design_fixed.copy()
-        for i, blk in enumerate(self.blocks):
+        for blk in self.blocks:
             if blk.law.shape:
-                A[:, blk.linear] = self._columns(i, blk, theta[blk.shape])
+                A[:, blk.linear] = self._columns(blk, theta[blk.shape])
         return A
 
-    def _columns(self, i: int, blk: _Block, shape: np.ndarray) -> np.ndarray:
-        """Block ``i``'s weighted design columns at its shape values, kept for the last few values asked: a
-        finite-difference step or a grid point moves one law's shape at a time, and the other laws' bases, a
-        harmonic balance each for a placed contact, would otherwise be built again unchanged."""
-        kept = self._kept.setdefault(i, Recent(_KEPT_BASES))
-        key = shape.tobytes()
-        columns = kept.get(key)
-        if columns is None:
-            values = dict(zip((p.name for p in blk.law.shape), shape))
-            columns = kept.keep(key, self._weighted(blk.law.basis(self.X, self.w, **values)))
-        return columns
+    def _columns(self, blk: _Block, shape: np.ndarray) -> np.ndarray:
+        """A block's weighted design columns at its shape values, its basis taken from those the fit's samples
+        keep (:class:`analysis.fitting.samples._Bases`): a finite-difference step or a grid point moves one law's
+        shape at a time, and a pass of a reweighted or outlier fit starts where the last ended, so the other
+        laws' bases, a harmonic balance each for a placed contact, would otherwise be built again unchanged."""
+        return self._weighted(self.bases.at(blk.law, shape, self.rows))
 
     def solve_linear(self, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Weighted linear least squares for the linear parameters; (values, at_bound mask).
@@ -354,7 +346,7 @@ def _fit_once(terms, data: _Samples, opts: _Options, inflate: bool = False) -> L
     ``inflate``: standard errors scaled by the reduced chi-square where it exceeds 1 (the samples scatter
     more than their sigma says: a fit after outliers were left out)."""
     X, w, kbar, w_re, w_im = data.X, data.w, data.kbar, data.w_re, data.w_im
-    problem = _Problem(terms, X, w, kbar, w_re, w_im, opts.rank_rtol)
+    problem = _Problem(terms, X, w, kbar, w_re, w_im, opts.rank_rtol, data.bases, data.rows)
     n, P = X.size, problem.n_linear + problem.n_shape
     if 2 * n <= P:
         raise InputError(f"{n} complex samples ({2 * n} real values) cannot determine {P} parameters "

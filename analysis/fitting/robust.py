@@ -122,4 +122,4 @@ def _with_scatter_sigma(terms, data: _Samples, opts: _Options) -> _Samples:
     r = fit.describing_function(data.X, data.w) - data.kbar
     s = math.sqrt(float(np.median(np.abs(r) ** 2)) / (2 * math.log(2))) or 1.0
     ones = np.full(data.X.size, 1.0 / s)
-    return _Samples(data.X, data.w, data.kbar, ones, ones, True)
+    return data.reweighted(ones, ones, True)

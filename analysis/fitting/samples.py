@@ -4,12 +4,13 @@ and imaginary parts (:class:`_Samples`); the search settings (:class:`_Options`)
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
 
 from ..common.errors import InputError
+from ..common.recent import Recent
 from ..common.statistics import part_weight
 from ..laws import Law, get_law
 from ..mechanics.elements import LawTerm
@@ -108,9 +109,40 @@ class _Options:
     rank_rtol: float
 
 
+#: Law bases kept by one fit's samples (:class:`_Bases`): a local search's point and its finite-difference steps
+#: for a few laws, over the passes that restart where the last one ended
+_KEPT_BASES = 64
+
+
+class _Bases:
+    """The laws' unweighted bases (complex, shape (p, N)) at one fit's amplitudes ``X`` and frequencies ``w``,
+    kept by law and shape values for every pass of that fit. A reweighted pass, an outlier pass or a refit starts
+    at the values the last pass ended on and asks again for the bases there and at its first finite-difference
+    steps; a basis is a harmonic balance per sample for a placed contact. Between passes only the weights and the
+    samples left out change, never X and w, so a basis is evaluated at every sample once and each pass takes its
+    rows."""
+
+    def __init__(self, X: np.ndarray, w: np.ndarray):
+        self.X, self.w = X, w
+        self._kept: Recent[tuple[Law, np.ndarray]] = Recent(_KEPT_BASES)
+
+    def at(self, law: Law, shape: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+        """``law``'s basis at shape values ``shape`` (natural units, in ``law.shape``'s order), on ``rows`` of the
+        samples (None: all). Kept by the law object itself (held, so its identity is not reused)."""
+        key = (id(law), shape.tobytes())
+        kept = self._kept.get(key)
+        if kept is None or kept[0] is not law:
+            values = dict(zip((p.name for p in law.shape), shape))
+            basis = np.asarray(law.basis(self.X, self.w, **values), complex).reshape(-1, self.X.size)
+            kept = self._kept.keep(key, (law, basis))
+        return kept[1] if rows is None else kept[1][:, rows]
+
+
 @dataclass(frozen=True)
 class _Samples:
-    """Validated samples with their per-part weights (1 / std); ``sigma_given`` False: unit weights."""
+    """Validated samples with their per-part weights (1 / std); ``sigma_given`` False: unit weights. ``bases``:
+    the laws' bases at the samples this set was taken from, ``rows`` which of those samples it holds (None:
+    all), shared by every subset and reweighting of them."""
 
     X: np.ndarray
     w: np.ndarray
@@ -118,12 +150,24 @@ class _Samples:
     w_re: np.ndarray
     w_im: np.ndarray
     sigma_given: bool
+    bases: _Bases | None = field(default=None, compare=False)
+    rows: np.ndarray | None = field(default=None, compare=False)
+
+    def __post_init__(self):
+        if self.bases is None:
+            object.__setattr__(self, "bases", _Bases(self.X, self.w))
 
     def subset(self, keep: np.ndarray, weight: np.ndarray | None = None) -> "_Samples":
         """The kept samples, their stds divided by ``sqrt(weight)`` (iteratively reweighted fits)."""
         root = 1.0 if weight is None else np.sqrt(weight[keep])
+        rows = np.flatnonzero(keep) if self.rows is None else self.rows[keep]
         return _Samples(self.X[keep], self.w[keep], self.kbar[keep], self.w_re[keep] * root,
-                        self.w_im[keep] * root, self.sigma_given)
+                        self.w_im[keep] * root, self.sigma_given, self.bases,
+                        None if rows.size == self.bases.X.size else rows)
+
+    def reweighted(self, w_re: np.ndarray, w_im: np.ndarray, sigma_given: bool) -> "_Samples":
+        """The same samples with other weights."""
+        return _Samples(self.X, self.w, self.kbar, w_re, w_im, sigma_given, self.bases, self.rows)
 
     def distance(self, model: np.ndarray) -> np.ndarray:
         """sqrt of each sample's chi-square contribution (Re and Im together) against a model kbar."""
