@@ -599,21 +599,49 @@ def test_the_error_in_units_of_the_noise_is_one_for_a_prediction_within_the_nois
 
 def test_a_law_is_kept_only_where_it_predicts_every_held_out_fold_better():
     before = HeldOut(0.4, (0.3, 0.5, 0.4), 2)
-    assert HeldOut(0.2, (0.1, 0.3, 0.2)).better_than(before)
+    assert HeldOut(0.2, (0.1, 0.3, 0.2), 2).better_than(before)
     # better pooled, worse on one fold: not kept, the gain was one fold's
-    assert not HeldOut(0.3, (0.05, 0.2, 0.41)).better_than(before)
-    assert not HeldOut(0.4, (0.3, 0.5, 0.4)).better_than(before)            # equal is not better
-    assert not HeldOut(float("nan"), (0.1, float("nan"), 0.2)).better_than(before)
-    assert HeldOut(0.2, (0.1, 0.3, 0.2)).better_than(HeldOut(float("nan"), (0.3, float("nan"), 0.4)))
-    assert not HeldOut(0.1, (0.1, 0.1)).better_than(before)                # other folds: not comparable
-    assert not HeldOut(0.1, (0.1,)).better_than(NOT_CHECKED)
-    why = auto_module._predicts_no_better(before, HeldOut(0.45, (0.2, 0.6, 0.5)))
+    assert not HeldOut(0.3, (0.05, 0.2, 0.41), 2).better_than(before)
+    assert not HeldOut(0.4, (0.3, 0.5, 0.4), 2).better_than(before)            # equal is not better
+    assert not HeldOut(float("nan"), (0.1, float("nan"), 0.2), 2).better_than(before)
+    assert HeldOut(0.2, (0.1, 0.3, 0.2), 2).better_than(HeldOut(float("nan"), (0.3, float("nan"), 0.4), 2))
+    assert not HeldOut(0.1, (0.1, 0.1), 2).better_than(before)                # other folds: not comparable
+    assert not HeldOut(0.1, (0.1,), 2).better_than(NOT_CHECKED)
+    why = auto_module._predicts_no_better(before, HeldOut(0.45, (0.2, 0.6, 0.5), 2))
     assert why.startswith("it does not predict the levels its fits did not see better: held-out 0.45 against 0.4")
-    assert "0.6 against 0.5" in why
-    assert auto_module._predicts_no_better(before, HeldOut(0.2, (0.1, 0.3, 0.2))) == ""
+    assert "0.6 against 0.5" in why and why.endswith("predicts every held-out fold better")
+    assert auto_module._predicts_no_better(before, HeldOut(0.2, (0.1, 0.3, 0.2), 2)) == ""
     assert auto_module._predicts_no_better(NOT_CHECKED, HeldOut(0.9, (0.9,))) == ""    # nothing held out
-    # folds whose fits saw one level each (a session of two levels) judge nothing
+    # folds whose fits saw one level each (a session of two levels) and not the size of every law judge nothing
     assert auto_module._predicts_no_better(HeldOut(0.4, (0.3, 0.5), 1), HeldOut(0.9, (0.9, 0.9), 1)) == ""
+
+
+def test_of_two_levels_a_law_every_fold_sees_must_predict_one_level_better_from_the_other():
+    """Two levels, each fold's fit seeing one: the folds judge where every fold's fit sees the size of every law
+    of both models, and a law must predict at least one level better from the other -- each fold is an
+    extrapolation one way, where a law of the joint carries its parameters' uncertainty."""
+    without = HeldOut(0.4, (0.3, 0.5), 1, True)
+    assert without.judges and not HeldOut(0.4, (0.3, 0.5), 1, False).judges
+    assert HeldOut(0.45, (0.2, 0.7), 1, True).better_than(without)            # better one way
+    assert not HeldOut(0.6, (0.35, 0.8), 1, True).better_than(without)        # worse both ways
+    assert not HeldOut(0.4, (0.3, 0.5), 1, True).better_than(without)         # equal is not better
+    why = auto_module._predicts_no_better(without, HeldOut(0.6, (0.35, 0.8), 1, True))
+    assert "(per fold 0.35 against 0.3, 0.8 against 0.5)" in why
+    assert why.endswith("predicts at least one of the two levels better from the other")
+    # a fold whose fit does not see a law's size, in either model, judges nothing
+    assert auto_module._predicts_no_better(without, HeldOut(0.6, (0.35, 0.8), 1, False)) == ""
+    assert auto_module._predicts_no_better(HeldOut(0.4, (0.3, 0.5), 1), HeldOut(0.6, (0.35, 0.8), 1, True)) == ""
+
+
+def test_a_fold_sees_its_laws_where_each_law_s_size_is_beyond_its_interval_of_zero():
+    from analysis.loop.cross_check import _sees_its_laws
+
+    def fold(*unseen):
+        terms = [SimpleNamespace(size_unseen=u) for u in unseen]
+        return SimpleNamespace(reports={"a": SimpleNamespace(fit=SimpleNamespace(terms=terms)),
+                                        "b": SimpleNamespace(fit=None)})      # an element without laws
+    assert _sees_its_laws(fold(False, False)) and _sees_its_laws(fold())
+    assert not _sees_its_laws(fold(False, True))
 
 
 def test_a_candidate_taken_back_is_held_back_before_the_measured_modes_can_call_for_it_again():

@@ -23,7 +23,7 @@ from ..missing.unexplained import unexplained
 from ..prediction.backbone import ModalError
 from ..prediction.comparison import Comparison, gain_phrase
 from ..search.discovery import Discovery, DiscoveryRules, ElementDiscovery, WalkStep
-from .cross_check import NOT_CHECKED, HeldOut, held_out
+from .cross_check import LEVELS_TO_JUDGE, NOT_CHECKED, HeldOut, held_out
 from .workbench import ElementReport, Workbench
 
 
@@ -336,16 +336,18 @@ def _hold_back_against_discovery(wb: Workbench, candidates: list[Candidate], fou
 
 def _predicts_no_better(before: HeldOut, after: HeldOut) -> str:
     """Why a candidate just added is taken back for what it predicts, "" where it stays: a law enters only
-    where the model with it predicts every held-out fold better than the model without it
-    (:meth:`HeldOut.better_than`). A law that fits its own lines better and predicts the levels its fit did not
-    see no better describes those lines, not the joint. Nothing is judged where the folds' fits saw too few
-    levels to determine a law (:attr:`HeldOut.judges`: two levels, each fit seeing one)."""
-    if not before.judges or after.better_than(before):
+    where the model with it predicts the held-out folds better than the model without it
+    (:meth:`HeldOut.better_than`: every fold; of two levels, each predicting the other, at least one). A law that
+    fits its own lines better and predicts the levels its fit did not see no better describes those lines, not
+    the joint. Nothing is judged where a fold's fit saw too little to determine a law (:attr:`HeldOut.judges`:
+    one level that does not show the size of every law of either model)."""
+    if not (before.judges and after.judges) or after.better_than(before):
         return ""
     folds = ", ".join(f"{a:.3g} against {b:.3g}" for a, b in zip(after.folds, before.folds))
+    rule = ("every held-out fold better" if min(before.seen, after.seen) >= LEVELS_TO_JUDGE else
+            "at least one of the two levels better from the other")
     return (f"it does not predict the levels its fits did not see better: held-out {after.error:.3g} against "
-            f"{before.error:.3g} without it (per fold {folds}); a law is kept only where it predicts every "
-            "held-out fold better")
+            f"{before.error:.3g} without it (per fold {folds}); a law is kept only where it predicts {rule}")
 
 
 def _falls_short(c: Candidate, before: float, after: float, min_gain: float) -> bool:

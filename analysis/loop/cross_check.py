@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..common.measurements import Measurements
-from ..mechanics.model import FittedOn, Model
+from ..mechanics.model import FittedOn
 from ..prediction.comparison import pooled_error
 from ..prediction.held_out import FITTED, HELD_OUT, SessionPrediction, predict_session
 from .workbench import Workbench
@@ -54,18 +54,24 @@ def _fold(wb: Workbench, half: list, created: str) -> Fold:
     """``wb``'s laws refitted on the levels ``half`` alone (:func:`_refitted`), and every level of the session
     predicted by them."""
     labels = tuple(c.label() for c in half)
-    fitted = replace(_refitted(wb, half), fitted_on=FittedOn("", created, labels))
+    fitted = replace(_refitted(wb, half).model, fitted_on=FittedOn("", created, labels))
     return Fold(labels, predict_session(fitted, wb.measurements, created, wb.harmonics))
 
 
-def _refitted(wb: Workbench, levels: list) -> Model:
-    """``wb``'s model with its laws refitted, from their current values, by a fresh workbench on ``levels``
-    alone (reference, identification, fit; its own error is not computed; started at the whole test's fit), its
-    samples judged by the whole test's scatter between runs (:meth:`Workbench._yardstick`)."""
+def _refitted(wb: Workbench, levels: list) -> Workbench:
+    """A fresh workbench on ``levels`` alone with ``wb``'s laws refitted from their current values (reference,
+    identification, fit; its own error is not computed; started at the whole test's fit), its samples judged by
+    the whole test's scatter between runs (:meth:`Workbench._yardstick`)."""
     fold = Workbench(wb.model, _at(wb, levels), wb.distortion_limit, wb.harmonics, wb.yardsticks(),
                      started_at_fit=True)
     fold.prepare()
-    return fold.model
+    return fold
+
+
+def _sees_its_laws(fold: Workbench) -> bool:
+    """Whether a fold's fit sees every law of its model: each law's size beyond its 95 % interval of zero
+    (:attr:`analysis.fitting.results.TermFit.size_unseen`)."""
+    return all(not t.size_unseen for r in fold.reports.values() if r.fit is not None for t in r.fit.terms)
 
 
 def _at(wb: Workbench, levels: list) -> Measurements:
@@ -76,33 +82,45 @@ def _at(wb: Workbench, levels: list) -> Measurements:
 HELD_OUT_FOLDS = 3
 
 
-#: The fewest levels a fold's fit must see for its held-out error to judge a law: a fit on one level cannot
-#: determine a law that level does not show (a clearance that closes, a quintic, at the other level only), and
-#: what it predicts there measures that, not the law
+#: The fewest levels a fold's fit must see for its held-out error to judge a law whatever that fit sees: a fit
+#: on one level may not determine a law that level does not show (a clearance that closes, a quintic, at the
+#: other level only), and what it then predicts there measures that, not the law
 LEVELS_TO_JUDGE = 2
 
 
 @dataclass(frozen=True)
 class HeldOut:
     """A model's FRF error on levels its fit did not see: ``error`` over all of them pooled, ``folds`` per fold
-    (the levels one refit predicted), in fold order; ``seen`` the fewest levels any fold's fit saw."""
+    (the levels one refit predicted), in fold order; ``seen`` the fewest levels any fold's fit saw;
+    ``sees_its_laws`` whether every fold's fit saw every law of the model (:func:`_sees_its_laws`)."""
 
     error: float
     folds: tuple[float, ...]
     seen: int = 0
+    sees_its_laws: bool = False
 
     @property
     def judges(self) -> bool:
-        """Whether these folds can judge a law (:data:`LEVELS_TO_JUDGE`)."""
-        return bool(self.folds) and self.seen >= LEVELS_TO_JUDGE
+        """Whether these folds can judge the model's laws: every fold's fit saw :data:`LEVELS_TO_JUDGE` levels,
+        or fewer and still saw the size of every law. A fit that sees a law on one level and predicts another
+        tests the law where it is meant to hold, beyond the amplitudes it was fitted on; a fit that does not see
+        it tests nothing of it."""
+        return bool(self.folds) and (self.seen >= LEVELS_TO_JUDGE or self.sees_its_laws)
 
     def better_than(self, other: "HeldOut") -> bool:
-        """Whether this model predicts every fold better than ``other`` did on the same folds: each fold is data
-        both fits left out, so a model that describes the joint rather than its own lines does better on each,
-        and no margin needs a number. A fold this model does not predict (NaN) is not better; one only the other
-        did not predict is."""
-        return (len(self.folds) == len(other.folds) > 0
-                and all(np.isfinite(a) and not a >= b for a, b in zip(self.folds, other.folds)))
+        """Whether this model predicts the folds better than ``other`` did on the same folds. Where every fold's
+        fit saw :data:`LEVELS_TO_JUDGE` levels or more: better on every fold -- each is data both fits left out,
+        so a model that describes the joint rather than its own lines does better on each, and no margin needs a
+        number. Where each saw fewer (two levels, each predicting the other): better on at least one. Each such
+        fold is an extrapolation one way, and a law fitted on one level carries its parameters' uncertainty to
+        the other, amplified by its power of the amplitude going up, while the model without it absorbs part of
+        the effect into the laws it keeps; a law of the joint predicts better at least one way, and one that
+        predicts worse both ways describes only the level it was fitted on. A fold this model does not predict
+        (NaN) is not better; one only the other did not predict is."""
+        if not len(self.folds) == len(other.folds) > 0:
+            return False
+        better = [bool(np.isfinite(a) and not a >= b) for a, b in zip(self.folds, other.folds)]
+        return all(better) if min(self.seen, other.seen) >= LEVELS_TO_JUDGE else any(better)
 
 
 NOT_CHECKED = HeldOut(float("nan"), ())
@@ -117,14 +135,16 @@ def held_out(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> HeldOut:
     twelve, eight): a fit on a half or on a single level leaves laws with more parameters than it determines, and
     its held-out error would measure that, not the model. K folds cost K refits. :data:`NOT_CHECKED` for a
     session of fewer than two stepped-sine levels."""
-    parts, fewest = [], None
+    parts, fewest, sees = [], None, True
     for seen, held in interleaved(wb.measurements.level_controls(), folds):
         measured = _at(wb, held)            # only the levels the fit did not see are predicted
-        parts.append((predict_session(_refitted(wb, seen), measured, "", wb.harmonics).comparison, measured.sine))
+        fold = _refitted(wb, seen)
+        parts.append((predict_session(fold.model, measured, "", wb.harmonics).comparison, measured.sine))
         fewest = len(seen) if fewest is None else min(fewest, len(seen))
+        sees = sees and _sees_its_laws(fold)
     if not parts:
         return NOT_CHECKED
-    return HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts), fewest)
+    return HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts), fewest, sees)
 
 
 def interleaved(levels: list, folds: int) -> list[tuple[list, list]]:
