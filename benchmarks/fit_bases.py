@@ -19,29 +19,15 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 import analysis.fitting.projection as projection  # noqa: E402
-from analysis.common.measurements import Measurements, SineRun  # noqa: E402
+from analysis.common.measurements import Measurements  # noqa: E402
 from analysis.fitting.samples import _Bases  # noqa: E402
 from analysis.loop.auto import run_auto  # noqa: E402
 import test_auto  # noqa: E402
-
-
-def measurements() -> Measurements:
-    """tests/test_auto.py's ``rk4_joint``."""
-    H = test_auto.steady_receptance(test_auto.FREQS, test_auto.FORCES, k3=3.0e5, c2=3.0)
-    rng = np.random.default_rng(7)
-    runs = []
-    for F, h in zip(test_auto.FORCES, H):
-        std = test_auto.FRF_NOISE * np.abs(h)
-        noisy = h + std / np.sqrt(2) * (rng.normal(size=h.shape) + 1j * rng.normal(size=h.shape))
-        runs.append(SineRun(f"sine_{F:g}N_up", F, "up", "x2", ["x1", "x2"], test_auto.FREQS, noisy, std))
-    return Measurements(sine=runs)
 
 
 class _PerProblem:
@@ -72,7 +58,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=2)
     args = parser.parse_args()
-    data = measurements()
+    data = test_auto.rk4_joint_measurements()
     loop(data)                                   # compile and warm up once
     kept, own = [], []
     for i in range(args.repeats):

@@ -71,6 +71,10 @@ def steady_receptance(freqs, forces, k3=0.0, c2=0.0, settle_seconds=40.0, per_pe
 
 @pytest.fixture(scope="module")
 def rk4_joint():
+    return rk4_joint_measurements()
+
+
+def rk4_joint_measurements() -> Measurements:
     """Measurements of the RK4 rig whose one joint (at x1) has a hardening cubic spring and quadratic damping:
     stiffness and damping of the same element missing at once."""
     H = steady_receptance(FREQS, FORCES, k3=3.0e5, c2=3.0)

@@ -23,7 +23,7 @@ from ..missing.unexplained import unexplained
 from ..prediction.backbone import ModalError
 from ..prediction.comparison import Comparison, gain_phrase
 from ..search.discovery import Discovery, DiscoveryRules, ElementDiscovery, WalkStep
-from .cross_check import LEVELS_TO_JUDGE, NOT_CHECKED, HeldOut, held_out
+from .cross_check import NOT_CHECKED, HeldOut, held_out
 from .workbench import ElementReport, Workbench
 
 
@@ -344,7 +344,7 @@ def _predicts_no_better(before: HeldOut, after: HeldOut) -> str:
     if not (before.judges and after.judges) or after.better_than(before):
         return ""
     folds = ", ".join(f"{a:.3g} against {b:.3g}" for a, b in zip(after.folds, before.folds))
-    rule = ("every held-out fold better" if min(before.seen, after.seen) >= LEVELS_TO_JUDGE else
+    rule = ("every held-out fold better" if after.every_fold_with(before) else
             "at least one of the two levels better from the other")
     return (f"it does not predict the levels its fits did not see better: held-out {after.error:.3g} against "
             f"{before.error:.3g} without it (per fold {folds}); a law is kept only where it predicts {rule}")

@@ -120,7 +120,12 @@ class HeldOut:
         if not len(self.folds) == len(other.folds) > 0:
             return False
         better = [bool(np.isfinite(a) and not a >= b) for a, b in zip(self.folds, other.folds)]
-        return all(better) if min(self.seen, other.seen) >= LEVELS_TO_JUDGE else any(better)
+        return all(better) if self.every_fold_with(other) else any(better)
+
+    def every_fold_with(self, other: "HeldOut") -> bool:
+        """Whether :meth:`better_than` against ``other`` asks for every fold (each fold's fit saw
+        :data:`LEVELS_TO_JUDGE` levels or more), not for one of two."""
+        return min(self.seen, other.seen) >= LEVELS_TO_JUDGE
 
 
 NOT_CHECKED = HeldOut(float("nan"), ())
