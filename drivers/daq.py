@@ -5,8 +5,13 @@ While a stream runs, the port's owner thread reads the frames, checks them
 them into blocks of contiguous samples, which wait in a bounded queue for the
 consumer. A block ends early where samples were lost, and the next block lists
 the loss (:class:`drivers.stream.Gap`), so no block ever bridges a gap. When the
-queue is full the owner thread stops reading: a fast emulator then waits for the
-consumer, a real-time instrument overruns its FIFO and the loss is reported.
+queue is full the owner thread stops reading: a real-time instrument then overruns its
+FIFO and the loss is reported. A port whose instrument samples only when it is read
+(an in-process emulator in fast mode: the port's ``samples_on_demand``) is read one
+frame at a time, when the consumer waits for a block and none is queued: reading ahead
+would advance the emulated time by the queue's depth past the consumer, and every
+command the consumer then sends would act that much later than on a real instrument,
+whose driver holds only what arrived while the consumer worked.
 
 Stopping sends ``ABORt``, reads on to the END frame and then knows how many
 samples the instrument sent; if the END frame was lost it asks ``STReam:COUNt?``.
@@ -137,6 +142,24 @@ class _BlockQueue:
         self._ready = threading.Condition()
         self.finished = False
         self.error: BaseException | None = None
+        self._waiting = 0            # consumers inside get() with nothing to take
+        self._reader_idle = False    # an on-demand reader waiting for a consumer to ask
+
+    def await_demand(self, stopping: threading.Event) -> None:
+        """Return when a consumer waits for a block and none is queued, or when ``stopping`` is set (the
+        reader of an on-demand port; :meth:`settled` sees it idle meanwhile)."""
+        with self._ready:
+            self._reader_idle = True
+            self._ready.notify_all()
+            while (self._blocks or not self._waiting) and not stopping.is_set():
+                self._ready.wait(POLL)
+            self._reader_idle = False
+
+    def settled(self, timeout: float) -> bool:
+        """Wait until an on-demand reader waits for the consumer (it has read all that was asked for); whether
+        it did within ``timeout`` s of wall time."""
+        with self._ready:
+            return self._ready.wait_for(lambda: self._reader_idle or self.finished, timeout)
 
     def put(self, block: Block, unbounded: threading.Event, caught_up: threading.Event) -> None:
         with self._ready:
@@ -165,7 +188,12 @@ class _BlockQueue:
                 left = deadline - clock()
                 if left <= 0:
                     raise LinkTimeout(url, f"no block from the DAQ stream within {timeout:.3g} s")
-                self._ready.wait(min(left, POLL * 5))
+                self._waiting += 1
+                self._ready.notify_all()      # an on-demand reader reads for this consumer
+                try:
+                    self._ready.wait(min(left, POLL * 5))
+                finally:
+                    self._waiting -= 1
             block = self._blocks.popleft()
             self._ready.notify_all()
             return block
@@ -200,18 +228,27 @@ class DaqStream:
         self._queue = _BlockQueue(max(1, buffered_blocks))
         self._stopping = threading.Event()
         self._caught_up = threading.Event()
+        self._on_demand = daq._link.io.samples_on_demand
         self._request = daq._link.submit(self._run)
 
     # ----- owner thread --------------------------------------------------------------------
     def _run(self, io: PortIO) -> None:
         error: BaseException | None = None
-        chunk = 4 * frame_size(self.daq.frame_points, len(self.daq.channels))
+        frame = frame_size(self.daq.frame_points, len(self.daq.channels))
+        on_demand = io.samples_on_demand
+        chunk = frame if on_demand else 4 * frame
         try:
             if io.desynced or io.rx:
                 io.discard_input()
             self.daq._scpi.send(io, "INIT")
             last = io.clock()
             while not self._stopping.is_set():
+                if on_demand:
+                    asked = io.clock()
+                    self._queue.await_demand(self._stopping)
+                    if self._stopping.is_set():
+                        break
+                    last += io.clock() - asked     # waiting for the consumer is no silence of the line
                 data = io.read_some(chunk, POLL)
                 if len(data) < chunk:
                     self._caught_up.set()   # the instrument had nothing more to send
@@ -348,7 +385,10 @@ class DaqStream:
 
         Call it before changing what the instrument measures (the generator): then the samples taken before
         the change are all received or queued, however the threads were scheduled. Against an emulator that
-        samples only as fast as it is read, this makes a run the same on any machine."""
+        samples only as fast as it is read, this makes a run the same on any machine; such a port's reader reads
+        only what the consumer asked for, and has done so once it waits for the next ask."""
+        if self._on_demand:
+            return self._queue.settled(timeout)
         self._caught_up.clear()
         if self._queue.finished:   # (the reader sets the event after it finishes)
             return True

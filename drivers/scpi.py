@@ -86,6 +86,8 @@ class PortIO:
         self.desynced = False
         # what reply deadlines count: the wall clock, or for an in-process emulator its idle time
         self.clock: Callable[[], float] = getattr(port, "deadline_clock", time.monotonic)
+        # whether the instrument samples only as it is read (an in-process emulator in fast mode: drivers/daq.py)
+        self.samples_on_demand: bool = bool(getattr(port, "samples_on_demand", False))
         self._service = service
         self._timeout = port.timeout
 

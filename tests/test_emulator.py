@@ -151,6 +151,34 @@ def test_injected_stream_faults_are_reported_and_every_sample_accounted_for(faul
         assert sum(g.samples for g in stats.gaps) == stats.samples_lost
 
 
+def test_a_fast_port_is_read_no_further_ahead_than_its_consumer_asks():
+    """An in-process fast emulator samples only as it is read: its driver reads a frame only when the consumer
+    waits for a block, so the emulated time stands where the consumer stopped reading and a command the
+    consumer sends next lands there, as on a real instrument whose driver holds what arrived meanwhile. A
+    consumer that idles longer than the no-data timeout is no silence of the line."""
+    with bench() as (rig, shaker, daq):
+        with daq.stream(200, no_data_timeout=0.3) as stream:
+            for _ in range(3):
+                stream.read()
+            assert stream.sync() and stream.pending() == 0
+            assert rig.daq.acquired == 600
+            time.sleep(0.6)                      # the consumer busy elsewhere
+            assert rig.daq.acquired == 600
+            blocks = [stream.read() for _ in range(2)]
+            assert [b.first_sample for b in blocks] == [600, 800] and rig.daq.acquired == 1000
+        assert stream.stats.balanced and stream.stats.samples_lost == 0
+
+
+def test_a_port_read_ahead_fills_the_queue():
+    """Over a transport that does not sample on demand (TCP here) the driver reads ahead of its consumer up
+    to its queue's depth, as it must on a real instrument whose FIFO would otherwise overrun."""
+    with bench("tcp") as (rig, shaker, daq):
+        with daq.stream(200, buffered_blocks=4) as stream:
+            stream.read()
+            assert stream.sync()
+            assert stream.pending() >= 4 and rig.daq.acquired >= 1000
+
+
 def test_a_long_stall_is_a_timeout():
     with bench() as (rig, shaker, daq):
         rig.inject("daq", {"stall": 1e-3, "stall_time": 3.0})

@@ -6,6 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scipy.stats import norm
 
 from app.campaign.instruments import emulated_instruments
 from app.campaign.measure import run_plan
@@ -17,8 +18,10 @@ RIGS = Path(__file__).parent / "rigs"
 LIMITS = "[limits]\nmax_force = 5.0\nmax_acceleration = 400.0\n"
 
 
-def sweep(tmp_path, rig, method, force, start, stop, step, direction):
-    text = (f"[settle]\nmethod = \"{method}\"\n[[stepped_sine]]\nforce = {force}\nstart = {start}\nstop = {stop}\n"
+def sweep(tmp_path, rig, method, force, start, stop, step, direction, settle=None):
+    """One sweep, ``[settle] method = method`` or the ``settle`` table's text: its summary, runs and events."""
+    settle = settle or f"method = \"{method}\""
+    text = (f"[settle]\n{settle}\n[[stepped_sine]]\nforce = {force}\nstart = {start}\nstop = {stop}\n"
             f"step = {step}\ndirection = \"{direction}\"\nrefine = false\n" + LIMITS)
     path = tmp_path / f"{method}.h5"
     with emulated_instruments(rig) as inst:
@@ -90,25 +93,34 @@ def test_predicted_start_drive_spares_the_corrections_across_the_shaker_resonanc
 @pytest.mark.slow
 def test_hardening_rig_takes_lines_with_harmonics_from_their_sequence_and_stays_on_the_branch(tmp_path):
     """Up and down through the jumps of a Duffing oscillator: every line on the branch the waiting path finds;
-    the lines with harmonics taken from their phasor sequence and the others from their fit of modes, each within
-    the tolerance of the settled value, as the waiting lines are (so within twice it of them); a line that
-    waited says why."""
+    the lines with harmonics taken from their phasor sequence and the others from their fit of modes, as
+    accurate against the settled lines as the waiting path is (whose steady-state check a beat fools on this
+    rig: 3e-3 off at 10.75 Hz up, beyond its 2e-3 tolerance); a line that waited says why."""
     rig = load_rig(RIGS / "hardening.toml")
-    _, steady, _, transient, events = both(tmp_path, rig, 0.5, 8.0, 13.0, 0.25, "both")
+    sweep_args = (0.5, 8.0, 13.0, 0.25, "both")
+    _, steady, _, transient, events = both(tmp_path, rig, *sweep_args)
+    # settled: 300 periods per line are within 6e-6 of 2000 on this rig (benchmarks/transient_speed.py)
+    _, settled, _ = sweep(tmp_path, rig, "settled", *sweep_args, settle="fixed_periods = 300")
+    worst = {"steady": 0.0, "transient": 0.0}
     for name in ("sine_0.5N_up", "sine_0.5N_down"):
-        a, b = steady[name], transient[name]
+        a, b, r = steady[name], transient[name], settled[name]
         np.testing.assert_allclose(b["f"], a["f"], rtol=1e-4)
         ratio = np.abs(b["frf"][:, 0] / a["frf"][:, 0] - 1)
-        assert np.all(ratio[b["transient"]] < 4e-3), (name, ratio)     # both within the 2e-3 tolerance
         assert np.all(ratio < 0.02), (name, ratio)                      # a jump changes it several times over
+        worst["steady"] = max(worst["steady"], np.abs(a["frf"][:, 0] / r["frf"][:, 0] - 1).max())
+        worst["transient"] = max(worst["transient"],
+                                 np.abs(b["frf"][b["transient"], 0] / r["frf"][b["transient"], 0] - 1).max())
         assert b["transient"][a["thd"] > 2e-3].sum() >= 3               # lines with harmonics, from the sequence
         assert b["transient"].mean() >= 0.8
-        # each line's stored uncertainty covers what its estimate's model misses: the two paths' lines agree within
-        # their combined standard deviation (the fit of modes' on the low branch missed by 3-6 of its own)
-        z = np.abs(b["frf"] - a["frf"]) / np.hypot(b["frf_std"], a["frf_std"])
-        assert np.all(z[b["transient"]] <= 3.0), (name, z[:, 0].round(1))
+        # each line's stored uncertainty covers what its estimate's model misses (the fit of modes' on the low
+        # branch missed by 3-6 of its own): every line within the bound that n normal deviates all keep with
+        # probability 0.99 of the settled line
+        z = np.abs(b["frf"] - r["frf"]) / np.hypot(b["frf_std"], r["frf_std"])
+        taken = z[b["transient"]]
+        assert np.all(taken <= norm.isf(0.005 / taken.size)), (name, z[:, 0].round(1))
         for f in b["f"][~b["transient"]]:
             assert any(f"{name}: {f:.4f} Hz waited for the transient: " in e for e in events)
+    assert worst["transient"] <= worst["steady"], worst                 # equal accuracy, the lines' own worst
 
 
 @pytest.mark.slow

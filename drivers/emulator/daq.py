@@ -85,15 +85,24 @@ class DaqFirmware(Firmware):
         self._all = list(range(self.n_channels))
         self.sensitivity = np.full(self.n_channels, DEFAULT_SENSITIVITY)
         self.input_range = np.full(self.n_channels, DEFAULT_RANGE)
+        self._scaled = None
         self.points = int(min(MAX_POINTS, max(16, round(FRAME_SECONDS * self.rig.sample_rate))))
 
     # ----- quantisation --------------------------------------------------------------------
+    def _scaling(self) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The scanned channels' LSB and largest count within range, and whether every channel is scanned in
+        order; kept until a setting changes (quantise runs on every frame)."""
+        if self._scaled is None:
+            scan = self.scan
+            lsb = self.rig.lsb[scan]
+            limit = np.minimum(np.floor(self.input_range[scan] / self.sensitivity[scan] / lsb), INT32_MAX)
+            self._scaled = (lsb, limit, scan == self._all)
+        return self._scaled
+
     def quantise(self, data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Counts of the scanned channels, shape (n, len(scan)), and per-row saturation flags."""
-        scan = self.scan
-        lsb = self.rig.lsb[scan]
-        limit = np.minimum(np.floor(self.input_range[scan] / self.sensitivity[scan] / lsb), INT32_MAX)
-        counts = np.rint((data if len(scan) == data.shape[1] and scan == self._all else data[:, scan]) / lsb)
+        lsb, limit, whole = self._scaling()
+        counts = np.rint((data if whole else data[:, self.scan]) / lsb)
         if len(counts) and (np.abs(counts).max(axis=0) <= limit).all():
             # nothing saturates (every frame of a campaign within its ranges): no clip, no per-row flags
             return counts.astype(np.int32), np.zeros(len(counts), dtype=bool)
@@ -159,6 +168,7 @@ class DaqFirmware(Firmware):
         self.acquired = 0
         self.frames_overrun = 0
         self._overrun_pending = False
+        self._scaled = None
         self._unframed = np.zeros((0, len(self.scan)), dtype=np.int32)
         self._unframed_over = np.zeros(0, dtype=bool)
         byte_rate = self.rig.sample_rate * frame_size(self.points, len(self.scan)) / self.points
@@ -243,12 +253,15 @@ class DaqFirmware(Firmware):
     def _set_sensitivity(self, args: list[str], number: int) -> None:
         self.sensitivity[self._channel(number)] = parse_number(expect_one(args), *SENSITIVITY_LIMITS,
                                                                DEFAULT_SENSITIVITY)
+        self._scaled = None
 
     def _set_range(self, args: list[str], number: int) -> None:
         self.input_range[self._channel(number)] = parse_number(expect_one(args), *RANGE_LIMITS, DEFAULT_RANGE)
+        self._scaled = None
 
     def _set_scan(self, args: list[str]) -> None:
         self.scan = parse_channel_list(expect_one(args), self.n_channels)
+        self._scaled = None
 
     def _set_rate(self, args: list[str]) -> None:
         rate = parse_number(expect_one(args), 0.0, float("inf"))

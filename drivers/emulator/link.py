@@ -181,6 +181,11 @@ class InstrumentLink:
             wait = POLL if deadline is None else min(POLL, deadline - now)
             fifo.wait(wait)
 
+    @property
+    def on_demand(self) -> bool:
+        """Whether the instrument produces its output only as the host reads it (fast mode)."""
+        return self._produce is not None
+
     def clock(self) -> float:
         """The rig's :class:`IdleClock`: what the host's reply deadlines count on this link."""
         return self.firmware.rig.idle_clock()

@@ -58,6 +58,13 @@ class Serial(SerialBase):
         return link.clock() if link is not None else time.monotonic()
 
     @property
+    def samples_on_demand(self) -> bool:
+        """Whether the instrument samples only as the host reads (fast mode): a driver then reads no further ahead
+        than its consumer asks (drivers/daq.py)."""
+        link = self._link
+        return link is not None and link.on_demand
+
+    @property
     def in_waiting(self) -> int:
         return self._active_link().available()
 
