@@ -216,9 +216,11 @@ def test_random_only_session_through_analyze(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_paper_2dof_random_run_at_low_level_is_seen_stuck(tmp_path, capsys):
-    """The paper's 2-DOF rig at 0.05 N rms: friction (fs = 0.1 N) holds x2, the coherence stays low, and the one
-    resonance is x1 on the held x2 (sqrt(200) / 2 pi = 2.2508 Hz). No pole on a bound is a mode, the modes are
-    ascending, the coherence is warned about and the stuck structure is said."""
+    """The paper's 2-DOF rig at 0.05 N rms: friction (fs = 0.1 N) holds x2, and the one resonance is x1 on the
+    held x2 (sqrt(200) / 2 pi = 2.2508 Hz). No pole on a bound is a mode, the modes are ascending, the stuck
+    structure is said and no mode of it trusted. Whether its coherence is low depends on how often the joint
+    slips in the run (0.17-0.62 over four noise seeds): a joint held throughout responds linearly, so the held
+    structure is told by its frequency."""
     plan = tmp_path / "random.toml"
     plan.write_text(PLAN.format(extra=""), encoding="utf-8")
     session = tmp_path / "s.h5"
@@ -235,4 +237,4 @@ def test_paper_2dof_random_run_at_low_level_is_seen_stuck(tmp_path, capsys):
     assert ref["stuck"][0]["frequency"] == pytest.approx(np.sqrt(200.0) / (2 * np.pi), rel=0.01)
     assert main(["analyze", str(session), str(model)]) == 0
     text = capsys.readouterr().out
-    assert "LOW COHERENCE" in text and "STUCK" in text
+    assert "STUCK" in text

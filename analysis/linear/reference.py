@@ -55,8 +55,9 @@ class StuckMode:
 
 
 def stuck_modes(modal: ModalFit, model: Model) -> list[StuckMode]:
-    """Modes of low coherence that match the model with one element (or all of them) held much better than the
-    model's free modes."""
+    """Modes that match the model with one element (or all of them) held much better than the model's free modes,
+    whatever their coherence: a joint that slips now and then leaves its modes' coherence low, but one held for
+    the whole run responds as the held structure does, linearly, and its modes are still not the free ones."""
     if modal.coherence is None or not model.elements:
         return []
     free = model.structure.natural_frequencies()
@@ -65,7 +66,7 @@ def stuck_modes(modal: ModalFit, model: Model) -> list[StuckMode]:
     held = [(group, held_frequencies(s, [el.vector(s) for el in group])) for group in holds]
     held = [(group, freqs) for group, freqs in held if len(freqs)]          # holding all may leave nothing
     out = []
-    for f, coh in zip(modal.frequency[modal.low_coherence], modal.coherence[modal.low_coherence]):
+    for f, coh in zip(modal.frequency, modal.coherence):
         d_free = np.abs(f / free - 1)
         best = None
         for group, freqs in held:
