@@ -57,7 +57,8 @@ class StuckMode:
 def stuck_modes(modal: ModalFit, model: Model) -> list[StuckMode]:
     """Modes that match the model with one element (or all of them) held much better than the model's free modes,
     whatever their coherence: a joint that slips now and then leaves its modes' coherence low, but one held for
-    the whole run responds as the held structure does, linearly, and its modes are still not the free ones."""
+    the whole run responds as the held structure does, linearly, and its modes are still not the free ones. A run
+    without coherence (imported so) is not checked: nothing in it says the joint was excited at a level it holds."""
     if modal.coherence is None or not model.elements:
         return []
     free = model.structure.natural_frequencies()
