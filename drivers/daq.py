@@ -235,15 +235,14 @@ class DaqStream:
     def _run(self, io: PortIO) -> None:
         error: BaseException | None = None
         frame = frame_size(self.daq.frame_points, len(self.daq.channels))
-        on_demand = io.samples_on_demand
-        chunk = frame if on_demand else 4 * frame
+        chunk = frame if self._on_demand else 4 * frame
         try:
             if io.desynced or io.rx:
                 io.discard_input()
             self.daq._scpi.send(io, "INIT")
             last = io.clock()
             while not self._stopping.is_set():
-                if on_demand:
+                if self._on_demand:
                     asked = io.clock()
                     self._queue.await_demand(self._stopping)
                     if self._stopping.is_set():
