@@ -156,6 +156,59 @@ def test_a_linear_line_whose_transient_the_poles_known_do_not_describe_waits():
     assert any(e is not None and e.reason.startswith("no harmonics in the steady state") for e in estimates)
 
 
+def swept(law, lines):
+    """Force and acceleration at FS of the last of ``lines`` ((Hz, periods) pairs), the drive stepped from line
+    to line with continuous phase from rest, as a sweep measures them; DOP853 at tight tolerances and the noise
+    of :func:`switched`."""
+    state, phase = [0.0, 0.0], 0.0
+    for number, (f, periods) in enumerate(lines):
+        w = 2 * np.pi * f
+
+        def rhs(t, s, w=w, phase=phase):
+            x, v = s
+            return [v, (FORCE * np.sin(w * t + phase) - C * v - K * x - law(x)) / M]
+        if number < len(lines) - 1:
+            state = scipy.integrate.solve_ivp(rhs, (0, periods / f), state, method="DOP853", rtol=1e-10,
+                                              atol=1e-13).y[:, -1]
+            phase += w * periods / f
+    t = np.arange(int(round(periods * FS / f))) / FS
+    y = scipy.integrate.solve_ivp(rhs, (0, t[-1]), state, t_eval=t, method="DOP853", rtol=1e-10, atol=1e-13).y
+    acc = np.array([rhs(ti, si)[1] for ti, si in zip(t, y.T)])
+    noise = np.random.default_rng(7).standard_normal((len(t), 2)) * [1e-4, 1e-3]
+    return np.column_stack([FORCE * np.sin(w * t + phase), acc]) + noise
+
+
+@pytest.mark.slow
+def test_a_line_past_a_jump_is_taken_by_the_fit_of_modes_once_its_sequence_says_it_is_linear():
+    """Up a Duffing oscillator's upper branch in 0.2 Hz steps to the line where it falls to the lower one: the
+    decay between the branches is large and nonlinear (harmonics, then Floquet multipliers outside the unit
+    circle), but the sequence's limit shows no harmonics once it converges, and the fit of modes then takes the
+    records that follow, within the tolerance of the settled response. (Before, the line waited for the whole
+    decay to die: 245 periods on the rig of benchmarks/transient_speed.py.)"""
+    tolerance, f = 2e-3, 11.0
+    data = swept(duffing, [(10.0, 150), (10.2, 60), (10.4, 60), (10.6, 60), (10.8, 60), (f, 300)])
+    meter = TransientLines(FS, 5, tolerance, force_index=0, sensor_index=[1])
+    meter.poles = np.array([-0.75 + 1j * np.sqrt(K / M - 0.75**2)])     # the linear oscillator's pole
+    meter.restart()
+    reasons, taken = [], None
+    for rec in records(data, f):
+        estimate = meter.add(rec, f)
+        if estimate is not None and estimate.accepted:
+            taken = (rec, estimate)
+            break
+        reasons.append(estimate.reason if estimate is not None else "")
+    assert taken is not None, reasons
+    assert reasons[0].startswith("harmonics")                           # the first record: the upper branch's
+    assert reasons[-1].startswith("no harmonics in the steady state")   # the sequence's limit: linear
+    rec, estimate = taken
+    assert 2 * np.linalg.norm(estimate.phasors[2:, 1]) <= tolerance * abs(estimate.phasors[1, 1])  # modes'
+    truth = settled_frf(data, f, rec.first_sample)
+    assert abs(estimate.phasors[1, 1] / estimate.phasors[1, 0] / truth - 1) <= tolerance
+    first = window_phasors(data[:rec.first_sample], FS, f, 2, 5, 0)[0][0]
+    assert abs(first[1, 1] / first[1, 0] / truth - 1) > 1.0           # where the line started: the other branch
+    assert (rec.first_sample + len(rec.data)) * f / FS <= 200
+
+
 @pytest.mark.parametrize("length", [200, 273, 274, 275, 1000, 1001])
 def test_windows_fit_inside_the_data_whatever_its_length(length):
     """Windows start at the sample nearest a whole number of periods: as many as end inside the data."""

@@ -34,6 +34,13 @@ when it is
   amplitudes and multipliers together). Where both are of a size, either alone within the tolerance leaves
   the sum beyond it.
 
+A limit without harmonics says the line is linear where it settles: the harmonics its first records showed were
+the transient's (the decay from another branch after a jump, which is large and nonlinear, or a mode the poles known
+miss). The fit of modes then takes the line's records from the next one on, where that transient has decayed
+toward the linear steady state, as on any linear line; where they still show harmonics the sequence goes on. Such a
+line, once taken, hands on the poles of its whole free response (its records less the forced response taken), as a
+line that waited does: where the poles known missed a mode, what is left in the tail is too small to teach it.
+
 A line without harmonics that the fit of modes refuses waits: its free response is one of modes, and a
 refusal says the poles known are not all of them, which the line's settled free response then teaches (a line
 taken from its sequence teaches none, and the start drives predicted without the mode miss). Every line the
@@ -113,6 +120,7 @@ class TransientLines:
         self.reason = ""                                # why the line in progress is waiting
         self._records: list = []
         self._nonlinear = False                         # the line in progress showed harmonics
+        self._modal_from = 0                            # its first record the fit of modes may take
         self._previous_limit = None                     # its phasor sequence's limit one record before
 
     @property
@@ -124,6 +132,7 @@ class TransientLines:
         """A new line, or the drive changed: the records so far hold another forcing."""
         self._records = []
         self._nonlinear = False
+        self._modal_from = 0
         self._previous_limit = None
         self.last = None
         self.reason = "no poles known yet" if not len(self.poles) else ""
@@ -135,7 +144,7 @@ class TransientLines:
             self.reason = "no poles known yet"
             return None
         estimate = None
-        if not self._nonlinear and MIN_RECORDS <= len(self._records) <= MAX_FIT_RECORDS:
+        if not self._nonlinear and MIN_RECORDS <= len(self._modal()) <= MAX_FIT_RECORDS:
             estimate = self._estimate(frequency)          # finds the harmonics, if any, in the first record
         if self._nonlinear:
             estimate = self._sequence(frequency) or estimate
@@ -182,9 +191,11 @@ class TransientLines:
         return TransientEstimate(fit.limit, fit.std, frf_std, not reason, reason, change)
 
     def _linear(self, limit: np.ndarray) -> str:
+        """A limit without harmonics: a linear line, whose records from the next on go to the fit of modes."""
         if not self._distorted(limit):
-            return ("no harmonics in the steady state: a linear line, whose free response teaches the poles "
-                    "once it settled")
+            self._nonlinear, self._modal_from = False, len(self._records)
+            return ("no harmonics in the steady state: a linear line, whose free response the fit of modes "
+                    "takes once its transient is linear")
         return ""
 
     @staticmethod
@@ -194,11 +205,12 @@ class TransientLines:
         return ""
 
     def _estimate(self, frequency: float) -> TransientEstimate:
-        t, y = self._window(self._records)
-        first = self._head()
+        records = self._modal()
+        t, y = self._window(records)
+        first = self._head(records)
         quick = fit_transient(t, y, frequency, self.poles, self.n_harmonics, refine=False)
         distorted = self._distorted(quick.phasors)
-        if distorted:                    # a nonlinear line stays nonlinear: no more fits of modes, its sequence
+        if distorted:                    # to its sequence, until the limit of that shows no harmonics
             self._nonlinear = True
             return TransientEstimate(quick.phasors, quick.std, np.nan, False, distorted)
         full = fit_transient(t, y, frequency, self.poles, self.n_harmonics)
@@ -207,7 +219,9 @@ class TransientLines:
         change = _change(full.phasors[1], later.phasors[1], self.force_index, self.sensor_index)
         reason = (self._imprecise(frf_std) or self._inconsistent(change)
                   or self._distorted(full.phasors) or self._unexplained(full, y, first))
-        if not reason:
+        if not reason and self._modal_from:       # the line's tail: its whole free response teaches the poles
+            self.learn(frequency, full.phasors)
+        elif not reason:
             self.poles = full.poles
         miss = float(np.hypot(change, self._thd(full.phasors)))
         return TransientEstimate(full.phasors, full.std, frf_std, not reason, reason, miss)
@@ -262,11 +276,16 @@ class TransientLines:
                             for r in records])
         return t, np.concatenate([r.data for r in records])
 
-    def _head(self) -> int:
+    def _modal(self) -> list:
+        """The records the fit of modes may take: the line's, from its first without the transient's harmonics."""
+        return self._records[self._modal_from:]
+
+    @staticmethod
+    def _head(records: list) -> int:
         """Samples at the start of the window where the transient is strongest: the first record, or the first
         half of the only one."""
-        first = len(self._records[0].data)
-        return first if len(self._records) > 1 else first // 2
+        first = len(records[0].data)
+        return first if len(records) > 1 else first // 2
 
     def _contiguous(self) -> list:
         """The last records of the line that follow one another without a gap (the pencil needs uniform time)."""
