@@ -187,13 +187,14 @@ class TransientLines:
         change = max(_change(fit.limit[1], b, self.force_index, self.sensor_index) if b is not None else np.inf
                      for b in others)
         self._previous_limit = fit.limit[1]
-        reason = self._linear(fit.limit) or self._diverging(fit) or self._beyond_budget(frf_std, change)
+        linear = self._linear(fit.limit)
+        if linear:                  # the harmonics were the transient's: the records after this one go to the modes
+            self._nonlinear, self._modal_from = False, len(self._records)
+        reason = linear or self._diverging(fit) or self._beyond_budget(frf_std, change)
         return TransientEstimate(fit.limit, fit.std, frf_std, not reason, reason, change)
 
     def _linear(self, limit: np.ndarray) -> str:
-        """A limit without harmonics: a linear line, whose records from the next on go to the fit of modes."""
         if not self._distorted(limit):
-            self._nonlinear, self._modal_from = False, len(self._records)
             return ("no harmonics in the steady state: a linear line, whose free response the fit of modes "
                     "takes once its transient is linear")
         return ""
