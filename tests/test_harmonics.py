@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from analysis.signals.harmonics import (coherent_length, harmonics, harmonics_at, sine_fit,
-                                total_harmonic_distortion)
+from analysis.signals.harmonics import (HarmonicProjector, coherent_length, harmonics, harmonics_at, sine_fit,
+                                       total_harmonic_distortion)
 
 FS = 1000.0
 
@@ -105,3 +105,26 @@ def test_sine_fit_refuses_flat_records():
     with pytest.raises(ValueError):
         sine_fit(np.ones(100), FS)
     assert math.isfinite(sine_fit(np.sin(np.arange(100)), FS).frequency)
+
+
+def test_a_batch_of_records_gives_each_record_s_written_harmonics_and_residual():
+    """Records of a fraction of a sample per period, written from known phasors plus a known noise: the batch's
+    amplitudes are the written ones to the noise's size, and equal, record by record, what one record at a time
+    gives (amplitudes and residual rms)."""
+    rng = np.random.default_rng(3)
+    f, n, B = 9.37, 213, 7
+    Y = rng.normal(size=(B, 4, 2)) + 1j * rng.normal(size=(B, 4, 2))
+    Y[:, 0] = Y[:, 0].real                                              # the offset is real
+    noise = 1e-6 * rng.normal(size=(B, n, 2))
+    records = np.stack([np.column_stack([synthesise(Y[b, :, c], f, n) for c in range(2)]) for b in range(B)]) + noise
+    project = HarmonicProjector(f, FS, n, 3)
+    amplitudes, rms = project.batch(records)
+    assert amplitudes.shape == (B, 4, 2) and rms.shape == (B, 2)
+    assert np.allclose(amplitudes, Y, atol=1e-6)
+    for b in range(B):
+        one = project(records[b])
+        assert np.allclose(one.amplitudes, amplitudes[b], rtol=1e-12, atol=1e-15)
+        assert np.allclose(one.residual_rms, rms[b], rtol=1e-9)
+    assert np.all((rms > 0.5e-6) & (rms < 2e-6))
+    with pytest.raises(ValueError):
+        project.batch(records[:, :-1])

@@ -217,3 +217,14 @@ def test_windows_fit_inside_the_data_whatever_its_length(length):
     per_window, n = 2 * FS / f, int(np.ceil(2 * FS / f))
     assert round((len(P) - 1) * per_window) + n <= length < round(len(P) * per_window) + n
     assert np.allclose(P[:, 0, :], 1.0)
+
+
+@pytest.mark.parametrize("last", [1, 5, 200])
+def test_the_last_windows_are_the_same_windows_as_all_of_them_end_with(last):
+    """``last`` keeps the windows where they are: the last so many of all, phasors and noise, at the same origin."""
+    rng = np.random.default_rng(5)
+    data = np.column_stack([np.sin(2 * np.pi * 9.37 * np.arange(3001) / FS), rng.normal(size=3001)])
+    P, noise = window_phasors(data, FS, 9.37, 2, 5, 2500)
+    P_last, noise_last = window_phasors(data, FS, 9.37, 2, 5, 2500, last=last)
+    assert len(P_last) == min(last, len(P))
+    assert np.array_equal(P_last, P[-last:]) and np.array_equal(noise_last, noise[-last:])

@@ -217,11 +217,27 @@ class HarmonicProjector:
         if y.shape[0] != self.n:
             raise ValueError(f"record has {y.shape[0]} samples, the projector {self.n}")
         coef = self._pinv @ y
-        Y = np.empty((self.n_harmonics + 1,) + y.shape[1:], complex)
-        Y[0] = coef[0]
-        Y[1:] = coef[1::2] + 1j * coef[2::2]
         residual = y - self._A @ coef
-        return Harmonics(self.frequency, Y, np.sqrt(np.mean(residual**2, axis=0)))
+        return Harmonics(self.frequency, _phasors(coef), np.sqrt(np.mean(residual**2, axis=0)))
+
+    def batch(self, records) -> tuple[np.ndarray, np.ndarray]:
+        """The harmonics of ``records`` (B, n, channels) at once: amplitudes (B, n_harmonics + 1, channels)
+        complex and residual rms (B, channels), each record's as :meth:`__call__` gives them."""
+        y = np.asarray(records, float)
+        if y.ndim != 3 or y.shape[1] != self.n:
+            raise ValueError(f"records of shape {y.shape}, the projector takes (B, {self.n}, channels)")
+        coef = self._pinv @ y
+        residual = y - self._A @ coef
+        return np.moveaxis(_phasors(np.moveaxis(coef, 1, 0)), 0, 1), np.sqrt(np.mean(residual**2, axis=1))
+
+
+def _phasors(coef: np.ndarray) -> np.ndarray:
+    """Complex amplitudes [offset, a1 + j b1, a2 + j b2, ...] from least-squares coefficients [offset, a1, b1, a2,
+    b2, ...] along the first axis (the columns of :func:`_design`)."""
+    Y = np.empty(((coef.shape[0] + 1) // 2,) + coef.shape[1:], complex)
+    Y[0] = coef[0]
+    Y[1:] = coef[1::2] + 1j * coef[2::2]
+    return Y
 
 
 @dataclass

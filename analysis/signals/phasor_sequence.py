@@ -130,7 +130,7 @@ def _multipliers(D: np.ndarray, max_order: int) -> np.ndarray:
     if max_order < 1 or M < 3:
         return np.empty(0, complex)
     L = max(min(M // 2, M - 2), 1)
-    H = np.vstack([np.lib.stride_tricks.sliding_window_view(D[:, c], L + 1) for c in range(D.shape[1])])
+    H = _hankel(D, L)
     _, s, Vh = np.linalg.svd(H, full_matrices=False)
     edge = NOISE_EDGE * np.sqrt(2.0) * (np.sqrt(H.shape[0]) + np.sqrt(H.shape[1]))
     order = min(int(np.sum(s > edge)), max_order, L)
@@ -143,13 +143,19 @@ def _multipliers(D: np.ndarray, max_order: int) -> np.ndarray:
     return mu[np.abs(mu) > 0]
 
 
+def _hankel(D: np.ndarray, L: int) -> np.ndarray:
+    """The Hankel matrices of ``D``'s columns (M, m) with ``L + 1`` columns each, stacked: row ``c (M - L) + i``
+    holds ``D[i:i + L + 1, c]``; shape (m (M - L), L + 1)."""
+    return np.lib.stride_tricks.sliding_window_view(D, L + 1, axis=0).transpose(1, 0, 2).reshape(-1, L + 1)
+
+
 def window_phasors(data, sample_rate: float, frequency: float, window_periods: int, n_harmonics: int,
-                   origin: int):
+                   origin: int, last: int | None = None):
     """Harmonic phasors of consecutive windows of ``window_periods`` periods of ``data`` (samples, channels),
     uniformly sampled. Every window's phasors are referred to one time origin, the sample ``origin`` of
     ``data`` (so a steady state gives the same phasor in every window); windows start at the nearest sample to
     a whole number of periods and hold the same number of samples (least squares, so a fraction of a sample is
-    no leakage).
+    no leakage). ``last``: only the last so many windows (the same windows, not placed anew).
 
     Returns (phasors (N, n_harmonics + 1, channels), noise (N, 1, channels): each fundamental's standard
     deviation from its window's residual, 2 rms / sqrt(samples))."""
@@ -158,14 +164,13 @@ def window_phasors(data, sample_rate: float, frequency: float, window_periods: i
     n = int(np.ceil(per_window))                      # at least the periods asked
     starts = np.round(np.arange(int(y.shape[0] // per_window) + 1) * per_window).astype(int)
     starts = starts[starts + n <= y.shape[0]]
+    if last is not None:
+        starts = starts[max(len(starts) - last, 0):]
     if not len(starts):
         return np.empty((0, n_harmonics + 1, y.shape[1]), complex), np.empty((0, 1, y.shape[1]))
-    project = HarmonicProjector(frequency, sample_rate, n, n_harmonics)
-    h = np.arange(n_harmonics + 1)[:, None]
-    P, noise = [], []
-    for s in starts:
-        H = project(y[s:s + n])
-        # the window's phasors are at its first sample s: moved to the common origin
-        P.append(H.amplitudes * np.exp(1j * 2 * np.pi * frequency * h * (origin - s) / sample_rate))
-        noise.append(2 * H.residual_rms / np.sqrt(n))
-    return np.array(P), np.array(noise)[:, None, :]
+    amplitudes, rms = HarmonicProjector(frequency, sample_rate, n, n_harmonics).batch(
+        y[starts[:, None] + np.arange(n)])
+    # each window's phasors are at its first sample: moved to the common origin
+    h = np.arange(n_harmonics + 1)
+    P = amplitudes * np.exp(1j * 2 * np.pi * frequency * np.outer(origin - starts, h) / sample_rate)[:, :, None]
+    return P, (2 * rms / np.sqrt(n))[:, None, :]

@@ -173,8 +173,7 @@ class TransientLines:
         run = self._contiguous()
         origin = run[-1].first_sample - run[0].first_sample
         P, noise = window_phasors(np.concatenate([r.data for r in run]), self.sample_rate, frequency,
-                                  WINDOW_PERIODS, self.n_harmonics, origin)
-        P, noise = P[-SEQUENCE_WINDOWS:], noise[-SEQUENCE_WINDOWS:]
+                                  WINDOW_PERIODS, self.n_harmonics, origin, last=SEQUENCE_WINDOWS)
         fit = fit_sequence(P, noise)
         heads = [max(1, int(share * len(P))) for share in HEAD_SHARES]
         later = [fit_sequence(P[h:], noise[h:]) for h in heads] if fit is not None else [None]
