@@ -439,3 +439,34 @@ def test_the_writer_ignores_ctrl_c_and_closes_the_file_cleanly_on_sigterm(tmp_pa
     with pytest.raises(SessionWriteError, match="writer process stopped"):
         line(w, 2)
     w.close()
+
+
+def test_recover_cuts_a_line_a_killed_writer_stored_only_in_part(tmp_path):
+    """A writer killed inside a line leaves some of its datasets a line longer than others, and the line's raw
+    samples short: the repair keeps the lines every dataset holds whole, and the raw samples up to their end."""
+    from app.session.writer import _trim_to_whole_lines
+    with h5py.File(tmp_path / "s.h5", "w") as f:
+        g = f.create_group("run")
+        g.attrs["kind"] = "stepped_sine"
+
+        def grow(name, values, shape=()):
+            g.create_dataset(name, data=np.asarray(values), maxshape=(None,) + shape, chunks=True)
+        grow("frequency", [1.0, 1.1, 1.2, 1.3])                         # line 3 begun: frequency written...
+        grow("frf/x1", [0j, 1j, 2j, 3j])
+        grow("force_amplitude", [0.8, 0.8, 0.8])                         # ...but not the rest of it
+        grow("harmonics/force", np.zeros((4, 6), complex), (6,))
+        grow("raw/data", np.zeros((1400, 2), "f4"), (2,))               # line 2's 500 samples not all there
+        grow("raw/line_start", [0, 500, 1000])
+        grow("raw/line_count", [500, 500, 500])
+        assert _trim_to_whole_lines(g) == 2
+        assert all(g[k].shape[0] == 2 for k in ("frequency", "frf/x1", "force_amplitude", "harmonics/force",
+                                                 "raw/line_start", "raw/line_count"))
+        assert g["raw/data"].shape == (1000, 2)
+        r = f.create_group("random")
+        r.attrs["kind"] = "random"
+        r.create_dataset("frequency", data=np.arange(5.0), maxshape=(None,))
+        r.create_dataset("frf/x1", data=np.zeros(3, complex), maxshape=(None,))
+        r.create_dataset("raw/data", data=np.zeros((700, 2), "f4"), maxshape=(None, 2))
+        r.create_dataset("raw/line_start", data=np.zeros(0, "i8"), maxshape=(None,))
+        assert _trim_to_whole_lines(r) == 3                              # its raw record belongs to no line
+        assert r["frequency"].shape == (3,) and r["raw/data"].shape == (700, 2)

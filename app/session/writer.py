@@ -718,6 +718,7 @@ def _mark_running_runs(f: h5py.File, lost: list[str]) -> list[str]:
     marked = []
     for name, g in f["runs"].items():
         if _text(g.attrs.get("status", "running")) == "running":
+            _trim_to_whole_lines(g)
             mark_incomplete(g, "the writing process stopped without closing the run (crash, kill or full disk)")
             marked.append(name)
     message = f"recovered after the writer stopped; incomplete runs: {', '.join(marked) or 'none'}"
@@ -727,6 +728,32 @@ def _mark_running_runs(f: h5py.File, lost: list[str]) -> list[str]:
         f.create_dataset("events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(256,))
     append_event(f["events"], 0.0, "", "recovery", message)
     return marked
+
+
+def _trim_to_whole_lines(run: h5py.Group) -> int:
+    """Cut a run a dead writer left running to the lines stored whole: every per-line dataset (all but the raw
+    ones, and the raw lines' starts and counts where the run stores raw samples per line) to the fewest lines any
+    holds, and the raw samples to the end of the last of them. A writer killed inside a line leaves some datasets
+    one line longer than others (a line is written dataset by dataset); contactid reads the lines all hold, and
+    any other HDF5 reader must find the same. Returns the lines kept."""
+    per_line = [ds for ds in _datasets(run) if not ds.name[len(run.name) + 1:].startswith("raw/") and ds.shape]
+    raw = run.get("raw")
+    by_line = (raw is not None and _text(run.attrs.get("kind", "")) != "random"
+               and all(k in raw for k in ("line_start", "line_count", "data")))
+    if by_line:
+        per_line += [raw["line_start"], raw["line_count"]]
+    if not per_line:
+        return 0
+    n = min(ds.shape[0] for ds in per_line)
+    if by_line:
+        ends = raw["line_start"][:n] + raw["line_count"][:n]
+        while n and ends[n - 1] > raw["data"].shape[0]:      # the last line's samples not all written
+            n -= 1
+        raw["data"].resize(int(ends[n - 1]) if n else 0, axis=0)
+    for ds in per_line:
+        if ds.shape[0] > n:
+            ds.resize(n, axis=0)
+    return n
 
 
 @contextmanager
