@@ -306,3 +306,34 @@ def test_the_slice_copy_check_bites():
     assert _slice_copies(function) == [4]
     tree = ast.parse("def g(a, b):\n    a[:] = b\n\ndef h(a, b):\n    a[:] = b\n\nG = njit(cache=True)(g)\n")
     assert [f.name for f in _compiled_functions(tree)] == ["g"]
+
+
+def _cached_without_the_keyed_cache(tree: ast.AST) -> bool:
+    """Whether a module disk-caches compiled code (``cache=True``) with a decorator not taken from
+    analysis/common/compiled.py, whose import keys the cache on the sources."""
+    cached = any(isinstance(node, ast.Call) and "jit" in ast.unparse(node.func)
+                 and any(k.arg == "cache" and ast.unparse(k.value) == "True" for k in node.keywords)
+                 for node in ast.walk(tree))
+    keyed = any(isinstance(node, ast.ImportFrom) and (node.module or "").endswith("compiled")
+                and any(alias.name == "njit" for alias in node.names) for node in ast.walk(tree))
+    direct = any(isinstance(node, ast.ImportFrom) and node.module == "numba"
+                 and any(alias.name in ("njit", "jit") for alias in node.names) for node in ast.walk(tree))
+    return cached and (direct or not keyed)
+
+
+def test_every_disk_cached_function_uses_the_keyed_cache():
+    """numba checks a cached function against its own file only: a kernel inlining a helper of another file
+    would run the old helper after that file changed. The cache directory is keyed on the sources
+    (analysis/common/compiled.py) when a cached module takes its decorator from there (docs/performance.md)."""
+    found = sorted(str(path.relative_to(ROOT)) for path in MODULES.values()
+                   if _cached_without_the_keyed_cache(ast.parse(path.read_text())))
+    assert not found, found
+    assert any("cache=True" in path.read_text() for path in MODULES.values())
+
+
+def test_the_keyed_cache_check_bites():
+    assert _cached_without_the_keyed_cache(ast.parse("from numba import njit\n@njit(cache=True)\ndef f(): pass\n"))
+    assert not _cached_without_the_keyed_cache(ast.parse(
+        "from ..common.compiled import njit\n@njit(cache=True)\ndef f(): pass\n"))
+    assert not _cached_without_the_keyed_cache(ast.parse("from numba import njit\n@njit\ndef f(): pass\n"))
+    assert _cached_without_the_keyed_cache(ast.parse("import numba\nf = numba.njit(cache=True)(g)\n"))

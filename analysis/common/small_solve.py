@@ -8,13 +8,13 @@ simulator's loop, compiled once per clone), and :func:`solve_small`, a call, whe
 every process (a balance with its laws' kernels fixed): inlining there costs seconds of compile per process.
 
 Both forms are compiled from the one function with the same options but ``inline``, and numba keys a disk-cached
-function by its source, not its options: keep the two forms' other options identical. The simulator's disk cache
-(drivers/simulation/kernels.py) is keyed by that file alone and does not see an edit here: after editing this
-function, clear drivers/simulation/__pycache__ (or touch kernels.py) so that the simulator recompiles it.
+function by its source, not its options: keep the two forms' other options identical. An edit here recompiles the
+simulator's loop, which inlines it: the disk cache is keyed on every source of analysis/ and drivers/
+(:mod:`analysis.common.compiled`).
 """
 import math
 
-from numba import njit
+from .compiled import njit
 
 SOLVED, SINGULAR, NOT_FINITE = 0, 1, 2
 

@@ -18,7 +18,7 @@ import math
 from typing import Sequence
 
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from ..common.errors import InputError
 from ..common.statistics import capped_chi_square

@@ -13,7 +13,7 @@ a passive friction contact.
 import math
 
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from .base import Law, Param, broadcast
 

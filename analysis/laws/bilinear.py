@@ -8,7 +8,7 @@ even harmonics, so a fit of kbar alone cannot separate k_pos from k_neg (the fit
 reports the pair as non-identifiable). Both basis functions are 1/2.
 """
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from .base import Law, Param, broadcast
 

@@ -10,7 +10,7 @@ part of each cycle, and this describing function then overstates the dissipation
 import math
 
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from .base import Law, Param, broadcast
 

@@ -1,6 +1,6 @@
 """cubic: hardening (k3 > 0) or softening (k3 < 0) spring, f = k3 x^3."""
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from .base import Law, Param, broadcast
 

@@ -3,7 +3,7 @@
 Describing function: kbar = j (3/4) c3 w^3 X^2.
 """
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from .base import Law, Param, broadcast
 

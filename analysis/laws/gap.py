@@ -10,7 +10,7 @@ part of a unit Jenkins element at slip ratio ``(1 - u)/2`` (see _special.py), wh
 how it is evaluated: without cancellation close to the onset.
 """
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from ._special import slip_real
 from .base import Law, Param, broadcast

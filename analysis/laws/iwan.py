@@ -76,7 +76,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from ._special import slip_imag, slip_real
 from .base import Law, LimitForm, LimitReading, Param, broadcast

@@ -15,7 +15,7 @@ Fit parametrisation: ``kt`` linear, the slip displacement ``xs = fs / kt`` (shap
 that kbar = kt * g(X; xs).
 """
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from ._special import slip_imag, slip_real
 from .base import Law, LimitReading, Param, broadcast

@@ -1,6 +1,6 @@
 """linear: spring and viscous damper, f = k x + c x'."""
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from .base import Law, Param, broadcast
 

@@ -5,7 +5,7 @@ Describing function: kbar = j (8 / (3 pi)) c2 w^2 X.
 import math
 
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from .base import Law, Param, broadcast
 

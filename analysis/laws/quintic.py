@@ -3,7 +3,7 @@
 Describing function: kbar = (5/8) k5 X^4 (real: the force is single-valued in x).
 """
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from .base import Law, Param, broadcast
 

@@ -36,7 +36,7 @@ overestimates the tanh describing function by 26 % at ``beta X = 4``.
 import math
 
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from .base import Law, Param, broadcast
 

@@ -15,7 +15,7 @@ bracket is evaluated as twice the unit Jenkins real part at slip ratio ``(1 - u)
 (_special.py), free of cancellation at the onset.
 """
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from ._special import slip_real
 from .base import Law, Param, broadcast

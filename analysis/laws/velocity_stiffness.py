@@ -7,7 +7,7 @@ gamma are negative (Table 3), so the sign is free.
 import math
 
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from .base import Law, Param, broadcast
 

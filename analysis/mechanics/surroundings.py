@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
-from numba import njit
+from ..common.compiled import njit
 
 from ..common.recent import Recent
 from ..common.small_solve import NOT_FINITE, SINGULAR, solve_small

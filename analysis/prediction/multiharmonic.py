@@ -22,7 +22,7 @@ from typing import Sequence
 
 import numpy as np
 import scipy.optimize
-from numba import njit
+from ..common.compiled import njit
 
 from ..common.interrupt import check_stop
 from ..mechanics.elements import Element

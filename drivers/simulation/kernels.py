@@ -24,10 +24,11 @@ from typing import NamedTuple
 
 import numpy as np
 from llvmlite import ir
-from numba import carray, cfunc, njit, types
+from numba import carray, cfunc, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from analysis.common.compiled import njit
 from analysis.common.small_solve import SOLVED, solve_small_inline
 
 # element modes of the friction solver

@@ -1,0 +1,121 @@
+"""The disk cache of compiled code is keyed on the sources (analysis/common/compiled.py): a cached kernel that
+calls a compiled helper of another file is recompiled when that file changes, where numba's own cache, which checks
+the kernel's file only, keeps running the old helper."""
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from analysis.common.compiled import key_cache_on, source_key
+
+ROOT = Path(__file__).resolve().parents[1]
+
+_KERNEL = """\
+from analysis.common.compiled import njit
+from .helper import step
+
+
+@njit(cache=True)
+def kernel(x):
+    return step(x) * 10.0
+"""
+_HELPER = """\
+from numba import njit
+
+
+@njit
+def step(x):
+    return x + {shift}
+"""
+_RUN = """\
+import sys
+from pathlib import Path
+import numba
+from analysis.common.compiled import key_cache_on
+tmp = Path(sys.argv[1])
+if sys.argv[2] == "keyed":
+    assert key_cache_on([tmp / "pkg"], base=tmp / "keyed") is not None
+else:
+    numba.config.CACHE_DIR = str(tmp / "plain")   # numba's own cache: the kernel's file is its only key
+sys.path.insert(0, str(tmp))
+from pkg.kernel import kernel
+print(kernel(1.0))
+"""
+
+
+def _package(tmp: Path, shift: int) -> None:
+    (tmp / "pkg").mkdir(exist_ok=True)
+    (tmp / "pkg" / "__init__.py").write_text("")
+    (tmp / "pkg" / "helper.py").write_text(_HELPER.format(shift=shift))
+    kernel = tmp / "pkg" / "kernel.py"
+    if not kernel.exists():
+        kernel.write_text(_KERNEL)
+
+
+def _run(tmp: Path, mode: str) -> float:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONDONTWRITEBYTECODE="1")
+    out = subprocess.run([sys.executable, "-c", _RUN, str(tmp), mode], env=env, cwd=tmp,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return float(out.stdout.split()[-1])
+
+
+@pytest.mark.slow
+def test_a_kernel_runs_the_helper_of_today_after_the_helpers_file_changed(tmp_path):
+    _package(tmp_path, shift=1)
+    assert _run(tmp_path, "plain") == 20.0
+    assert _run(tmp_path, "keyed") == 20.0
+    _package(tmp_path, shift=2)                     # the helper's file changes, the kernel's does not
+    assert _run(tmp_path, "plain") == 20.0           # numba's own cache: the old helper runs (the fault)
+    assert _run(tmp_path, "keyed") == 30.0           # keyed on the sources: recompiled against the new one
+
+
+def test_the_key_follows_every_source_and_only_the_sources(tmp_path):
+    room = tmp_path / "room"
+    (room / "sub").mkdir(parents=True)
+    (room / "a.py").write_text("A = 1\n")
+    (room / "sub" / "b.py").write_text("B = 2\n")
+    (room / "notes.txt").write_text("not a source")
+    key = source_key([room])
+    assert len(key) == 16 and source_key([room]) == key
+    (room / "notes.txt").write_text("changed")
+    assert source_key([room]) == key
+    (room / "sub" / "b.py").write_text("B = 3\n")
+    changed = source_key([room])
+    assert changed != key
+    (room / "sub" / "b.py").rename(room / "b.py")    # same bytes, another place
+    assert source_key([room]) not in (key, changed)
+
+
+def test_an_unwritable_base_leaves_numbas_choice(tmp_path):
+    import numba
+    before = numba.config.CACHE_DIR
+    blocked = tmp_path / "file"
+    blocked.write_text("a file where the directory would go")
+    assert key_cache_on([tmp_path], base=blocked) is None
+    assert numba.config.CACHE_DIR == before
+
+
+def test_directories_of_other_keys_unused_for_long_are_removed(tmp_path):
+    import numba
+    before = numba.config.CACHE_DIR
+    room = tmp_path / "room"
+    room.mkdir()
+    (room / "a.py").write_text("A = 1\n")
+    base = tmp_path / "cache"
+    old, recent, other = base / ("0" * 16), base / ("1" * 16), base / "not-a-key"
+    for directory in (old, recent, other):
+        directory.mkdir(parents=True)
+    long_ago = 1e9
+    os.utime(old, (long_ago, long_ago))
+    os.utime(other, (long_ago, long_ago))
+    try:
+        made = key_cache_on([room], base=base)
+        assert made == base / source_key([room]) and made.is_dir()
+        assert numba.config.CACHE_DIR == str(made)
+        assert not old.exists() and recent.exists() and other.exists()
+    finally:
+        numba.config.CACHE_DIR = before
