@@ -20,10 +20,10 @@ from analysis.common.tables import load_toml
 from analysis.loop.workbench import Workbench
 from drivers.simulation.rig import load_rig
 
-from app.analyze import report_text
+from app.analyze import SessionNotes, report_text, store_history
 from app.campaign import CampaignIncomplete, ProgressBar, emulated_instruments, load_plan, run_plan
 from app.models import asset, builtin_plan_path
-from app.session import append_model_history, atomic_output, measurements_from_session, open_session
+from app.session import atomic_output, measurements_from_session, open_session
 from app.report import REPORT_FILES, write_report
 
 SESSION = "paper-beam.h5"
@@ -102,7 +102,11 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
     result = run_auto(wb, progress=lambda step: say(f"   {step.text()}"), note=lambda line: say(f"   {line}"))
     say(f"   {result.stopped}")
     say("   error history: " + " -> ".join(f"{h.error:.3g}" for h in wb.history) + "\n")
-    append_model_history(session, [h.to_json() for h in wb.history], str(model_path))
+    notes = SessionNotes()
+    store_history(session, wb, model_path, notes)
+    if notes.not_stored:            # as `analyze`: the analysis is not lost for want of its copy in the session
+        say(f"   {notes.text()}")
+        print(f"contactid: warning: model history not stored: {notes.not_stored}", file=sys.stderr)
     fitted = out / FITTED
     with atomic_output(fitted, overwrite=overwrite, field="--out") as temp:
         temp.write_text(wb.model.to_toml(), encoding="utf-8")

@@ -14,6 +14,7 @@ import pytest
 from analysis.common.quantities import dof_name_problem, force_problem
 from app.campaign.plan import parse_plan
 from app.cli import main
+from app.session.file import SessionWriteError
 from app.session.writer import RunSpec, SessionWriter, append_model_history
 from analysis.common.errors import InputError
 from paper_structure import PAPER_STRUCTURE
@@ -267,6 +268,40 @@ def _left_by_a_dead_writer(path) -> None:
     with h5py.File(path, "r+") as f:
         f["runs/sine_0.8N_up"].attrs["status"] = "running"
         f.attrs["writer_pid"] = 2 ** 22 + 12345           # above Linux's largest pid: no such process
+
+
+_HISTORY = [{"step": 0, "action": "start", "error": 0.5, "model": "[structure]\n",
+             "error_by_level": [{"force": 0.8, "error": 0.5}]}]
+
+
+def test_the_history_is_stored_when_the_kernel_copies_the_session_in_pieces(tmp_path, monkeypatch):
+    """One ``sendfile`` call copies at most 2 GiB and returns early when a signal arrives (a profiler's stop):
+    the session's copy held the first call's bytes only, and ``analyze`` failed on a truncated file after its
+    whole analysis. Copied call by call, every byte is there; a source that ends early is refused, unchanged."""
+    path = tmp_path / "s.h5"
+    write_session(path)
+    runs = _runs(path)
+    real, counts = os.sendfile, []
+
+    def in_pieces(out_fd, in_fd, offset, count):
+        counts.append(count)
+        return real(out_fd, in_fd, offset, min(count, 65536))
+
+    monkeypatch.setattr(os, "sendfile", in_pieces)
+    assert append_model_history(path, _HISTORY).name == "analysis_0"
+    assert len(counts) == -(-counts[0] // 65536) > 2
+    after = _runs(path)
+    assert list(after) == list(runs) and all(list(after[r]) == list(runs[r]) and all(
+        np.array_equal(after[r][k], v) for k, v in runs[r].items()) for r in runs)
+    with h5py.File(path, "r") as f:
+        assert "analysis_0" in f["models"]
+    before = path.read_bytes()
+    monkeypatch.setattr(os, "sendfile", lambda out_fd, in_fd, offset, count: 0 if offset else
+                        real(out_fd, in_fd, offset, 4096))
+    with pytest.raises(SessionWriteError, match=r"s\.h5: the file ended at byte 4096 of the \d+ it had when its "
+                                                r"copy began; the session is unchanged"):
+        append_model_history(path, _HISTORY)
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
 
 
 @pytest.mark.parametrize("operation", ["recover", "history", "append"])

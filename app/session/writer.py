@@ -766,10 +766,23 @@ def _rewritten(path: Path, extra_bytes: int, what: str, reserve: int = FREE_SPAC
         if repair:
             lost = _copy_objects(path, temp)
         else:
-            with open(path, "rb") as src, open(temp, "wb") as dst:
-                os.sendfile(dst.fileno(), src.fileno(), 0, os.fstat(src.fileno()).st_size)
+            _copy_bytes(path, temp)
         with h5py.File(temp, "r+", libver="latest") as f:
             yield f, (_mark_running_runs(f, lost) if repair else [])
+
+
+def _copy_bytes(source: Path, target: Path) -> None:
+    """Every byte of ``source`` into ``target``, in the kernel. One ``sendfile`` call copies at most 2 GiB and
+    returns early when a signal arrives (a debugger's or profiler's stop, a timer): it is called until the count
+    is reached, and a source that ends before its size raises."""
+    with open(source, "rb") as src, open(target, "wb") as dst:
+        size = os.fstat(src.fileno()).st_size
+        done = 0
+        while done < size:
+            sent = os.sendfile(dst.fileno(), src.fileno(), done, size - done)
+            if sent == 0:
+                raise OSError(f"the file ended at byte {done} of the {size} it had when its copy began")
+            done += sent
 
 
 def recover_session(path) -> list[str]:
