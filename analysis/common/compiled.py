@@ -6,7 +6,7 @@ importing it, before any such decoration, points numba's cache at ``<base>/<key>
 - ``key``: a hash of every ``.py`` file of analysis/ and drivers/ (paths and contents), the rooms compiled code
   lives in and reads from. numba checks a cached function against its own file only; a kernel that inlines a
   helper of another file, or reads a constant from one, would otherwise keep running the old helper after that
-  file changed (docs/performance.md, "The disk cache of compiled code"). Any edit there recompiles everything
+  file changed (docs/performance.md, "First compile of the integration loop"). Any edit there recompiles everything
   once; a stale kernel is never run.
 - ``base``: ``NUMBA_CACHE_DIR`` when the user set it, else ``$XDG_CACHE_HOME/contactid/numba`` (``~/.cache/...``).
   Where neither can be written, numba's own choice stands (``__pycache__`` beside each file, whose staleness is
