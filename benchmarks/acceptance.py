@@ -34,6 +34,9 @@ def cases(junit: Path) -> list[tuple[str, str, float]]:
 
 
 def main() -> None:
+    if any(arg in ("-h", "--help") for arg in sys.argv[1:]):
+        print(__doc__)
+        return
     with tempfile.TemporaryDirectory() as tmp:
         junit = Path(tmp) / "acceptance.xml"
         command = [sys.executable, "-m", "pytest", "-q", "-m", "acceptance", "-p", "no:cacheprovider",
@@ -47,9 +50,9 @@ def main() -> None:
     passed = sum(outcome == "passed" for _, outcome, _ in found)
     print(f"acceptance: {passed} of {len(found)} passed, {sum(c[2] for c in found):.0f} s of test time, "
           f"{wall:.0f} s of wall time")
-    if done.returncode != 0:
+    if done.returncode != 0 or not found:
         print(done.stdout[-4000:])
-    sys.exit(done.returncode)
+    sys.exit(done.returncode or (0 if found else 1))     # no case run is no acceptance
 
 
 if __name__ == "__main__":
