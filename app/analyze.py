@@ -63,6 +63,10 @@ class SessionNotes:
             out.append(f"model history NOT stored in the session: {self.not_stored}")
         return "\n".join(out)
 
+    def warning(self) -> str:
+        """The one line for stderr where the history was not stored (else empty)."""
+        return f"contactid: warning: model history not stored: {self.not_stored}" if self.not_stored else ""
+
     def to_json(self) -> dict:
         return {"incomplete_runs": self.incomplete_runs,
                 "earlier_analyses": [{"name": h["name"], "created": h["created"], "model_source": h["model_source"],

@@ -363,7 +363,7 @@ def _analyze(args) -> int:
         if notes.text():
             print(notes.text())
     if notes.not_stored:
-        print(f"contactid: warning: model history not stored: {notes.not_stored}", file=sys.stderr)
+        print(notes.warning(), file=sys.stderr)
     if args.report:
         from app.report import write_report
         for path in write_report(wb, Path(args.report), args.overwrite, modal):

@@ -106,7 +106,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
     store_history(session, wb, model_path, notes)
     if notes.not_stored:            # as `analyze`: the analysis is not lost for want of its copy in the session
         say(f"   {notes.text()}")
-        print(f"contactid: warning: model history not stored: {notes.not_stored}", file=sys.stderr)
+        print(notes.warning(), file=sys.stderr)
     fitted = out / FITTED
     with atomic_output(fitted, overwrite=overwrite, field="--out") as temp:
         temp.write_text(wb.model.to_toml(), encoding="utf-8")

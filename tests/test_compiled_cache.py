@@ -4,7 +4,6 @@ the kernel's file only, keeps running the old helper."""
 import os
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import pytest

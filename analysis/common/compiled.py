@@ -80,4 +80,4 @@ def _remove_unused(base: Path, keep: Path) -> None:
             continue
 
 
-CACHE_DIRECTORY = key_cache_on(_ROOTS)
+key_cache_on(_ROOTS)
