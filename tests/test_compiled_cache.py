@@ -118,3 +118,98 @@ def test_directories_of_other_keys_unused_for_long_are_removed(tmp_path):
         assert not old.exists() and recent.exists() and other.exists()
     finally:
         numba.config.CACHE_DIR = before
+
+
+_FACTORY = """\
+from numba import njit
+from analysis.common.compiled import cfunc_fixed, njit_fixed
+
+
+@njit
+def plus_one(x):
+    return x + 1.0
+
+
+@njit
+def plus_two(x):
+    return x + 2.0
+
+
+def make(kernel, scale, fixed):
+    decorate = njit_fixed() if fixed else njit(cache=True)
+
+    @decorate
+    def outer(x):
+        return kernel(x) * scale
+    return outer
+
+
+def make_callback(kernel, scale):
+    @cfunc_fixed("float64(float64)")
+    def callback(x):
+        return kernel(x) * scale
+    return callback
+"""
+_FACTORY_RUN = """\
+import sys
+from pathlib import Path
+from analysis.common.compiled import key_cache_on
+tmp = Path(sys.argv[1])
+assert key_cache_on([tmp / "pkg"], base=tmp / "keyed") is not None
+sys.path.insert(0, str(tmp))
+from pkg.factory import make, make_callback, plus_one, plus_two
+for kernel, scale in ((plus_one, 10), (plus_two, 10), (plus_one, 100)):
+    outer = make(kernel, scale, sys.argv[2] == "fixed")
+    print(outer(1.0), sum(outer.stats.cache_hits.values()))
+    if sys.argv[2] == "fixed":
+        callback = make_callback(kernel, scale)
+        print(callback.ctypes(1.0), callback.cache_hits)
+"""
+
+
+def _run_factory(tmp: Path, mode: str) -> list[tuple[float, int]]:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONDONTWRITEBYTECODE="1")
+    out = subprocess.run([sys.executable, "-c", _FACTORY_RUN, str(tmp), mode], env=env, cwd=tmp,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return [(float(value), int(hits)) for value, hits in (line.split() for line in out.stdout.splitlines())]
+
+
+@pytest.mark.slow
+def test_a_function_compiled_around_another_is_found_again_by_the_next_process_and_told_apart(tmp_path):
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "__init__.py").write_text("")
+    (tmp_path / "pkg" / "factory.py").write_text(_FACTORY)
+    right = [20.0, 30.0, 200.0]
+    # numba's own cache keys the closure on a pickle of the kernel, new in every process: never found again
+    assert _run_factory(tmp_path, "plain") == [(v, 0) for v in right]
+    assert _run_factory(tmp_path, "plain") == [(v, 0) for v in right]
+    # keyed on the description: compiled once, then loaded, each closure its own entry (kernel and scale); the
+    # same for C callbacks
+    twice = [v for v in right for _ in range(2)]
+    assert _run_factory(tmp_path, "fixed") == [(v, 0) for v in twice]
+    assert _run_factory(tmp_path, "fixed") == [(v, 1) for v in twice]
+
+
+def test_a_description_names_the_code_and_values_a_closure_holds_and_refuses_what_it_cannot_name():
+    import numpy as np
+    from numba import njit
+
+    from analysis.common.compiled import describe
+
+    def make(value):
+        def inner(x):
+            return x + value
+        return inner
+
+    @njit
+    def kernel(x):
+        return x
+
+    assert describe(make(1.0)) == describe(make(1.0))
+    assert describe(make(1.0)) != describe(make(2.0)) != describe(make(2))
+    assert describe(make(kernel)) == describe(make(kernel))
+    assert describe(make((kernel, 3))) != describe(make((kernel, 4)))
+    assert describe(np.arange(3.0)) != describe(np.arange(3))
+    with pytest.raises(TypeError, match="object has no stable description"):
+        describe(make(object()))

@@ -14,15 +14,26 @@ importing it, before any such decoration, points numba's cache at ``<base>/<key>
 
 Directories of other keys not used for :data:`KEEP_DAYS` days are removed when a new key's directory is made, so
 that a checkout updated day after day does not fill the disk.
+
+:func:`njit_fixed` and :func:`cfunc_fixed` cache a compiled function made by a factory around other compiled
+functions (a law's march with its kernel fixed): numba keys such a function on a pickle of what it closes over,
+and a pickled dispatcher carries an identity drawn anew in every process, so its cached copy would never be found
+again.
 """
 import hashlib
 import os
 import shutil
 import time
+import types
 from pathlib import Path
 
 import numba
+import numpy as np
 from numba import njit  # noqa: F401  (the one import of the decorator by cached modules)
+from numba.core import sigutils
+from numba.core.caching import FunctionCache
+from numba.core.ccallback import CFunc
+from numba.core.dispatcher import Dispatcher
 
 KEEP_DAYS = 14
 _ROOTS = tuple(Path(__file__).resolve().parents[2] / room for room in ("analysis", "drivers"))
@@ -78,6 +89,71 @@ def _remove_unused(base: Path, keep: Path) -> None:
                 shutil.rmtree(other, ignore_errors=True)
         except OSError:
             continue
+
+
+def describe(value) -> tuple | str:
+    """What a compiled closure's code depends on beyond the sources the cache is keyed on: a function by its module,
+    name and bytecode and, recursively, what it closes over; numbers and strings by value; arrays by dtype, shape
+    and bytes; tuples and lists item by item. TypeError for anything else (such a closure is not disk-cached)."""
+    if isinstance(value, Dispatcher):
+        value = value.py_func
+    if isinstance(value, types.FunctionType):
+        cells = tuple(describe(cell.cell_contents) for cell in value.__closure__ or ())
+        return ("function", value.__module__, value.__qualname__, value.__code__.co_code.hex(), cells)
+    if isinstance(value, (tuple, list)):
+        return (type(value).__name__, tuple(describe(item) for item in value))
+    if value is None or isinstance(value, (bool, int, float, complex, str, np.number)):
+        return f"{type(value).__name__}:{value!r}"
+    if isinstance(value, np.ndarray):
+        return ("array", value.dtype.str, value.shape, hashlib.sha256(np.ascontiguousarray(value).data).hexdigest())
+    raise TypeError(f"{type(value).__name__} has no stable description for the disk cache")
+
+
+class _FixedClosureCache(FunctionCache):
+    """numba's cache of one function, its entries keyed on :func:`describe` of the function instead of a pickle of
+    its closure. Sound because the directory is keyed on the sources (module docstring): a description names the
+    code of every function involved, and the directory the text that code was compiled from."""
+
+    def __init__(self, py_func, description: str):
+        super().__init__(py_func)
+        self._description = description
+
+    def _index_key(self, sig, codegen):
+        return sig, codegen.magic_tuple(), (self._description,)
+
+
+def njit_fixed(**options):
+    """numba's ``njit(**options)`` for a function a factory compiles around other compiled functions it closes over
+    (their calls inlined, no function passed at run time), disk-cached under :func:`describe` of the function; not
+    cached when that has no description. Decorate the function called from Python: what it calls is compiled
+    into it."""
+    def decorate(py_func):
+        dispatcher = numba.njit(**options)(py_func)
+        dispatcher._cache = _fixed_cache(py_func) or dispatcher._cache
+        return dispatcher
+    return decorate
+
+
+def cfunc_fixed(signature):
+    """numba's ``cfunc(signature)`` for a C callback a factory compiles around compiled functions it closes over,
+    disk-cached as :func:`njit_fixed`'s functions are (a callback compiles when it is made)."""
+    signature = sigutils.normalize_signature(signature)
+
+    def decorate(py_func):
+        callback = CFunc(py_func, signature, locals={}, options={})
+        callback._cache = _fixed_cache(py_func) or callback._cache
+        callback.compile()
+        return callback
+    return decorate
+
+
+def _fixed_cache(py_func) -> "_FixedClosureCache | None":
+    """The cache of ``py_func`` keyed on its description; None without a description or a directory numba can
+    write."""
+    try:
+        return _FixedClosureCache(py_func, hashlib.sha256(repr(describe(py_func)).encode()).hexdigest())
+    except (TypeError, RuntimeError):
+        return None
 
 
 key_cache_on(_ROOTS)

@@ -4,8 +4,8 @@ The rig simulator's element-force Newton and a placed contact's harmonic balance
 each solve thousands of systems of a few to a few tens of unknowns per call. Compiled in their loops it costs less
 than one call into LAPACK and allocates nothing (no runtime needed: the simulator's loop runs without it). Two
 compiled forms of the one function: :func:`solve_small_inline`, inlined where the caller is disk-cached (the
-simulator's loop, compiled once per clone), and :func:`solve_small`, a call, where the caller is compiled in
-every process (a balance with its laws' kernels fixed): inlining there costs seconds of compile per process.
+simulator's loop, compiled once per clone), and :func:`solve_small`, a call, where the caller is compiled once
+per set of laws (a balance with its laws' kernels fixed): inlining there costs seconds of compile per set.
 
 Both forms are compiled from the one function with the same options but ``inline``, and numba keys a disk-cached
 function by its source, not its options: keep the two forms' other options identical. An edit here recompiles the

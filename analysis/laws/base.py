@@ -47,8 +47,8 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any, ClassVar, Mapping
 
 import numpy as np
-from numba import njit
 
+from ..common.compiled import njit, njit_fixed
 from ..common.errors import InputError
 from ..common.wording import parameter_words
 
@@ -164,10 +164,9 @@ def _marcher(kernel):
 
     Passed as an argument, a jitted kernel is typed anew by numba at every call (about 25 us: more than a
     512-sample march of most laws, and the AFT and a placed contact's balance march thousands of times);
-    fixed, a call passes only arrays. Not disk-cached: the cache key of a function holding another jitted
-    function includes its address, so a cached copy would never be reused and the cache would only grow.
-    Compiling per law costs ~0.1 s once per process."""
-    @njit
+    fixed, a call passes only arrays. Disk-cached per kernel (analysis.common.compiled.njit_fixed): compiling
+    costs 0.1-0.8 s per law, which every process paid before."""
+    @njit_fixed()
     def march(x, v, p, s):
         f = np.empty(x.shape[0])
         for i in range(x.shape[0]):
@@ -182,7 +181,7 @@ def _periodic_marcher(kernel):
     times from the state ``s0`` and the force of the last period kept (a hysteretic law settles on its closed
     loop in the first); the rows independent of one another (a solver's trial motions, one per line and per
     perturbation, in one call)."""
-    @njit
+    @njit_fixed()
     def march_periods(x, v, p, s0, s, periods, f):
         # the state and the output passed in, copied by loops: no allocation to compile
         for b in range(x.shape[0]):

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
-from ..common.compiled import njit
+from ..common.compiled import njit, njit_fixed
 
 from ..common.recent import Recent
 from ..common.small_solve import NOT_FINITE, SINGULAR, solve_small
@@ -198,9 +198,9 @@ class _Balance:
 
 @functools.lru_cache(maxsize=None)
 def _newton_of(kernels: tuple, sizes: tuple):
-    """The Newton loop of the balance, sample by sample, compiled with the placed laws' kernels fixed (as
-    analysis.laws.base._marcher, and not disk-cached for its reason: about 1 s once per process and set of laws,
-    more where it is a process's first compile). One sample's step, on its unknowns z (size,):
+    """The Newton loop of the balance, sample by sample, compiled with the placed laws' kernels fixed, and
+    disk-cached per set of laws as analysis.laws.base._marcher is (compiling costs 1-4 s). One sample's step, on
+    its unknowns z (size,):
 
         x = X sin(theta) + Phi z,   r = z + R P f(x),   (I + R P diag(f'(x)) Phi) dz = r,   z -= dz
 
@@ -211,7 +211,7 @@ def _newton_of(kernels: tuple, sizes: tuple):
     where a batch's array operations cost far more than the arithmetic."""
     force = _summed(kernels, sizes)
 
-    @njit(fastmath=_REASSOCIATE)
+    @njit_fixed(fastmath=_REASSOCIATE)
     def newton(p, Phi, P, trig, first, first_sign, second, second_sign, R_re, R_im, fundamental, scale, z, left,
                iterations, tolerance, steps):
         n_time, size = Phi.shape

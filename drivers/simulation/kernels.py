@@ -13,8 +13,8 @@ direction of the slip.
 Law forces are never written here: every force comes from the law's own numba
 kernel, called through a C callback (:func:`law_callbacks`) whose address the loop
 receives in an integer array. One compiled, disk-cached integration loop therefore
-serves every combination of laws, and a new rig costs only the callbacks of laws not
-yet used in the process.
+serves every combination of laws, and a new rig costs only loading the callbacks of its
+laws from the disk cache.
 """
 from __future__ import annotations
 
@@ -24,11 +24,11 @@ from typing import NamedTuple
 
 import numpy as np
 from llvmlite import ir
-from numba import carray, cfunc, types
+from numba import carray, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from analysis.common.compiled import njit
+from analysis.common.compiled import cfunc_fixed, njit
 from analysis.common.small_solve import SOLVED, solve_small_inline
 
 # element modes of the friction solver
@@ -140,8 +140,8 @@ def law_callbacks(law) -> tuple:
     copied and ``law.kernel`` updates the copy); ``commit(out_ptr, s_ptr, n_s)`` makes the state at ``s_ptr``
     what an evaluation wrote (``law.commit``, else the whole state is copied); ``stick_limit(x, p_ptr, n_p)`` is None
     for laws without a stick limit. Built once per law and process and kept alive here (the integration
-    loop holds only their addresses). A callback compiles in a fraction of a second; the law kernels come
-    from their own disk cache.
+    loop holds only their addresses). Disk-cached per law (analysis.common.compiled.cfunc_fixed): compiled,
+    a callback took 0.2-1 s in every process.
     """
     if law.name not in _CALLBACKS:
         limit = None if law.stick_limit is None else _limit_callback(law.stick_limit)
@@ -154,14 +154,14 @@ def law_callbacks(law) -> tuple:
 
 
 def _force_callback(update):
-    @cfunc(_FORCE_SIGNATURE)
+    @cfunc_fixed(_FORCE_SIGNATURE)
     def force(x, v, p, n_p, s, out, n_s):
         return update(x, v, p, s, out)
     return force
 
 
 def _copying_force_callback(kernel):
-    @cfunc(_FORCE_SIGNATURE)
+    @cfunc_fixed(_FORCE_SIGNATURE)
     def force(x, v, p, n_p, s, out, n_s):
         state = carray(out, (n_s,))
         source = carray(s, (n_s,))
@@ -172,7 +172,7 @@ def _copying_force_callback(kernel):
 
 
 def _commit_callback(commit):
-    @cfunc(_COMMIT_SIGNATURE)
+    @cfunc_fixed(_COMMIT_SIGNATURE)
     def callback(out, s, n_s):
         commit(out, s)
     return callback
@@ -181,7 +181,7 @@ def _commit_callback(commit):
 @functools.cache
 def _copy_commit_callback():
     """The commit of every law without its own: the whole state (one callback for all of them)."""
-    @cfunc(_COMMIT_SIGNATURE)
+    @cfunc_fixed(_COMMIT_SIGNATURE)
     def callback(out, s, n_s):
         for i in range(n_s):
             s[i] = out[i]
@@ -189,7 +189,7 @@ def _copy_commit_callback():
 
 
 def _limit_callback(stick_limit):
-    @cfunc(_LIMIT_SIGNATURE)
+    @cfunc_fixed(_LIMIT_SIGNATURE)
     def limit(x, p, n_p):
         return stick_limit(x, carray(p, (n_p,)))
     return limit
