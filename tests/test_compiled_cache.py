@@ -121,6 +121,7 @@ def test_directories_of_other_keys_unused_for_long_are_removed(tmp_path):
 
 
 _FACTORY = """\
+import numpy as np
 from numba import njit
 from analysis.common.compiled import cfunc_fixed, njit_fixed
 
@@ -149,6 +150,20 @@ def make_callback(kernel, scale):
     def callback(x):
         return kernel(x) * scale
     return callback
+
+
+def make_filler(kernel):
+    @njit
+    def inner(x):
+        return kernel(x) + 0.5
+
+    @njit_fixed()
+    def fill(n):
+        out = np.empty(n)
+        for i in range(n):
+            out[i] = inner(float(i))
+        return out
+    return fill
 """
 _FACTORY_RUN = """\
 import sys
@@ -191,25 +206,42 @@ def test_a_function_compiled_around_another_is_found_again_by_the_next_process_a
     assert _run_factory(tmp_path, "fixed") == [(v, 1) for v in twice]
 
 
-def test_a_description_names_the_code_and_values_a_closure_holds_and_refuses_what_it_cannot_name():
-    import numpy as np
-    from numba import njit
+_APART = """\
+import sys
+from pathlib import Path
+from analysis.common.compiled import key_cache_on
+tmp = Path(sys.argv[1])
+assert key_cache_on([tmp / "pkg"], base=tmp / "keyed") is not None
+sys.path.insert(0, str(tmp))
+from pkg.factory import make_callback, make_filler, plus_one, plus_two
+for name in sys.argv[2:]:
+    kernel = {"one": plus_one, "two": plus_two}[name]
+    fill, callback = make_filler(kernel), make_callback(kernel, 10)
+    print(name, fill(3).tolist(), callback.ctypes(1.0), callback.address != 0)
+"""
 
-    from analysis.common.compiled import describe
 
-    def make(value):
-        def inner(x):
-            return x + value
-        return inner
+@pytest.mark.slow
+def test_closures_of_one_factory_keep_files_of_their_own_and_load_together(tmp_path):
+    """numba names a cache's files after the function: the closures of one factory would share one index, whose
+    entries two processes saving at once can cross (a closure then loads another's code; seen as a law's march
+    failing to return its array after the suite's two workers had compiled marches side by side). Each closure
+    has files of its own, and closures compiled first in two processes load together into a third."""
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "__init__.py").write_text("")
+    (tmp_path / "pkg" / "factory.py").write_text(_FACTORY)
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONDONTWRITEBYTECODE="1")
 
-    @njit
-    def kernel(x):
-        return x
+    def run(*names):
+        out = subprocess.run([sys.executable, "-c", _APART, str(tmp_path), *names], env=env, cwd=tmp_path,
+                             capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.splitlines()
 
-    assert describe(make(1.0)) == describe(make(1.0))
-    assert describe(make(1.0)) != describe(make(2.0)) != describe(make(2))
-    assert describe(make(kernel)) == describe(make(kernel))
-    assert describe(make((kernel, 3))) != describe(make((kernel, 4)))
-    assert describe(np.arange(3.0)) != describe(np.arange(3))
-    with pytest.raises(TypeError, match="object has no stable description"):
-        describe(make(object()))
+    one, two = "one [1.5, 2.5, 3.5] 20.0 True", "two [2.5, 3.5, 4.5] 30.0 True"
+    assert run("one") == [one]
+    assert run("two") == [two]               # each the first closure its process compiled
+    assert run("one", "two") == [one, two]   # both loaded from the cache into one process
+    assert run("two", "one") == [two, one]
+    for name in ("fill", "callback"):
+        assert len(list((tmp_path / "keyed").rglob(f"*{name}_*.nbi"))) == 2, name

@@ -149,10 +149,17 @@ def cfunc_fixed(signature):
 
 def _fixed_cache(py_func) -> "_FixedClosureCache | None":
     """The cache of ``py_func`` keyed on its description; None without a description or a directory numba can
-    write."""
+    write. The function's name takes the description's hash first: numba names a cache's files after the
+    function, and the closures of one factory would otherwise share one index, whose entries two processes
+    saving at once can cross (a closure then loads another's code)."""
     try:
-        return _FixedClosureCache(py_func, hashlib.sha256(repr(describe(py_func)).encode()).hexdigest())
-    except (TypeError, RuntimeError):
+        description = hashlib.sha256(repr(describe(py_func)).encode()).hexdigest()
+    except TypeError:
+        return None
+    py_func.__qualname__ = f"{py_func.__qualname__}_{description[:16]}"
+    try:
+        return _FixedClosureCache(py_func, description)
+    except RuntimeError:
         return None
 
 
