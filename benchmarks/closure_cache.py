@@ -27,26 +27,12 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from app.session.writer import RunSpec, SessionWriter  # noqa: E402
-from paper_structure import PAPER_STRUCTURE  # noqa: E402
+from session_helpers import MODEL, write_session  # noqa: E402
 
-MODEL = PAPER_STRUCTURE + """
-[[element]]
-name = "left"
-dof = "x1"
-laws = ["cubic"]
-
-[[element]]
-name = "right"
-dof = "x2"
-laws = ["cubic"]
-"""
 PLAN = """[[stepped_sine]]
 force = 0.5
 start = 5.0
@@ -65,21 +51,6 @@ if sys.argv[1] == "compiled":
 from app.cli import main
 sys.exit(main(sys.argv[2:]))
 """
-
-
-def write_session(path: Path) -> None:
-    """The paper's linear 2-DOF structure at 0.4 and 0.8 N, 25 lines each (exact receptances)."""
-    M, K = np.diag([1.0, 2.0]), np.array([[200.0, -100.0], [-100.0, 200.0]])
-    w = SessionWriter(path, software_version="benchmark", plan_text="synthetic")
-    for force in (0.4, 0.8):
-        w.begin_run(RunSpec(f"sine_{force}N_up", "stepped_sine", force, "up", "x2", ["x1", "x2"], 100.0, ["force"],
-                            ["N"], {"force_amplitude": ("N", (), "f8")}))
-        for f in np.linspace(0.8, 3.2, 25):
-            om = 2 * np.pi * f
-            H = np.linalg.inv(K - om ** 2 * M + 0.02j * om * K)[:, 1]
-            w.append_line(f, {"x1": H[0], "x2": H[1]}, {"force_amplitude": force})
-        w.end_run("complete")
-    w.close()
 
 
 def child_cpu(mode: str, args: list[str], cwd: Path) -> float:

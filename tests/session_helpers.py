@@ -1,10 +1,12 @@
-"""Helpers of the session tests: opening a file as any HDF5 tool would."""
+"""Helpers of the session tests: opening a file as any HDF5 tool would, a small session and a model to analyse it
+with."""
 import time
 from pathlib import Path
 
 import h5py
+import numpy as np
 
-from app.session.writer import _process_alive
+from app.session.writer import RunSpec, SessionWriter, _process_alive
 from paper_structure import PAPER_STRUCTURE
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,3 +43,18 @@ name = "right"
 dof = "x2"
 laws = ["cubic"]
 """
+
+
+def write_session(path, forces=(0.4, 0.8)):
+    """A small session of the paper's linear 2-DOF structure (25 lines per force level, no raw data)."""
+    M, K = np.diag([1.0, 2.0]), np.array([[200.0, -100.0], [-100.0, 200.0]])
+    w = SessionWriter(path, software_version="test", plan_text="synthetic")
+    for force in forces:
+        w.begin_run(RunSpec(f"sine_{force}N_up", "stepped_sine", force, "up", "x2", ["x1", "x2"], 100.0, ["force"],
+                            ["N"], {"force_amplitude": ("N", (), "f8")}))
+        for f in np.linspace(0.8, 3.2, 25):
+            om = 2 * np.pi * f
+            H = np.linalg.inv(K - om ** 2 * M + 0.02j * om * K)[:, 1]
+            w.append_line(f, {"x1": H[0], "x2": H[1]}, {"force_amplitude": force})
+        w.end_run("complete")
+    w.close()

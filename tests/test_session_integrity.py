@@ -11,24 +11,9 @@ import pytest
 
 from app.cli import main
 from app.session.writer import RunSpec, SessionWriter, open_session
-from session_helpers import MODEL, ROOT, plain_open
+from session_helpers import MODEL, ROOT, plain_open, write_session
 
 RUN = "sine_0.8N_up"
-
-
-def write_session(path, forces=(0.4, 0.8)):
-    """A small session of the paper's linear 2-DOF structure (25 lines per force level, no raw data)."""
-    M, K = np.diag([1.0, 2.0]), np.array([[200.0, -100.0], [-100.0, 200.0]])
-    w = SessionWriter(path, software_version="test", plan_text="synthetic")
-    for force in forces:
-        w.begin_run(RunSpec(f"sine_{force}N_up", "stepped_sine", force, "up", "x2", ["x1", "x2"], 100.0, ["force"],
-                            ["N"], {"force_amplitude": ("N", (), "f8")}))
-        for f in np.linspace(0.8, 3.2, 25):
-            om = 2 * np.pi * f
-            H = np.linalg.inv(K - om ** 2 * M + 0.02j * om * K)[:, 1]
-            w.append_line(f, {"x1": H[0], "x2": H[1]}, {"force_amplitude": force})
-        w.end_run("complete")
-    w.close()
 
 
 @pytest.fixture(scope="module")
