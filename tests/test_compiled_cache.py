@@ -245,3 +245,52 @@ def test_closures_of_one_factory_keep_files_of_their_own_and_load_together(tmp_p
     assert run("two", "one") == [two, one]
     for name in ("fill", "callback"):
         assert len(list((tmp_path / "keyed").rglob(f"*{name}_*.nbi"))) == 2, name
+
+
+def _save_side_by_side(tmp: Path, save) -> tuple:
+    """Two savers of one index, each in a thread, each reading the index and then waiting (up to 1 s) for the
+    other to have read it too: the interleaving of two processes saving at once, where nothing serialises them.
+    Returns what a third reader loads for each key."""
+    import threading
+
+    from numba.core.caching import IndexDataCacheFile
+
+    read = IndexDataCacheFile._load_index
+    both_read = threading.Barrier(2, timeout=1.0)
+
+    def read_then_wait(self):
+        overloads = read(self)
+        try:
+            both_read.wait()
+        except threading.BrokenBarrierError:
+            pass
+        return overloads
+
+    def saver(key, data):
+        return lambda: save(IndexDataCacheFile(str(tmp), "f", (1.0, 1)), key, data)
+
+    IndexDataCacheFile._load_index = read_then_wait
+    try:
+        threads = [threading.Thread(target=saver("first", ("one",))),
+                   threading.Thread(target=saver("second", ("two",)))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    finally:
+        IndexDataCacheFile._load_index = read
+    reader = IndexDataCacheFile(str(tmp), "f", (1.0, 1))
+    return reader.load("first"), reader.load("second")
+
+
+def test_two_saves_of_one_function_at_once_keep_their_own_entries(tmp_path):
+    from numba.core.caching import IndexDataCacheFile
+
+    from analysis.common import compiled
+
+    assert IndexDataCacheFile.save.__qualname__.startswith("_serialised")
+    (tmp_path / "plain").mkdir()
+    (tmp_path / "locked").mkdir()
+    crossed = _save_side_by_side(tmp_path / "plain", compiled._numba_save)      # numba's own save
+    assert crossed != (("one",), ("two",))     # the fault: a key lost, and the other's pointing at its data or not
+    assert _save_side_by_side(tmp_path / "locked", IndexDataCacheFile.save) == (("one",), ("two",))

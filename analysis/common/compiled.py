@@ -19,6 +19,10 @@ that a checkout updated day after day does not fill the disk.
 functions (a law's march with its kernel fixed): numba keys such a function on a pickle of what it closes over,
 and a pickled dispatcher carries an identity drawn anew in every process, so its cached copy would never be found
 again.
+
+numba's index of a function's cached copies is read, extended and written whole by each process that saves one;
+:func:`_serialised` makes that a critical section per index, so that two processes saving copies of one function at
+once cannot cross its entries.
 """
 import hashlib
 import os
@@ -31,9 +35,14 @@ import numba
 import numpy as np
 from numba import njit  # noqa: F401  (the one import of the decorator by cached modules)
 from numba.core import sigutils
-from numba.core.caching import FunctionCache
+from numba.core.caching import FunctionCache, IndexDataCacheFile
 from numba.core.ccallback import CFunc
 from numba.core.dispatcher import Dispatcher
+
+try:
+    import fcntl
+except ImportError:         # not POSIX: numba's own save stands
+    fcntl = None
 
 KEEP_DAYS = 14
 _ROOTS = tuple(Path(__file__).resolve().parents[2] / room for room in ("analysis", "drivers"))
@@ -163,4 +172,24 @@ def _fixed_cache(py_func) -> "_FixedClosureCache | None":
         return None
 
 
+def _serialised(save):
+    """``IndexDataCacheFile.save`` under an exclusive lock on a file beside the index (POSIX ``flock``). Two
+    processes that read the index before either writes it would both name their data file after the same free
+    number, and the one that writes its index last keeps its key pointing at the data the other wrote last: a
+    function loads the code compiled for another signature (numba compiles, for example, a law's update for arrays
+    from Python and for pointers from the rig simulator)."""
+    def locked_save(self, key, data):
+        try:
+            lock = open(f"{self._index_path}.lock", "a")
+        except OSError:                  # numba's own save then meets the same trouble and says so
+            return save(self, key, data)
+        with lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            return save(self, key, data)     # closing the file releases the lock
+    return locked_save
+
+
+_numba_save = IndexDataCacheFile.save
+if fcntl is not None:
+    IndexDataCacheFile.save = _serialised(_numba_save)
 key_cache_on(_ROOTS)
