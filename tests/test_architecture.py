@@ -309,9 +309,10 @@ def test_the_slice_copy_check_bites():
 
 
 def _disk_cached(tree: ast.AST) -> bool:
-    """Whether a module disk-caches compiled code (a ``jit`` call with ``cache=True``, or ``njit_fixed``)."""
+    """Whether a module disk-caches compiled code (a ``jit`` call with ``cache=True``, ``njit_fixed`` or
+    ``cfunc_fixed``)."""
     return any(isinstance(node, ast.Call) and (
-        ast.unparse(node.func).endswith("njit_fixed")
+        ast.unparse(node.func).endswith(("njit_fixed", "cfunc_fixed"))
         or "jit" in ast.unparse(node.func)
         and any(k.arg == "cache" and ast.unparse(k.value) == "True" for k in node.keywords))
         for node in ast.walk(tree))
@@ -332,7 +333,7 @@ def test_every_disk_cached_function_uses_the_keyed_cache():
     """numba checks a cached function against its own file only: a kernel inlining a helper of another file
     would run the old helper after that file changed. The cache directory is keyed on the sources
     (analysis/common/compiled.py) when a cached module takes its decorator from there (docs/performance.md)."""
-    marks = ("cache=True", "njit_fixed(")           # the text first: parsing every module is slow
+    marks = ("cache=True", "_fixed(")               # the text first: parsing every module is slow
     trees = {path.relative_to(ROOT): ast.parse(text) for path in MODULES.values()
              if any(mark in (text := path.read_text()) for mark in marks)}
     found = sorted(str(path) for path, tree in trees.items() if _cached_without_the_keyed_cache(tree))
@@ -348,3 +349,4 @@ def test_the_keyed_cache_check_bites():
     assert not _cached_without_the_keyed_cache(ast.parse("from numba import njit\n@njit\ndef f(): pass\n"))
     assert _cached_without_the_keyed_cache(ast.parse("import numba\nf = numba.njit(cache=True)(g)\n"))
     assert _disk_cached(ast.parse("from ..common.compiled import njit_fixed\n@njit_fixed()\ndef f(): pass\n"))
+    assert _disk_cached(ast.parse("from ..common.compiled import cfunc_fixed\n@cfunc_fixed(s)\ndef f(): pass\n"))

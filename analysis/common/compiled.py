@@ -137,8 +137,9 @@ def njit_fixed(**options):
     cached when that has no description. Decorate the function called from Python: what it calls is compiled
     into it."""
     def decorate(py_func):
+        cache = _fixed_cache(py_func)
         dispatcher = numba.njit(**options)(py_func)
-        dispatcher._cache = _fixed_cache(py_func) or dispatcher._cache
+        dispatcher._cache = cache or dispatcher._cache
         return dispatcher
     return decorate
 
@@ -149,8 +150,9 @@ def cfunc_fixed(signature):
     signature = sigutils.normalize_signature(signature)
 
     def decorate(py_func):
+        cache = _fixed_cache(py_func)
         callback = CFunc(py_func, signature, locals={}, options={})
-        callback._cache = _fixed_cache(py_func) or callback._cache
+        callback._cache = cache or callback._cache
         callback.compile()
         return callback
     return decorate
@@ -158,9 +160,10 @@ def cfunc_fixed(signature):
 
 def _fixed_cache(py_func) -> "_FixedClosureCache | None":
     """The cache of ``py_func`` keyed on its description; None without a description or a directory numba can
-    write. The function's name takes the description's hash first: numba names a cache's files after the
-    function, and the closures of one factory would otherwise share one index, whose entries two processes
-    saving at once can cross (a closure then loads another's code)."""
+    write. Called before numba wraps ``py_func``: the function's name takes the description's hash, since numba
+    names a cache's files after the function, and the closures of one factory would otherwise share one index.
+    :func:`_serialised` keeps a shared index whole where ``flock`` exists; files of their own keep the closures
+    apart everywhere, and each index small."""
     try:
         description = hashlib.sha256(repr(describe(py_func)).encode()).hexdigest()
     except TypeError:
