@@ -76,17 +76,14 @@ def check_recovery(names, fit, exact):
 
 
 def check_collinear(name, term, fit, exact):
-    """The determined sum of a collinear pair is recovered and the degeneracy is reported."""
+    """Of a collinear pair only the sum is determined: recovered, to 1e-6 or within three times the noise of a
+    mean over the samples, and the degeneracy noted."""
     a, b = COLLINEAR[name]
     truth = get_law(name).example
-    labels = (f"{term.label}.{a}", f"{term.label}.{b}")
-    (group,) = [d for d in fit.degeneracies if set(labels) <= set(d.parameters)]
-    (combo,) = group.determined
-    assert combo.coefficients == pytest.approx({labels[0]: 1.0, labels[1]: 1.0})
-    err = abs(combo.value - (truth[a] + truth[b]))
-    assert err <= (1e-6 * abs(truth[a] + truth[b]) if exact else 3 * combo.stderr)
-    assert term.params[a] + term.params[b] == pytest.approx(combo.value, rel=1e-9)
-    assert any(a in note and b in note for note in fit.notes)
+    total = truth[a] + truth[b]
+    err = abs(term.params[a] + term.params[b] - total)
+    assert err <= (1e-6 if exact else 3 * NOISE / math.sqrt(fit.n_samples)) * abs(total)
+    assert fit.degeneracies and any("not separately identifiable" in note for note in fit.notes)
 
 
 @pytest.mark.parametrize("name", sorted(LAWS))
@@ -288,9 +285,11 @@ def test_starting_values_are_used(name):
     for fit in (fit_laws([LawTerm(law, start)], X, w, kbar, n_starts=0, max_evaluations=1),
                 fit_laws([name], X, w, kbar, start=[start], n_starts=0, max_evaluations=1)):
         assert {p: fit.terms[0].fit_params[p] for p in moved} == pytest.approx(moved, rel=1e-12)
-        assert any("stopped after 1 evaluations" in note for note in fit.notes)
-    fit = fit_laws([name], X, w, kbar, start=[start], n_starts=0)
-    assert fit.terms[0].params == pytest.approx(law.example, rel=1e-6)
+        # a shape its formula leaves open (bilinear's ratio) stays where it starts, converged at once
+        assert any("stopped after 1 evaluations" in note for note in fit.notes) == law.visible_in_kbar
+    if law.visible_in_kbar:
+        fit = fit_laws([name], X, w, kbar, start=[start], n_starts=0)
+        assert fit.terms[0].params == pytest.approx(law.example, rel=1e-6)
 
 
 @settings(max_examples=25, deadline=None)

@@ -5,6 +5,7 @@ secant steps, until the fitted value is the reference (:func:`_settle`).
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Mapping
 
 import numpy as np
@@ -64,7 +65,8 @@ def _fit_placed(terms, data: _Samples, opts: _Options, surroundings: Surrounding
     and then, where outliers are left out, by ``fitter`` from there (a placement far off would leave out the very
     samples that show the contact)."""
     laws = [law for law, _ in terms]
-    fit = _settle(laws, _fit_once(terms, data, opts), data, _quick(opts), surroundings, _fit_once, _PLACED_REFITS)
+    fit = _settle(laws, _started(laws, _fit_once(terms, data, opts)), data, _quick(opts), surroundings, _fit_once,
+                  _PLACED_REFITS)
     if fitter is not _fit_once:
         fit = _settle(laws, fit, data, _quick(opts), surroundings, fitter, _ROBUST_PLACED_REFITS)
     around = _around(fit, surroundings)
@@ -73,6 +75,15 @@ def _fit_placed(terms, data: _Samples, opts: _Options, surroundings: Surrounding
         t.law = law
         t.surroundings = around if placed else None
     return fit
+
+
+def _started(laws: list[Law], formula: LawFit) -> LawFit:
+    """The formula's fit with each placed law at the values its placement starts from
+    (:meth:`~analysis.laws.base.Law.placed_start`): where the formula leaves a shape of the law open (a bilinear
+    spring's ratio of its two stiffnesses), the refits, which refine from where they start, would stay where
+    that fit left it."""
+    return replace(formula, terms=[replace(t, params=law.placed_start(t.params)) if law.placed else t
+                                   for t, law in zip(formula.terms, laws)])
 
 
 def _around(fit: LawFit, surroundings: Surroundings) -> Surroundings:

@@ -328,7 +328,8 @@ class Law(ABC):
         shape = [p.name if p.name in self.param_names else f"{p.name} ({p.description})" for p in self.shape]
         fit = ", ".join(self.linear) + " / " + (", ".join(shape) or "–")
         cells = (self.name, self.kind, self.parameter_text(), self.force_text, self.kbar_text, fit,
-                 "yes" if self.visible_in_kbar else "no (only harmonics)")
+                 "yes" if self.visible_in_kbar
+                 else "placed in its structure" if self.placed else "no (only harmonics)")
         return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
 
     # --- measured from the reference's state --------------------------------
@@ -376,6 +377,11 @@ class Law(ABC):
         (:func:`analysis.fitting.limits.settle_in_limits`): the law is then read in that limit whatever point of
         the flat direction its own fit stopped at. None for most laws."""
         return ()
+
+    def placed_start(self, values: Mapping[str, float]) -> dict:
+        """Where a fit of this placed law starts its placement (analysis/fitting/placed.py), from ``values``, those
+        its formula's fit gave: by default there."""
+        return dict(values)
 
     # --- parametrisation -----------------------------------------------------
     def to_fit(self, values: Mapping[str, float]) -> tuple[dict, dict]:

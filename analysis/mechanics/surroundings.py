@@ -1,7 +1,8 @@
 """The structure around one element, and the describing function of a contact law placed in it.
 
 A contact that closes has harmonics as large as its fundamental -- a one-sided one (:attr:`Law.placed`:
-unilateral) a mean and even harmonics, a two-sided one (gap) odd harmonics. They move the structure: the mean to a
+unilateral, and bilinear, its zero-clearance limit beside a linear spring) a mean and even harmonics, a two-sided
+one (gap) odd harmonics. They move the structure: the mean to a
 new static position, the harmonics to a response at 2w, 3w, ... And the element sees that motion, so how far
 its contact closes over a cycle -- hence its fundamental, hence kbar -- depends on the structure around it, not
 on the amplitude X alone. The plain describing function (``x = X sin wt`` at the element, nothing else) leaves

@@ -56,11 +56,16 @@ def law_sets(names: list[str], size: int) -> list[tuple[str, ...]]:
             if len({LAWS[n].kind for n in combo}) == size]
 
 
-def _candidate_laws(linear_verdict: bool) -> list[str]:
+def _candidate_laws(linear_verdict: bool, placed: bool) -> list[str]:
     """The laws discovery may use on an element: those kbar can reveal; only laws without amplitude dependence
-    where the element's verdict is linear (the verdict found nothing else to explain)."""
+    where the element's verdict is linear (the verdict found nothing else to explain). A law whose formula's kbar
+    is a linear spring's and which only its placement in the structure shows (bilinear: the zero-clearance limit
+    of a one-sided contact beside a linear spring) enters where the element can be placed (``placed``) and its
+    verdict is linear: where the kbar moves with amplitude, the contact law, whose clearance is searched, holds
+    that limit already."""
     return [n for n, law in LAWS.items()
-            if law.visible_in_kbar and not (linear_verdict and law.amplitude_dependent)]
+            if (law.visible_in_kbar or (law.placed and placed and linear_verdict))
+            and not (linear_verdict and law.amplitude_dependent)]
 
 
 def _place_contacts(by_laws: dict[tuple[str, ...], LawSet], samples: ElementSamples, rules: DiscoveryRules,
@@ -167,7 +172,7 @@ def search_element(index: int, samples: ElementSamples, linear_verdict: bool,
     """The kbar stage of one element (the overview in discovery.py, steps 1 and 2; ``robust``: :func:`_fit_set`;
     ``around``: the structure around the element, where the best sets with a contact law are refitted placed,
     :func:`_place_contacts`)."""
-    names = _candidate_laws(linear_verdict)
+    names = _candidate_laws(linear_verdict, around is not None)
     sets = [_empty_set(samples, robust)]
     by_laws: dict[tuple[str, ...], LawSet] = {}
     tied: list[LawSet] = []

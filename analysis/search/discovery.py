@@ -10,7 +10,8 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    A set in which one law adds no direction of its own (every parameter of it tied to another law's, by an exact
    degeneracy or a correlation beyond ``max_correlation``) is not a set of separate effects and is never chosen,
    only named as a reading the data cannot part (step 3). Where
-   the element's verdict is linear, only laws without amplitude dependence enter. Data without harmonics: the
+   the element's verdict is linear, only laws without amplitude dependence enter, among them a bilinear spring
+   placed in the element's structure (the one law whose placement alone shows it). Data without harmonics: the
    fits leave out the lines that do not follow them, and sets are judged by :func:`capped_chi_square`.
 2. **A criterion that charges for parameters.** ``chi2 / s^2 + p ln(2N)`` (BIC in the kbar noise), with ``s^2``
    the reduced chi-square of the best-fitting set where it exceeds 1: no law of the library fits a kbar the
