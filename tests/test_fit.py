@@ -276,7 +276,7 @@ def test_laws_with_no_effect_in_the_samples_are_reported():
 def test_starting_values_are_used(name):
     """n_starts=0 with every shape parameter given skips the grid: with a one-evaluation budget
     the result is the start itself (from a LawTerm or from ``start``), with a normal budget the
-    start converges to the truth."""
+    start converges to the truth where the formula determines the shape (bilinear's ratio it leaves open)."""
     law = get_law(name)
     X, w, kbar, _ = samples([name])
     linear, shape = law.to_fit(law.example)

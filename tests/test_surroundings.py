@@ -407,3 +407,27 @@ def test_discovery_offers_a_bilinear_spring_only_placed_and_only_where_the_kbar_
     values = placed.sets[0].fit.terms[0].params
     assert [values["k_pos"], values["k_neg"]] == pytest.approx([SPRING["k_pos"], SPRING["k_neg"]], rel=0.02)
     assert all("bilinear" not in s.laws for s in search_element(0, samples, True).sets)
+
+
+def test_a_bilinear_fit_started_at_an_even_split_parts_the_two_sides_all_the_same():
+    """A start at an even split (a linear spring's, which a refit of a model would give) has a placement with no
+    harmonics, flat in the ratio: the placement starts from one side carrying most of it (``placed_start``)."""
+    s, (el,) = sdof([{"law": "bilinear", **SPRING}])
+    X = np.geomspace(2e-3, 3e-2, 24)
+    w = 2 * np.pi * np.linspace(3.0, 7.0, 24)
+    kbar = placed_kbar([(BILINEAR, SPRING)], X, w, el.surroundings)
+    fit = fit_laws(["bilinear"], X, w, kbar, 0.05, start=[{"k_pos": 500.0, "k_neg": 500.0}],
+                   surroundings=el.surroundings)
+    assert [fit.terms[0].params["k_pos"], fit.terms[0].params["k_neg"]] == pytest.approx([800.0, 200.0], rel=3e-3)
+
+
+def test_two_placed_laws_on_one_element_are_refused_by_the_fit():
+    """Each placed law's basis is placed alone, where a model places an element's placed laws together: a fit of
+    two would fit one model and report another."""
+    from analysis.common.errors import InputError
+
+    s, (el,) = sdof([{"law": "bilinear", **SPRING}])
+    X, w = np.geomspace(2e-3, 3e-2, 12), 2 * np.pi * np.linspace(3.0, 7.0, 12)
+    kbar = placed_kbar([(BILINEAR, SPRING)], X, w, el.surroundings)
+    with pytest.raises(InputError, match="both placed"):
+        fit_laws(["bilinear", "unilateral"], X, w, kbar, 0.05, surroundings=el.surroundings)

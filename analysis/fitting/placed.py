@@ -10,6 +10,7 @@ from typing import Mapping
 
 import numpy as np
 
+from ..common.errors import InputError
 from ..laws import Law
 from ..mechanics.surroundings import Surroundings, linear_part, placed_kbar
 from .projection import _fit_once
@@ -65,6 +66,10 @@ def _fit_placed(terms, data: _Samples, opts: _Options, surroundings: Surrounding
     and then, where outliers are left out, by ``fitter`` from there (a placement far off would leave out the very
     samples that show the contact)."""
     laws = [law for law, _ in terms]
+    placed = [law.name for law in laws if law.placed]
+    if len(placed) > 1:
+        # each law's basis is placed alone, where a model places them together (one mean, one set of harmonics)
+        raise InputError(f"laws {' and '.join(placed)} are both placed in the structure: one such law per element")
     fit = _settle(laws, _started(laws, _fit_once(terms, data, opts)), data, _quick(opts), surroundings, _fit_once,
                   _PLACED_REFITS)
     if fitter is not _fit_once:

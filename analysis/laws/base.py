@@ -148,7 +148,7 @@ REQUIRED = ("name", "kind", "summary", "params", "linear", "example", "kernel", 
 # of amplitude (a Jenkins element in gross slip is Coulomb friction; a quintic and a cubic both harden), and one
 # joint has at most one mechanism of each kind: model discovery combines laws of different kinds only.
 KINDS = {
-    "linear": "a constant offset of kbar: a linear spring and damper (bilinear too: kbar sees its mean stiffness)",
+    "linear": "kbar independent of amplitude: a linear spring and damper, or a spring stiffer on one side (bilinear)",
     "stiffness": "Re kbar moves with amplitude, Im flat: a hardening or softening conservative spring",
     "rate stiffness": "Re kbar moves with frequency, not amplitude",
     "damping": "Im kbar grows with the velocity amplitude: viscous-like nonlinear damping",
@@ -236,13 +236,15 @@ class Law(ABC):
     kbar_text: ClassVar[str]
     # The physics sentence of a missing-effect candidate: a str.format template over SignatureWords' fields
     explanation: ClassVar[str]
-    # False where kbar is a constant the linear law already reproduces (only harmonics reveal the law)
+    # False where the formula's kbar is a constant the linear law already reproduces (only the law's harmonics, or
+    # its kbar placed in a structure, reveal it)
     visible_in_kbar: ClassVar[bool] = True
     # True where the force is its small-amplitude tangent k0 x + c0 x' at every amplitude and state (a spring
     # and damper): a time integrator that moves k0 and c0 into its linear part has nothing left to solve for
     tangent_exact: ClassVar[bool] = False
-    # True where the force's harmonics are as large as its fundamental (a contact that closes: one-sided, with a
-    # mean and even harmonics, or a clearance on both sides, with odd ones): they move the structure, which
+    # True where the force's harmonics are of the order of its fundamental (a contact that closes: one-sided, with a
+    # mean and even harmonics, or a clearance on both sides, with odd ones; a spring stiffer on one side, with a
+    # mean and even harmonics as large as the difference): they move the structure, which
     # changes how far the contact closes and so kbar. Where the law sits in a structure its kbar is then placed
     # there (analysis/mechanics/surroundings.py) rather than taken from the formula alone. Such a law is stateless,
     # velocity-free and has one linear parameter scaling its whole force.

@@ -14,7 +14,8 @@ it is then the zero-clearance limit of a one-sided contact beside a linear sprin
 Which side is the stiffer one the fundamental cannot tell: the motion mirrored (x -> -x) has the same kbar with the
 two stiffnesses swapped; only the phase of the even harmonics could. A fit therefore gives the stiffer side as
 ``k_pos``. Fit parametrisation: ``k_pos`` linear (scaling the whole force), the ratio ``k_neg / k_pos`` between 0
-and 1 (shape), so that kbar = k_pos (1 + ratio) / 2 alone and k_pos g(X, w; ratio) placed.
+and 1 (shape), so that kbar = k_pos (1 + ratio) / 2 alone and k_pos g(X, w; ratio) placed: a fit finds springs whose
+two sides push the same way; one with sides of opposite sign (a model file may hold one) is beyond it.
 """
 import numpy as np
 from ..common.compiled import njit

@@ -2,7 +2,8 @@
 the signature of the complex stiffness (docs/method.md §3).
 
 For every element and every law of the library not yet on it (laws not ``visible_in_kbar`` -- bilinear, whose
-kbar is a constant the linear law already reproduces -- are never proposed), the element's laws plus the candidate are
+formula's kbar is a constant the linear law already reproduces and which only discovery offers, placed -- are never
+proposed), the element's laws plus the candidate are
 fitted to the element's kbar samples, the FRFs of every stepped-sine run are predicted by harmonic balance,
 and the error is computed.
 

@@ -111,7 +111,7 @@ def _verdict_overruled(judge: _Judge, search: _Search, rules: DiscoveryRules,
             return None
     full = search_element(i, search.samples, False, rules, robust=True, around=around)
     full.overruled = (f"its linearity verdict (linear, from its kbar at the false-alarm rate) is set aside: {why}, "
-                      "so every law of the library was searched")
+                      "so the laws that move with amplitude were searched too")
     # the other elements' steps are judged beside what the FRFs showed of it, not beside its linear kbar
     judge.stand_in(i, terms_function(judge.refined(search, best).terms))
     return full
