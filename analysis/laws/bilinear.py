@@ -42,7 +42,7 @@ class Bilinear(Law):
     kbar_text = "(k_pos + k_neg)/2"
     explanation = ("kbar does not change with amplitude but its real part moves with frequency: a stiffness that "
                    "differs in tension and compression, whose mean and even harmonics move the structure and return "
-                   "into the fundamental")
+                   "into the fundamental (which side is the stiffer the fundamental cannot tell: it is given as k_pos)")
     visible_in_kbar = False
     amplitude_dependent = False
     placed = True
