@@ -58,6 +58,8 @@ _STARTS_KEPT = 8
 _TOLERANCE = 1e-10
 # The balance's sums may be reordered (vectorised): its answer is converged to _TOLERANCE, far above their rounding
 _REASSOCIATE = {"reassoc", "contract"}
+# The Newton kernel's ``fundamental`` argument where it is to leave the force's fundamental alone
+_NO_KBAR = np.empty((0, 2))
 
 
 @dataclass
@@ -166,21 +168,18 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
         # a contact pulling (k < 0) as hard as the structure holds it: no static balance, no kbar
         return np.full(shape, np.nan, complex)
     around.starts.keep(key, np.where(np.isfinite(z), z, 0.0))     # a NaN sample starts again from none
-    f = _force(p, balance.fundamental + z @ cycle.Phi.T)
-    # fundamental phasor of Im(F e^{jwt}) per docs/contracts.md §1: f ~ A sin + B cos -> kbar = (A + j B) / X
-    a = 2.0 / n_time * f @ np.sin(cycle.theta)
-    b = 2.0 / n_time * f @ np.cos(cycle.theta)
-    return ((a + 1j * b) / balance.scale).reshape(shape)
+    return balance.kbar(z).reshape(shape)
 
 
 class _Balance:
     """The balance of :func:`placed_kbar` at S samples: the placed laws (kernel parameter vectors), the cycle,
-    the receptance ``R`` (S, H) at the harmonics balanced and the element's fundamental ``X sin(theta)`` (S, T)."""
+    the receptance ``R`` (S, H) at the harmonics balanced and the element's amplitude ``X`` (S,) of its
+    fundamental ``X sin(theta)``."""
 
     def __init__(self, laws: list[tuple[Law, np.ndarray]], cycle: "_Cycle", R: np.ndarray, X: np.ndarray):
         self.cycle = cycle
         self.R = np.ascontiguousarray(R.real), np.ascontiguousarray(R.imag)
-        self.fundamental = X[:, None] * np.sin(cycle.theta)[None, :]
+        self.X = X
         self.scale = np.maximum(X, 1e-300)
         self.p = np.concatenate([vector for _, vector in laws]).astype(float)
         self._newton = _newton_of(tuple(law.kernel for law, _ in laws), tuple(len(vector) for _, vector in laws))
@@ -189,12 +188,20 @@ class _Balance:
     def solve(self, z: np.ndarray, active: np.ndarray, iterations: int) -> np.ndarray | None:
         """At most ``iterations`` Newton steps for the samples ``active`` (S,), ``z`` (S, size) updated in place
         from where it stands. Returns the samples not converged (S,) bool, None where a Jacobian is singular."""
-        c = self.cycle
         left = active.copy()
-        singular = self._newton(self.p, c.Phi, c.P, c.trig, c.first, c.first_sign, c.second, c.second_sign,
-                                *self.R, self.fundamental, self.scale, z, left, iterations, _TOLERANCE,
-                                self.steps)
-        return None if singular else left
+        return None if self._run(z, left, iterations, self.steps, _NO_KBAR) else left
+
+    def kbar(self, z: np.ndarray) -> np.ndarray:
+        """kbar of every sample at harmonics ``z`` (S, size): its force's fundamental over X, (S,) complex."""
+        out = np.empty((z.shape[0], 2))
+        self._run(z, np.zeros(z.shape[0], bool), 0, np.zeros(z.shape[0], np.int64), out)
+        return (out[:, 0] + 1j * out[:, 1]) / self.scale
+
+    def _run(self, z, left, iterations, steps, fundamental) -> bool:
+        c = self.cycle
+        return self._newton(self.p, c.Phi, c.P, c.trig, c.first, c.first_sign, c.second, c.second_sign,
+                            *self.R, self.X, c.sin, c.cos, self.scale, z, left, iterations, _TOLERANCE, steps,
+                            fundamental)
 
 
 @functools.lru_cache(maxsize=None)
@@ -209,12 +216,16 @@ def _newton_of(kernels: tuple, sizes: tuple):
     Jacobian is I. A sample stops when max|dz| <= tolerance X; ``left[i]`` stays True for one that has not within
     ``iterations``; ``steps[i]`` counts its steps. Returns True where a Jacobian was singular (the others then
     stand where they are). Per sample, not per batch: the solver's calls are mostly of a handful of samples,
-    where a batch's array operations cost far more than the arithmetic."""
+    where a batch's array operations cost far more than the arithmetic.
+
+    ``fundamental`` (S, 2), unless it is :data:`_NO_KBAR`: afterwards each sample's force's fundamental phasor
+    at its z, ``(A, B)`` of ``f ~ A sin + B cos`` (docs/contracts.md §1: kbar = (A + j B) / X), from the same
+    compiled force (a second pass over the samples in Python would cost more than the balance's last step)."""
     force = _summed(kernels, sizes)
 
     @njit_fixed(fastmath=_REASSOCIATE)
-    def newton(p, Phi, P, trig, first, first_sign, second, second_sign, R_re, R_im, fundamental, scale, z, left,
-               iterations, tolerance, steps):
+    def newton(p, Phi, P, trig, first, first_sign, second, second_sign, R_re, R_im, X, sin, cos, scale, z, left,
+               iterations, tolerance, steps, fundamental):
         n_time, size = Phi.shape
         state = np.zeros(1)
         f, t = np.empty(n_time), np.empty(n_time)
@@ -229,7 +240,7 @@ def _newton_of(kernels: tuple, sizes: tuple):
                 steps[i] += 1
                 touching = False
                 for n in range(n_time):
-                    xn = fundamental[i, n]
+                    xn = X[i] * sin[n]
                     for j in range(size):
                         xn += Phi[n, j] * z[i, j]
                     f[n] = force(xn, p, state)
@@ -261,6 +272,19 @@ def _newton_of(kernels: tuple, sizes: tuple):
                 if not largest > tolerance * scale[i]:
                     left[i] = False
                     break
+        if fundamental.shape[0] == z.shape[0]:
+            for i in range(z.shape[0]):
+                a = 0.0
+                b = 0.0
+                for n in range(n_time):
+                    xn = X[i] * sin[n]
+                    for j in range(size):
+                        xn += Phi[n, j] * z[i, j]
+                    fn = force(xn, p, state)
+                    a += fn * sin[n]
+                    b += fn * cos[n]
+                fundamental[i, 0] = 2.0 / n_time * a
+                fundamental[i, 1] = 2.0 / n_time * b
         return False
 
     return newton
@@ -324,6 +348,7 @@ class _Cycle:
     def __init__(self, n_harmonics: int, n_time: int):
         self.harmonics = np.array([0] + list(range(2, n_harmonics + 1)))
         self.theta = 2 * np.pi * np.arange(n_time) / n_time
+        self.sin, self.cos = np.sin(self.theta), np.cos(self.theta)
         n = self.harmonics[1:, None] * self.theta[None, :]
         # Re(x_n e^{jn theta}) = Re x_n cos - Im x_n sin
         self.Phi = np.column_stack([np.ones(n_time)] + [c for pair in zip(np.cos(n), -np.sin(n)) for c in pair])
@@ -370,10 +395,3 @@ def _trig_products(harmonics: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray]
                 index[n, i, j], sign[n, i, j] = at, row * column * half * sign_k
     return (index[0], sign[0]), (index[1], sign[1])
 
-
-def _force(laws: list[tuple[Law, np.ndarray]], x: np.ndarray) -> np.ndarray:
-    """The laws' force (with their kernel parameter vectors) along displacements x (S, T); a placed law has no
-    velocity dependence or state."""
-    flat = x.ravel()
-    v = np.zeros_like(flat)
-    return sum(law.march(flat, v, p) for law, p in laws).reshape(x.shape)

@@ -261,7 +261,12 @@ def _copy_doubles(typingctx, destination, source, count):
 
 
 # --- law evaluation --------------------------------------------------------------
-@njit(cache=True, _nrt=False, inline="always")
+# The law evaluations below (and the Jacobian, which makes two of them) are compiled as calls of their own, not
+# inlined into the loop: the Newton iteration evaluates the laws at four places, and each inlined copy was typed
+# and lowered again -- a third of the loop's first compile (12.3 -> 8.0 s on a fresh clone). Their work is the
+# laws' C callbacks, which the call does not slow (the simulator benchmark the same within its scatter, the
+# samples the same to the bit; docs/performance.md, "First compile of the integration loop").
+@njit(cache=True, _nrt=False)
 def _element_forces(laws, S, S_trial, x, v, mode, sigma, out):
     """Sum of the law forces per element at (x, v), from the committed law states ``S``.
 
@@ -289,7 +294,7 @@ def _element_forces(laws, S, S_trial, x, v, mode, sigma, out):
                               s_base + k * S.strides[0], trial_base + k * S_trial.strides[0], ns)
 
 
-@njit(cache=True, _nrt=False, inline="always")
+@njit(cache=True, _nrt=False)
 def _commit(laws, S, S_trial):
     """The committed law states become those of the last evaluation into ``S_trial``."""
     s_base = S.ctypes.data
@@ -299,7 +304,7 @@ def _commit(laws, S, S_trial):
                      laws.n_state[k])
 
 
-@njit(cache=True, _nrt=False, inline="always")
+@njit(cache=True, _nrt=False)
 def _stick_limits(laws, x, out):
     """Largest friction force each element can hold at zero velocity (sum over its friction terms)."""
     out[:] = 0.0
@@ -359,7 +364,7 @@ def _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res):
     return worst
 
 
-@njit(cache=True, _nrt=False, inline="always")
+@njit(cache=True, _nrt=False)
 def _jacobian(laws, S, S_probe, D, r, mode, sigma, x, v, F, work, jac):
     """Jacobian of the step-end residuals in g, by forward differences of the law forces."""
     x_probe, v_probe, F_probe, dfdx, dfdv = work[3], work[4], work[5], work[8], work[9]
