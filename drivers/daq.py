@@ -195,7 +195,10 @@ class _BlockQueue:
                 finally:
                     self._waiting -= 1
             block = self._blocks.popleft()
-            self._ready.notify_all()
+            if len(self._blocks) == self.capacity - 1:
+                # a reader may wait in put() for the room just made; woken at every block taken, an on-demand
+                # reader, which waits for a consumer's ask instead, woke for nothing twice a block
+                self._ready.notify_all()
             return block
 
 

@@ -29,6 +29,18 @@ LAWS: dict[str, Law] = {law.name: law for law in (
 )}
 
 
+def simplicity(names) -> tuple[int, int, int]:
+    """How simple the set of laws ``names`` is, the key by which a choice among sets (or laws) the data cannot
+    tell apart takes the simplest: its parameters; then its laws whose kbar depends on the amplitude (a linear
+    spring before a preloaded one-sided contact that never opens, which is the same spring); then its shape
+    parameters, those its describing function depends on nonlinearly (a linear spring and dashpot before a
+    bilinear spring, which holds a linear spring at equal stiffnesses and bends away from it by its ratio). A set
+    earns each added degree of freedom only by fitting what the simpler one cannot."""
+    laws = [LAWS[n] for n in names]
+    return (sum(len(law.params) for law in laws), sum(law.amplitude_dependent for law in laws),
+            sum(len(law.shape) for law in laws))
+
+
 def get_law(name: str, source: str | None = None, field: str | None = None) -> Law:
     """The law called ``name``; InputError naming the field if there is none."""
     try:

@@ -25,7 +25,7 @@ flat direction of the fit. Where the element's verdict is linear, only laws whos
 amplitude (``linear``, ``velocity_stiffness``) are supported: the verdict found nothing else to explain.
 Supported candidates come first. Elements are ordered by the FRF criterion of their best supported candidate.
 Within an element the candidates whose FRF errors lie within ``frf_tie`` (5 %) of the best are tied and come
-first, the simplest law first (fewest parameters, then no amplitude dependence), then the larger kbar evidence
+first, the simplest law first (:func:`analysis.laws.simplicity`), then the larger kbar evidence
 (coulomb before jenkins and iwan, which reduce to it; ``linear`` before a softening law that is linear over the
 amplitudes seen); the others follow by the FRF criterion. A candidate is *significant* only if it is supported,
 cuts the FRF error by at least ``min_gain`` (x1.3) *and* by more than the noise explains (chi-square drop above
@@ -56,7 +56,7 @@ from ..common.statistics import (capped_chi_square, charged_criterion, chi_squar
 from ..common.wording import change_words, parameter_words
 from ..fitting.fit import LawFit, TermFit, fit_laws
 from ..fitting.friction_fundamental import chi_square_with_friction_turn, holds_friction
-from ..laws import LAWS
+from ..laws import LAWS, simplicity
 from ..laws.base import SignatureWords
 from ..mechanics.elements import LawTerm
 from ..mechanics.surroundings import Surroundings
@@ -466,15 +466,14 @@ def _significant(c: Candidate, rules: RankingRules) -> bool:
 
 def _rank_key(c: Candidate, leader: _Leader | None, frf_tie: float) -> tuple[float, ...]:
     """Sort key, all numbers: supported candidates first, their elements by the FRF criterion of the element's
-    best; within an element the candidates tied in FRF error first, simplest law first (fewest parameters, then
-    no amplitude dependence), then the larger kbar evidence; the others by the FRF criterion. Unsupported
+    best; within an element the candidates tied in FRF error first, simplest law first
+    (:func:`analysis.laws.simplicity`), then the larger kbar evidence; the others by the FRF criterion. Unsupported
     candidates follow by the FRF criterion."""
     if not c.supported:
-        return (1, c.bic, 0, 0, 0, 0)
-    law = LAWS[c.law]
+        return (1, c.bic, 0, 0, 0, 0, 0)
     if c.error <= (1 + frf_tie) * leader.error:
-        return (0, leader.bic, 0, len(law.params), int(law.amplitude_dependent), -c.evidence)
-    return (0, leader.bic, 1, c.bic, 1, -c.evidence)
+        return (0, leader.bic, 0, *simplicity([c.law]), -c.evidence)
+    return (0, leader.bic, 1, c.bic, 1, 0, -c.evidence)
 
 
 def _scene(predictor: Predictor, fits: dict[str, LawFit | None], base: Comparison) -> _Scene:

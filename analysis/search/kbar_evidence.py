@@ -24,7 +24,7 @@ import scipy.stats
 from ..common.statistics import chi_square_noise_bound, chi_square_shares, falls_above_noise, part_weight
 from ..fitting.fit import UNDETERMINED_Z, TermFit, unit_exponents
 from ..fitting.friction_fundamental import chi_square_with_friction_turn, holds_friction
-from ..laws import LAWS
+from ..laws import LAWS, simplicity
 from ..missing.diagnosis import ElementSamples, explain, signature
 from .candidates import _Search
 from .records import LawSet
@@ -256,7 +256,7 @@ def _other_kinds(judge: "_Judge", search: _Search, s: LawSet) -> list[LawSet]:
     samples of high amplitude are samples near resonance, and left x4.8 the FRF error)."""
     rules = judge.rules.ranking
     limit = rules.min_gain * judge.single({search.index: s}).error
-    return [t for t in search.sets if t is not s and t.n_parameters <= s.n_parameters
+    return [t for t in search.sets if t is not s and simplicity(t.laws) <= simplicity(s.laws)
             and _alike(search, t, s, rules.false_alarm) and _kinds(t) != _kinds(s)
             and judge.single({search.index: t}).error <= limit]
 

@@ -123,13 +123,14 @@ class ElementDiscovery:
         out += [f"  {e}" for e in self.explanations]
         if self.equivalents:
             out.append("  indistinguishable on these data (they fit its kbar as well, and the FRFs within the margin "
-                       "a law must bring; the fewest parameters are taken): "
+                       "a law must bring; the simplest is taken): "
                        + "; ".join(f"{'+'.join(s.laws)} ({s.test})" for s in self.equivalents))
         if self.walk:
             out.append("  judged by the FRFs: " + "; ".join(s.text() for s in self.walk))
         if self.simplified_from:
             out.append(f"  taken as {self.chosen.name} rather than {'+'.join(self.simplified_from)}: it fits the "
-                       "kbar as well with fewer parameters or fewer laws whose kbar depends on the amplitude")
+                       "kbar as well with fewer parameters, fewer laws whose kbar depends on the amplitude or fewer "
+                       "shape parameters")
         return "\n".join(out)
 
     def to_json(self) -> dict:

@@ -17,7 +17,7 @@ from typing import Callable
 
 from ..common.statistics import chi_square_noise_bound
 from ..fitting.fit import UNDETERMINED_Z
-from ..laws import LAWS
+from ..laws import LAWS, simplicity
 from ..mechanics.surroundings import Surroundings
 from ..missing.diagnosis import ElementSamples
 from ..prediction.comparison import Predictor
@@ -311,20 +311,15 @@ def _choices(taken: dict[int, list[LawSet]]) -> dict[int, LawSet]:
 
 def _simplest(judge: "_Judge", search: _Search, chosen: LawSet, judged: dict[int, LawSet]) -> LawSet:
     """Of the sets alike ``chosen`` in the kbar (itself included) whose single-harmonic FRF error is within
-    ``min_gain`` of its own, the one with the fewest parameters, then the fewest laws whose kbar depends on the
-    amplitude (a linear spring before a preloaded one-sided contact that never opens, which is the same spring);
-    ``chosen`` where none is simpler by these. On data without harmonics a simpler set must also hold with the
+    ``min_gain`` of its own, the simplest (:func:`analysis.laws.simplicity`: fewest parameters, then fewest laws
+    whose kbar depends on the amplitude, then fewest shape parameters); ``chosen`` where none is simpler. On data without harmonics a simpler set must also hold with the
     harmonics represented, every element at its choice (``judged``): a one-sided contact follows a symmetric gap's
     fundamental single-harmonic, but not the mean it drives: the two tie single-harmonic, the contact being no
     larger, while with harmonics it misses by far."""
     rules = judge.rules.ranking
     i = search.index
-
-    def simpler(s: LawSet) -> tuple[int, int]:
-        return s.n_parameters, sum(LAWS[n].amplitude_dependent for n in s.laws)
-
-    alike = sorted((s for s in search.sets if s is not chosen and simpler(s) < simpler(chosen)
-                    and _alike(search, s, chosen, rules.false_alarm)), key=lambda s: (simpler(s), s.criterion))
+    alike = sorted((s for s in search.sets if s is not chosen and simplicity(s.laws) < simplicity(chosen.laws)
+                    and _alike(search, s, chosen, rules.false_alarm)), key=lambda s: (simplicity(s.laws), s.criterion))
     limit = rules.min_gain * judge.single({i: chosen}).error
     return next((s for s in alike if judge.single({i: s}).error <= limit and _holds_as_simpler(judge, s, i, judged)),
                 chosen)
