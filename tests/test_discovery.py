@@ -26,7 +26,7 @@ from analysis.fitting.fit import fit_laws
 from analysis.fitting.projection import _shape_coordinate
 from analysis.mechanics.elements import LawTerm
 from analysis.prediction.frf_refinement import FrfRefinement
-from analysis.laws import LAWS
+from analysis.laws import LAWS, simplicity
 from analysis.laws.base import KINDS
 
 
@@ -680,6 +680,18 @@ def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tel
     for twin_error, counts in ((0.012, True), (0.05, False)):
         judge.single = _Errors({**errors, pair.laws: 0.01, twin.laws: twin_error})
         assert (twin in _other_kinds(judge, search, pair)) is counts
+    # a reading of other kinds alike and as good in the FRFs, but less simple (two laws whose kbar moves with
+    # amplitude where the set has one), says nothing against the set: the set is taken, the reading named beside it
+    judge.single = _Errors({**errors, pair.laws: 0.01, twin.laws: 0.01})
+    assert pair not in _other_kinds(judge, search, twin)
+
+
+def test_the_simplest_reading_has_the_fewest_parameters_then_amplitude_laws_then_shape_parameters():
+    assert simplicity(["cubic"]) < simplicity(["linear"])                         # one parameter against two
+    assert simplicity(["velocity_stiffness", "coulomb"]) < simplicity(["cubic", "quadratic_damping"])
+    assert simplicity(["linear"]) < simplicity(["bilinear"])                      # a ratio that bends the spring
+    assert simplicity(["linear", "iwan"]) < simplicity(["arctan_softening", "iwan"])
+    assert simplicity(["tanh_softening"]) == simplicity(["arctan_softening"])    # a tie: the kbar decides
 
 
 class _MultiOf:
@@ -712,6 +724,13 @@ def test_a_simpler_set_alike_replaces_the_choice_only_where_it_holds_with_harmon
     assert _simplest(judge, search, chosen, {0: chosen}) is spring       # the kbar carries the harmonics
     search.sets.remove(spring)
     assert _simplest(judge, search, chosen, {0: chosen}) is chosen       # a tie is no simpler
+    # as many parameters and laws whose kbar moves with amplitude: the fewer shape parameters decide (a linear
+    # spring and dashpot before a bilinear spring, which holds the linear spring at equal stiffnesses)
+    bent = LawSet(("bilinear",), chosen.fit, chosen.chi_square, 2)
+    plain = LawSet(("linear",), chosen.fit, chosen.chi_square, 2)
+    search.sets += [bent, plain]
+    judge.single = _Errors(_Otherwise({bent.laws: 0.05, plain.laws: 0.05}))
+    assert _simplest(judge, search, bent, {0: bent}) is plain
 
 
 class _Multi:
