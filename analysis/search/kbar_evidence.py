@@ -246,12 +246,13 @@ def _kinds(s: LawSet) -> list[str]:
 
 
 def _other_kinds(judge: "_Judge", search: _Search, s: LawSet) -> list[LawSet]:
-    """The sets alike ``s``, with no more parameters, whose laws are of other kinds and whose single-harmonic FRF
-    error is within ``min_gain`` of its own: where there are any, the data do not tell what physics the set adds
-    (a law fitting what no describing function of the library represents -- the mean shift of a one-sided
-    contact -- can be written with laws of several kinds alike). A richer set of other kinds that fits as well
-    says nothing against ``s``: with parameters to spare, a gap spring and a Jenkins element can follow a cubic
-    and Coulomb friction. Nor does a set the FRFs tell apart by more than a law's margin (on the 3-DOF chain,
+    """The sets alike ``s``, as simple or simpler (:func:`analysis.laws.simplicity`), whose laws are of other kinds
+    and whose single-harmonic FRF error is within ``min_gain`` of its own: where there are any, the data do not
+    tell what physics the set adds (a law fitting what no describing function of the library represents -- the
+    mean shift of a one-sided contact -- can be written with laws of several kinds alike). A less simple set of
+    other kinds that fits as well says nothing against ``s``; it is named beside it (:func:`_indistinguishable`):
+    with parameters to spare, a gap spring and a Jenkins element can follow a cubic and Coulomb friction, and an
+    arctan spring, whose kbar moves with amplitude, the linear spring beside an Iwan element. Nor does a set the FRFs tell apart by more than a law's margin (on the 3-DOF chain,
     Coulomb friction with a velocity stiffness fitted the kbar as well as with the cubic the rig has, where
     samples of high amplitude are samples near resonance, and left x4.8 the FRF error)."""
     rules = judge.rules.ranking
