@@ -252,9 +252,10 @@ def _other_kinds(judge: "_Judge", search: _Search, s: LawSet) -> list[LawSet]:
     mean shift of a one-sided contact -- can be written with laws of several kinds alike). A less simple set of
     other kinds that fits as well says nothing against ``s``; it is named beside it (:func:`_indistinguishable`):
     with parameters to spare, a gap spring and a Jenkins element can follow a cubic and Coulomb friction, and an
-    arctan spring, whose kbar moves with amplitude, the linear spring beside an Iwan element. Nor does a set the FRFs tell apart by more than a law's margin (on the 3-DOF chain,
-    Coulomb friction with a velocity stiffness fitted the kbar as well as with the cubic the rig has, where
-    samples of high amplitude are samples near resonance, and left x4.8 the FRF error)."""
+    arctan spring, whose kbar moves with amplitude, the linear spring beside an Iwan element. Nor does a set the
+    FRFs tell apart by more than a law's margin (on the 3-DOF chain, Coulomb friction with a velocity stiffness
+    fitted the kbar as well as with the cubic the rig has, where samples of high amplitude are samples near
+    resonance, and left x4.8 the FRF error)."""
     rules = judge.rules.ranking
     limit = rules.min_gain * judge.single({search.index: s}).error
     return [t for t in search.sets if t is not s and simplicity(t.laws) <= simplicity(s.laws)

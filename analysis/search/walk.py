@@ -312,14 +312,15 @@ def _choices(taken: dict[int, list[LawSet]]) -> dict[int, LawSet]:
 def _simplest(judge: "_Judge", search: _Search, chosen: LawSet, judged: dict[int, LawSet]) -> LawSet:
     """Of the sets alike ``chosen`` in the kbar (itself included) whose single-harmonic FRF error is within
     ``min_gain`` of its own, the simplest (:func:`analysis.laws.simplicity`: fewest parameters, then fewest laws
-    whose kbar depends on the amplitude, then fewest shape parameters); ``chosen`` where none is simpler. On data without harmonics a simpler set must also hold with the
-    harmonics represented, every element at its choice (``judged``): a one-sided contact follows a symmetric gap's
-    fundamental single-harmonic, but not the mean it drives: the two tie single-harmonic, the contact being no
-    larger, while with harmonics it misses by far."""
+    whose kbar depends on the amplitude, then fewest shape parameters); ``chosen`` where none is simpler. On data
+    without harmonics a simpler set must also hold with the harmonics represented, every element at its choice
+    (``judged``): a one-sided contact follows a symmetric gap's fundamental single-harmonic, but not the mean it
+    drives: the two tie single-harmonic, the contact being no larger, while with harmonics it misses by far."""
     rules = judge.rules.ranking
     i = search.index
     alike = sorted((s for s in search.sets if s is not chosen and simplicity(s.laws) < simplicity(chosen.laws)
-                    and _alike(search, s, chosen, rules.false_alarm)), key=lambda s: (simplicity(s.laws), s.criterion))
+                    and _alike(search, s, chosen, rules.false_alarm)),
+                   key=lambda s: (simplicity(s.laws), s.criterion))
     limit = rules.min_gain * judge.single({i: chosen}).error
     return next((s for s in alike if judge.single({i: s}).error <= limit and _holds_as_simpler(judge, s, i, judged)),
                 chosen)
