@@ -258,7 +258,8 @@ def _other_kinds(judge: "_Judge", search: _Search, s: LawSet) -> list[LawSet]:
     resonance, and left x4.8 the FRF error)."""
     rules = judge.rules.ranking
     limit = rules.min_gain * judge.single({search.index: s}).error
-    return [t for t in search.sets if t is not s and simplicity(t.laws) <= simplicity(s.laws)
+    own = simplicity(s.laws)
+    return [t for t in search.sets if t is not s and simplicity(t.laws) <= own
             and _alike(search, t, s, rules.false_alarm) and _kinds(t) != _kinds(s)
             and judge.single({search.index: t}).error <= limit]
 

@@ -318,7 +318,8 @@ def _simplest(judge: "_Judge", search: _Search, chosen: LawSet, judged: dict[int
     drives: the two tie single-harmonic, the contact being no larger, while with harmonics it misses by far."""
     rules = judge.rules.ranking
     i = search.index
-    alike = sorted((s for s in search.sets if s is not chosen and simplicity(s.laws) < simplicity(chosen.laws)
+    own = simplicity(chosen.laws)
+    alike = sorted((s for s in search.sets if s is not chosen and simplicity(s.laws) < own
                     and _alike(search, s, chosen, rules.false_alarm)),
                    key=lambda s: (simplicity(s.laws), s.criterion))
     limit = rules.min_gain * judge.single({i: chosen}).error
