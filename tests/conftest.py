@@ -8,6 +8,9 @@ os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 # The tests' matrices are small and the suite runs beside emulator and writer processes on two cores:
 # threaded BLAS there spends more time waiting than computing (a 1000 x 201 SVD, 5.5 s against 0.4 s).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# The suite's own workers take the cores: an analysis step computes its pieces in one process
+# (tests/test_parallel.py forks workers where that is what it tests).
+os.environ.setdefault("CONTACTID_WORKERS", "1")
 
 # Each worker holds its own interpreter, numba kernels and Qt (about 300 MB): past four the memory grows
 # faster than the suite shrinks (module fixtures are built once per worker that runs their tests).

@@ -156,7 +156,7 @@ def test_a_set_with_one_law_more_of_the_same_kinds_that_fits_as_well_is_named():
     search = search_element(0, s, linear_verdict=False)
     chosen = search.sets[0]
     assert _kinds(chosen) == ["stiffness"]
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.single = DiscoveryRules(), _Errors({x.laws: 0.01 for x in search.sets})
     named = _indistinguishable(judge, search, chosen)
     more = [x for x in named if len(x.laws) == 2]
@@ -186,7 +186,7 @@ def test_a_set_whose_law_is_tied_to_another_is_never_chosen_but_named_where_its_
     assert search.tied and all(x.tied for x in search.tied) and not any(x.tied for x in search.sets)
     assert ("linear", "arctan_softening") in [x.laws for x in search.tied]
     chosen = search.sets[0]
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules = DiscoveryRules()
     judge.single = _Errors({x.laws: 0.01 for x in search.sets + search.tied})
     # here the kbar sees neither law of the tied pair: no other reading
@@ -335,7 +335,7 @@ def test_a_set_not_seen_as_itself_gives_way_to_the_next_the_kbar_prefers():
     saturated, cubic = _screened(("arctan_softening",), relay), _screened(("cubic",), relay)
     empty.criterion, saturated.criterion, cubic.criterion = 1e6, 10.0, 20.0
     search = _Search(0, relay, [empty, saturated, cubic], 1.0, {0: [empty], 1: [saturated, cubic]})
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judge.single = _Errors({(): 1.0, saturated.laws: 0.1, cubic.laws: 0.12})
     taken, steps = _walk_element(judge, search)
@@ -363,7 +363,7 @@ def test_a_set_the_kbar_does_not_call_for_beside_the_laws_taken_gives_way_to_the
         s.criterion = criterion
     search = _Search(0, rig, [empty, tanh, linear_arctan, linear_tanh], 1.0,
                      {0: [empty], 1: [tanh], 2: [linear_arctan, linear_tanh]})
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judge.single = _Errors({(): 1.0, tanh.laws: 0.007, linear_tanh.laws: 0.0046, linear_arctan.laws: 0.0041})
     taken, steps = _walk_element(judge, search)
@@ -384,7 +384,7 @@ def test_a_step_to_a_clearance_judges_the_set_before_it_refined_too(monkeypatch)
     search = _Search(0, rig, [pair, contact], 1.0, {})
     for name in ("_unseen_laws", "_limit_only_laws", "_not_seen_beside_friction"):   # where the judge looks them up
         monkeypatch.setattr(frf_judge, name, lambda *args, **kwargs: [])
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     friction = LawSet(pair.laws + ("jenkins",), pair.fit, contact.chi_square, 5)
     judge.single = _Errors({pair.laws: 0.275, contact.laws: 0.274, friction.laws: 0.273})
@@ -413,7 +413,7 @@ def test_a_step_the_kbar_calls_for_and_one_harmonic_refuses_is_judged_with_harmo
     search = _Search(1, rig, [one, pair], 1.0, {})
     for name in ("_unseen_laws", "_limit_only_laws", "_not_seen_beside_friction"):   # where the judge looks them up
         monkeypatch.setattr(frf_judge, name, lambda *args, **kwargs: [])
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judge.single = _Errors({one.laws: 0.488, pair.laws: 0.638})
     held = LawSet(("quintic",), None, 0.0, 1)
@@ -449,7 +449,7 @@ def test_the_set_the_kbar_ranks_first_is_kept_where_the_frfs_overrule_it_only_si
     tanh.chi_square, arctan.chi_square = tanh_chi2, 610.0
     tanh.criterion, arctan.criterion = tanh_chi2 / 1.25, 610.0 / 1.25
     search = _Search(0, rig, [tanh, arctan], 1.25, {})
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges, judge.held = DiscoveryRules(), False, {}
     judge.single = _Errors({tanh.laws: 0.0467, arctan.laws: 0.0324})
     judge.multi = _Errors({tanh.laws: tanh_with_harmonics, arctan.laws: 0.0419})
@@ -457,6 +457,14 @@ def test_the_set_the_kbar_ranks_first_is_kept_where_the_frfs_overrule_it_only_si
     assert _preferred(judge, search, [tanh, arctan], empty)[0].laws == (first,)
     judge.kbar_judges = True                   # data with harmonics: the single-harmonic FRFs overrule it
     assert _preferred(judge, search, [tanh, arctan], empty)[0].laws == ("arctan_softening",)
+
+
+def _stubbed(judge: _Judge) -> _Judge:
+    """A judge made without its predictor, whose tests give it stand-in ``single`` and ``multi`` comparisons: its
+    comparisons of many choices at once ask those one at a time."""
+    judge.singles = lambda choices, standins=True: [judge.single(c, standins) for c in choices]
+    judge.multis = lambda choices: [judge.multi(c) for c in choices]
+    return judge
 
 
 class _Errors:
@@ -479,7 +487,7 @@ def test_a_step_that_adds_two_laws_must_gain_the_margin_of_each(gain, taken):
     sets = {s.laws: s for s in search.sets}
     one, three = sets["cubic",], sets["linear", "cubic", "quadratic_damping"]
     assert _unseen_laws(three, one) == []
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), True
     judge.single = _Errors({one.laws: 0.1, three.laws: 0.1 / gain})
     step = judge.step_up(search, one, three)
@@ -492,7 +500,7 @@ def test_a_step_whose_law_the_kbar_does_not_show_is_not_taken():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
     two, three = sets["cubic", "quadratic_damping"], sets["cubic", "quadratic_damping", "velocity_stiffness"]
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False        # as on data without harmonics
     judge.single = _Errors({two.laws: 0.1, three.laws: 0.01})        # an FRF gain of x10 from elsewhere
     # nor do the FRFs refined (analysis/prediction/frf_refinement.py; tests/test_frf_refinement.py)
@@ -525,7 +533,7 @@ def test_on_data_without_harmonics_a_law_beside_others_must_lower_the_kbar_chi_s
     one, two = sets["cubic",], sets["cubic", "quadratic_damping"]
     noise = search.scale * scipy.stats.chi2.ppf(1 - 1e-3, two.n_parameters - one.n_parameters)
     beside = LawSet(two.laws, two.fit, one.chi_square - fall * noise, two.n_parameters)
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judge.single = _Errors({one.laws: 0.1, two.laws: after})
     step = judge.step_up(search, one, beside)
@@ -556,7 +564,7 @@ def test_the_single_law_the_frfs_like_best_joins_the_shortlist_of_one_law():
     search = searched("analytic", 0.0, 0.0, 4e5, 5.0)
     singles = [s for s in search.sets if len(s.laws) == 1]
     outside = next(s for s in singles if s not in search.by_size[1])
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     errors = {s.laws: 0.5 for s in search.sets}
     judge.single = _Errors({**errors, outside.laws: 0.01})            # the FRFs see what the kbar ranks low
     before = list(search.by_size[1])
@@ -571,7 +579,7 @@ def test_on_data_without_harmonics_sets_that_fit_the_kbar_alike_and_the_frfs_far
     # random case 9 of seed 275748: the capped kbar ranked a tanh spring beside Coulomb friction below a dozen
     # sets of two laws, and its FRF error was x17 lower
     search = searched("laws", (("coulomb", (("fs", 0.5),)),))
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     short = list(search.by_size[2])
     outside = [s for s in search.sets if len(s.laws) == 2 and s not in short]
@@ -605,7 +613,7 @@ def test_a_linear_verdict_is_set_aside_where_the_frfs_show_a_law_of_the_amplitud
     s = samples_of({"linear": {"k": 20.0, "c": 0.0}}, X, W, noise=0.05)
     search = search_element(0, s, linear_verdict=True)
     assert all(not LAWS[n].amplitude_dependent for x in search.sets for n in x.laws)
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     errors = _Otherwise({x.laws: 0.4 for x in search.sets})
     judge.single = _Errors(errors)
@@ -649,7 +657,7 @@ def test_the_frfs_part_two_sets_by_far_at_their_kbar_fits_or_by_the_margin_squar
     # its linear limit; x4.2 at their kbar fits, below certain_gain, x2.76 refined
     search = _searched(analytic_samples(0.0, 0.0, 4e5, 5.0))
     limit, bent = LawSet(("linear", "coulomb"), None, 0.0, 3), LawSet(("coulomb", "tanh_softening"), None, 0.0, 3)
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     refined = {limit.laws: 0.0413, bent.laws: 0.0150}
     judge.refined_single = lambda search, x: SimpleNamespace(error=refined[x.laws])
@@ -674,7 +682,7 @@ def test_laws_of_other_kinds_that_fit_alike_count_only_where_the_frfs_cannot_tel
     # a set of other kinds made alike in the kbar: the same chi-square, as many parameters
     twin = LawSet(("velocity_stiffness", "coulomb"), pair.fit, pair.chi_square, pair.n_parameters)
     search.sets.append(twin)
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), True
     errors = {s.laws: 1.0 for s in search.sets}
     for twin_error, counts in ((0.012, True), (0.05, False)):
@@ -713,7 +721,7 @@ def test_a_simpler_set_alike_replaces_the_choice_only_where_it_holds_with_harmon
     contact = LawSet(("unilateral",), chosen.fit, chosen.chi_square, chosen.n_parameters)
     spring = LawSet(("quintic",), chosen.fit, chosen.chi_square, 1)          # simpler, alike made
     search.sets += [contact, spring]
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judge.single = _Errors(_Otherwise({chosen.laws: 0.075, contact.laws: 0.075, spring.laws: 0.08}))
     judge.multi = _MultiOf(_Otherwise({chosen.laws: 0.019, contact.laws: 0.296, spring.laws: 0.3}))
@@ -754,7 +762,7 @@ def test_a_large_single_harmonic_gain_is_checked_with_harmonics_beside_a_law_on_
     search = searched("analytic", -300.0, 0.5, 4e5, 5.0)
     sets = {s.laws: s for s in search.sets}
     after = sets[before + ("quadratic_damping",)]
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges, judge.multi = DiscoveryRules(), kbar_judges, _Multi()
     step = WalkStep(after.laws, 0.01, 0.06, True)
     held = judge.holds_with_harmonics({0: after}, 0, sets[before], step)
@@ -774,7 +782,7 @@ def test_a_clearance_the_frfs_overrule_only_at_its_kbar_fit_stays_first_on_data_
     gap, quintic, cubic = sets["gap",], sets["quintic",], sets["cubic",]
     gap.criterion, quintic.criterion, cubic.criterion = 1.0, 2.0, 3.0
     empty = LawSet((), None, 1e6, 0)
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judge.single = _Errors({gap.laws: 0.178, quintic.laws: 0.126, cubic.laws: 0.2})
     judge.held, judge.multi = {}, judge.single           # with harmonics the FRFs overrule it alike
@@ -812,7 +820,7 @@ def test_a_law_beside_a_clearance_is_taken_back_where_every_element_refined_leav
         return frf_judge._RefinedErrors(errors[s.laws][0], multi)
 
     monkeypatch.setattr(frf_judge, "_refined_errors", refined_errors)
-    judge = _Judge.__new__(_Judge)
+    judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules, judge.kbar_judges = DiscoveryRules(), False
     judged = {0: pair}
     why = _pruned_beside_clearance(judge, {0: search}, judged)
@@ -1069,7 +1077,7 @@ def test_a_contact_refused_with_harmonics_gives_way_to_its_twin_on_the_other_sid
     assert discovery._contact_twin(search, sets[()]) is None
 
     def judged(holds: set[tuple[str, ...]], kbar_judges: bool = False):
-        judge = _Judge.__new__(_Judge)
+        judge = _stubbed(_Judge.__new__(_Judge))
         judge.rules, judge.kbar_judges = DiscoveryRules(), kbar_judges
         judge.step_up = lambda search, current, larger: WalkStep(larger.laws, 0.0085, 0.067, True)
         judge.holds_with_harmonics = lambda choice, i, before, step: choice[i].laws in holds

@@ -33,6 +33,12 @@ def stoppable(stop: Callable[[], bool] | None) -> Iterator[None]:
         _STOP.reset(token)
 
 
+def stop_when(stop: Callable[[], bool]) -> None:
+    """From now on in this thread, :func:`check_stop` raises once ``stop()`` answers True (a process's own
+    question, for the whole of its life: :mod:`analysis.common.parallel`'s workers)."""
+    _STOP.set(stop)
+
+
 def check_stop() -> None:
     """Raise :class:`Interrupted` if the question set by :func:`stoppable` answers True (cheap otherwise)."""
     stop = _STOP.get()

@@ -36,6 +36,8 @@ class _PlacedLaw:
         self.law, self.reference, self.around = law, reference, around
 
     def __getattr__(self, name):
+        if name.startswith("__"):           # asked before the attributes are set (a copy in the making)
+            raise AttributeError(name)
         return getattr(self.law, name)
 
     def basis(self, X, w, **shape):
@@ -45,11 +47,23 @@ class _PlacedLaw:
     def kbar_function(self, **params):
         """kbar of this basis at the given values (what a fit in progress judges its samples by)."""
         linear, shape = self.law.to_fit(self.law.check_params(params, complete=True))
-        scale = linear[self.law.linear[0]]
-        return lambda X, w: scale * self.basis(np.asarray(X, float), np.asarray(w, float), **shape)[0]
+        return _PlacedKbar(self, linear[self.law.linear[0]], shape)
 
     def describing_function(self, X, w, **params):
         return self.kbar_function(**params)(X, w)
+
+
+class _PlacedKbar:
+    """``f(X, w) -> kbar`` of a :class:`_PlacedLaw` at fixed values. A class, not a closure, so that a fit that
+    holds one can come back from another process (:mod:`analysis.common.parallel`)."""
+
+    __slots__ = ("placed", "scale", "shape")
+
+    def __init__(self, placed: _PlacedLaw, scale: float, shape: dict[str, float]):
+        self.placed, self.scale, self.shape = placed, scale, shape
+
+    def __call__(self, X, w):
+        return self.scale * self.placed.basis(np.asarray(X, float), np.asarray(w, float), **self.shape)[0]
 
 
 def _scaling(law: Law, values: Mapping[str, float]) -> float:

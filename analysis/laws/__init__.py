@@ -6,7 +6,7 @@ import numpy as np
 from ..common.errors import InputError
 from .anderson_ferri import AndersonFerri
 from .arctan_softening import ArctanSoftening
-from .base import Law, Param
+from .base import LIBRARY, Law, Param
 from .bilinear import Bilinear
 from .coulomb import Coulomb
 from .cubic import Cubic
@@ -22,11 +22,12 @@ from .unilateral import Unilateral
 from .velocity_stiffness import VelocityStiffness
 
 # in the order of docs/contracts.md §2
-LAWS: dict[str, Law] = {law.name: law for law in (
+LAWS: dict[str, Law] = LIBRARY
+LAWS.update({law.name: law for law in (
     Linear(), Cubic(), Quintic(), QuadraticDamping(), CubicDamping(), Coulomb(),
     TanhSoftening(), ArctanSoftening(), VelocityStiffness(), AndersonFerri(),
     Jenkins(), Iwan(), Gap(), Unilateral(), Bilinear(),
-)}
+)})
 
 
 def simplicity(names) -> tuple[int, int, int]:

@@ -206,6 +206,24 @@ def broadcast(X, w) -> tuple[np.ndarray, np.ndarray]:
     return X, w
 
 
+class KbarFunction:
+    """``f(X, w) -> kbar`` of a law at fixed parameter values (:meth:`Law.kbar_function`): the sum of the law's
+    basis functions times its linear coefficients, at its shape values. A class, not a closure, so that a fit
+    that holds one can come back from another process (:mod:`analysis.common.parallel`)."""
+
+    __slots__ = ("law", "coefficients", "shape")
+
+    def __init__(self, law: "Law", coefficients: tuple[float, ...], shape: dict[str, float]):
+        self.law, self.coefficients, self.shape = law, coefficients, shape
+
+    def __call__(self, X, w):
+        B = self.law.basis(np.asarray(X, float), np.asarray(w, float), **self.shape)
+        out = self.coefficients[0] * B[0]
+        for c, b in zip(self.coefficients[1:], B[1:]):
+            out = out + c * b
+        return out
+
+
 class Law(ABC):
     """Base class of the element laws; one subclass (and one module) per law."""
 
@@ -298,17 +316,7 @@ class Law(ABC):
         """``f(X, w) -> kbar`` for fixed parameter values, validated once (solvers call it many times)."""
         values = self.check_params(params, complete=True)
         lin, shp = self.to_fit(values)
-        coefficients = [lin[n] for n in self.linear]
-        basis = self.basis
-
-        def kbar(X, w):
-            B = basis(np.asarray(X, float), np.asarray(w, float), **shp)
-            out = coefficients[0] * B[0]
-            for c, b in zip(coefficients[1:], B[1:]):
-                out = out + c * b
-            return out
-
-        return kbar
+        return KbarFunction(self, tuple(lin[n] for n in self.linear), shp)
 
     # --- what the product says about the law -------------------------------
     def explain(self, words: SignatureWords) -> str:
@@ -350,6 +358,16 @@ class Law(ABC):
         B = self.basis(X, w, **shape)
         k0 = np.asarray(self.small_amplitude_basis(**shape), float)
         return B - k0.reshape((-1,) + (1,) * (B.ndim - 1))
+
+    def __reduce_ex__(self, protocol):
+        """A law of the library, or the library law's :meth:`relative`, crosses a pipe as its name and comes back as
+        the very object the library holds (:mod:`analysis.common.parallel`): a relative law's class is made at run
+        time and could not be found by name, and code compares laws by identity. Other laws (a limit's form, whose
+        values are its own) as any object."""
+        library = LIBRARY.get(self.name)
+        if library is self or (library is not None and self.from_reference and library.relative() is self):
+            return _library_law, (self.name, library is not self)
+        return super().__reduce_ex__(protocol)
 
     def relative(self) -> "Law":
         """This law measured from its small-amplitude state: kbar(X, w) - kbar(0+), force f(x) - k0 x with k0 the
@@ -504,6 +522,9 @@ class Law(ABC):
 
 
 _RELATIVE: dict[type, Law] = {}
+#: The law library by name, filled where each of its laws is made (analysis.laws, as ``LAWS``): a law crosses a
+#: pipe as its name in it (:meth:`Law.__reduce_ex__`)
+LIBRARY: dict[str, Law] = {}
 
 
 def _example_shape(law: Law) -> dict[str, float]:
@@ -527,6 +548,11 @@ class LimitForm(Law):
         ``values``; None where no values of that law do. ``stiffness_seen`` False: the data determine the form's
         :attr:`stiffness` only in a sum with another law's, and the law is placed with a stiffness of its own
         choosing (the other law takes the difference)."""
+
+
+def _library_law(name: str, relative: bool) -> Law:
+    """The library's law ``name``, or its :meth:`Law.relative` (:meth:`Law.__reduce_ex__`)."""
+    return LIBRARY[name].relative() if relative else LIBRARY[name]
 
 
 def _relative_class(cls: type) -> type:

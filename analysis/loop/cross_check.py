@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..common.measurements import Measurements
+from ..common.parallel import map_tasks
 from ..mechanics.model import FittedOn
 from ..prediction.comparison import pooled_error
 from ..prediction.held_out import FITTED, HELD_OUT, SessionPrediction, predict_session
@@ -140,16 +141,20 @@ def held_out(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> HeldOut:
     twelve, eight): a fit on a half or on a single level leaves laws with more parameters than it determines, and
     its held-out error would measure that, not the model. K folds cost K refits. :data:`NOT_CHECKED` for a
     session of fewer than two stepped-sine levels."""
-    parts, fewest, sees = [], None, True
-    for seen, held in interleaved(wb.measurements.level_controls(), folds):
+    splits = interleaved(wb.measurements.level_controls(), folds)
+    if not splits:
+        return NOT_CHECKED
+
+    def one(k: int) -> tuple:
+        seen, held = splits[k]
         measured = _at(wb, held)            # only the levels the fit did not see are predicted
         fold = _refitted(wb, seen)
-        parts.append((predict_session(fold.model, measured, "", wb.harmonics).comparison, measured.sine))
-        fewest = len(seen) if fewest is None else min(fewest, len(seen))
-        sees = sees and _sees_its_laws(fold)
-    if not parts:
-        return NOT_CHECKED
-    return HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts), fewest, sees)
+        return predict_session(fold.model, measured, "", wb.harmonics).comparison, _sees_its_laws(fold)
+
+    done = map_tasks(one, len(splits))      # the folds need nothing of each other
+    parts = [(comparison, _at(wb, held).sine) for (comparison, _), (_, held) in zip(done, splits)]
+    return HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts),
+                   min(len(seen) for seen, _ in splits), all(sees for _, sees in done))
 
 
 def interleaved(levels: list, folds: int) -> list[tuple[list, list]]:

@@ -124,13 +124,21 @@ def linear_part(terms) -> Callable[[np.ndarray], np.ndarray] | None:
              if not law.amplitude_dependent and not law.placed]
     if not parts:
         return None
-    functions = [law.kbar_function(**values) for law, values in parts]
+    return _LinearPart(tuple(law.kbar_function(**values) for law, values in parts))
 
-    def stiffness(W):
+
+class _LinearPart:
+    """``W -> sum kbar(W)`` of :func:`linear_part`'s terms. A class, not a closure, so that a fit that holds one
+    can come back from another process (:mod:`analysis.common.parallel`)."""
+
+    __slots__ = ("functions",)
+
+    def __init__(self, functions: tuple):
+        self.functions = functions
+
+    def __call__(self, W):
         W = np.asarray(W, float)
-        return sum((f(np.ones(W.shape), W) for f in functions), np.zeros(W.shape, complex))
-
-    return stiffness
+        return sum((f(np.ones(W.shape), W) for f in self.functions), np.zeros(W.shape, complex))
 
 
 def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: Surroundings,

@@ -51,6 +51,7 @@ import numpy as np
 import scipy.stats
 
 from ..common.errors import InputError
+from ..common.parallel import map_tasks
 from ..common.statistics import (capped_chi_square, charged_criterion, chi_square_shares, falls_above_noise,
                                  noise_scale)
 from ..common.wording import change_words, parameter_words
@@ -524,7 +525,9 @@ def rank_candidates(predictor: Predictor, samples: dict[str, ElementSamples], fi
         if element is None:
             continue
         present = {t.law.name for t in el.laws}
-        mine = [c for c in (_score(scene, element, (law,), rules) for law in names if law not in present)
+        tried = [law for law in names if law not in present]
+        # each law's fit and prediction needs nothing of the others'
+        mine = [c for c in map_tasks(lambda k: _score(scene, element, (tried[k],), rules), len(tried))
                 if c is not None]
         best_evidence = max((c.evidence for c in mine), default=0.0)
         best_frf = min((c.error for c in mine if c.evidence > 0), default=np.inf)

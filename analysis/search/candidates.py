@@ -22,6 +22,7 @@ import numpy as np
 import scipy.stats
 
 from ..common.errors import InputError
+from ..common.parallel import map_tasks
 from ..common.statistics import capped_chi_square, charged_criterion, chi_square_shares, noise_scale
 from ..fitting.fit import LawFit, fit_laws
 from ..laws import LAWS
@@ -86,8 +87,9 @@ def _place_contacts(by_laws: dict[tuple[str, ...], LawSet], samples: ElementSamp
         kept = [n for n in laws if LAWS[n].placed]
         chosen += [sub for size in range(1, len(laws) + 1) for sub in itertools.combinations(laws, size)
                    if set(kept) <= set(sub) and sub in by_laws]
-    for laws in dict.fromkeys(chosen):
-        s = _fit_set(samples, laws, rules, robust, around)
+    chosen = list(dict.fromkeys(chosen))
+    # each placed refit needs nothing of the others
+    for laws, s in zip(chosen, map_tasks(lambda k: _fit_set(samples, chosen[k], rules, robust, around), len(chosen))):
         if _separate(s):
             by_laws[laws] = s
 
@@ -183,19 +185,20 @@ def search_element(index: int, samples: ElementSamples, linear_verdict: bool,
         elif s is not None:
             tied.append(s)
 
+    def fit_all(many: list[tuple[str, ...]]) -> None:
+        """Sets of one size, each started from the smaller sets already fitted: they need nothing of each other."""
+        for s in map_tasks(lambda k: _fit_set(samples, many[k], rules, robust, start=_warm_start(many[k], by_laws)),
+                           len(many)):
+            keep(s)
+
     for size in range(1, min(rules.max_laws, 2) + 1):
-        for laws in law_sets(names, size):
-            keep(_fit_set(samples, laws, rules, robust, start=_warm_start(laws, by_laws)))
+        fit_all(list(law_sets(names, size)))
     if rules.max_laws >= 3:
         pairs = sorted((s for s in by_laws.values() if len(s.laws) == 2), key=lambda s: s.chi_square)
-        tried = set()
-        for pair in pairs[:rules.triple_pool]:
-            for extra in names:
-                laws = tuple(sorted(pair.laws + (extra,), key=names.index))
-                if len(set(laws)) < 3 or laws in tried or len({LAWS[n].kind for n in laws}) < 3:
-                    continue
-                tried.add(laws)
-                keep(_fit_set(samples, laws, rules, robust, start=_warm_start(laws, by_laws)))
+        triples = (tuple(sorted(pair.laws + (extra,), key=names.index))
+                   for pair in pairs[:rules.triple_pool] for extra in names)
+        fit_all([laws for laws in dict.fromkeys(triples)
+                 if len(set(laws)) == 3 and len({LAWS[n].kind for n in laws}) == 3])
     if around is not None:
         _place_contacts(by_laws, samples, rules, robust, around)
     refused = [s for s in by_laws.values() if _refusal(s, samples, around)]

@@ -19,6 +19,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..common.parallel import map_tasks
 from ..common.statistics import chi_square_noise_bound
 from ..fitting.fit import UNDETERMINED_Z
 from ..laws import LAWS
@@ -61,20 +62,29 @@ class _Judge:
         return tuple(sorted((i, s.laws) for i, s in choice.items())) + extra
 
     def single(self, choice: dict[int, LawSet], standins: bool = True) -> Comparison:
-        key = self._key(choice, standins)
-        if key not in self._single:
+        return self.singles([choice], standins)[0]
+
+    def singles(self, choices: list[dict[int, LawSet]], standins: bool = True) -> list[Comparison]:
+        """:meth:`single` of each choice; those not yet scored are predicted at once, each apart from the others
+        (:func:`analysis.common.parallel.map_tasks`)."""
+        def score(choice: dict[int, LawSet]) -> Comparison:
             replace = {i: f for i, f in self.standins.items() if standins and i not in choice}
             replace.update({i: s.describing_function for i, s in choice.items()})
-            self._single[key] = self.predictor.compare(kbar_functions_with(self.predictor.model.elements, replace))
-        return self._single[key]
+            return self.predictor.compare(kbar_functions_with(self.predictor.model.elements, replace))
+
+        return _cached(self._single, [self._key(c, standins) for c in choices], choices, score)
 
     def multi(self, choice: dict[int, LawSet]) -> Comparison:
-        key = self._key(choice)
-        if key not in self._multi:
+        return self.multis([choice])[0]
+
+    def multis(self, choices: list[dict[int, LawSet]]) -> list[Comparison]:
+        """:meth:`multi` of each choice, those not yet scored predicted at once as :meth:`singles`."""
+        def score(choice: dict[int, LawSet]) -> Comparison:
             variant = self.predictor.with_laws({i: (s.fit.law_terms() if s.fit is not None else [])
                                                 for i, s in choice.items()})
-            self._multi[key] = variant.compare(harmonics=self.criterion)
-        return self._multi[key]
+            return variant.compare(harmonics=self.criterion)
+
+        return _cached(self._multi, [self._key(c) for c in choices], choices, score)
 
     def step_up(self, search: _Search, current: LawSet, larger: LawSet) -> WalkStep:
         """Whether ``larger`` earns its extra parameters on the element (the others by their stand-ins): the kbar
@@ -178,7 +188,7 @@ class _Judge:
         """Whether ``after`` in place of ``before`` on element ``i``, the others at ``others``, cuts the FRF error
         with harmonics by ``required`` and its chi-square by more than the noise explains (the gain goes into
         ``step.multiharmonic_gain``)."""
-        ma, mb = self.multi({**others, i: before}), self.multi({**others, i: after})
+        ma, mb = self.multis([{**others, i: before}, {**others, i: after}])
         step.multiharmonic_gain = ma.error / mb.error if mb.error > 0 else float("inf")
         _, above = frf_criterion(ma, mb, max(after.n_parameters - before.n_parameters, 1),
                                  self.rules.ranking.false_alarm)
@@ -302,6 +312,15 @@ class _Judge:
         step.why = ("with the harmonics represented it gains too little: the single-harmonic gain fits what one "
                     "harmonic cannot represent")
         return False
+
+
+def _cached(cache: dict[tuple, Comparison], keys: list[tuple], choices: list[dict[int, LawSet]],
+            score: Callable[[dict[int, LawSet]], Comparison]) -> list[Comparison]:
+    """The comparison of each choice from ``cache``, those missing scored first (each new key once)."""
+    missing = list({k: c for k, c in zip(keys, choices) if k not in cache}.items())
+    for (key, _), comparison in zip(missing, map_tasks(lambda j: score(missing[j][1]), len(missing))):
+        cache[key] = comparison
+    return [cache[k] for k in keys]
 
 
 def _required(current: LawSet, larger: LawSet, ranking: RankingRules) -> float:

@@ -78,9 +78,16 @@ def _offer_frf_best_single(judge: _Judge, search: _Search) -> None:
     singles = [s for s in search.sets if len(s.laws) == 1]
     if not singles or 1 not in search.by_size:
         return
-    best = min(singles, key=lambda s: judge.single({search.index: s}).error)
+    best = _best_single(judge, search.index, singles)
     if best not in search.by_size[1]:
         search.by_size[1].append(best)
+
+
+def _best_single(judge: _Judge, i: int, sets: list[LawSet]) -> LawSet:
+    """The first of ``sets`` with the lowest single-harmonic FRF error on element ``i`` (the others by their
+    stand-ins), all of them scored at once."""
+    errors = [c.error for c in judge.singles([{i: s} for s in sets])]
+    return sets[errors.index(min(errors))]
 
 
 def _verdict_overruled(judge: _Judge, search: _Search, rules: DiscoveryRules,
@@ -100,8 +107,7 @@ def _verdict_overruled(judge: _Judge, search: _Search, rules: DiscoveryRules,
     amplitude = [s for s in singles.sets if len(s.laws) == 1 and LAWS[s.laws[0]].amplitude_dependent]
     if not amplitude:
         return None
-    best = min(amplitude, key=lambda s: judge.single({i: s}).error)
-    linear = min(search.sets, key=lambda s: judge.single({i: s}).error)
+    best, linear = _best_single(judge, i, amplitude), _best_single(judge, i, search.sets)
     if part(linear, best):
         gain = judge.single({i: linear}).error / judge.single({i: best}).error
         why = f"{best.name} beats every set without amplitude dependence in the FRFs x{gain:.3g}"
@@ -153,7 +159,7 @@ def _offer_frf_best_alike(judge: _Judge, search: _Search) -> None:
             continue
         alike = [s for s in search.sets if len(s.laws) == size and s not in shortlist
                  and any(_alike(search, s, t, judge.rules.ranking.false_alarm) for t in shortlist)]
-        listed = min(shortlist, key=lambda s: judge.single({search.index: s}).error)
+        listed = _best_single(judge, search.index, shortlist)
         shortlist.extend([s for s in alike if part(listed, s)])
 
 
@@ -169,7 +175,7 @@ def _preferred(judge: _Judge, search: _Search, sets: list[LawSet], taken: LawSet
     overrule it only at its kbar fit (:func:`_overruled_at_kbar_fit_only`). ``taken``: the element's current
     choice (:func:`_walk_order`)."""
     i = search.index
-    errors = [judge.single({i: s}).error for s in sets]
+    errors = [c.error for c in judge.singles([{i: s} for s in sets])]
     best = min(errors)
     ordered = sorted(zip(sets, errors), key=lambda pair: _walk_order(judge, taken, pair[0]))
     kept = [s for s, e in ordered if e <= judge.rules.ranking.min_gain * best]
@@ -195,13 +201,14 @@ def _overruled_single_harmonically_only(judge: _Judge, search: _Search, first: L
     closest = _closest(judge, search, rivals)
     if not all(_fits_better(search, first, s, judge.rules.ranking.false_alarm) for s in closest):
         return False
-    best = min(judge.multi({**judge.held, i: s}).error for s in closest)
-    return judge.multi({**judge.held, i: first}).error <= judge.rules.ranking.min_gain * best
+    *rivals, mine = judge.multis([{**judge.held, i: s} for s in closest] + [{**judge.held, i: first}])
+    return mine.error <= judge.rules.ranking.min_gain * min(c.error for c in rivals)
 
 
 def _closest(judge: _Judge, search: _Search, rivals: list[LawSet]) -> list[LawSet]:
     """The ``walk_width`` rivals with the lowest single-harmonic FRF errors."""
-    return sorted(rivals, key=lambda s: judge.single({search.index: s}).error)[:judge.rules.walk_width]
+    errors = [c.error for c in judge.singles([{search.index: s} for s in rivals])]
+    return [s for s, _ in sorted(zip(rivals, errors), key=lambda pair: pair[1])][:judge.rules.walk_width]
 
 
 def _overruled_at_kbar_fit_only(judge: _Judge, search: _Search, first: LawSet, rivals: list[LawSet]) -> bool:
@@ -399,7 +406,8 @@ def _order(judge: _Judge, choice: dict[int, LawSet]) -> list[int]:
     order = []
     while len(order) < len(choice):
         rest = [i for i in choice if i not in added]
-        best = min(rest, key=lambda i: judge.single({**added, i: choice[i]}, standins=False).error)
+        errors = [c.error for c in judge.singles([{**added, i: choice[i]} for i in rest], standins=False)]
+        best = rest[errors.index(min(errors))]
         added[best] = choice[best]
         order.append(best)
     return order

@@ -1,0 +1,135 @@
+"""Independent pieces of one analysis step computed on the machine's other cores.
+
+A step of the loop does many things that need nothing of each other: discovery fits an element's sets of laws of
+one size, each started from the smaller sets, and scores the FRFs of many choices of laws; the ranking fits and
+predicts every candidate law; a held-out check refits the model once per fold. :func:`map_tasks` computes such pieces in forked worker processes, one piece a task, and
+returns their results in order.
+
+The rules, and why:
+
+- **The same answer from run to run.** A task is a function of its index and of what the process held when the
+  workers were forked; worker k of W computes tasks k, k + W, ... in turn, and the results come back in order, so
+  each task starts from the same state in every run. A task must not need what another computes: what it leaves
+  in a cache goes with its worker. Where a solver starts from the last solution it found (a placed contact's
+  balance, :mod:`analysis.mechanics.surroundings`), another number of workers gives the same answer to within
+  that solver's tolerance, not to the last bit.
+- **Nothing lost to a worker's failure.** A task that raises in a worker, whose result cannot come back, or whose
+  worker is gone, is computed again here, where it raises as it would have without workers.
+- **A stop is heard, and a dead parent ends its workers.** The caller's stop question (:mod:`.interrupt`) is asked
+  here while the workers run, and stops them; a worker's own numerics ask whether the process that forked it is
+  still alive, so that none outlives it by more than a fraction of a second.
+- **Results cross a pipe from this process's own children** (Python's serialisation, as ``multiprocessing``
+  does); nothing serialised is written to or read from a file.
+
+The number of workers (:func:`worker_count`) is ``CONTACTID_WORKERS`` where the user set it, else the cores this
+process may run on, at most :data:`MAX_WORKERS`; 1 (a loop here) where the system cannot fork, inside a worker,
+and for a single task. Benchmarks that measure CPU seconds and the test suite's own workers set it to 1.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import os
+import pickle
+import signal
+import sys
+from multiprocessing.connection import wait
+from typing import Callable, TypeVar
+
+from numba.core.compiler_lock import global_compiler_lock
+
+from .errors import InputError
+from .interrupt import Interrupted, check_stop, stop_when
+
+T = TypeVar("T")
+
+#: Workers at most: each holds a copy of the process's pages it writes to, and the tasks of one step are few
+MAX_WORKERS = 4
+#: Seconds between two askings of the caller's stop question while workers run
+POLL_S = 0.1
+
+_TASK: Callable[[int], object] | None = None   # the task the workers run; set before they are forked
+_IN_WORKER = False
+
+
+#: What a worker sends back for a task it could not compute or send: the task is computed here instead
+_FAILED = None
+
+
+def worker_count() -> int:
+    """Workers :func:`map_tasks` uses (module docstring); a ``CONTACTID_WORKERS`` that is not a whole number is
+    an :class:`InputError` naming it."""
+    if _IN_WORKER or not hasattr(os, "fork") or sys.platform == "win32":
+        return 1
+    given = os.environ.get("CONTACTID_WORKERS", "").strip()
+    if given:
+        try:
+            n = int(given)
+        except ValueError:
+            raise InputError(f"{given!r} is not a whole number of workers", "environment",
+                             "CONTACTID_WORKERS") from None
+        return max(1, n)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(MAX_WORKERS, cores))
+
+
+def map_tasks(task: Callable[[int], T], n: int, workers: int | None = None) -> list[T]:
+    """``[task(0), ..., task(n - 1)]``, computed by up to ``workers`` (default :func:`worker_count`) forked
+    workers, in that order; a loop here where one worker would do. Worker k computes tasks k, k + W, k + 2W, ...
+    in turn, so that what each starts from is the same from run to run."""
+    count = min(worker_count() if workers is None else workers, n)
+    if count <= 1 or _IN_WORKER:
+        return [task(i) for i in range(n)]
+    context = multiprocessing.get_context("fork")
+    global _TASK
+    links = []
+    # forked while no other thread of this process compiles (a worker that compiled would wait for ever on the
+    # compiler's lock, copied held) and none forks its own workers with another task
+    with global_compiler_lock:
+        _TASK = task
+        try:
+            for k in range(count):
+                receive, send = context.Pipe(duplex=False)
+                worker = context.Process(target=_work, args=(k, count, n, send, os.getpid()), daemon=True)
+                worker.start()
+                send.close()
+                links.append((worker, receive))
+        finally:
+            _TASK = None
+    sent: list = [_FAILED] * n
+    try:
+        running = [receive for _, receive in links]
+        while running:
+            check_stop()                      # raises; the workers are ended below
+            for receive in wait(running, POLL_S):
+                try:
+                    i, out = receive.recv()
+                except EOFError:              # the worker is done, or gone: what it did not send is computed here
+                    running.remove(receive)
+                    continue
+                sent[i] = out
+    finally:
+        for worker, receive in links:
+            if worker.is_alive():
+                worker.terminate()
+            worker.join()
+            receive.close()
+    return [task(i) if out is _FAILED else pickle.loads(out) for i, out in enumerate(sent)]
+
+
+def _work(k: int, count: int, n: int, send, parent: int) -> None:
+    """Worker ``k`` of ``count``: tasks k, k + count, ... sent back one by one. Its own stop question is whether
+    the process that forked it has gone (its parent then changes); the caller's is not inherited, as it may read
+    objects only the caller's threads may touch. An interrupt from the terminal is the caller's to answer."""
+    global _IN_WORKER
+    _IN_WORKER = True
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    stop_when(lambda: os.getppid() != parent)
+    for i in range(k, n, count):
+        try:
+            out = pickle.dumps(_TASK(i), protocol=pickle.HIGHEST_PROTOCOL)
+        except Interrupted:
+            return
+        except Exception:                     # computed again by the caller, where it raises as it would have
+            out = _FAILED
+        send.send((i, out))
+    send.close()
