@@ -8,10 +8,13 @@ the loss (:class:`drivers.stream.Gap`), so no block ever bridges a gap. When the
 queue is full the owner thread stops reading: a real-time instrument then overruns its
 FIFO and the loss is reported. A port whose instrument samples only when it is read
 (an in-process emulator in fast mode: the port's ``samples_on_demand``) is read one
-frame at a time, when the consumer waits for a block and none is queued: reading ahead
+frame at a time, when the consumer asks for a block and none is queued: reading ahead
 would advance the emulated time by the queue's depth past the consumer, and every
 command the consumer then sends would act that much later than on a real instrument,
-whose driver holds only what arrived while the consumer worked.
+whose driver holds only what arrived while the consumer worked. The consumer reads such
+a port itself, in its own thread, with the same checks, decoding and assembly, while the
+owner thread, which starts and stops the stream, waits: handing every frame from one
+thread to the other and back cost more CPU than decoding it.
 
 Stopping sends ``ABORt``, reads on to the END frame and then knows how many
 samples the instrument sent; if the END frame was lost it asks ``STReam:COUNt?``.
@@ -134,7 +137,7 @@ class BlockAssembler:
 
 
 class _BlockQueue:
-    """Blocks from the owner thread to the consumer; bounded while the stream runs."""
+    """Blocks from the reader to the consumer; bounded while the stream runs."""
 
     def __init__(self, capacity: int):
         self.capacity = capacity
@@ -142,24 +145,6 @@ class _BlockQueue:
         self._ready = threading.Condition()
         self.finished = False
         self.error: BaseException | None = None
-        self._waiting = 0            # consumers inside get() with nothing to take
-        self._reader_idle = False    # an on-demand reader waiting for a consumer to ask
-
-    def await_demand(self, stopping: threading.Event) -> None:
-        """Return when a consumer waits for a block and none is queued, or when ``stopping`` is set (the
-        reader of an on-demand port; :meth:`settled` sees it idle meanwhile)."""
-        with self._ready:
-            self._reader_idle = True
-            self._ready.notify_all()
-            while (self._blocks or not self._waiting) and not stopping.is_set():
-                self._ready.wait(POLL)
-            self._reader_idle = False
-
-    def settled(self, timeout: float) -> bool:
-        """Wait until an on-demand reader waits for the consumer (it has read all that was asked for); whether
-        it did within ``timeout`` s of wall time."""
-        with self._ready:
-            return self._ready.wait_for(lambda: self._reader_idle or self.finished, timeout)
 
     def put(self, block: Block, unbounded: threading.Event, caught_up: threading.Event) -> None:
         with self._ready:
@@ -175,6 +160,9 @@ class _BlockQueue:
             self.error = error
             self._ready.notify_all()
 
+    def __len__(self) -> int:
+        return len(self._blocks)
+
     def get(self, timeout: float, url: str, clock: Callable[[], float]) -> Block | None:
         """The next block; None when the stream has ended and nothing is left. ``timeout`` counts on
         ``clock`` (the port's: an in-process emulator's idle time)."""
@@ -188,17 +176,10 @@ class _BlockQueue:
                 left = deadline - clock()
                 if left <= 0:
                     raise LinkTimeout(url, f"no block from the DAQ stream within {timeout:.3g} s")
-                self._waiting += 1
-                self._ready.notify_all()      # an on-demand reader reads for this consumer
-                try:
-                    self._ready.wait(min(left, POLL * 5))
-                finally:
-                    self._waiting -= 1
+                self._ready.wait(min(left, POLL * 5))
             block = self._blocks.popleft()
             if len(self._blocks) == self.capacity - 1:
-                # a reader may wait in put() for the room just made; woken at every block taken, an on-demand
-                # reader, which waits for a consumer's ask instead, woke for nothing twice a block
-                self._ready.notify_all()
+                self._ready.notify_all()      # a reader may wait in put() for the room just made
             return block
 
 
@@ -232,46 +213,82 @@ class DaqStream:
         self._stopping = threading.Event()
         self._caught_up = threading.Event()
         self._on_demand = daq._link.io.samples_on_demand
+        self._chunk = frame_size(daq.frame_points, len(daq.channels)) * (1 if self._on_demand else 4)
+        # who reads the port: the owner thread, or (on demand) the consumer in read() while the owner waits
+        self._port = threading.Lock()
+        self._started = threading.Event()
+        # the consumer of an on-demand port only reads with the queue empty, and must never wait for itself
+        self._unbounded = self._stopping
+        if self._on_demand:
+            self._unbounded = threading.Event()
+            self._unbounded.set()
         self._request = daq._link.submit(self._run)
 
     # ----- owner thread --------------------------------------------------------------------
     def _run(self, io: PortIO) -> None:
-        error: BaseException | None = None
-        frame = frame_size(self.daq.frame_points, len(self.daq.channels))
-        chunk = frame if self._on_demand else 4 * frame
         try:
-            if io.desynced or io.rx:
-                io.discard_input()
-            self.daq._scpi.send(io, "INIT")
-            last = io.clock()
-            while not self._stopping.is_set():
-                if self._on_demand:
-                    asked = io.clock()
-                    self._queue.await_demand(self._stopping)
-                    if self._stopping.is_set():
-                        break
-                    last += io.clock() - asked     # waiting for the consumer is no silence of the line
-                data = io.read_some(chunk, POLL)
-                if len(data) < chunk:
-                    self._caught_up.set()   # the instrument had nothing more to send
-                if data:
-                    self._deliver(data)
-                    if self._decoder.ended:
-                        self._ended_by_instrument(io)
-                    last = io.clock()
-                elif io.clock() - last > self._no_data_timeout:
-                    raise LinkTimeout(self.url, f"no stream data for {self._no_data_timeout:.3g} s")
-            self._finish(io, chunk)
-        except StreamFormatError as exc:
-            error = ProtocolError(self.url, f"stream: {exc}")
+            with self._port:
+                failed = self._attempt(io, self._start)
+        finally:
+            self._started.set()
+        if not failed:
+            if self._on_demand:
+                self._stopping.wait()     # the consumer reads (read()) until stop() or a failure there
+            with self._port:
+                if not self._queue.finished and not self._attempt(io, self._finish if self._on_demand
+                                                                  else self._read_ahead):
+                    self._end(None)
+        if isinstance(self._queue.error, LinkLost):
+            raise self._queue.error  # marks the port dead for every later call
+
+    def _attempt(self, io: PortIO, step: Callable[[PortIO], None]) -> bool:
+        """Run ``step(io)`` on the owner thread; whether it failed (then the stream has ended with the error)."""
+        try:
+            step(io)
         except BaseException as exc:  # handed to the consumer through the queue
-            error = exc
-        if error is not None and not isinstance(error, LinkLost):
+            self._fail(io, exc)
+            return True
+        return False
+
+    def _start(self, io: PortIO) -> None:
+        if io.desynced or io.rx:
+            io.discard_input()
+        self.daq._scpi.send(io, "INIT")
+
+    def _read_ahead(self, io: PortIO) -> None:
+        """Read as the instrument sends, until stopped, then stop the instrument's stream."""
+        last = io.clock()
+        while not self._stopping.is_set():
+            last = self._read_frame(io, last)
+        self._finish(io)
+
+    def _read_frame(self, io: PortIO, last: float) -> float:
+        """Read what the port has (at most a chunk) into the queue; the time of the port's last data
+        (LinkTimeout after ``no_data_timeout`` of silence since ``last``)."""
+        data = io.read_some(self._chunk, POLL)
+        if len(data) < self._chunk:
+            self._caught_up.set()   # the instrument had nothing more to send
+        if data:
+            self._deliver(data)
+            if self._decoder.ended:
+                self._ended_by_instrument(io)
+            return io.clock()
+        if io.clock() - last > self._no_data_timeout:
+            raise LinkTimeout(self.url, f"no stream data for {self._no_data_timeout:.3g} s")
+        return last
+
+    def _fail(self, io: PortIO, exc: BaseException) -> None:
+        """End the stream with ``exc``: stop the instrument's stream where the link still works, and hand the
+        error to the consumer."""
+        error = ProtocolError(self.url, f"stream: {exc}") if isinstance(exc, StreamFormatError) else exc
+        if not isinstance(error, LinkLost):
             self._abandon(io)
+        self._end(error)
+
+    def _end(self, error: BaseException | None) -> None:
         self._queue.finish(error)
         self._caught_up.set()
-        if isinstance(error, LinkLost):
-            raise error  # marks the port dead for every later call
+        self._stopping.set()      # (an owner waiting while the consumer reads goes on)
 
     def _deliver(self, data: bytes) -> None:
         stats = self.stats
@@ -287,13 +304,13 @@ class DaqStream:
                 stats.end_frame_received = True
             stats.samples_received += frame.points
             for block in self._assembler.add(frame):
-                self._queue.put(block, self._stopping, self._caught_up)
+                self._queue.put(block, self._unbounded, self._caught_up)
 
-    def _finish(self, io: PortIO, chunk: int) -> None:
+    def _finish(self, io: PortIO) -> None:
         self.daq._scpi.send(io, "ABOR")
         start = last = io.clock()
         while not self._decoder.ended:
-            data = io.read_some(chunk, POLL)
+            data = io.read_some(self._chunk, POLL)
             now = io.clock()
             if data:
                 self._deliver(data)
@@ -314,14 +331,14 @@ class DaqStream:
             self.stats.corrupt_frames = self._decoder.stats.corrupt_frames
         tail = self._assembler.flush()
         if tail is not None:
-            self._queue.put(tail, self._stopping, self._caught_up)
+            self._queue.put(tail, self._unbounded, self._caught_up)
 
     def _ended_by_instrument(self, io: PortIO) -> None:
         """The DAQ sent END unasked: keep the samples, then raise what its error queue says."""
         io.unread(self._decoder.remainder())
         tail = self._assembler.flush()
         if tail is not None:
-            self._queue.put(tail, self._stopping, self._caught_up)
+            self._queue.put(tail, self._unbounded, self._caught_up)
         errors = self.daq._scpi.drain_errors(io)
         if errors:
             raise DeviceError(self.url, errors, "INIT (the instrument ended the stream)")
@@ -362,10 +379,31 @@ class DaqStream:
         InstrumentError
             The stream failed (link lost, protocol error); raised on every later read too.
         """
-        block = self._queue.get(self.timeout if timeout is None else timeout, self.url, self.daq._link.io.clock)
+        timeout = self.timeout if timeout is None else timeout
+        clock = self.daq._link.io.clock
+        if self._on_demand:
+            deadline = clock() + timeout
+            self._read_on_demand(deadline)
+            timeout = max(deadline - clock(), 0.0)
+        block = self._queue.get(timeout, self.url, clock)
         if block is None:
             raise EOFError(f"{self.url}: stream stopped")
         return block
+
+    def _read_on_demand(self, deadline: float) -> None:
+        """Read an on-demand port in this thread until a block is queued, the stream stops or ``deadline`` (on the
+        port's clock) passes; a failure ends the stream as on the owner thread."""
+        io = self.daq._link.io
+        while not self._started.wait(POLL):
+            if io.clock() >= deadline:
+                return
+        with self._port:
+            last = io.clock()
+            try:
+                while not len(self._queue) and not self._stopping.is_set() and io.clock() < deadline:
+                    last = self._read_frame(io, last)
+            except Exception as exc:  # (a Ctrl-C leaves the stream running, as it does a consumer waiting)
+                self._fail(io, exc)
 
     def pending(self) -> int:
         """Blocks already received and waiting to be read (samples the instrument sent before now)."""
@@ -387,10 +425,13 @@ class DaqStream:
 
         Call it before changing what the instrument measures (the generator): then the samples taken before
         the change are all received or queued, however the threads were scheduled. Against an emulator that
-        samples only as fast as it is read, this makes a run the same on any machine; such a port's reader reads
-        only what the consumer asked for, and has done so once it waits for the next ask."""
+        samples only as fast as it is read, this makes a run the same on any machine; such a port is read only by
+        the consumer's :meth:`read`, and holds nothing unread once no read is under way."""
         if self._on_demand:
-            return self._queue.settled(timeout)
+            if not self._port.acquire(timeout=timeout):
+                return False
+            self._port.release()
+            return True
         self._caught_up.clear()
         if self._queue.finished:   # (the reader sets the event after it finishes)
             return True

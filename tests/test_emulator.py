@@ -169,6 +169,39 @@ def test_a_fast_port_is_read_no_further_ahead_than_its_consumer_asks():
         assert stream.stats.balanced and stream.stats.samples_lost == 0
 
 
+def test_a_fast_port_is_read_in_its_consumers_thread_and_a_failure_there_ends_the_stream():
+    """The consumer of a fast port reads it itself (no frame goes from thread to thread): the physics runs in
+    the consumer's thread, never in the port's owner thread. A failure while it reads ends the stream as one on
+    the owner thread does: the error on every later read and at stop(), and the instrument's stream stopped."""
+    with bench() as (rig, shaker, daq):
+        advance, threads = rig.backend.advance, set()
+
+        def recorded(n):
+            threads.add(threading.current_thread())
+            return advance(n)
+
+        rig.backend.advance = recorded
+        with daq.stream(200, no_data_timeout=0.3) as stream:
+            consumer = threading.Thread(target=lambda: [stream.read() for _ in range(5)])
+            consumer.start()
+            consumer.join(10.0)
+            assert not consumer.is_alive() and stream.sync() and rig.daq.acquired == 1000
+        assert threads == {consumer} and stream.stats.balanced
+
+        rig.inject("daq", {"stall": 1.0, "stall_time": 3.0})
+        stream = daq.stream(200, no_data_timeout=0.3)
+        with pytest.raises(LinkTimeout, match="no stream data"):
+            stream.read()
+        with pytest.raises(LinkTimeout, match="no stream data"):
+            stream.read()
+        with pytest.raises(LinkTimeout, match="no stream data"):
+            stream.stop()
+        give_up = time.monotonic() + 10.0             # ABORt sent when the read failed (its firmware thread acts)
+        while rig.daq.acquiring and time.monotonic() < give_up:
+            time.sleep(0.01)
+        assert not rig.daq.acquiring
+
+
 def test_a_port_read_ahead_fills_the_queue():
     """Over a transport that does not sample on demand (TCP here) the driver reads ahead of its consumer up
     to its queue's depth, as it must on a real instrument whose FIFO would otherwise overrun."""

@@ -14,7 +14,7 @@ import pytest
 from analysis import InputError
 from app.session.outputs import temporary_path
 from app.session.writer import RunSpec, SessionWriteError, SessionWriter, open_session, recover_session
-from app.session.file import SessionFile, SessionHeader
+from app.session.file import RAW_ROWS_PER_CHUNK, SessionFile, SessionHeader
 from session_helpers import plain_open
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,6 +52,26 @@ def test_round_trip_with_units_and_events(tmp_path):
         assert raw.shape == (13, 3) and channels == ["force", "acc:x1", "acc:x2"] and fs == 100.0
         kinds = [e["kind"] for e in s.events()]
         assert "fault" in kinds and kinds.count("run") == 2
+
+
+def test_raw_records_across_chunks_read_back_exactly(tmp_path):
+    """Lines' raw records shorter and longer than a chunk of ``raw/data``, ending anywhere in one (each line's
+    flush rewrites the chunk it ends in), read back bit for bit."""
+    rng = np.random.default_rng(3)
+    sizes = [RAW_ROWS_PER_CHUNK // 3, RAW_ROWS_PER_CHUNK - 1, 1, 2 * RAW_ROWS_PER_CHUNK + 5, 677, 677, 677]
+    records = [rng.normal(size=(n, 3)).astype("f4") for n in sizes]
+    path = tmp_path / "s.h5"
+    w = SessionWriter(path)
+    w.begin_run(spec())
+    for i, record in enumerate(records):
+        w.append_line(1.0 + i, {"x1": 1e-3, "x2": 2e-3}, {"force_amplitude": 0.8, "harmonics/force": np.zeros(4)},
+                      raw=record)
+    w.end_run("complete")
+    w.close()
+    with open_session(path) as s:
+        for i, record in enumerate(records):
+            raw, _, _ = s.raw("sine_0.8N_up", line=i)
+            assert raw.tobytes() == record.tobytes()
 
 
 def test_reader_follows_a_run_being_written(tmp_path):

@@ -183,7 +183,7 @@ def _records_converging(multipliers, n, limit=1.0 - 0.5j, size=0.02, noise=1e-3)
     for i in range(n):
         h = limit + size * sum(mu**i for mu in multipliers)
         out.append(RecordAnalysis(1.0 + 0j, {"x": h}, {"x": noise * abs(h)}, np.zeros((6, 2), complex), noise,
-                                  np.zeros(2), 8.0, np.zeros((0, 2))))
+                                  8.0, np.zeros((0, 2))))
     return out
 
 

@@ -533,8 +533,7 @@ class LineMeter:
             rel = np.hypot(amp_std[i] / max(abs(Y1[i]), 1e-300), amp_std[self.force_index] / max(abs(F), 1e-300))
             frf_std[d] = abs(h) * rel
         noise = max(frf_std[d] / max(abs(frf[d]), 1e-300) for d in self.sensor_dofs)
-        return RecordAnalysis(F, frf, frf_std, amplitudes, noise, total_harmonic_distortion(amplitudes),
-                              f_meas, data)
+        return RecordAnalysis(F, frf, frf_std, amplitudes, noise, f_meas, data)
 
     # ----- transient-aware path ([settle] method = "transient"): app/transient_line.py decides -----
     def _restart_transient(self) -> None:
@@ -592,9 +591,13 @@ class RecordAnalysis:
     frf_std: dict
     harmonics: np.ndarray
     noise: float
-    thd: np.ndarray
     frequency: float
     raw: np.ndarray
+
+    @property
+    def thd(self) -> np.ndarray:
+        """Per channel; asked only of the record a line keeps, not of every record it waits through."""
+        return total_harmonic_distortion(self.harmonics)
 
 
 @dataclass

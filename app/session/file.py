@@ -38,6 +38,10 @@ REOPEN_WAIT = 30.0
 """How long the writer waits for a reader that holds the file's lock before it reports a write failure (s)."""
 LINES_PER_CHUNK = 64
 """Lines per chunk of the per-line datasets; each chunk carries a Fletcher-32 checksum that HDF5 checks on read."""
+RAW_ROWS_PER_CHUNK = 1024
+"""Samples per chunk of ``raw/data``. Each line's flush compresses the whole chunk its samples end in, again: a
+chunk of about a line's record (a stepped sine's line holds 500-1000 samples at 256-512 Hz) is compressed once or
+twice, where 8192 rows were compressed at every one of the ten lines they held."""
 CRASH_REASON = "the acquiring process stopped without closing the run (crash or kill)"
 
 
@@ -257,7 +261,7 @@ class SessionFile:
             raw.attrs["units"] = json.dumps(spec.raw_units)
             raw.attrs["sample_rate"] = float(spec.sample_rate)
             raw.create_dataset("data", shape=(0, len(spec.raw_channels)), maxshape=(None, len(spec.raw_channels)),
-                               dtype="f4", chunks=(8192, len(spec.raw_channels)), compression="gzip",
+                               dtype="f4", chunks=(RAW_ROWS_PER_CHUNK, len(spec.raw_channels)), compression="gzip",
                                compression_opts=4, shuffle=True, fletcher32=True)
             raw["data"].attrs["units"] = json.dumps(spec.raw_units)
             _grow(raw, "line_start", (), "i8", "sample")
