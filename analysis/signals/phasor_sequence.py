@@ -15,6 +15,18 @@ hardening spring, a friction joint that sticks and slips, a contact that opens, 
 the amplitude, which is why the line is fitted on its own and no poles are carried from the lines before. Near a
 jump or a bifurcation a multiplier approaches the unit circle, and the model says so instead of extrapolating.
 
+The linearisation holds to first order in the deviation. A nonlinear structure's deviation of relative size e
+also makes terms of size e^2 (the square of the deviation in a cubic spring's force, for one), and the product
+of two terms ``mu_k^n`` and ``mu_l^n`` decays as ``(mu_k mu_l)^n``:
+
+    P_n = P_inf + sum_k a_k mu_k^n + sum_{k <= l} b_kl (mu_k mu_l)^n.                                       (2)
+
+Products of a multiplier with its conjugate are real and slower than either (``|mu|^2``): a lightly damped mode
+beating with the drive leaves a term that does not beat but drifts, which (1) alone misreads as a moving limit
+until the deviation is down to where its square is within the noise. (2) is the same linear solve with the
+products as further multipliers -- those of the largest terms first, no parameters of their own in the
+covariance -- and a line with harmonics is fitted by it; a linear structure makes no such terms.
+
 The multipliers come from a matrix pencil (Hua and Sarkar 1990) on the differences ``P_{n+1} - P_n``, which
 removes ``P_inf``: every phasor weighed by its noise, the order from the singular values above that noise. Given
 them, ``P_inf`` and the ``a_k`` follow from one weighted linear least-squares solve, and ``P_inf``'s standard
@@ -70,10 +82,11 @@ class SequenceFit:
         return float(np.max(np.abs(self.multipliers)[self.last_terms > 1.0], initial=0.0))
 
 
-def fit_sequence(phasors, noise) -> SequenceFit | None:
+def fit_sequence(phasors, noise, products: bool = False) -> SequenceFit | None:
     """Fit (1) to ``phasors`` (N, ...) complex, window by window, each element with the standard deviation
     ``noise`` (broadcast to ``phasors``, > 0). None when the sequence is too short to hold a multiplier and
-    still leave a degree of freedom per phasor (N < 4)."""
+    still leave a degree of freedom per phasor (N < 4). ``products``: the multipliers of (1) include the
+    products of pairs of those found (2)."""
     P = np.asarray(phasors, complex)
     N = P.shape[0]
     if N < 4:
@@ -89,22 +102,53 @@ def fit_sequence(phasors, noise) -> SequenceFit | None:
     n = np.arange(N)
     V = np.column_stack([np.ones(N), *(m ** n for m in mu)])
     coef, *_ = np.linalg.lstsq(V, Z, rcond=None)
+    chain = np.eye(len(mu))
+    if products:
+        mu, chain = _with_products(mu, coef, N)
+        V = np.column_stack([np.ones(N), *(m ** n for m in mu)])
+        coef, *_ = np.linalg.lstsq(V, Z, rcond=None)
     misfit = Z - V @ coef
     m_count, K = Z.shape[1], len(mu)
-    dof = max(N * m_count - m_count * (K + 1) - K, 1)
+    dof = max(N * m_count - m_count * (K + 1) - chain.shape[1], 1)
     residual = float(np.sqrt(np.sum(np.abs(misfit) ** 2) / dof))
     # the misfit inflates the noise where the model does not hold, never deflates it below what was measured
-    std = scale * np.sqrt(_limit_variance(V, coef, mu)) * max(residual, 1.0)
+    std = scale * np.sqrt(_limit_variance(V, coef, mu, chain)) * max(residual, 1.0)
     last_terms = np.max(np.abs(V[-1, 1:, None] * coef[1:]), axis=1) if K else np.empty(0)
     return SequenceFit((coef[0] * scale).reshape(shape), std.reshape(shape), mu, residual, last_terms)
 
 
-def _limit_variance(V: np.ndarray, coef: np.ndarray, mu: np.ndarray) -> np.ndarray:
+def _with_products(mu: np.ndarray, coef: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """``mu`` and the products of its pairs (2), those of the largest terms first -- a second-order term grows
+    with the product of the two first-order terms it comes from -- up to 2 MAX_MULTIPLIERS and (N - 2) / 2
+    multipliers in all (the pencil's bound: a degree of freedom per phasor); and the derivatives of them all by
+    the ``mu`` ((K', K): a product is no parameter of its own). ``coef`` ((K + 1, phasors)) holds the limit and
+    the amplitudes of (1) with ``mu`` alone. A product that N windows cannot tell from a multiplier already in
+    the set (within 1 / N: their powers differ by less than the terms themselves over the sequence) is that
+    multiplier."""
+    K = len(mu)
+    size = np.max(np.abs(coef[1:]), axis=1)
+    pairs = sorted(((size[i] * size[j], i, j) for i in range(K) for j in range(i, K)), reverse=True)
+    out, chain = list(mu), list(np.eye(K, dtype=complex))
+    for _, i, j in pairs:
+        p = mu[i] * mu[j]
+        if len(out) >= min(2 * MAX_MULTIPLIERS, (N - 2) // 2):
+            break
+        if np.min(np.abs(np.array(out) - p)) * N >= 1.0:
+            out.append(p)
+            row = np.zeros(K, complex)
+            row[i] += mu[j]
+            row[j] += mu[i]
+            chain.append(row)
+    return np.array(out, complex), np.array(chain).reshape(len(out), K)
+
+
+def _limit_variance(V: np.ndarray, coef: np.ndarray, mu: np.ndarray, chain: np.ndarray) -> np.ndarray:
     """Variance of each ``P_inf`` (unit noise) from the covariance of the whole problem -- limits, amplitudes and
     multipliers together -- so that a multiplier the sequence determines poorly (a short sequence, two close
     multipliers) widens the limit's uncertainty as it should. (1) is analytic in every parameter, so with
     circular complex noise the covariance is (J^H J)^-1; the multipliers' block is eliminated (Schur
-    complement) phasor by phasor."""
+    complement) phasor by phasor. ``chain`` (K, K_free): the derivatives of the ``mu`` by the free multipliers
+    (the identity where every one is free; a product's by its factors)."""
     N, m = V.shape[0], coef.shape[1]
     K = len(mu)
     if K == 0:
@@ -113,12 +157,13 @@ def _limit_variance(V: np.ndarray, coef: np.ndarray, mu: np.ndarray) -> np.ndarr
     n = np.arange(N)[:, None]
     dV = n * mu ** np.maximum(n - 1, 0)               # (N, K): d mu_k^n / d mu_k
     # per phasor j the multipliers' columns are dV * a_kj; the coupling to its linear parameters V^H dV a_j
-    B = np.einsum("nl,nk,kj->jlk", V.conj(), dV, coef[1:])          # (m, K + 1, K)
-    D = (dV.conj().T @ dV) * np.einsum("kj,lj->kl", coef[1:].conj(), coef[1:])   # (K, K), all phasors
+    B = np.einsum("nl,nk,kj->jlk", V.conj(), dV, coef[1:]) @ chain                  # (m, K + 1, K_free)
+    D = chain.conj().T @ ((dV.conj().T @ dV) * np.einsum("kj,lj->kl", coef[1:].conj(), coef[1:])) @ chain
     S = D - np.einsum("jlk,lp,jpq->kq", B.conj(), G, B)             # Schur complement of the linear blocks
     S_inv = np.linalg.pinv(S)
-    GB = np.einsum("lp,jpk->jlk", G, B)[:, 0, :]                    # (m, K): row 0 of G B_j
-    return np.real(G[0, 0] + np.einsum("jk,kq,jq->j", GB, S_inv, GB.conj()))
+    GB = np.einsum("lp,jpk->jlk", G, B)[:, 0, :]                    # (m, K_free): row 0 of G B_j
+    variance = np.real(G[0, 0] + np.einsum("jk,kq,jq->j", GB, S_inv, GB.conj()))
+    return np.where(variance > 0, variance, np.inf)     # below round-off the covariance determines nothing
 
 
 def _multipliers(D: np.ndarray, max_order: int) -> np.ndarray:

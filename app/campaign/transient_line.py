@@ -19,11 +19,13 @@ takes the forced part as the steady state when the fit says its model holds:
 
 A line whose records show harmonics goes to the **phasor sequence** (analysis/signals/phasor_sequence.py): its
 harmonic phasors over consecutive windows of WINDOW_PERIODS periods converge to the steady state geometrically,
-by the Floquet multipliers of the orbit the structure approaches, linear or not. The sequence's limit is taken
-when it is
+by the Floquet multipliers of the orbit the structure approaches, linear or not, and by their products (the
+deviation's second-order terms, which a nonlinear element makes: without them the drift of a beating mode's
+square reads as a limit that moves with the windows fitted). The sequence's limit is taken when it is
 
-- **nonlinear**: the limit itself shows harmonics. The first record's do not tell alone: where the poles known
-  miss a mode, the fit of modes puts the free response it cannot describe into the harmonics;
+- **not shown linear**: the limit's harmonics, each three standard deviations larger, are beyond what a linear
+  line may show (below). The first record's do not tell alone: where the poles known miss a mode, the fit of
+  modes puts the free response it cannot describe into the harmonics;
 - **converging**: every multiplier whose term is above the noise inside the unit circle by a margin (near a
   jump one approaches it);
 - **within its error budget**: the limit's error has two parts, and together they stay within the tolerance:
@@ -34,12 +36,16 @@ when it is
   amplitudes and multipliers together). Where both are of a size, either alone within the tolerance leaves
   the sum beyond it.
 
-A limit without harmonics says the line is linear where it settles: the harmonics its first records showed were
-the transient's (the decay from another branch after a jump, which is large and nonlinear, or a mode the poles known
-miss). The fit of modes then takes the line's records from the next one on, where that transient has decayed
-toward the linear steady state, as on any linear line; where they still show harmonics the sequence goes on. Such a
-line, once taken, hands on the poles of its whole free response (its records less the forced response taken), as a
-line that waited does: where the poles known missed a mode, what is left in the tail is too small to teach it.
+A limit whose harmonics, each three standard deviations larger, stay within THD_SHARE of the tolerance says the
+line is linear where it settles: the harmonics its first records showed were the transient's (the decay from
+another branch after a jump, which is large and nonlinear, or a mode the poles known miss). The fit of modes then
+takes the line's records from the next one on, where that transient has decayed toward the linear steady state,
+as on any linear line; where they still show harmonics the sequence goes on. Such a line, once taken, hands on
+the poles of its whole free response (its records less the forced response taken), as a line that waited does:
+where the poles known missed a mode, what is left in the tail is too small to teach it. An uncertain limit's
+harmonics are as uncertain, and say nothing: a line handed on by a limit without harmonics while its deviation
+was still large and nonlinear was taken by modes that do not describe its decay, beyond the tolerance. Such a
+line stays with its sequence, which takes it once within its error budget (teaching no poles, linear or not).
 
 A line without harmonics that the fit of modes refuses waits: its free response is one of modes, and a
 refusal says the poles known are not all of them, which the line's settled free response then teaches (a line
@@ -174,9 +180,9 @@ class TransientLines:
         origin = run[-1].first_sample - run[0].first_sample
         P, noise = window_phasors(np.concatenate([r.data for r in run]), self.sample_rate, frequency,
                                   WINDOW_PERIODS, self.n_harmonics, origin, last=SEQUENCE_WINDOWS)
-        fit = fit_sequence(P, noise)
+        fit = fit_sequence(P, noise, products=True)
         heads = [max(1, int(share * len(P))) for share in HEAD_SHARES]
-        later = [fit_sequence(P[h:], noise[h:]) for h in heads] if fit is not None else [None]
+        later = [fit_sequence(P[h:], noise[h:], products=True) for h in heads] if fit is not None else [None]
         if any(f is None for f in later):
             return None
         frf_std = self._relative_std(fit.limit[1], fit.std[1])
@@ -186,14 +192,18 @@ class TransientLines:
         change = max(_change(fit.limit[1], b, self.force_index, self.sensor_index) if b is not None else np.inf
                      for b in others)
         self._previous_limit = fit.limit[1]
-        linear = self._linear(fit.limit)
+        linear = self._linear(fit.limit, fit.std)
         if linear:                  # the harmonics were the transient's: the records after this one go to the modes
             self._nonlinear, self._modal_from = False, len(self._records)
         reason = linear or self._diverging(fit) or self._beyond_budget(frf_std, change)
         return TransientEstimate(fit.limit, fit.std, frf_std, not reason, reason, change)
 
-    def _linear(self, limit: np.ndarray) -> str:
-        if not self._distorted(limit):
+    def _linear(self, limit: np.ndarray, std: np.ndarray) -> str:
+        """Why the limit says the line is linear ("" where it does not): its harmonics, each 3 standard deviations
+        larger, within the THD a linear line may show (an uncertain limit's harmonics are as uncertain)."""
+        upper = limit.copy()
+        upper[2:] = np.abs(limit[2:]) + 3 * std[2:]
+        if not self._distorted(upper):
             return ("no harmonics in the steady state: a linear line, whose free response the fit of modes "
                     "takes once its transient is linear")
         return ""
