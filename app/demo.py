@@ -9,9 +9,13 @@
 """
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 from analysis.loop.auto import run_auto
 from analysis.common.errors import InputError
@@ -51,6 +55,30 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
     """Run the demo into ``out``; returns the final workbench. An earlier demo there is refused unless
     ``overwrite`` (:func:`check_demo_outputs`)."""
     check_demo_outputs(out, overwrite)
+    with compiling_ahead():
+        return _demo(out, quick, seed, software_version, say, overwrite)
+
+
+@contextmanager
+def compiling_ahead() -> Iterator[subprocess.Popen | None]:
+    """Within the block, the law library's compiled code made in a process of its own
+    (:mod:`analysis.prediction.compile_ahead`) on the core the campaign leaves idle, for the analysis after it; on a
+    machine of one core, not at all (None). Ended at the block's end if it is still running."""
+    if (os.cpu_count() or 1) < 2:
+        yield None
+        return
+    root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
+    ahead = subprocess.Popen([sys.executable, "-m", "analysis.prediction.compile_ahead"], cwd=root, env=env,
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        yield ahead
+    finally:
+        ahead.kill()
+        ahead.wait()
+
+
+def _demo(out: Path, quick: bool, seed: int, software_version: str, say, overwrite: bool) -> Workbench:
     out.mkdir(parents=True, exist_ok=True)
     session = out / SESSION
     rig = load_rig("paper-beam")
