@@ -61,15 +61,15 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
 
 @contextmanager
 def compiling_ahead() -> Iterator[subprocess.Popen | None]:
-    """Within the block, the law library's compiled code made in a process of its own
-    (:mod:`analysis.prediction.compile_ahead`) on the core the campaign leaves idle, for the analysis after it; on a
-    machine of one core, not at all (None). Ended at the block's end if it is still running."""
+    """Within the block, the compiled code of the campaign's loop and of the law library made in a process of its
+    own (:mod:`app.compile_ahead`) on the core the campaign leaves idle; on a machine of one core, not at all
+    (None). Ended at the block's end if it is still running."""
     if (os.cpu_count() or 1) < 2:
         yield None
         return
     root = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
-    ahead = subprocess.Popen([sys.executable, "-m", "analysis.prediction.compile_ahead"], cwd=root, env=env,
+    ahead = subprocess.Popen([sys.executable, "-m", "app.compile_ahead"], cwd=root, env=env,
                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         yield ahead

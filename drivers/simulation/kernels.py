@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 from llvmlite import ir
-from numba import carray, types
+from numba import carray, typeof, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -652,6 +652,27 @@ def typed_entry(dispatcher, args):
     their types (dtypes, dimensions, layouts) from call to call resolves them once and calls the result.
     """
     return dispatcher.compile(tuple(dispatcher.typeof_pyval(a) for a in args))
+
+
+def compile_callees() -> None:
+    """The calls of :func:`integrate_block` of their own -- the laws' forces, the Jacobian, the bracketed fallback,
+    the stick limits and the commit -- compiled (or loaded from the disk cache) by their types alone, which no rig
+    changes. The loop types each as a call and loads any the cache holds: a process that compiles them while
+    another compiles the loop takes their part, about 3 s of a fresh checkout's 7 s, off the loop's first compile
+    (the demo's compiling ahead, :mod:`app.demo`)."""
+    ints, flags = np.zeros(0, np.int64), np.zeros(0, bool)
+    laws = typeof(LawTable(ints, ints, ints, 0, ints, flags, np.zeros((0, 0)), ints, ints, np.zeros(0),
+                           np.zeros(0), flags))
+    v, m, i = types.float64[::1], types.float64[:, ::1], types.int64[::1]
+    for callee, signature in (
+            (_element_forces, (laws, m, m, v, v, i, v, v)),
+            (_jacobian, (laws, m, m, m, types.int64, i, v, v, v, v, m, m)),
+            (_signed_residual, (laws, m, m, v, m, i, v, types.float64, m)),
+            (_bracketed, (laws, m, m, m, v, m, i, v, v, v, v, v, m)),
+            (_bracket_fallback, (laws, m, m, m, v, m, types.int64, i, v, v, v, v, v, m, i)),
+            (_stick_limits, (laws, v, v)),
+            (_commit, (laws, m, m))):
+        callee.compile(signature)
 
 
 def scratch_space(nz: int, r: int, law_states: np.ndarray) -> Scratch:
