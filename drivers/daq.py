@@ -251,7 +251,9 @@ class DaqStream:
         return False
 
     def _start(self, io: PortIO) -> None:
-        if io.desynced or io.rx:
+        if io.desynced:
+            self.daq._scpi.resync(io)         # what a stream abandoned before may still send comes first
+        elif io.rx:
             io.discard_input()
         self.daq._scpi.send(io, "INIT")
 
@@ -359,12 +361,16 @@ class DaqStream:
         raise ProtocolError(self.url, f"STR:COUN? gave no two equal answers in {COUNT_ATTEMPTS} attempts")
 
     def _abandon(self, io: PortIO) -> None:
-        """After a failure: stop the instrument streaming so the port is usable again."""
+        """After a failure: stop the instrument streaming so the port is usable again. The link is left out of
+        step: an instrument that stalled sends the END its ABORt asks for once it acts, after any quiet wait here,
+        and the next request or stream must read past it (:meth:`drivers.scpi.ScpiInstrument.resync`) rather than
+        take it for its own reply or end."""
         try:
             self.daq._scpi.send(io, "ABOR")
             io.drain(quiet=0.1, limit=END_LIMIT)
         except InstrumentError:
             pass  # the original failure is what the consumer needs to see
+        io.desynced = True
 
     # ----- consumer ------------------------------------------------------------------------
     def read(self, timeout: float | None = None) -> Block:

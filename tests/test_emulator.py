@@ -202,6 +202,25 @@ def test_a_fast_port_is_read_in_its_consumers_thread_and_a_failure_there_ends_th
         assert not rig.daq.acquiring
 
 
+def test_a_stream_after_one_abandoned_in_a_stall_reads_its_own_samples():
+    """A stream abandoned while the instrument stalled never saw the END its ABORt asked for: the END comes once
+    the stall is over, and the next stream must not take it for its own end."""
+    with bench() as (rig, shaker, daq):
+        rig.inject("daq", {"stall": 1.0, "stall_time": 3.0})
+        stream = daq.stream(200, no_data_timeout=0.3)
+        with pytest.raises(LinkTimeout, match="no stream data"):
+            stream.read()
+        with pytest.raises(LinkTimeout, match="no stream data"):
+            stream.stop()
+        rig.inject("daq", {"stall": 0.0})
+        give_up = time.monotonic() + 10.0
+        while rig.daq.acquiring and time.monotonic() < give_up:
+            time.sleep(0.01)
+        with daq.stream(200) as stream:
+            blocks = [stream.read() for _ in range(3)]
+        assert [b.first_sample for b in blocks] == [0, 200, 400] and stream.stats.balanced
+
+
 def test_a_port_read_ahead_fills_the_queue():
     """Over a transport that does not sample on demand (TCP here) the driver reads ahead of its consumer up
     to its queue's depth, as it must on a real instrument whose FIFO would otherwise overrun."""
