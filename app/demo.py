@@ -19,6 +19,7 @@ from typing import Iterator
 
 from analysis.loop.auto import run_auto
 from analysis.common.errors import InputError
+from analysis.common.parallel import usable_cores
 from analysis.mechanics.model import load_model
 from analysis.common.tables import load_toml
 from analysis.loop.workbench import Workbench
@@ -62,20 +63,32 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, software_version: st
 @contextmanager
 def compiling_ahead() -> Iterator[subprocess.Popen | None]:
     """Within the block, the compiled code of the campaign's loop and of the law library made in a process of its
-    own (:mod:`app.compile_ahead`) on the core the campaign leaves idle; on a machine of one core, not at all
-    (None). Ended at the block's end if it is still running."""
-    if (os.cpu_count() or 1) < 2:
+    own (:mod:`app.compile_ahead`) on the core the campaign leaves idle; not at all (None) where the process may
+    run on one core only, or cannot be started: it only saves time. Ended at the block's end if still running."""
+    if usable_cores() < 2:
         yield None
         return
     root = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
-    ahead = subprocess.Popen([sys.executable, "-m", "app.compile_ahead"], cwd=root, env=env,
-                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        ahead = subprocess.Popen([sys.executable, "-m", "app.compile_ahead"], cwd=root, env=env,
+                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except OSError:
+        yield None
+        return
     try:
         yield ahead
     finally:
-        ahead.kill()
-        ahead.wait()
+        ahead.terminate()           # a save under way ends first (analysis.common.compiled)
+        try:
+            ahead.wait(AHEAD_EXIT_S)
+        except subprocess.TimeoutExpired:
+            ahead.kill()
+            ahead.wait()
+
+
+#: Seconds the compiling process may take to end once asked
+AHEAD_EXIT_S = 5.0
 
 
 def _demo(out: Path, quick: bool, seed: int, software_version: str, say, overwrite: bool) -> Workbench:

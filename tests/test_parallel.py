@@ -91,27 +91,49 @@ def test_the_number_of_workers_is_read_from_the_environment(monkeypatch):
 
 def test_workers_end_when_the_process_that_forked_them_is_killed(tmp_path):
     """A worker's numerics ask whether its parent is alive: killed, it leaves no worker computing on."""
-    script = textwrap.dedent(f"""
-        import os, sys, time
-        sys.path.insert(0, {str(ROOT)!r})
+    _assert_workers_end_with_their_parent(tmp_path, """
         from analysis.common.interrupt import check_stop
-        from analysis.common.parallel import map_tasks
 
         def task(i):
-            with open(os.path.join({str(tmp_path)!r}, f"worker{{i}}"), "w") as f:
-                f.write(str(os.getpid()))
+            mark_worker()
             while True:                # a long fit: its residual asks between evaluations
                 time.sleep(0.01)
                 check_stop()
-
-        map_tasks(task, 2, workers=2)
     """)
+
+
+def test_workers_blocked_sending_to_a_killed_parent_end_with_it(tmp_path):
+    """A worker whose result fills the pipe waits in its send for a parent that reads no more: killed, the parent
+    takes its workers with it, which would otherwise hold every pipe and port they inherited open."""
+    _assert_workers_end_with_their_parent(tmp_path, """
+        parallel.wait = lambda *args, **kwargs: time.sleep(3600)      # the parent never reads
+
+        def task(i):
+            mark_worker()
+            return bytes(4 << 20)                                      # more than a pipe holds
+    """)
+
+
+def _assert_workers_end_with_their_parent(tmp_path: Path, tasks: str) -> None:
+    """Run ``map_tasks(task, 2, workers=2)`` in a process of its own, ``task`` defined by ``tasks`` (which call
+    ``mark_worker()`` first); once both workers have begun (and half a second more), kill that process: both
+    workers must be gone within 10 s."""
+    script = textwrap.dedent(f"""
+        import os, sys, time
+        sys.path.insert(0, {str(ROOT)!r})
+        from analysis.common import parallel
+
+        def mark_worker():
+            with open(os.path.join({str(tmp_path)!r}, f"worker{{os.getpid()}}"), "w") as f:
+                f.write(str(os.getpid()))
+    """) + textwrap.dedent(tasks) + "\nparallel.map_tasks(task, 2, workers=2)\n"
     parent = subprocess.Popen([sys.executable, "-c", script])
     try:
         deadline = time.monotonic() + 60
         while len(list(tmp_path.glob("worker*"))) < 2:
             assert time.monotonic() < deadline and parent.poll() is None
             time.sleep(0.05)
+        time.sleep(0.5)
         pids = [int(p.read_text()) for p in tmp_path.glob("worker*")]
     finally:
         parent.kill()
@@ -129,7 +151,6 @@ def _alive(pid: int) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"
     except FileNotFoundError:
         return False
-
 
 
 @pytest.mark.slow

@@ -27,6 +27,7 @@ once cannot cross its entries.
 import hashlib
 import os
 import shutil
+import signal
 import time
 import types
 from pathlib import Path
@@ -180,7 +181,9 @@ def _serialised(save):
     processes that read the index before either writes it would both name their data file after the same free
     number, and the one that writes its index last keeps its key pointing at the data the other wrote last: a
     function loads the code compiled for another signature (numba compiles, for example, a law's update for arrays
-    from Python and for pointers from the rig simulator)."""
+    from Python and for pointers from the rig simulator). An interrupt or a request to terminate that arrives
+    during the save acts once it is done: numba writes the index before the data, and a process ended between the
+    two leaves an index naming a data file never written, or an older one of the same number."""
     def locked_save(self, key, data):
         try:
             lock = open(f"{self._index_path}.lock", "a")
@@ -188,7 +191,11 @@ def _serialised(save):
             return save(self, key, data)
         with lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
-            return save(self, key, data)     # closing the file releases the lock
+            held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+            try:
+                return save(self, key, data)     # closing the file releases the lock
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, held)
     return locked_save
 
 

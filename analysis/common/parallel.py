@@ -2,8 +2,8 @@
 
 A step of the loop does many things that need nothing of each other: discovery fits an element's sets of laws of
 one size, each started from the smaller sets, and scores the FRFs of many choices of laws; the ranking fits and
-predicts every candidate law; a held-out check refits the model once per fold. :func:`map_tasks` computes such pieces in forked worker processes, one piece a task, and
-returns their results in order.
+predicts every candidate law; a held-out check refits the model once per fold. :func:`map_tasks` computes such
+pieces in forked worker processes, one piece a task, and returns their results in order.
 
 The rules, and why:
 
@@ -16,8 +16,10 @@ The rules, and why:
 - **Nothing lost to a worker's failure.** A task that raises in a worker, whose result cannot come back, or whose
   worker is gone, is computed again here, where it raises as it would have without workers.
 - **A stop is heard, and a dead parent ends its workers.** The caller's stop question (:mod:`.interrupt`) is asked
-  here while the workers run, and stops them; a worker's own numerics ask whether the process that forked it is
-  still alive, so that none outlives it by more than a fraction of a second.
+  here while the workers run, and stops them. A worker dies with the process that forked it (on Linux the kernel
+  kills it; elsewhere its numerics ask whether its parent is alive, and a send to a parent that has gone ends it):
+  a worker left running would hold the pipes and ports it inherited open, and a session writer waits for the end
+  of its input.
 - **Results cross a pipe from this process's own children** (Python's serialisation, as ``multiprocessing``
   does); nothing serialised is written to or read from a file.
 
@@ -27,6 +29,7 @@ and for a single task. Benchmarks that measure CPU seconds and the test suite's 
 """
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
 import pickle
@@ -46,6 +49,9 @@ T = TypeVar("T")
 MAX_WORKERS = 4
 #: Seconds between two askings of the caller's stop question while workers run
 POLL_S = 0.1
+#: Seconds a worker that sent all it had may take to end before it is made to
+EXIT_S = 5.0
+_PR_SET_PDEATHSIG = 1
 
 _TASK: Callable[[int], object] | None = None   # the task the workers run; set before they are forked
 _IN_WORKER = False
@@ -53,6 +59,11 @@ _IN_WORKER = False
 
 #: What a worker sends back for a task it could not compute or send: the task is computed here instead
 _FAILED = None
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity where the system says, else the machine's)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def worker_count() -> int:
@@ -68,8 +79,7 @@ def worker_count() -> int:
             raise InputError(f"{given!r} is not a whole number of workers", "environment",
                              "CONTACTID_WORKERS") from None
         return max(1, n)
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(MAX_WORKERS, cores))
+    return max(1, min(MAX_WORKERS, usable_cores()))
 
 
 def map_tasks(task: Callable[[int], T], n: int, workers: int | None = None) -> list[T]:
@@ -82,21 +92,28 @@ def map_tasks(task: Callable[[int], T], n: int, workers: int | None = None) -> l
     context = multiprocessing.get_context("fork")
     global _TASK
     links = []
-    # forked while no other thread of this process compiles (a worker that compiled would wait for ever on the
-    # compiler's lock, copied held) and none forks its own workers with another task
-    with global_compiler_lock:
-        _TASK = task
-        try:
-            for k in range(count):
-                receive, send = context.Pipe(duplex=False)
-                worker = context.Process(target=_work, args=(k, count, n, send, os.getpid()), daemon=True)
-                worker.start()
-                send.close()
-                links.append((worker, receive))
-        finally:
-            _TASK = None
     sent: list = [_FAILED] * n
+    done = False
     try:
+        # forked while no other thread of this process compiles (a worker that compiled would wait for ever on
+        # the compiler's lock, copied held) and none forks its own workers with another task
+        with global_compiler_lock:
+            _TASK = task
+            try:
+                for k in range(count):
+                    receive, send = context.Pipe(duplex=False)
+                    worker = context.Process(target=_work, args=(k, count, n, receive, send, os.getpid()),
+                                             daemon=True)
+                    try:
+                        worker.start()
+                    except OSError:           # no fork now (memory, processes): its tasks are computed here
+                        receive.close()
+                        send.close()
+                        break
+                    send.close()
+                    links.append((worker, receive))
+            finally:
+                _TASK = None
         running = [receive for _, receive in links]
         while running:
             check_stop()                      # raises; the workers are ended below
@@ -107,22 +124,45 @@ def map_tasks(task: Callable[[int], T], n: int, workers: int | None = None) -> l
                     running.remove(receive)
                     continue
                 sent[i] = out
+        done = True
     finally:
         for worker, receive in links:
+            receive.close()
+            if done:
+                worker.join(EXIT_S)           # it closed its pipe: it is ending by itself
             if worker.is_alive():
                 worker.terminate()
             worker.join()
-            receive.close()
-    return [task(i) if out is _FAILED else pickle.loads(out) for i, out in enumerate(sent)]
+    return [_received(task, i, out) for i, out in enumerate(sent)]
 
 
-def _work(k: int, count: int, n: int, send, parent: int) -> None:
-    """Worker ``k`` of ``count``: tasks k, k + count, ... sent back one by one. Its own stop question is whether
-    the process that forked it has gone (its parent then changes); the caller's is not inherited, as it may read
-    objects only the caller's threads may touch. An interrupt from the terminal is the caller's to answer."""
+def _received(task: Callable[[int], T], i: int, out) -> T:
+    """Task ``i``'s result as its worker sent it, or computed here where none came or it cannot be read."""
+    if out is not _FAILED:
+        try:
+            return pickle.loads(out)
+        except Exception:
+            pass
+    return task(i)
+
+
+def _work(k: int, count: int, n: int, receive, send, parent: int) -> None:
+    """Worker ``k`` of ``count``: tasks k, k + count, ... sent back one by one.
+
+    It dies with the process that forked it: on Linux the kernel kills it when its parent goes, else its numerics
+    ask whether its parent has changed (:func:`stop_when`), and a send to a parent that has gone ends it; a worker
+    blocked in a send, or left running, would keep the pipes and ports it inherited open (a session writer waits
+    for the end of its input). The caller's own stop question is not inherited, as it may read objects only the
+    caller's threads may touch; an interrupt from the terminal is the caller's to answer, and a request to
+    terminate ends the worker at once, whatever handler its parent installed."""
     global _IN_WORKER
     _IN_WORKER = True
+    receive.close()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _die_with_parent()
+    if os.getppid() != parent:                # gone before the kernel was asked
+        return
     stop_when(lambda: os.getppid() != parent)
     for i in range(k, n, count):
         try:
@@ -131,5 +171,19 @@ def _work(k: int, count: int, n: int, send, parent: int) -> None:
             return
         except Exception:                     # computed again by the caller, where it raises as it would have
             out = _FAILED
-        send.send((i, out))
+        try:
+            send.send((i, out))
+        except OSError:                       # the caller has gone
+            return
     send.close()
+
+
+def _die_with_parent() -> None:
+    """Ask the kernel to kill this process when its parent ends (Linux ``PR_SET_PDEATHSIG``); nothing elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):
+        pass

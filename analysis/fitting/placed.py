@@ -12,6 +12,7 @@ import numpy as np
 
 from ..common.errors import InputError
 from ..laws import Law
+from ..laws.base import KbarFunction
 from ..mechanics.surroundings import Surroundings, linear_part, placed_kbar
 from .projection import _fit_once
 from .results import LawFit
@@ -47,23 +48,10 @@ class _PlacedLaw:
     def kbar_function(self, **params):
         """kbar of this basis at the given values (what a fit in progress judges its samples by)."""
         linear, shape = self.law.to_fit(self.law.check_params(params, complete=True))
-        return _PlacedKbar(self, linear[self.law.linear[0]], shape)
+        return KbarFunction(self, (linear[self.law.linear[0]],), shape)
 
     def describing_function(self, X, w, **params):
         return self.kbar_function(**params)(X, w)
-
-
-class _PlacedKbar:
-    """``f(X, w) -> kbar`` of a :class:`_PlacedLaw` at fixed values. A class, not a closure, so that a fit that
-    holds one can come back from another process (:mod:`analysis.common.parallel`)."""
-
-    __slots__ = ("placed", "scale", "shape")
-
-    def __init__(self, placed: _PlacedLaw, scale: float, shape: dict[str, float]):
-        self.placed, self.scale, self.shape = placed, scale, shape
-
-    def __call__(self, X, w):
-        return self.scale * self.placed.basis(np.asarray(X, float), np.asarray(w, float), **self.shape)[0]
 
 
 def _scaling(law: Law, values: Mapping[str, float]) -> float:

@@ -145,14 +145,14 @@ def held_out(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> HeldOut:
     if not splits:
         return NOT_CHECKED
 
+    measured = [_at(wb, held) for _, held in splits]     # only the levels a fit did not see are predicted
+
     def one(k: int) -> tuple:
-        seen, held = splits[k]
-        measured = _at(wb, held)            # only the levels the fit did not see are predicted
-        fold = _refitted(wb, seen)
-        return predict_session(fold.model, measured, "", wb.harmonics).comparison, _sees_its_laws(fold)
+        fold = _refitted(wb, splits[k][0])
+        return predict_session(fold.model, measured[k], "", wb.harmonics).comparison, _sees_its_laws(fold)
 
     done = map_tasks(one, len(splits))      # the folds need nothing of each other
-    parts = [(comparison, _at(wb, held).sine) for (comparison, _), (_, held) in zip(done, splits)]
+    parts = [(comparison, m.sine) for (comparison, _), m in zip(done, measured)]
     return HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts),
                    min(len(seen) for seen, _ in splits), all(sees for _, sees in done))
 

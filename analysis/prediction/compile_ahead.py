@@ -1,16 +1,16 @@
-"""The law library's compiled code made ahead, in a process of its own, on a core a measurement leaves idle.
+"""The law library's compiled code made ahead, for an analysis to load from the disk cache.
 
 A fresh checkout -- or one whose analysis/ or drivers/ changed, since :mod:`analysis.common.compiled` keys its
 disk cache on their sources -- compiles each law's march and each placed contact's balance the first time an
-analysis asks for it: 0.3-1.7 s each, about 9 s for the library on one core, paid in the middle of the analysis.
-A command that measures before it analyses (``contactid demo``) leaves a core idle while it measures: it runs this
-module there meanwhile (``python -m analysis.prediction.compile_ahead``), and its analysis then loads from the disk
-cache what it needs. Where the cache holds them already, this process only loads them.
+analysis asks for it, in the middle of the analysis. A command that measures before it analyses
+(``contactid demo``) runs :func:`compile_library` meanwhile in a process of its own (:mod:`app.compile_ahead`),
+on the core the measurement leaves idle; where the cache holds it all already, it only loads it.
 
 What is made: every placed law's balance alone in a one-DOF structure (its fits placed in the structure), every
 law's march over a sampled history and over periodic motions (its force in the time domain), and the prediction
-with harmonics that places a force's jumps (a friction law's, on a one-DOF structure). The balances of several laws placed together, which a model's prediction builds, are left to it:
-there are as many as there are combinations.
+with harmonics that places a force's jumps (a friction law's, on a one-DOF structure). The balances of several
+laws placed together, which a model's prediction builds, are left to it: there are as many as there are
+combinations.
 """
 from __future__ import annotations
 
@@ -43,6 +43,3 @@ def compile_library() -> None:
     friction = Element("joint", ("x",), [LawTerm(LAWS["coulomb"], LAWS["coulomb"].example)])
     predict_multiharmonic(structure, [friction], "x", np.array([15.0, 16.0]), 1.0, n_harmonics=3, n_time=64)
 
-
-if __name__ == "__main__":
-    compile_library()

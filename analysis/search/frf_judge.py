@@ -317,7 +317,11 @@ class _Judge:
 def _cached(cache: dict[tuple, Comparison], keys: list[tuple], choices: list[dict[int, LawSet]],
             score: Callable[[dict[int, LawSet]], Comparison]) -> list[Comparison]:
     """The comparison of each choice from ``cache``, those missing scored first (each new key once)."""
-    missing = list({k: c for k, c in zip(keys, choices) if k not in cache}.items())
+    missing: dict[tuple, dict[int, LawSet]] = {}
+    for key, choice in zip(keys, choices):
+        if key not in cache:
+            missing.setdefault(key, choice)       # the first of choices alike is scored, as one at a time
+    missing = list(missing.items())
     for (key, _), comparison in zip(missing, map_tasks(lambda j: score(missing[j][1]), len(missing))):
         cache[key] = comparison
     return [cache[k] for k in keys]

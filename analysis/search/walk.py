@@ -201,8 +201,8 @@ def _overruled_single_harmonically_only(judge: _Judge, search: _Search, first: L
     closest = _closest(judge, search, rivals)
     if not all(_fits_better(search, first, s, judge.rules.ranking.false_alarm) for s in closest):
         return False
-    *rivals, mine = judge.multis([{**judge.held, i: s} for s in closest] + [{**judge.held, i: first}])
-    return mine.error <= judge.rules.ranking.min_gain * min(c.error for c in rivals)
+    *theirs, mine = judge.multis([{**judge.held, i: s} for s in closest] + [{**judge.held, i: first}])
+    return mine.error <= judge.rules.ranking.min_gain * min(c.error for c in theirs)
 
 
 def _closest(judge: _Judge, search: _Search, rivals: list[LawSet]) -> list[LawSet]:

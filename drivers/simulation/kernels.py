@@ -654,25 +654,32 @@ def typed_entry(dispatcher, args):
     return dispatcher.compile(tuple(dispatcher.typeof_pyval(a) for a in args))
 
 
-def compile_callees() -> None:
-    """The calls of :func:`integrate_block` of their own -- the laws' forces, the Jacobian, the bracketed fallback,
-    the stick limits and the commit -- compiled (or loaded from the disk cache) by their types alone, which no rig
-    changes. The loop types each as a call and loads any the cache holds: a process that compiles them while
-    another compiles the loop takes their part, about 3 s of a fresh checkout's 7 s, off the loop's first compile
-    (the demo's compiling ahead, :mod:`app.demo`)."""
+def kernel_signatures() -> dict:
+    """The simulator's compiled kernels other than :func:`integrate_block`, each with the argument types it is
+    called with, which no rig changes: the loop's calls of their own (the laws' forces, the Jacobian, the bracketed
+    fallback, the stick limits, the commit), the anti-alias filter and the converter."""
     ints, flags = np.zeros(0, np.int64), np.zeros(0, bool)
     laws = typeof(LawTable(ints, ints, ints, 0, ints, flags, np.zeros((0, 0)), ints, ints, np.zeros(0),
                            np.zeros(0), flags))
     v, m, i = types.float64[::1], types.float64[:, ::1], types.int64[::1]
-    for callee, signature in (
-            (_element_forces, (laws, m, m, v, v, i, v, v)),
-            (_jacobian, (laws, m, m, m, types.int64, i, v, v, v, v, m, m)),
-            (_signed_residual, (laws, m, m, v, m, i, v, types.float64, m)),
-            (_bracketed, (laws, m, m, m, v, m, i, v, v, v, v, v, m)),
-            (_bracket_fallback, (laws, m, m, m, v, m, types.int64, i, v, v, v, v, v, m, i)),
-            (_stick_limits, (laws, v, v)),
-            (_commit, (laws, m, m))):
-        callee.compile(signature)
+    return {_element_forces: (laws, m, m, v, v, i, v, v),
+            _jacobian: (laws, m, m, m, types.int64, i, v, v, v, v, m, m),
+            _signed_residual: (laws, m, m, v, m, i, v, types.float64, m),
+            _bracketed: (laws, m, m, m, v, m, i, v, v, v, v, v, m),
+            _bracket_fallback: (laws, m, m, m, v, m, types.int64, i, v, v, v, v, v, m, i),
+            _stick_limits: (laws, v, v),
+            _commit: (laws, m, m),
+            fir_decimate: (m, m, v, types.int64),
+            adc: (m, v, v, types.float64, i)}
+
+
+def compile_kernels() -> None:
+    """The kernels of :func:`kernel_signatures` compiled, or loaded from the disk cache. :func:`integrate_block`
+    types its calls as calls and loads any the cache holds: a process that compiles them while another compiles
+    the loop takes their part off a fresh checkout's first simulation (the demo's compiling ahead,
+    :mod:`app.compile_ahead`)."""
+    for kernel, signature in kernel_signatures().items():
+        kernel.compile(signature)
 
 
 def scratch_space(nz: int, r: int, law_states: np.ndarray) -> Scratch:
