@@ -201,3 +201,23 @@ def test_a_law_of_the_library_comes_back_from_a_worker_as_itself():
     back = map_tasks(lambda i: laws[i] if i < len(laws) else MicroSlip(0.01, True), len(laws) + 1, workers=2)
     assert all(a is b for a, b in zip(laws, back))
     assert isinstance(back[-1], MicroSlip) and back[-1].__dict__ == MicroSlip(0.01, True).__dict__
+
+
+def test_a_placed_balance_starts_from_what_its_own_task_solved_so_any_number_of_workers_gives_the_same_bits():
+    """A placed contact's balance starts from the last one solved at the same samples (a fit's evaluations differ
+    by a step): kept per task, a task's answer does not depend on the tasks its process ran before it."""
+    from analysis.laws import LAWS
+    from analysis.mechanics.structures import Structure
+    from analysis.mechanics.surroundings import placed_kbar, surroundings_of
+
+    around = surroundings_of(Structure(["x"], np.eye(1), np.eye(1) * 1e4, np.eye(1) * 2.0), np.ones(1))
+    X, w = np.geomspace(1e-4, 3e-3, 12), np.full(12, 95.0)
+    contact = LAWS["unilateral"]
+    values = [{"k": 2e3 * (1 + 0.3 * i), "gap": 5e-4} for i in range(4)]
+
+    def task(i):
+        return placed_kbar([(contact, values[i])], X, w, around)
+
+    alone = map_tasks(task, 4, workers=1)
+    assert all(np.array_equal(a, b) for a, b in zip(alone, map_tasks(task, 4, workers=2)))
+    assert all(np.array_equal(a, b) for a, b in zip(alone[::-1], map_tasks(lambda i: task(3 - i), 4, workers=1)))

@@ -7,12 +7,11 @@ pieces in forked worker processes, one piece a task, and returns their results i
 
 The rules, and why:
 
-- **The same answer from run to run.** A task is a function of its index and of what the process held when the
-  workers were forked; worker k of W computes tasks k, k + W, ... in turn, and the results come back in order, so
-  each task starts from the same state in every run. A task must not need what another computes: what it leaves
-  in a cache goes with its worker. Where a solver starts from the last solution it found (a placed contact's
-  balance, :mod:`analysis.mechanics.surroundings`), another number of workers gives the same answer to within
-  that solver's tolerance, not to the last bit.
+- **The same answer with any number of workers.** A task is a function of its index and of what the process held
+  when the workers were forked; the results come back in order. What a solver keeps from one call to the next to
+  start from is kept per task (:func:`task_scope`), so a task starts from nothing the tasks before it in its
+  process left, whichever worker runs it after which tasks, or none. A task must not need what another computes:
+  what it leaves in a cache goes with its worker, so a cache may save time, never change a result.
 - **Nothing lost to a worker's failure.** A task that raises in a worker, whose result cannot come back, or whose
   worker is gone, is computed again here, where it raises as it would have without workers.
 - **A stop is heard, and a dead parent ends its workers.** The caller's stop question (:mod:`.interrupt`) is asked
@@ -57,6 +56,35 @@ _TASK: Callable[[int], object] | None = None   # the task the workers run; set b
 _IN_WORKER = False
 
 
+class TaskScope:
+    """The task of a map that code runs in (:func:`task_scope`); one object per task, dropped when it ends."""
+
+    __slots__ = ("__weakref__",)
+
+
+#: The scope of code that runs in no task
+OUTSIDE = TaskScope()
+_scope = OUTSIDE
+
+
+def task_scope() -> TaskScope:
+    """The task of :func:`map_tasks` the caller runs in (:data:`OUTSIDE` in none). What a solver keeps from one
+    call to the next to start from (a placed contact's last balance) is kept per task: a task then starts from
+    nothing the tasks before it in its process left, so its answer is the same whichever worker runs it after
+    which tasks, or none."""
+    return _scope
+
+
+def _in_scope(task: Callable[[int], T], i: int) -> T:
+    """``task(i)`` in a task scope of its own."""
+    global _scope
+    outer, _scope = _scope, TaskScope()
+    try:
+        return task(i)
+    finally:
+        _scope = outer
+
+
 #: What a worker sends back for a task it could not compute or send: the task is computed here instead
 _FAILED = None
 
@@ -84,11 +112,11 @@ def worker_count() -> int:
 
 def map_tasks(task: Callable[[int], T], n: int, workers: int | None = None) -> list[T]:
     """``[task(0), ..., task(n - 1)]``, computed by up to ``workers`` (default :func:`worker_count`) forked
-    workers, in that order; a loop here where one worker would do. Worker k computes tasks k, k + W, k + 2W, ...
-    in turn, so that what each starts from is the same from run to run."""
+    workers, in that order, each in a task scope of its own (:func:`task_scope`); a loop here where one worker
+    would do. Worker k computes tasks k, k + W, k + 2W, ... in turn."""
     count = min(worker_count() if workers is None else workers, n)
     if count <= 1 or _IN_WORKER:
-        return [task(i) for i in range(n)]
+        return [_in_scope(task, i) for i in range(n)]
     context = multiprocessing.get_context("fork")
     global _TASK
     links = []
@@ -143,7 +171,7 @@ def _received(task: Callable[[int], T], i: int, out) -> T:
             return pickle.loads(out)
         except Exception:
             pass
-    return task(i)
+    return _in_scope(task, i)
 
 
 def _work(k: int, count: int, n: int, receive, send, parent: int) -> None:
@@ -166,7 +194,7 @@ def _work(k: int, count: int, n: int, receive, send, parent: int) -> None:
     stop_when(lambda: os.getppid() != parent)
     for i in range(k, n, count):
         try:
-            out = pickle.dumps(_TASK(i), protocol=pickle.HIGHEST_PROTOCOL)
+            out = pickle.dumps(_in_scope(_TASK, i), protocol=pickle.HIGHEST_PROTOCOL)
         except Interrupted:
             return
         except Exception:                     # computed again by the caller, where it raises as it would have

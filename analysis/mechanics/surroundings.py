@@ -26,12 +26,16 @@ harmonics, which the single-harmonic model has none of, are left out: a limit, s
 from __future__ import annotations
 
 import functools
+import itertools
+import os
+import weakref
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
-from ..common.compiled import njit, njit_fixed
 
+from ..common.compiled import njit, njit_fixed
+from ..common.parallel import task_scope
 from ..common.recent import Recent
 from ..common.small_solve import NOT_FINITE, SINGULAR, solve_small
 from ..laws import Law
@@ -75,7 +79,7 @@ class Surroundings:
     _at_harmonics: tuple | None = field(default=None, repr=False, compare=False)
     # the balances last solved at a few sets of samples (placed_kbar), shared with the copies of with_parallel: a
     # fit asks the same samples again and again, at parameters a step apart
-    starts: Recent = field(default_factory=lambda: Recent(_STARTS_KEPT), repr=False, compare=False)
+    starts: "_Starts" = field(default_factory=lambda: _Starts(), repr=False, compare=False)
     # the structure was made from a measured level and holds the element's small-amplitude stiffness: the
     # element's laws are measured from their small-amplitude state (analysis.laws.base.Law.relative)
     in_reference: bool = False
@@ -108,6 +112,39 @@ class Surroundings:
         the structure's receptances)."""
         return Surroundings(self.structure, self.vector, stiffness, self._cache, starts=self.starts,
                             in_reference=self.in_reference)
+
+
+class _Starts:
+    """The balances a place last solved (:func:`placed_kbar`), kept per task of the analysis
+    (:func:`analysis.common.parallel.task_scope`): a task starts from what it solved itself, never from what another
+    left, so its answer does not depend on which tasks its process ran before it. Shared by a place's copies
+    (:meth:`Surroundings.with_parallel`); it crosses a pipe as a reference, and comes back from a worker as the
+    one of the process that forked the worker, where that holds it (a fit placed in the caller's structure)."""
+
+    def __init__(self):
+        self.token = (os.getpid(), next(_STARTS_MADE))
+        self._by_task: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+        _LIVE_STARTS[self.token] = self
+
+    def of_task(self) -> Recent:
+        """The balances the task under way solved here last."""
+        scope = task_scope()
+        kept = self._by_task.get(scope)
+        if kept is None:
+            kept = self._by_task[scope] = Recent(_STARTS_KEPT)
+        return kept
+
+    def __reduce__(self):
+        return _starts_of, (self.token,)
+
+
+_STARTS_MADE = itertools.count()
+_LIVE_STARTS: "weakref.WeakValueDictionary[tuple, _Starts]" = weakref.WeakValueDictionary()
+
+
+def _starts_of(token: tuple) -> _Starts:
+    """The live :class:`_Starts` of ``token`` in this process, or new ones."""
+    return _LIVE_STARTS.get(token) or _Starts()
 
 
 def surroundings_of(structure: Structure, vector: np.ndarray, in_reference: bool = False) -> Surroundings:
@@ -156,7 +193,8 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
     cycle = _cycle(n_harmonics, n_time)
     balance = _Balance(p, cycle, around.at_harmonics(w, cycle), X)
     key = (X.tobytes(), w.tobytes(), n_harmonics, n_time)
-    z, left = around.starts.get(key), None
+    starts = around.starts.of_task()
+    z, left = starts.get(key), None
     if z is not None:
         # a balance solved at these samples before (a fit's evaluations differ by a step of its parameters) is
         # where this one starts; a sample it does not bring to convergence within a few steps starts again from
@@ -175,7 +213,7 @@ def placed_kbar(terms: Sequence[tuple[Law, Mapping[str, float]]], X, w, around: 
     if left is None:
         # a contact pulling (k < 0) as hard as the structure holds it: no static balance, no kbar
         return np.full(shape, np.nan, complex)
-    around.starts.keep(key, np.where(np.isfinite(z), z, 0.0))     # a NaN sample starts again from none
+    starts.keep(key, np.where(np.isfinite(z), z, 0.0))     # a NaN sample starts again from none
     return balance.kbar(z).reshape(shape)
 
 
