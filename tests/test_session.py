@@ -26,6 +26,23 @@ def spec(name="sine_0.8N_up"):
                                                     "harmonics/force": ("N", (4,), "c16")})
 
 
+def test_the_writer_process_loads_the_session_package_without_its_reader_and_checks():
+    """``python -m app.session`` imports the package before the writer's module: the package's names are
+    imported when first asked for, so the writer process starts with NumPy and h5py only."""
+    code = "import sys, app.session.file; print(' '.join(sorted(sys.modules)))"
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT,
+                            env=dict(os.environ, PYTHONPATH=str(ROOT))).stdout.split()
+    assert "h5py" in loaded
+    assert not [m for m in loaded if m.split(".")[0] == "analysis" or m in ("app.session.checks", "app.session.data",
+                                                                          "app.session.writer")]
+    import app.session
+
+    assert app.session.SessionWriter is SessionWriter and app.session.LINES_PER_CHUNK == 64
+    assert all(getattr(app.session, name) is not None for name in app.session.__all__)
+    with pytest.raises(AttributeError, match="no_such_name"):
+        app.session.no_such_name
+
+
 def test_round_trip_with_units_and_events(tmp_path):
     path = tmp_path / "s.h5"
     w = SessionWriter(path, plan_text="plan", rig_text="rig", software_version="1.2", command="contactid x")
