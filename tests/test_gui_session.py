@@ -50,11 +50,13 @@ def test_a_session_being_written_by_another_process_is_followed(window, qtbot, t
     path = tmp_path / "growing.h5"
     writer = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
     try:
-        for _ in range(5):                                   # wait for a few lines on disk
+        for _ in range(5):                                   # a few lines written (the writer holds them a moment)
             writer.stdout.readline()
+        qtbot.waitUntil(lambda: path.exists(), timeout=20000)
         window.lab.open_session(str(path))
+        qtbot.waitUntil(lambda: shown_lines(window) >= 5, timeout=20000)
         first = shown_lines(window)
-        assert first >= 5 and window.session.runs.item(0, 4).text() == "running"
+        assert window.session.runs.item(0, 4).text() == "running"
         assert "following" in window.session.follow_label.text()
         qtbot.waitUntil(lambda: shown_lines(window) >= first + 10, timeout=20000)
     finally:

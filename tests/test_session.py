@@ -26,6 +26,23 @@ def spec(name="sine_0.8N_up"):
                                                     "harmonics/force": ("N", (4,), "c16")})
 
 
+def test_the_writer_process_loads_the_session_package_without_its_reader_and_checks():
+    """``python -m app.session`` imports the package before the writer's module: the package's names are
+    imported when first asked for, so the writer process starts with NumPy and h5py only."""
+    code = "import sys, app.session.file; print(' '.join(sorted(sys.modules)))"
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT,
+                            env=dict(os.environ, PYTHONPATH=str(ROOT))).stdout.split()
+    assert "h5py" in loaded
+    assert not [m for m in loaded if m.split(".")[0] == "analysis" or m in ("app.session.checks", "app.session.data",
+                                                                          "app.session.writer")]
+    import app.session
+
+    assert app.session.SessionWriter is SessionWriter and app.session.LINES_PER_CHUNK == 64
+    assert all(getattr(app.session, name) is not None for name in app.session.__all__)
+    with pytest.raises(AttributeError, match="no_such_name"):
+        app.session.no_such_name
+
+
 def test_round_trip_with_units_and_events(tmp_path):
     path = tmp_path / "s.h5"
     w = SessionWriter(path, plan_text="plan", rig_text="rig", software_version="1.2", command="contactid x")
@@ -74,16 +91,27 @@ def test_raw_records_across_chunks_read_back_exactly(tmp_path):
             assert raw.tobytes() == record.tobytes()
 
 
+def until(condition, what: str, seconds: float = 60.0) -> None:
+    """Wait for ``condition``; fail naming ``what`` if it never holds (a bound on a hang, not a timing)."""
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert time.monotonic() < deadline, f"never: {what}"
+        time.sleep(0.02)
+
+
 def test_reader_follows_a_run_being_written(tmp_path):
+    """The writer process holds lines for at most HOLD_SECONDS and writes them with no further call: a reader
+    sees them without reopening the file."""
     path = tmp_path / "s.h5"
     w = SessionWriter(path)
     w.begin_run(spec())
     w.append_line(1.0, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8, "harmonics/force": np.zeros(4)})
+    until(path.exists, "the first line moves the file into place")
     reader = open_session(path)
     assert len(reader.run("sine_0.8N_up").frequency) == 1
     for i in range(3):
         w.append_line(2.0 + i, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8, "harmonics/force": np.zeros(4)})
-    assert len(reader.run("sine_0.8N_up").frequency) == 4          # no reopen needed for new lines
+    until(lambda: len(reader.run("sine_0.8N_up").frequency) == 4, "the held lines reach the reader")
     assert reader.run("sine_0.8N_up").status == "running" and not reader.run("sine_0.8N_up").incomplete
     reader.close()
     w.end_run("complete")
@@ -234,6 +262,140 @@ def test_a_refused_read_leaves_no_dataset_of_the_session_open(tmp_path):
         assert h5py.h5f.get_obj_count(s._file.id, h5py.h5f.OBJ_DATASET) == 0
 
 
+def test_lines_held_and_written_together_store_what_line_by_line_appends_store(tmp_path):
+    rng = np.random.default_rng(5)
+    lines = [(1.0 + i, {"x1": complex(*rng.normal(size=2)), "x2": 1e-3j * i},
+              {"force_amplitude": float(rng.normal()), "harmonics/force": rng.normal(size=4) + 1j * rng.normal(size=4)},
+              None if n is None else rng.normal(size=(n, 3)))         # float64 samples, stored as float32
+             for i, n in enumerate([5, None, 1100, 0, 7, 300])]
+    paths = tmp_path / "one.h5", tmp_path / "held.h5"
+    for path in paths:
+        f = SessionFile(path, temporary_path(path), False, SessionHeader())
+        f.begin_run(spec(), 0.0)
+        if path == paths[0]:
+            for one in lines:
+                f.append_line(*one)
+        else:
+            for one in lines[:3]:
+                f.hold_line(*one)
+            f.write_held()
+            for one in lines[3:]:
+                f.hold_line(*one)
+            assert f.held == 3
+        f.end_run("complete", "", 1.0)                     # writes what is held first
+        f.close(1.0, complete=True)
+    with h5py.File(paths[0], "r") as a, h5py.File(paths[1], "r") as b:
+        names = []
+        a["runs"].visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
+        assert len(names) == 8
+        for name in names:
+            x, y = a["runs"][name], b["runs"][name]
+            assert x.dtype == y.dtype and x.shape == y.shape and x[()].tobytes() == y[()].tobytes(), name
+        assert b["runs/sine_0.8N_up/raw/line_count"][()].tolist() == [5, 0, 1100, 0, 7, 300]
+
+
+def test_a_line_the_writer_cannot_store_is_refused_without_the_lines_held_before_it(tmp_path):
+    path = tmp_path / "s.h5"
+    f = SessionFile(path, temporary_path(path), False, SessionHeader())
+    f.begin_run(spec(), 0.0)
+    f.hold_line(1.0, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8})
+    with pytest.raises(SessionWriteError, match="channels"):
+        f.hold_line(2.0, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8}, raw=np.zeros((10, 2)))
+    with pytest.raises(SessionWriteError, match="frf/x9"):
+        f.hold_line(2.0, {"x9": 1j})
+    f.end_run("complete", "", 1.0)
+    f.close(1.0, complete=True)
+    with h5py.File(path, "r") as h:
+        assert h["runs/sine_0.8N_up/frequency"][()].tolist() == [1.0]
+
+
+def _serve(calls_in, replies_out):
+    """``app.session.file.serve`` in this process; the signal handlers it sets are put back."""
+    from app.session.file import serve
+
+    kept = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGHUP, signal.SIGTERM)}
+    try:
+        return serve(calls_in, replies_out)
+    finally:
+        for s, handler in kept.items():
+            signal.signal(s, handler)
+
+
+def _opening_calls(path) -> list[tuple[str, dict]]:
+    from dataclasses import asdict
+
+    return [("create", {"path": str(path), "temporary": str(temporary_path(path)), "overwrite": False,
+                        "header": asdict(SessionHeader())}),
+            ("begin_run", {"spec": asdict(spec()), "seconds": 0.0})]
+
+
+def _line_call(i):
+    return ("append_line", {"frequency_hz": 1.0 + i, "frf": {"x1": 1j, "x2": 1j}, "extras": {"force_amplitude": 0.8},
+                            "raw": np.full((50, 3), i, dtype=np.float32)})
+
+
+def test_lines_held_when_the_acquiring_process_goes_are_in_the_closed_file(tmp_path, monkeypatch):
+    import io
+
+    import app.session.file as file
+    from app.session.wire import send_call
+
+    monkeypatch.setattr(file, "HOLD_SECONDS", 3600.0)       # every line still held when the input ends
+    path = tmp_path / "s.h5"
+    read, write = os.pipe()
+    with os.fdopen(write, "wb") as calls:
+        for method, kwargs in _opening_calls(path) + [_line_call(i) for i in range(3)]:
+            send_call(calls, method, kwargs)
+    with os.fdopen(read, "rb") as calls:
+        assert _serve(calls, io.BytesIO()) == 0
+    with plain_open(path) as f:
+        g = f["runs/sine_0.8N_up"]
+        assert g["frequency"][()].tolist() == [1.0, 2.0, 3.0] and g["raw/line_start"][()].tolist() == [0, 50, 100]
+        assert np.all(g["raw/data"][100:150] == 2)
+        assert g.attrs["status"] == "aborted" and g.attrs["incomplete"]
+
+
+def test_a_write_of_held_lines_that_fails_between_calls_is_the_reply_to_the_next(tmp_path, monkeypatch):
+    import app.session.file as file
+    from app.session.wire import receive_reply, send_call
+
+    class Left(Exception):
+        pass
+
+    def leave(self):
+        raise Left
+
+    monkeypatch.setattr(file, "HOLD_SECONDS", 0.01)
+    monkeypatch.setattr(file.SessionFile, "leave", leave)
+    path = tmp_path / "s.h5"
+    calls_r, calls_w = os.pipe()
+    replies_r, replies_w = os.pipe()
+    answers = []
+
+    def acquiring():
+        with os.fdopen(calls_w, "wb") as calls, os.fdopen(replies_r, "rb") as replies:
+            for method, kwargs in _opening_calls(path):
+                send_call(calls, method, kwargs)
+                answers.append(receive_reply(replies))
+            monkeypatch.setattr(h5py.File, "flush", full_disk)
+            send_call(calls, *_line_call(0))
+            answers.append(receive_reply(replies))           # held: answered before it is written
+            time.sleep(0.2)                                  # the hold ends meanwhile, and its write fails
+            send_call(calls, *_line_call(1))
+            answers.append(receive_reply(replies))
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    sender = threading.Thread(target=acquiring)
+    sender.start()
+    with os.fdopen(calls_r, "rb") as calls, os.fdopen(replies_w, "wb") as replies, pytest.raises(Left):
+        _serve(calls, replies)
+    sender.join()
+    assert answers[:3] == [None, None, None]
+    assert "failed while appending a line: No space left on device" in answers[3]
+
+
 def line(w, i):
     w.append_line(1.0 + i, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8, "harmonics/force": np.zeros(4)})
 
@@ -335,6 +497,14 @@ def kill_after(proc, target: int, pause: float) -> int:
     return done
 
 
+def lines_on_disk(path) -> int:
+    """Lines of the child's run a reader finds in the file now."""
+    if not path.exists():
+        return 0
+    with open_session(path) as s:
+        return len(s.run("sine_0.8N_up").frequency)
+
+
 def check_lines(g, n_min):
     """Every line 0..n-1 of the child's run is whole in group ``g`` (n >= n_min); returns n."""
     n = g["frequency"].shape[0]
@@ -378,6 +548,8 @@ def test_sigkill_of_the_writer_process_is_repaired_by_contactid_recover(tmp_path
     done = -1
     while done < target:
         done = int(proc.stdout.readline())
+    # a kill of the writer loses the lines it still holds (HOLD_SECONDS): those before are to be recovered
+    until(lambda: lines_on_disk(path) > done, "the lines returned reach the file")
     time.sleep(float(rng.uniform(0, 0.02)))
     os.kill(writer, signal.SIGKILL)
     proc.wait()                                           # the child fails on its next line

@@ -6,16 +6,33 @@ shared by every command that writes a file (:mod:`.outputs`) and the repair of a
 (:mod:`.superblock`, ``recover_session``).
 
 It may import :mod:`analysis` only; it never imports the campaign, the commands or the GUI. Other code uses the
-names below.
+names below. They are imported when first asked for: the writer process (``python -m app.session``) imports this
+package before :mod:`.file`, and needs NumPy and h5py only, not the reader, its checks and :mod:`analysis`.
 """
-from app.session.checks import check_control, check_format, check_run, check_run_count
-from app.session.data import displacement_distortion, measurements_from_session
-from app.session.file import LINES_PER_CHUNK
-from app.session.outputs import WRITE_ERRNOS, atomic_output, check_output, require_free_space, write_failure
-from app.session.writer import (RunData, RunSpec, Session, SessionWriteError, SessionWriter, append_model_history,
-                                needs_recovery, open_session, read_model_history, recover_session)
+import importlib
 
-__all__ = ["LINES_PER_CHUNK", "RunData", "RunSpec", "Session", "SessionWriteError", "SessionWriter",
-           "WRITE_ERRNOS", "append_model_history", "atomic_output", "check_control", "check_format", "check_output",
-           "check_run", "check_run_count", "displacement_distortion", "measurements_from_session", "needs_recovery",
-           "open_session", "read_model_history", "recover_session", "require_free_space", "write_failure"]
+_WHERE = {
+    "check_control": "checks", "check_format": "checks", "check_run": "checks", "check_run_count": "checks",
+    "displacement_distortion": "data", "measurements_from_session": "data",
+    "LINES_PER_CHUNK": "file",
+    "WRITE_ERRNOS": "outputs", "atomic_output": "outputs", "check_output": "outputs", "require_free_space": "outputs",
+    "write_failure": "outputs",
+    "RunData": "writer", "RunSpec": "writer", "Session": "writer", "SessionWriteError": "writer",
+    "SessionWriter": "writer", "append_model_history": "writer", "needs_recovery": "writer", "open_session": "writer",
+    "read_model_history": "writer", "recover_session": "writer",
+}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_WHERE))

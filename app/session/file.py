@@ -4,9 +4,11 @@
 app.session.file``, started by :class:`app.session.writer.SessionWriter`) that outlives the acquiring process: when
 the acquiring process dies (SIGKILL, a crash of the GUI), its end of the pipe closes, and the writer marks the
 open run as aborted and incomplete and closes the file cleanly, so any HDF5 reader opens it with every completed
-line. While a run is measured the file is in SWMR mode and every line is flushed whole, so readers (the GUI's
-Session tab) follow along, and even a kill of the writer process itself loses at most the line in progress
-(``contactid recover`` then makes the file readable by any tool).
+line. While a run is measured the file is in SWMR mode and lines are flushed whole, so readers (the GUI's
+Session tab) follow along. The writer process holds the lines that reach it within ``HOLD_SECONDS`` of each other
+and writes them together (one append to each dataset and one flush for all of them, where each line cost some 26
+appends and a flush); a kill of the writer process itself loses at most the lines it held, those of its last
+``HOLD_SECONDS`` (``contactid recover`` then makes the file readable by any tool).
 
 The file is first written under a temporary name beside its destination and moved into place once the first
 measured data is in: a start that fails leaves the old file (``--overwrite``) or no file.
@@ -18,6 +20,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+import select
 import signal
 import socket
 import sys
@@ -42,6 +45,13 @@ RAW_ROWS_PER_CHUNK = 1024
 """Samples per chunk of ``raw/data``. Each line's flush compresses the whole chunk its samples end in, again: a
 chunk of about a line's record (a stepped sine's line holds 500-1000 samples at 256-512 Hz) is compressed once or
 twice, where 8192 rows were compressed at every one of the ten lines they held."""
+HOLD_SECONDS = 0.25
+"""How long the writer process holds a completed line before it writes it (with the lines that reached it
+meanwhile): a kill of the writer process loses at most these. A real rig measures a line in seconds, so each is
+written alone, a quarter second after it came; a simulation sends dozens a second and they are written together."""
+HOLD_BYTES = 256 << 10
+"""Raw bytes held at most: a batch's write stays well within the free-space reserve each call is checked against
+(``app.session.writer.FREE_SPACE_RESERVE``, 1 MiB)."""
 CRASH_REASON = "the acquiring process stopped without closing the run (crash or kill)"
 
 
@@ -142,6 +152,9 @@ class SessionFile:
         self._file: h5py.File | None = None
         self._run: str | None = None
         self._datasets: dict[str, h5py.Dataset] = {}     # the open run's datasets, by path in the run
+        self._held: list[tuple[dict, np.ndarray | None]] = []   # lines taken, not yet written (hold_line)
+        self._held_since = 0.0                           # time.monotonic() when the first of them came
+        self._held_bytes = 0
         try:
             with h5py.File(self.temporary, "w", libver="latest") as f:
                 f.attrs["format"] = FORMAT
@@ -276,26 +289,71 @@ class SessionFile:
     def append_line(self, frequency_hz: float, frf: dict, extras: dict | None = None,
                     raw: np.ndarray | None = None) -> None:
         """Append one completed line (frequency, FRF per sensor DOF, extras, raw samples) and flush."""
+        self.hold_line(frequency_hz, frf, extras, raw)
+        self.write_held()
+
+    def hold_line(self, frequency_hz: float, frf: dict, extras: dict | None = None,
+                  raw: np.ndarray | None = None) -> None:
+        """Take one completed line, to be written with the lines after it by :meth:`write_held`. Every value is
+        checked against its dataset and converted to its type here, so a line that cannot be stored is refused
+        by its own call and the lines held before it are not touched."""
         with self._guard("appending a line"):
-            # every dataset looked up before any is written: a line is stored whole or not at all
-            values = [(self._dataset("frequency"), frequency_hz)]
-            values += [(self._dataset(f"frf/{dof}"), value) for dof, value in frf.items()]
-            values += [(self._dataset(name), value) for name, value in (extras or {}).items()]
+            values = {"frequency": frequency_hz, **{f"frf/{dof}": value for dof, value in frf.items()},
+                      **(extras or {})}
+            row = {}
+            for name, value in values.items():
+                ds = self._dataset(name)
+                # h5py will not convert float -> complex itself; numpy converts as ``ds[n] = value`` would
+                row[name] = np.asarray(value, dtype=ds.dtype).reshape(ds.shape[1:])
             data = self._dataset("raw/data")
-            for ds, value in values:
-                _append(ds, value)
-            start = data.shape[0]
-            count = 0 if raw is None else len(raw)
-            if count:
-                data.resize(start + count, axis=0)
-                data[start:] = raw
-            _append(self._dataset("raw/line_start"), start)
-            _append(self._dataset("raw/line_count"), count)
+            self._dataset("raw/line_start"), self._dataset("raw/line_count")
+            if raw is not None:
+                raw = np.asarray(raw, dtype=data.dtype)
+                if raw.ndim != 2 or raw.shape[1] != data.shape[1]:
+                    raise ValueError(f"raw samples of shape {raw.shape}; the run records {data.shape[1]} channels")
+            if not self._held:
+                self._held_since = time.monotonic()
+            self._held.append((row, raw))
+            self._held_bytes += 0 if raw is None else raw.nbytes
+
+    @property
+    def held(self) -> int:
+        """Lines taken and not yet written."""
+        return len(self._held)
+
+    def hold_left(self) -> float:
+        """Seconds until the held lines are due (<= 0: write them now)."""
+        if len(self._held) >= LINES_PER_CHUNK or self._held_bytes >= HOLD_BYTES:
+            return 0.0
+        return self._held_since + HOLD_SECONDS - time.monotonic()
+
+    def write_held(self) -> None:
+        """Write the held lines, in the order taken: one append of their rows to each dataset, their raw samples
+        at once, then one flush, so readers see whole lines only. The data are those line-by-line appends
+        write, to the bit."""
+        if not self._held:
+            return
+        lines, self._held, self._held_bytes = self._held, [], 0
+        with self._guard("appending a line"):
+            columns: dict[str, list[np.ndarray]] = {}
+            for row, _ in lines:
+                for name, value in row.items():
+                    columns.setdefault(name, []).append(value)
+            for name, rows in columns.items():
+                _append(self._dataset(name), np.stack(rows))
+            data = self._dataset("raw/data")
+            counts = np.array([0 if raw is None else len(raw) for _, raw in lines], dtype=np.int64)
+            starts = data.shape[0] + np.cumsum(counts) - counts
+            if counts.sum():
+                _append(data, np.concatenate([raw for _, raw in lines if raw is not None]))
+            _append(self._dataset("raw/line_start"), starts)
+            _append(self._dataset("raw/line_count"), counts)
             self._file.flush()
             self._measured()
 
     def write_arrays(self, arrays: dict) -> None:
         """Write whole per-line arrays at once (a random run's FRFs): resize each dataset and fill it."""
+        self.write_held()
         with self._guard("writing the run's results"):
             for name, value in arrays.items():
                 value = np.asarray(value)
@@ -307,6 +365,7 @@ class SessionFile:
 
     def append_raw(self, samples: np.ndarray) -> None:
         """Append raw samples that belong to no single line (the random run's record)."""
+        self.write_held()
         with self._guard("appending raw samples"):
             d = self._dataset("raw/data")
             start = d.shape[0]
@@ -317,6 +376,7 @@ class SessionFile:
 
     def end_run(self, status: str, reason: str, seconds: float, attrs: dict | None = None) -> None:
         """Leave SWMR mode and record the run's status ("complete", "failed" or "aborted") and ``attrs``."""
+        self.write_held()
         run, self._run = self._run, None
         if run is None:
             return
@@ -364,7 +424,12 @@ class SessionFile:
             self.temporary.unlink(missing_ok=True)
 
     def abandon(self, seconds: float) -> None:
-        """The acquiring process is gone: mark the open run incomplete and close the file cleanly."""
+        """The acquiring process is gone: write the lines it completed, mark the open run incomplete and close
+        the file cleanly."""
+        try:
+            self.write_held()
+        except SessionWriteError:
+            self.leave()                    # as after any failed write: the file keeps its last whole flush
         run, self._run = self._run, None
         self.all_complete = False
         try:
@@ -425,20 +490,20 @@ def _grow(parent: h5py.Group, name: str, shape: tuple, dtype: str, units: str) -
     return ds
 
 
-def _append(ds: h5py.Dataset, value) -> None:
-    """Write ``value`` as the dataset's next row.
+def _append(ds: h5py.Dataset, rows: np.ndarray) -> None:
+    """Write ``rows`` (in the dataset's type, one per line) as the dataset's next rows.
 
-    Through h5py's low-level calls (extent, hyperslab, write): a line appends to some 30 datasets, and the
-    high-level ``resize`` and ``__setitem__`` cost 110 us each against 35 us; the bytes written are the same."""
+    Through h5py's low-level calls (extent, hyperslab, write): the high-level ``resize`` and ``__setitem__`` cost
+    110 us a dataset against 35 us; the bytes written are the same."""
     dsid = ds.id
     shape = dsid.shape
     row = shape[1:]
-    dsid.set_extent((shape[0] + 1,) + row)
-    # h5py will not convert float -> complex itself; numpy converts as ``ds[n] = value`` would
-    data = np.ascontiguousarray(np.asarray(value, dtype=ds.dtype).reshape((1,) + row))
+    count = (len(rows),) + row
+    dsid.set_extent((shape[0] + len(rows),) + row)
+    data = np.ascontiguousarray(np.asarray(rows, dtype=ds.dtype).reshape(count))
     target = dsid.get_space()
-    target.select_hyperslab((shape[0],) + (0,) * len(row), (1,) + row)
-    dsid.write(h5py.h5s.create_simple((1,) + row), target, data)
+    target.select_hyperslab((shape[0],) + (0,) * len(row), count)
+    dsid.write(h5py.h5s.create_simple(count), target, data)
 
 
 # --------------------------------------------------------------------------- the writer process
@@ -447,7 +512,8 @@ class _Stop(Exception):
 
 
 def _calls(file: SessionFile | None, method: str, kwargs: dict) -> SessionFile | None:
-    """Execute one call; returns the session file (created by the first call)."""
+    """Execute one call; returns the session file (created by the first call). A line is held, and written
+    with the held lines once they are due (:meth:`SessionFile.hold_left`)."""
     if method == "create":
         return SessionFile(kwargs["path"], kwargs["temporary"], kwargs["overwrite"],
                            SessionHeader(**kwargs["header"]), kwargs.get("kept"))
@@ -455,7 +521,11 @@ def _calls(file: SessionFile | None, method: str, kwargs: dict) -> SessionFile |
         spec = dict(kwargs["spec"])
         spec["extras"] = {k: (u, tuple(s), d) for k, (u, s, d) in spec["extras"].items()}
         file.begin_run(RunSpec(**spec), kwargs["seconds"])
-    elif method in ("append_line", "write_arrays", "append_raw", "end_run", "log", "close"):
+    elif method == "append_line":
+        file.hold_line(**kwargs)
+        if file.hold_left() <= 0:
+            file.write_held()
+    elif method in ("write_arrays", "append_raw", "end_run", "log", "close"):
         getattr(file, method)(**kwargs)
     else:
         raise SessionWriteError(f"unknown call {method!r}")
@@ -464,8 +534,9 @@ def _calls(file: SessionFile | None, method: str, kwargs: dict) -> SessionFile |
 
 def serve(calls, replies) -> int:
     """Execute calls from ``calls`` until ``close`` (exit 0) or the end of the stream (the sender died: the
-    file is closed on its behalf, exit 0). SIGINT and SIGHUP are the terminal's and are ignored; SIGTERM closes
-    the file as if the sender had died."""
+    file is closed on its behalf, with every line it sent, exit 0). SIGINT and SIGHUP are the terminal's and are
+    ignored; SIGTERM closes the file as if the sender had died. Held lines are written when they are due, whether
+    or not another call comes; a write that fails then is the reply to the next call."""
     waiting = {"now": False, "stop": False}
 
     def terminate(*_):
@@ -478,20 +549,29 @@ def serve(calls, replies) -> int:
     signal.signal(signal.SIGTERM, terminate)
     file: SessionFile | None = None
     seconds = 0.0
+    failure = None                                  # a write of held lines that failed between calls
     while not waiting["stop"]:
         waiting["now"] = True
         try:
-            call = receive_call(calls)
+            due = file is not None and file.held and not _arrives(calls, file.hold_left())
+            call = None if due else receive_call(calls)
         except _Stop:
-            call = None
+            due, call = False, None
         waiting["now"] = False
+        if due:
+            try:
+                file.write_held()
+            except SessionWriteError as exc:
+                failure = str(exc)
+            continue
         if call is None:
             break
         method, kwargs = call
         seconds = kwargs.get("seconds", seconds)
-        error = None
+        error, failure = failure, None
         try:
-            file = _calls(file, method, kwargs)
+            if error is None:
+                file = _calls(file, method, kwargs)
         except SessionWriteError as exc:
             error = str(exc)
         except Exception as exc:  # reported to the acquiring process, which ends the campaign safely
@@ -505,8 +585,16 @@ def serve(calls, replies) -> int:
         if method == "close" and error is None:
             return 0
     if file is not None:
+        if file.failed:
+            file.leave()
         file.abandon(seconds)
     return 0
+
+
+def _arrives(calls, seconds: float) -> bool:
+    """Whether a call begins to arrive on ``calls`` within ``seconds``. The sender waits for each reply before
+    its next call, so nothing of a call is left in the reader's buffer once the last one is answered."""
+    return seconds > 0 and bool(select.select([calls], [], [], seconds)[0])
 
 
 def main() -> int:

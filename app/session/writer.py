@@ -4,7 +4,8 @@
 :class:`SessionWriter` hands every write to a writer process of its own (:mod:`app.session.file`) that outlives
 the acquiring process: after a SIGKILL of ``simulate`` or ``acquire`` or a crash of the GUI the writer closes
 the file cleanly, with every completed line, and any HDF5 reader opens it. Only if the writer process itself
-dies (SIGKILL of it, power cut) is the file left marked as open for writing; :func:`open_session` reads it
+dies (SIGKILL of it, power cut) is the file left marked as open for writing, without the lines it held (those
+of its last quarter second); :func:`open_session` reads it
 anyway (SWMR) and reports such runs as incomplete, and :func:`recover_session` (``contactid recover``) makes it
 readable by any tool with those runs marked ``status = "aborted"``, ``incomplete = True``.
 """
@@ -75,8 +76,10 @@ def kept_beside(path: Path) -> Path:
 class SessionWriter:
     """Create a session file and append to it as a campaign runs (through the writer process).
 
-    Every method returns once the writer has the data flushed in the file; a line whose ``append_line`` returned
-    survives any later crash of this process. Before each write the free space is checked (the data plus
+    Every method returns once the writer process has the data: a line whose ``append_line`` returned survives any
+    later crash of this process. The writer holds lines for at most ``HOLD_SECONDS`` (0.25 s) and writes those
+    that came meanwhile together (:mod:`app.session.file`); every other call returns once its data is flushed
+    in the file, the held lines before it. Before each write the free space is checked (the data plus
     ``FREE_SPACE_RESERVE``): a disk about to fill raises SessionWriteError while the run can still be closed.
 
     Parameters
