@@ -348,7 +348,7 @@ def test_lines_held_when_the_acquiring_process_goes_are_in_the_closed_file(tmp_p
             send_call(calls, method, kwargs)
     with os.fdopen(read, "rb") as calls:
         assert _serve(calls, io.BytesIO()) == 0
-    with plain_open(path) as f:
+    with h5py.File(path, "r") as f:                        # closed by the writer loop, which ran here
         g = f["runs/sine_0.8N_up"]
         assert g["frequency"][()].tolist() == [1.0, 2.0, 3.0] and g["raw/line_start"][()].tolist() == [0, 50, 100]
         assert np.all(g["raw/data"][100:150] == 2)
@@ -365,7 +365,7 @@ def test_a_write_of_held_lines_that_fails_between_calls_is_the_reply_to_the_next
     def leave(self):
         raise Left
 
-    monkeypatch.setattr(file, "HOLD_SECONDS", 0.01)
+    monkeypatch.setattr(file, "HOLD_SECONDS", 0.1)
     monkeypatch.setattr(file.SessionFile, "leave", leave)
     path = tmp_path / "s.h5"
     calls_r, calls_w = os.pipe()
@@ -377,11 +377,13 @@ def test_a_write_of_held_lines_that_fails_between_calls_is_the_reply_to_the_next
             for method, kwargs in _opening_calls(path):
                 send_call(calls, method, kwargs)
                 answers.append(receive_reply(replies))
-            monkeypatch.setattr(h5py.File, "flush", full_disk)
             send_call(calls, *_line_call(0))
-            answers.append(receive_reply(replies))           # held: answered before it is written
-            time.sleep(0.2)                                  # the hold ends meanwhile, and its write fails
+            answers.append(receive_reply(replies))           # the first line: written at once
+            monkeypatch.setattr(h5py.File, "flush", full_disk)
             send_call(calls, *_line_call(1))
+            answers.append(receive_reply(replies))           # within the hold: answered before it is written
+            time.sleep(0.4)                                  # the hold ends meanwhile, and its write fails
+            send_call(calls, *_line_call(2))
             answers.append(receive_reply(replies))
 
     def full_disk(*args, **kwargs):
@@ -392,8 +394,8 @@ def test_a_write_of_held_lines_that_fails_between_calls_is_the_reply_to_the_next
     with os.fdopen(calls_r, "rb") as calls, os.fdopen(replies_w, "wb") as replies, pytest.raises(Left):
         _serve(calls, replies)
     sender.join()
-    assert answers[:3] == [None, None, None]
-    assert "failed while appending a line: No space left on device" in answers[3]
+    assert answers[:4] == [None, None, None, None]
+    assert "failed while appending a line: No space left on device" in answers[4]
 
 
 def line(w, i):
@@ -662,3 +664,27 @@ def test_recover_cuts_a_line_a_killed_writer_stored_only_in_part(tmp_path):
         r.create_dataset("raw/line_start", data=np.zeros(0, "i8"), maxshape=(None,))
         assert _trim_to_whole_lines(r) == 3                              # its raw record belongs to no line
         assert r["frequency"].shape == (3,) and r["raw/data"].shape == (700, 2)
+
+
+def test_a_line_that_comes_after_the_writers_last_write_is_written_at_once(tmp_path, monkeypatch):
+    """A real rig's lines come seconds apart: each is written as it comes, so a kill of the writer loses none that
+    was completed; lines that come faster than HOLD_SECONDS are held and written together."""
+    import app.session.file as file
+
+    clock = [100.0]
+    monkeypatch.setattr(file.time, "monotonic", lambda: clock[0])
+    session = None
+    for method, kwargs in _opening_calls(tmp_path / "s.h5"):
+        session = file._calls(session, method, kwargs)
+    session = file._calls(session, *_line_call(0))
+    assert session.held == 0                                 # the first line, at once
+    clock[0] += 0.01
+    session = file._calls(session, *_line_call(1))
+    assert session.held == 1 and 0 < session.hold_left() <= file.HOLD_SECONDS   # too soon: held
+    clock[0] += file.HOLD_SECONDS
+    assert session.hold_left() <= 0
+    session.write_held()
+    clock[0] += 2.0                                          # a line seconds later
+    session = file._calls(session, *_line_call(2))
+    assert session.held == 0
+    session.close(seconds=0.0)

@@ -5,10 +5,12 @@ app.session.file``, started by :class:`app.session.writer.SessionWriter`) that o
 the acquiring process dies (SIGKILL, a crash of the GUI), its end of the pipe closes, and the writer marks the
 open run as aborted and incomplete and closes the file cleanly, so any HDF5 reader opens it with every completed
 line. While a run is measured the file is in SWMR mode and lines are flushed whole, so readers (the GUI's
-Session tab) follow along. The writer process holds the lines that reach it within ``HOLD_SECONDS`` of each other
-and writes them together (one append to each dataset and one flush for all of them, where each line cost some 26
-appends and a flush); a kill of the writer process itself loses at most the lines it held, those of its last
-``HOLD_SECONDS`` (``contactid recover`` then makes the file readable by any tool).
+Session tab) follow along. A line that reaches the writer process ``HOLD_SECONDS`` or more after its last write is
+written at once; lines that come faster are held until ``HOLD_SECONDS`` after that write and written together (one
+append to each dataset and one flush for all of them, where each line cost some 26 appends and a flush). A kill of
+the writer process itself loses at most the lines it held: none of a real rig, whose lines take seconds each, and
+those of its last ``HOLD_SECONDS`` of a simulation (``contactid recover`` then makes the file readable by any
+tool).
 
 The file is first written under a temporary name beside its destination and moved into place once the first
 measured data is in: a start that fails leaves the old file (``--overwrite``) or no file.
@@ -46,9 +48,10 @@ RAW_ROWS_PER_CHUNK = 1024
 chunk of about a line's record (a stepped sine's line holds 500-1000 samples at 256-512 Hz) is compressed once or
 twice, where 8192 rows were compressed at every one of the ten lines they held."""
 HOLD_SECONDS = 0.25
-"""How long the writer process holds a completed line before it writes it (with the lines that reached it
-meanwhile): a kill of the writer process loses at most these. A real rig measures a line in seconds, so each is
-written alone, a quarter second after it came; a simulation sends dozens a second and they are written together."""
+"""The writer process writes lines at most once per this many seconds: a line that comes later than that after its
+last write is written at once, the lines that come sooner together when the time is up. A real rig measures a line
+in seconds, so each is written as it comes and a kill of the writer loses none that was completed; a simulation
+sends dozens a second, and one write of many lines costs little more than one of a single line."""
 HOLD_BYTES = 256 << 10
 """Raw bytes held at most: a batch's write stays well within the free-space reserve each call is checked against
 (``app.session.writer.FREE_SPACE_RESERVE``, 1 MiB)."""
@@ -153,7 +156,7 @@ class SessionFile:
         self._run: str | None = None
         self._datasets: dict[str, h5py.Dataset] = {}     # the open run's datasets, by path in the run
         self._held: list[tuple[dict, np.ndarray | None]] = []   # lines taken, not yet written (hold_line)
-        self._held_since = 0.0                           # time.monotonic() when the first of them came
+        self._written_at = -np.inf                       # time.monotonic() of the last write of held lines
         self._held_bytes = 0
         try:
             with h5py.File(self.temporary, "w", libver="latest") as f:
@@ -311,8 +314,6 @@ class SessionFile:
                 raw = np.asarray(raw, dtype=data.dtype)
                 if raw.ndim != 2 or raw.shape[1] != data.shape[1]:
                     raise ValueError(f"raw samples of shape {raw.shape}; the run records {data.shape[1]} channels")
-            if not self._held:
-                self._held_since = time.monotonic()
             self._held.append((row, raw))
             self._held_bytes += 0 if raw is None else raw.nbytes
 
@@ -322,10 +323,10 @@ class SessionFile:
         return len(self._held)
 
     def hold_left(self) -> float:
-        """Seconds until the held lines are due (<= 0: write them now)."""
+        """Seconds until the held lines are due (<= 0: write them now): ``HOLD_SECONDS`` after the last write."""
         if len(self._held) >= LINES_PER_CHUNK or self._held_bytes >= HOLD_BYTES:
             return 0.0
-        return self._held_since + HOLD_SECONDS - time.monotonic()
+        return self._written_at + HOLD_SECONDS - time.monotonic()
 
     def write_held(self) -> None:
         """Write the held lines, in the order taken: one append of their rows to each dataset, their raw samples
@@ -350,6 +351,7 @@ class SessionFile:
             _append(self._dataset("raw/line_count"), counts)
             self._file.flush()
             self._measured()
+        self._written_at = time.monotonic()
 
     def write_arrays(self, arrays: dict) -> None:
         """Write whole per-line arrays at once (a random run's FRFs): resize each dataset and fill it."""

@@ -77,9 +77,10 @@ class SessionWriter:
     """Create a session file and append to it as a campaign runs (through the writer process).
 
     Every method returns once the writer process has the data: a line whose ``append_line`` returned survives any
-    later crash of this process. The writer holds lines for at most ``HOLD_SECONDS`` (0.25 s) and writes those
-    that came meanwhile together (:mod:`app.session.file`); every other call returns once its data is flushed
-    in the file, the held lines before it. Before each write the free space is checked (the data plus
+    later crash of this process. The writer writes lines at most once per ``HOLD_SECONDS`` (0.25 s): one that
+    comes later after its last write at once, those that come sooner together when the time is up
+    (:mod:`app.session.file`); every other call returns once its data is flushed in the file, the held lines
+    before it. Before each write the free space is checked (the data plus
     ``FREE_SPACE_RESERVE``): a disk about to fill raises SessionWriteError while the run can still be closed.
 
     Parameters
