@@ -9,7 +9,6 @@
 """
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import time
@@ -18,6 +17,7 @@ from pathlib import Path
 from typing import Iterator
 
 from analysis.loop.auto import run_auto
+from analysis.common.child import python_child
 from analysis.common.errors import InputError
 from analysis.common.parallel import usable_cores
 from analysis.mechanics.model import load_model
@@ -68,11 +68,10 @@ def compiling_ahead() -> Iterator[subprocess.Popen | None]:
     if usable_cores() < 2:
         yield None
         return
-    root = str(Path(__file__).resolve().parents[1])
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
+    command, env = python_child("app.compile_ahead")
     try:
-        ahead = subprocess.Popen([sys.executable, "-m", "app.compile_ahead"], cwd=root, env=env,
-                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        ahead = subprocess.Popen(command, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.DEVNULL)
     except OSError:
         yield None
         return

@@ -25,9 +25,10 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import serial
+
+from analysis.common.child import python_child
 
 POLL = 0.05
 """Longest the relay blocks before it checks that its host still lives (s)."""
@@ -49,10 +50,8 @@ class Guardian:
     @classmethod
     def start(cls, instrument_url: str, baudrate: int = 115200) -> "Guardian":
         """Start a guardian for ``instrument_url`` and wait until it has opened the instrument."""
-        root = str(Path(__file__).resolve().parents[1])
-        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])))
-        process = subprocess.Popen([sys.executable, "-m", "drivers.guardian", instrument_url, str(baudrate)],
-                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+        command, env = python_child("drivers.guardian", instrument_url, str(baudrate))
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                                    start_new_session=True)
         ready, _, _ = select.select([process.stdout], [], [], START_TIMEOUT)
         line = process.stdout.readline().decode("ascii", "replace").strip() if ready else ""

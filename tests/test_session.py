@@ -688,3 +688,24 @@ def test_a_line_that_comes_after_the_writers_last_write_is_written_at_once(tmp_p
     session = file._calls(session, *_line_call(2))
     assert session.held == 0
     session.close(seconds=0.0)
+
+
+def test_the_writer_process_runs_this_checkouts_code_from_another_checkouts_folder(tmp_path, monkeypatch):
+    """``python -m`` puts the working directory first on the child's import path: started from another checkout's
+    folder, the writer would run that checkout's modules."""
+    other = tmp_path / "other"
+    (other / "app" / "session").mkdir(parents=True)
+    (other / "app" / "__init__.py").write_text("")
+    (other / "app" / "session" / "__init__.py").write_text("")
+    (other / "app" / "session" / "__main__.py").write_text(
+        f"open({str(tmp_path / 'foreign')!r}, 'w').close()\n")
+    monkeypatch.chdir(other)
+    path = tmp_path / "s.h5"
+    w = SessionWriter(path)
+    w.begin_run(spec())
+    line(w, 0)
+    w.end_run("complete")
+    w.close()
+    assert not (tmp_path / "foreign").exists()
+    with open_session(path) as s:
+        assert len(s.run("sine_0.8N_up").frequency) == 1

@@ -19,13 +19,14 @@ import json
 import os
 import select
 import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
 from h5py._objects import phil
+
+from analysis.common.child import python_child
 
 from app.session.superblock import clear_write_flags
 
@@ -183,11 +184,10 @@ class _Reader:
 
 
 def _attempt(source: Path, target: Path, image: bool, skip: list[str]) -> _Attempt:
-    root = str(Path(__file__).resolve().parents[2])          # the checkout holding app/
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p))
-    proc = subprocess.Popen([sys.executable, "-m", "app.session", "salvage", str(source), str(target),
-                             "image" if image else "swmr", json.dumps(skip)],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, env=env)
+    command, env = python_child("app.session", "salvage", str(source), str(target), "image" if image else "swmr",
+                                json.dumps(skip))
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
+                            env=env)
     reader, item = _Reader(proc), "the file's superblock"
     deadline = time.monotonic() + START_SECONDS + _allowed_seconds()
     try:

@@ -28,6 +28,7 @@ from typing import Iterable
 import h5py
 import numpy as np
 
+from analysis.common.child import python_child
 from analysis.common.errors import InputError
 from analysis.common.quantities import dof_name_problem
 
@@ -231,10 +232,9 @@ def _start_writer_process() -> subprocess.Popen:
     """``python -m app.session`` (the writer loop of :mod:`app.session.file`) in a session of its own: Ctrl-C or a
     kill of the acquiring process's group does not reach it, so it can close the file after the acquiring process
     is gone."""
-    root = str(Path(__file__).resolve().parents[2])          # the checkout holding app/
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p))
-    return subprocess.Popen([sys.executable, "-m", "app.session"], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, env=env, start_new_session=True, close_fds=True)
+    command, env = python_child("app.session")
+    return subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, start_new_session=True,
+                            close_fds=True)
 
 
 # --------------------------------------------------------------------------- reader
