@@ -34,6 +34,8 @@ from app.report import REPORT_FILES, write_report
 SESSION = "paper-beam.h5"
 FITTED = "paper-beam.fitted.toml"
 ANALYSIS = "report/analysis.txt"
+#: Seconds the compiling process may take to end once asked
+AHEAD_EXIT_S = 5.0
 
 
 def check_demo_outputs(out: Path, overwrite: bool) -> None:
@@ -84,10 +86,6 @@ def compiling_ahead() -> Iterator[subprocess.Popen | None]:
         except subprocess.TimeoutExpired:
             ahead.kill()
             ahead.wait()
-
-
-#: Seconds the compiling process may take to end once asked
-AHEAD_EXIT_S = 5.0
 
 
 def _demo(out: Path, quick: bool, seed: int, software_version: str, say, overwrite: bool) -> Workbench:

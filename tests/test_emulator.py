@@ -188,34 +188,31 @@ def test_a_fast_port_is_read_in_its_consumers_thread_and_a_failure_there_ends_th
             assert not consumer.is_alive() and stream.sync() and rig.daq.acquired == 1000
         assert threads == {consumer} and stream.stats.balanced
 
-        rig.inject("daq", {"stall": 1.0, "stall_time": 3.0})
-        stream = daq.stream(200, no_data_timeout=0.3)
+        abandoned_in_a_stall(rig, daq, reads=2)
+
+
+def abandoned_in_a_stall(rig, daq, reads: int) -> None:
+    """A stream whose DAQ stalls for 3 s: its ``reads`` reads and its stop fail for want of data, and the ABORt the
+    failure sent stops the instrument's stream once its firmware thread acts."""
+    rig.inject("daq", {"stall": 1.0, "stall_time": 3.0})
+    stream = daq.stream(200, no_data_timeout=0.3)
+    for _ in range(reads):
         with pytest.raises(LinkTimeout, match="no stream data"):
             stream.read()
-        with pytest.raises(LinkTimeout, match="no stream data"):
-            stream.read()
-        with pytest.raises(LinkTimeout, match="no stream data"):
-            stream.stop()
-        give_up = time.monotonic() + 10.0             # ABORt sent when the read failed (its firmware thread acts)
-        while rig.daq.acquiring and time.monotonic() < give_up:
-            time.sleep(0.01)
-        assert not rig.daq.acquiring
+    with pytest.raises(LinkTimeout, match="no stream data"):
+        stream.stop()
+    give_up = time.monotonic() + 10.0
+    while rig.daq.acquiring and time.monotonic() < give_up:
+        time.sleep(0.01)
+    assert not rig.daq.acquiring
 
 
 def test_a_stream_after_one_abandoned_in_a_stall_reads_its_own_samples():
     """A stream abandoned while the instrument stalled never saw the END its ABORt asked for: the END comes once
     the stall is over, and the next stream must not take it for its own end."""
     with bench() as (rig, shaker, daq):
-        rig.inject("daq", {"stall": 1.0, "stall_time": 3.0})
-        stream = daq.stream(200, no_data_timeout=0.3)
-        with pytest.raises(LinkTimeout, match="no stream data"):
-            stream.read()
-        with pytest.raises(LinkTimeout, match="no stream data"):
-            stream.stop()
+        abandoned_in_a_stall(rig, daq, reads=1)
         rig.inject("daq", {"stall": 0.0})
-        give_up = time.monotonic() + 10.0
-        while rig.daq.acquiring and time.monotonic() < give_up:
-            time.sleep(0.01)
         with daq.stream(200) as stream:
             blocks = [stream.read() for _ in range(3)]
         assert [b.first_sample for b in blocks] == [0, 200, 400] and stream.stats.balanced

@@ -221,3 +221,21 @@ def test_a_placed_balance_starts_from_what_its_own_task_solved_so_any_number_of_
     alone = map_tasks(task, 4, workers=1)
     assert all(np.array_equal(a, b) for a, b in zip(alone, map_tasks(task, 4, workers=2)))
     assert all(np.array_equal(a, b) for a, b in zip(alone[::-1], map_tasks(lambda i: task(3 - i), 4, workers=1)))
+
+
+def test_a_task_scope_is_its_own_threads():
+    """Another thread's code runs in no task while a map's task runs here (a GUI thread predicting beside the
+    analysis): what it solves starts from what it solved itself."""
+    import threading
+
+    from analysis.common.parallel import OUTSIDE, task_scope
+
+    def task(i):
+        seen = []
+        other = threading.Thread(target=lambda: seen.append(task_scope()))
+        other.start()
+        other.join()
+        return task_scope() is not OUTSIDE, seen[0] is OUTSIDE
+
+    assert map_tasks(task, 2, workers=1) == [(True, True), (True, True)]
+    assert task_scope() is OUTSIDE

@@ -125,6 +125,18 @@ def records(data, frequency, periods_per_record=5):
     return [Record(data[i:i + n], i, FS, False) for i in range(0, len(data) - n + 1, n)]
 
 
+def first_taken(meter, data, frequency):
+    """The records of ``data`` fed to ``meter`` one by one until one is taken: ((record, estimate) of the first
+    taken, or None), and the estimates of the records before it (None where a record gave none)."""
+    refused = []
+    for rec in records(data, frequency):
+        estimate = meter.add(rec, frequency)
+        if estimate is not None and estimate.accepted:
+            return (rec, estimate), refused
+        refused.append(estimate)
+    return None, refused
+
+
 def settled_frf(data, frequency, origin):
     """The accelerance of the last two periods, the steady state the line converges to, at sample ``origin``."""
     P, _ = window_phasors(data[-2 * int(round(2 * FS / frequency)):], FS, frequency, 2, 5,
@@ -146,13 +158,8 @@ def test_a_line_with_harmonics_is_taken_from_its_sequence_within_the_tolerance(l
     meter = TransientLines(FS, 5, tolerance, force_index=0, sensor_index=[1])
     meter.poles = np.array([-0.75 + 1j * np.sqrt(K / M - 0.75**2)])     # the linear oscillator's pole
     meter.restart()
-    taken = None
-    for rec in records(data, f2):
-        estimate = meter.add(rec, f2)
-        if estimate is not None and estimate.accepted:
-            taken = (rec, estimate)
-            break
-        assert estimate is None or estimate.reason, "a refusal says why"
+    taken, refused = first_taken(meter, data, f2)
+    assert all(e is None or e.reason for e in refused), "a refusal says why"
     assert taken is not None, meter.reason
     rec, estimate = taken
     assert 2 * np.linalg.norm(estimate.phasors[2:, 1]) > tolerance * abs(estimate.phasors[1, 1])   # harmonics
@@ -179,13 +186,8 @@ def test_a_linear_line_whose_transient_the_poles_known_do_not_describe_is_taken_
     meter = TransientLines(FS, 5, tolerance, force_index=0, sensor_index=[1])
     meter.poles = np.array([-0.2 + 2j * np.pi * 6.0])                    # not the oscillator's
     meter.restart()
-    reasons, taken = [], None
-    for rec in records(data, f):
-        estimate = meter.add(rec, f)
-        if estimate is not None and estimate.accepted:
-            taken = (rec, estimate)
-            break
-        reasons.append(estimate.reason if estimate is not None else "")
+    taken, refused = first_taken(meter, data, f)
+    reasons = [e.reason if e is not None else "" for e in refused]
     assert taken is not None, reasons
     assert reasons[0].startswith("harmonics")
     assert all(r == "" or r.startswith("phasor sequence's limit uncertain") for r in reasons[1:]), reasons
@@ -231,13 +233,8 @@ def test_a_line_past_a_jump_is_taken_within_the_tolerance_once_its_decay_is_fitt
     meter = TransientLines(FS, 5, tolerance, force_index=0, sensor_index=[1])
     meter.poles = np.array([-0.75 + 1j * np.sqrt(K / M - 0.75**2)])     # the linear oscillator's pole
     meter.restart()
-    reasons, taken = [], None
-    for rec in records(data, f):
-        estimate = meter.add(rec, f)
-        if estimate is not None and estimate.accepted:
-            taken = (rec, estimate)
-            break
-        reasons.append(estimate.reason if estimate is not None else "")
+    taken, refused = first_taken(meter, data, f)
+    reasons = [e.reason if e is not None else "" for e in refused]
     assert taken is not None, reasons
     assert reasons[0].startswith("harmonics")                           # the first record: the upper branch's
     rec, estimate = taken

@@ -34,6 +34,7 @@ import os
 import pickle
 import signal
 import sys
+from contextvars import ContextVar
 from multiprocessing.connection import wait
 from typing import Callable, TypeVar
 
@@ -64,25 +65,25 @@ class TaskScope:
 
 #: The scope of code that runs in no task
 OUTSIDE = TaskScope()
-_scope = OUTSIDE
+# the thread's own, as a stop question is (analysis.common.interrupt): another thread's map is not this one's
+_SCOPE: ContextVar[TaskScope] = ContextVar("contactid_task", default=OUTSIDE)
 
 
 def task_scope() -> TaskScope:
-    """The task of :func:`map_tasks` the caller runs in (:data:`OUTSIDE` in none). What a solver keeps from one
-    call to the next to start from (a placed contact's last balance) is kept per task: a task then starts from
-    nothing the tasks before it in its process left, so its answer is the same whichever worker runs it after
+    """The task of :func:`map_tasks` the calling thread runs in (:data:`OUTSIDE` in none). What a solver keeps
+    from one call to the next to start from (a placed contact's last balance) is kept per task: a task then starts
+    from nothing the tasks before it in its process left, so its answer is the same whichever worker runs it after
     which tasks, or none."""
-    return _scope
+    return _SCOPE.get()
 
 
 def _in_scope(task: Callable[[int], T], i: int) -> T:
     """``task(i)`` in a task scope of its own."""
-    global _scope
-    outer, _scope = _scope, TaskScope()
+    token = _SCOPE.set(TaskScope())
     try:
         return task(i)
     finally:
-        _scope = outer
+        _SCOPE.reset(token)
 
 
 #: What a worker sends back for a task it could not compute or send: the task is computed here instead
