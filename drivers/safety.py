@@ -11,6 +11,7 @@ entry. From then on every way out switches it off:
 - SIGINT / SIGTERM: a handler sends output-off ahead of anything queued on the
   port, then chains to the previous handler (default SIGINT: KeyboardInterrupt;
   default SIGTERM: SystemExit(143), so ``finally`` blocks and atexit still run);
+  within :func:`signals_held` the output goes off at once and the rest waits for the block's end;
 - interpreter exit (atexit), e.g. when the guard lives in a daemon thread.
 
 If the host dies without any of these (power cut, SIGKILL, unplugged cable) the
@@ -26,9 +27,10 @@ import atexit
 import math
 import signal
 import threading
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime, timezone
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -167,9 +169,18 @@ _HANDLED = (signal.SIGINT, signal.SIGTERM)
 
 
 def _handle_signal(signum: int, frame: Any) -> None:
+    _emergency_stops(signum)
+    _chain(signum, frame)
+
+
+def _emergency_stops(signum: int) -> None:
     name = signal.Signals(signum).name
     for guard in _active:
         guard.emergency_stop(f"signal {name}")
+
+
+def _chain(signum: int, frame: Any) -> None:
+    """What the signal did before :func:`install_signal_handlers`: KeyboardInterrupt, SystemExit or a handler."""
     previous = _previous.get(signum, signal.SIG_DFL)
     if callable(previous):
         previous(signum, frame)
@@ -179,6 +190,54 @@ def _handle_signal(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt
     else:
         raise SystemExit(128 + signum)
+
+
+@contextmanager
+def signals_held() -> Iterator[None]:
+    """Within the block, SIGINT and SIGTERM act at its end: for an exchange that must not stop half way (a call
+    to the session writer over its pipe: a frame cut short there leaves both processes waiting on each other).
+
+    The output goes off at once, as it always does (the guards' emergency stop); only what the signal does next
+    (KeyboardInterrupt, SystemExit, a handler of the process's own) waits for the block's end. A second signal in
+    the block is not held: an exchange that does not end can still be interrupted. Outside the main thread, where
+    Python runs no signal handler, the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[tuple[int, Any]] = []
+    before = {signum: signal.getsignal(signum) for signum in _HANDLED}
+
+    def restore() -> None:
+        for signum, handler in before.items():
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
+
+    def act(signum: int, frame: Any) -> None:
+        handler = before[signum]
+        if handler is _handle_signal:
+            _chain(signum, frame)               # its emergency stop was made when the signal came
+        elif callable(handler):
+            handler(signum, frame)
+        else:
+            signal.raise_signal(signum)         # the default action, or nothing for an ignored signal
+
+    def hold(signum: int, frame: Any) -> None:
+        if before[signum] is _handle_signal:
+            _emergency_stops(signum)
+        if held:                                # the second: acts now
+            held.clear()
+            restore()
+            act(signum, frame)
+        else:
+            held.append((signum, frame))
+
+    for signum in _HANDLED:
+        signal.signal(signum, hold)
+    try:
+        yield
+    finally:
+        restore()
+        if held:
+            act(*held[0])
 
 
 def install_signal_handlers() -> bool:

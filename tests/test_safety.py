@@ -19,7 +19,7 @@ import drivers  # noqa: F401  (registers sim://)
 from drivers.emulator import EmulatedRig, register
 from drivers.errors import ArmingRefused, LinkLost
 from drivers.interfaces import Block
-from drivers.safety import AbortLimits, LimitExceeded, OutputGuard, check_limits
+from drivers.safety import AbortLimits, LimitExceeded, OutputGuard, check_limits, signals_held
 from drivers.serve import EmulatorServer
 
 from rig_double import RigDouble, bench, stream_start
@@ -174,6 +174,53 @@ def test_sigterm_in_process_switches_off_and_chains_to_the_previous_handler():
         assert signal.getsignal(signal.SIGTERM) is not previous and calls == [signal.SIGTERM]
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_a_signal_in_a_held_block_switches_off_at_once_and_interrupts_at_the_block_end():
+    with bench() as (rig, shaker, daq):
+        shaker.set_sine(10.0, 0.2)
+        with OutputGuard(shaker) as guard:
+            guard.arm()
+            installed = signal.getsignal(signal.SIGINT)
+            reached = []
+            with pytest.raises(KeyboardInterrupt):
+                with signals_held():
+                    signal.raise_signal(signal.SIGINT)
+                    wait_for(lambda: not rig.shaker.output_on)        # the output went off when the signal came
+                    reached.append("end of block")
+            assert reached == ["end of block"] and guard.tripped
+            assert sum(e.kind == "emergency" for e in guard.events) == 1        # one stop for one signal
+            assert signal.getsignal(signal.SIGINT) is installed
+
+
+def test_a_second_signal_in_a_held_block_interrupts_at_once():
+    reached = []
+    with pytest.raises(KeyboardInterrupt):
+        with signals_held():
+            signal.raise_signal(signal.SIGINT)
+            reached.append("after the first")
+            signal.raise_signal(signal.SIGINT)
+            reached.append("after the second")
+    assert reached == ["after the first"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_held_block_without_a_signal_or_outside_the_main_thread_leaves_the_handlers_as_they_were():
+    import threading
+    before = [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)]
+    with signals_held():
+        assert signal.getsignal(signal.SIGINT) not in before          # held within
+    assert [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)] == before
+    seen = []
+
+    def in_a_worker():
+        with signals_held():                                           # signal.signal would raise here
+            seen.append(signal.getsignal(signal.SIGINT))
+
+    worker = threading.Thread(target=in_a_worker)
+    worker.start()
+    worker.join()
+    assert seen == before[:1]
 
 
 @pytest.mark.parametrize("model, mode, action, detail, returncodes", [

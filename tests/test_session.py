@@ -355,6 +355,37 @@ def test_lines_held_when_the_acquiring_process_goes_are_in_the_closed_file(tmp_p
         assert g.attrs["status"] == "aborted" and g.attrs["incomplete"]
 
 
+def test_a_call_cut_short_ends_the_writer_which_closes_the_file_with_the_lines_sent_before(tmp_path, monkeypatch):
+    """Half a call on the pipe (an exchange stopped by a second Ctrl-C, or any error mid-frame) would leave the
+    writer waiting for its rest and this process for its reply: the writer is ended instead, as if this process
+    had died, and a later call says why."""
+    import app.session.writer as writer
+    from app.session.wire import send_call
+
+    path = tmp_path / "s.h5"
+    w = SessionWriter(path)
+    w.begin_run(spec())
+    for i in range(2):
+        w.append_line(1.0 + i, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8}, np.full((50, 3), i))
+
+    def cut_short(stream, method, kwargs):
+        send_call(stream, method, kwargs)                  # this call whole, then half of the next
+        stream.write(b"\x20\x00\x00\x00\x00\x00\x00\x00{\"method\": ")
+        stream.flush()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(writer, "send_call", cut_short)
+    with pytest.raises(KeyboardInterrupt):
+        w.append_line(3.0, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8}, np.full((50, 3), 2))
+    monkeypatch.undo()
+    with pytest.raises(SessionWriteError, match="cut short"):
+        w.end_run("aborted", "interrupted")
+    w.close()                                              # nothing left to do
+    with h5py.File(path, "r") as f:                        # closed by the writer when its input ended
+        g = f["runs/sine_0.8N_up"]
+        assert g["frequency"][()].tolist() == [1.0, 2.0, 3.0] and g.attrs["incomplete"]      # the whole ones
+
+
 def test_a_write_of_held_lines_that_fails_between_calls_is_the_reply_to_the_next(tmp_path, monkeypatch):
     import app.session.file as file
     from app.session.wire import receive_reply, send_call

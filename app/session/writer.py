@@ -39,6 +39,7 @@ from app.session.outputs import (NotWritten, atomic_replace, check_output, requi
 from app.session.salvage import SalvageError, salvage, swmr_read_access
 from app.session.superblock import write_flags
 from app.session.wire import receive_reply, send_call
+from drivers.safety import signals_held
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "RunData", "RunSpec", "Session", "SessionWriteError", "SessionWriter",
            "StoredHistory", "append_model_history", "needs_recovery", "open_session", "read_model_history",
@@ -51,6 +52,8 @@ FREE_SPACE_RESERVE = 1 << 20
 RECOVERY_MARGIN = 64 << 10
 _WRITER_STOPPED = ("the session writer process stopped ({how}); the lines written before are kept (if other "
                    "HDF5 tools refuse the file, `contactid recover {path}` repairs it)")
+_WRITER_CUT = ("the session writer process was ended when a call to it was cut short ({how}); it closed the file "
+               "with every line sent before")
 
 
 def _text(value) -> str:
@@ -132,17 +135,25 @@ class SessionWriter:
         return time.monotonic() - self.t0
 
     def _call(self, method: str, **kwargs) -> None:
+        """One call and its reply, whole: a signal waits for the reply (:func:`drivers.safety.signals_held`).
+        An exchange stopped half way all the same (a second signal) ends the writer process as if this one had
+        died -- the pipe may hold half a call or an unread reply -- and the file is closed with every line sent."""
         with self._lock:
             if self._proc is None:
                 raise SessionWriteError(self._stopped or f"{self.path}: the session is closed")
             try:
-                send_call(self._proc.stdin, method, kwargs)
-                error = receive_reply(self._proc.stdout)
+                with signals_held():
+                    send_call(self._proc.stdin, method, kwargs)
+                    error = receive_reply(self._proc.stdout)
             except (OSError, EOFError, ValueError):
                 code = self._stop_process()
                 how = f"killed by signal {-code}" if code < 0 else f"exit status {code}"
                 self._stopped = f"{self.path}: " + _WRITER_STOPPED.format(how=how, path=self.path)
                 raise SessionWriteError(self._stopped) from None
+            except BaseException as exc:
+                self._stop_process()
+                self._stopped = f"{self.path}: " + _WRITER_CUT.format(how=type(exc).__name__, path=self.path)
+                raise
         if error is not None:
             raise SessionWriteError(error)
 
