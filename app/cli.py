@@ -860,6 +860,10 @@ def _run(args) -> int:
     except KeyboardInterrupt as exc:
         print(f"contactid: interrupted{_notes(exc)}", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except SystemExit as exc:       # SIGTERM (drivers.safety): it ends the process as it asked, saying what it left
+        if getattr(exc, "__notes__", None):
+            print(f"contactid: stopped{_notes(exc)}", file=sys.stderr)
+        raise
     except Exception as exc:  # a one-line report for anything unexpected; --debug shows the traceback
         if args.debug:
             raise

@@ -205,11 +205,12 @@ def signals_held() -> Iterator[None]:
         yield
         return
     held: list[tuple[int, Any]] = []
-    before = {signum: signal.getsignal(signum) for signum in _HANDLED}
+    # a handler installed outside Python (None) could not be put back: such a signal is left as it is
+    before = {signum: handler for signum in _HANDLED if (handler := signal.getsignal(signum)) is not None}
 
     def restore() -> None:
         for signum, handler in before.items():
-            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
+            signal.signal(signum, handler)
 
     def act(signum: int, frame: Any) -> None:
         handler = before[signum]
@@ -230,9 +231,9 @@ def signals_held() -> Iterator[None]:
         else:
             held.append((signum, frame))
 
-    for signum in _HANDLED:
-        signal.signal(signum, hold)
     try:
+        for signum in before:                   # inside: a signal between two of these still restores both
+            signal.signal(signum, hold)
         yield
     finally:
         restore()

@@ -1,5 +1,6 @@
 import gc
 import os
+import signal
 
 import pytest
 
@@ -51,3 +52,12 @@ def _qt_garbage_in_the_main_thread(request):
     yield
     if "qtbot" in request.fixturenames:
         gc.collect()
+
+
+@pytest.fixture
+def ctrl_c():
+    """SIGINT as a user's shell delivers it (KeyboardInterrupt): a test run started in the background has it
+    ignored."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)

@@ -156,6 +156,56 @@ def test_abort_from_another_thread_switches_off_and_keeps_the_lines(tmp_path):
         assert any(e["kind"] == "safety" and "trip" in e["message"] for e in s.events())
 
 
+class CtrlCAtLine(CampaignListener):
+    """Ctrl-C as the campaign's thread sees it, at the fourth line."""
+
+    def line(self, run, index, m, target):
+        if index == 3:
+            raise KeyboardInterrupt
+
+
+SHORT_PLAN = ("[[stepped_sine]]\nforce = 0.8\nstart = 2.8\nstop = 3.2\nstep = 0.05\n[limits]\nmax_force = 5.0\n"
+              "max_acceleration = 50.0\n")
+
+
+def _interrupted(tmp_path) -> KeyboardInterrupt:
+    """The short plan interrupted at its fourth line, over an earlier session (``--overwrite``)."""
+    (tmp_path / "c.h5").write_bytes(b"an earlier session")
+    with emulated_instruments(load_rig("paper-2dof")) as inst:
+        with pytest.raises(KeyboardInterrupt) as caught:
+            run_plan(plan(SHORT_PLAN), inst, tmp_path / "c.h5", overwrite=True, listener=CtrlCAtLine())
+        assert not inst.shaker.output_enabled()
+    assert (tmp_path / "c.h5").read_bytes() == b"an earlier session"
+    return caught.value
+
+
+def test_ctrl_c_stays_ctrl_c_when_the_run_cannot_be_closed_in_the_session(tmp_path, monkeypatch):
+    """What the user asked for reaches the command (exit 130), the session's failure as a note on it; an
+    error's cleanup failing in the file replaces the error instead (test_disk_failure_mid_run_...)."""
+    def failing_end(self, *args, **kwargs):
+        raise SessionWriteError(f"{self.path}: failed while closing a run: [Errno 28] No space left")
+
+    monkeypatch.setattr(SessionWriter, "end_run", failing_end)
+    notes = _interrupted(tmp_path).__notes__
+    assert any("could not be closed in the session" in n and "No space left" in n for n in notes)
+    assert any("kept beside it as" in n for n in notes)
+
+
+def test_a_second_ctrl_c_while_the_session_closes_still_says_where_it_went(tmp_path, monkeypatch):
+    real_close = SessionWriter.close
+
+    def closed_then_ctrl_c(self, complete=False):
+        real_close(self, complete)
+        raise KeyboardInterrupt                            # held while the file closed, acting once it had
+
+    monkeypatch.setattr(SessionWriter, "close", closed_then_ctrl_c)
+    assert any("kept beside it as" in n for n in _interrupted(tmp_path).__notes__)
+    with open_session(tmp_path / "c.incomplete.h5") as s:
+        run = s.run("sine_0.8N_up")
+        assert run.status == "aborted" and len(run.frequency) == 4
+        assert run.attrs["end_reason"] == "interrupted by Ctrl-C"
+
+
 @pytest.mark.slow
 def test_limit_breach_aborts_with_output_off(tmp_path):
     rig = load_rig(RIGS / "linear-shaker.toml")

@@ -176,15 +176,6 @@ def test_sigterm_in_process_switches_off_and_chains_to_the_previous_handler():
         signal.signal(signal.SIGTERM, previous)
 
 
-@pytest.fixture
-def ctrl_c():
-    """SIGINT as a user's shell delivers it (KeyboardInterrupt): a test run started in the background has it
-    ignored."""
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    yield
-    signal.signal(signal.SIGINT, previous)
-
-
 def test_a_signal_in_a_held_block_switches_off_at_once_and_interrupts_at_the_block_end(ctrl_c):
     with bench() as (rig, shaker, daq):
         shaker.set_sine(10.0, 0.2)

@@ -355,28 +355,37 @@ def test_lines_held_when_the_acquiring_process_goes_are_in_the_closed_file(tmp_p
         assert g.attrs["status"] == "aborted" and g.attrs["incomplete"]
 
 
+def _writer_with_two_lines(path) -> SessionWriter:
+    w = SessionWriter(path)
+    w.begin_run(spec())
+    for i in range(2):
+        w.append_line(1.0 + i, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8}, np.full((50, 3), i))
+    return w
+
+
+def _third_line(w: SessionWriter) -> None:
+    w.append_line(3.0, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8}, np.full((50, 3), 2))
+
+
 def test_a_call_cut_short_ends_the_writer_which_closes_the_file_with_the_lines_sent_before(tmp_path, monkeypatch):
     """Half a call on the pipe (an exchange stopped by a second Ctrl-C, or any error mid-frame) would leave the
     writer waiting for its rest and this process for its reply: the writer is ended instead, as if this process
     had died, and a later call says why."""
     import app.session.writer as writer
-    from app.session.wire import send_call
+    from app.session.wire import write_frame
 
     path = tmp_path / "s.h5"
-    w = SessionWriter(path)
-    w.begin_run(spec())
-    for i in range(2):
-        w.append_line(1.0 + i, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8}, np.full((50, 3), i))
+    w = _writer_with_two_lines(path)
 
-    def cut_short(stream, method, kwargs):
-        send_call(stream, method, kwargs)                  # this call whole, then half of the next
+    def cut_short(stream, parts):
+        write_frame(stream, parts)                         # this call whole, then half of the next
         stream.write(b"\x20\x00\x00\x00\x00\x00\x00\x00{\"method\": ")
         stream.flush()
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(writer, "send_call", cut_short)
+    monkeypatch.setattr(writer, "write_frame", cut_short)
     with pytest.raises(KeyboardInterrupt):
-        w.append_line(3.0, {"x1": 1j, "x2": 1j}, {"force_amplitude": 0.8}, np.full((50, 3), 2))
+        _third_line(w)
     monkeypatch.undo()
     with pytest.raises(SessionWriteError, match="cut short"):
         w.end_run("aborted", "interrupted")
@@ -384,6 +393,68 @@ def test_a_call_cut_short_ends_the_writer_which_closes_the_file_with_the_lines_s
     with h5py.File(path, "r") as f:                        # closed by the writer when its input ended
         g = f["runs/sine_0.8N_up"]
         assert g["frequency"][()].tolist() == [1.0, 2.0, 3.0] and g.attrs["incomplete"]      # the whole ones
+
+
+def test_a_call_cut_short_while_another_process_holds_the_pipe_still_ends_the_writer(tmp_path, monkeypatch):
+    """A process forked while the session is open (an analysis's workers) holds a copy of the pipe: the writer's
+    input does not end when this process closes it, and the writer is sent SIGTERM instead."""
+    import app.session.writer as writer
+
+    def cut_short(stream, parts):
+        stream.write(parts[0])                             # the frame's length, nothing more
+        stream.flush()
+        raise KeyboardInterrupt
+
+    path = tmp_path / "s.h5"
+    w = _writer_with_two_lines(path)
+    holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"],
+                              pass_fds=(w._proc.stdin.fileno(),))
+    try:
+        monkeypatch.setattr(writer, "CUT_EXIT_S", 0.2)
+        monkeypatch.setattr(writer, "write_frame", cut_short)
+        with pytest.raises(KeyboardInterrupt):
+            _third_line(w)
+        assert holder.poll() is None                       # the writer ended with its input still open
+    finally:
+        holder.kill()
+        holder.wait()
+    with h5py.File(path, "r") as f:
+        g = f["runs/sine_0.8N_up"]
+        assert g["frequency"][()].tolist() == [1.0, 2.0] and g.attrs["incomplete"]
+
+
+def test_ctrl_c_during_a_call_acts_once_its_reply_is_in_and_the_writer_goes_on(tmp_path, monkeypatch, ctrl_c):
+    import app.session.writer as writer
+    from app.session.wire import write_frame
+
+    def then_ctrl_c(stream, parts):
+        write_frame(stream, parts)
+        signal.raise_signal(signal.SIGINT)                 # while the reply is still to come
+
+    path = tmp_path / "s.h5"
+    w = _writer_with_two_lines(path)
+    monkeypatch.setattr(writer, "write_frame", then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        _third_line(w)
+    monkeypatch.undo()
+    w.end_run("aborted", "interrupted by Ctrl-C")          # the writer is still there
+    w.close()
+    with h5py.File(path, "r") as f:
+        g = f["runs/sine_0.8N_up"]
+        assert g["frequency"][()].tolist() == [1.0, 2.0, 3.0]
+        assert g.attrs["status"] == "aborted" and g.attrs["end_reason"] == "interrupted by Ctrl-C"
+
+
+def test_a_call_that_cannot_be_sent_is_refused_with_the_writer_going_on(tmp_path):
+    path = tmp_path / "s.h5"
+    w = _writer_with_two_lines(path)
+    with pytest.raises(TypeError):
+        w.log("note", {"not", "text"})                    # a set: nothing of it reaches the pipe
+    _third_line(w)
+    w.end_run("complete")
+    w.close(complete=True)
+    with h5py.File(path, "r") as f:
+        assert f["runs/sine_0.8N_up/frequency"][()].tolist() == [1.0, 2.0, 3.0]
 
 
 def test_a_write_of_held_lines_that_fails_between_calls_is_the_reply_to_the_next(tmp_path, monkeypatch):

@@ -13,6 +13,7 @@ The caller (command line or GUI worker thread) calls :meth:`Campaign.run`; anoth
 from __future__ import annotations
 
 import queue
+import sys
 import threading
 import time
 from contextlib import contextmanager
@@ -663,11 +664,36 @@ class Campaign:
         except Exception as exc:
             reason = self._describe(exc) if isinstance(exc, InstrumentError) else f"{type(exc).__name__}: {exc}"
             raise
+        except BaseException as exc:
+            reason = _stop_words(exc)
+            raise
         finally:
+            stop = sys.exc_info()[1]
             self._drain_events()
-            self.writer.end_run(status, reason, self._run_lines.closing_attrs(spec))
+            try:
+                self.writer.end_run(status, reason, self._run_lines.closing_attrs(spec))
+            except SessionWriteError as exc:
+                if not asked_to_stop(stop):
+                    raise
+                stop.add_note(f"the run could not be closed in the session: {exc}")
             self.summary.runs[spec.name] = status
             self.listener.run_ended(spec.name, status)
+
+
+def _stop_words(exc: BaseException) -> str:
+    """A stop asked for, as a run's end reason."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted by Ctrl-C"
+    if isinstance(exc, SystemExit):
+        return f"stopped, exit status {exc.code}"
+    return type(exc).__name__
+
+
+def asked_to_stop(exc: BaseException | None) -> bool:
+    """Whether ``exc`` is a stop the user or the system asked for (Ctrl-C, SIGTERM's SystemExit): it reaches the
+    command as what it is (exit 130, 143) whatever its cleanup meets, which it carries as a note. An error's
+    cleanup failing in the file is news of its own and replaces it (the campaign reports the session's failure)."""
+    return exc is not None and not isinstance(exc, Exception)
 
 
 def lock_extras(point: LockedPoint) -> dict:

@@ -4,10 +4,10 @@ from __future__ import annotations
 import sys
 import time
 
-from app.campaign.engine import Campaign, CampaignListener, CampaignSummary
+from app.campaign.engine import Campaign, CampaignListener, CampaignSummary, asked_to_stop
 from app.campaign.instruments import Instruments
 from app.campaign.plan import Plan, check_against_instruments
-from app.session import SessionWriter
+from app.session import SessionWriteError, SessionWriter
 
 
 class ProgressBar(CampaignListener):
@@ -97,9 +97,14 @@ def run_plan(plan: Plan, instruments: Instruments, output, *, overwrite: bool = 
             on_campaign(campaign)
         summary = campaign.run()
     except BaseException as exc:       # Ctrl-C, a failure: the file is closed, and where it went is said
-        writer.close(complete=False)
-        if _kept_beside(writer):
-            exc.add_note(_kept_note(writer))
+        try:
+            writer.close(complete=False)
+        except BaseException as again:  # a second Ctrl-C, or the file failing as it closes
+            if not (isinstance(again, SessionWriteError) and asked_to_stop(exc)):
+                _say_where_kept(writer, again)
+                raise
+            exc.add_note(f"the session could not be closed: {again}")
+        _say_where_kept(writer, exc)
         raise
     writer.close(complete=summary.complete)
     summary.session = str(writer.written_to)
@@ -111,6 +116,11 @@ def run_plan(plan: Plan, instruments: Instruments, output, *, overwrite: bool = 
 def _kept_beside(writer: SessionWriter) -> bool:
     """Whether the new session could not replace the existing file and went beside it."""
     return writer.written_to != writer.path
+
+
+def _say_where_kept(writer: SessionWriter, exc: BaseException) -> None:
+    if _kept_beside(writer):
+        exc.add_note(_kept_note(writer))
 
 
 def _kept_note(writer: SessionWriter) -> str:

@@ -40,19 +40,28 @@ def _restore(value, arrays: list[np.ndarray]):
     return value
 
 
-def send_call(stream: BinaryIO, method: str, kwargs: dict) -> int:
-    """Write one call and flush; returns the bytes of array payload sent."""
+def encode_call(method: str, kwargs: dict) -> list:
+    """One call as the parts of its frame (bytes and array buffers), nothing written yet: an argument that cannot
+    be sent fails here, with the pipe as it was."""
     arrays: list[np.ndarray] = []
     args = _flatten(kwargs, arrays)
     header = json.dumps({"method": method, "kwargs": args,
                          "arrays": [[a.dtype.str, list(a.shape)] for a in arrays]}).encode()
-    stream.write(_LENGTH.pack(len(header)))
-    stream.write(header)
-    for a in arrays:
-        if a.nbytes:
-            stream.write(memoryview(a).cast("B"))
+    return [_LENGTH.pack(len(header)), header] + [memoryview(a).cast("B") for a in arrays if a.nbytes]
+
+
+def write_frame(stream: BinaryIO, parts: list) -> None:
+    """Write a frame made by :func:`encode_call` and flush."""
+    for part in parts:
+        stream.write(part)
     stream.flush()
-    return sum(a.nbytes for a in arrays)
+
+
+def send_call(stream: BinaryIO, method: str, kwargs: dict) -> int:
+    """Write one call and flush; returns the bytes of array payload sent."""
+    parts = encode_call(method, kwargs)
+    write_frame(stream, parts)
+    return sum(len(part) for part in parts[2:])
 
 
 def _read_exactly(stream: BinaryIO, n: int) -> bytes | None:

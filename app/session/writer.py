@@ -38,7 +38,7 @@ from app.session.outputs import (NotWritten, atomic_replace, check_output, requi
                                  through_links, write_failure)
 from app.session.salvage import SalvageError, salvage, swmr_read_access
 from app.session.superblock import write_flags
-from app.session.wire import receive_reply, send_call
+from app.session.wire import encode_call, receive_reply, write_frame
 from drivers.safety import signals_held
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "RunData", "RunSpec", "Session", "SessionWriteError", "SessionWriter",
@@ -52,6 +52,9 @@ FREE_SPACE_RESERVE = 1 << 20
 RECOVERY_MARGIN = 64 << 10
 _WRITER_STOPPED = ("the session writer process stopped ({how}); the lines written before are kept (if other "
                    "HDF5 tools refuse the file, `contactid recover {path}` repairs it)")
+#: Seconds a writer has to end after a call cut short before it is sent SIGTERM (:meth:`SessionWriter._stop_process`)
+CUT_EXIT_S = 2.0
+_WRITER_GONE = (OSError, EOFError, ValueError)      # what the pipe raises once the writer process has stopped
 _WRITER_CUT = ("the session writer process was ended when a call to it was cut short ({how}); it closed the file "
                "with every line sent before")
 
@@ -135,27 +138,48 @@ class SessionWriter:
         return time.monotonic() - self.t0
 
     def _call(self, method: str, **kwargs) -> None:
-        """One call and its reply, whole: a signal waits for the reply (:func:`drivers.safety.signals_held`).
-        An exchange stopped half way all the same (a second signal) ends the writer process as if this one had
-        died -- the pipe may hold half a call or an unread reply -- and the file is closed with every line sent."""
+        """One call and its reply, whole: a signal that comes meanwhile acts once the reply is in
+        (:func:`drivers.safety.signals_held`). An exchange cut short all the same (a second signal) ends the writer
+        process -- the pipe may hold half a call, or a reply no one read -- which closes the file with every call
+        it received whole, as after a death of this process."""
         with self._lock:
             if self._proc is None:
                 raise SessionWriteError(self._stopped or f"{self.path}: the session is closed")
+            frame = encode_call(method, kwargs)
+            sent = replied = False
+            broken = None
             try:
                 with signals_held():
-                    send_call(self._proc.stdin, method, kwargs)
-                    error = receive_reply(self._proc.stdout)
-            except (OSError, EOFError, ValueError):
-                code = self._stop_process()
-                how = f"killed by signal {-code}" if code < 0 else f"exit status {code}"
-                self._stopped = f"{self.path}: " + _WRITER_STOPPED.format(how=how, path=self.path)
-                raise SessionWriteError(self._stopped) from None
+                    sent = True
+                    try:
+                        write_frame(self._proc.stdin, frame)
+                        error = receive_reply(self._proc.stdout)
+                    except _WRITER_GONE as exc:
+                        broken = exc
+                        raise
+                    replied = True
             except BaseException as exc:
-                self._stop_process()
-                self._stopped = f"{self.path}: " + _WRITER_CUT.format(how=type(exc).__name__, path=self.path)
+                if replied:
+                    raise                               # a signal held until the reply was in: nothing is cut
+                if broken is not None:
+                    self._writer_stopped(exc, broken)
+                if sent:
+                    self._stop_process(cut=True)
+                    self._stopped = f"{self.path}: " + _WRITER_CUT.format(how=type(exc).__name__, path=self.path)
                 raise
         if error is not None:
             raise SessionWriteError(error)
+
+    def _writer_stopped(self, exc: BaseException, broken: BaseException) -> None:
+        """The writer process stopped (``broken``: the pipe's error): SessionWriteError; a stop held meanwhile
+        (``exc``) goes on, carrying it as a note."""
+        code = self._stop_process()
+        how = f"killed by signal {-code}" if code < 0 else f"exit status {code}"
+        self._stopped = f"{self.path}: " + _WRITER_STOPPED.format(how=how, path=self.path)
+        if exc is broken:
+            raise SessionWriteError(self._stopped) from None
+        exc.add_note(self._stopped)
+        raise exc
 
     def _require_space(self, nbytes: int) -> None:
         try:
@@ -226,8 +250,12 @@ class SessionWriter:
             return self.kept_path
         return self.path
 
-    def _stop_process(self) -> int | None:
-        """End the writer process (it closes the file at the end of its input); its exit status."""
+    def _stop_process(self, cut: bool = False) -> int | None:
+        """End the writer process (it closes the file at the end of its input); its exit status. After an exchange
+        ``cut`` short, a writer still there after ``CUT_EXIT_S`` is sent SIGTERM, which it takes as the end of its
+        input: a process forked meanwhile (an analysis's workers) may hold a copy of the pipe, and the end of the
+        input would wait for it. By then the writer waits for the rest of the call cut short, every whole one
+        before it executed."""
         proc, self._proc = self._proc, None
         if proc is None:
             return None
@@ -236,6 +264,11 @@ class SessionWriter:
                 stream.close()
             except OSError:
                 pass                                  # the writer is gone already
+        if cut:
+            try:
+                return proc.wait(CUT_EXIT_S)
+            except subprocess.TimeoutExpired:
+                proc.terminate()
         return proc.wait()
 
 
