@@ -33,6 +33,7 @@ import serial
 
 from .errors import DeviceError, InstrumentError, LinkLost, LinkTimeout, ProtocolError
 from .interfaces import Block, Identity
+from .safety import signals_held
 from .scpi import POLL, PortIO, ScpiInstrument, SerialLink
 from .stream import FLAG_OVERLOAD, FLAG_OVERRUN, MAX_POINTS, Frame, FrameDecoder, Gap, StreamFormatError, frame_size
 
@@ -403,7 +404,10 @@ class DaqStream:
         while not self._started.wait(POLL):
             if io.clock() >= deadline:
                 return
-        with self._port:
+        # one step, a signal acting once it is done: the read runs the instrument's physics and moves counts
+        # its threads share (its idle clock's work, counted and let go), which a Ctrl-C between the two would
+        # leave standing for good -- and the clock with them, every deadline on it never reached
+        with signals_held(), self._port:
             last = io.clock()
             try:
                 while not len(self._queue) and not self._stopping.is_set() and io.clock() < deadline:

@@ -1,4 +1,6 @@
 """The drivers against the emulated instruments: in process (sim://), over pseudo terminals and TCP."""
+import contextlib
+import signal
 import threading
 import time
 
@@ -189,6 +191,39 @@ def test_a_fast_port_is_read_in_its_consumers_thread_and_a_failure_there_ends_th
         assert threads == {consumer} and stream.stats.balanced
 
         abandoned_in_a_stall(rig, daq, reads=2)
+
+
+@pytest.mark.parametrize("guarded", [False, True])
+def test_ctrl_c_while_a_fast_port_is_read_acts_once_its_block_is_in_and_the_clock_goes_on(ctrl_c, monkeypatch,
+                                                                                         guarded):
+    """The consumer of a fast port runs the instrument's physics in its read -- in the main thread, where Ctrl-C
+    lands. A signal acts once the read has queued its block (kept for the next read), never between the
+    instrument's idle clock counting the work and letting it go: the clock would stand still for good, and every
+    deadline on it, the stream's stop among them. Under a guard's handler (a campaign) and without."""
+    with bench() as (rig, shaker, daq), contextlib.ExitStack() as stack:
+        if guarded:
+            stack.enter_context(OutputGuard(shaker))
+        clock, fired = rig.idle_clock, []
+        begin = clock.begin
+
+        def begin_then_ctrl_c():
+            begin()
+            if threading.current_thread() is threading.main_thread() and not fired:
+                fired.append(True)
+                signal.raise_signal(signal.SIGINT)      # just after the count, before the work
+
+        monkeypatch.setattr(clock, "begin", begin_then_ctrl_c)
+        stream = daq.stream(200, no_data_timeout=0.3)
+        with pytest.raises(KeyboardInterrupt):
+            stream.read()
+        assert fired and stream.read().first_sample == 0        # the block read when the signal came
+        still = clock()
+        time.sleep(0.05)
+        assert clock() > still                                  # the clock goes on
+        stopping = threading.Thread(target=stream.stop, daemon=True)
+        stopping.start()
+        stopping.join(30.0)
+        assert not stopping.is_alive() and stream.stats.balanced
 
 
 def abandoned_in_a_stall(rig, daq, reads: int) -> None:

@@ -4,6 +4,7 @@ Each test breaks something (an exception, an abort, a limit breach, a dropped li
 a signal, interpreter exit, a killed host, a silent host) and then asks the
 emulated controller when its output went off.
 """
+import contextlib
 import os
 import signal
 import subprocess
@@ -193,16 +194,26 @@ def test_a_signal_in_a_held_block_switches_off_at_once_and_interrupts_at_the_blo
             assert signal.getsignal(signal.SIGINT) is installed
 
 
-def test_a_second_signal_in_a_held_block_interrupts_at_once(ctrl_c):
-    reached = []
-    with pytest.raises(KeyboardInterrupt):
-        with signals_held():
-            signal.raise_signal(signal.SIGINT)
-            reached.append("after the first")
-            signal.raise_signal(signal.SIGINT)
-            reached.append("after the second")
-    assert reached == ["after the first"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+@pytest.mark.parametrize("guarded", [False, True])
+def test_a_second_signal_in_a_held_block_interrupts_at_once_and_the_next_block_holds_again(ctrl_c, guarded):
+    """Without a guard the block puts a holding handler in place; under a guard's handler it only counts."""
+    with bench() as (rig, shaker, daq), (OutputGuard(shaker) if guarded else contextlib.nullcontext()):
+        installed = signal.getsignal(signal.SIGINT)
+        for _ in range(2):
+            reached = []
+            with pytest.raises(KeyboardInterrupt):
+                with signals_held():
+                    signal.raise_signal(signal.SIGINT)
+                    reached.append("after the first")
+                    signal.raise_signal(signal.SIGINT)
+                    reached.append("after the second")
+            assert reached == ["after the first"]
+            assert signal.getsignal(signal.SIGINT) is installed
+            with pytest.raises(KeyboardInterrupt):             # nothing left held from before
+                with signals_held():
+                    signal.raise_signal(signal.SIGINT)
+                    reached.append("held")
+            assert reached[-1] == "held"
 
 
 def test_a_held_block_without_a_signal_or_outside_the_main_thread_leaves_the_handlers_as_they_were():
