@@ -162,7 +162,7 @@ class SessionWriter:
                 if replied:
                     raise                               # a signal held until the reply was in: nothing is cut
                 if broken is not None:
-                    self._writer_stopped(exc, broken)
+                    self._raise_writer_stopped(exc, broken)
                 if sent:
                     self._stop_process(cut=True)
                     self._stopped = f"{self.path}: " + _WRITER_CUT.format(how=type(exc).__name__, path=self.path)
@@ -170,7 +170,7 @@ class SessionWriter:
         if error is not None:
             raise SessionWriteError(error)
 
-    def _writer_stopped(self, exc: BaseException, broken: BaseException) -> None:
+    def _raise_writer_stopped(self, exc: BaseException, broken: BaseException) -> None:
         """The writer process stopped (``broken``: the pipe's error): SessionWriteError; a stop held meanwhile
         (``exc``) goes on, carrying it as a note."""
         code = self._stop_process()
