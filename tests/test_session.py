@@ -445,6 +445,24 @@ def test_ctrl_c_during_a_call_acts_once_its_reply_is_in_and_the_writer_goes_on(t
         assert g.attrs["status"] == "aborted" and g.attrs["end_reason"] == "interrupted by Ctrl-C"
 
 
+def test_ctrl_c_held_while_the_writer_is_found_dead_stays_ctrl_c_and_says_so(tmp_path, monkeypatch, ctrl_c):
+    import app.session.writer as writer
+    from app.session.wire import write_frame
+
+    def ctrl_c_then_write(stream, parts):
+        signal.raise_signal(signal.SIGINT)                 # held: the write below finds the writer gone
+        write_frame(stream, parts)
+
+    path = tmp_path / "s.h5"
+    w = _writer_with_two_lines(path)
+    w._proc.kill()
+    w._proc.wait()
+    monkeypatch.setattr(writer, "write_frame", ctrl_c_then_write)
+    with pytest.raises(KeyboardInterrupt) as caught:
+        _third_line(w)
+    assert any("session writer process stopped (killed by signal 9)" in n for n in caught.value.__notes__)
+
+
 def test_a_call_that_cannot_be_sent_is_refused_with_the_writer_going_on(tmp_path):
     path = tmp_path / "s.h5"
     w = _writer_with_two_lines(path)
