@@ -22,6 +22,7 @@ from analysis.loop.workbench import Workbench
 from app.analyze import backbones, comparisons_error, element_misfits
 from app.kbar_view import (level_colours, level_masks, level_panels, level_style, legend_column, linear_axis,
                            model_paths, ordered_levels, panel_title)
+from drivers.safety import signals_held
 
 
 def qt_application():
@@ -415,12 +416,22 @@ def write_report(wb: Workbench, folder: Path, overwrite: bool = False,
     for name in names:
         check_output(folder / name, overwrite=overwrite, field=None, overwrite_flag="--overwrite")
     runs = wb.measurements.sine
+    comp = wb.compare()
     frf, kbar, residuals, history = (folder / name for name in REPORT_FILES)
-    plots = [plot_frfs(wb.compare(), runs, frf, _drive_point(runs)), plot_kbar(wb, kbar),
-             plot_residuals(wb.compare(), runs, residuals), plot_history(wb, history)]
+    plots = [_drawn(plot_frfs, comp, runs, frf, _drive_point(runs)), _drawn(plot_kbar, wb, kbar),
+             _drawn(plot_residuals, comp, runs, residuals), _drawn(plot_history, wb, history)]
     if comparisons:
-        plots.append(plot_backbones(comparisons, folder / BACKBONE_FILE))
+        plots.append(_drawn(plot_backbones, comparisons, folder / BACKBONE_FILE))
     return plots
+
+
+def _drawn(plot, *args) -> Path:
+    """``plot(*args)``, drawn whole. Qt calls the plot items' Python overrides (a resize, a paint) from its own C++
+    frames, and a KeyboardInterrupt raised in one leaves the scene half updated: the process crashed (SIGSEGV)
+    where it should have said it was interrupted. A signal acts once the PNG is written
+    (:func:`drivers.safety.signals_held`); a plot takes a fraction of a second."""
+    with signals_held():
+        return plot(*args)
 
 
 PREDICTION_FILES = ("frf.png", "residuals.png")
@@ -438,9 +449,10 @@ def write_prediction_report(comp: Comparison, runs: Sequence[SineRun], compariso
     for name in names:
         check_output(folder / name, overwrite=overwrite, field=None, overwrite_flag="--overwrite")
     frf, residuals = (folder / name for name in PREDICTION_FILES)
-    plots = [plot_frfs(comp, runs, frf, _drive_point(runs), tags), plot_residuals(comp, runs, residuals, tags)]
+    plots = [_drawn(plot_frfs, comp, runs, frf, _drive_point(runs), tags),
+             _drawn(plot_residuals, comp, runs, residuals, tags)]
     if comparisons:
-        plots.append(plot_backbones(comparisons, folder / BACKBONE_FILE))
+        plots.append(_drawn(plot_backbones, comparisons, folder / BACKBONE_FILE))
     return plots
 
 

@@ -52,6 +52,29 @@ def test_write_report_draws_every_plot(tmp_path):
         assert image.width() == 1400 and image.height() in (600, 900)
 
 
+@pytest.mark.slow
+def test_ctrl_c_while_a_plot_is_drawn_acts_once_its_png_is_written(tmp_path, monkeypatch, ctrl_c):
+    """Qt calls the plot items' Python overrides from its own frames: a KeyboardInterrupt raised there crashed the
+    process. A signal acts once the plot in hand is written; the plots after it are not drawn."""
+    import signal
+
+    import app.report as report
+
+    wb = Workbench(load_model(model_doc({"left": PAPER_LAWS["left"], "right": [{"law": "cubic"}]})),
+                   synthesise(PAPER_LAWS, lines=17))
+    wb.start()
+    legend_column = report.legend_column
+
+    def ctrl_c_in_the_legend(*args, **kwargs):
+        signal.raise_signal(signal.SIGINT)
+        return legend_column(*args, **kwargs)
+
+    monkeypatch.setattr(report, "legend_column", ctrl_c_in_the_legend)
+    with pytest.raises(KeyboardInterrupt):
+        write_report(wb, tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frf.png"]
+
+
 # --- the kbar plot's rules (docs/workbench.md, "kbar plots") ---------------------------------------------------
 TWO_ELEMENTS = {"structure": {"type": "lumped", "dofs": ["x1", "x2"], "mass": [[1.0, 0.0], [0.0, 2.0]],
                               "stiffness": [[200.0, -100.0], [-100.0, 200.0]]},
