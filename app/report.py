@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from analysis.common.held_signals import signals_held
 from analysis.common.measurements import SineRun
 from analysis.prediction.backbone import BackboneComparison
 from analysis.prediction.comparison import Comparison
@@ -22,7 +23,6 @@ from analysis.loop.workbench import Workbench
 from app.analyze import backbones, comparisons_error, element_misfits
 from app.kbar_view import (level_colours, level_masks, level_panels, level_style, legend_column, linear_axis,
                            model_paths, ordered_levels, panel_title)
-from drivers.safety import signals_held
 
 
 def qt_application():
@@ -429,7 +429,7 @@ def _drawn(plot, *args) -> Path:
     """``plot(*args)``, drawn whole. Qt calls the plot items' Python overrides (a resize, a paint) from its own C++
     frames, and a KeyboardInterrupt raised in one leaves the scene half updated: the process crashed (SIGSEGV)
     where it should have said it was interrupted. A signal acts once the PNG is written
-    (:func:`drivers.safety.signals_held`); a plot takes a fraction of a second."""
+    (:func:`analysis.common.held_signals.signals_held`); a plot takes a fraction of a second."""
     with signals_held():
         return plot(*args)
 

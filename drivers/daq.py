@@ -31,9 +31,10 @@ from typing import Callable, Iterator, Sequence
 import numpy as np
 import serial
 
+from analysis.common.held_signals import signals_held
+
 from .errors import DeviceError, InstrumentError, LinkLost, LinkTimeout, ProtocolError
 from .interfaces import Block, Identity
-from .safety import signals_held
 from .scpi import POLL, PortIO, ScpiInstrument, SerialLink
 from .stream import FLAG_OVERLOAD, FLAG_OVERRUN, MAX_POINTS, Frame, FrameDecoder, Gap, StreamFormatError, frame_size
 

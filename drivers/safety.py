@@ -11,7 +11,8 @@ entry. From then on every way out switches it off:
 - SIGINT / SIGTERM: a handler sends output-off ahead of anything queued on the
   port, then chains to the previous handler (default SIGINT: KeyboardInterrupt;
   default SIGTERM: SystemExit(143), so ``finally`` blocks and atexit still run);
-  within :func:`signals_held` the output goes off at once and the rest waits for the block's end;
+  within :func:`analysis.common.held_signals.signals_held` the output goes off at once and the rest waits
+  for the block's end;
 - interpreter exit (atexit), e.g. when the guard lives in a daemon thread.
 
 If the host dies without any of these (power cut, SIGKILL, unplugged cable) the
@@ -34,6 +35,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from analysis.common.errors import InputError
+from analysis.common.held_signals import Cooperating, cooperate, deferred
 
 from .errors import InstrumentError, LinkLost
 from .interfaces import Block, ShakerController
@@ -165,19 +167,12 @@ _active: tuple["OutputGuard", ...] = ()          # replaced, never mutated: read
 _registry_lock = threading.Lock()
 _previous: dict[int, Any] = {}
 _HANDLED = (signal.SIGINT, signal.SIGTERM)
-_held: list[tuple[int, Any]] = []     # a signal that came in a held block under the handler below (main thread)
-_holding = 0                          # how deep the main thread is in held blocks under it
-_installed = False                    # whether install_signal_handlers put it in place (and it was not taken back)
 
 
 def _handle_signal(signum: int, frame: Any) -> None:
-    global _held
     _emergency_stops(signum)
-    if _holding and not _held:
-        _held = [(signum, frame)]                  # acts at the held block's end (signals_held)
-        return
-    _held = []
-    _chain(signum, frame)
+    if not deferred(signum, frame):                # else it acts at a held block's end (signals_held)
+        _chain(signum, frame)
 
 
 def _emergency_stops(signum: int) -> None:
@@ -199,98 +194,28 @@ def _chain(signum: int, frame: Any) -> None:
         raise SystemExit(128 + signum)
 
 
-class signals_held:
-    """Within the block, SIGINT and SIGTERM act at its end: for a step that must not stop half way -- a call to
-    the session writer over its pipe (a frame cut short there leaves both processes waiting on each other), a
-    read of an in-process instrument's port, which moves state its threads share (drivers.daq).
-
-    The output goes off at once, as it always does (the guards' emergency stop); only what the signal does next
-    (KeyboardInterrupt, SystemExit, a handler of the process's own) waits for the block's end. A second signal in
-    the block is not held: a step that does not end can still be interrupted. Outside the main thread, where
-    Python runs no signal handler, the block runs as it is. Under the guards' own handler (a campaign) a block
-    costs a counter (about 1 us); elsewhere it puts a holding handler in place for its length (some 15 us)."""
-
-    __slots__ = ("_before", "_caught")
-
-    def __enter__(self) -> None:
-        global _holding
-        self._before = None
-        if threading.current_thread() is not threading.main_thread():
-            return
-        if _installed:
-            _holding += 1
-            return
-        self._hold()
-
-    def __exit__(self, *exc) -> None:
-        global _holding, _held
-        if self._before is not None:
-            self._release()
-        elif threading.current_thread() is threading.main_thread() and _holding:
-            _holding -= 1
-            if not _holding and _held:
-                (signum, frame), _held = _held[0], []
-                _chain(signum, frame)            # its emergency stop was made when the signal came
-
-    def _hold(self) -> None:
-        # a handler installed outside Python (None) could not be put back: such a signal is left as it is
-        self._before = {s: h for s in _HANDLED if (h := signal.getsignal(s)) is not None}
-        self._caught: list[tuple[int, Any]] = []
-        try:
-            for signum in self._before:         # a signal between two of these still restores both
-                signal.signal(signum, self._on_signal)
-        except BaseException:
-            self._restore()
-            raise
-
-    def _restore(self) -> None:
-        for signum, handler in self._before.items():
-            signal.signal(signum, handler)
-
-    def _release(self) -> None:
-        self._restore()
-        if self._caught:
-            self._act(*self._caught[0])
-
-    def _act(self, signum: int, frame: Any) -> None:
-        handler = self._before[signum]
-        if handler is _handle_signal:
-            _chain(signum, frame)
-        elif callable(handler):
-            handler(signum, frame)
-        else:
-            signal.raise_signal(signum)         # the default action, or nothing for an ignored signal
-
-    def _on_signal(self, signum: int, frame: Any) -> None:
-        if self._before[signum] is _handle_signal:
-            _emergency_stops(signum)
-        if self._caught:                          # the second: acts now
-            self._caught = []
-            self._restore()
-            self._act(signum, frame)
-        else:
-            self._caught.append((signum, frame))
+#: The handler as :mod:`analysis.common.held_signals` knows it: in a held block its emergency stop is made at
+#: once, the rest at the block's end
+_HANDLER = Cooperating(_handle_signal, _chain)
 
 
 def install_signal_handlers() -> bool:
     """Install the SIGINT/SIGTERM handlers (main thread only); True if they are in place."""
     if threading.current_thread() is not threading.main_thread():
         return all(signal.getsignal(s) is _handle_signal for s in _HANDLED)
-    global _installed
     for signum in _HANDLED:
         current = signal.getsignal(signum)
         if current is not _handle_signal:
             _previous[signum] = current
             signal.signal(signum, _handle_signal)
-    _installed = True
+    cooperate(_HANDLER)
     return True
 
 
 def _restore_signal_handlers() -> None:
-    global _installed
     if threading.current_thread() is not threading.main_thread():
         return
-    _installed = False
+    cooperate(None)
     for signum, previous in list(_previous.items()):
         if signal.getsignal(signum) is _handle_signal:
             signal.signal(signum, previous if previous is not None else signal.SIG_DFL)

@@ -20,7 +20,8 @@ import drivers  # noqa: F401  (registers sim://)
 from drivers.emulator import EmulatedRig, register
 from drivers.errors import ArmingRefused, LinkLost
 from drivers.interfaces import Block
-from drivers.safety import AbortLimits, LimitExceeded, OutputGuard, check_limits, signals_held
+from analysis.common.held_signals import signals_held
+from drivers.safety import AbortLimits, LimitExceeded, OutputGuard, check_limits
 from drivers.serve import EmulatorServer
 
 from rig_double import RigDouble, bench, stream_start

@@ -27,7 +27,6 @@ once cannot cross its entries.
 import hashlib
 import os
 import shutil
-import signal
 import time
 import types
 from pathlib import Path
@@ -39,6 +38,8 @@ from numba.core import sigutils
 from numba.core.caching import FunctionCache, IndexDataCacheFile
 from numba.core.ccallback import CFunc
 from numba.core.dispatcher import Dispatcher
+
+from .held_signals import signals_held
 
 try:
     import fcntl
@@ -183,7 +184,9 @@ def _serialised(save):
     function loads the code compiled for another signature (numba compiles, for example, a law's update for arrays
     from Python and for pointers from the rig simulator). An interrupt or a request to terminate that arrives
     during the save acts once it is done: numba writes the index before the data, and a process ended between the
-    two leaves an index naming a data file never written, or an older one of the same number."""
+    two leaves an index naming a data file never written, or an older one of the same number
+    (:class:`analysis.common.held_signals.signals_held`: held for the main thread's Python handler, where a signal
+    mask would hold it only for a thread the process's other threads stand in for)."""
     def locked_save(self, key, data):
         try:
             lock = open(f"{self._index_path}.lock", "a")
@@ -191,11 +194,8 @@ def _serialised(save):
             return save(self, key, data)
         with lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
-            held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-            try:
+            with signals_held():
                 return save(self, key, data)     # closing the file releases the lock
-            finally:
-                signal.pthread_sigmask(signal.SIG_SETMASK, held)
     return locked_save
 
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from analysis.common.child import python_child
 from analysis.common.errors import InputError
+from analysis.common.held_signals import signals_held
 from analysis.common.quantities import dof_name_problem
 
 from app.session.file import (EVENT_DTYPE, FORMAT, FORMAT_VERSION, RunSpec, SessionHeader, SessionWriteError,
@@ -39,7 +40,6 @@ from app.session.outputs import (NotWritten, atomic_replace, check_output, requi
 from app.session.salvage import SalvageError, salvage, swmr_read_access
 from app.session.superblock import write_flags
 from app.session.wire import encode_call, receive_reply, write_frame
-from drivers.safety import signals_held
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "RunData", "RunSpec", "Session", "SessionWriteError", "SessionWriter",
            "StoredHistory", "append_model_history", "needs_recovery", "open_session", "read_model_history",
@@ -139,7 +139,7 @@ class SessionWriter:
 
     def _call(self, method: str, **kwargs) -> None:
         """One call and its reply, whole: a signal that comes meanwhile acts once the reply is in
-        (:func:`drivers.safety.signals_held`). An exchange cut short all the same (a second signal) ends the writer
+        (:func:`analysis.common.held_signals.signals_held`). An exchange cut short all the same (a second signal) ends the writer
         process -- the pipe may hold half a call, or a reply no one read -- which closes the file with every call
         it received whole, as after a death of this process."""
         with self._lock:
