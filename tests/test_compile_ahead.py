@@ -1,5 +1,5 @@
 """What the demo compiles ahead in a process of its own while it measures (app/compile_ahead.py): the rig
-simulator's kernels besides its integration loop, and the law library's kernels. What it makes, a later process
+simulator's kernels besides its integration loop, the emulated DAQ's converter, and the law library's kernels. What it makes, a later process
 loads from the disk cache without compiling."""
 import os
 import subprocess
@@ -34,9 +34,15 @@ def test_a_later_process_loads_what_was_compiled_ahead_and_compiles_only_the_loo
 
         event.register("numba:compile", Count())
         from analysis.prediction.compile_ahead import compile_library
+        import numpy as np
+        from drivers.emulator.daq import counts_of
         from drivers.simulation.simulator import RigSimulator
         compile_library()
-        RigSimulator("paper-2dof", seed=0).advance(0.01)
+        sim = RigSimulator("paper-2dof", seed=0)
+        sim.set_sine(10.0, 0.1)
+        sim.set_output(True)
+        sim.advance(64)
+        counts_of(sim.advance(64), np.arange(3), np.ones(3), np.ones(3))
         print(" ".join(compiled))
     """)
     compiled = subprocess.run([sys.executable, "-c", counted], cwd=ROOT, env=env, check=True, capture_output=True,

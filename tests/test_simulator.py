@@ -14,7 +14,7 @@ from analysis.mechanics.structures import Structure
 from drivers.simulation import kernels
 from drivers.simulation.rig import load_rig, parse_rig
 from drivers.simulation import simulator
-from drivers.simulation.simulator import RigSimulator, SimulationError, _anti_alias_taps, _sine_samples
+from drivers.simulation.simulator import _SINE_ROW, RigSimulator, SimulationError, _anti_alias_taps
 from test_laws import iwan_lipschitz_excess
 from paper_structure import PAPER_STRUCTURE
 
@@ -804,13 +804,29 @@ sample_rate = 512.0
                                atol=1e-12 * np.abs(k * x2 + c * v2).max())
 
 
-@pytest.mark.parametrize("n", [1, 2, 300, 2047, 2048, 2049, 2 * 8192 + 1])
+def _ramped_sine(n, spacing, phase, omega, level, target, rate):
+    offset = omega * spacing * np.arange(_SINE_ROW)
+    return kernels.ramped_sine(n, spacing, phase, omega, np.cos(offset), np.sin(offset), level, target, rate)
+
+
+@pytest.mark.parametrize("n", [1, 2, 127, 128, 129, 300, 2049, 2 * 8192 + 1])
 @pytest.mark.parametrize("phase", [0.0, 2.5, 6.2])
 def test_the_drive_sine_equals_numpys_to_round_off(n, phase):
-    """The generator's sine by angle addition over rows (long records) or directly (short ones) is np.sin of
-    the same arguments to a few units in the last place of the largest argument."""
+    """The generator's sine by angle addition over rows is np.sin of the same arguments to a few units in the last
+    place of the largest argument."""
     omega, spacing = 2 * np.pi * 53.0, 0.5 / 8192
-    tau = np.arange(n) * spacing
-    argument = phase + omega * tau
-    difference = np.abs(_sine_samples(phase, omega, tau, spacing) - np.sin(argument)).max()
+    argument = phase + omega * np.arange(n) * spacing
+    difference = np.abs(_ramped_sine(n, spacing, phase, omega, 1.0, 1.0, 0.0) - np.sin(argument)).max()
     assert difference <= 4 * np.spacing(np.abs(argument).max())
+
+
+@pytest.mark.parametrize("level, target", [(0.0, 2.0), (2.0, 0.5), (1.5, 1.5)])
+def test_the_drive_amplitude_ramps_linearly_to_its_target_and_stays(level, target):
+    """Rising, falling and held amplitudes: the sine times ``level +- rate tau``, clipped at the target."""
+    omega, spacing, rate, n = 2 * np.pi * 7.0, 1 / 2048, 3.0, 2 * 2048 + 1
+    tau = np.arange(n) * spacing
+    amplitude = (np.minimum(level + rate * tau, target) if target > level else
+                 np.maximum(level - rate * tau, target))
+    expected = amplitude * np.sin(1.0 + omega * tau)
+    np.testing.assert_allclose(_ramped_sine(n, spacing, 1.0, omega, level, target, rate), expected, rtol=0,
+                               atol=1e-13)

@@ -14,6 +14,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numba import types
+
+from analysis.common.compiled import njit
 
 from ..stream import FLAG_OVERLOAD, FLAG_OVERRUN, MAX_POINTS, encode_end, encode_frame, frame_size
 from .firmware import Firmware
@@ -82,33 +85,25 @@ class DaqFirmware(Firmware):
         if self.acquiring:
             self.stop_acquisition()
         self.scan = list(range(self.n_channels))
-        self._all = list(range(self.n_channels))
         self.sensitivity = np.full(self.n_channels, DEFAULT_SENSITIVITY)
         self.input_range = np.full(self.n_channels, DEFAULT_RANGE)
         self._scaled = None
         self.points = int(min(MAX_POINTS, max(16, round(FRAME_SECONDS * self.rig.sample_rate))))
 
     # ----- quantisation --------------------------------------------------------------------
-    def _scaling(self) -> tuple[np.ndarray, np.ndarray, bool]:
-        """The scanned channels' LSB and largest count within range, and whether every channel is scanned in
-        order; kept until a setting changes (quantise runs on every frame)."""
+    def _scaling(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The scanned channels' indices, LSB and largest count within range; kept until a setting changes
+        (quantise runs on every frame)."""
         if self._scaled is None:
-            scan = self.scan
+            scan = np.asarray(self.scan, np.int64)
             lsb = self.rig.lsb[scan]
             limit = np.minimum(np.floor(self.input_range[scan] / self.sensitivity[scan] / lsb), INT32_MAX)
-            self._scaled = (lsb, limit, scan == self._all)
+            self._scaled = (scan, lsb, limit)
         return self._scaled
 
     def quantise(self, data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Counts of the scanned channels, shape (n, len(scan)), and per-row saturation flags."""
-        lsb, limit, whole = self._scaling()
-        counts = np.rint((data if whole else data[:, self.scan]) / lsb)
-        if len(counts) and (np.abs(counts).max(axis=0) <= limit).all():
-            # nothing saturates (every frame of a campaign within its ranges): no clip, no per-row flags
-            return counts.astype(np.int32), np.zeros(len(counts), dtype=bool)
-        saturated = np.abs(counts) > limit
-        np.clip(counts, -limit, limit, out=counts)
-        return counts.astype(np.int32), saturated.any(axis=1)
+        return counts_of(data, *self._scaling())
 
     # ----- physics side (rig lock held) -----------------------------------------------------
     def busy(self) -> bool:
@@ -274,3 +269,40 @@ class DaqFirmware(Firmware):
     def _read(self, args: list[str]) -> bytes:
         return self.read_block(parse_number(expect_one(args), 1, MAX_READ_POINTS, integer=True))
 
+
+def compile_converter() -> None:
+    """:func:`counts_of` compiled for the arrays a campaign passes, or loaded from the disk cache (compiled ahead
+    by :mod:`app.compile_ahead` while a fresh checkout's demo starts)."""
+    v = types.float64[::1]
+    counts_of.compile((types.float64[:, ::1], types.int64[::1], v, v))
+
+
+@njit(cache=True)
+def counts_of(data, scan, lsb, limit):
+    """The converter's counts ``rint(data[:, scan] / lsb)`` saturating at ``+-limit``, and which rows saturate.
+
+    Parameters
+    ----------
+    data : (n, channels)
+        Physical units.
+    scan : (m,) int
+        The scanned channels, in scan order.
+    lsb, limit : (m,)
+        Physical units per count; the largest count within range.
+
+    Returns
+    -------
+    counts : (n, m) int32
+    saturated : (n,) bool
+    """
+    n, m = data.shape[0], scan.shape[0]
+    counts = np.empty((n, m), np.int32)
+    saturated = np.zeros(n, np.bool_)
+    for i in range(n):
+        for c in range(m):
+            code = np.rint(data[i, scan[c]] / lsb[c])
+            if abs(code) > limit[c]:
+                saturated[i] = True
+                code = min(max(code, -limit[c]), limit[c])
+            counts[i, c] = np.int32(code)
+    return counts, saturated

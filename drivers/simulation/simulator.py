@@ -475,6 +475,7 @@ class RigSimulator:
         self._frequency = 0.0
         self._phase = 0.0
         self._sine = _Ramp()
+        self._sine_offsets: tuple = (None,)   # (omega, cos, sin) of the offsets within a row of the sine
         self._noise_sources: list[_NoiseSource] = []
         self._output_on = False
         self._rest = self.state_snapshot()
@@ -569,10 +570,17 @@ class RigSimulator:
 
     def _drive(self, n_steps: int) -> np.ndarray:
         """Generator output at every half step of the next ``n_steps`` internal steps."""
-        tau = np.arange(2 * n_steps + 1) * (0.5 * self.step)
+        n, spacing = 2 * n_steps + 1, 0.5 * self.step
         if not self._output_on:
-            return np.zeros(tau.shape)
-        u = self._sine.values(tau) * _sine_samples(self._phase, 2 * np.pi * self._frequency, tau, 0.5 * self.step)
+            return np.zeros(n)
+        omega, sine = 2 * np.pi * self._frequency, self._sine
+        if self._sine_offsets[0] != omega:
+            offset = omega * spacing * np.arange(_SINE_ROW)
+            self._sine_offsets = (omega, np.cos(offset), np.sin(offset))
+        u = kernels.ramped_sine(n, spacing, self._phase, omega, *self._sine_offsets[1:], sine.level, sine.target,
+                                sine.rate)
+        if self._noise_sources:
+            tau = np.arange(n) * spacing
         for source in self._noise_sources:
             white = self._drive_rng.standard_normal(2 * n_steps)
             filtered, source.zi = scipy.signal.sosfilt(source.sos, white, zi=source.zi)
@@ -760,27 +768,8 @@ class RigSimulator:
         self.clip_counts[:] = state.clip_counts
 
 
-# samples per row of :func:`_sine_samples`, and the fewest rows worth the angle-addition formula
+# samples per row of the generator's sine (kernels.ramped_sine): a sine and a cosine per row start
 _SINE_ROW = 128
-_SINE_MIN_ROWS = 16  # below about 2000 samples np.sin is as fast
-
-
-def _sine_samples(phase: float, omega: float, tau: np.ndarray, spacing: float) -> np.ndarray:
-    """``sin(phase + omega tau)`` at the instants ``tau = k spacing``, ``k = 0, 1, ...``, to round-off.
-
-    A long record goes by the angle-addition formula over rows of ``_SINE_ROW`` samples: the sines and
-    cosines of the row starts and of the offsets within a row, about ``2 sqrt(n)`` of each, instead of a
-    sine per sample (np.sin took 27 ns a sample, half the cost of a one-second block outside the
-    integration loop); a short one, whose handful of array operations would cost more, directly.
-    """
-    n = tau.shape[0]
-    rows = -(-n // _SINE_ROW)
-    if rows < _SINE_MIN_ROWS:
-        return np.sin(phase + omega * tau)
-    start = phase + omega * spacing * _SINE_ROW * np.arange(rows)
-    offset = omega * spacing * np.arange(_SINE_ROW)
-    grid = np.sin(start)[:, None] * np.cos(offset) + np.cos(start)[:, None] * np.sin(offset)
-    return grid.ravel()[:n]
 
 
 def _layout(arrays) -> tuple:
