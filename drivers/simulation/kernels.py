@@ -329,7 +329,7 @@ def _element_motion(y_free, D, g, r, x, v):
         v[e] = ve
 
 
-@njit(cache=True, _nrt=False, inline="always")
+@njit(cache=True, _nrt=False)
 def _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res):
     """Residuals of the step-end equations; returns the largest |res| / tolerance.
 
@@ -339,6 +339,9 @@ def _residual(g, x, v, F, k0, c0, mode, y_free, D, r, res):
     are tiny is then not held to a tolerance below round-off of the coupled solve (a
     free element next to a stuck one moves by the difference of the free motion and
     the constraint force's effect, which cancel to round-off).
+
+    A call of its own, not inlined into the Newton iteration: inlined, it took 1.8 s of a fresh checkout's first
+    compile of the loop, for no speed a benchmark could tell apart.
     """
     force_scale = 0.0
     velocity_scale = 0.0
@@ -656,13 +659,15 @@ def typed_entry(dispatcher, args):
 
 def kernel_signatures() -> dict:
     """The simulator's compiled kernels other than :func:`integrate_block`, each with the argument types it is
-    called with, which no rig changes: the loop's calls of their own (the laws' forces, the Jacobian, the bracketed
-    fallback, the stick limits, the commit), the generator's sine, the anti-alias filter and the converter."""
+    called with, which no rig changes: the loop's calls of their own (the laws' forces, the residual, the Jacobian,
+    the bracketed fallback, the stick limits, the commit), the generator's sine, the anti-alias filter and the
+    converter."""
     ints, flags = np.zeros(0, np.int64), np.zeros(0, bool)
     laws = typeof(LawTable(ints, ints, ints, 0, ints, flags, np.zeros((0, 0)), ints, ints, np.zeros(0),
                            np.zeros(0), flags))
     v, m, i = types.float64[::1], types.float64[:, ::1], types.int64[::1]
     return {_element_forces: (laws, m, m, v, v, i, v, v),
+            _residual: (v, v, v, v, v, v, i, v, m, types.int64, v),
             _jacobian: (laws, m, m, m, types.int64, i, v, v, v, v, m, m),
             _signed_residual: (laws, m, m, v, m, i, v, types.float64, m),
             _bracketed: (laws, m, m, m, v, m, i, v, v, v, v, v, m),
