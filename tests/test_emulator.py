@@ -14,6 +14,7 @@ from drivers.daq import SerialDaq
 from drivers.discovery import find_instruments
 from drivers.emulator import EmulatedRig, register, set_backend_factory
 from app.campaign.instruments import builtin_backend
+from drivers.emulator.daq import counts_of
 from drivers.emulator.registry import find_rig
 from drivers.emulator.shaker import RAMP_STEP
 from drivers.errors import DeviceError, LinkLost, LinkTimeout, WrongDevice
@@ -439,7 +440,8 @@ def test_built_in_rigs_are_reachable_by_name():
 
 
 def _quantised_with_clip(daq, data):
-    """The DAQ's counts and saturation flags by clipping every sample, the reference for its fast path."""
+    """The DAQ's counts and saturation flags by clipping every sample in NumPy: the reference for the compiled
+    converter (``counts_of``)."""
     lsb = daq.rig.lsb[daq.scan]
     limit = np.minimum(np.floor(daq.input_range[daq.scan] / daq.sensitivity[daq.scan] / lsb), (1 << 31) - 1)
     counts = np.rint(data[:, daq.scan] / lsb)
@@ -447,11 +449,19 @@ def _quantised_with_clip(daq, data):
     return np.clip(counts, -limit, limit).astype(np.int32), saturated.any(axis=1)
 
 
+def test_the_converter_saturates_at_its_limits_and_reads_a_sample_that_is_not_a_number_full_scale():
+    data = np.array([[0.26, -7.0, np.inf], [np.nan, 0.0, -np.inf], [1.0, 2.0, 3.0]])
+    counts, saturated = counts_of(data, np.array([2, 0, 1]), np.array([0.5, 0.1, 1.0]), np.array([4.0, 2.0, 5.0]))
+    assert counts.dtype == np.int32 and counts.tolist() == [[4, 2, -5], [-4, 2, 0], [4, 2, 2]]
+    assert saturated.tolist() == [True, True, True]
+    counts, saturated = counts_of(data[2:], np.array([0, 1]), np.ones(2), np.full(2, 3.0))
+    assert counts.tolist() == [[1, 2]] and saturated.tolist() == [False]
+
+
 def test_the_daq_frames_a_frame_asked_for_alone_as_it_frames_a_buffered_one():
     """Fast mode asks the physics for one frame at a time, and such a frame is framed without the buffer of
-    unframed samples; a chunk with no sample beyond a range skips the clip and the per-row flags. Frames of a
-    few samples, whole frames and larger chunks, within and beyond a range, give the same counts, flags and
-    bytes either way."""
+    unframed samples. Frames of a few samples, whole frames and larger chunks, within and beyond a range, give
+    the same counts, flags and bytes either way, and the counts and flags the NumPy reference gives."""
     frames = {}
     for direct in (True, False):
         rig = EmulatedRig(RigDouble(), paced=False, name=f"frames{direct}")

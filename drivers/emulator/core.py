@@ -198,7 +198,8 @@ class EmulatedRig:
             step = min(remaining, self.shaker.chunk_limit())
             try:
                 self.shaker.before_chunk(step / self.sample_rate)
-                data = np.asarray(self.backend.advance(step), dtype=float)
+                # C order, float: the converter is compiled for that layout (another would compile anew)
+                data = np.ascontiguousarray(self.backend.advance(step), dtype=float)
                 if data.shape != (step, len(self.channels)):
                     raise ValueError(f"advance({step}) returned shape {data.shape}, "
                                      f"expected ({step}, {len(self.channels)})")

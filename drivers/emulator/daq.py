@@ -279,7 +279,8 @@ def compile_converter() -> None:
 
 @njit(cache=True)
 def counts_of(data, scan, lsb, limit):
-    """The converter's counts ``rint(data[:, scan] / lsb)`` saturating at ``+-limit``, and which rows saturate.
+    """The converter's counts ``rint(data[:, scan] / lsb)`` saturating at ``+-limit``, and which rows saturate. A
+    sample that is not a number reads full scale, saturated (a count for it would be undefined).
 
     Parameters
     ----------
@@ -301,8 +302,8 @@ def counts_of(data, scan, lsb, limit):
     for i in range(n):
         for c in range(m):
             code = np.rint(data[i, scan[c]] / lsb[c])
-            if abs(code) > limit[c]:
+            if not abs(code) <= limit[c]:
                 saturated[i] = True
-                code = min(max(code, -limit[c]), limit[c])
+                code = min(max(code, -limit[c]), limit[c]) if code == code else limit[c]
             counts[i, c] = np.int32(code)
     return counts, saturated
