@@ -2,7 +2,8 @@
 (:func:`app.demo.compiling_ahead`): first the rig simulator's kernels besides its integration loop, whose calls
 the campaign's loop, compiling meanwhile, loads from the disk cache as it reaches them
 (:func:`drivers.simulation.kernels.compile_kernels`), and the emulated DAQ's converter; then the law library's
-kernels for the analysis after the campaign (:mod:`analysis.prediction.compile_ahead`). Where the cache holds them already, it only loads them."""
+kernels for the analysis after the campaign (:mod:`analysis.prediction.compile_ahead`). Where the cache holds them
+already, it only loads them."""
 import os
 
 from analysis.prediction.compile_ahead import compile_library

@@ -1,6 +1,6 @@
 """What the demo compiles ahead in a process of its own while it measures (app/compile_ahead.py): the rig
-simulator's kernels besides its integration loop, the emulated DAQ's converter, and the law library's kernels. What it makes, a later process
-loads from the disk cache without compiling."""
+simulator's kernels besides its integration loop, the emulated DAQ's converter, and the law library's kernels. What
+it makes, a later process loads from the disk cache without compiling."""
 import os
 import subprocess
 import sys

@@ -139,9 +139,9 @@ class SessionWriter:
 
     def _call(self, method: str, **kwargs) -> None:
         """One call and its reply, whole: a signal that comes meanwhile acts once the reply is in
-        (:func:`analysis.common.held_signals.signals_held`). An exchange cut short all the same (a second signal) ends the writer
-        process -- the pipe may hold half a call, or a reply no one read -- which closes the file with every call
-        it received whole, as after a death of this process."""
+        (:func:`analysis.common.held_signals.signals_held`). An exchange cut short all the same (a second signal)
+        ends the writer process -- the pipe may hold half a call, or a reply no one read -- which closes the file
+        with every call it received whole, as after a death of this process."""
         with self._lock:
             if self._proc is None:
                 raise SessionWriteError(self._stopped or f"{self.path}: the session is closed")

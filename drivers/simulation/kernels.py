@@ -821,6 +821,20 @@ def integrate_block(n_steps, oversample, system, laws, state, u, record, scratch
     return -1, 0
 
 
+def ramp_level(level, target, rate, tau):
+    """A level moving linearly from ``level`` to ``target`` at ``rate`` per second (>= 0) and staying there, at
+    ``tau`` s from now (>= 0; a float, or an array in NumPy): the generator's amplitude ramp, written once for the
+    compiled sine and for NumPy."""
+    if target > level:
+        return np.minimum(level + rate * tau, target)
+    if target < level:
+        return np.maximum(level - rate * tau, target)
+    return level + 0.0 * tau
+
+
+_ramp_level = njit(cache=True, inline="always")(ramp_level)
+
+
 @njit(cache=True)
 def ramped_sine(n, spacing, phase, omega, cos_offset, sin_offset, level, target, rate):
     """The generator's sine ``a(tau) sin(phase + omega tau)`` at ``tau = k spacing``, ``k = 0 .. n - 1``, its
@@ -851,13 +865,7 @@ def ramped_sine(n, spacing, phase, omega, cos_offset, sin_offset, level, target,
         angle = phase + omega * spacing * row * (start // row)
         s, c = math.sin(angle), math.cos(angle)
         for j in range(min(row, n - start)):
-            tau = (start + j) * spacing
-            if target > level:
-                a = min(level + rate * tau, target)
-            elif target < level:
-                a = max(level - rate * tau, target)
-            else:
-                a = level
+            a = _ramp_level(level, target, rate, (start + j) * spacing)
             out[start + j] = a * (s * cos_offset[j] + c * sin_offset[j])
     return out
 

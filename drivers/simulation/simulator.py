@@ -282,17 +282,10 @@ class _Ramp:
 
     def values(self, tau: np.ndarray) -> np.ndarray:
         """The level at times ``tau`` (s, >= 0) from now."""
-        if self.level == self.target:
-            return np.full(tau.shape, self.level)
-        if self.target > self.level:
-            return np.minimum(self.level + self.rate * tau, self.target)
-        return np.maximum(self.level - self.rate * tau, self.target)
+        return kernels.ramp_level(self.level, self.target, self.rate, tau)
 
     def advance(self, dt: float) -> None:
-        if self.target > self.level:
-            self.level = min(self.level + self.rate * dt, self.target)
-        elif self.target < self.level:
-            self.level = max(self.level - self.rate * dt, self.target)
+        self.level = float(kernels.ramp_level(self.level, self.target, self.rate, dt))
 
 
 @dataclass
