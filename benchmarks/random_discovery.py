@@ -242,6 +242,9 @@ class Scored:
 
     outcome: mc.Outcome
     named: dict[str, str] = field(default_factory=dict)
+    # the outcome of the model before the loop's first ``replace`` step (discovery's other readings judged by
+    # prediction, docs/workbench.md section 5), where one was taken: the same case without that step
+    before_readings: mc.Outcome | None = None
 
     @property
     def right(self) -> bool:
@@ -284,7 +287,17 @@ def run(c: mc.Case, folder: Path) -> Scored:
     wb = mc.started_workbench(c, folder, session)
     result = run_auto(wb)
     outcome = mc.score(c, wb, result.stopped)
-    return Scored(outcome, named_equivalences(c, outcome, result))
+    replaced = next((k for k, h in enumerate(wb.history) if h.action.startswith("replace ")), None)
+    before = None if replaced is None else mc.score(c, wb, result.stopped, at=replaced - 1)
+    return Scored(outcome, named_equivalences(c, outcome, result), before)
+
+
+def _readings_word(s: Scored) -> str:
+    """What the case was before discovery's other readings replaced a joint's laws ("" where none did)."""
+    if s.before_readings is None:
+        return ""
+    was = "right" if s.before_readings.right else "wrong"
+    return f"; before the readings: {was} ({', '.join(s.before_readings.added) or 'nothing'})"
 
 
 def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
@@ -303,10 +316,14 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
     laws = {c.name: ", ".join(f"{law.element}:{law.law} ({', '.join(f'{k} = {v:.3g}' for k, v in law.values)})"
                               for law in c.laws) for c in cases}
     budget = f" ({drawn - len(cases)} {left_out})" if drawn > len(cases) else ""
+    reread = [s for s in measured if s.before_readings is not None]
     lines = [f"Seed {seed}: {drawn} cases drawn{budget}, {len(measured)} measured; discovery from an empty model "
              f"right on {right + named}/{len(measured)} ({100 * (right + named) / n:.0f} %; goal "
              f"{100 * GOAL:.0f} %): {right} right outright, {named} by an equivalence named to the user; "
-             f"{sum(len(o.false_alarms) for o in outcomes if o.measured)} false alarm(s).", "",
+             f"{sum(len(o.false_alarms) for o in outcomes if o.measured)} false alarm(s). Another reading took a "
+             f"joint's place in {len(reread)} case(s): wrong to right in "
+             f"{sum(s.right and not s.before_readings.right for s in reread)}, right to wrong in "
+             f"{sum(s.before_readings.right and not s.right for s in reread)}.", "",
              "Confusion of law kinds as the matrix scores them (rows: the rig's; columns: the kind found at that "
              "joint):", "",
              "| true \\ found | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
@@ -321,7 +338,7 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
         verdict = ("right by a named equivalence: " + "; ".join(s.named.values()) if s.right_by_naming else
                    "miss" + (" (named: " + "; ".join(s.named.values()) + ")" if s.named else ""))
         lines.append(f"- {o.case} ({o.structure}; rig {laws[o.case]}; noise {100 * o.noise:.2g} %; error "
-                     f"{mc._fmt_fall(o)}): {why} -- {verdict}")
+                     f"{mc._fmt_fall(o)}): {why} -- {verdict}{_readings_word(s)}")
     return "\n".join(lines)
 
 
@@ -390,7 +407,8 @@ def main() -> int:
                 c = draws[seed][i]
                 named = "; named: " + "; ".join(scored.named.values()) if scored.named else ""
                 print(f"seed {seed} " + mc.progress_line(i + 1, len(draws[seed]), scored.outcome, seconds)
-                      + f"; rig {', '.join(f'{law.element}:{law.law}' for law in c.laws)}{named}", flush=True)
+                      + f"; rig {', '.join(f'{law.element}:{law.law}' for law in c.laws)}{named}"
+                      + _readings_word(scored), flush=True)
     sections = []
     for seed, cases in draws.items():
         run_cases = [c for i, c in enumerate(cases) if (seed, i) in done]

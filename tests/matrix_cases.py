@@ -464,24 +464,28 @@ class Outcome:
                    tuple(d["added"]), tuple(d["false_alarms"]), tuple(d["errors"]), d["stopped"])
 
 
-def added_laws(wb: Workbench) -> list[tuple[str, str]]:
-    """(element, law) of every law in the final model that the first history step did not have."""
+def added_laws(wb: Workbench, at: int | None = None) -> list[tuple[str, str]]:
+    """(element, law) of every law in the final model (or in history step ``at``'s) that the first history step
+    did not have."""
     first = wb.history[0].laws
+    held = ({el.name: [t.law.name for t in el.laws] for el in wb.model.elements} if at is None else
+            {name: [t["law"] for t in terms] for name, terms in wb.history[at].laws.items()})
     out = []
     for el in wb.model.elements:
         before = [t["law"] for t in first[el.name]]
-        for term in el.laws:
-            if term.law.name in before:
-                before.remove(term.law.name)
+        for name in held[el.name]:
+            if name in before:
+                before.remove(name)
             else:
-                out.append((el.name, term.law.name))
+                out.append((el.name, name))
     return out
 
 
-def score(c: Case, wb: Workbench, stopped: str) -> Outcome:
+def score(c: Case, wb: Workbench, stopped: str, at: int | None = None) -> Outcome:
     """Each hidden effect is found when a law of its kind was added at its element (one added law answers one
-    effect); every added law left over is a false alarm: a law the rig does not have."""
-    pool = added_laws(wb)
+    effect); every added law left over is a false alarm: a law the rig does not have. ``at``: the model of that
+    history step scored, not the final one."""
+    pool = added_laws(wb, at)
     effects = []
     for h in c.hidden:
         mine = [a for a in pool if a[0] == h.element]
@@ -490,9 +494,10 @@ def score(c: Case, wb: Workbench, stopped: str) -> Outcome:
             pool.remove(match)
         found = h.kind if match is not None else (law_kind(mine[0][1]) if mine else "nothing")
         effects.append(Found(h.element, h.law, h.kind, found))
-    order = [f"{e}:{law}" for e, law in added_laws(wb)]
+    order = [f"{e}:{law}" for e, law in added_laws(wb, at)]
+    history = wb.history if at is None else wb.history[:at + 1]
     return Outcome(c.name, c.bench.name, c.source, c.noise, tuple(effects), tuple(order),
-                   tuple(f"{e}:{law}" for e, law in pool), tuple(h.error for h in wb.history), stopped)
+                   tuple(f"{e}:{law}" for e, law in pool), tuple(h.error for h in history), stopped)
 
 
 LOOP_NAME = "run_auto (analysis/loop/auto.py: discovery first), default AutoRules"

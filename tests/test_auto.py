@@ -655,3 +655,71 @@ def test_a_candidate_taken_back_is_held_back_before_the_measured_modes_can_call_
     auto_module._hold_back_taken_back([weak, other], {"joint:unilateral"})
     assert weak.held_back and not weak.significant
     assert other.significant and not other.held_back
+
+
+def test_a_reading_discovery_passed_on_the_way_takes_the_element_s_place_where_the_model_predicts_better():
+    """Where the model stays far above what the test allows, the readings of an element's kbar that discovery
+    chose among are weighed by the whole model refitted with each: the right one (cubic + Coulomb friction, where
+    the model holds cubic + quintic) cuts the error by the margin and predicts the other level better, and takes
+    the element's place; a larger reading that predicts no better by the margin does not."""
+    from test_workbench import PAPER_LAWS, model_doc, synthesise, workbench
+    wrong = {"left": PAPER_LAWS["left"], "right": [{"law": "cubic"}, {"law": "quintic"}]}
+    wb = workbench(load_model(model_doc(wrong)), synthesise(PAPER_LAWS))
+    wb.start()
+    before = wb.history[-1].error
+    found = SimpleNamespace(elements=[SimpleNamespace(element="right", readings=(
+        ("cubic", "quintic"), ("cubic", "coulomb"), ("cubic", "quadratic_damping", "coulomb")))])
+    steps = [step for step, _ in auto_module._other_readings(wb, found, 1.3, 10.0, lambda: held_out(wb))]
+    assert [(s.action, s.element, s.laws) for s in steps] == [("replace", "right", ("cubic", "coulomb"))]
+    assert laws_of(wb)["right"] == ["coulomb", "cubic"]
+    assert wb.history[-1].error < before / 10 and wb.history[-1].action == "replace right:cubic+coulomb"
+    assert "in place of cubic+quintic" in steps[0].reason and "cubic+quadratic_damping+coulomb" in steps[0].reason
+    # at the floor nothing is weighed: no reading can gain the margin there
+    assert list(auto_module._other_readings(wb, found, 1.3, 10.0, lambda: held_out(wb))) == []
+    # within ten times what the test allows a model may be right (sticking friction leaves one several times
+    # it): nothing is weighed (a stand-in with no read_as: any weighing would fail), however far its FRF
+    # chi-square lies from the noise's
+    near = SimpleNamespace(harmonics_blind=True, history=[SimpleNamespace(error=0.009)],
+                           error_floor=SimpleNamespace(total=0.001),
+                           compare=lambda: SimpleNamespace(times_the_noise=30.0))
+    assert list(auto_module._other_readings(near, found, 1.3, 10.0, lambda: held_out(wb))) == []
+    # where the data carry harmonics the kbar judges the element's laws: nothing is weighed either
+    with_harmonics = SimpleNamespace(harmonics_blind=False)
+    assert list(auto_module._other_readings(with_harmonics, found, 1.3, 10.0, lambda: held_out(wb))) == []
+
+
+def test_of_the_readings_that_predict_better_the_simplest_is_taken_unless_a_larger_predicts_better_by_the_margin():
+    def reading(laws, held, why="", error=0.01):
+        return auto_module._Reading(tuple(laws), error, HeldOut(held, (held,), 2), why, True)
+    alike = [reading(["a", "b", "c"], 0.100), reading(["a", "b"], 0.104), reading(["a"], 0.2, why="no better")]
+    assert auto_module._simplest_predicting(alike, 1.3).laws == ("a", "b")
+    better = [reading(["a", "b", "c"], 0.07), reading(["a", "b"], 0.104)]
+    assert auto_module._simplest_predicting(better, 1.3).laws == ("a", "b", "c")
+    assert auto_module._simplest_predicting([reading(["a"], 0.1, why="no better")], 1.3) is None
+    # nothing held out (held-out checks off, or one level): of as many laws, the better in-sample error
+    unchecked = [reading(["a", "b"], float("nan"), error=0.9), reading(["a", "c"], float("nan"), error=0.1)]
+    assert auto_module._simplest_predicting(unchecked, 1.3).laws == ("a", "c")
+
+
+def test_a_workbench_read_otherwise_for_a_block_is_as_it_was_afterwards():
+    from test_workbench import PAPER_LAWS, model_doc, synthesise, workbench
+    wb = workbench(load_model(model_doc(PAPER_LAWS)), synthesise(PAPER_LAWS, lines=13))
+    wb.start()
+    values = {el.name: [dict(t.values) for t in el.laws] for el in wb.model.elements}
+    with wb.read_as("right", ("cubic", "quintic")) as read:
+        assert laws_of(read)["right"] == ["cubic", "quintic"]
+        # the law it held keeps its values as starting values; the new one was fitted
+        assert set(read.model.element("right").laws[1].values) == {"k5"}
+    assert laws_of(wb)["right"] == ["coulomb", "cubic"]
+    assert {el.name: [dict(t.values) for t in el.laws] for el in wb.model.elements} == values
+    assert len(wb.history) == 1
+
+
+def test_the_gui_says_where_the_loop_read_a_discovered_element_otherwise():
+    from app.gui.results import _discovered
+    found = SimpleNamespace(elements=[SimpleNamespace(element="a", equivalents=[], laws=("unilateral",),
+                                                      chosen=SimpleNamespace(name="unilateral"))])
+    steps = [AutoStep("discover", "a", ("unilateral",), 0.7, 0.18, ""),
+             AutoStep("replace", "a", ("coulomb", "gap"), 0.18, 0.007, "")]
+    lines = _discovered(AutoResult(steps, "nothing significant is left", [], found))
+    assert lines == ["discovered a: unilateral; read as coulomb+gap by the loop (judged by prediction)"]

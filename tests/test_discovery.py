@@ -869,6 +869,11 @@ def test_an_empty_model_of_a_joint_gets_its_stiffness_and_its_damping():
     doc = json.loads(json.dumps(result.to_json()))
     assert doc["discovery"]["elements"][0]["laws"] == list(found[0].laws)
     assert "model discovery" in result.text()
+    # the readings the walk chose among, by size, the choice among them: what the loop weighs again by prediction
+    readings = found[0].readings
+    assert found[0].laws in readings and [len(r) for r in readings] == sorted(len(r) for r in readings)
+    assert {len(r) for r in readings} == {1, 2, 3} and len(set(readings)) == len(readings)
+    assert doc["discovery"]["elements"][0]["readings"] == [list(r) for r in readings]
 
 
 @pytest.mark.slow

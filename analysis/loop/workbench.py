@@ -20,7 +20,7 @@ came from.
 """
 from __future__ import annotations
 
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, replace
 from typing import Callable, Iterator
 
@@ -151,12 +151,13 @@ def _nonzero(bias: dict[str, np.ndarray]) -> bool:
 @dataclass(frozen=True)
 class _FittedState:
     """What a refit changes, to go back to: the kbar bias taken out, the element reports, each element's laws and
-    non-parametric part."""
+    non-parametric part, and the error floor (identified again from the samples less the bias)."""
 
     bias: dict[str, np.ndarray]
     reports: dict[str, ElementReport]
     fits: dict[str, LawFit | None]       # each report's fit (a refit without identification sets it in place)
     parts: list[tuple[list[LawTerm], NonParametric | None]]
+    error_floor: ErrorFloor | None
 
 
 def _harmonic_points(lines: SineRun, limit: float) -> SineRun:
@@ -362,10 +363,10 @@ class Workbench:
 
     def _fitted_state(self) -> _FittedState:
         return _FittedState(self._kbar_bias, self.reports, {n: r.fit for n, r in self.reports.items()},
-                            [(list(el.laws), el.nonparametric) for el in self.model.elements])
+                            [(list(el.laws), el.nonparametric) for el in self.model.elements], self.error_floor)
 
     def _restore(self, state: _FittedState) -> None:
-        self._kbar_bias, self.reports = state.bias, state.reports
+        self._kbar_bias, self.reports, self.error_floor = state.bias, state.reports, state.error_floor
         for name, fit in state.fits.items():
             self.reports[name].fit = fit
         for el, (laws, nonparametric) in zip(self.model.elements, state.parts):
@@ -523,20 +524,39 @@ class Workbench:
         with self.without(element, law):
             return self.compare().error
 
-    @contextmanager
-    def without(self, element: str, law: str) -> Iterator["Workbench"]:
+    def without(self, element: str, law: str) -> AbstractContextManager["Workbench"]:
         """This workbench with ``law`` taken off ``element`` and that element refitted, for as long as the block
         runs; then the model, its fits and its history as they were (nothing recorded), whatever the block
         raised."""
+        return self.read_as(element, tuple(t.law.name for t in self.model.element(element).laws if t.law.name != law))
+
+    @contextmanager
+    def read_as(self, element: str, laws: tuple[str, ...]) -> Iterator["Workbench"]:
+        """This workbench with ``element``'s laws ``laws`` (those it holds keep their values, the others start
+        fresh) and that element refitted, for as long as the block runs; then the model, its fits and its history
+        as they were (nothing recorded), whatever the block raised."""
         el = self.model.element(element)
         state, caches = self._fitted_state(), (self._comparison, self._single, self._offers)
-        el.laws = [t for t in el.laws if t.law.name != law]
+        el.laws = self._terms(el, laws)
         try:
             self.fit([element])
             yield self
         finally:
             self._restore(state)
             self._comparison, self._single, self._offers = caches
+
+    def replace_laws(self, element: str, laws: tuple[str, ...], action: str = "replace") -> HistoryStep:
+        """``element``'s laws made ``laws`` (those it holds keep their values as starting values), the element
+        refitted and one step recorded."""
+        el = self.model.element(element)
+        el.laws = self._terms(el, laws)
+        self.fit([element])
+        return self.record(f"{action} {element}:{'+'.join(laws)}")
+
+    @staticmethod
+    def _terms(el, laws: tuple[str, ...]) -> list[LawTerm]:
+        held = {t.law.name: t for t in el.laws}
+        return [held.get(name) or LawTerm(el.law(name), {}) for name in laws]
 
     def take_back(self, element: str, law: str, action: str = "take back") -> HistoryStep:
         """Take ``law`` off ``element``, refit it and record one step."""

@@ -112,6 +112,9 @@ class ElementDiscovery:
     equivalents: list[Separation] = field(default_factory=list)
     walk: list[WalkStep] = field(default_factory=list)
     simplified_from: tuple[str, ...] | None = None   # the set the FRFs took, where a simpler alike one replaced it
+    # the readings of its kbar the walk chose among: every set of its shortlists, by size, then as the kbar
+    # criterion ranks them (what the loop weighs again by the FRFs where the model stays above what the test allows)
+    readings: tuple[tuple[str, ...], ...] = ()
 
     @property
     def laws(self) -> tuple[str, ...]:
@@ -139,7 +142,8 @@ class ElementDiscovery:
                 "sets_fitted": self.sets_fitted, "explanations": self.explanations,
                 "indistinguishable": [s.to_json() for s in self.equivalents],
                 "walk": [s.to_json() for s in self.walk],
-                "simplified_from": None if self.simplified_from is None else list(self.simplified_from)}
+                "simplified_from": None if self.simplified_from is None else list(self.simplified_from),
+                "readings": [list(r) for r in self.readings]}
 
 
 @dataclass

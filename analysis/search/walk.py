@@ -393,9 +393,15 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
                                       + ([pruned[search.index]] if search.index in pruned else [])
                                       + _explanations(names[search.index], search, chosen), equivalents,
                                       walks.get(search.index, []),
-                                      judged[search.index].laws if judged[search.index] is not chosen else None))
+                                      judged[search.index].laws if judged[search.index] is not chosen else None,
+                                      _readings(search)))
     by_index = {s.index: f for s, f in zip(searches, found)}
     return Discovery([by_index[i] for i in _order(judge, choice)])
+
+
+def _readings(search: _Search) -> tuple[tuple[str, ...], ...]:
+    """Every set of the element's shortlists with one law or more (:attr:`ElementDiscovery.readings`)."""
+    return tuple(dict.fromkeys(s.laws for size in sorted(search.by_size) if size > 0 for s in search.by_size[size]))
 
 
 def _order(judge: _Judge, choice: dict[int, LawSet]) -> list[int]:

@@ -319,12 +319,14 @@ def _discovered(auto: AutoResult) -> list[str]:
     """One line per element whose laws discovery chose, with the sets the data cannot tell from them; a choice the
     loop was stopped before adding says so (the model does not hold it)."""
     added = {s.element for s in auto.steps if s.action == "discover"}
+    replaced = {s.element: "+".join(s.laws) for s in auto.steps if s.action == "replace"}
     out = []
     for e in [] if auto.discovery is None else auto.discovery.elements:
         alike = f"; indistinguishable on these data: {', '.join('+'.join(s.laws) for s in e.equivalents)}" \
             if e.equivalents else ""
+        later = f"; read as {replaced[e.element]} by the loop (judged by prediction)" if e.element in replaced else ""
         kept = e.element in added or not e.laws
-        out.append(f"discovered {e.element}: {e.chosen.name}{alike}" if kept else
+        out.append(f"discovered {e.element}: {e.chosen.name}{alike}{later}" if kept else
                    f"found for {e.element}: {e.chosen.name} -- not added (stopped before it)")
     return out
 
