@@ -240,6 +240,23 @@ def test_the_loop_adds_no_law_beside_a_contact_that_only_fits_its_closing_lines(
 
 
 @pytest.mark.acceptance
+def test_a_reading_discovery_passed_on_the_way_replaces_its_choice_where_the_model_stays_far_above_the_floor(
+        tmp_path):
+    # seed 764680 random 13: Coulomb friction and a gap at one joint, RK4 receptances without harmonics. The walk
+    # takes a one-sided contact at size one and never meets the gap beside the friction; the loop stops 27 times
+    # above the floor, and the reading coulomb + gap of the joint's own shortlist, refitted in the whole model,
+    # takes its place (analysis/loop/auto.py, _other_readings)
+    rd = _random_discovery()
+
+    case = rd._draw(764680, 13)[12]
+    assert sorted((law.element, law.law) for law in case.laws) == [("a", "coulomb"), ("a", "gap")]
+    scored = rd.run(case, tmp_path)
+    assert scored.outcome.right and not scored.outcome.false_alarms, mc.progress_line(1, 1, scored.outcome, 0)
+    assert scored.before_readings is not None and not scored.before_readings.right
+    assert scored.outcome.errors[-1] < scored.before_readings.errors[-1] / 10
+
+
+@pytest.mark.acceptance
 def test_a_contact_s_corrected_fit_reaches_the_fixed_point_the_frfs_prefer(tmp_path, monkeypatch):
     # seed 735527 random 13: quadratic damping + a one-sided contact, RK4 receptances without harmonics. The kbar
     # fit and every corrected pass from it stay at a contact half as stiff as the rig's; started from the laws
