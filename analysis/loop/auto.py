@@ -380,12 +380,13 @@ def _other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: fl
     (:func:`_predicts_no_better`, which judges nothing where a fold's fit saw too little to determine a law, as
     for the loop's laws); of those the simplest that no larger one out-predicts by the margin takes the element's
     place (:func:`_simplest_predicting`). A reading is a whole set judged anew: it may hold a law taken back from
-    another set. Nearer the floor the model may be right, and a reading would
-    gain by taking up what one harmonic cannot represent, which two levels held out one by the other cannot refuse
-    (each fold's fit sees one level, and a reading then needs to predict only one of them better). The distance
-    is the FRF error's own, the measure a reading gains in: the chi-square's (:func:`_near_the_noise`) weighs every
-    line alike and puts a right model with sticking friction tens of times the noise where its error is twice
-    the floor.
+    another set.
+
+    Nearer the floor the model may be right, and a reading would gain by taking up what one harmonic cannot
+    represent, which two levels held out one by the other cannot refuse (each fold's fit sees one level, and a
+    reading then needs to predict only one of them better). The distance is the FRF error's own, the measure a
+    reading gains in: the chi-square's (:func:`_near_the_noise`) weighs every line alike and puts a right model
+    with sticking friction tens of times the noise where its error is twice the floor.
 
     Where the data carry harmonics the kbar follows every line and judges the element's laws itself: an FRF
     misfit it does not show is no law's, and a law that takes it up describes the model's form, not the joint,
@@ -423,16 +424,13 @@ def _simplest_predicting(weighed: list[_Reading], min_gain: float) -> _Reading |
     (then the best held-out error), unless one with more laws predicts them better by ``min_gain``: a law enters
     where it predicts data its fit did not see better by a margin, and a law the held-out levels do not call for
     is one the data do not determine. None where no reading qualifies."""
-    qualified = sorted((r for r in weighed if not r.why), key=lambda r: (len(r.laws), _or_inf(r.held.error), r.error))
+    qualified = sorted((r for r in weighed if not r.why),
+                       key=lambda r: (len(r.laws), np.nan_to_num(r.held.error, nan=np.inf), r.error))
     best = qualified[0] if qualified else None
     for r in qualified[1:]:
         if len(r.laws) > len(best.laws) and min_gain * r.held.error <= best.held.error:
             best = r
     return best
-
-
-def _or_inf(value: float) -> float:
-    return value if np.isfinite(value) else float("inf")
 
 
 def _reading_reason(element: str, current: tuple[str, ...], weighed: list[_Reading]) -> str:
