@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 import analysis.loop.auto as auto_module
+import analysis.loop.cross_check as cross_check
+import analysis.loop.readings as readings
 from analysis.loop.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained, run_auto
 from analysis.loop.cross_check import NOT_CHECKED, HeldOut, cross_validate, held_out
 from analysis.prediction.comparison import pooled_error
@@ -611,13 +613,13 @@ def test_a_law_is_kept_only_where_it_predicts_every_held_out_fold_better():
     assert HeldOut(0.2, (0.1, 0.3, 0.2), 2).better_than(HeldOut(float("nan"), (0.3, float("nan"), 0.4), 2))
     assert not HeldOut(0.1, (0.1, 0.1), 2).better_than(before)                # other folds: not comparable
     assert not HeldOut(0.1, (0.1,), 2).better_than(NOT_CHECKED)
-    why = auto_module._predicts_no_better(before, HeldOut(0.45, (0.2, 0.6, 0.5), 2))
+    why = cross_check.predicts_no_better(before, HeldOut(0.45, (0.2, 0.6, 0.5), 2))
     assert why.startswith("it does not predict the levels its fits did not see better: held-out 0.45 against 0.4")
     assert "0.6 against 0.5" in why and why.endswith("predicts every held-out fold better")
-    assert auto_module._predicts_no_better(before, HeldOut(0.2, (0.1, 0.3, 0.2), 2)) == ""
-    assert auto_module._predicts_no_better(NOT_CHECKED, HeldOut(0.9, (0.9,))) == ""    # nothing held out
+    assert cross_check.predicts_no_better(before, HeldOut(0.2, (0.1, 0.3, 0.2), 2)) == ""
+    assert cross_check.predicts_no_better(NOT_CHECKED, HeldOut(0.9, (0.9,))) == ""    # nothing held out
     # folds whose fits saw one level each (a session of two levels) and not the size of every law judge nothing
-    assert auto_module._predicts_no_better(HeldOut(0.4, (0.3, 0.5), 1), HeldOut(0.9, (0.9, 0.9), 1)) == ""
+    assert cross_check.predicts_no_better(HeldOut(0.4, (0.3, 0.5), 1), HeldOut(0.9, (0.9, 0.9), 1)) == ""
 
 
 def test_of_two_levels_a_law_every_fold_sees_must_predict_one_level_better_from_the_other():
@@ -629,12 +631,12 @@ def test_of_two_levels_a_law_every_fold_sees_must_predict_one_level_better_from_
     assert HeldOut(0.45, (0.2, 0.7), 1, True).better_than(without)            # better one way
     assert not HeldOut(0.6, (0.35, 0.8), 1, True).better_than(without)        # worse both ways
     assert not HeldOut(0.4, (0.3, 0.5), 1, True).better_than(without)         # equal is not better
-    why = auto_module._predicts_no_better(without, HeldOut(0.6, (0.35, 0.8), 1, True))
+    why = cross_check.predicts_no_better(without, HeldOut(0.6, (0.35, 0.8), 1, True))
     assert "(per fold 0.35 against 0.3, 0.8 against 0.5)" in why
     assert why.endswith("predicts at least one of the two levels better from the other")
     # a fold whose fit does not see a law's size, in either model, judges nothing
-    assert auto_module._predicts_no_better(without, HeldOut(0.6, (0.35, 0.8), 1, False)) == ""
-    assert auto_module._predicts_no_better(HeldOut(0.4, (0.3, 0.5), 1), HeldOut(0.6, (0.35, 0.8), 1, True)) == ""
+    assert cross_check.predicts_no_better(without, HeldOut(0.6, (0.35, 0.8), 1, False)) == ""
+    assert cross_check.predicts_no_better(HeldOut(0.4, (0.3, 0.5), 1), HeldOut(0.6, (0.35, 0.8), 1, True)) == ""
 
 
 def test_a_fold_sees_its_laws_where_each_law_s_size_is_beyond_its_interval_of_zero():
@@ -669,36 +671,36 @@ def test_a_reading_discovery_passed_on_the_way_takes_the_element_s_place_where_t
     before = wb.history[-1].error
     found = SimpleNamespace(elements=[SimpleNamespace(element="right", readings=(
         ("cubic", "quintic"), ("cubic", "coulomb"), ("cubic", "quadratic_damping", "coulomb")))])
-    steps = [step for step, _ in auto_module._other_readings(wb, found, 1.3, 10.0, lambda: held_out(wb))]
-    assert [(s.action, s.element, s.laws) for s in steps] == [("replace", "right", ("cubic", "coulomb"))]
+    steps = list(readings.other_readings(wb, found, 1.3, 10.0, lambda: held_out(wb)))
+    assert [(s.element, s.laws) for s in steps] == [("right", ("cubic", "coulomb"))]
     assert laws_of(wb)["right"] == ["coulomb", "cubic"]
     assert wb.history[-1].error < before / 10 and wb.history[-1].action == "replace right:cubic+coulomb"
     assert "in place of cubic+quintic" in steps[0].reason and "cubic+quadratic_damping+coulomb" in steps[0].reason
     # at the floor nothing is weighed: no reading can gain the margin there
-    assert list(auto_module._other_readings(wb, found, 1.3, 10.0, lambda: held_out(wb))) == []
+    assert list(readings.other_readings(wb, found, 1.3, 10.0, lambda: held_out(wb))) == []
     # within ten times what the test allows a model may be right (sticking friction leaves one several times
     # it): nothing is weighed (a stand-in with no read_as: any weighing would fail), however far its FRF
     # chi-square lies from the noise's
     near = SimpleNamespace(harmonics_blind=True, history=[SimpleNamespace(error=0.009)],
                            error_floor=SimpleNamespace(total=0.001),
                            compare=lambda: SimpleNamespace(times_the_noise=30.0))
-    assert list(auto_module._other_readings(near, found, 1.3, 10.0, lambda: held_out(wb))) == []
+    assert list(readings.other_readings(near, found, 1.3, 10.0, lambda: held_out(wb))) == []
     # where the data carry harmonics the kbar judges the element's laws: nothing is weighed either
     with_harmonics = SimpleNamespace(harmonics_blind=False)
-    assert list(auto_module._other_readings(with_harmonics, found, 1.3, 10.0, lambda: held_out(wb))) == []
+    assert list(readings.other_readings(with_harmonics, found, 1.3, 10.0, lambda: held_out(wb))) == []
 
 
 def test_of_the_readings_that_predict_better_the_simplest_is_taken_unless_a_larger_predicts_better_by_the_margin():
     def reading(laws, held, why="", error=0.01):
-        return auto_module._Reading(tuple(laws), error, HeldOut(held, (held,), 2), why, True)
+        return readings._Reading(tuple(laws), error, HeldOut(held, (held,), 2), why, True)
     alike = [reading(["a", "b", "c"], 0.100), reading(["a", "b"], 0.104), reading(["a"], 0.2, why="no better")]
-    assert auto_module._simplest_predicting(alike, 1.3).laws == ("a", "b")
+    assert readings._simplest_predicting(alike, 1.3).laws == ("a", "b")
     better = [reading(["a", "b", "c"], 0.07), reading(["a", "b"], 0.104)]
-    assert auto_module._simplest_predicting(better, 1.3).laws == ("a", "b", "c")
-    assert auto_module._simplest_predicting([reading(["a"], 0.1, why="no better")], 1.3) is None
+    assert readings._simplest_predicting(better, 1.3).laws == ("a", "b", "c")
+    assert readings._simplest_predicting([reading(["a"], 0.1, why="no better")], 1.3) is None
     # nothing held out (held-out checks off, or one level): of as many laws, the better in-sample error
     unchecked = [reading(["a", "b"], float("nan"), error=0.9), reading(["a", "c"], float("nan"), error=0.1)]
-    assert auto_module._simplest_predicting(unchecked, 1.3).laws == ("a", "c")
+    assert readings._simplest_predicting(unchecked, 1.3).laws == ("a", "c")
 
 
 def test_a_workbench_read_otherwise_for_a_block_is_as_it_was_afterwards():

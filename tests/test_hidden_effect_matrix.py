@@ -245,7 +245,7 @@ def test_a_reading_discovery_passed_on_the_way_replaces_its_choice_where_the_mod
     # seed 764680 random 13: Coulomb friction and a gap at one joint, RK4 receptances without harmonics. The walk
     # takes a one-sided contact at size one and never meets the gap beside the friction; the loop stops 27 times
     # above the floor, and the reading coulomb + gap of the joint's own shortlist, refitted in the whole model,
-    # takes its place (analysis/loop/auto.py, _other_readings)
+    # takes its place (analysis/loop/readings.py, other_readings)
     rd = _random_discovery()
 
     case = rd._draw(764680, 13)[12]

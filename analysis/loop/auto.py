@@ -7,7 +7,7 @@ until nothing significant is left. Where no single law is significant but an ele
 explained by its laws, pairs of laws on that element are tried before giving up (two effects of one joint can
 each look insignificant alone); and where the model then stays above what the test allows, the other readings of
 each element's kbar that discovery chose among are weighed by the whole model's prediction of the FRFs and of
-the levels its fits did not see (:func:`_other_readings`). Significance is that of the ranking
+the levels its fits did not see (:func:`analysis.loop.readings.other_readings`). Significance is that of the ranking
 (:mod:`analysis.missing.diagnosis`), including the check against what the single-harmonic model cannot represent,
 so the loop stops on the physics the data show.
 """
@@ -26,7 +26,8 @@ from ..missing.unexplained import unexplained
 from ..prediction.backbone import ModalError
 from ..prediction.comparison import Comparison, gain_phrase
 from ..search.discovery import Discovery, DiscoveryRules, ElementDiscovery, WalkStep
-from .cross_check import NOT_CHECKED, HeldOut, held_out
+from .cross_check import NOT_CHECKED, HeldOut, held_out, predicts_no_better
+from .readings import other_readings
 from .workbench import ElementReport, Workbench
 
 
@@ -46,7 +47,7 @@ class AutoRules:
     take_back_near_noise: float = 10.0   # a discovered law is weighed for taking back within this many times the
                                          # noise (:func:`_near_the_noise`)
     # discovery's other readings are weighed where the model's FRF error is more than this many times what the test
-    # allows: nearer, sticking friction on data without harmonics can leave a right model (:func:`_other_readings`)
+    # allows: nearer, sticking friction on data without harmonics can leave a right model (:func:`analysis.loop.readings.other_readings`)
     readings_beyond_floor: float = 10.0
     ranking: RankingRules = RankingRules()
     # every step's model judged on levels its fit did not see (:func:`analysis.loop.cross_check.held_out`), and a
@@ -222,7 +223,7 @@ def _discovery_reason(found: ElementDiscovery, still_empty: list[str]) -> str:
 def _predicting_no_better(wb: Workbench, found: list[ElementDiscovery],
                           checked: Callable[[], HeldOut]) -> Iterator[tuple[AutoStep, HeldOut]]:
     """Each law discovery found kept only where the model with it predicts every held-out fold better than the
-    model refitted without it: the rule every law the loop adds meets (:func:`_predicts_no_better`). Discovery
+    model refitted without it: the rule every law the loop adds meets (:func:`predicts_no_better`). Discovery
     chooses a set by its kbar and by the FRFs of the lines the set was fitted to; a law that only bends the fit to
     those lines -- a stiffness law standing in for the structure's misfit at another element, one law writing
     another's curvature again -- predicts the levels its fit did not see no better, or worse. Of an element's
@@ -238,7 +239,7 @@ def _predicting_no_better(wb: Workbench, found: list[ElementDiscovery],
             for law in laws:
                 with wb.without(element.element, law):
                     alone = held_out(wb)
-                why = _predicts_no_better(alone, current)
+                why = predicts_no_better(alone, current)
                 if why:
                     failing.append((alone.error, law, alone, why))
             if not failing:
@@ -338,111 +339,6 @@ def _hold_back_against_discovery(wb: Workbench, candidates: list[Candidate], fou
         if why:
             c.significant = False
             c.held_back = why
-
-
-def _predicts_no_better(before: HeldOut, after: HeldOut) -> str:
-    """Why a candidate just added is taken back for what it predicts, "" where it stays: a law enters only
-    where the model with it predicts the held-out folds better than the model without it
-    (:meth:`HeldOut.better_than`: every fold; of two levels, each predicting the other, at least one). A law that
-    fits its own lines better and predicts the levels its fit did not see no better describes those lines, not
-    the joint. Nothing is judged where a fold's fit saw too little to determine a law (:attr:`HeldOut.judges`:
-    one level that does not show the size of every law of either model)."""
-    if not (before.judges and after.judges) or after.better_than(before):
-        return ""
-    folds = ", ".join(f"{a:.3g} against {b:.3g}" for a, b in zip(after.folds, before.folds))
-    rule = ("every held-out fold better" if after.every_fold_with(before) else
-            "at least one of the two levels better from the other")
-    return (f"it does not predict the levels its fits did not see better: held-out {after.error:.3g} against "
-            f"{before.error:.3g} without it (per fold {folds}); a law is kept only where it predicts {rule}")
-
-
-@dataclass(frozen=True)
-class _Reading:
-    """A reading weighed by :func:`_other_readings`: its laws, the model's in-sample FRF error with it, its
-    held-out error, and why it does not predict better ("" where it does)."""
-    laws: tuple[str, ...]
-    error: float
-    held: HeldOut
-    why: str
-    judged: bool        # the held-out levels judged it (:attr:`HeldOut.judges`, for it and the current model)
-
-
-def _other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: float, checked: Callable[[], HeldOut],
-                    check: Callable[[Workbench], HeldOut] = held_out) -> Iterator[tuple[AutoStep, HeldOut]]:
-    """On data without harmonics, where the model stays farther above what the test allows
-    (:attr:`Workbench.error_floor`) than a right model can be (``beyond`` times it), each searched element's other
-    readings of its kbar (:attr:`ElementDiscovery.readings`, the sets its walk chose among) weighed by what decides
-    in the end: the whole model refitted with each, its FRFs, and the levels its fits did not see. The walk tries
-    one set of each size, from the set it took before, with the other elements standing in by their measured
-    kbar; a reading it passed on the way can describe the joint where the one it took does not, and only the
-    model's prediction shows it. A reading qualifies where it cuts the error by ``min_gain`` for every law it adds
-    (once for as many laws or fewer) and its model predicts the held-out levels better than the current one
-    (:func:`_predicts_no_better`, which judges nothing where a fold's fit saw too little to determine a law, as
-    for the loop's laws); of those the simplest that no larger one out-predicts by the margin takes the element's
-    place (:func:`_simplest_predicting`). A reading is a whole set judged anew: it may hold a law taken back from
-    another set.
-
-    Nearer the floor the model may be right, and a reading would gain by taking up what one harmonic cannot
-    represent, which two levels held out one by the other cannot refuse (each fold's fit sees one level, and a
-    reading then needs to predict only one of them better). The distance is the FRF error's own, the measure a
-    reading gains in: the chi-square's (:func:`_near_the_noise`) weighs every line alike and puts a right model
-    with sticking friction tens of times the noise where its error is twice the floor.
-
-    Where the data carry harmonics the kbar follows every line and judges the element's laws itself: an FRF
-    misfit it does not show is no law's, and a law that takes it up describes the model's form, not the joint,
-    at every level alike, so held-out levels cannot refuse it. Without harmonics the kbar fits leave out the
-    lines where a contact closes or a friction sticks, and only the FRFs see a law acting there. ``checked``: the
-    current model's held-out error; ``check``: a model's (:data:`NOT_CHECKED` where the loop checks none). Yields
-    each step with the held-out error of the model after it."""
-    if not wb.harmonics_blind:
-        return
-    for element in found.elements:
-        error, floor = wb.history[-1].error, wb.error_floor
-        if floor is None or not error > beyond * floor.total:
-            return
-        current = tuple(t.law.name for t in wb.model.element(element.element).laws)
-        weighed = []
-        for laws in element.readings:
-            if set(laws) == set(current):
-                continue
-            with wb.read_as(element.element, laws):
-                after = wb.compare().error
-                held = check(wb) if error >= min_gain ** max(1, len(laws) - len(current)) * after else None
-            if held is not None:
-                before = checked()          # the current model's, once a reading gains the margin
-                weighed.append(_Reading(laws, after, held, _predicts_no_better(before, held),
-                                        before.judges and held.judges))
-        best = _simplest_predicting(weighed, min_gain)
-        if best is not None:
-            after = wb.replace_laws(element.element, best.laws).error
-            yield AutoStep("replace", element.element, best.laws, error, after,
-                           _reading_reason(element.element, current, weighed)), best.held
-
-
-def _simplest_predicting(weighed: list[_Reading], min_gain: float) -> _Reading | None:
-    """Of the readings that predict the held-out levels better than the current model, the one with fewest laws
-    (then the best held-out error), unless one with more laws predicts them better by ``min_gain``: a law enters
-    where it predicts data its fit did not see better by a margin, and a law the held-out levels do not call for
-    is one the data do not determine. None where no reading qualifies."""
-    qualified = sorted((r for r in weighed if not r.why),
-                       key=lambda r: (len(r.laws), np.nan_to_num(r.held.error, nan=np.inf), r.error))
-    best = qualified[0] if qualified else None
-    for r in qualified[1:]:
-        if len(r.laws) > len(best.laws) and min_gain * r.held.error <= best.held.error:
-            best = r
-    return best
-
-
-def _reading_reason(element: str, current: tuple[str, ...], weighed: list[_Reading]) -> str:
-    was = "+".join(current) if current else "no law"
-    each = "; ".join(f"{'+'.join(r.laws)}: in-sample {r.error:.3g}, held-out {r.held.error:.3g}"
-                     f"{', predicts no better' if r.why else '' if r.judged else ', not judged by it'}"
-                     for r in weighed)
-    return (f"another reading of {element}'s kbar among those discovery chose from, in place of {was}: the model "
-            "stayed far above what the test allows, and of the readings that cut its error by the margin a law "
-            "must bring and are not refused by the held-out levels this one has fewest laws, or predicts them "
-            "better by the margin than those with fewer (held-out levels judge nothing where a fold's fit saw one "
-            f"level that does not show every law; {each})")
 
 
 def _falls_short(c: Candidate, before: float, after: float, min_gain: float) -> bool:
@@ -583,9 +479,8 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
                 under_way.what = "discovery's other readings"
                 replaced = False
                 check = held_out if rules.held_out else (lambda _: NOT_CHECKED)
-                for step, held in _other_readings(wb, found, rules.ranking.min_gain, rules.readings_beyond_floor,
-                                                  checked, check):
-                    take(step, known=held)
+                for r in other_readings(wb, found, rules.ranking.min_gain, rules.readings_beyond_floor, checked, check):
+                    take(AutoStep("replace", r.element, r.laws, r.error_before, r.error_after, r.reason), known=r.held)
                     replaced = True
                 if replaced:
                     continue
@@ -603,7 +498,7 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             why = (f"the model refitted with it gains {gain_phrase(before / after)} ({before:.3g} -> {after:.3g}), "
                    f"not the x{rules.ranking.min_gain:g} it gained at its kbar fit")
         elif rules.held_out:
-            why = _predicts_no_better(held_before, checked())
+            why = predicts_no_better(held_before, checked())
         if why:
             wb.back_to(len(wb.history) - 2, f"take back {top.name}")
             take(AutoStep("take back", top.element, top.laws, after, wb.history[-1].error, why), known=held_before)

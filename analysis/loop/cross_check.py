@@ -132,6 +132,22 @@ class HeldOut:
 NOT_CHECKED = HeldOut(float("nan"), ())
 
 
+def predicts_no_better(before: HeldOut, after: HeldOut) -> str:
+    """Why a law is refused for what its model predicts, "" where it stays: a law enters only
+    where the model with it predicts the held-out folds better than the model without it
+    (:meth:`HeldOut.better_than`: every fold; of two levels, each predicting the other, at least one). A law that
+    fits its own lines better and predicts the levels its fit did not see no better describes those lines, not
+    the joint. Nothing is judged where a fold's fit saw too little to determine a law (:attr:`HeldOut.judges`:
+    one level that does not show the size of every law of either model)."""
+    if not (before.judges and after.judges) or after.better_than(before):
+        return ""
+    folds = ", ".join(f"{a:.3g} against {b:.3g}" for a, b in zip(after.folds, before.folds))
+    rule = ("every held-out fold better" if after.every_fold_with(before) else
+            "at least one of the two levels better from the other")
+    return (f"it does not predict the levels its fits did not see better: held-out {after.error:.3g} against "
+            f"{before.error:.3g} without it (per fold {folds}); a law is kept only where it predicts {rule}")
+
+
 def held_out(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> HeldOut:
     """The FRF error of ``wb``'s model on levels its fit did not see: the levels, in order, dealt into ``folds``
     interleaved folds (level i into fold i mod K, K at most the number of levels), the laws refitted on all the

@@ -1,0 +1,116 @@
+"""Discovery's other readings of an element's kbar, weighed by the whole model's prediction (docs/workbench.md §5,
+step 4): where the loop would stop far above what the test allows, each set discovery chose among takes the
+element's place in turn, the model is refitted and judged by its FRFs and by the levels its fits did not see, and
+the simplest reading that predicts better replaces the element's laws.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+import numpy as np
+
+from ..search.discovery import Discovery
+from .cross_check import HeldOut, held_out, predicts_no_better
+from .workbench import Workbench
+
+
+@dataclass(frozen=True)
+class Replacement:
+    """A reading put in an element's place: the element, its new laws, the model's FRF error before and after,
+    why, and the held-out error of the model after it."""
+    element: str
+    laws: tuple[str, ...]
+    error_before: float
+    error_after: float
+    reason: str
+    held: HeldOut
+
+
+@dataclass(frozen=True)
+class _Reading:
+    """A reading weighed by :func:`other_readings`: its laws, the model's in-sample FRF error with it, its
+    held-out error, and why it does not predict better ("" where it does)."""
+    laws: tuple[str, ...]
+    error: float
+    held: HeldOut
+    why: str
+    judged: bool        # the held-out levels judged it (:attr:`HeldOut.judges`, for it and the current model)
+
+
+def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: float, checked: Callable[[], HeldOut],
+                    check: Callable[[Workbench], HeldOut] = held_out) -> Iterator[Replacement]:
+    """On data without harmonics, where the model stays farther above what the test allows
+    (:attr:`Workbench.error_floor`) than a right model can be (``beyond`` times it), each searched element's other
+    readings of its kbar (:attr:`ElementDiscovery.readings`, the sets its walk chose among) weighed by what decides
+    in the end: the whole model refitted with each, its FRFs, and the levels its fits did not see. The walk tries
+    one set of each size, from the set it took before, with the other elements standing in by their measured
+    kbar; a reading it passed on the way can describe the joint where the one it took does not, and only the
+    model's prediction shows it. A reading qualifies where it cuts the error by ``min_gain`` for every law it adds
+    (once for as many laws or fewer) and its model predicts the held-out levels better than the current one
+    (:func:`predicts_no_better`, which judges nothing where a fold's fit saw too little to determine a law, as
+    for the loop's laws); of those the simplest that no larger one out-predicts by the margin takes the element's
+    place (:func:`_simplest_predicting`). A reading is a whole set judged anew: it may hold a law taken back from
+    another set.
+
+    Nearer the floor the model may be right, and a reading would gain by taking up what one harmonic cannot
+    represent, which two levels held out one by the other cannot refuse (each fold's fit sees one level, and a
+    reading then needs to predict only one of them better). The distance is the FRF error's own, the measure a
+    reading gains in: the chi-square's (:func:`_near_the_noise`) weighs every line alike and puts a right model
+    with sticking friction tens of times the noise where its error is twice the floor.
+
+    Where the data carry harmonics the kbar follows every line and judges the element's laws itself: an FRF
+    misfit it does not show is no law's, and a law that takes it up describes the model's form, not the joint,
+    at every level alike, so held-out levels cannot refuse it. Without harmonics the kbar fits leave out the
+    lines where a contact closes or a friction sticks, and only the FRFs see a law acting there. ``checked``: the
+    current model's held-out error; ``check``: a model's (:data:`analysis.loop.cross_check.NOT_CHECKED` where the loop checks none). Yields
+    each replacement made, with the held-out error of the model after it."""
+    if not wb.harmonics_blind:
+        return
+    for element in found.elements:
+        error, floor = wb.history[-1].error, wb.error_floor
+        if floor is None or not error > beyond * floor.total:
+            return
+        current = tuple(t.law.name for t in wb.model.element(element.element).laws)
+        weighed = []
+        for laws in element.readings:
+            if set(laws) == set(current):
+                continue
+            with wb.read_as(element.element, laws):
+                after = wb.compare().error
+                held = check(wb) if error >= min_gain ** max(1, len(laws) - len(current)) * after else None
+            if held is not None:
+                before = checked()          # the current model's, once a reading gains the margin
+                weighed.append(_Reading(laws, after, held, predicts_no_better(before, held),
+                                        before.judges and held.judges))
+        best = _simplest_predicting(weighed, min_gain)
+        if best is not None:
+            after = wb.replace_laws(element.element, best.laws).error
+            yield Replacement(element.element, best.laws, error, after,
+                              _reading_reason(element.element, current, weighed), best.held)
+
+
+def _simplest_predicting(weighed: list[_Reading], min_gain: float) -> _Reading | None:
+    """Of the readings that predict the held-out levels better than the current model, the one with fewest laws
+    (then the best held-out error), unless one with more laws predicts them better by ``min_gain``: a law enters
+    where it predicts data its fit did not see better by a margin, and a law the held-out levels do not call for
+    is one the data do not determine. None where no reading qualifies."""
+    qualified = sorted((r for r in weighed if not r.why),
+                       key=lambda r: (len(r.laws), np.nan_to_num(r.held.error, nan=np.inf), r.error))
+    best = qualified[0] if qualified else None
+    for r in qualified[1:]:
+        if len(r.laws) > len(best.laws) and min_gain * r.held.error <= best.held.error:
+            best = r
+    return best
+
+
+def _reading_reason(element: str, current: tuple[str, ...], weighed: list[_Reading]) -> str:
+    was = "+".join(current) if current else "no law"
+    each = "; ".join(f"{'+'.join(r.laws)}: in-sample {r.error:.3g}, held-out {r.held.error:.3g}"
+                     f"{', predicts no better' if r.why else '' if r.judged else ', not judged by it'}"
+                     for r in weighed)
+    return (f"another reading of {element}'s kbar among those discovery chose from, in place of {was}: the model "
+            "stayed far above what the test allows, and of the readings that cut its error by the margin a law "
+            "must bring and are not refused by the held-out levels this one has fewest laws, or predicts them "
+            "better by the margin than those with fewer (held-out levels judge nothing where a fold's fit saw one "
+            f"level that does not show every law; {each})")
