@@ -323,6 +323,22 @@ def test_a_balance_starts_from_the_last_one_at_its_samples_and_answers_as_from_n
     assert el.surroundings.with_parallel(None).starts is el.surroundings.starts
 
 
+def test_a_contact_that_never_acts_is_settled_in_one_step_with_no_force_and_the_others_as_alone(monkeypatch):
+    """A sample whose contact stays open over the whole cycle (X below the gap) has no force and no harmonics: its
+    balance holds as it starts, in one step, kbar exactly 0; the samples beside it that close are as alone."""
+    w0 = np.sqrt(K_S / M_S)
+    X, w = np.array([0.001, 0.01, 0.003, 0.006]), np.array([0.5 * w0, 0.9 * w0, 1.2 * w0, 1.5 * w0])
+    steps = _counting_steps(monkeypatch)
+    _, (el,) = sdof([{"law": "unilateral", **CONTACT}])
+    both = placed_kbar([(UNILATERAL, CONTACT)], X, w, el.surroundings)
+    open_ = X < CONTACT["gap"]
+    assert np.all(both[open_] == 0.0) and np.all(steps[0][open_] == 1)
+    for i in np.flatnonzero(~open_):
+        _, (alone,) = sdof([{"law": "unilateral", **CONTACT}])
+        assert placed_kbar([(UNILATERAL, CONTACT)], X[i:i + 1], w[i:i + 1], alone.surroundings)[0] == both[i]
+        assert abs(both[i]) > 0.0
+
+
 def _counting_steps(monkeypatch) -> list:
     """The Newton steps each sample takes in every solve of the balances made from now (one array per solve)."""
     steps = []
