@@ -12,6 +12,7 @@ import pytest
 import analysis.loop.auto as auto_module
 import analysis.loop.cross_check as cross_check
 import analysis.loop.readings as readings
+import analysis.loop.discovered as discovered
 from analysis.loop.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained, run_auto
 from analysis.loop.cross_check import NOT_CHECKED, HeldOut, cross_validate, held_out
 from analysis.prediction.comparison import pooled_error
@@ -443,7 +444,7 @@ def _found(element: str):
 
 def test_a_discovered_law_the_refitted_model_does_not_need_is_taken_back():
     wb = _Trial(["velocity_stiffness", "gap"], 0.0106, {"velocity_stiffness": 0.0107, "gap": 0.9})
-    steps = list(auto_module._taken_back(wb, [_found("a")], 1.3, 10.0))
+    steps = list(discovered.unneeded(wb, [_found("a")], 1.3, 10.0))
     assert wb.taken == ["velocity_stiffness"] and wb.laws == ["gap"]
     assert [(s.action, s.laws, s.error_after) for s in steps] == [("take back", ("velocity_stiffness",), 0.0107)]
     assert "0.0107 against 0.0106" in steps[0].reason
@@ -451,10 +452,10 @@ def test_a_discovered_law_the_refitted_model_does_not_need_is_taken_back():
 
 def test_a_discovered_law_that_brings_its_margin_stays_and_data_with_harmonics_are_not_asked():
     kept = _Trial(["quadratic_damping", "unilateral"], 0.0022, {"quadratic_damping": 0.0029, "unilateral": 0.5})
-    assert list(auto_module._taken_back(kept, [_found("a")], 1.3, 10.0)) == [] and kept.taken == []
+    assert list(discovered.unneeded(kept, [_found("a")], 1.3, 10.0)) == [] and kept.taken == []
     # with harmonics, the kbar already carries what the harmonics do: discovery's choice stands
     blind = _Trial(["velocity_stiffness", "gap"], 0.0106, {"velocity_stiffness": 0.0107, "gap": 0.9}, blind=False)
-    assert list(auto_module._taken_back(blind, [_found("a")], 1.3, 10.0)) == [] and blind.taken == []
+    assert list(discovered.unneeded(blind, [_found("a")], 1.3, 10.0)) == [] and blind.taken == []
 
 
 class _Predicting(_Trial):
@@ -501,21 +502,21 @@ def test_a_discovered_law_is_kept_only_where_it_predicts_every_held_out_fold_bet
              frozenset({"cubic_damping"}): (0.05, 0.07),
              frozenset({"gap"}): (0.3, 0.5)}
     wb = _Predicting(["cubic_damping", "quintic", "gap"], folds)
-    monkeypatch.setattr(auto_module, "held_out", lambda w: w.held())
+    monkeypatch.setattr(discovered, "held_out", lambda w: w.held())
     current = [wb.held()]
     taken = []
-    for step, alone in auto_module._predicting_no_better(wb, [_found("a")], lambda: current[0]):
+    for step, alone in discovered.predicting_no_better(wb, [_found("a")], lambda: current[0]):
         taken.append(step)
         current[0] = alone
     assert wb.taken == ["quintic"] and wb.laws == ["cubic_damping", "gap"]
     assert "held-out 0.025 against 0.0225 without it" in taken[0].reason
     # nothing held out (one level): nothing judged
     single = _Predicting(["quintic"], {frozenset({"quintic"}): (), frozenset(): ()})
-    assert list(auto_module._predicting_no_better(single, [_found("a")], lambda: NOT_CHECKED)) == []
+    assert list(discovered.predicting_no_better(single, [_found("a")], lambda: NOT_CHECKED)) == []
     # two levels, each fold's fit seeing one: a law one level does not show cannot be carried to it, and the
     # folds judge nothing (a quintic fitted on the lower level alone missed the upper by 0.991 against 0.356)
     two = _Predicting(["quintic"], {frozenset({"quintic"}): (0.003, 0.99), frozenset(): (0.002, 0.36)})
-    assert list(auto_module._predicting_no_better(two, [_found("a")],
+    assert list(discovered.predicting_no_better(two, [_found("a")],
                                                   lambda: HeldOut(0.5, (0.003, 0.99), 1))) == []
 
 
@@ -524,10 +525,10 @@ def test_no_law_is_taken_back_while_the_model_is_far_from_the_noise():
     # true Coulomb friction, this joint gave 0.272 against 0.287 with it
     far = _Trial(["quadratic_damping", "coulomb"], 0.287, {"quadratic_damping": 0.9, "coulomb": 0.272},
                  times_the_noise=95.0)
-    assert list(auto_module._taken_back(far, [_found("b")], 1.3, 10.0)) == [] and far.taken == []
+    assert list(discovered.unneeded(far, [_found("b")], 1.3, 10.0)) == [] and far.taken == []
     unknown = _Trial(["quadratic_damping", "coulomb"], 0.287, {"quadratic_damping": 0.9, "coulomb": 0.272},
                      times_the_noise=None)
-    assert list(auto_module._taken_back(unknown, [_found("b")], 1.3, 10.0)) == []
+    assert list(discovered.unneeded(unknown, [_found("b")], 1.3, 10.0)) == []
 
 
 def _walked(element: str, *steps: WalkStep) -> Discovery:
@@ -671,8 +672,8 @@ def test_a_reading_discovery_passed_on_the_way_takes_the_element_s_place_where_t
     before = wb.history[-1].error
     found = SimpleNamespace(elements=[SimpleNamespace(element="right", readings=(
         ("cubic", "quintic"), ("cubic", "coulomb"), ("cubic", "quadratic_damping", "coulomb")))])
-    steps = list(readings.other_readings(wb, found, 1.3, 10.0, lambda: held_out(wb)))
-    assert [(s.element, s.laws) for s in steps] == [("right", ("cubic", "coulomb"))]
+    steps = [step for step, _ in readings.other_readings(wb, found, 1.3, 10.0, lambda: held_out(wb))]
+    assert [(s.action, s.element, s.laws) for s in steps] == [("replace", "right", ("cubic", "coulomb"))]
     assert laws_of(wb)["right"] == ["coulomb", "cubic"]
     assert wb.history[-1].error < before / 10 and wb.history[-1].action == "replace right:cubic+coulomb"
     assert "in place of cubic+quintic" in steps[0].reason and "cubic+quadratic_damping+coulomb" in steps[0].reason

@@ -289,11 +289,11 @@ def test_a_contact_s_corrected_fit_reaches_the_fixed_point_the_frfs_prefer(tmp_p
 def test_a_law_beside_a_gap_that_the_refitted_model_does_not_need_is_taken_back(tmp_path):
     # seed 735527 random 9: a gap alone, RK4 receptances without harmonics. Discovery stepped from a one-sided
     # contact to a law beside the gap and never tried the gap alone; refitted, the model does not miss the law
-    # (analysis/loop/auto.py, _taken_back). Discovery's choice is set here directly: the rule is what is tested
+    # (analysis/loop/discovered.py, unneeded). Discovery's choice is set here directly: the rule is what is tested
     rd = _random_discovery()
     from types import SimpleNamespace
 
-    from analysis.loop.auto import _taken_back
+    from analysis.loop.discovered import unneeded
     from analysis.mechanics.elements import LawTerm
 
     case = rd._draw(735527, 9)[8]
@@ -303,7 +303,7 @@ def test_a_law_beside_a_gap_that_the_refitted_model_does_not_need_is_taken_back(
     wb.model.element("a").laws = [LawTerm(LAWS[name], {}) for name in ("velocity_stiffness", "gap")]
     wb.fit()
     with_both = wb.record("discover a:velocity_stiffness+gap").error
-    steps = list(_taken_back(wb, [SimpleNamespace(element="a")], 1.3, 10.0))
+    steps = list(unneeded(wb, [SimpleNamespace(element="a")], 1.3, 10.0))
     assert [(s.action, s.laws) for s in steps] == [("take back", ("velocity_stiffness",))]
     assert [t.law.name for t in wb.model.element("a").laws] == ["gap"]
     assert steps[0].error_after < 1.3 * with_both and wb.history[-1].action == "take back a:velocity_stiffness"

@@ -10,123 +10,33 @@ each element's kbar that discovery chose among are weighed by the whole model's 
 the levels its fits did not see (:func:`analysis.loop.readings.other_readings`). Significance is that of the ranking
 (:mod:`analysis.missing.diagnosis`), including the check against what the single-harmonic model cannot represent,
 so the loop stops on the physics the data show.
+
+This module holds the order of the steps and the ranking's holds; each stage that judges a model by the whole
+model's fit or by the levels its fits did not see lives beside it, the loop importing them one way: the checks of
+discovery's laws (:mod:`analysis.loop.discovered`), the held-out checks and their rule
+(:mod:`analysis.loop.cross_check`), the other readings (:mod:`analysis.loop.readings`), and the records every
+stage shares (:mod:`analysis.loop.records`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Callable, Iterator
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from ..common.interrupt import Interrupted, stoppable
 from ..laws import LAWS
-from ..missing.diagnosis import Candidate, RankingRules
-from ..missing.modal_judge import ModalRules, judge_by_modes, measures_modes, model_error
+from ..missing.diagnosis import Candidate
+from ..missing.modal_judge import judge_by_modes, measures_modes, model_error
 from ..missing.unexplained import unexplained
 from ..prediction.backbone import ModalError
-from ..prediction.comparison import Comparison, gain_phrase
-from ..search.discovery import Discovery, DiscoveryRules, ElementDiscovery, WalkStep
+from ..prediction.comparison import gain_phrase
+from ..search.discovery import Discovery, ElementDiscovery, WalkStep
 from .cross_check import NOT_CHECKED, HeldOut, held_out, predicts_no_better
+from .discovered import predicting_no_better, unneeded
 from .readings import other_readings
+from .records import DISCOVERY, STOPPED_BY_USER, AutoResult, AutoRules, AutoStep
 from .workbench import ElementReport, Workbench
-
-
-@dataclass(frozen=True)
-class AutoRules:
-    """The thresholds of the loop."""
-
-    max_steps: int = 6               # laws (or pairs) added at most, discovery and linear corrections not counted
-    discovery: DiscoveryRules | None = DiscoveryRules()   # laws of the elements without any first (None: not)
-    linear_corrections: bool = True  # apply the linear corrections first
-    pairs: bool = True               # try pairs of laws on an element whose kbar is not explained
-    pair_pool: int = 2               # the element's laws with the largest kbar evidence, each paired with every
-                                     # other law of positive evidence
-    unexplained_false_alarm: float = 1e-3   # of the test "the kbar is not explained by the element's laws"
-    partial_min_gain: float = 5.0    # error cut a law must reach alone when its element's kbar stays unexplained
-    modes: ModalRules | None = ModalRules()   # the measured backbone and damping judge candidates too (None: not)
-    take_back_near_noise: float = 10.0   # a discovered law is weighed for taking back within this many times the
-                                         # noise (:func:`_near_the_noise`)
-    # discovery's other readings are weighed where the model's FRF error is more than this many times what the test
-    # allows: nearer, sticking friction on data without harmonics can leave a right model (:func:`analysis.loop.readings.other_readings`)
-    readings_beyond_floor: float = 10.0
-    ranking: RankingRules = RankingRules()
-    # every step's model judged on levels its fit did not see (:func:`analysis.loop.cross_check.held_out`), and a
-    # law kept only where its model predicts every held-out fold better than the model without it
-    held_out: bool = True
-
-
-@dataclass
-class AutoStep:
-    """One step of the loop: what was added, why, and the FRF error before and after."""
-
-    action: str                      # "discover", "linear correction", "add", "add pair", "replace" or "take back"
-    element: str | None              # the element (for a linear correction: the elements, comma-separated)
-    laws: tuple[str, ...]
-    error_before: float
-    error_after: float
-    reason: str
-    # natural frequency and damping against the measured ones (response levels, phase resonance), where measured
-    modal_before: ModalError | None = None
-    modal_after: ModalError | None = None
-    # the FRF error after the step on levels its fit did not see (NaN: not checked, or one level only), and per fold
-    held_out: float = float("nan")
-    held_out_folds: tuple[float, ...] = ()
-
-    @property
-    def gain(self) -> float:
-        return self.error_before / self.error_after if self.error_after > 0 else float("inf")
-
-    def line(self) -> str:
-        """One line: what was added and the error before and after."""
-        what = f"at {self.element}" if self.action == "linear correction" else f"{self.element}:{'+'.join(self.laws)}"
-        modal = ""
-        if self.modal_after is not None and self.modal_after.measured:
-            modal = (f"; backbone error {self.modal_before.frequency:.3g} -> {self.modal_after.frequency:.3g}, "
-                     f"damping error {self.modal_before.damping:.3g} -> {self.modal_after.damping:.3g}")
-        held = (f"; held-out {self.held_out:.3g} against in-sample {self.error_after:.3g}"
-                if np.isfinite(self.held_out) else "")
-        return (f"{self.action} {what}: error {self.error_before:.3g} -> {self.error_after:.3g} "
-                f"({gain_phrase(self.gain)}){held}{modal}")
-
-    def text(self) -> str:
-        return f"{self.line()}\n     {self.reason}"
-
-    def to_json(self) -> dict:
-        return {"action": self.action, "element": self.element, "laws": list(self.laws),
-                "error_before": self.error_before, "error_after": self.error_after, "gain": self.gain,
-                "in_sample_error": self.error_after,
-                "held_out_error": float(self.held_out) if np.isfinite(self.held_out) else None,
-                "held_out_fold_errors": [float(e) if np.isfinite(e) else None for e in self.held_out_folds],
-                "reason": self.reason, **_modal_json(self.modal_before, "_before"),
-                **_modal_json(self.modal_after, "_after")}
-
-
-def _modal_json(error: ModalError | None, suffix: str) -> dict:
-    """``backbone_error_before`` etc.: null where nothing is measured."""
-    values = {"backbone_error": None, "damping_error": None} if error is None else error.to_json()
-    return {k + suffix: v for k, v in values.items()}
-
-
-@dataclass
-class AutoResult:
-    """The steps taken and why the loop ended; ``candidates`` is the ranking it ended on; ``undone``: the step a
-    stop by the user came inside of, undone ("" where the loop ended between steps)."""
-
-    steps: list[AutoStep]
-    stopped: str
-    candidates: list[Candidate] = field(default_factory=list)
-    discovery: Discovery | None = None
-    undone: str = ""
-
-    def text(self) -> str:
-        lines = [self.discovery.text()] if self.discovery is not None and self.discovery.elements else []
-        lines += ["automatic loop:"] + [f"  {i + 1}. {s.text()}" for i, s in enumerate(self.steps)]
-        inside = f" during {self.undone}, which was undone" if self.undone else ""
-        return "\n".join(lines + [f"  stopped: {self.stopped}{inside}"])
-
-    def to_json(self) -> dict:
-        return {"steps": [s.to_json() for s in self.steps], "stopped": self.stopped, "undone": self.undone,
-                "discovery": None if self.discovery is None else self.discovery.to_json()}
 
 
 def kbar_unexplained(report: ElementReport, false_alarm: float = 1e-3) -> bool:
@@ -218,77 +128,6 @@ def _discovery_reason(found: ElementDiscovery, still_empty: list[str]) -> str:
         reason += (f"; the error recorded here still has {', '.join(still_empty)} without laws, which dominates it "
                    "until added")
     return reason
-
-
-def _predicting_no_better(wb: Workbench, found: list[ElementDiscovery],
-                          checked: Callable[[], HeldOut]) -> Iterator[tuple[AutoStep, HeldOut]]:
-    """Each law discovery found kept only where the model with it predicts every held-out fold better than the
-    model refitted without it: the rule every law the loop adds meets (:func:`predicts_no_better`). Discovery
-    chooses a set by its kbar and by the FRFs of the lines the set was fitted to; a law that only bends the fit to
-    those lines -- a stiffness law standing in for the structure's misfit at another element, one law writing
-    another's curvature again -- predicts the levels its fit did not see no better, or worse. Of an element's
-    laws that fail, the one whose absence predicts best is taken back first and the rest weighed again
-    (``checked``: the current model's held-out error). Yields each take-back with the held-out error of the
-    model after it."""
-    for element in found:
-        while laws := [t.law.name for t in wb.model.element(element.element).laws]:
-            current = checked()
-            if not current.judges:
-                return
-            failing = []
-            for law in laws:
-                with wb.without(element.element, law):
-                    alone = held_out(wb)
-                why = predicts_no_better(alone, current)
-                if why:
-                    failing.append((alone.error, law, alone, why))
-            if not failing:
-                break
-            _, law, alone, why = min(failing, key=lambda f: f[0])
-            error = wb.history[-1].error
-            after = wb.take_back(element.element, law).error
-            yield AutoStep("take back", element.element, (law,), error, after, why), alone
-
-
-def _near_the_noise(comp: Comparison, near: float) -> bool:
-    """Whether the model predicts the FRFs within ``near`` times the noise (:attr:`Comparison.times_the_noise`):
-    only then does a law's share of the error say what it brings. Where another law is missing the model's error
-    is mostly that law's misfit, and refitting an element without a right law can even lower it, its other
-    parameters taking up part of that misfit. Friction that sticks leaves a right model several times the
-    noise."""
-    ratio = comp.times_the_noise
-    return ratio is not None and ratio <= near
-
-
-def _taken_back(wb: Workbench, found: list[ElementDiscovery], min_gain: float,
-                near: float) -> Iterator[AutoStep]:
-    """On data without harmonics, each discovered law that the whole model, refitted without it, does not miss by
-    ``min_gain``, taken back (one step each; of several, the one whose absence costs least first), where the model
-    is near the noise (:func:`_near_the_noise`). Discovery judges a set at its kbar fit, the others by their
-    stand-ins, and steps from the set taken before; the model's own fit takes out the bias its harmonics put in
-    the kbar (:meth:`Workbench.fit`), so the model is the fairer judge of what a law brings. The walk can end on
-    a set larger than the data need while the smaller set within it never competed, and the model refitted
-    without the extra law then predicts the FRFs as well. The loop adds a law only for ``min_gain``; a law that
-    brings less is not kept either."""
-    if not wb.harmonics_blind:
-        return
-    for element in found:
-        if not _near_the_noise(wb.compare(), near):
-            return
-        while len(laws := [t.law.name for t in wb.model.element(element.element).laws]) >= 2:
-            error = wb.history[-1].error
-            law, without = min(((law, wb.error_without(element.element, law)) for law in laws),
-                               key=lambda pair: pair[1])
-            if not without <= min_gain * error:
-                break
-            after = wb.take_back(element.element, law).error
-            yield AutoStep("take back", element.element, (law,), error, after,
-                           f"the model refitted without it predicts the FRFs within x{min_gain:g} of the model with "
-                           f"it ({without:.3g} against {error:.3g}): discovery's set held more than the data need")
-
-
-STOPPED_BY_USER = "stopped by the user"
-DISCOVERY = "discovery"             # AutoResult.undone of a stop inside discovery
 
 
 def _modal_error(wb: Workbench) -> ModalError | None:
@@ -447,11 +286,11 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             take(AutoStep("discover", element.element, element.laws, before, after,
                           _discovery_reason(element, still_empty)))
         under_way.what = "the check of discovery's laws"
-        for step in _taken_back(wb, pending, rules.ranking.min_gain, rules.take_back_near_noise):
+        for step in unneeded(wb, pending, rules.ranking.min_gain, rules.take_back_near_noise):
             take(step)
         if rules.held_out:
             under_way.what = "the held-out check of discovery's laws"
-            for step, alone in _predicting_no_better(wb, pending, checked):
+            for step, alone in predicting_no_better(wb, pending, checked):
                 take(step, known=alone)
                 taken_back.add(f"{step.element}:{step.laws[0]}")
     if rules.linear_corrections:
@@ -479,8 +318,9 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
                 under_way.what = "discovery's other readings"
                 replaced = False
                 check = held_out if rules.held_out else (lambda _: NOT_CHECKED)
-                for r in other_readings(wb, found, rules.ranking.min_gain, rules.readings_beyond_floor, checked, check):
-                    take(AutoStep("replace", r.element, r.laws, r.error_before, r.error_after, r.reason), known=r.held)
+                for step, held in other_readings(wb, found, rules.ranking.min_gain, rules.readings_beyond_floor,
+                                                 checked, check):
+                    take(step, known=held)
                     replaced = True
                 if replaced:
                     continue

@@ -12,19 +12,8 @@ import numpy as np
 
 from ..search.discovery import Discovery
 from .cross_check import HeldOut, held_out, predicts_no_better
+from .records import AutoStep
 from .workbench import Workbench
-
-
-@dataclass(frozen=True)
-class Replacement:
-    """A reading put in an element's place: the element, its new laws, the model's FRF error before and after,
-    why, and the held-out error of the model after it."""
-    element: str
-    laws: tuple[str, ...]
-    error_before: float
-    error_after: float
-    reason: str
-    held: HeldOut
 
 
 @dataclass(frozen=True)
@@ -39,7 +28,7 @@ class _Reading:
 
 
 def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: float, checked: Callable[[], HeldOut],
-                    check: Callable[[Workbench], HeldOut] = held_out) -> Iterator[Replacement]:
+                    check: Callable[[Workbench], HeldOut] = held_out) -> Iterator[tuple[AutoStep, HeldOut]]:
     """On data without harmonics, where the model stays farther above what the test allows
     (:attr:`Workbench.error_floor`) than a right model can be (``beyond`` times it), each searched element's other
     readings of its kbar (:attr:`ElementDiscovery.readings`, the sets its walk chose among) weighed by what decides
@@ -64,7 +53,7 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
     at every level alike, so held-out levels cannot refuse it. Without harmonics the kbar fits leave out the
     lines where a contact closes or a friction sticks, and only the FRFs see a law acting there. ``checked``: the
     current model's held-out error; ``check``: a model's (:data:`analysis.loop.cross_check.NOT_CHECKED` where the loop checks none). Yields
-    each replacement made, with the held-out error of the model after it."""
+    each step with the held-out error of the model after it."""
     if not wb.harmonics_blind:
         return
     for element in found.elements:
@@ -86,8 +75,8 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
         best = _simplest_predicting(weighed, min_gain)
         if best is not None:
             after = wb.replace_laws(element.element, best.laws).error
-            yield Replacement(element.element, best.laws, error, after,
-                              _reading_reason(element.element, current, weighed), best.held)
+            yield AutoStep("replace", element.element, best.laws, error, after,
+                           _reading_reason(element.element, current, weighed)), best.held
 
 
 def _simplest_predicting(weighed: list[_Reading], min_gain: float) -> _Reading | None:
