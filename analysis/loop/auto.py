@@ -270,6 +270,20 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
 
     found, searched = None, frozenset()
     taken_back: set[str] = set()       # laws added and taken back, by discovery's check or the loop's: not added again
+
+    def check_laws_found(elements: list[ElementDiscovery]) -> None:
+        """The checks every set of laws discovery found meets once the whole model is fitted with it: a law the
+        model refitted without it does not miss, and a law whose model predicts the held-out levels no better,
+        taken back (:mod:`analysis.loop.discovered`)."""
+        under_way.what = "the check of discovery's laws"
+        for step in unneeded(wb, elements, rules.ranking.min_gain, rules.take_back_near_noise):
+            take(step)
+        if rules.held_out:
+            under_way.what = "the held-out check of discovery's laws"
+            for step, alone in predicting_no_better(wb, elements, checked):
+                take(step, known=alone)
+                taken_back.add(f"{step.element}:{step.laws[0]}")
+
     reread = False                     # discovery's other readings weighed (once, where the loop would stop)
     if rules.discovery is not None:
         under_way.what = DISCOVERY
@@ -285,14 +299,7 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             still_empty = [e.element for e in pending[k + 1:]]
             take(AutoStep("discover", element.element, element.laws, before, after,
                           _discovery_reason(element, still_empty)))
-        under_way.what = "the check of discovery's laws"
-        for step in unneeded(wb, pending, rules.ranking.min_gain, rules.take_back_near_noise):
-            take(step)
-        if rules.held_out:
-            under_way.what = "the held-out check of discovery's laws"
-            for step, alone in predicting_no_better(wb, pending, checked):
-                take(step, known=alone)
-                taken_back.add(f"{step.element}:{step.laws[0]}")
+        check_laws_found(pending)
     if rules.linear_corrections:
         under_way.what = "the linear corrections"
         names = wb.linear_corrections()
@@ -316,13 +323,15 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             if found is not None and not reread:
                 reread = True
                 under_way.what = "discovery's other readings"
-                replaced = False
                 check = held_out if rules.held_out else (lambda _: NOT_CHECKED)
+                replaced = []
                 for step, held in other_readings(wb, found, rules.ranking.min_gain, rules.readings_beyond_floor,
                                                  checked, check):
                     take(step, known=held)
-                    replaced = True
+                    replaced += [e for e in found.elements if e.element == step.element]
                 if replaced:
+                    # a reading is a set discovery found: it meets the checks discovery's own set met
+                    check_laws_found(replaced)
                     continue
             return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked, found)
         before, held_before = wb.history[-1].error, checked()
