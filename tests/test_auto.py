@@ -691,6 +691,26 @@ def test_a_reading_discovery_passed_on_the_way_takes_the_element_s_place_where_t
     assert list(readings.other_readings(with_harmonics, found, 1.3, 10.0, lambda: held_out(wb))) == []
 
 
+def test_a_reading_that_takes_an_element_s_place_meets_the_checks_of_discovery_s_own_set():
+    """A reading is a set discovery fitted, and it can hold a law the data do not need beside those they do: the
+    only reading that cuts the error (cubic + quadratic damping + Coulomb friction where the data hold cubic +
+    Coulomb) takes the element's place, and the model refitted without the damping then predicts the FRFs as well,
+    so the damping is taken back as it would be from discovery's own set."""
+    from test_workbench import PAPER_LAWS, model_doc, synthesise, workbench
+    wrong = {"left": PAPER_LAWS["left"], "right": [{"law": "cubic"}, {"law": "quintic"}]}
+    wb = workbench(load_model(model_doc(wrong)), synthesise(PAPER_LAWS))
+    wb.start()
+    found = SimpleNamespace(elements=[SimpleNamespace(element="right", readings=(
+        ("cubic", "quintic"), ("cubic", "quadratic_damping", "coulomb")))])
+    steps = [(step.action, step.element, step.laws)
+             for step, _, _ in auto_module._read_again(wb, found, AutoRules(), lambda: held_out(wb))]
+    assert steps == [("replace", "right", ("cubic", "quadratic_damping", "coulomb")),
+                     ("take back", "right", ("quadratic_damping",))]
+    assert laws_of(wb)["right"] == ["coulomb", "cubic"]
+    assert [h.action for h in wb.history[1:]] == ["replace right:cubic+quadratic_damping+coulomb",
+                                                  "take back right:quadratic_damping"]
+
+
 def test_of_the_readings_that_predict_better_the_simplest_is_taken_unless_a_larger_predicts_better_by_the_margin():
     def reading(laws, held, why="", error=0.01):
         return readings._Reading(tuple(laws), error, HeldOut(held, (held,), 2), why, True)

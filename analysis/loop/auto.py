@@ -20,7 +20,7 @@ stage shares (:mod:`analysis.loop.records`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -211,6 +211,33 @@ def _judged(wb: Workbench, candidates: list[Candidate], rules: AutoRules,
     return candidates
 
 
+def _checked_found(wb: Workbench, elements: list[ElementDiscovery], rules: AutoRules,
+                   checked: Callable[[], HeldOut]) -> Iterator[tuple[AutoStep, HeldOut | None, bool]]:
+    """The checks every set of laws discovery found meets once the whole model is fitted with it
+    (:mod:`analysis.loop.discovered`): a law the model refitted without it does not miss, then a law whose model
+    predicts the held-out levels no better, taken back. Yields each take-back step, the held-out error of the
+    model after it where checked, and whether the held-out levels refused the law (it is then not offered again)."""
+    for step in unneeded(wb, elements, rules.ranking.min_gain, rules.take_back_near_noise):
+        yield step, None, False
+    if rules.held_out:
+        for step, alone in predicting_no_better(wb, elements, checked):
+            yield step, alone, True
+
+
+def _read_again(wb: Workbench, found: Discovery, rules: AutoRules,
+                checked: Callable[[], HeldOut]) -> Iterator[tuple[AutoStep, HeldOut | None, bool]]:
+    """Discovery's other readings weighed by prediction (:func:`analysis.loop.readings.other_readings`), and each
+    element whose laws a reading replaced checked as discovery's own set was (:func:`_checked_found`): a reading
+    is a set discovery fitted, and it may hold a law the data do not need beside the ones they do. Yields as
+    :func:`_checked_found` does, the replacements first."""
+    check = held_out if rules.held_out else (lambda _: NOT_CHECKED)
+    replaced = []
+    for step, held in other_readings(wb, found, rules.ranking.min_gain, rules.readings_beyond_floor, checked, check):
+        yield step, held, False
+        replaced += [e for e in found.elements if e.element == step.element]
+    yield from _checked_found(wb, replaced, rules, checked)
+
+
 def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
              progress: Callable[[AutoStep], None] | None = None,
              note: Callable[[str], None] | None = None,
@@ -270,20 +297,6 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
 
     found, searched = None, frozenset()
     taken_back: set[str] = set()       # laws added and taken back, by discovery's check or the loop's: not added again
-
-    def check_laws_found(elements: list[ElementDiscovery]) -> None:
-        """The checks every set of laws discovery found meets once the whole model is fitted with it: a law the
-        model refitted without it does not miss, and a law whose model predicts the held-out levels no better,
-        taken back (:mod:`analysis.loop.discovered`)."""
-        under_way.what = "the check of discovery's laws"
-        for step in unneeded(wb, elements, rules.ranking.min_gain, rules.take_back_near_noise):
-            take(step)
-        if rules.held_out:
-            under_way.what = "the held-out check of discovery's laws"
-            for step, alone in predicting_no_better(wb, elements, checked):
-                take(step, known=alone)
-                taken_back.add(f"{step.element}:{step.laws[0]}")
-
     reread = False                     # discovery's other readings weighed (once, where the loop would stop)
     if rules.discovery is not None:
         under_way.what = DISCOVERY
@@ -299,7 +312,11 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             still_empty = [e.element for e in pending[k + 1:]]
             take(AutoStep("discover", element.element, element.laws, before, after,
                           _discovery_reason(element, still_empty)))
-        check_laws_found(pending)
+        under_way.what = "the check of discovery's laws"
+        for step, known, held_out_refused in _checked_found(wb, pending, rules, checked):
+            take(step, known=known)
+            if held_out_refused:
+                taken_back.add(f"{step.element}:{step.laws[0]}")
     if rules.linear_corrections:
         under_way.what = "the linear corrections"
         names = wb.linear_corrections()
@@ -323,15 +340,13 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             if found is not None and not reread:
                 reread = True
                 under_way.what = "discovery's other readings"
-                check = held_out if rules.held_out else (lambda _: NOT_CHECKED)
-                replaced = []
-                for step, held in other_readings(wb, found, rules.ranking.min_gain, rules.readings_beyond_floor,
-                                                 checked, check):
-                    take(step, known=held)
-                    replaced += [e for e in found.elements if e.element == step.element]
+                replaced = False
+                for step, known, held_out_refused in _read_again(wb, found, rules, checked):
+                    take(step, known=known)
+                    replaced = True
+                    if held_out_refused:
+                        taken_back.add(f"{step.element}:{step.laws[0]}")
                 if replaced:
-                    # a reading is a set discovery found: it meets the checks discovery's own set met
-                    check_laws_found(replaced)
                     continue
             return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked, found)
         before, held_before = wb.history[-1].error, checked()
