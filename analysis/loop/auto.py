@@ -298,6 +298,18 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
     found, searched = None, frozenset()
     taken_back: set[str] = set()       # laws added and taken back, by discovery's check or the loop's: not added again
     reread = False                     # discovery's other readings weighed (once, where the loop would stop)
+
+    def take_checks(checks: Iterator[tuple[AutoStep, HeldOut | None, bool]]) -> bool:
+        """Each step of :func:`_checked_found` or :func:`_read_again` taken, a law the held-out levels refused not
+        offered again; whether any step was taken."""
+        took = False
+        for step, known, held_out_refused in checks:
+            take(step, known=known)
+            took = True
+            if held_out_refused:
+                taken_back.add(f"{step.element}:{step.laws[0]}")
+        return took
+
     if rules.discovery is not None:
         under_way.what = DISCOVERY
         found = under_way.found = wb.discover(rules.discovery, note)
@@ -313,10 +325,7 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             take(AutoStep("discover", element.element, element.laws, before, after,
                           _discovery_reason(element, still_empty)))
         under_way.what = "the check of discovery's laws"
-        for step, known, held_out_refused in _checked_found(wb, pending, rules, checked):
-            take(step, known=known)
-            if held_out_refused:
-                taken_back.add(f"{step.element}:{step.laws[0]}")
+        take_checks(_checked_found(wb, pending, rules, checked))
     if rules.linear_corrections:
         under_way.what = "the linear corrections"
         names = wb.linear_corrections()
@@ -340,13 +349,7 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             if found is not None and not reread:
                 reread = True
                 under_way.what = "discovery's other readings"
-                replaced = False
-                for step, known, held_out_refused in _read_again(wb, found, rules, checked):
-                    take(step, known=known)
-                    replaced = True
-                    if held_out_refused:
-                        taken_back.add(f"{step.element}:{step.laws[0]}")
-                if replaced:
+                if take_checks(_read_again(wb, found, rules, checked)):
                     continue
             return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked, found)
         before, held_before = wb.history[-1].error, checked()

@@ -45,15 +45,15 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
     Nearer the floor the model may be right, and a reading would gain by taking up what one harmonic cannot
     represent, which two levels held out one by the other cannot refuse (each fold's fit sees one level, and a
     reading then needs to predict only one of them better). The distance is the FRF error's own, the measure a
-    reading gains in: the chi-square's (:func:`_near_the_noise`) weighs every line alike and puts a right model
-    with sticking friction tens of times the noise where its error is twice the floor.
+    reading gains in: the chi-square's (:func:`analysis.loop.discovered.near_the_noise`) weighs every line alike
+    and puts a right model with sticking friction tens of times the noise where its error is twice the floor.
 
     Where the data carry harmonics the kbar follows every line and judges the element's laws itself: an FRF
     misfit it does not show is no law's, and a law that takes it up describes the model's form, not the joint,
     at every level alike, so held-out levels cannot refuse it. Without harmonics the kbar fits leave out the
     lines where a contact closes or a friction sticks, and only the FRFs see a law acting there. ``checked``: the
-    current model's held-out error; ``check``: a model's (:data:`analysis.loop.cross_check.NOT_CHECKED` where the loop checks none). Yields
-    each step with the held-out error of the model after it."""
+    current model's held-out error; ``check``: a model's (:data:`analysis.loop.cross_check.NOT_CHECKED` where the
+    loop checks none). Yields each step with the held-out error of the model after it."""
     if not wb.harmonics_blind:
         return
     for element in found.elements:

@@ -28,9 +28,10 @@ class AutoRules:
     partial_min_gain: float = 5.0    # error cut a law must reach alone when its element's kbar stays unexplained
     modes: ModalRules | None = ModalRules()   # the measured backbone and damping judge candidates too (None: not)
     take_back_near_noise: float = 10.0   # a discovered law is weighed for taking back within this many times the
-                                         # noise (:func:`_near_the_noise`)
+                                         # noise (:func:`analysis.loop.discovered.near_the_noise`)
     # discovery's other readings are weighed where the model's FRF error is more than this many times what the test
-    # allows: nearer, sticking friction on data without harmonics can leave a right model (:func:`analysis.loop.readings.other_readings`)
+    # allows: nearer, sticking friction on data without harmonics can leave a right model
+    # (:func:`analysis.loop.readings.other_readings`)
     readings_beyond_floor: float = 10.0
     ranking: RankingRules = RankingRules()
     # every step's model judged on levels its fit did not see (:func:`analysis.loop.cross_check.held_out`), and a
