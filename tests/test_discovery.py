@@ -22,6 +22,7 @@ from analysis.search.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_n
                                 law_sets,
                                 search_element)
 from analysis.search import discovery, frf_judge
+from analysis.search.kbar_evidence import _holds_the_choice, _of_no_size
 from analysis.fitting.fit import fit_laws
 from analysis.fitting.projection import _shape_coordinate
 from analysis.mechanics.elements import LawTerm
@@ -41,6 +42,7 @@ def samples_of(laws: dict[str, dict], X, w, noise=1e-3, seed=0, floor=1e-3) -> E
 
 X = np.geomspace(2e-4, 5e-2, 80)
 W = np.linspace(8.0, 20.0, 80)
+TIE = DiscoveryRules().max_correlation
 
 
 # ------------------------------------------------------------------------------------------- the sets
@@ -157,7 +159,7 @@ def test_a_set_with_one_law_more_of_the_same_kinds_that_fits_as_well_is_named():
     chosen = search.sets[0]
     assert _kinds(chosen) == ["stiffness"]
     judge = _stubbed(_Judge.__new__(_Judge))
-    judge.rules, judge.single = DiscoveryRules(), _Errors({x.laws: 0.01 for x in search.sets})
+    judge.rules, judge.single = DiscoveryRules(), _Errors({x.laws: 0.01 for x in search.sets + search.tied})
     named = _indistinguishable(judge, search, chosen)
     more = [x for x in named if len(x.laws) == 2]
     assert ("linear", "cubic") in [x.laws for x in more]
@@ -166,12 +168,12 @@ def test_a_set_with_one_law_more_of_the_same_kinds_that_fits_as_well_is_named():
     sets = {x.laws: x for x in search.sets}
     # a law of no size beside it is no other reading, nor a set that fits better by more than the noise explains
     assert sets["coulomb", "arctan_softening"].fit.terms[0].size_unseen
-    assert not _one_law_more_alike(search, sets["coulomb", "arctan_softening"], chosen, 1e-3)
+    assert not _one_law_more_alike(search, sets["coulomb", "arctan_softening"], chosen, 1e-3, TIE)
     better = LawSet(("linear", "cubic"), sets["linear", "cubic"].fit, chosen.chi_square - 50.0, 3)
-    assert not _one_law_more_alike(search, better, chosen, 1e-3)
+    assert not _one_law_more_alike(search, better, chosen, 1e-3, TIE)
     # where the FRFs tell it apart by more than the margin, worse or better, it is not named
     for error in (0.02, 0.005):
-        judge.single = _Errors({**{x.laws: 0.01 for x in search.sets}, ("linear", "cubic"): error})
+        judge.single = _Errors({**{x.laws: 0.01 for x in search.sets + search.tied}, ("linear", "cubic"): error})
         assert ("linear", "cubic") not in [x.laws for x in _indistinguishable(judge, search, chosen)]
 
 
@@ -189,10 +191,22 @@ def test_a_set_whose_law_is_tied_to_another_is_never_chosen_but_named_where_its_
     judge = _stubbed(_Judge.__new__(_Judge))
     judge.rules = DiscoveryRules()
     judge.single = _Errors({x.laws: 0.01 for x in search.sets + search.tied})
-    # here the kbar sees neither law of the tied pair: no other reading
+    # here the kbar sees neither law's size alone, but the linear spring's stiffness trades with the saturating
+    # spring's: no law of no size. The reading (a spring beside one that softens) is named once, by its best set
     pair = next(x for x in search.tied if x.laws == ("linear", "arctan_softening"))
-    assert pair.fit.terms[0].size_unseen
-    assert pair not in _indistinguishable(judge, search, chosen)
+    assert pair.fit.terms[0].size_unseen and not _of_no_size(pair.fit, 0, TIE)
+    named = _indistinguishable(judge, search, chosen)
+    assert pair not in named and ["linear", "stiffness"] in [_kinds(x) for x in named]
+    # a set that holds the choice and one law more whose size trades (its fit stops anywhere along that valley,
+    # which reaches the choice) is named however much worse the FRFs of the point it stopped at; not where better
+    holding = next(x for x in search.sets + search.tied if x.laws == ("linear", "tanh_softening"))
+    assert _holds_the_choice(holding, chosen) and not _holds_the_choice(pair, chosen)
+    alone = copy.copy(search)
+    alone.sets, alone.tied = [chosen], [replace(holding, chi_square=chosen.chi_square)]
+    for error, is_named in ((0.05, True), (0.005, False)):
+        judge.single = _Errors({chosen.laws: 0.01, holding.laws: error})
+        assert (len(_indistinguishable(judge, alone, chosen)) == 1) == is_named
+    judge.single = _Errors({x.laws: 0.01 for x in search.sets + search.tied})
     # over a wider range both are seen (random case 7 of seed 957188): the tied pair is named as one law more
     wide = samples_of({"linear": {"k": -564.0, "c": 0.0}, "arctan_softening": {"alpha": 25.3, "beta": 121.0}},
                       np.geomspace(3.4e-5, 1.0e-2, 70), Ws, noise=8e-3, floor=1.0)
@@ -202,11 +216,11 @@ def test_a_set_whose_law_is_tied_to_another_is_never_chosen_but_named_where_its_
     search.tied = [tied]
     # (a linear spring beside a softening cubic, the same reading, told apart here by the FRFs)
     judge.single = _Errors({**{x.laws: 0.01 for x in search.sets}, tied.laws: 0.011, ("linear", "cubic"): 0.02})
-    assert _one_law_more_alike(search, tied, chosen, 1e-3) and tied in _indistinguishable(judge, search, chosen)
+    assert _one_law_more_alike(search, tied, chosen, 1e-3, TIE) and tied in _indistinguishable(judge, search, chosen)
     # a reading that fits the kbar worse by more than the noise explains is no reading of these data
     worse = replace(tied, chi_square=chosen.chi_square + 2 * _noise_bound(search, 2, 1e-3))
     search.tied = [worse]
-    assert not _one_law_more_alike(search, worse, chosen, 1e-3)
+    assert not _one_law_more_alike(search, worse, chosen, 1e-3, TIE)
     assert worse not in _indistinguishable(judge, search, chosen)
 
 

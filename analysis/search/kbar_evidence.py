@@ -22,10 +22,10 @@ import numpy as np
 import scipy.stats
 
 from ..common.statistics import chi_square_noise_bound, chi_square_shares, falls_above_noise, part_weight
-from ..fitting.fit import UNDETERMINED_Z, TermFit, unit_exponents
+from ..fitting.fit import UNDETERMINED_Z, LawFit, TermFit, unit_exponents
 from ..fitting.friction_fundamental import chi_square_with_friction_turn, holds_friction
 from ..laws import LAWS, simplicity
-from ..missing.diagnosis import ElementSamples, explain, signature
+from ..missing.diagnosis import ElementSamples, explain, signature, tied_parameters
 from .candidates import _Search
 from .records import LawSet
 
@@ -264,22 +264,35 @@ def _other_kinds(judge: "_Judge", search: _Search, s: LawSet) -> list[LawSet]:
             and judge.single({search.index: t}).error <= limit]
 
 
-def _one_law_more_alike(search: _Search, s: LawSet, chosen: LawSet, false_alarm: float) -> bool:
+def _one_law_more_alike(search: _Search, s: LawSet, chosen: LawSet, false_alarm: float,
+                        max_correlation: float) -> bool:
     """Whether ``s`` has one law more than ``chosen``, of every kind ``chosen`` has (the same mechanisms with one
-    more beside them; a richer set of other kinds that fits as well says nothing, :func:`_other_kinds`), every
-    law of it seen in the kbar (none whose size is within its 95 % interval of zero, :attr:`TermFit.size_unseen`:
-    a law of no size is no other reading; none seen only in a limit of its amplitude scale,
-    :func:`_limit_only_laws`: that is another law, named as itself), and fits the kbar neither better nor worse
-    by more than the noise explains for the parameters it adds. Its laws then read the kbar otherwise, and as
-    well: a saturating spring alone, or a linear spring with a softening cubic beside it (a spring that only
-    begins to saturate at the largest amplitude reads either way)."""
+    more beside them; a richer set of other kinds that fits as well says nothing, :func:`_other_kinds`), no law
+    of it of no size (:func:`_of_no_size`: a law of no size is no other reading), none seen only in a limit of
+    its amplitude scale (:func:`_limit_only_laws`: that is another law, named as itself), and fits the kbar
+    neither better nor worse by more than the noise explains for the parameters it adds. Its laws then read the
+    kbar otherwise, and as well: a saturating spring alone, or a linear spring with a softening cubic beside it
+    (a spring that only begins to saturate at the largest amplitude reads either way)."""
     # the cheap tests first: the limit test scans the element's sets; every law of ``s`` is asked, the choice's too
     # (refitted beside another law, it can run to a limit)
     return (s.fit is not None and len(s.laws) == len(chosen.laws) + 1 and set(_kinds(chosen)) <= set(_kinds(s))
             and abs(chosen.chi_square - s.chi_square) <= _noise_bound(search, s.n_parameters - chosen.n_parameters,
                                                                       false_alarm)
-            and not any(t.size_unseen for t in s.fit.terms)
+            and not any(_of_no_size(s.fit, j, max_correlation) for j in range(len(s.fit.terms)))
             and not _limit_only_laws(s, LawSet((), None, 0.0, 0), search, false_alarm))
+
+
+def _of_no_size(fit: LawFit, j: int, max_correlation: float) -> bool:
+    """Whether law ``j`` of ``fit`` has no size the kbar sees: its size is unseen (:attr:`TermFit.size_unseen`)
+    and no size parameter of it is tied to another law's (:func:`analysis.missing.diagnosis.tied_parameters`).
+    A size that trades with another law's is one the kbar cannot share out between the two, not one it finds to be
+    zero: the set is then another reading of the same force (a spring's stiffness beside a saturating spring that
+    barely saturates over the amplitudes measured, which holds the whole of it alike)."""
+    term = fit.terms[j]
+    if not term.size_unseen:
+        return False
+    tied = tied_parameters(fit, {j}, max_correlation)
+    return not any(f"{term.label}.{name}" in tied for name in term.law.linear)
 
 
 def _indistinguishable(judge: "_Judge", search: _Search, chosen: LawSet) -> list[LawSet]:
@@ -290,7 +303,9 @@ def _indistinguishable(judge: "_Judge", search: _Search, chosen: LawSet) -> list
     (:attr:`LawSet.tied`) is such a reading too, and the plainest: the kbar cannot part its laws (a linear spring
     beside an arctan spring that saturates little over the amplitudes measured reads as a tanh spring alone, the
     arctan's alpha correlated with the linear k beyond ``max_correlation``). These are the ones the user is told
-    of. A set the kbar cannot tell apart but the FRFs can, either way, is not indistinguishable on these data."""
+    of. A set the kbar cannot tell apart but the FRFs can, either way, is not indistinguishable on these data --
+    save a set whose fit holds the choice (:func:`_holds_the_choice`): the FRFs then part the two only where that
+    set fits them better."""
     rules = judge.rules.ranking
     own = judge.single({search.index: chosen}).error
     out, readings = [], set()
@@ -300,12 +315,26 @@ def _indistinguishable(judge: "_Judge", search: _Search, chosen: LawSet) -> list
         alike = (not s.tied and s.n_parameters >= chosen.n_parameters
                  and _alike(search, s, chosen, rules.false_alarm))
         reading = tuple(_kinds(s))
-        more = not alike and reading not in readings and _one_law_more_alike(search, s, chosen, rules.false_alarm)
-        if (alike or more) and own / rules.min_gain <= judge.single({search.index: s}).error <= rules.min_gain * own:
+        more = (not alike and reading not in readings
+                and _one_law_more_alike(search, s, chosen, rules.false_alarm, judge.rules.max_correlation))
+        if not (alike or more):
+            continue
+        error = judge.single({search.index: s}).error
+        if own / rules.min_gain <= error and (error <= rules.min_gain * own or _holds_the_choice(s, chosen)):
             out.append(s)
             if more:
                 readings.add(reading)
     return out
+
+
+def _holds_the_choice(s: LawSet, chosen: LawSet) -> bool:
+    """Whether the fit of ``s``, the choice's laws and one more whose size trades with another's (it is of some size,
+    :func:`_of_no_size`, yet unseen), holds the choice itself: along the valley of that trade the kbar fits alike,
+    and the valley reaches the choice where the law added has no size. Where the fit stopped in the valley depends
+    on its start and search, not on the data (analysis/fitting/limits.py), so the FRFs of that point cannot find
+    the set worse than the choice; only better."""
+    return (s.fit is not None and set(chosen.laws) < set(s.laws)
+            and any(t.size_unseen for t in s.fit.terms if t.law.name not in chosen.laws))
 
 
 def _separation(search: _Search, chosen: LawSet, other: LawSet) -> str:
