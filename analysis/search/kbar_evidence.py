@@ -129,10 +129,10 @@ def _limit_only_laws(s: LawSet, current: LawSet, search: "_Search", false_alarm:
     its 95 % interval holds zero or it has no finite error -- the samples would fit as well with it smaller still
     -- or above the largest (the test there is below). Such a law is not seen as itself but as its limit, which is
     either another law of the library (a Jenkins element whose slip displacement vanishes is Coulomb friction, a
-    clearance that vanishes a spring, a saturating spring that saturates beyond every amplitude a linear one) or no law at all (a
-    saturating spring saturated below every amplitude is a force of constant size in phase with the displacement,
-    sgn x: on data without harmonics it fitted the sticking lines of a friction contact, and beside them a
-    velocity stiffness, x2.4 in the FRFs). Beyond the largest amplitude the law is its linear limit where its
+    clearance that vanishes a spring, a saturating spring that saturates beyond every amplitude a linear one) or no
+    law at all (a saturating spring saturated below every amplitude is a force of constant size in phase with the
+    displacement, sgn x: on data without harmonics it fitted the sticking lines of a friction contact, and beside
+    them a velocity stiffness, x2.4 in the FRFs). Beyond the largest amplitude the law is its linear limit where its
     kbar over the samples is that limit within the noise (:func:`_linear_within_noise`; a tanh spring standing
     for a softer joint beside Coulomb friction, its scale 1/beta far above every amplitude measured), whether
     or not the noise determines the scale at 2 sigma, or where the set with a linear law in its place fits the
