@@ -200,7 +200,9 @@ def test_a_set_whose_law_is_tied_to_another_is_never_chosen_but_named_where_its_
     # a set that holds the choice and one law more whose size trades (its fit stops anywhere along that valley,
     # which reaches the choice) is named however much worse the FRFs of the point it stopped at; not where better
     holding = next(x for x in search.sets + search.tied if x.laws == ("linear", "tanh_softening"))
-    assert _holds_the_choice(holding, chosen) and not _holds_the_choice(pair, chosen)
+    assert _holds_the_choice(holding, chosen, TIE) and not _holds_the_choice(pair, chosen, TIE)
+    beside = next(x for x in search.sets if x.laws == ("coulomb", "tanh_softening"))      # a friction of no size
+    assert _of_no_size(beside.fit, 0, TIE) and not _holds_the_choice(beside, chosen, TIE)
     alone = copy.copy(search)
     alone.sets, alone.tied = [chosen], [replace(holding, chi_square=chosen.chi_square)]
     for error, is_named in ((0.05, True), (0.005, False)):

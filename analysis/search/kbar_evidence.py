@@ -315,26 +315,28 @@ def _indistinguishable(judge: "_Judge", search: _Search, chosen: LawSet) -> list
         alike = (not s.tied and s.n_parameters >= chosen.n_parameters
                  and _alike(search, s, chosen, rules.false_alarm))
         reading = tuple(_kinds(s))
-        more = (not alike and reading not in readings
-                and _one_law_more_alike(search, s, chosen, rules.false_alarm, judge.rules.max_correlation))
+        tie = judge.rules.max_correlation
+        more = not alike and reading not in readings and _one_law_more_alike(search, s, chosen, rules.false_alarm, tie)
         if not (alike or more):
             continue
         error = judge.single({search.index: s}).error
-        if own / rules.min_gain <= error and (error <= rules.min_gain * own or _holds_the_choice(s, chosen)):
+        if own / rules.min_gain <= error and (error <= rules.min_gain * own or _holds_the_choice(s, chosen, tie)):
             out.append(s)
             if more:
                 readings.add(reading)
     return out
 
 
-def _holds_the_choice(s: LawSet, chosen: LawSet) -> bool:
-    """Whether the fit of ``s``, the choice's laws and one more whose size trades with another's (it is of some size,
-    :func:`_of_no_size`, yet unseen), holds the choice itself: along the valley of that trade the kbar fits alike,
-    and the valley reaches the choice where the law added has no size. Where the fit stopped in the valley depends
-    on its start and search, not on the data (analysis/fitting/limits.py), so the FRFs of that point cannot find
-    the set worse than the choice; only better."""
-    return (s.fit is not None and set(chosen.laws) < set(s.laws)
-            and any(t.size_unseen for t in s.fit.terms if t.law.name not in chosen.laws))
+def _holds_the_choice(s: LawSet, chosen: LawSet, max_correlation: float) -> bool:
+    """Whether the fit of ``s``, the choice's laws and one more whose size is unseen but trades with another's
+    (not :func:`_of_no_size`), holds the choice itself: along the valley of that trade the kbar fits alike, and the
+    valley reaches the choice where the law added has no size. Where the fit stopped in the valley depends on its
+    start and search, not on the data (analysis/fitting/limits.py), so the FRFs of that point cannot find the set
+    worse than the choice; only better."""
+    if s.fit is None or not set(chosen.laws) < set(s.laws):
+        return False
+    return any(t.size_unseen and not _of_no_size(s.fit, j, max_correlation)
+               for j, t in enumerate(s.fit.terms) if t.law.name not in chosen.laws)
 
 
 def _separation(search: _Search, chosen: LawSet, other: LawSet) -> str:
