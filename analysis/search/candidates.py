@@ -89,7 +89,9 @@ def _place_contacts(by_laws: dict[tuple[str, ...], LawSet], samples: ElementSamp
                    if set(kept) <= set(sub) and sub in by_laws]
     chosen = list(dict.fromkeys(chosen))
     # each placed refit needs nothing of the others
-    for laws, s in zip(chosen, map_tasks(lambda k: _fit_set(samples, chosen[k], rules, robust, around), len(chosen))):
+    refits = map_tasks(lambda k: _fit_set(samples, chosen[k], rules, robust, around, _own_start(by_laws[chosen[k]])),
+                       len(chosen))
+    for laws, s in zip(chosen, refits):
         if _separate(s):
             by_laws[laws] = s
 
@@ -132,13 +134,32 @@ def _warm_start(laws: tuple[str, ...], by_laws: dict[tuple[str, ...], LawSet]) -
             start.append(None)
             continue
         best = max(smaller, key=lambda s: (len(s.laws), -s.chi_square))
-        values = dict(best.fit.terms[best.laws.index(name)].params)
-        try:
-            LAWS[name].check_params(values)
-        except InputError:                # a value at a bound the fit may reach but a start may not take
-            values = None
-        start.append(values)
+        start.append(_start_values(best, name))
     return start if any(v is not None for v in start) else None
+
+
+def _own_start(s: LawSet) -> list[dict | None] | None:
+    """Starting values for a placed refit of ``s``: where its fit with the laws' formulas stands (started from its
+    smaller sets, :func:`_warm_start`), each law with shape parameters at its values there; None where none has
+    any. A placed fit begins with a fit of the formulas of its own (docs/fitting.md, "Contact laws in their
+    structure"), from its grid's best point and from these values, the better kept: from the grid alone a contact
+    beside a law that holds most of the kbar can run to no stiffness, where its gap moves nothing and the search
+    stops, and the set is read as the other law alone although the fit of its formulas had found the contact."""
+    if s.fit is None:
+        return None
+    start = [_start_values(s, name) if LAWS[name].shape else None for name in s.laws]
+    return start if any(v is not None for v in start) else None
+
+
+def _start_values(s: LawSet, name: str) -> dict | None:
+    """Law ``name``'s values in the fit of ``s`` as a start; None where one is at a bound the fit may reach but
+    a start may not take."""
+    values = dict(s.fit.terms[s.laws.index(name)].params)
+    try:
+        LAWS[name].check_params(values)
+    except InputError:
+        return None
+    return values
 
 
 def _adds_nothing(fit: LawFit, j: int, max_correlation: float) -> bool:

@@ -37,11 +37,11 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
    prefer no law to a right one), every law of it is seen in the kbar (:func:`_unseen_laws`) and seen as itself,
    not only in a limit of its amplitude scale, below or beyond every amplitude (:func:`_limit_only_laws`), and it
    cuts the error of the current choice by ``min_gain`` for every law it adds and the FRF chi-square by more than
-   the noise explains; a set not seen as itself, or not called for beside the laws taken, gives way to the next
-   (:func:`_preferred`). On data without harmonics the single-harmonic FRFs decide against the kbar only where
-   the FRFs with harmonics agree: a step the kbar calls for beyond the noise is judged with harmonics where they
-   refuse it (:meth:`_Judge._gains_with_harmonics`), and the set the kbar ranks first beyond the noise stays
-   first where they overrule it (:func:`_overruled_single_harmonically_only`).
+   the noise explains; a set turned down gives way to the next of those the FRFs kept beside it
+   (:func:`_preferred`, :func:`_walk_element`). On data without harmonics the single-harmonic FRFs decide against
+   the kbar only where the FRFs with harmonics agree: a step the kbar calls for beyond the noise is judged with
+   harmonics where they refuse it (:meth:`_Judge._gains_with_harmonics`), and the set the kbar ranks first beyond
+   the noise stays first where they overrule it (:func:`_overruled_single_harmonically_only`).
    Then -- the model-form check, with every element at its choice -- each element's last step must do the same
    with the lines that carry harmonics predicted multi-harmonically (unless its gain is beyond ``certain_gain``
    and the data carry harmonics or the step is the element's first law), or it is taken back. A law that fits

@@ -30,8 +30,12 @@ from .records import Discovery, DiscoveryRules, ElementDiscovery, LawSet, Separa
 
 def _walk_element(judge: _Judge, search: _Search) -> tuple[list[LawSet], list[WalkStep]]:
     """Element ``search.index``'s shortlists from no law upward, the others by their stand-ins (the overview in
-    discovery.py, step 4): of each size one set (:func:`_preferred`, of its shortlist and the best that keeps the
-    laws already taken) is tried against the current choice.
+    discovery.py, step 4): of each size the sets the FRFs cannot tell from the best of them (:func:`_preferred`,
+    of its shortlist and the sets that keep the laws already taken) are tried against the current choice in the
+    walk's order until one is taken. A set refused gives way to the next: the order is a preference among sets
+    the FRFs do not part (the laws taken kept, a clearance judged refined), not a verdict on the others, and each
+    of them still has to pass every test of a step on its own. A set not seen as itself also no longer sets the
+    FRF error the others are held to; a set refused otherwise leaves the others held to the error they were.
     Returns the sets taken, from no law on, and every step tried."""
     taken = [search.by_size[0][0]]
     steps = []
@@ -39,17 +43,23 @@ def _walk_element(judge: _Judge, search: _Search) -> tuple[list[LawSet], list[Wa
         if size == 0:
             continue
         pool = search.by_size[size] + _extension(search, taken[-1], size)
+        alike: list[LawSet] | None = None      # once a set was refused but seen as itself: the sets kept beside it
         while pool:
-            candidate = _preferred(judge, search, pool, taken[-1])[0]
+            ranked = _preferred(judge, search, pool, taken[-1])
+            if alike is not None:
+                ranked = [s for s in ranked if s in alike]
+                if not ranked:
+                    break
+            candidate = ranked[0]
             step = judge.step_up(search, taken[-1], candidate)
             steps.append(step)
             if step.taken:
                 taken.append(candidate)
-            elif _took_instead(judge, search, step, taken, steps):
                 break
-            if not step.not_itself:
+            if _took_instead(judge, search, step, taken, steps):
                 break
-            # a set not seen as itself gives way, and no longer sets the FRF error the others are held to
+            if not step.not_itself and alike is None:
+                alike = ranked
             pool.remove(candidate)
     return taken, steps
 
