@@ -308,6 +308,7 @@ def _indistinguishable(judge: "_Judge", search: _Search, chosen: LawSet) -> list
     set fits them better."""
     rules = judge.rules.ranking
     own = judge.single({search.index: chosen}).error
+    tie = judge.rules.max_correlation
     out, readings = [], set()
     for s in sorted(search.sets + search.tied, key=lambda s: s.criterion):
         if s is chosen:
@@ -315,7 +316,6 @@ def _indistinguishable(judge: "_Judge", search: _Search, chosen: LawSet) -> list
         alike = (not s.tied and s.n_parameters >= chosen.n_parameters
                  and _alike(search, s, chosen, rules.false_alarm))
         reading = tuple(_kinds(s))
-        tie = judge.rules.max_correlation
         more = not alike and reading not in readings and _one_law_more_alike(search, s, chosen, rules.false_alarm, tie)
         if not (alike or more):
             continue
