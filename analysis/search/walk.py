@@ -177,11 +177,11 @@ def _preferred(judge: _Judge, search: _Search, sets: list[LawSet], taken: LawSet
     """Of sets of one size, those whose single-harmonic FRF error is within ``min_gain`` of the best of them,
     by the kbar criterion: the kbar chooses, and the FRFs overrule it only by the margin a law must bring (the
     stand-ins of the other elements leave an error floor of their own, within which the FRFs cannot choose). The
-    walk tries the first; only where the kbar does not show a law of it as itself does it give way, and the sets
-    left are held to the best FRF error among them (a clearance whose gap runs below every amplitude is a linear
-    spring, which comes next once it gives way; a saturating spring whose size the kbar does not determine can
-    fit the fundamental of friction's harmonics better than the linear law beside friction, which comes next
-    only once it has given way). The set the kbar ranks first stays first where the FRFs
+    walk tries the first and, where it is refused, the next (:func:`_walk_element`); where the kbar does not show
+    a law of it as itself, the sets left are held to the best FRF error among them (a clearance whose gap runs
+    below every amplitude is a linear spring, which comes next once it gives way; a saturating spring whose size
+    the kbar does not determine can fit the fundamental of friction's harmonics better than the linear law beside
+    friction, which comes next only once it has given way). The set the kbar ranks first stays first where the FRFs
     overrule it only at its kbar fit (:func:`_overruled_at_kbar_fit_only`). ``taken``: the element's current
     choice (:func:`_walk_order`)."""
     i = search.index
