@@ -724,6 +724,25 @@ def test_of_the_readings_that_predict_better_the_simplest_is_taken_unless_a_larg
     assert readings._simplest_predicting(unchecked, 1.3).laws == ("a", "c")
 
 
+def test_readings_the_held_out_levels_do_not_judge_are_ranked_by_their_in_sample_error():
+    # each fold's fit saw one level that does not show every law: its held-out error measures what that fit could
+    # not determine (1.0 and 1.2 for two dampings beside the friction), and would choose between them by chance
+    def reading(laws, held, error, judged):
+        return readings._Reading(tuple(laws), error, HeldOut(held, (held,), 1), "", judged)
+    unjudged = [reading(["quadratic_damping", "coulomb"], 1.0, 0.078, False),
+                reading(["cubic_damping", "coulomb"], 1.2, 0.032, False)]
+    assert readings._simplest_predicting(unjudged, 1.3).laws == ("cubic_damping", "coulomb")
+    # of as many laws, one the held-out levels judged comes first
+    mixed = [reading(["quadratic_damping", "coulomb"], 0.05, 0.04, True),
+             reading(["cubic_damping", "coulomb"], 1.2, 0.032, False)]
+    assert readings._simplest_predicting(mixed, 1.3).laws == ("quadratic_damping", "coulomb")
+    # a larger reading not judged replaces a smaller one where its in-sample error is better by the margin
+    larger = [reading(["coulomb"], 0.5, 0.05, False), reading(["cubic_damping", "coulomb"], 1.2, 0.03, False)]
+    assert readings._simplest_predicting(larger, 1.3).laws == ("cubic_damping", "coulomb")
+    close = [reading(["coulomb"], 1.2, 0.035, False), reading(["cubic_damping", "coulomb"], 0.5, 0.03, False)]
+    assert readings._simplest_predicting(close, 1.3).laws == ("coulomb",)
+
+
 def test_a_workbench_read_otherwise_for_a_block_is_as_it_was_afterwards():
     from test_workbench import PAPER_LAWS, model_doc, synthesise, workbench
     wb = workbench(load_model(model_doc(PAPER_LAWS)), synthesise(PAPER_LAWS, lines=13))

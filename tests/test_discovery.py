@@ -945,6 +945,21 @@ def test_an_empty_model_of_a_joint_gets_its_stiffness_and_its_damping():
     assert doc["discovery"]["elements"][0]["readings"] == [list(r) for r in readings]
 
 
+def test_the_readings_are_the_shortlists_and_every_other_set_the_walk_tried_by_size():
+    # beside the laws taken the walk tries every set that keeps them (cubic damping + Coulomb beside Coulomb), not
+    # on the kbar's shortlist: the loop weighs it again by prediction as it does the shortlist's sets
+    from analysis.search.walk import _readings
+    shortlist = {0: [SimpleNamespace(laws=())], 1: [SimpleNamespace(laws=("coulomb",)),
+                                                    SimpleNamespace(laws=("quadratic_damping",))],
+                 2: [SimpleNamespace(laws=("linear", "coulomb"))]}
+    walk = [WalkStep(("coulomb",), 0.137, 0.42, True), WalkStep(("cubic_damping", "coulomb"), 0.075, 0.137, False),
+            WalkStep(("coulomb", "linear"), 0.1, 0.137, False),
+            WalkStep(("linear", "cubic_damping", "coulomb"), 0.07, 0.137, False)]
+    assert _readings(SimpleNamespace(by_size=shortlist), walk) == (
+        ("coulomb",), ("quadratic_damping",), ("linear", "coulomb"), ("cubic_damping", "coulomb"),
+        ("linear", "cubic_damping", "coulomb"))
+
+
 @pytest.mark.slow
 def test_a_model_with_its_laws_gets_no_discovery():
     from test_nonparametric import library_force, measured, started

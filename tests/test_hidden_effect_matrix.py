@@ -242,18 +242,22 @@ def test_the_loop_adds_no_law_beside_a_contact_that_only_fits_its_closing_lines(
 @pytest.mark.acceptance
 def test_a_reading_discovery_passed_on_the_way_replaces_its_choice_where_the_model_stays_far_above_the_floor(
         tmp_path):
-    # seed 764680 random 13: Coulomb friction and a gap at one joint, RK4 receptances without harmonics. The walk
-    # takes a one-sided contact at size one and never meets the gap beside the friction; the loop stops 27 times
-    # above the floor, and the reading coulomb + gap of the joint's own shortlist, refitted in the whole model,
-    # takes its place (analysis/loop/readings.py, other_readings)
+    # seed 331236 random 2: quadratic damping and a tanh spring at one joint, a gap at the other, RK4 receptances
+    # without harmonics. The walk takes an Iwan element alone at the first joint and the loop stops at 0.105, 20
+    # times the floor; of the readings of that joint that cut the error by the margin, each fold's fit sees one
+    # level and the held-out levels judge none of them, so the in-sample error ranks them: quadratic damping with
+    # a saturating spring (0.013) takes the Iwan's place, not the one-sided contact whose held-out error, which
+    # judges nothing, was the lowest (analysis/loop/readings.py, other_readings and _simplest_predicting). Seed
+    # 764680 random 13, which this case checked before, is now right from discovery's walk alone
     rd = _random_discovery()
 
-    case = rd._draw(764680, 13)[12]
-    assert sorted((law.element, law.law) for law in case.laws) == [("a", "coulomb"), ("a", "gap")]
+    case = rd._draw(331236, 2)[1]
+    assert sorted((law.element, law.law) for law in case.laws) == [("a", "quadratic_damping"),
+                                                                   ("a", "tanh_softening"), ("b", "gap")]
     scored = rd.run(case, tmp_path)
     assert scored.outcome.right and not scored.outcome.false_alarms, mc.progress_line(1, 1, scored.outcome, 0)
     assert scored.before_readings is not None and not scored.before_readings.right
-    assert scored.outcome.errors[-1] < scored.before_readings.errors[-1] / 10
+    assert scored.outcome.errors[-1] < scored.before_readings.errors[-1] / 5
 
 
 @pytest.mark.acceptance

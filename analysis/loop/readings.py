@@ -81,16 +81,25 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
 
 def _simplest_predicting(weighed: list[_Reading], min_gain: float) -> _Reading | None:
     """Of the readings that predict the held-out levels better than the current model, the one with fewest laws
-    (then the best held-out error), unless one with more laws predicts them better by ``min_gain``: a law enters
-    where it predicts data its fit did not see better by a margin, and a law the held-out levels do not call for
-    is one the data do not determine. None where no reading qualifies."""
+    (then the best error), unless one with more laws predicts better by ``min_gain``: a law enters where it
+    predicts data its fit did not see better by a margin, and a law the held-out levels do not call for is one the
+    data do not determine. The error is the held-out one where the held-out levels judge both readings, else the
+    in-sample one (:func:`_error_judging`). None where no reading qualifies."""
     qualified = sorted((r for r in weighed if not r.why),
-                       key=lambda r: (len(r.laws), np.nan_to_num(r.held.error, nan=np.inf), r.error))
+                       key=lambda r: (len(r.laws), not r.judged, _error_judging(r, r), r.error))
     best = qualified[0] if qualified else None
     for r in qualified[1:]:
-        if len(r.laws) > len(best.laws) and min_gain * r.held.error <= best.held.error:
+        if len(r.laws) > len(best.laws) and min_gain * _error_judging(r, best) <= _error_judging(best, r):
             best = r
     return best
+
+
+def _error_judging(r: _Reading, other: _Reading) -> float:
+    """``r``'s error for a comparison with ``other``: held-out where the held-out levels judged both, else
+    in-sample. A held-out error that does not judge (a fold's fit saw one level that does not show every law of
+    the reading) measures what that fit could not determine, the same for every reading that holds the law, and
+    would rank them by chance; the in-sample error is then all the data say."""
+    return np.nan_to_num(r.held.error, nan=np.inf) if r.judged and other.judged else r.error
 
 
 def _reading_reason(element: str, current: tuple[str, ...], weighed: list[_Reading]) -> str:

@@ -112,8 +112,9 @@ class ElementDiscovery:
     equivalents: list[Separation] = field(default_factory=list)
     walk: list[WalkStep] = field(default_factory=list)
     simplified_from: tuple[str, ...] | None = None   # the set the FRFs took, where a simpler alike one replaced it
-    # the readings of its kbar the walk chose among: every set of its shortlists, by size, then as the kbar
-    # criterion ranks them (what the loop weighs again by the FRFs where the model stays above what the test allows)
+    # the readings of its kbar the walk chose among: by size, every set of its shortlist as the kbar criterion
+    # ranks them, then every other set of that size the walk tried, in its order (what the loop weighs again by
+    # the FRFs where the model stays above what the test allows)
     readings: tuple[tuple[str, ...], ...] = ()
 
     @property

@@ -404,14 +404,23 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
                                       + _explanations(names[search.index], search, chosen), equivalents,
                                       walks.get(search.index, []),
                                       judged[search.index].laws if judged[search.index] is not chosen else None,
-                                      _readings(search)))
+                                      _readings(search, walks.get(search.index, []))))
     by_index = {s.index: f for s, f in zip(searches, found)}
     return Discovery([by_index[i] for i in _order(judge, choice)])
 
 
-def _readings(search: _Search) -> tuple[tuple[str, ...], ...]:
-    """Every set of the element's shortlists with one law or more (:attr:`ElementDiscovery.readings`)."""
-    return tuple(dict.fromkeys(s.laws for size in sorted(search.by_size) if size > 0 for s in search.by_size[size]))
+def _readings(search: _Search, walk: list[WalkStep]) -> tuple[tuple[str, ...], ...]:
+    """The sets the element's walk chose among, with one law or more (:attr:`ElementDiscovery.readings`): by size,
+    each size's shortlist and then every other set of that size the walk tried -- beside the laws taken the walk
+    tries every set that keeps them, and a set it refused for what the kbar cannot tell apart is as much a reading
+    of the kbar as one the criterion ranked."""
+    tried = [step.laws for step in walk]
+    out: dict[frozenset, tuple[str, ...]] = {}
+    for size in sorted(set(search.by_size) | {len(t) for t in tried}):
+        for laws in [*(s.laws for s in search.by_size.get(size, [])), *(t for t in tried if len(t) == size)]:
+            if size > 0:
+                out.setdefault(frozenset(laws), laws)
+    return tuple(out.values())
 
 
 def _order(judge: _Judge, choice: dict[int, LawSet]) -> list[int]:
