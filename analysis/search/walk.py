@@ -416,10 +416,9 @@ def _readings(search: _Search, walk: list[WalkStep]) -> tuple[tuple[str, ...], .
     of the kbar as one the criterion ranked."""
     tried = [step.laws for step in walk]
     out: dict[frozenset, tuple[str, ...]] = {}
-    for size in sorted(set(search.by_size) | {len(t) for t in tried}):
+    for size in sorted((set(search.by_size) | {len(t) for t in tried}) - {0}):
         for laws in [*(s.laws for s in search.by_size.get(size, [])), *(t for t in tried if len(t) == size)]:
-            if size > 0:
-                out.setdefault(frozenset(laws), laws)
+            out.setdefault(frozenset(laws), laws)
     return tuple(out.values())
 
 
