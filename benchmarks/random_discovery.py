@@ -48,7 +48,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 import matrix_cases as mc  # noqa: E402
-from analysis.loop.auto import AutoResult, run_auto  # noqa: E402
+from analysis.loop.auto import BEYOND_THE_KBAR, AutoResult, run_auto  # noqa: E402
 from analysis.prediction.harmonic_balance import predict_sweeps  # noqa: E402
 from analysis.mechanics.model import load_model  # noqa: E402
 
@@ -242,9 +242,11 @@ class Scored:
 
     outcome: mc.Outcome
     named: dict[str, str] = field(default_factory=dict)
-    # the outcome of the model before the loop's first ``replace`` step (discovery's other readings judged by
-    # prediction, docs/workbench.md section 5), where one was taken: the same case without that step
+    # the outcome of the model before the loop's first step taken where it would have stopped, where one was
+    # taken: the same case without it; ``weighed`` names the step (docs/workbench.md section 5: discovery's other
+    # readings judged by prediction, a ``replace`` step; a law the kbar does not call for, an ``add`` step)
     before_readings: mc.Outcome | None = None
+    weighed: str = ""
 
     @property
     def right(self) -> bool:
@@ -287,9 +289,14 @@ def run(c: mc.Case, folder: Path) -> Scored:
     wb = mc.started_workbench(c, folder, session)
     result = run_auto(wb)
     outcome = mc.score(c, wb, result.stopped)
-    replaced = next((k for k, h in enumerate(wb.history) if h.action.startswith("replace ")), None)
-    before = None if replaced is None else mc.score(c, wb, result.stopped, at=replaced - 1)
-    return Scored(outcome, named_equivalences(c, outcome, result), before)
+    # each step of the loop records one step of the history, after the start's
+    weighed = next(((k + 1, "the readings" if s.action == "replace" else "the law beyond the kbar")
+                    for k, s in enumerate(result.steps) if s.action == "replace" or
+                    (s.action == "add" and s.reason.startswith(BEYOND_THE_KBAR))), None)
+    if weighed is None:
+        return Scored(outcome, named_equivalences(c, outcome, result))
+    before = mc.score(c, wb, result.stopped, at=weighed[0] - 1)
+    return Scored(outcome, named_equivalences(c, outcome, result), before, weighed[1])
 
 
 def _readings_word(s: Scored) -> str:
@@ -297,7 +304,7 @@ def _readings_word(s: Scored) -> str:
     if s.before_readings is None:
         return ""
     was = "right" if s.before_readings.right else "wrong"
-    return f"; before the readings: {was} ({', '.join(s.before_readings.added) or 'nothing'})"
+    return f"; before {s.weighed}: {was} ({', '.join(s.before_readings.added) or 'nothing'})"
 
 
 def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
@@ -320,8 +327,9 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
     lines = [f"Seed {seed}: {drawn} cases drawn{budget}, {len(measured)} measured; discovery from an empty model "
              f"right on {right + named}/{len(measured)} ({100 * (right + named) / n:.0f} %; goal "
              f"{100 * GOAL:.0f} %): {right} right outright, {named} by an equivalence named to the user; "
-             f"{sum(len(o.false_alarms) for o in outcomes if o.measured)} false alarm(s). Another reading took a "
-             f"joint's place in {len(reread)} case(s): wrong to right in "
+             f"{sum(len(o.false_alarms) for o in outcomes if o.measured)} false alarm(s). Where the loop would have "
+             f"stopped, another reading took a joint's place or a law the kbar does not call for was added in "
+             f"{len(reread)} case(s): wrong to right in "
              f"{sum(s.right and not s.before_readings.right for s in reread)}, right to wrong in "
              f"{sum(s.before_readings.right and not s.right for s in reread)}.", "",
              "Confusion of law kinds as the matrix scores them (rows: the rig's; columns: the kind found at that "

@@ -765,3 +765,39 @@ def test_the_gui_says_where_the_loop_read_a_discovered_element_otherwise():
              AutoStep("replace", "a", ("coulomb", "gap"), 0.18, 0.007, "")]
     lines = _discovered(AutoResult(steps, "nothing significant is left", [], found))
     assert lines == ["discovered a: unilateral; read as coulomb+gap by the loop (judged by prediction)"]
+
+
+def test_far_above_the_floor_a_law_its_kbar_does_not_call_for_is_tried_where_the_frfs_gain_the_certain_margin(
+        monkeypatch):
+    """On data without harmonics, where the loop would stop far above what the test allows, the best candidate the
+    kbar did not support (a linear verdict, no positive evidence) that cuts the FRF error by ``certain_gain`` is
+    tried; one that gains less, one the model-form check refuses and one taken back are not; nearer the floor, on
+    data with harmonics and without held-out checks nothing is."""
+    def candidate(law: str, error: float) -> Candidate:
+        return Candidate("a", law, error, 0.467, 0.0, True, "", evidence=-5.0)
+
+    def ranked() -> list[Candidate]:
+        return [candidate("quintic", 0.08), candidate("cubic", 0.084), candidate("jenkins", 0.23)]
+
+    def refused_by_model_form(predictor, candidates, rules, n_harmonics, n_time):
+        for c in candidates:
+            if c.law == "quintic":
+                c.significant, c.model_form = False, "only what one harmonic cannot represent"
+
+    monkeypatch.setattr(auto_module, "check_model_form", refused_by_model_form)
+    rules = AutoRules(modes=None)
+    harmonics = SimpleNamespace(n_harmonics=5, n_time=256)
+
+    def bench(error: float, blind: bool = True):
+        return SimpleNamespace(harmonics_blind=blind, history=[SimpleNamespace(error=error)], predictor=None,
+                               error_floor=SimpleNamespace(total=0.0078), harmonics_or_default=harmonics)
+
+    top = auto_module._beyond_the_kbar(bench(0.334), ranked(), rules, None, set())
+    assert top is not None and top.name == "a:cubic" and top.significant
+    assert auto_module._beyond_the_kbar(bench(0.334), ranked(), rules, None, {"a:cubic"}) is None
+    assert auto_module._beyond_the_kbar(bench(0.07), ranked(), rules, None, set()) is None     # within 10 x
+    assert auto_module._beyond_the_kbar(bench(0.334, blind=False), ranked(), rules, None, set()) is None
+    assert auto_module._beyond_the_kbar(bench(0.334), ranked(), AutoRules(modes=None, held_out=False), None,
+                                        set()) is None
+    reason = auto_module._beyond_reason(top, 0.334, 0.0078, rules)
+    assert "42.8 x what the test allows" in reason and "x5.56 better" in reason

@@ -7,7 +7,8 @@ until nothing significant is left. Where no single law is significant but an ele
 explained by its laws, pairs of laws on that element are tried before giving up (two effects of one joint can
 each look insignificant alone); and where the model then stays above what the test allows, the other readings of
 each element's kbar that discovery chose among are weighed by the whole model's prediction of the FRFs and of
-the levels its fits did not see (:func:`analysis.loop.readings.other_readings`). Significance is that of the ranking
+the levels its fits did not see (:func:`analysis.loop.readings.other_readings`), and then the best law the FRFs
+call for by far where the kbar does not (:func:`_beyond_the_kbar`). Significance is that of the ranking
 (:mod:`analysis.missing.diagnosis`), including the check against what the single-harmonic model cannot represent,
 so the loop stops on the physics the data show.
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from ..common.interrupt import Interrupted, stoppable
 from ..laws import LAWS
-from ..missing.diagnosis import Candidate
+from ..missing.diagnosis import Candidate, check_model_form
 from ..missing.modal_judge import judge_by_modes, measures_modes, model_error
 from ..missing.unexplained import unexplained
 from ..prediction.backbone import ModalError
@@ -101,6 +102,18 @@ def _reason(c: Candidate) -> str:
     modes = f"; {c.by_modes}" if c.by_modes else ""
     return (f"top significant candidate ({gain_phrase(c.gain)} single-harmonic{mh}, kbar evidence "
             f"{c.evidence:.3g}{modes}): {c.explanation}")
+
+
+#: How the reason of a law added beyond the kbar (:func:`_beyond_the_kbar`) begins
+BEYOND_THE_KBAR = "nothing its kbar calls for is significant"
+
+
+def _beyond_reason(c: Candidate, error: float, floor: float, rules: AutoRules) -> str:
+    return (f"{BEYOND_THE_KBAR}, and the model stayed at {error:.3g}, "
+            f"{error / floor:.3g} x what the test allows ({floor:.3g}); {c.name} cuts the FRF error "
+            f"{gain_phrase(c.gain)}, beyond the x{rules.ranking.certain_gain:g} no law fitting lines its describing "
+            f"function does not follow brings: the kbar cannot judge it there, and the FRFs and the levels its fits "
+            f"did not see do: {c.explanation}")
 
 
 def _stop_reason(ranked: list[Candidate], pairs_tried: bool, min_gain: float) -> str:
@@ -209,6 +222,34 @@ def _judged(wb: Workbench, candidates: list[Candidate], rules: AutoRules,
     if rules.modes is not None and measures_modes(wb.measurements):
         judge_by_modes(wb.model, wb.measurements, candidates, rules.ranking.min_gain, rules.modes)
     return candidates
+
+
+def _beyond_the_kbar(wb: Workbench, ranked: list[Candidate], rules: AutoRules, found: Discovery | None,
+                     taken_back: set[str]) -> Candidate | None:
+    """Where the loop would stop on data without harmonics with the model farther above what the test allows
+    than a right model can be (``rules.readings_beyond_floor`` times :attr:`Workbench.error_floor`), the best
+    candidate its element's kbar does not call for that cuts the FRF error by ``certain_gain``, the model-form
+    check and the loop's own holds passed; None where there is none. The kbar's verdicts -- linear, the law's size
+    within its interval of zero, no positive evidence -- are tests of one element's kbar at the false-alarm rate,
+    and an element whose stiffness is small beside the structure's carries little of the FRFs' information: a
+    law there can leave its kbar unmoved and still cut the FRF error many times (discovery sets a linear verdict
+    aside at the same margin, :func:`analysis.search.walk._verdict_overruled`). The kbar cannot then judge the law;
+    the FRFs judge it as every law the loop adds: the model refitted with it must keep ``min_gain``
+    (:func:`_falls_short`) and predict the levels its fits did not see better where they judge it
+    (:func:`analysis.loop.cross_check.predicts_no_better`)."""
+    floor = wb.error_floor
+    if not (rules.held_out and wb.harmonics_blind) or floor is None or \
+            not wb.history[-1].error > rules.readings_beyond_floor * floor.total:
+        return None
+    unsupported = [c for c in ranked if not c.significant and not c.model_form and c.above_noise
+                   and c.gain >= rules.ranking.certain_gain]
+    if not unsupported:
+        return None
+    for c in unsupported:
+        c.significant, c.held_back = True, ""
+    check_model_form(wb.predictor, unsupported, rules.ranking, wb.harmonics_or_default.n_harmonics,
+                     wb.harmonics_or_default.n_time)
+    return next((c for c in _judged(wb, unsupported, rules, found, taken_back) if c.significant), None)
 
 
 def _checked_found(wb: Workbench, elements: list[ElementDiscovery], rules: AutoRules,
@@ -345,19 +386,25 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
         pairs_tried = top is None and rules.pairs
         if pairs_tried:
             top = _best_pair(wb, ranked, rules, searched, taken_back)
+        beyond = False                 # the top candidate is one its kbar does not call for
         if top is None:
             if found is not None and not reread:
                 reread = True
                 under_way.what = "discovery's other readings"
                 if take_checks(_read_again(wb, found, rules, checked)):
                     continue
-            return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked, found)
+            under_way.what = "the candidates the kbar does not call for"
+            stopped = _stop_reason(ranked, pairs_tried, rules.ranking.min_gain)
+            top = _beyond_the_kbar(wb, ranked, rules, found, taken_back)
+            if top is None:
+                return AutoResult(steps, stopped, ranked, found)
+            beyond = True
         before, held_before = wb.history[-1].error, checked()
         under_way.what = f"the fit of {top.name}"
         after = wb.add_laws(top.element, top.laws).error
         added += 1
         take(AutoStep("add pair" if len(top.laws) > 1 else "add", top.element, top.laws, before, after,
-                      _reason(top)))
+                      _beyond_reason(top, before, wb.error_floor.total, rules) if beyond else _reason(top)))
         if not np.isfinite(after):
             return AutoResult(steps, f"the model with {top.name} has no prediction", [], found)
         why = ""
