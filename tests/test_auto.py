@@ -254,7 +254,7 @@ def test_step_and_result_records():
     assert step.line() == "add b:quadratic_damping: error 1 -> 0.125 (x8.00 better)"
     assert step.to_json() == {"action": "add", "element": "b", "laws": ["quadratic_damping"], "error_before": 1.0,
                               "error_after": 0.125, "gain": 8.0, "reason": "why", "in_sample_error": 0.125,
-                              "held_out_error": None, "held_out_fold_errors": [],
+                              "held_out_error": None, "held_out_fold_errors": [], "held_out_judges": None,
                               "backbone_error_before": None, "damping_error_before": None,
                               "backbone_error_after": None, "damping_error_after": None}
     # judged on levels its fit did not see too: both errors, labelled
@@ -263,6 +263,11 @@ def test_step_and_result_records():
     assert step.to_json()["held_out_error"] == 0.25 and step.to_json()["in_sample_error"] == 0.125
     step.held_out_folds = (0.2, float("nan"))
     assert step.to_json()["held_out_fold_errors"] == [0.2, None]
+    # where each fold's fit saw too little to determine the laws, the line says the held-out error judges nothing
+    step.held_out_judges = False
+    assert step.line().endswith("held-out 0.25 against in-sample 0.125 (which cannot judge it: each fold's fit "
+                                "saw one level that does not show every law)")
+    assert step.to_json()["held_out_judges"] is False
     step.held_out = float("nan")
     modal = AutoStep("add", "b", ("cubic",), 1.0, 0.5, "why", ModalError(0.02, 0.3), ModalError(0.001, float("nan")))
     assert modal.line() == ("add b:cubic: error 1 -> 0.5 (x2.00 better); backbone error 0.02 -> 0.001, "

@@ -331,6 +331,7 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
                 under_way.what = "the held-out check of the step just taken"
                 current[0] = known if known is not None else held_out(wb)
                 step.held_out, step.held_out_folds = current[0].error, current[0].folds
+                step.held_out_judges = current[0].judges if current[0].folds else None
         finally:                        # a stop inside the check: the step is recorded and stays
             steps.append(step)
         if progress is not None:

@@ -55,6 +55,10 @@ class AutoStep:
     # the FRF error after the step on levels its fit did not see (NaN: not checked, or one level only), and per fold
     held_out: float = float("nan")
     held_out_folds: tuple[float, ...] = ()
+    # whether those levels can judge the step's laws (:attr:`analysis.loop.cross_check.HeldOut.judges`; None: not
+    # checked): where each fold's fit saw one level that does not show every law, the held-out error measures what
+    # that fit could not determine, not the model
+    held_out_judges: bool | None = None
 
     @property
     def gain(self) -> float:
@@ -68,7 +72,7 @@ class AutoStep:
             modal = (f"; backbone error {self.modal_before.frequency:.3g} -> {self.modal_after.frequency:.3g}, "
                      f"damping error {self.modal_before.damping:.3g} -> {self.modal_after.damping:.3g}")
         held = (f"; held-out {self.held_out:.3g} against in-sample {self.error_after:.3g}"
-                if np.isfinite(self.held_out) else "")
+                f"{NOT_JUDGING if self.held_out_judges is False else ''}" if np.isfinite(self.held_out) else "")
         return (f"{self.action} {what}: error {self.error_before:.3g} -> {self.error_after:.3g} "
                 f"({gain_phrase(self.gain)}){held}{modal}")
 
@@ -81,6 +85,7 @@ class AutoStep:
                 "in_sample_error": self.error_after,
                 "held_out_error": float(self.held_out) if np.isfinite(self.held_out) else None,
                 "held_out_fold_errors": [float(e) if np.isfinite(e) else None for e in self.held_out_folds],
+                "held_out_judges": self.held_out_judges,
                 "reason": self.reason, **_modal_json(self.modal_before, "_before"),
                 **_modal_json(self.modal_after, "_after")}
 
@@ -112,6 +117,9 @@ class AutoResult:
         return {"steps": [s.to_json() for s in self.steps], "stopped": self.stopped, "undone": self.undone,
                 "discovery": None if self.discovery is None else self.discovery.to_json()}
 
+
+#: What a step's line adds where its held-out levels cannot judge its laws (:attr:`AutoStep.held_out_judges`)
+NOT_JUDGING = " (which cannot judge it: each fold's fit saw one level that does not show every law)"
 
 STOPPED_BY_USER = "stopped by the user"
 DISCOVERY = "discovery"             # AutoResult.undone of a stop inside discovery
