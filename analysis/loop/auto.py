@@ -395,10 +395,9 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
                 if take_checks(_read_again(wb, found, rules, checked)):
                     continue
             under_way.what = "the candidates the kbar does not call for"
-            stopped = _stop_reason(ranked, pairs_tried, rules.ranking.min_gain)
             top = _beyond_the_kbar(wb, ranked, rules, found, taken_back)
             if top is None:
-                return AutoResult(steps, stopped, ranked, found)
+                return AutoResult(steps, _stop_reason(ranked, pairs_tried, rules.ranking.min_gain), ranked, found)
             beyond = True
         before, held_before = wb.history[-1].error, checked()
         under_way.what = f"the fit of {top.name}"
