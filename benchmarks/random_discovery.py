@@ -245,7 +245,7 @@ class Scored:
     # the outcome of the model before the loop's first step taken where it would have stopped, where one was
     # taken: the same case without it; ``weighed`` names the step (docs/workbench.md section 5: discovery's other
     # readings judged by prediction, a ``replace`` step; a law the kbar does not call for, an ``add`` step)
-    before_readings: mc.Outcome | None = None
+    before_weighed: mc.Outcome | None = None
     weighed: str = ""
 
     @property
@@ -299,12 +299,12 @@ def run(c: mc.Case, folder: Path) -> Scored:
     return Scored(outcome, named_equivalences(c, outcome, result), before, weighed[1])
 
 
-def _readings_word(s: Scored) -> str:
-    """What the case was before discovery's other readings replaced a joint's laws ("" where none did)."""
-    if s.before_readings is None:
+def _weighed_word(s: Scored) -> str:
+    """What the case was before the loop's first step where it would have stopped ("" where it took none)."""
+    if s.before_weighed is None:
         return ""
-    was = "right" if s.before_readings.right else "wrong"
-    return f"; before {s.weighed}: {was} ({', '.join(s.before_readings.added) or 'nothing'})"
+    was = "right" if s.before_weighed.right else "wrong"
+    return f"; before {s.weighed}: {was} ({', '.join(s.before_weighed.added) or 'nothing'})"
 
 
 def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
@@ -323,15 +323,15 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
     laws = {c.name: ", ".join(f"{law.element}:{law.law} ({', '.join(f'{k} = {v:.3g}' for k, v in law.values)})"
                               for law in c.laws) for c in cases}
     budget = f" ({drawn - len(cases)} {left_out})" if drawn > len(cases) else ""
-    reread = [s for s in measured if s.before_readings is not None]
+    weighed_cases = [s for s in measured if s.before_weighed is not None]
     lines = [f"Seed {seed}: {drawn} cases drawn{budget}, {len(measured)} measured; discovery from an empty model "
              f"right on {right + named}/{len(measured)} ({100 * (right + named) / n:.0f} %; goal "
              f"{100 * GOAL:.0f} %): {right} right outright, {named} by an equivalence named to the user; "
              f"{sum(len(o.false_alarms) for o in outcomes if o.measured)} false alarm(s). Where the loop would have "
              f"stopped, another reading took a joint's place or a law the kbar does not call for was added in "
-             f"{len(reread)} case(s): wrong to right in "
-             f"{sum(s.right and not s.before_readings.right for s in reread)}, right to wrong in "
-             f"{sum(s.before_readings.right and not s.right for s in reread)}.", "",
+             f"{len(weighed_cases)} case(s): wrong to right in "
+             f"{sum(s.right and not s.before_weighed.right for s in weighed_cases)}, right to wrong in "
+             f"{sum(s.before_weighed.right and not s.right for s in weighed_cases)}.", "",
              "Confusion of law kinds as the matrix scores them (rows: the rig's; columns: the kind found at that "
              "joint):", "",
              "| true \\ found | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
@@ -346,7 +346,7 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
         verdict = ("right by a named equivalence: " + "; ".join(s.named.values()) if s.right_by_naming else
                    "miss" + (" (named: " + "; ".join(s.named.values()) + ")" if s.named else ""))
         lines.append(f"- {o.case} ({o.structure}; rig {laws[o.case]}; noise {100 * o.noise:.2g} %; error "
-                     f"{mc._fmt_fall(o)}): {why} -- {verdict}{_readings_word(s)}")
+                     f"{mc._fmt_fall(o)}): {why} -- {verdict}{_weighed_word(s)}")
     return "\n".join(lines)
 
 
@@ -416,7 +416,7 @@ def main() -> int:
                 named = "; named: " + "; ".join(scored.named.values()) if scored.named else ""
                 print(f"seed {seed} " + mc.progress_line(i + 1, len(draws[seed]), scored.outcome, seconds)
                       + f"; rig {', '.join(f'{law.element}:{law.law}' for law in c.laws)}{named}"
-                      + _readings_word(scored), flush=True)
+                      + _weighed_word(scored), flush=True)
     sections = []
     for seed, cases in draws.items():
         run_cases = [c for i, c in enumerate(cases) if (seed, i) in done]

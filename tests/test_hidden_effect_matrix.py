@@ -256,8 +256,8 @@ def test_a_reading_discovery_passed_on_the_way_replaces_its_choice_where_the_mod
                                                                    ("a", "tanh_softening"), ("b", "gap")]
     scored = rd.run(case, tmp_path)
     assert scored.outcome.right and not scored.outcome.false_alarms, mc.progress_line(1, 1, scored.outcome, 0)
-    assert scored.weighed == "the readings" and not scored.before_readings.right
-    assert scored.outcome.errors[-1] < scored.before_readings.errors[-1] / 5
+    assert scored.weighed == "the readings" and not scored.before_weighed.right
+    assert scored.outcome.errors[-1] < scored.before_weighed.errors[-1] / 5
     assert scored.outcome.errors[-1] < 3 * case.noise      # ends near the noise, where it stopped 20 times the floor
 
 
@@ -273,8 +273,8 @@ def test_a_law_its_kbar_does_not_call_for_enters_where_the_frfs_gain_by_far_far_
     assert sorted((law.element, law.law) for law in case.laws) == [("a", "cubic"), ("a", "linear"), ("b", "linear")]
     scored = rd.run(case, tmp_path)
     assert scored.outcome.right and not scored.outcome.false_alarms, mc.progress_line(1, 1, scored.outcome, 0)
-    assert scored.weighed == "the law beyond the kbar" and not scored.before_readings.right
-    assert scored.outcome.errors[-1] < scored.before_readings.errors[-1] / 4
+    assert scored.weighed == "the law beyond the kbar" and not scored.before_weighed.right
+    assert scored.outcome.errors[-1] < scored.before_weighed.errors[-1] / 4
 
 
 @pytest.mark.acceptance

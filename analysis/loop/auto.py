@@ -35,7 +35,7 @@ from ..prediction.comparison import gain_phrase
 from ..search.discovery import Discovery, ElementDiscovery, WalkStep
 from .cross_check import NOT_CHECKED, HeldOut, held_out, predicts_no_better
 from .discovered import predicting_no_better, unneeded
-from .readings import other_readings
+from .readings import other_readings, unfinished
 from .records import DISCOVERY, STOPPED_BY_USER, AutoResult, AutoRules, AutoStep
 from .workbench import ElementReport, Workbench
 
@@ -237,9 +237,7 @@ def _beyond_the_kbar(wb: Workbench, ranked: list[Candidate], rules: AutoRules, f
     the FRFs judge it as every law the loop adds: the model refitted with it must keep ``min_gain``
     (:func:`_falls_short`) and predict the levels its fits did not see better where they judge it
     (:func:`analysis.loop.cross_check.predicts_no_better`)."""
-    floor = wb.error_floor
-    if not (rules.held_out and wb.harmonics_blind) or floor is None or \
-            not wb.history[-1].error > rules.readings_beyond_floor * floor.total:
+    if not (rules.held_out and unfinished(wb, rules.readings_beyond_floor)):
         return None
     unsupported = [c for c in ranked if not c.significant and not c.model_form and c.above_noise
                    and c.gain >= rules.ranking.certain_gain]

@@ -54,12 +54,10 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
     lines where a contact closes or a friction sticks, and only the FRFs see a law acting there. ``checked``: the
     current model's held-out error; ``check``: a model's (:data:`analysis.loop.cross_check.NOT_CHECKED` where the
     loop checks none). Yields each step with the held-out error of the model after it."""
-    if not wb.harmonics_blind:
-        return
     for element in found.elements:
-        error, floor = wb.history[-1].error, wb.error_floor
-        if floor is None or not error > beyond * floor.total:
+        if not unfinished(wb, beyond):
             return
+        error = wb.history[-1].error
         current = tuple(t.law.name for t in wb.model.element(element.element).laws)
         weighed = []
         for laws in element.readings:
@@ -77,6 +75,14 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
             after = wb.replace_laws(element.element, best.laws).error
             yield AutoStep("replace", element.element, best.laws, error, after,
                            _reading_reason(element.element, current, weighed)), best.held
+
+
+def unfinished(wb: Workbench, beyond: float) -> bool:
+    """Whether, on data without harmonics, the model's FRF error stands more than ``beyond`` times what the test
+    allows (:attr:`Workbench.error_floor`): farther than a right model can be, so the model lacks something the
+    kbar did not show. With harmonics the kbar follows every line and judges the element's laws itself."""
+    return bool(wb.harmonics_blind and wb.error_floor is not None
+                and wb.history[-1].error > beyond * wb.error_floor.total)
 
 
 def _simplest_predicting(weighed: list[_Reading], min_gain: float) -> _Reading | None:
