@@ -627,6 +627,38 @@ def test_the_lines_solved_all_at_once_are_each_line_solved_on_its_own(laws, seco
     np.testing.assert_allclose(mh.element_harmonics[ok], each[ok], rtol=0, atol=1e-7 * scale)
 
 
+@pytest.mark.parametrize("name, values", [("jenkins", {"kt": 500.0, "fs": 0.2}),
+                                          ("iwan", {"kt": 1e4, "fs": 0.5, "chi": -0.3, "beta": 0.5})])
+@pytest.mark.parametrize("relative", [False, True])
+def test_a_hysteretic_periodic_march_through_the_first_periods_turning_points_is_the_full_march_bit_for_bit(
+        name, values, relative):
+    """A rate-independent hysteretic law's first period is marched through its turning points alone
+    (:func:`analysis.laws.base._periodic_marcher`): its state after them is the one the march through every sample
+    leaves, so the kept period is the same to the bit -- on motions with a mean, up to nine harmonics (many
+    turns a period), a flat row, a plateau and a NaN."""
+    from analysis.laws import LAWS
+    rng = np.random.default_rng(7)
+    n = 128
+    theta = 2 * np.pi * np.arange(n) / n
+    rows = []
+    for _ in range(60):
+        order = int(rng.integers(1, 10))
+        size = rng.normal(size=order + 1) * np.logspace(-4, -2, order + 1)[rng.permutation(order + 1)]
+        phase = rng.uniform(0, 2 * np.pi, order + 1)
+        rows.append(size[0] + sum(size[k] * np.sin(k * theta + phase[k]) for k in range(1, order + 1)))
+    x = np.array(rows)
+    x[0] = 0.0
+    x[1, :9] = x[1, 9]
+    x[2, 40] = np.nan
+    v = np.gradient(x, axis=1)
+    law = LAWS[name].relative() if relative else LAWS[name]
+    p = law.parameter_vector(**values)
+    kept = law.march_periodic(x, v, p)
+    for b in range(len(x)):
+        twice = law.march(np.tile(x[b], 2), np.tile(v[b], 2), p)[n:]
+        assert np.array_equal(kept[b], twice, equal_nan=True), b
+
+
 def test_a_periodic_march_is_the_second_period_of_the_motion_marched_twice_from_rest():
     """Rows are independent periodic motions: each is marched from rest, its last period kept; a law without
     state needs one period."""

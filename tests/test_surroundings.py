@@ -138,6 +138,28 @@ def test_fit_finds_a_placed_contact_back_and_the_describing_function_alone_does_
     assert abs(alone.terms[0].params["k"] / CONTACT["k"] - 1) > 0.05
 
 
+def test_the_receptances_a_place_keeps_are_the_structures_in_any_order_and_any_batch():
+    """A place computes each frequency's receptance once and looks the kept ones up (:meth:`Surroundings.receptance`):
+    asked in any order, shape and mix of kept and new frequencies, with repeats, it gives the structure's own
+    response at every one, to the bit; a NaN frequency is NaN and is never kept."""
+    structure = load_structure({"type": "lumped", "dofs": ["a", "b"], "mass": [[1.0, 0.0], [0.0, 2.0]],
+                                "stiffness": [[3000.0, -1000.0], [-1000.0, 1000.0]],
+                                "damping": [[1.0, 0.0], [0.0, 0.5]]})
+    place = surroundings.surroundings_of(structure, np.array([1.0, -1.0]))
+    rng = np.random.default_rng(3)
+    lines = rng.uniform(10.0, 80.0, 30)
+    for _ in range(12):
+        W = rng.choice(lines, size=(5, 4)) * rng.choice([1.0, 2.0, 3.0], size=(5, 4))
+        direct = structure.response(W.ravel(), place.vector[:, None])[:, :, 0] @ place.vector
+        assert np.array_equal(place.receptance(W), direct.reshape(W.shape))
+    place.receptance(lines)
+    kept = place._cache["W"].size
+    with np.errstate(invalid="ignore"):
+        R = place.receptance(np.array([np.nan, lines[0]]))
+    assert np.isnan(R[0]) and R[1] == place.receptance(np.array([lines[0]]))[0]
+    assert place._cache["W"].size == kept
+
+
 def test_the_elements_linear_laws_stiffen_the_surroundings():
     """A spring on the element in parallel with the contact is a spring of the structure as the contact sees it:
     the element's kbar is the spring plus the contact placed in the structure stiffened by it."""

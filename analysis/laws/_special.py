@@ -29,13 +29,16 @@ _SERIES_COEFFS = tuple((-1.0) ** (k + 1) / math.factorial(2 * k + 1) for k in ra
 def y_minus_sin(y) -> np.ndarray:
     """``y - sin(y)`` to full relative precision (float array, any shape)."""
     y = np.asarray(y, float)
+    out = np.asarray(y - np.sin(y))
     small = np.abs(y) < 1.0
-    ys = np.where(small, y, 0.0)
-    y2 = ys * ys
-    series = np.zeros_like(ys)
-    for c in reversed(_SERIES_COEFFS):  # Horner in y^2
-        series = series * y2 + c
-    return np.where(small, series * ys * y2, y - np.sin(y))
+    if small.any():                     # the series only where it is used
+        ys = y[small]
+        y2 = ys * ys
+        series = np.zeros_like(ys)
+        for c in reversed(_SERIES_COEFFS):  # Horner in y^2
+            series = series * y2 + c
+        out[small] = series * ys * y2
+    return out
 
 
 def slip_real(s) -> np.ndarray:

@@ -62,6 +62,8 @@ _STARTS_KEPT = 8
 _TOLERANCE = 1e-10
 # The balance's sums may be reordered (vectorised): its answer is converged to _TOLERANCE, far above their rounding
 _REASSOCIATE = {"reassoc", "contract"}
+# The receptances a place has computed before any
+_NOTHING_KNOWN = np.empty(0)
 # The Newton kernel's ``fundamental`` argument where it is to leave the force's fundamental alone
 _NO_KBAR = np.empty((0, 2))
 
@@ -85,14 +87,24 @@ class Surroundings:
     in_reference: bool = False
 
     def receptance(self, W) -> np.ndarray:
-        """R(W) for angular frequencies W (any shape), complex."""
+        """R(W) for angular frequencies W (any shape), complex. Each frequency's R is computed once and kept, in
+        arrays sorted by frequency (looked up by bisection: a dictionary's lookups, one per sample and harmonic in
+        Python, cost more than the balances of a prediction's short sweeps)."""
         W = np.asarray(W, float)
-        flat = np.unique(W.ravel())
-        missing = [x for x in flat if x not in self._cache]
-        if missing:
-            H = self.structure.response(np.asarray(missing), self.vector[:, None])[:, :, 0] @ self.vector
-            self._cache.update(zip(missing, H))
-        R = np.array([self._cache[x] for x in W.ravel()], complex).reshape(W.shape)
+        flat = W.ravel()
+        known_W, known_R = self._cache.get("W", _NOTHING_KNOWN), self._cache.get("R", _NOTHING_KNOWN)
+        at = np.minimum(np.searchsorted(known_W, flat), max(known_W.size - 1, 0))
+        found = known_W[at] == flat if known_W.size else np.zeros(flat.shape, bool)
+        if not found.all():
+            missing = np.unique(flat[~found])
+            H = self.structure.response(missing, self.vector[:, None])[:, :, 0] @ self.vector
+            keep = np.isfinite(missing)      # a NaN is never found again: computed each time, never kept
+            order = np.argsort(np.concatenate([known_W, missing[keep]]), kind="stable")
+            known_W = self._cache["W"] = np.concatenate([known_W, missing[keep]])[order]
+            known_R = self._cache["R"] = np.concatenate([known_R, H[keep]])[order]
+            at = np.minimum(np.searchsorted(known_W, flat), max(known_W.size - 1, 0))
+            found = known_W[at] == flat
+        R = np.where(found, known_R[at] if known_R.size else 0.0, np.nan + 0j).astype(complex).reshape(W.shape)
         if self.parallel is None:
             return R
         return R / (1.0 + R * self.parallel(W))
