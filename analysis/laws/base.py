@@ -601,8 +601,9 @@ def _relative_constants(self, *contract):
 
 def _inlined(kernel):
     """The law's compiled ``kernel`` compiled again to be inlined where it is called: a kernel called from a wrapper
-    that a compiled march calls in turn stays a call (the march of a relative Jenkins element took 15 times the
-    law's own; an Iwan element's, 1.7 times)."""
+    that a compiled march calls in turn stays a call, which costs more than most laws' arithmetic (a relative
+    Jenkins element marched twenty times slower than its law: docs/performance.md, "A hysteretic law's periodic
+    march")."""
     return njit(inline="always")(kernel.py_func)
 
 
