@@ -165,8 +165,7 @@ def _harmonic_points(lines: SineRun, limit: float) -> SineRun:
     distorted (left out of the identification like any line beyond the distortion limit). A locked point sits at
     the largest amplitude of its force, often beyond every swept line: there one point has the leverage of many
     lines on an amplitude law, and the first-harmonic error of a describing function at a few per cent THD bends
-    the law (paper-2dof, locked at 1.2 N: 2.7 % THD at 0.3 m; identified from, it moved the right joint's k3 by
-    -2.4 % and tripled the FRF error of the 0.4 N level)."""
+    the law by percents and the FRF error of the levels swept by several times (docs/workbench.md)."""
     if lines.distortion is None:
         return lines
     d = np.asarray(lines.distortion, float)
@@ -390,7 +389,7 @@ class Workbench:
 
         A workbench started at a fit (``started_at_fit``: a held-out check refitting the model on part of its
         levels) makes no such restart: its laws start at the fixed point the whole test's FRFs preferred, and the
-        restart is for fits started elsewhere (on the beam it was most of a held-out check's cost)."""
+        restart is for fits started elsewhere (it would be most of a held-out check's cost)."""
         at = [i for i, el in enumerate(self.model.elements) if any(t.law.kind == "clearance" for t in el.laws)]
         if not at or self._started_at_fit:
             return

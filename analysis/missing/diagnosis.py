@@ -279,8 +279,8 @@ def tied_parameters(fit: LawFit, terms: set[int], max_correlation: float) -> set
     """The fit parameters of the law terms at indices ``terms`` that the fit cannot tell apart from a parameter
     of its other terms -- e.g. the stiffness of a linear spring beside an Iwan element that never leaves
     micro-slip, which trades off against the Iwan's: either the fit finds a direction exactly flat across both
-    (a degeneracy), or the two are correlated beyond ``max_correlation`` (on the demo beam linear.k against
-    iwan.kt: -0.9996)."""
+    (a degeneracy), or the two are correlated beyond ``max_correlation`` (such a pair correlates to within a
+    thousandth of -1)."""
     mine = tuple(fit.terms[j].label + "." for j in terms)
     tied = set()
     for d in fit.degeneracies:

@@ -189,11 +189,10 @@ def _beside_above_noise(search: _Search, current: LawSet, larger: LawSet, false_
     fit part of the lines that depart from every describing function, and gain in the FRFs by that, where friction
     sticks, with harmonics too (they represent no sticking either), while its capped chi-square falls by less
     than the noise explains. The element's first law is not asked: the linearity
-    verdict found its main effect, and the capped chi-square can hardly fall for a right one (the RK4 paper data:
-    a cubic alone), nor a step that adds several laws at once or replaces laws: that is another reading of the
-    element, held to the FRF margin of every law it adds (on the measured Brake-Reuss beam, cubic + cubic damping
-    + gap after cubic damping alone: x2.06 in the FRFs, 0.499 -> 0.242, and a capped chi-square that fell by less
-    than the noise explains for three parameters)."""
+    verdict found its main effect, and the capped chi-square can hardly fall for a right one, nor a step that adds
+    several laws at once or replaces laws: that is another reading of the element, held to the FRF margin of
+    every law it adds, whose capped chi-square can fall by less than the noise explains for its parameters while
+    the FRFs gain by far (docs/discovery.md, section 4)."""
     if not current.laws or not (set(current.laws) < set(larger.laws) and len(larger.laws) == len(current.laws) + 1):
         return True
     return _fits_better(search, larger, current, false_alarm)
@@ -253,9 +252,8 @@ def _other_kinds(judge: "_Judge", search: _Search, s: LawSet) -> list[LawSet]:
     other kinds that fits as well says nothing against ``s``; it is named beside it (:func:`_indistinguishable`):
     with parameters to spare, a gap spring and a Jenkins element can follow a cubic and Coulomb friction, and an
     arctan spring, whose kbar moves with amplitude, the linear spring beside an Iwan element. Nor does a set the
-    FRFs tell apart by more than a law's margin (on the 3-DOF chain, Coulomb friction with a velocity stiffness
-    fitted the kbar as well as with the cubic the rig has, where samples of high amplitude are samples near
-    resonance, and left x4.8 the FRF error)."""
+    FRFs tell apart by more than a law's margin: where the samples of high amplitude are those near resonance, a
+    law of frequency can fit the kbar as well as one of amplitude and leave the FRFs far worse."""
     rules = judge.rules.ranking
     limit = rules.min_gain * judge.single({search.index: s}).error
     own = simplicity(s.laws)

@@ -254,13 +254,10 @@ def _extension(search: _Search, current: LawSet, size: int) -> list[LawSet]:
     also tries adding to what it took, not only the shortlist's other sets. One law more beside laws taken: every
     such set fitted, for the FRFs to choose from -- once the element's main effect is taken, what its kbar ranks
     the sets by is what that law leaves, and where a friction contact sticks that is the lines departing from
-    every describing function (on the 3-DOF chain a saturating spring and a linear law fitting the sticking came
-    first, the cubic beside Coulomb friction far behind although the FRFs gain x5.8 with it); the kbar still
-    vetoes a step whose criterion does not fall or whose law it does not show. Two laws more beside laws taken:
-    every such set too (on the measured Brake-Reuss beam the best by the criterion beside cubic damping was an
-    arctan spring with a preloaded one-sided contact, x1.53 in the FRFs, and the cubic with a gap, x2.06, was
-    not tried). From no law: the best by the criterion (the first law's ranking is that of the whole kbar, the
-    main effect's)."""
+    every describing function, which laws fitting the sticking follow better than the law the joint has beside
+    the one taken; the kbar still vetoes a step whose criterion does not fall or whose law it does not show. Two
+    laws more beside laws taken: every such set too, for the same reason (docs/discovery.md, section 4). From no
+    law: the best by the criterion (the first law's ranking is that of the whole kbar, the main effect's)."""
     keep = set(current.laws)
     extending = [s for s in search.sets if len(s.laws) == size and keep <= set(s.laws)]
     if not current.laws:
