@@ -254,6 +254,31 @@ def test_citations_are_found():
     assert CITATION.findall(URL.sub("", text)) == [f"SPEC{md}", f"docs/x{md}"]
 
 
+#: How a case that prompted a rule is named: a random case by its seed or index, a measured specimen or a test rig
+#: by what it is called (docs/discovery.md and docs/import.md keep them)
+CASE_NAME = re.compile(r"seed \d{3,}|random (case )?\d+|brake-reuss|3-dof chain|on the (demo )?beam\b", re.I)
+
+
+def _cases_named(text: str) -> list[int]:
+    """Line numbers of ``text`` that name a case."""
+    return [i for i, line in enumerate(text.splitlines(), 1) if CASE_NAME.search(line)]
+
+
+def test_the_method_names_no_case_that_prompted_a_rule():
+    """analysis/ states each rule and its reason, never the case that prompted it (docs/architecture.md, "The
+    packages"): a rule written for a case fits that case, and its reason must hold without it. The cases and the
+    measurements behind a rule live in docs/."""
+    named = [f"{f.relative_to(ROOT)}:{i}" for f in sorted((ROOT / "analysis").rglob("*.py"))
+             for i in _cases_named(f.read_text(encoding="utf-8"))]
+    assert named == [], f"these lines name a case: {', '.join(named)}"
+
+
+def test_the_case_name_check_bites():
+    text = ("(331236 random 14: a cubic)\nfrom seed 300885\non the measured Brake-Reuss beam\n"
+            "on the 3-DOF chain\non the demo beam linear.k\nthe stiffness of a beam, random draws")
+    assert _cases_named(text) == [1, 2, 3, 4, 5]
+
+
 def test_todays_performance_table_names_real_benchmarks():
     text = (ROOT / "docs/performance.md").read_text(encoding="utf-8")
     table = text.split("## Today's figures", 1)[1].split("\n## ", 1)[0]
