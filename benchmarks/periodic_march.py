@@ -18,7 +18,6 @@ displacement.
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -29,19 +28,11 @@ sys.path.insert(0, str(ROOT))
 
 from analysis.laws import LAWS  # noqa: E402
 from analysis.laws.base import _periodic_marcher  # noqa: E402
+from multiharmonic_batch import cpu  # noqa: E402  (median CPU of five calls)
 
 CASES = [("jenkins", {"kt": 500.0, "fs": 0.2}), ("iwan", {"kt": 800.0, "fs": 0.3, "chi": -0.5, "beta": 0.1}),
          ("iwan", {"kt": 4.3e4, "fs": 2.0, "chi": 0.37, "beta": 0.0})]
-ROWS, SAMPLES, REPEATS = 400, 512, 5
-
-
-def cpu(fn) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(REPEATS):
-        start = time.process_time()
-        out = fn()
-        times.append(time.process_time() - start)
-    return float(np.median(times)), out
+ROWS, SAMPLES = 400, 512
 
 
 def wrapped_as_it_was(kernel, at: int):
