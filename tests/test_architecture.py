@@ -314,6 +314,7 @@ def _slice_copies(function: ast.FunctionDef) -> list[int]:
     return lines
 
 
+@pytest.mark.slow          # it reads every compiled function's source: over a second on the two-core machine
 def test_no_compiled_loop_copies_a_slice_from_an_array():
     """A slice assigned from an array makes numba compile the text of its shape-mismatch error (string
     formatting, about 3 s of CPU): once per clone in a disk-cached loop, in every process in one compiled per
