@@ -153,11 +153,11 @@ def test_the_receptances_a_place_keeps_are_the_structures_in_any_order_and_any_b
         direct = structure.response(W.ravel(), place.vector[:, None])[:, :, 0] @ place.vector
         assert np.array_equal(place.receptance(W), direct.reshape(W.shape))
     place.receptance(lines)
-    kept = place._cache["W"].size
+    kept = place._receptances.W.size
     with np.errstate(invalid="ignore"):
         R = place.receptance(np.array([np.nan, lines[0]]))
     assert np.isnan(R[0]) and R[1] == place.receptance(np.array([lines[0]]))[0]
-    assert place._cache["W"].size == kept
+    assert place._receptances.W.size == kept
 
 
 def test_the_elements_linear_laws_stiffen_the_surroundings():

@@ -62,8 +62,6 @@ _STARTS_KEPT = 8
 _TOLERANCE = 1e-10
 # The balance's sums may be reordered (vectorised): its answer is converged to _TOLERANCE, far above their rounding
 _REASSOCIATE = {"reassoc", "contract"}
-# A place's receptances before it has computed any (:meth:`Surroundings.receptance`)
-_NONE_YET = np.empty(0)
 # The Newton kernel's ``fundamental`` argument where it is to leave the force's fundamental alone
 _NO_KBAR = np.empty((0, 2))
 
@@ -77,7 +75,7 @@ class Surroundings:
     structure: Structure
     vector: np.ndarray
     parallel: Callable[[np.ndarray], np.ndarray] | None = None
-    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+    _receptances: "_Receptances" = field(default_factory=lambda: _Receptances(), repr=False, compare=False)
     _at_harmonics: tuple | None = field(default=None, repr=False, compare=False)
     # the balances last solved at a few sets of samples (placed_kbar), shared with the copies of with_parallel: a
     # fit asks the same samples again and again, at parameters a step apart
@@ -88,22 +86,16 @@ class Surroundings:
 
     def receptance(self, W) -> np.ndarray:
         """R(W) for angular frequencies W (any shape), complex; NaN at a frequency that is not finite. Each
-        frequency's R is computed once and kept, in arrays sorted by frequency and looked up by bisection (a
-        dictionary looked up once per sample and harmonic in Python cost about 1 % of a loop on measured data)."""
+        frequency's R is computed once and kept (:class:`_Receptances`)."""
         W = np.asarray(W, float)
-        flat = W.ravel()
-        known_W, known_R = self._cache.get("W", _NONE_YET), self._cache.get("R", _NONE_YET)
-        missing = np.unique(flat[~_lookup(known_W, flat)[1] & np.isfinite(flat)])
-        if missing.size:
-            H = self.structure.response(missing, self.vector[:, None])[:, :, 0] @ self.vector
-            order = np.argsort(np.concatenate([known_W, missing]), kind="stable")
-            known_W = self._cache["W"] = np.concatenate([known_W, missing])[order]
-            known_R = self._cache["R"] = np.concatenate([known_R, H])[order]
-        at, found = _lookup(known_W, flat)
-        R = np.where(found, known_R[at] if known_R.size else 0.0, complex(np.nan)).reshape(W.shape)
+        R = self._receptances.at(W.ravel(), self._response).reshape(W.shape)
         if self.parallel is None:
             return R
         return R / (1.0 + R * self.parallel(W))
+
+    def _response(self, W: np.ndarray) -> np.ndarray:
+        """R(W) of the structure alone, computed (W 1-D)."""
+        return self.structure.response(W, self.vector[:, None])[:, :, 0] @ self.vector
 
     def at_harmonics(self, w: np.ndarray, cycle: "_Cycle") -> np.ndarray:
         """R at the harmonics balanced (:attr:`_Cycle.harmonics`) of the lines ``w``, shape (S, H) complex, the static
@@ -118,17 +110,39 @@ class Surroundings:
     def with_parallel(self, stiffness: Callable[[np.ndarray], np.ndarray] | None) -> "Surroundings":
         """The same place with the element's amplitude-independent laws ``stiffness(W)`` in parallel (sharing
         the structure's receptances)."""
-        return Surroundings(self.structure, self.vector, stiffness, self._cache, starts=self.starts,
+        return Surroundings(self.structure, self.vector, stiffness, self._receptances, starts=self.starts,
                             in_reference=self.in_reference)
 
 
-def _lookup(known: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Where each frequency of ``W`` stands among the sorted ``known`` ones (their index, clipped to the last), and
-    whether it is one of them."""
-    if not known.size:
-        return np.zeros(W.shape, int), np.zeros(W.shape, bool)
-    at = np.minimum(np.searchsorted(known, W), known.size - 1)
-    return at, known[at] == W
+class _Receptances:
+    """The receptances a place has computed, ``R`` at the frequencies ``W`` sorted, shared by its copies
+    (:meth:`Surroundings.with_parallel`) and looked up by bisection: a dictionary looked up once per sample and
+    harmonic in Python cost about 1 % of a loop on measured data."""
+
+    __slots__ = ("W", "R")
+
+    def __init__(self):
+        self.W, self.R = np.empty(0), np.empty(0, complex)
+
+    def at(self, W: np.ndarray, compute: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """R at the frequencies ``W`` (1-D), those not kept yet computed by ``compute`` and kept; NaN at a frequency
+        that is not finite (never computed nor kept)."""
+        where, found = self._lookup(W)
+        missing = np.unique(W[~found & np.isfinite(W)])
+        if missing.size:
+            order = np.argsort(np.concatenate([self.W, missing]), kind="stable")
+            self.W = np.concatenate([self.W, missing])[order]
+            self.R = np.concatenate([self.R, compute(missing)])[order]
+            where, found = self._lookup(W)
+        return np.where(found, self.R[where] if self.R.size else 0.0, complex(np.nan))
+
+    def _lookup(self, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where each frequency of ``W`` stands among the kept ones (its index, clipped to the last), and whether it
+        is one of them."""
+        if not self.W.size:
+            return np.zeros(W.shape, int), np.zeros(W.shape, bool)
+        where = np.minimum(np.searchsorted(self.W, W), self.W.size - 1)
+        return where, self.W[where] == W
 
 
 class _Starts:
