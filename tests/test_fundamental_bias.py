@@ -96,3 +96,21 @@ def test_friction_laws_refitted_without_their_harmonics_keep_the_rig_s_values(fr
     assert corrected.compare().error <= 1.05 * plain.compare().error
     assert [t.values for t in refused.model.element("a").laws] == [t.values for t in plain.model.element("a").laws]
     assert refused._kbar_bias == {} and _capped(refused) == _capped(plain)
+
+
+@pytest.mark.slow
+def test_a_joint_without_laws_leaves_the_others_corrected(friction_runs, monkeypatch):
+    # a joint the model gives no law exerts no force in it: the model's harmonics, and so the bias, are as known
+    # with it as without it, and the friction joint's laws are corrected: they keep the rig's values and fit their
+    # samples better than uncorrected
+    text = LUMPED + element("a", "x1", '"linear", "coulomb"') + element("b", "x2", "")
+    beside = Workbench(load_model(tomllib.loads(text)), friction_runs)
+    beside.start()
+    assert any(np.any(bias) for bias in beside._kbar_bias.values())
+    values = {t.law.name: t.values for t in beside.model.element("a").laws}
+    assert values["linear"]["k"] == pytest.approx(KJ, rel=0.01)
+    assert values["coulomb"]["fs"] == pytest.approx(FS, rel=0.02)
+    monkeypatch.setattr(Workbench, "_correct_fundamental_bias", lambda self: None)
+    plain = Workbench(load_model(tomllib.loads(text)), friction_runs)
+    plain.start()
+    assert _capped(beside) < _capped(plain)

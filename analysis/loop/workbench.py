@@ -334,15 +334,14 @@ class Workbench:
         """On data without harmonics, the kbar the closed form identifies at a line is the fundamental's force over
         the fundamental's motion; where the joint's motion is not sinusoidal (friction that sticks for part of the
         cycle) that departs from every describing function, and laws fitted to it are biased and leave a misfit
-        that another law can fill. Where every element has fitted laws, the fitted model's own
+        that another law can fill. Where the model's forces are known (:meth:`_forces_known`), the fitted model's own
         departure at each line (:meth:`analysis.prediction.comparison.Predictor.fundamental_bias`) is subtracted from the
         samples and every element refitted; the bias is that of the model last fitted, so successive fits
         converge. The corrected fit is refused where it
         predicts the FRFs, with harmonics, worse than the fit it corrects by a law's margin
         (:meth:`_corrected_is_kept`)."""
         criterion = self._harmonics()
-        complete = all(el.laws and all(t.complete for t in el.laws) for el in self.model.elements)
-        if not (self.harmonics_blind and criterion is not None and complete):
+        if not (self.harmonics_blind and criterion is not None and self._forces_known()):
             if _nonzero(self._kbar_bias):
                 self._kbar_bias = {}
                 self.identify()
@@ -359,6 +358,15 @@ class Workbench:
             else:
                 self._restore(before)
         self._corrected_from_refined(criterion, error)
+
+    def _forces_known(self) -> bool:
+        """Whether the model gives every element a time-domain force and some law is fitted: every law with its
+        values, and no non-parametric part. An element without laws exerts none in the model, and the model's
+        harmonics -- what the bias is -- are as known with it as without it: waiting for a law there would leave
+        every other element's laws fitted to biased samples for as long as one joint is found to have none."""
+        els = self.model.elements
+        return (any(el.laws for el in els)
+                and all(el.time_domain and all(t.complete for t in el.laws) for el in els))
 
     def _fitted_state(self) -> _FittedState:
         return _FittedState(self._kbar_bias, self.reports, {n: r.fit for n, r in self.reports.items()},
