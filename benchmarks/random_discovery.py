@@ -26,6 +26,13 @@ random case is scored"): a joint whose laws were found as another set counts as 
 rig's set of kinds to the user as *indistinguishable on these data*, with the test that would separate them, and
 the loop added nothing there afterwards. Such cases are counted apart from the cases right outright. One line
 per case as it finishes, then for each seed the shares right, the confusion of law kinds and every miss.
+
+Each miss is measured against the rig's own laws on the same data (:class:`RigSet`): the rig's set of laws fitted as
+the product fits a set it has chosen (the structure with those laws, names only: reference, identification, fit),
+and the same laws at their true values. Where the rig's set, fitted, predicts the FRFs better than the choice by
+the margin a law must bring (``RankingRules.min_gain``), the data decide the case and the search missed what they
+show; where it does not, a search that found the rig's set could not have told it from the choice by the FRFs of
+the lines fitted. The true values against the fitted ones say what the fit leaves of what the laws can do.
 Several seeds run their cases interleaved (``--jobs`` at a time); ``--budget`` starts no case after that many
 seconds of wall time, and the report says how many of the cases drawn were measured.
 """
@@ -49,6 +56,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import matrix_cases as mc  # noqa: E402
 from analysis.loop.auto import BEYOND_THE_KBAR, AutoResult, run_auto  # noqa: E402
+from analysis.loop.workbench import Workbench  # noqa: E402
+from analysis.missing.diagnosis import RankingRules  # noqa: E402
 from analysis.prediction.harmonic_balance import predict_sweeps  # noqa: E402
 from analysis.mechanics.model import load_model  # noqa: E402
 
@@ -247,6 +256,8 @@ class Scored:
     # readings judged by prediction, a ``replace`` step; a law the kbar does not call for, an ``add`` step)
     before_weighed: mc.Outcome | None = None
     weighed: str = ""
+    # a miss measured against the rig's own laws on the same data; None for a case right outright
+    rig_set: "RigSet | None" = None
 
     @property
     def right(self) -> bool:
@@ -257,6 +268,39 @@ class Scored:
         """Wrong as scored, but every wrong joint's true set of kinds was named indistinguishable on these data."""
         o = self.outcome
         return o.measured and not o.right and set(_wrong_joints(o)) <= set(self.named)
+
+
+@dataclass(frozen=True)
+class RigSet:
+    """The FRF error (with harmonics, as the loop's) of the rig's own laws on a case's data: ``fitted`` as the product
+    fits a chosen set, ``true_values`` at the rig's values; ``choice`` the error of the model the loop ended on."""
+
+    fitted: float
+    true_values: float
+    choice: float
+
+    @property
+    def decided(self) -> bool:
+        """The rig's set, fitted, predicts the FRFs better than the choice by the margin a law must bring: these
+        data tell the two apart, and the search did not find the one they show."""
+        return bool(self.fitted * RankingRules().min_gain <= self.choice)
+
+    def text(self) -> str:
+        how = "better" if self.fitted <= self.choice else "worse"
+        ratio = max(self.fitted, self.choice) / max(min(self.fitted, self.choice), 1e-300)
+        return (f"the rig's own laws fitted {self.fitted:.3g} (x{ratio:.2f} {how} than the choice's "
+                f"{self.choice:.3g}: {'decided by the FRFs' if self.decided else 'not decided by the FRFs'}), "
+                f"at their true values {self.true_values:.3g}")
+
+
+def rig_set(c: mc.Case, wb: Workbench) -> RigSet:
+    """The rig's own laws on ``wb``'s data (:class:`RigSet`)."""
+    fitted = Workbench(load_model(tomllib.loads(c.rig_laws_toml(values=False)),
+                                  f"{c.name} rig's laws"), wb.measurements)
+    fitted.prepare()
+    true = Workbench(load_model(tomllib.loads(c.rig_laws_toml(values=True)), f"{c.name} rig"),
+                     wb.measurements)
+    return RigSet(fitted.compare().error, true.compare().error, wb.compare().error)
 
 
 def _wrong_joints(o: mc.Outcome) -> list[str]:
@@ -293,10 +337,11 @@ def run(c: mc.Case, folder: Path) -> Scored:
     weighed = next(((k + 1, "the readings" if s.action == "replace" else "the law beyond the kbar")
                     for k, s in enumerate(result.steps) if s.action == "replace" or
                     (s.action == "add" and s.reason.startswith(BEYOND_THE_KBAR))), None)
+    measured = None if outcome.right else rig_set(c, wb)
     if weighed is None:
-        return Scored(outcome, named_equivalences(c, outcome, result))
+        return Scored(outcome, named_equivalences(c, outcome, result), rig_set=measured)
     before = mc.score(c, wb, result.stopped, at=weighed[0] - 1)
-    return Scored(outcome, named_equivalences(c, outcome, result), before, weighed[1])
+    return Scored(outcome, named_equivalences(c, outcome, result), before, weighed[1], measured)
 
 
 def _weighed_word(s: Scored) -> str:
@@ -337,6 +382,13 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
              "| true \\ found | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
     lines += [f"| {r} | " + " | ".join(str(table.get((r, c), "")) for c in cols) + " |" for r in rows]
     misses = [s for s in scored if not s.right]
+    against = [s.rig_set for s in misses if s.outcome.measured and s.rig_set is not None]
+    if against:
+        lines += ["", f"Of the {len(against)} measured case(s) not right outright, the rig's own laws fitted predict "
+                      f"the FRFs better than the choice by the x{RankingRules().min_gain:g} a law must bring in "
+                      f"{sum(r.decided for r in against)} (the data decide them; the search missed what they show), "
+                      f"and in {sum(not r.decided for r in against)} not (the FRFs of the lines fitted do not tell "
+                      f"the rig's set from the choice)."]
     lines += ["", "Every case not right outright:" if misses else
               "Every case measured right outright." if measured else "No case measured.", ""]
     for s in misses:
@@ -345,8 +397,9 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
                         + [f"false alarm {a}" for a in o.false_alarms]) if o.measured else f"not measured: {o.stopped}"
         verdict = ("right by a named equivalence: " + "; ".join(s.named.values()) if s.right_by_naming else
                    "miss" + (" (named: " + "; ".join(s.named.values()) + ")" if s.named else ""))
+        rig = f"; {s.rig_set.text()}" if s.rig_set is not None else ""
         lines.append(f"- {o.case} ({o.structure}; rig {laws[o.case]}; noise {100 * o.noise:.2g} %; error "
-                     f"{mc._fmt_fall(o)}): {why} -- {verdict}{_weighed_word(s)}")
+                     f"{mc._fmt_fall(o)}): {why} -- {verdict}{_weighed_word(s)}{rig}")
     return "\n".join(lines)
 
 
@@ -414,9 +467,10 @@ def main() -> int:
                 done[seed, i] = scored
                 c = draws[seed][i]
                 named = "; named: " + "; ".join(scored.named.values()) if scored.named else ""
+                rig = f"; {scored.rig_set.text()}" if scored.rig_set is not None else ""
                 print(f"seed {seed} " + mc.progress_line(i + 1, len(draws[seed]), scored.outcome, seconds)
                       + f"; rig {', '.join(f'{law.element}:{law.law}' for law in c.laws)}{named}"
-                      + _weighed_word(scored), flush=True)
+                      + _weighed_word(scored) + rig, flush=True)
     sections = []
     for seed, cases in draws.items():
         run_cases = [c for i, c in enumerate(cases) if (seed, i) in done]

@@ -124,6 +124,11 @@ class Case:
         known = tuple(law for law in self.laws if law not in self.hidden)
         return self.bench.structure + self._elements(known, names_only=True)
 
+    def rig_laws_toml(self, values: bool) -> str:
+        """The structure with every law of the rig at its joints: names only (a model whose laws are to be fitted),
+        or at the rig's values."""
+        return self.bench.structure + self._elements(self.laws, names_only=not values)
+
     def _elements(self, laws: tuple[Law, ...], names_only: bool = False) -> str:
         out = ""
         for site in self.bench.sites:

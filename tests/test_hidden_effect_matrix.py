@@ -330,3 +330,21 @@ def test_a_law_beside_a_gap_that_the_refitted_model_does_not_need_is_taken_back(
     assert steps[0].error_after < 1.3 * with_both and wb.history[-1].action == "take back a:velocity_stiffness"
     gap = wb.model.element("a").laws[0].values
     assert gap["k"] == pytest.approx(dict(case.laws[0].values)["k"], rel=0.02)
+
+
+@pytest.mark.slow
+def test_a_random_miss_is_measured_against_the_rig_s_own_laws(tmp_path):
+    """A miss is measured against the rig's own laws on its data (benchmarks/random_discovery.py ``RigSet``): fitted,
+    they predict the FRFs near their true values' error, and better than a model without them by the margin a law
+    must bring, which says the data decide the case."""
+    rd = _random_discovery()
+    c = mc.case("rk4 2dof cubic + damping elsewhere").from_empty()
+    assert "cubic" in c.rig_laws_toml(values=False) and "k3 =" not in c.rig_laws_toml(values=False)
+    assert "k3 = " in c.rig_laws_toml(values=True)
+    session = mc.imported_session(c, tmp_path, settle_seconds=10.0)
+    bare = mc.started_workbench(c, tmp_path, session)        # the structure with no law: a choice that misses both
+    measured = rd.rig_set(c, bare)
+    assert measured.choice == pytest.approx(bare.compare().error)
+    assert measured.fitted < 1.5 * measured.true_values and measured.true_values < measured.choice / 5
+    assert measured.decided and "decided by the FRFs" in measured.text()
+    assert not rd.RigSet(0.010, 0.009, 0.012).decided and "not decided" in rd.RigSet(0.010, 0.009, 0.012).text()
