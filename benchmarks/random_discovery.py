@@ -285,6 +285,12 @@ class RigSet:
         data tell the two apart, and the search did not find the one they show."""
         return bool(self.fitted * RankingRules().min_gain <= self.choice)
 
+    @property
+    def decided_at_true_values(self) -> bool:
+        """The rig's laws at their true values predict the FRFs better than the choice by that margin: the laws can
+        tell the two apart on these data, whether or not their fit does."""
+        return bool(self.true_values * RankingRules().min_gain <= self.choice)
+
     def text(self) -> str:
         how = "better" if self.fitted <= self.choice else "worse"
         ratio = max(self.fitted, self.choice) / max(min(self.fitted, self.choice), 1e-300)
@@ -388,7 +394,10 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
                       f"the FRFs better than the choice by the x{RankingRules().min_gain:g} a law must bring in "
                       f"{sum(r.decided for r in against)} (the data decide them; the search missed what they show), "
                       f"and in {sum(not r.decided for r in against)} not (the FRFs of the lines fitted do not tell "
-                      f"the rig's set from the choice)."]
+                      f"the rig's set from the choice); of these, the rig's laws at their true values predict better "
+                      f"by that margin in {sum(r.decided_at_true_values and not r.decided for r in against)} (the "
+                      f"fit leaves what the laws can do) and in "
+                      f"{sum(not r.decided_at_true_values and not r.decided for r in against)} not."]
     lines += ["", "Every case not right outright:" if misses else
               "Every case measured right outright." if measured else "No case measured.", ""]
     for s in misses:

@@ -348,3 +348,5 @@ def test_a_random_miss_is_measured_against_the_rig_s_own_laws(tmp_path):
     assert measured.fitted < 1.5 * measured.true_values and measured.true_values < measured.choice / 5
     assert measured.decided and "decided by the FRFs" in measured.text()
     assert not rd.RigSet(0.010, 0.009, 0.012).decided and "not decided" in rd.RigSet(0.010, 0.009, 0.012).text()
+    assert not rd.RigSet(0.010, 0.0095, 0.012).decided_at_true_values
+    assert rd.RigSet(0.012, 0.004, 0.012).decided_at_true_values and not rd.RigSet(0.012, 0.004, 0.012).decided
