@@ -283,13 +283,16 @@ class RigSet:
     def decided(self) -> bool:
         """The rig's set, fitted, predicts the FRFs better than the choice by the margin a law must bring: these
         data tell the two apart, and the search did not find the one they show."""
-        return bool(self.fitted * RankingRules().min_gain <= self.choice)
+        return self._beats_the_choice(self.fitted)
 
     @property
     def decided_at_true_values(self) -> bool:
         """The rig's laws at their true values predict the FRFs better than the choice by that margin: the laws can
         tell the two apart on these data, whether or not their fit does."""
-        return bool(self.true_values * RankingRules().min_gain <= self.choice)
+        return self._beats_the_choice(self.true_values)
+
+    def _beats_the_choice(self, error: float) -> bool:
+        return bool(error * RankingRules().min_gain <= self.choice)
 
     def text(self) -> str:
         how = "better" if self.fitted <= self.choice else "worse"
@@ -350,6 +353,11 @@ def run(c: mc.Case, folder: Path) -> Scored:
     return Scored(outcome, named_equivalences(c, outcome, result), before, weighed[1], measured)
 
 
+def _rig_word(s: Scored) -> str:
+    """The miss measured against the rig's own laws ("" for a case right outright)."""
+    return f"; {s.rig_set.text()}" if s.rig_set is not None else ""
+
+
 def _weighed_word(s: Scored) -> str:
     """What the case was before the loop's first step where it would have stopped ("" where it took none)."""
     if s.before_weighed is None:
@@ -406,9 +414,8 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
                         + [f"false alarm {a}" for a in o.false_alarms]) if o.measured else f"not measured: {o.stopped}"
         verdict = ("right by a named equivalence: " + "; ".join(s.named.values()) if s.right_by_naming else
                    "miss" + (" (named: " + "; ".join(s.named.values()) + ")" if s.named else ""))
-        rig = f"; {s.rig_set.text()}" if s.rig_set is not None else ""
         lines.append(f"- {o.case} ({o.structure}; rig {laws[o.case]}; noise {100 * o.noise:.2g} %; error "
-                     f"{mc._fmt_fall(o)}): {why} -- {verdict}{_weighed_word(s)}{rig}")
+                     f"{mc._fmt_fall(o)}): {why} -- {verdict}{_weighed_word(s)}{_rig_word(s)}")
     return "\n".join(lines)
 
 
@@ -476,10 +483,9 @@ def main() -> int:
                 done[seed, i] = scored
                 c = draws[seed][i]
                 named = "; named: " + "; ".join(scored.named.values()) if scored.named else ""
-                rig = f"; {scored.rig_set.text()}" if scored.rig_set is not None else ""
                 print(f"seed {seed} " + mc.progress_line(i + 1, len(draws[seed]), scored.outcome, seconds)
                       + f"; rig {', '.join(f'{law.element}:{law.law}' for law in c.laws)}{named}"
-                      + _weighed_word(scored) + rig, flush=True)
+                      + _weighed_word(scored) + _rig_word(scored), flush=True)
     sections = []
     for seed, cases in draws.items():
         run_cases = [c for i, c in enumerate(cases) if (seed, i) in done]
