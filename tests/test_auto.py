@@ -718,7 +718,7 @@ def test_a_reading_that_takes_an_element_s_place_meets_the_checks_of_discovery_s
 
 def test_of_the_readings_that_predict_better_the_simplest_is_taken_unless_a_larger_predicts_better_by_the_margin():
     def reading(laws, held, why="", error=0.01):
-        return readings._Reading(tuple(laws), error, HeldOut(held, (held,), 2), why, True)
+        return readings._Reading("a", tuple(laws), len(laws), error, HeldOut(held, (held,), 2), why, True)
     alike = [reading(["a", "b", "c"], 0.100), reading(["a", "b"], 0.104), reading(["a"], 0.2, why="no better")]
     assert readings._simplest_predicting(alike, 1.3).laws == ("a", "b")
     better = [reading(["a", "b", "c"], 0.07), reading(["a", "b"], 0.104)]
@@ -729,11 +729,24 @@ def test_of_the_readings_that_predict_better_the_simplest_is_taken_unless_a_larg
     assert readings._simplest_predicting(unchecked, 1.3).laws == ("a", "c")
 
 
+def test_of_every_element_s_readings_the_one_that_adds_fewest_laws_comes_first_whatever_the_elements_order():
+    # one element's set is wrong: its own reading (as many laws, predicting the held-out levels better, judged by
+    # them) comes before a law added at the other element that cuts the in-sample error a little more, unjudged
+    other = readings._Reading("b", ("tanh_softening", "iwan"), 1, 0.030, HeldOut(0.3, (0.03, 0.6), 1), "", False)
+    own = readings._Reading("a", ("linear", "cubic_damping"), 0, 0.036, HeldOut(0.09, (0.02, 0.15), 1, True), "",
+                            True)
+    assert readings._simplest_predicting([other, own], 1.3) is own
+    assert readings._simplest_predicting([own, other], 1.3) is own
+    # the law added wins where it cuts the error by the margin
+    better = readings._Reading("b", ("tanh_softening", "iwan"), 1, 0.02, HeldOut(0.3, (0.03, 0.6), 1), "", False)
+    assert readings._simplest_predicting([own, better], 1.3) is better
+
+
 def test_readings_the_held_out_levels_do_not_judge_are_ranked_by_their_in_sample_error():
     # each fold's fit saw one level that does not show every law: its held-out error measures what that fit could
     # not determine (1.0 and 1.2 for two dampings beside the friction), and would choose between them by chance
     def reading(laws, held, error, judged):
-        return readings._Reading(tuple(laws), error, HeldOut(held, (held,), 1), "", judged)
+        return readings._Reading("a", tuple(laws), len(laws), error, HeldOut(held, (held,), 1), "", judged)
     unjudged = [reading(["quadratic_damping", "coulomb"], 1.0, 0.078, False),
                 reading(["cubic_damping", "coulomb"], 1.2, 0.032, False)]
     assert readings._simplest_predicting(unjudged, 1.3).laws == ("cubic_damping", "coulomb")

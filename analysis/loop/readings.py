@@ -1,7 +1,7 @@
 """Discovery's other readings of an element's kbar, weighed by the whole model's prediction (docs/workbench.md §5,
-step 4): where the loop would stop far above what the test allows, each set discovery chose among takes the
+step 4): where the loop would stop far above what the test allows, each set discovery chose among takes its
 element's place in turn, the model is refitted and judged by its FRFs and by the levels its fits did not see, and
-the simplest reading that predicts better replaces the element's laws.
+of every element's readings the simplest that predicts better replaces its element's laws.
 """
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ..search.discovery import Discovery
+from ..search.discovery import Discovery, ElementDiscovery
 from .cross_check import HeldOut, held_out, predicts_no_better
 from .records import AutoStep
 from .workbench import Workbench
@@ -18,9 +18,12 @@ from .workbench import Workbench
 
 @dataclass(frozen=True)
 class _Reading:
-    """A reading weighed by :func:`other_readings`: its laws, the model's in-sample FRF error with it, its
-    held-out error, and why it does not predict better ("" where it does)."""
+    """A reading weighed by :func:`other_readings`: its element and laws, how many laws more than the element holds
+    it has, the model's in-sample FRF error with it, its held-out error, and why it does not predict better (""
+    where it does)."""
+    element: str
     laws: tuple[str, ...]
+    added: int
     error: float
     held: HeldOut
     why: str
@@ -30,17 +33,23 @@ class _Reading:
 def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: float, checked: Callable[[], HeldOut],
                     check: Callable[[Workbench], HeldOut] = held_out) -> Iterator[tuple[AutoStep, HeldOut]]:
     """On data without harmonics, where the model stays farther above what the test allows
-    (:attr:`Workbench.error_floor`) than a right model can be (``beyond`` times it), each searched element's other
-    readings of its kbar (:attr:`ElementDiscovery.readings`, the sets its walk chose among) weighed by what decides
-    in the end: the whole model refitted with each, its FRFs, and the levels its fits did not see. The walk tries
-    one set of each size, from the set it took before, with the other elements standing in by their measured
-    kbar; a reading it passed on the way can describe the joint where the one it took does not, and only the
-    model's prediction shows it. A reading qualifies where it cuts the error by ``min_gain`` for every law it adds
-    (once for as many laws or fewer) and its model predicts the held-out levels better than the current one
-    (:func:`predicts_no_better`, which judges nothing where a fold's fit saw too little to determine a law, as
-    for the loop's laws); of those the simplest that no larger one out-predicts by the margin takes the element's
-    place (:func:`_simplest_predicting`). A reading is a whole set judged anew: it may hold a law taken back from
-    another set.
+    (:attr:`Workbench.error_floor`) than a right model can be (``beyond`` times it, :func:`unfinished`), the
+    searched elements' other readings of their kbar (:attr:`ElementDiscovery.readings`, the sets each walk chose
+    among) weighed by what decides in the end: the whole model refitted with each, its FRFs, and the levels its
+    fits did not see. The walk tries one set of each size, from the set it took before, with the other elements
+    standing in by their measured kbar; a reading it passed on the way can describe the joint where the one it
+    took does not, and only the model's prediction shows it. A reading qualifies where it cuts the error by
+    ``min_gain`` for every law it adds (once for as many laws or fewer) and its model predicts the held-out levels
+    better than the current one (:func:`predicts_no_better`, which judges nothing where a fold's fit saw too
+    little to determine a law, as for the loop's laws); of those the simplest that no larger one out-predicts by
+    the margin takes its element's place (:func:`_simplest_predicting`). A reading is a whole set judged anew: it
+    may hold a law taken back from another set.
+
+    Every element's readings are weighed against the same model and compared with one another, and one reading is
+    taken at a time: where two elements' sets are wrong, a law at one of them can cut part of the misfit the other
+    leaves, and weighed element by element the first element searched would take it before the other's own
+    reading was asked. After a reading is taken, the elements not yet replaced are weighed again against the
+    model with it, for as long as it stays unfinished.
 
     Nearer the floor the model may be right, and a reading would gain by taking up what one harmonic cannot
     represent, which two levels held out one by the other cannot refuse (each fold's fit sees one level, and a
@@ -54,27 +63,41 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
     lines where a contact closes or a friction sticks, and only the FRFs see a law acting there. ``checked``: the
     current model's held-out error; ``check``: a model's (:data:`analysis.loop.cross_check.NOT_CHECKED` where the
     loop checks none). Yields each step with the held-out error of the model after it."""
-    for element in found.elements:
-        if not unfinished(wb, beyond):
-            return
+    left = list(found.elements)
+    while left and unfinished(wb, beyond):
         error = wb.history[-1].error
-        current = tuple(t.law.name for t in wb.model.element(element.element).laws)
-        weighed = []
-        for laws in element.readings:
-            if set(laws) == set(current):
-                continue
-            with wb.read_as(element.element, laws):
-                after = wb.compare().error
-                held = check(wb) if error >= min_gain ** max(1, len(laws) - len(current)) * after else None
-            if held is not None:
-                before = checked()          # the current model's, once a reading gains the margin
-                weighed.append(_Reading(laws, after, held, predicts_no_better(before, held),
-                                        before.judges and held.judges))
+        weighed = [r for element in left for r in _weighed(wb, element, error, min_gain, checked, check)]
         best = _simplest_predicting(weighed, min_gain)
-        if best is not None:
-            after = wb.replace_laws(element.element, best.laws).error
-            yield AutoStep("replace", element.element, best.laws, error, after,
-                           _reading_reason(element.element, current, weighed)), best.held
+        if best is None:
+            return
+        current = _laws_of(wb, best.element)
+        after = wb.replace_laws(best.element, best.laws).error
+        yield AutoStep("replace", best.element, best.laws, error, after,
+                       _reading_reason(best.element, current, weighed)), best.held
+        left = [e for e in left if e.element != best.element]
+
+
+def _weighed(wb: Workbench, element: ElementDiscovery, error: float, min_gain: float, checked: Callable[[], HeldOut],
+             check: Callable[[Workbench], HeldOut]) -> list[_Reading]:
+    """``element``'s readings other than its current set, each with the model refitted with it: those that cut
+    ``error`` by ``min_gain`` per law added (once for as many laws or fewer), with their held-out errors."""
+    current = _laws_of(wb, element.element)
+    out = []
+    for laws in element.readings:
+        if set(laws) == set(current):
+            continue
+        with wb.read_as(element.element, laws):
+            after = wb.compare().error
+            held = check(wb) if error >= min_gain ** max(1, len(laws) - len(current)) * after else None
+        if held is not None:
+            before = checked()          # the current model's, once a reading gains the margin
+            out.append(_Reading(element.element, laws, len(laws) - len(current), after, held,
+                                predicts_no_better(before, held), before.judges and held.judges))
+    return out
+
+
+def _laws_of(wb: Workbench, element: str) -> tuple[str, ...]:
+    return tuple(t.law.name for t in wb.model.element(element).laws)
 
 
 def unfinished(wb: Workbench, beyond: float) -> bool:
@@ -86,16 +109,17 @@ def unfinished(wb: Workbench, beyond: float) -> bool:
 
 
 def _simplest_predicting(weighed: list[_Reading], min_gain: float) -> _Reading | None:
-    """Of the readings that predict the held-out levels better than the current model, the one with fewest laws
-    (then the best error), unless one with more laws predicts better by ``min_gain``: a law enters where it
+    """Of the readings that predict the held-out levels better than the current model, the one that adds fewest
+    laws to its element (then the best error), unless one that adds more predicts better by ``min_gain``: a law
+    enters where it
     predicts data its fit did not see better by a margin, and a law the held-out levels do not call for is one the
     data do not determine. The error is the held-out one where the held-out levels judge both readings, else the
     in-sample one (:func:`_error_judging`). None where no reading qualifies."""
     qualified = sorted((r for r in weighed if not r.why),
-                       key=lambda r: (len(r.laws), not r.judged, _error_judging(r, r), r.error))
+                       key=lambda r: (r.added, not r.judged, _error_judging(r, r), r.error))
     best = qualified[0] if qualified else None
     for r in qualified[1:]:
-        if len(r.laws) > len(best.laws) and min_gain * _error_judging(r, best) <= _error_judging(best, r):
+        if r.added > best.added and min_gain * _error_judging(r, best) <= _error_judging(best, r):
             best = r
     return best
 
@@ -110,11 +134,11 @@ def _error_judging(r: _Reading, other: _Reading) -> float:
 
 def _reading_reason(element: str, current: tuple[str, ...], weighed: list[_Reading]) -> str:
     was = "+".join(current) if current else "no law"
-    each = "; ".join(f"{'+'.join(r.laws)}: in-sample {r.error:.3g}, held-out {r.held.error:.3g}"
+    each = "; ".join(f"{r.element}:{'+'.join(r.laws)}: in-sample {r.error:.3g}, held-out {r.held.error:.3g}"
                      f"{', predicts no better' if r.why else '' if r.judged else ', not judged by it'}"
                      for r in weighed)
     return (f"another reading of {element}'s kbar among those discovery chose from, in place of {was}: the model "
-            "stayed far above what the test allows, and of the readings that cut its error by the margin a law "
-            "must bring and are not refused by the held-out levels this one has fewest laws, or predicts them "
-            "better by the margin than those with fewer (held-out levels judge nothing where a fold's fit saw one "
-            f"level that does not show every law; {each})")
+            "stayed far above what the test allows, and of the readings of the elements searched that cut its "
+            "error by the margin a law must bring and are not refused by the held-out levels this one adds fewest "
+            "laws, or predicts them better by the margin than those that add fewer (held-out levels judge nothing "
+            f"where a fold's fit saw one level that does not show every law; {each})")
