@@ -427,8 +427,9 @@ class _Trial:
         self.times_the_noise = times_the_noise
         self.history = [SimpleNamespace(error=error)]
         self.taken: list[str] = []
-        self.model = SimpleNamespace(element=lambda name: SimpleNamespace(
-            laws=[SimpleNamespace(law=SimpleNamespace(name=n)) for n in self.laws]))
+
+    def law_names(self, element):
+        return tuple(self.laws)
 
     def compare(self):
         return SimpleNamespace(times_the_noise=self.times_the_noise)

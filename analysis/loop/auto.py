@@ -171,7 +171,7 @@ def _against_discovery(wb: Workbench, found: Discovery | None, c: Candidate) -> 
     with harmonics the ranking's kbar criterion is the walk's own."""
     if found is None or not any(e.element == c.element for e in found.elements):
         return ""
-    laws = tuple(t.law.name for t in wb.model.element(c.element).laws)
+    laws = wb.law_names(c.element)
     held = {LAWS[n].kind for n in laws}
     twice = next((n for n in c.laws if LAWS[n].kind in held), None)
     if twice is not None:

@@ -24,7 +24,7 @@ def predicting_no_better(wb: Workbench, found: list[ElementDiscovery],
     (``checked``: the current model's held-out error). Yields each take-back with the held-out error of the
     model after it."""
     for element in found:
-        while laws := [t.law.name for t in wb.model.element(element.element).laws]:
+        while laws := wb.law_names(element.element):
             current = checked()
             if not current.judges:
                 return
@@ -68,7 +68,7 @@ def unneeded(wb: Workbench, found: list[ElementDiscovery], min_gain: float,
     for element in found:
         if not near_the_noise(wb.compare(), near):
             return
-        while len(laws := [t.law.name for t in wb.model.element(element.element).laws]) >= 2:
+        while len(laws := wb.law_names(element.element)) >= 2:
             error = wb.history[-1].error
             law, without = min(((law, wb.error_without(element.element, law)) for law in laws),
                                key=lambda pair: pair[1])

@@ -70,7 +70,7 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
         best = _simplest_predicting(weighed, min_gain)
         if best is None:
             return
-        current = _laws_of(wb, best.element)
+        current = wb.law_names(best.element)
         after = wb.replace_laws(best.element, best.laws).error
         yield AutoStep("replace", best.element, best.laws, error, after,
                        _reading_reason(best.element, current, weighed)), best.held
@@ -81,7 +81,7 @@ def _weighed(wb: Workbench, element: ElementDiscovery, error: float, min_gain: f
              check: Callable[[Workbench], HeldOut]) -> list[_Reading]:
     """``element``'s readings other than its current set, each with the model refitted with it: those that cut
     ``error`` by ``min_gain`` per law added (once for as many laws or fewer), with their held-out errors."""
-    current = _laws_of(wb, element.element)
+    current = wb.law_names(element.element)
     out = []
     for laws in element.readings:
         if set(laws) == set(current):
@@ -96,10 +96,6 @@ def _weighed(wb: Workbench, element: ElementDiscovery, error: float, min_gain: f
     return out
 
 
-def _laws_of(wb: Workbench, element: str) -> tuple[str, ...]:
-    return tuple(t.law.name for t in wb.model.element(element).laws)
-
-
 def unfinished(wb: Workbench, beyond: float) -> bool:
     """Whether, on data without harmonics, the model's FRF error stands more than ``beyond`` times what the test
     allows (:attr:`Workbench.error_floor`): farther than a right model can be, so the model lacks something the
@@ -111,10 +107,9 @@ def unfinished(wb: Workbench, beyond: float) -> bool:
 def _simplest_predicting(weighed: list[_Reading], min_gain: float) -> _Reading | None:
     """Of the readings that predict the held-out levels better than the current model, the one that adds fewest
     laws to its element (then the best error), unless one that adds more predicts better by ``min_gain``: a law
-    enters where it
-    predicts data its fit did not see better by a margin, and a law the held-out levels do not call for is one the
-    data do not determine. The error is the held-out one where the held-out levels judge both readings, else the
-    in-sample one (:func:`_error_judging`). None where no reading qualifies."""
+    enters where it predicts data its fit did not see better by a margin, and a law the held-out levels do not call
+    for is one the data do not determine. The error is the held-out one where the held-out levels judge both
+    readings, else the in-sample one (:func:`_error_judging`). None where no reading qualifies."""
     qualified = sorted((r for r in weighed if not r.why),
                        key=lambda r: (r.added, not r.judged, _error_judging(r, r), r.error))
     best = qualified[0] if qualified else None

@@ -531,11 +531,15 @@ class Workbench:
         with self.without(element, law):
             return self.compare().error
 
+    def law_names(self, element: str) -> tuple[str, ...]:
+        """The names of the laws ``element`` holds, in its order."""
+        return tuple(t.law.name for t in self.model.element(element).laws)
+
     def without(self, element: str, law: str) -> AbstractContextManager["Workbench"]:
         """This workbench with ``law`` taken off ``element`` and that element refitted, for as long as the block
         runs; then the model, its fits and its history as they were (nothing recorded), whatever the block
         raised."""
-        return self.read_as(element, tuple(t.law.name for t in self.model.element(element).laws if t.law.name != law))
+        return self.read_as(element, tuple(n for n in self.law_names(element) if n != law))
 
     @contextmanager
     def read_as(self, element: str, laws: tuple[str, ...]) -> Iterator["Workbench"]:
