@@ -33,6 +33,33 @@ def test_the_results_come_in_order_and_equal_to_a_loop_here():
     assert os.getpid() not in {pid for _, pid in forked}      # the work was done elsewhere
 
 
+def test_a_worker_that_ends_its_task_takes_the_next_one_not_taken(tmp_path):
+    # task 0 lasts until the last task is done: every other task is then the other worker's, where a fixed share
+    # of every second task would have left tasks 2, 4, ... waiting behind task 0
+    done = tmp_path / "last done"
+
+    def task(i):
+        if i == 0:
+            deadline = time.monotonic() + 60
+            while not done.exists() and time.monotonic() < deadline:
+                time.sleep(0.01)
+        elif i == 9:
+            done.touch()
+        return os.getpid()
+
+    pids = map_tasks(task, 10, workers=2)
+    assert pids[0] not in pids[1:] and len(set(pids[1:])) == 1
+
+
+def test_a_worker_that_cannot_have_the_counter_ends_and_its_tasks_are_computed_here(monkeypatch):
+    monkeypatch.setattr(parallel, "EXIT_S", 0.2)
+    held = parallel._Counter(multiprocessing.get_context("fork"))
+    held.lock.acquire()                    # as a worker killed while taking a task leaves it
+    assert parallel._next_task(held) is None
+    held.lock.release()
+    assert parallel._next_task(held) == 0 and parallel._next_task(held) == 1
+
+
 def test_a_task_that_raises_in_a_worker_raises_here_as_it_would_have():
     def task(i):
         if i == 2:

@@ -114,7 +114,9 @@ def worker_count() -> int:
 def map_tasks(task: Callable[[int], T], n: int, workers: int | None = None) -> list[T]:
     """``[task(0), ..., task(n - 1)]``, computed by up to ``workers`` (default :func:`worker_count`) forked
     workers, in that order, each in a task scope of its own (:func:`task_scope`); a loop here where one worker
-    would do. Worker k computes tasks k, k + W, k + 2W, ... in turn."""
+    would do. A worker that ends a task takes the next one not yet taken (a counter the workers share): tasks
+    differ in cost by x10 and more (a set with a hysteretic law against a spring), and a fixed share of every
+    W-th task left one worker idle while the other still had several to do."""
     count = min(worker_count() if workers is None else workers, n)
     if count <= 1 or _IN_WORKER:
         return [_in_scope(task, i) for i in range(n)]
@@ -128,10 +130,11 @@ def map_tasks(task: Callable[[int], T], n: int, workers: int | None = None) -> l
         # the compiler's lock, copied held) and none forks its own workers with another task
         with global_compiler_lock:
             _TASK = task
+            taken = _Counter(context)
             try:
                 for k in range(count):
                     receive, send = context.Pipe(duplex=False)
-                    worker = context.Process(target=_work, args=(k, count, n, receive, send, os.getpid()),
+                    worker = context.Process(target=_work, args=(taken, n, receive, send, os.getpid()),
                                              daemon=True)
                     try:
                         worker.start()
@@ -175,8 +178,9 @@ def _received(task: Callable[[int], T], i: int, out) -> T:
     return _in_scope(task, i)
 
 
-def _work(k: int, count: int, n: int, receive, send, parent: int) -> None:
-    """Worker ``k`` of ``count``: tasks k, k + count, ... sent back one by one.
+def _work(taken: _Counter, n: int, receive, send, parent: int) -> None:
+    """A worker: the next task of ``n`` not yet ``taken`` (a shared counter), computed and sent back, until none
+    is left.
 
     It dies with the process that forked it: on Linux the kernel kills it when its parent goes, else its numerics
     ask whether its parent has changed (:func:`stop_when`), and a send to a parent that has gone ends it; a worker
@@ -193,7 +197,10 @@ def _work(k: int, count: int, n: int, receive, send, parent: int) -> None:
     if os.getppid() != parent:                # gone before the kernel was asked
         return
     stop_when(lambda: os.getppid() != parent)
-    for i in range(k, n, count):
+    while True:
+        i = _next_task(taken)
+        if i is None or i >= n:
+            break
         try:
             out = pickle.dumps(_in_scope(_TASK, i), protocol=pickle.HIGHEST_PROTOCOL)
         except Interrupted:
@@ -205,6 +212,28 @@ def _work(k: int, count: int, n: int, receive, send, parent: int) -> None:
         except OSError:                       # the caller has gone
             return
     send.close()
+
+
+class _Counter:
+    """The index of the next task no worker has taken, shared by the workers forked after it was made."""
+
+    def __init__(self, context):
+        self.lock = context.Lock()
+        self.value = context.RawValue("q", 0)
+
+
+def _next_task(taken: _Counter) -> int | None:
+    """The next task's index from the shared counter, or None where its lock is not had in :data:`EXIT_S`: a
+    worker killed while holding it (microseconds) would leave the others waiting for ever, and the parent with
+    them; so they end instead, and the caller computes what no worker sent."""
+    if not taken.lock.acquire(timeout=EXIT_S):
+        return None
+    try:
+        i = taken.value.value
+        taken.value.value = i + 1
+        return i
+    finally:
+        taken.lock.release()
 
 
 def _die_with_parent() -> None:
