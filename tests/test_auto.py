@@ -508,7 +508,8 @@ def test_a_discovered_law_is_kept_only_where_it_predicts_every_held_out_fold_bet
              frozenset({"cubic_damping"}): (0.05, 0.07),
              frozenset({"gap"}): (0.3, 0.5)}
     wb = _Predicting(["cubic_damping", "quintic", "gap"], folds)
-    monkeypatch.setattr(discovered, "held_out", lambda w: w.held())
+    monkeypatch.setattr(discovered, "as_fitted", lambda w: w.held())       # what the folds of the model then give
+    monkeypatch.setattr(discovered, "held_out_of_each", lambda w, starts: list(starts))
     current = [wb.held()]
     taken = []
     for step, alone in discovered.predicting_no_better(wb, [_found("a")], lambda: current[0]):
@@ -774,6 +775,19 @@ def test_a_workbench_read_otherwise_for_a_block_is_as_it_was_afterwards():
     assert laws_of(wb)["right"] == ["coulomb", "cubic"]
     assert {el.name: [dict(t.values) for t in el.laws] for el in wb.model.elements} == values
     assert len(wb.history) == 1
+
+
+def test_the_folds_of_several_variants_refitted_at_once_are_those_each_variant_checked_alone_gives():
+    from test_workbench import PAPER_LAWS, model_doc, synthesise, workbench
+    wb = workbench(load_model(model_doc(PAPER_LAWS)), synthesise(PAPER_LAWS, forces=(0.3, 0.6, 0.9), lines=13))
+    wb.start()
+    with wb.without("right", "cubic"):
+        alone = held_out(wb)
+    with wb.without("right", "cubic"):
+        without = cross_check.as_fitted(wb)
+    at_once = cross_check.held_out_of_each(wb, [cross_check.as_fitted(wb), without])
+    assert at_once == [held_out(wb), alone] and len(alone.folds) == 3
+    assert at_once[0] != alone and laws_of(wb)["right"] == ["coulomb", "cubic"]     # the variant ended with its block
 
 
 def test_the_gui_says_where_the_loop_read_a_discovered_element_otherwise():

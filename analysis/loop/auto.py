@@ -33,7 +33,7 @@ from ..missing.unexplained import unexplained
 from ..prediction.backbone import ModalError
 from ..prediction.comparison import gain_phrase
 from ..search.discovery import Discovery, ElementDiscovery, WalkStep
-from .cross_check import NOT_CHECKED, HeldOut, held_out, predicts_no_better
+from .cross_check import NOT_CHECKED, HeldOut, held_out, held_out_of_each, predicts_no_better
 from .discovered import predicting_no_better, unneeded
 from .readings import other_readings, unfinished
 from .records import DISCOVERY, STOPPED_BY_USER, AutoResult, AutoRules, AutoStep
@@ -269,7 +269,7 @@ def _read_again(wb: Workbench, found: Discovery, rules: AutoRules,
     element whose laws a reading replaced checked as discovery's own set was (:func:`_checked_found`): a reading
     is a set discovery fitted, and it may hold a law the data do not need beside the ones they do. Yields as
     :func:`_checked_found` does, the replacements first."""
-    check = held_out if rules.held_out else (lambda _: NOT_CHECKED)
+    check = held_out_of_each if rules.held_out else (lambda _, starts: [NOT_CHECKED] * len(starts))
     replaced = []
     for step, held in other_readings(wb, found, rules.ranking.min_gain, rules.readings_beyond_floor, checked, check):
         yield step, held, False

@@ -18,7 +18,8 @@ import numpy as np
 
 from ..common.measurements import Measurements
 from ..common.parallel import map_tasks
-from ..mechanics.model import FittedOn
+from ..identification.between_runs import BetweenRuns
+from ..mechanics.model import FittedOn, Model
 from ..prediction.comparison import pooled_error
 from ..prediction.held_out import FITTED, HELD_OUT, SessionPrediction, predict_session
 from .workbench import Workbench
@@ -59,11 +60,27 @@ def _fold(wb: Workbench, half: list, created: str) -> Fold:
     return Fold(labels, predict_session(fitted, wb.measurements, created, wb.harmonics))
 
 
-def _refitted(wb: Workbench, levels: list) -> Workbench:
-    """A fresh workbench on ``levels`` alone with ``wb``'s laws refitted from their current values (reference,
-    identification, fit; its own error is not computed; started at the whole test's fit), its samples judged by
-    the whole test's scatter between runs (:meth:`Workbench._yardstick`)."""
-    fold = Workbench(wb.model, _at(wb, levels), wb.distortion_limit, wb.harmonics, wb.yardsticks(),
+@dataclass(frozen=True)
+class AsFitted:
+    """A model as a fit of the whole test left it, and the scatter between runs (element -> yardstick) its samples
+    were judged by: what a fit on part of the levels starts from (:func:`as_fitted`)."""
+
+    model: Model
+    yardsticks: dict[str, BetweenRuns]
+
+
+def as_fitted(wb: Workbench) -> AsFitted:
+    """``wb``'s model and yardsticks as they stand, kept apart from what ``wb`` does next."""
+    return AsFitted(wb.model.copy(), wb.yardsticks())
+
+
+def _refitted(wb: Workbench, levels: list, start: AsFitted | None = None) -> Workbench:
+    """A fresh workbench on ``levels`` alone with the laws of ``start`` (default: ``wb`` as it stands) refitted
+    from their current values (reference, identification, fit; its own error is not computed; started at the
+    whole test's fit), its samples judged by the whole test's scatter between runs
+    (:meth:`Workbench._yardstick`)."""
+    start = start or AsFitted(wb.model, wb.yardsticks())
+    fold = Workbench(start.model, _at(wb, levels), wb.distortion_limit, wb.harmonics, start.yardsticks,
                      started_at_fit=True)
     fold.prepare()
     return fold
@@ -157,20 +174,33 @@ def held_out(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> HeldOut:
     twelve, eight): a fit on a half or on a single level leaves laws with more parameters than it determines, and
     its held-out error would measure that, not the model. K folds cost K refits. :data:`NOT_CHECKED` for a
     session of fewer than two stepped-sine levels."""
+    return held_out_of_each(wb, [as_fitted(wb)], folds)[0]
+
+
+def held_out_of_each(wb: Workbench, starts: list[AsFitted], folds: int = HELD_OUT_FOLDS) -> list[HeldOut]:
+    """:func:`held_out` of each of the models ``starts`` (``wb`` as it stood once otherwise fitted: a law taken off
+    and its element refitted, :meth:`Workbench.without`, or read otherwise, :meth:`Workbench.read_as`), on ``wb``'s
+    measurements: the folds of them all are the tasks of one map, as they need nothing of each other. Three folds
+    of one model on two cores take two rounds of refits, two models' six folds three rounds instead of four. Each
+    fold is the refit :func:`held_out` makes of that model alone."""
     splits = interleaved(wb.measurements.level_controls(), folds)
     if not splits:
-        return NOT_CHECKED
-
+        return [NOT_CHECKED] * len(starts)
     measured = [_at(wb, held) for _, held in splits]     # only the levels a fit did not see are predicted
 
-    def one(k: int) -> tuple:
-        fold = _refitted(wb, splits[k][0])
+    def one(j: int) -> tuple:
+        v, k = divmod(j, len(splits))
+        fold = _refitted(wb, splits[k][0], starts[v])
         return predict_session(fold.model, measured[k], "", wb.harmonics).comparison, _sees_its_laws(fold)
 
-    done = map_tasks(one, len(splits))      # the folds need nothing of each other
-    parts = [(comparison, m.sine) for (comparison, _), m in zip(done, measured)]
-    return HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts),
-                   min(len(seen) for seen, _ in splits), all(sees for _, sees in done))
+    done = map_tasks(one, len(starts) * len(splits))
+    out = []
+    for v in range(len(starts)):
+        mine = done[v * len(splits):(v + 1) * len(splits)]
+        parts = [(comparison, m.sine) for (comparison, _), m in zip(mine, measured)]
+        out.append(HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts),
+                           min(len(seen) for seen, _ in splits), all(sees for _, sees in mine)))
+    return out
 
 
 def interleaved(levels: list, folds: int) -> list[tuple[list, list]]:

@@ -8,7 +8,7 @@ from typing import Callable, Iterator
 
 from ..prediction.comparison import Comparison
 from ..search.discovery import ElementDiscovery
-from .cross_check import HeldOut, held_out, predicts_no_better
+from .cross_check import HeldOut, as_fitted, held_out_of_each, predicts_no_better
 from .records import AutoStep
 from .workbench import Workbench
 
@@ -29,9 +29,12 @@ def predicting_no_better(wb: Workbench, found: list[ElementDiscovery],
             if not current.judges:
                 return
             failing = []
+            starts = []
             for law in laws:
                 with wb.without(element.element, law):
-                    alone = held_out(wb)
+                    starts.append(as_fitted(wb))
+            alones = held_out_of_each(wb, starts)      # every law's folds at once
+            for law, alone in zip(laws, alones):
                 why = predicts_no_better(alone, current)
                 if why:
                     failing.append((alone.error, law, alone, why))

@@ -11,7 +11,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..search.discovery import Discovery, ElementDiscovery
-from .cross_check import HeldOut, held_out, predicts_no_better
+from .cross_check import AsFitted, HeldOut, as_fitted, held_out_of_each, predicts_no_better
 from .records import AutoStep
 from .workbench import Workbench
 
@@ -31,7 +31,8 @@ class _Reading:
 
 
 def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: float, checked: Callable[[], HeldOut],
-                    check: Callable[[Workbench], HeldOut] = held_out) -> Iterator[tuple[AutoStep, HeldOut]]:
+                    check: Callable[[Workbench, list[AsFitted]], list[HeldOut]] = held_out_of_each
+                    ) -> Iterator[tuple[AutoStep, HeldOut]]:
     """On data without harmonics, where the model stays farther above what the test allows
     (:attr:`Workbench.error_floor`) than a right model can be (``beyond`` times it, :func:`unfinished`), the
     searched elements' other readings of their kbar (:attr:`ElementDiscovery.readings`, the sets each walk chose
@@ -61,12 +62,13 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
     misfit it does not show is no law's, and a law that takes it up describes the model's form, not the joint,
     at every level alike, so held-out levels cannot refuse it. Without harmonics the kbar fits leave out the
     lines where a contact closes or a friction sticks, and only the FRFs see a law acting there. ``checked``: the
-    current model's held-out error; ``check``: a model's (:data:`analysis.loop.cross_check.NOT_CHECKED` where the
-    loop checks none). Yields each step with the held-out error of the model after it."""
+    current model's held-out error; ``check``: the models' (:func:`analysis.loop.cross_check.held_out_of_each`;
+    :data:`analysis.loop.cross_check.NOT_CHECKED` each where the loop checks none). Yields each step with the
+    held-out error of the model after it."""
     left = list(found.elements)
     while left and unfinished(wb, beyond):
         error = wb.history[-1].error
-        weighed = [r for element in left for r in _weighed(wb, element, error, min_gain, checked, check)]
+        weighed = _weighed(wb, left, error, min_gain, checked, check)
         best = _simplest_predicting(weighed, min_gain)
         if best is None:
             return
@@ -77,23 +79,28 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
         left = [e for e in left if e.element != best.element]
 
 
-def _weighed(wb: Workbench, element: ElementDiscovery, error: float, min_gain: float, checked: Callable[[], HeldOut],
-             check: Callable[[Workbench], HeldOut]) -> list[_Reading]:
-    """``element``'s readings other than its current set, each with the model refitted with it: those that cut
-    ``error`` by ``min_gain`` per law added (once for as many laws or fewer), with their held-out errors."""
-    current = wb.law_names(element.element)
-    out = []
-    for laws in element.readings:
-        if set(laws) == set(current):
-            continue
-        with wb.read_as(element.element, laws):
-            after = wb.compare().error
-            held = check(wb) if error >= min_gain ** max(1, len(laws) - len(current)) * after else None
-        if held is not None:
-            before = checked()          # the current model's, once a reading gains the margin
-            out.append(_Reading(element.element, laws, len(laws) - len(current), after, held,
-                                predicts_no_better(before, held), before.judges and held.judges))
-    return out
+def _weighed(wb: Workbench, elements: list[ElementDiscovery], error: float, min_gain: float,
+             checked: Callable[[], HeldOut], check: Callable[[Workbench, list[AsFitted]], list[HeldOut]]
+             ) -> list[_Reading]:
+    """Each of ``elements``' readings other than its current set, with the model refitted with it: those that cut
+    ``error`` by ``min_gain`` per law added (once for as many laws or fewer), with their held-out errors, the
+    folds of them all refitted at once (:func:`analysis.loop.cross_check.held_out_of_each`)."""
+    gaining = []
+    for element in elements:
+        current = wb.law_names(element.element)
+        for laws in element.readings:
+            if set(laws) == set(current):
+                continue
+            with wb.read_as(element.element, laws):
+                after = wb.compare().error
+                if error >= min_gain ** max(1, len(laws) - len(current)) * after:
+                    gaining.append((element.element, laws, len(laws) - len(current), after, as_fitted(wb)))
+    if not gaining:
+        return []
+    before = checked()                  # the current model's, once a reading gains the margin
+    held = check(wb, [start for *_, start in gaining])
+    return [_Reading(name, laws, added, after, h, predicts_no_better(before, h), before.judges and h.judges)
+            for (name, laws, added, after, _), h in zip(gaining, held)]
 
 
 def unfinished(wb: Workbench, beyond: float) -> bool:
