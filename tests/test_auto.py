@@ -790,6 +790,30 @@ def test_the_folds_of_several_variants_refitted_at_once_are_those_each_variant_c
     assert at_once[0] != alone and laws_of(wb)["right"] == ["coulomb", "cubic"]     # the variant ended with its block
 
 
+def test_each_reading_is_fitted_from_the_model_as_it_stands_and_the_folds_of_those_that_gain_are_checked_at_once():
+    from test_workbench import PAPER_LAWS, model_doc, synthesise, workbench
+    wb = workbench(load_model(model_doc(PAPER_LAWS)), synthesise(PAPER_LAWS, forces=(0.3, 0.6, 0.9), lines=13))
+    wb.start()
+    found = SimpleNamespace(element="right", readings=(("coulomb", "cubic"), ("coulomb",), ("cubic", "quintic")))
+    alone = {}
+    for laws in found.readings[1:]:
+        with wb.read_as("right", laws):
+            alone[laws] = (wb.compare().error, held_out(wb))
+    asked = []
+
+    def check(w, starts):
+        asked.append(len(starts))
+        return cross_check.held_out_of_each(w, starts)
+
+    current = held_out(wb)
+    weighed = readings._weighed(wb, [found], 1e9, 1.0, lambda: current, check)
+    # the set the element holds is no reading of it; every other one gains here, and is checked with the others
+    assert [(r.laws, r.error, r.held) for r in weighed] == [(laws, *alone[laws]) for laws in found.readings[1:]]
+    assert asked == [2] and laws_of(wb)["right"] == ["coulomb", "cubic"]
+    # none gains the margin: nothing is checked
+    assert readings._weighed(wb, [found], 1e-9, 1.3, lambda: current, check) == [] and asked == [2]
+
+
 def test_the_gui_says_where_the_loop_read_a_discovered_element_otherwise():
     from app.gui.results import _discovered
     found = SimpleNamespace(elements=[SimpleNamespace(element="a", equivalents=[], laws=("unilateral",),

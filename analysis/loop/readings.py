@@ -11,6 +11,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..search.discovery import Discovery, ElementDiscovery
+from ..common.parallel import map_tasks
 from .cross_check import AsFitted, HeldOut, as_fitted, held_out_of_each, predicts_no_better
 from .records import AutoStep
 from .workbench import Workbench
@@ -83,18 +84,24 @@ def _weighed(wb: Workbench, elements: list[ElementDiscovery], error: float, min_
              checked: Callable[[], HeldOut], check: Callable[[Workbench, list[AsFitted]], list[HeldOut]]
              ) -> list[_Reading]:
     """Each of ``elements``' readings other than its current set, with the model refitted with it: those that cut
-    ``error`` by ``min_gain`` per law added (once for as many laws or fewer), with their held-out errors, the
-    folds of them all refitted at once (:func:`analysis.loop.cross_check.held_out_of_each`)."""
-    gaining = []
+    ``error`` by ``min_gain`` per law added (once for as many laws or fewer), with their held-out errors. The
+    readings are fitted apart (:func:`analysis.common.parallel.map_tasks`: each from the model as it stands, which
+    :meth:`Workbench.read_as` restores after each), and the folds of those that gain refitted at once
+    (:func:`analysis.loop.cross_check.held_out_of_each`)."""
+    asked = []
     for element in elements:
         current = wb.law_names(element.element)
-        for laws in element.readings:
-            if set(laws) == set(current):
-                continue
-            with wb.read_as(element.element, laws):
-                after = wb.compare().error
-                if error >= min_gain ** max(1, len(laws) - len(current)) * after:
-                    gaining.append((element.element, laws, len(laws) - len(current), after, as_fitted(wb)))
+        asked += [(element.element, laws, len(laws) - len(current)) for laws in element.readings
+                  if set(laws) != set(current)]
+
+    def fitted(j: int) -> tuple[float, AsFitted | None]:
+        name, laws, added = asked[j]
+        with wb.read_as(name, laws):
+            after = wb.compare().error
+            return after, as_fitted(wb) if error >= min_gain ** max(1, added) * after else None
+
+    gaining = [(*reading, after, start) for reading, (after, start) in zip(asked, map_tasks(fitted, len(asked)))
+               if start is not None]
     if not gaining:
         return []
     before = checked()                  # the current model's, once a reading gains the margin
