@@ -56,7 +56,7 @@ def _fold(wb: Workbench, half: list, created: str) -> Fold:
     """``wb``'s laws refitted on the levels ``half`` alone (:func:`_refitted`), and every level of the session
     predicted by them."""
     labels = tuple(c.label() for c in half)
-    fitted = replace(_refitted(wb, half).model, fitted_on=FittedOn("", created, labels))
+    fitted = replace(_refitted(wb, half, as_fitted(wb)).model, fitted_on=FittedOn("", created, labels))
     return Fold(labels, predict_session(fitted, wb.measurements, created, wb.harmonics))
 
 
@@ -74,12 +74,10 @@ def as_fitted(wb: Workbench) -> AsFitted:
     return AsFitted(wb.model.copy(), wb.yardsticks())
 
 
-def _refitted(wb: Workbench, levels: list, start: AsFitted | None = None) -> Workbench:
-    """A fresh workbench on ``levels`` alone with the laws of ``start`` (default: ``wb`` as it stands) refitted
-    from their current values (reference, identification, fit; its own error is not computed; started at the
-    whole test's fit), its samples judged by the whole test's scatter between runs
-    (:meth:`Workbench._yardstick`)."""
-    start = start or AsFitted(wb.model, wb.yardsticks())
+def _refitted(wb: Workbench, levels: list, start: AsFitted) -> Workbench:
+    """A fresh workbench on ``wb``'s measurements at ``levels`` alone with the laws of ``start`` refitted from their
+    current values (reference, identification, fit; its own error is not computed; started at the whole test's
+    fit), its samples judged by the whole test's scatter between runs (:meth:`Workbench._yardstick`)."""
     fold = Workbench(start.model, _at(wb, levels), wb.distortion_limit, wb.harmonics, start.yardsticks,
                      started_at_fit=True)
     fold.prepare()
