@@ -5,6 +5,7 @@
     python benchmarks/random_discovery.py --record         # the figures into docs/discovery.md
     python benchmarks/random_discovery.py --seed 11 22 --cases 25 --jobs 2 --budget 3000 --record
     python benchmarks/random_discovery.py --seed 20261 --only 3 13   # cases 3 and 13 of the seed's draw only
+    python benchmarks/random_discovery.py --seed 11 --cases 25 --perturb 1e-12   # how stable each answer is
 
 Each case draws a lumped chain of 2 or 3 masses (0.5-2 kg, springs 500-3000 N/m, 2-4 % modal damping in
 Rayleigh form), one or two joints (grounded at a mass, or between two masses of a 3-mass chain) with one or two
@@ -34,7 +35,10 @@ the margin a law must bring (``RankingRules.min_gain``), the data decide the cas
 show; where it does not, a search that found the rig's set could not have told it from the choice by the FRFs of
 the lines fitted. The true values against the fitted ones say what the fit leaves of what the laws can do.
 Several seeds run their cases interleaved (``--jobs`` at a time); ``--budget`` starts no case after that many
-seconds of wall time, and the report says how many of the cases drawn were measured.
+seconds of wall time, and the report says how many of the cases drawn were measured. ``--perturb REL`` moves
+every receptance by REL times a normal draw (a stream of its own, tests/matrix_cases.py ``imported_session``)
+before it is written: a change far below the data's noise, which no measurement could tell. Run beside the same
+seeds unperturbed, it counts the answers that turn on the path the fits' searches take rather than on the data.
 """
 from __future__ import annotations
 
@@ -335,10 +339,11 @@ def named_equivalences(c: mc.Case, o: mc.Outcome, result: AutoResult) -> dict[st
     return out
 
 
-def run(c: mc.Case, folder: Path) -> Scored:
-    """The case's RK4 data imported, the loop from no law, the score."""
+def run(c: mc.Case, folder: Path, perturbation: float = 0.0) -> Scored:
+    """The case's RK4 data imported (``perturbation``: ``--perturb``), the loop from no law, the score."""
     per_period = FRICTION_STEPS if any(law.law == "coulomb" for law in c.laws) else 48
-    session = mc.imported_session(c, folder, settle_seconds=20.0, per_period=per_period, line_step=LINE_STEP)
+    session = mc.imported_session(c, folder, settle_seconds=20.0, per_period=per_period, line_step=LINE_STEP,
+                                  perturbation=perturbation)
     wb = mc.started_workbench(c, folder, session)
     result = run_auto(wb)
     outcome = mc.score(c, wb, result.stopped)
@@ -367,9 +372,9 @@ def _weighed_word(s: Scored) -> str:
 
 
 def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
-           left_out: str = "not run within the time budget") -> str:
+           left_out: str = "not run within the time budget", perturbation: float = 0.0) -> str:
     """The figures of one seed: ``scored`` the outcomes of ``cases`` (in order), out of ``drawn`` cases drawn
-    (``left_out``: why the others were not run)."""
+    (``left_out``: why the others were not run; ``perturbation``: ``--perturb``)."""
     outcomes = [s.outcome for s in scored]
     measured = [s for s in scored if s.outcome.measured]
     right = sum(s.right for s in measured)
@@ -383,8 +388,9 @@ def report(scored: list[Scored], cases: list[mc.Case], seed: int, drawn: int,
                               for law in c.laws) for c in cases}
     budget = f" ({drawn - len(cases)} {left_out})" if drawn > len(cases) else ""
     weighed_cases = [s for s in measured if s.before_weighed is not None]
-    lines = [f"Seed {seed}: {drawn} cases drawn{budget}, {len(measured)} measured; discovery from an empty model "
-             f"right on {right + named}/{len(measured)} ({100 * (right + named) / n:.0f} %; goal "
+    moved = f" (every receptance moved by {perturbation:g} of itself, --perturb)" if perturbation else ""
+    lines = [f"Seed {seed}{moved}: {drawn} cases drawn{budget}, {len(measured)} measured; discovery from an empty "
+             f"model right on {right + named}/{len(measured)} ({100 * (right + named) / n:.0f} %; goal "
              f"{100 * GOAL:.0f} %): {right} right outright, {named} by an equivalence named to the user; "
              f"{sum(len(o.false_alarms) for o in outcomes if o.measured)} false alarm(s). Where the loop would have "
              f"stopped, another reading took a joint's place or a law the kbar does not call for was added in "
@@ -425,13 +431,13 @@ def _draw(seed: int, n: int) -> list[mc.Case]:
     return [draw_case(rng, i + 1) for i in range(n)]
 
 
-def run_in_folder(c: mc.Case) -> tuple[Scored, float]:
+def run_in_folder(c: mc.Case, perturbation: float = 0.0) -> tuple[Scored, float]:
     """One case in a folder of its own (a worker's task), with its wall time; a case whose data cannot be made or
     analysed is listed, not hidden."""
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            scored = run(c, Path(tmp))
+            scored = run(c, Path(tmp), perturbation)
         except Exception as exc:
             scored = Scored(mc.Outcome.broken(c, f"{type(exc).__name__}: {exc}".splitlines()[0]))
     return scored, time.monotonic() - t0
@@ -454,7 +460,12 @@ def main() -> int:
     ap.add_argument("--only", type=int, nargs="+", default=None, metavar="INDEX",
                     help="run only these cases of each seed's draw (1-based, as the report numbers them; --cases "
                          "defaults to the largest)")
+    ap.add_argument("--perturb", type=float, default=0.0, metavar="REL",
+                    help="move every receptance by REL times a normal draw before the analysis (far below the "
+                         "noise): how stable each answer is")
     args = ap.parse_args()
+    if args.perturb and args.record:
+        ap.error("--perturb measures how stable the answers are: it cannot --record")
     if args.only is not None:
         if min(args.only) < 1:
             ap.error("--only: case indices start at 1")
@@ -473,7 +484,7 @@ def main() -> int:
             while order and len(running) < args.jobs and (args.budget is None
                                                           or time.monotonic() - start < args.budget):
                 seed, i = order.pop(0)
-                running[pool.submit(run_in_folder, draws[seed][i])] = (seed, i)
+                running[pool.submit(run_in_folder, draws[seed][i], args.perturb)] = (seed, i)
             if not running:
                 break                                 # the budget is spent: the cases left are not run
             finished, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
@@ -491,7 +502,7 @@ def main() -> int:
         run_cases = [c for i, c in enumerate(cases) if (seed, i) in done]
         left_out = "not asked for (--only)" if args.only is not None else "not run within the time budget"
         sections.append(report([done[seed, i] for i in range(len(cases)) if (seed, i) in done], run_cases, seed,
-                               len(cases), left_out))
+                               len(cases), left_out, args.perturb))
     block = "\n\n".join([BEGIN] + sections) + "\n" + END
     print("\n" + block)
     if args.record:

@@ -359,6 +359,8 @@ def rk4_receptance(c: Case, freqs: np.ndarray, forces: np.ndarray, settle_second
 # Lines of the integrator's cases: as finely as a user sweeps by hand. (The FRF noise of imported data is
 # estimated from 15 neighbouring lines; at the plans' 0.4 Hz it came out 3-6 x the truth.)
 RK4_STEP = 0.1
+# the random stream of imported_session's perturbation (one for every case: it is no draw of the case)
+PERTURBATION_STREAM = 12345
 
 
 def _plan_lines(bench: Bench, step: float = RK4_STEP) -> tuple[np.ndarray, list[float]]:
@@ -370,17 +372,22 @@ def _plan_lines(bench: Bench, step: float = RK4_STEP) -> tuple[np.ndarray, list[
 
 
 def imported_session(c: Case, folder: Path, settle_seconds: float = 40.0, per_period: int = 48,
-                     line_step: float = RK4_STEP) -> Path:
+                     line_step: float = RK4_STEP, perturbation: float = 0.0) -> Path:
     """RK4 receptances with relative circular noise, written as a user's CSV with their standard deviation (as a
     controller that measured it exports them) and imported (``contactid import``). Without it the noise is
     estimated from the FRF (docs/import.md), which at 0.1 Hz lines across a 0.06 Hz wide resonance came out 2-4 x
-    the truth there and hid the cubic between the 3-DOF chain's masses."""
+    the truth there and hid the cubic between the 3-DOF chain's masses. ``perturbation``: every receptance then
+    moved by that relative amount times a normal draw of a stream of its own, the same for every case -- a change
+    of the data far below their noise, which no measurement could tell, to measure how stable an answer is
+    (benchmarks/random_discovery.py ``--perturb``)."""
     freqs, forces = _plan_lines(c.bench, line_step)
     rng = np.random.default_rng(_seed(c.data_name))
     dofs = Lumped.of(c.bench).dofs
     exact = rk4_receptance(c, freqs, forces, settle_seconds, per_period)
     std = c.noise * np.abs(exact)
     H = exact + std / np.sqrt(2) * (rng.normal(size=exact.shape) + 1j * rng.normal(size=exact.shape))
+    if perturbation:
+        H = H * (1.0 + perturbation * np.random.default_rng(PERTURBATION_STREAM).normal(size=H.shape))
     table = folder / "frf.csv"
     with open(table, "w", newline="") as fh:
         out = csv.writer(fh)

@@ -103,6 +103,36 @@ def _random_discovery():
     return random_discovery
 
 
+def _imported_receptances(c, folder: Path, perturbation: float) -> np.ndarray:
+    """The receptances of ``c``'s imported session (``mc.imported_session``), every run's stacked."""
+    from app.session import measurements_from_session, open_session
+    folder.mkdir()
+    with open_session(mc.imported_session(c, folder, settle_seconds=1.0, perturbation=perturbation)) as s:
+        return np.concatenate([np.asarray(run.receptance).ravel() for run in measurements_from_session(s).sine])
+
+
+def test_a_perturbation_moves_every_imported_receptance_by_its_size_and_nothing_else(tmp_path, monkeypatch):
+    """``--perturb`` (benchmarks/random_discovery.py): every receptance moved by about the relative amount asked, the
+    same draw each time, and the data unchanged without it (the integrator stood in for by fixed receptances)."""
+    c = mc.case("rk4 2dof cubic + damping elsewhere")
+
+    def receptances(case, freqs, forces, settle_seconds, per_period):
+        w = 2 * np.pi * np.asarray(freqs, float)[None, :, None]        # a damped oscillator's at every sensor
+        k = np.array([1.0e3, 2.0e3])[None, None, :]
+        return np.broadcast_to(1.0 / (k - w ** 2 + 0.05j * k), (len(forces), w.shape[1], 2))
+    monkeypatch.setattr(mc, "rk4_receptance", receptances)
+    plain, again = (_imported_receptances(c, tmp_path / name, 0.0) for name in ("a", "b"))
+    moved, moved_again = (_imported_receptances(c, tmp_path / name, 1e-9) for name in ("c", "d"))
+    assert np.array_equal(plain, again) and np.array_equal(moved, moved_again)
+    relative = np.abs(moved / plain - 1.0)
+    assert np.all(relative > 0) and 0.5e-9 < np.median(relative) < 1.5e-9 and np.max(relative) < 6e-9
+    rd = _random_discovery()
+    monkeypatch.setattr("sys.argv", ["random_discovery.py", "--perturb", "1e-12", "--record"])
+    with pytest.raises(SystemExit) as refused:
+        rd.main()
+    assert refused.value.code == 2
+
+
 def test_a_random_case_is_right_by_an_equivalence_only_where_discovery_named_it():
     rd = _random_discovery()
     from analysis.loop.auto import AutoResult, AutoStep

@@ -417,9 +417,9 @@ class Workbench:
                                    others).terms
 
     def _corrected_is_kept(self, before: Comparison, corrected: float) -> bool:
-        """The balance's own sliders never stick (a Coulomb slider is a tanh of the velocity), so its bias can be
-        wrong where a joint sticks and slips in turn, and the corrected fit then predicts the FRFs with harmonics
-        worse than the fit it corrects. The FRFs decide, by the
+        """The balance's own sliders never stick (a Coulomb slider's force is sgn(v) along the balanced motion, whose
+        velocity only crosses zero), so its bias can be wrong where a joint sticks and slips in turn, and the
+        corrected fit then predicts the FRFs with harmonics worse than the fit it corrects. The FRFs decide, by the
         margin a law must bring (``RankingRules.min_gain``): the correction converges over successive fits, and
         one pass may leave the error a little worse on the way (were such a pass refused, the bias would never
         build up, and other laws would stand in for it)."""
