@@ -22,7 +22,7 @@ from analysis.search.discovery import (DiscoveryRules, LawSet, WalkStep, _adds_n
                                 law_sets,
                                 search_element)
 from analysis.search import discovery, frf_judge
-from analysis.search.candidates import _place_contacts
+from analysis.search.candidates import _place_contacts, _reach_larger_fits
 from analysis.search.kbar_evidence import _holds_the_choice, _of_no_size
 from analysis.mechanics.structures import Structure
 from analysis.mechanics.surroundings import placed_kbar, surroundings_of
@@ -75,6 +75,30 @@ def one_sided_contact(X, k: float, gap: float) -> np.ndarray:
     theta = np.linspace(0.0, 2 * np.pi, 4001)[:-1]
     force = k * np.maximum(X[:, None] * np.cos(theta) - gap, 0.0)
     return 2.0 * np.mean(force * np.cos(theta), axis=1) / X
+
+
+def test_a_set_reaches_the_fit_of_a_larger_set_whose_other_law_is_of_no_size():
+    """A set whose own search stopped in another valley is refitted from a larger set's fit that holds its other
+    law at no size and fits better: that fit is one of the smaller set (``_reach_larger_fits``)."""
+    s = samples_of({"gap": {"k": 900.0, "gap": 0.02}}, X, W)
+    rules = DiscoveryRules(max_laws=2)
+    good = _fit_set(s, ("gap",), rules, False)
+    # the gap's search stopped beyond every amplitude, where its stiffness moves nothing
+    stuck = fit_laws(["gap"], s.X, s.w, s.kbar, s.kbar_std, [{"k": 1.0, "gap": 0.2}], n_starts=0)
+    own = LawSet(("gap",), stuck, stuck.judged_chi_square, stuck.n_parameters)
+    coulomb = SimpleNamespace(law=LAWS["coulomb"], params={"fs": 0.0}, surroundings=None)
+    gap = SimpleNamespace(law=LAWS["gap"], params=dict(good.fit.terms[0].params), surroundings=None)
+    larger = LawSet(("coulomb", "gap"), SimpleNamespace(terms=[coulomb, gap]), good.chi_square, 3)
+    assert own.chi_square > 10 * good.chi_square
+    by_laws = {("gap",): own, ("coulomb", "gap"): larger}
+    _reach_larger_fits(by_laws, s, rules, False, None)
+    assert by_laws["gap",].chi_square == pytest.approx(good.chi_square, rel=1e-6)
+    assert by_laws["gap",].fit.terms[0].params["gap"] == pytest.approx(0.02, rel=1e-3)
+    # a larger set whose other law has a size is another model, not a fit of the smaller one
+    coulomb.params = {"fs": 1e-3}
+    by_laws = {("gap",): own, ("coulomb", "gap"): larger}
+    _reach_larger_fits(by_laws, s, rules, False, None)
+    assert by_laws["gap",] is own
 
 
 def test_the_screening_grid_of_a_clearance_spans_the_amplitudes_measured():

@@ -3,8 +3,8 @@ analysis/search/discovery.py; docs/discovery.md).
 
 Every set of one to ``max_laws`` laws of the library, at most one of each kind, is fitted to the element's kbar
 samples with the screening settings: pairs all, triples only by extending the ``triple_pool`` best pairs, each
-set started from its smaller sets' fits, and the best sets with a contact law refitted placed in the element's
-structure. A set with a law tied to another's is kept apart (named, never chosen) and a set with which the
+set started from its smaller sets' fits, the best sets with a contact law refitted placed in the element's
+structure, and each set refitted from a larger set's fit that holds the other laws at no size. A set with a law tied to another's is kept apart (named, never chosen) and a set with which the
 structure would not be admissible is refused; every other set is charged for its parameters,
 ``chi2 / s^2 + p ln(2N)`` with s^2 the best set's reduced chi-square where it exceeds 1, and each size's shortlist
 is drawn for the FRFs to judge. The kbar is the element's own, decoupled from the structure, so a fit costs
@@ -115,6 +115,40 @@ def _fit_set(samples: ElementSamples, laws: tuple[str, ...], rules: DiscoveryRul
     return LawSet(laws, fit, fit.judged_chi_square, fit.n_parameters, tied=tied)
 
 
+def _reach_larger_fits(by_laws: dict[tuple[str, ...], LawSet], samples: ElementSamples, rules: DiscoveryRules,
+                       robust: bool, around: Surroundings | None) -> None:
+    """Each set refitted from a larger set's fit where that fit holds its other laws at no size and fits better:
+    that fit *is* a fit of the smaller set, which its own search missed (``by_laws`` is changed in place). A set
+    is searched from the grid and from its smaller sets' fits; a local search that stops in another valley leaves
+    the set worse than the same laws with a law of no size beside them, and which valley it stops in can turn on
+    round-off (docs/discovery.md, "How stable an answer is"). The refit starts at those values too, fitted as the
+    larger set was (its contact placed in the structure or by its formula), and is kept where it fits better. A
+    placed fit is not refitted as a formula's: the placement is the more faithful of the two (:func:`_place_contacts`)."""
+    for laws in sorted(by_laws, key=len):
+        own = by_laws[laws]
+        reached = [s for s in by_laws.values() if set(laws) < set(s.laws) and s.chi_square < own.chi_square
+                   and (_placed(s) or not _placed(own)) and _others_of_no_size(s, laws)]
+        if not reached:
+            continue
+        best = min(reached, key=lambda s: s.chi_square)
+        start = [_start_values(best, name) if LAWS[name].shape else None for name in laws]
+        refit = _fit_set(samples, laws, rules, robust, around if _placed(best) else None,
+                         start if any(v is not None for v in start) else None)
+        if _separate(refit) and refit.chi_square < own.chi_square:
+            by_laws[laws] = refit
+
+
+def _placed(s: LawSet) -> bool:
+    return s.fit is not None and any(t.surroundings is not None for t in s.fit.terms)
+
+
+def _others_of_no_size(s: LawSet, laws: tuple[str, ...]) -> bool:
+    """Whether every law of ``s`` outside ``laws`` has each of its size parameters (its ``linear``, the force
+    scale) at exactly zero: it adds nothing to the kbar."""
+    return s.fit is not None and all(t.params.get(n, 1.0) == 0.0 for name, t in zip(s.laws, s.fit.terms)
+                                     if name not in laws for n in t.law.linear)
+
+
 def _separate(s: LawSet | None) -> bool:
     """Whether ``s`` was fitted and is a set of separate effects (not ``tied``)."""
     return s is not None and not s.tied
@@ -222,6 +256,7 @@ def search_element(index: int, samples: ElementSamples, linear_verdict: bool,
                  if len(set(laws)) == 3 and len({LAWS[n].kind for n in laws}) == 3])
     if around is not None:
         _place_contacts(by_laws, samples, rules, robust, around)
+    _reach_larger_fits(by_laws, samples, rules, robust, around)
     refused = [s for s in by_laws.values() if _refusal(s, samples, around)]
     sets += [s for s in by_laws.values() if not any(s is r for r in refused)]
     n_obs = 2 * len(samples.X)

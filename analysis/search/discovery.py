@@ -7,6 +7,8 @@ decoupled, at the cost of a kbar fit each, and the coupled FRFs only judge the f
 1. **Sets of laws, fitted to the element's kbar.** Every set of one to ``max_laws`` laws of the library, at most
    one of each kind (:data:`analysis.laws.base.KINDS`: one joint has one stiffness mechanism, one damping, one
    friction...), is fitted to the element's kbar samples (pairs all; triples extend the ``triple_pool`` best pairs).
+   A set is also refitted from a larger set's fit that holds every other law at no size and fits better, which
+   is a fit of the smaller set its own search missed (:func:`_reach_larger_fits`).
    A set in which one law adds no direction of its own (every parameter of it tied to another law's, by an exact
    degeneracy or a correlation beyond ``max_correlation``) is not a set of separate effects and is never chosen,
    only named as a reading the data cannot part (step 3). Where
@@ -70,8 +72,8 @@ its path a module:
 """
 from __future__ import annotations
 
-from .candidates import (AmplitudeDependence, _adds_nothing, _fit_set, _Search, _shortlists, _warm_start,
-                         amplitude_dependence, law_sets, search_element)
+from .candidates import (AmplitudeDependence, _adds_nothing, _fit_set, _reach_larger_fits, _Search, _shortlists,
+                         _warm_start, amplitude_dependence, law_sets, search_element)
 from .frf_judge import _Judge, _pruned_beside_clearance, _RefinedErrors
 from .kbar_evidence import (_alike, _beside_above_noise, _indistinguishable, _kinds, _limit_only_laws, _noise_bound,
                             _not_seen_beside_friction, _one_law_more_alike, _other_kinds, _seen_as_its_tail,
@@ -87,6 +89,6 @@ __all__ = ["AmplitudeDependence", "CONTACT_TWINS", "Discovery", "DiscoveryRules"
            "_adds_nothing", "_alike", "_beside_above_noise", "_check_with_harmonics", "_contact_twin", "_extension",
            "_fit_set", "_indistinguishable", "_Judge", "_kinds", "_limit_only_laws", "_noise_bound",
            "_not_seen_beside_friction", "_offer_frf_best_alike", "_offer_frf_best_single", "_one_law_more_alike",
-           "_other_kinds", "_preferred", "_pruned_beside_clearance", "_RefinedErrors", "_Search", "_seen_as_its_tail",
-           "_separation", "_shortlists", "_simplest", "_unseen_laws", "_verdict_overruled", "_walk_element",
-           "_warm_start"]
+           "_other_kinds", "_preferred", "_pruned_beside_clearance", "_reach_larger_fits", "_RefinedErrors", "_Search",
+           "_seen_as_its_tail", "_separation", "_shortlists", "_simplest", "_unseen_laws", "_verdict_overruled",
+           "_walk_element", "_warm_start"]
