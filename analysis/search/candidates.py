@@ -4,8 +4,9 @@ analysis/search/discovery.py; docs/discovery.md).
 Every set of one to ``max_laws`` laws of the library, at most one of each kind, is fitted to the element's kbar
 samples with the screening settings: pairs all, triples only by extending the ``triple_pool`` best pairs, each
 set started from its smaller sets' fits, the best sets with a contact law refitted placed in the element's
-structure, and each set refitted from a larger set's fit that holds the other laws at no size. A set with a law tied to another's is kept apart (named, never chosen) and a set with which the
-structure would not be admissible is refused; every other set is charged for its parameters,
+structure, and each set refitted from a larger set's fit that holds the other laws at no size. A set with a law
+tied to another's is kept apart (named, never chosen) and a set with which the structure would not be admissible
+is refused; every other set is charged for its parameters,
 ``chi2 / s^2 + p ln(2N)`` with s^2 the best set's reduced chi-square where it exceeds 1, and each size's shortlist
 is drawn for the FRFs to judge. The kbar is the element's own, decoupled from the structure, so a fit costs
 milliseconds and every set can be tried; nothing here predicts an FRF.
@@ -123,7 +124,8 @@ def _reach_larger_fits(by_laws: dict[tuple[str, ...], LawSet], samples: ElementS
     the set worse than the same laws with a law of no size beside them, and which valley it stops in can turn on
     round-off (docs/discovery.md, "How stable an answer is"). The refit starts at those values too, fitted as the
     larger set was (its contact placed in the structure or by its formula), and is kept where it fits better. A
-    placed fit is not refitted as a formula's: the placement is the more faithful of the two (:func:`_place_contacts`)."""
+    placed fit is not refitted as a formula's: the placement is the more faithful of the two
+    (:func:`_place_contacts`)."""
     for laws in sorted(by_laws, key=len):
         own = by_laws[laws]
         reached = [s for s in by_laws.values() if set(laws) < set(s.laws) and s.chi_square < own.chi_square
