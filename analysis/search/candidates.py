@@ -133,14 +133,13 @@ def _reach_larger_fits(by_laws: dict[tuple[str, ...], LawSet], samples: ElementS
         if not reached:
             continue
         best = min(reached, key=lambda s: s.chi_square)
-        start = [_start_values(best, name) if LAWS[name].shape else None for name in laws]
-        refit = _fit_set(samples, laws, rules, robust, around if _placed(best) else None,
-                         start if any(v is not None for v in start) else None)
+        refit = _fit_set(samples, laws, rules, robust, around if _placed(best) else None, _start_from(best, laws))
         if _separate(refit) and refit.chi_square < own.chi_square:
             by_laws[laws] = refit
 
 
 def _placed(s: LawSet) -> bool:
+    """Whether ``s`` was fitted with a contact placed in its structure (:func:`_place_contacts`)."""
     return s.fit is not None and any(t.surroundings is not None for t in s.fit.terms)
 
 
@@ -181,9 +180,15 @@ def _own_start(s: LawSet) -> list[dict | None] | None:
     structure"), from its grid's best point and from these values, the better kept: from the grid alone a contact
     beside a law that holds most of the kbar can run to no stiffness, where its gap moves nothing and the search
     stops, and the set is read as the other law alone although the fit of its formulas had found the contact."""
+    return _start_from(s, s.laws)
+
+
+def _start_from(s: LawSet, laws: tuple[str, ...]) -> list[dict | None] | None:
+    """Starting values for ``laws`` (all of them laws of ``s``) from the fit of ``s``: each law with shape
+    parameters at its values there; None where ``s`` has no fit or none of ``laws`` has a shape parameter."""
     if s.fit is None:
         return None
-    start = [_start_values(s, name) if LAWS[name].shape else None for name in s.laws]
+    start = [_start_values(s, name) if LAWS[name].shape else None for name in laws]
     return start if any(v is not None for v in start) else None
 
 

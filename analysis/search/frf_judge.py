@@ -27,7 +27,7 @@ from ..mechanics.nonparametric import fit_nonparametric
 from ..missing.diagnosis import RankingRules, frf_criterion
 from ..prediction.comparison import Comparison, HarmonicCriterion, Predictor, kbar_functions_with
 from ..prediction.frf_refinement import FrfRefinement, refine_against_frfs, terms_function
-from .candidates import _chi_square, _Search
+from .candidates import _chi_square, _placed, _Search
 from .kbar_evidence import (_beside_above_noise, _fits_better, _limit_only_laws, _not_seen_beside_friction,
                             _other_kinds, _unseen_laws, _unseen_why)
 from .records import DiscoveryRules, LawSet, WalkStep
@@ -126,7 +126,7 @@ class _Judge:
         limit_only = _limit_only_laws(larger, current, search, ranking.false_alarm, self.frfs_part_refined(search))
         if self.kbar_judges and larger.criterion >= current.criterion:
             return "its kbar does not call for it (the criterion, which charges for parameters, does not fall)", False
-        if unseen and (self.kbar_judges or any(t.surroundings is not None for t in larger.fit.terms)):
+        if unseen and (self.kbar_judges or _placed(larger)):
             return _unseen_why(unseen), True
         if limit_only:
             return f"its kbar shows {limit_only[0][0]} only in its limit: {limit_only[0][1]}", True
