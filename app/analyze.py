@@ -14,6 +14,7 @@ from analysis.prediction.comparison import gain_phrase
 from analysis.common.errors import InputError
 from analysis.common.statistics import OUTLIER_SHARE_LIMIT
 from analysis.common.wording import parameter_words
+from analysis.laws.base import Origin
 from analysis.signals.frf_noise import METHOD as NOISE_METHOD
 from analysis.missing.misfit import Misfit, systematic_misfits
 from analysis.common.measurements import Measurements
@@ -328,6 +329,17 @@ IN_REFERENCE_WHY = ("the reference was made from a measured level and holds the 
                     "\"Measured from the reference\")")
 
 
+def measured_from_why(origin: Origin | None) -> str:
+    """Why an element marked ``in_reference`` has its laws measured as it has (text and GUI): from their
+    small-amplitude state, or from the element's state at ``origin``, where the reference was made."""
+    if origin is None:
+        return IN_REFERENCE_WHY
+    return (f"the reference was made from a measured level and holds the element as it was at that level's resonance "
+            f"(amplitude {origin.X:.4g}, {origin.w / (2 * np.pi):.6g} Hz), its stiffness and dissipation "
+            "there included, so each law enters as its change from that state (docs/laws.md, \"Measured from the "
+            "reference\")")
+
+
 def report_text(wb: Workbench, candidates, top: int = 5,
                 comparisons: list[BackboneComparison] | None = None) -> str:
     """The analysis as a test engineer reads it (``comparisons``: :func:`backbones`, computed here if not
@@ -350,7 +362,7 @@ def report_text(wb: Workbench, candidates, top: int = 5,
         if r.yardstick is not None:
             out.append(f"    {r.yardstick.text(r.samples.units[0] if r.samples else 'N/m')}")
         if el.in_reference:
-            out.append(f"    measured from the reference: {IN_REFERENCE_WHY}")
+            out.append(f"    measured from the reference: {measured_from_why(el.origin)}")
         for j, term in enumerate(el.laws):
             fitted = r.fit.terms[j] if r.fit is not None else None
             reading = r.reading(term)

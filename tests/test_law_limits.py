@@ -9,6 +9,7 @@ import pytest
 from scipy.special import beta as beta_function
 
 from analysis.laws import LAWS
+from analysis.laws.base import Origin
 
 
 @pytest.mark.parametrize("chi, beta", [(-0.5, 0.1), (0.0, 0.0), (0.6, 2.0)])
@@ -130,3 +131,23 @@ def test_the_json_of_a_law_read_in_a_limit_gives_what_the_limit_leaves_open_as_n
     assert entry["reading"]["limit"] == "Coulomb friction" and entry["reading"]["undetermined"] == ["kt"]
     assert entry["params"] == {"kt": None, "fs": 2.0} and entry["undetermined"] == ["kt"]
     assert joint.laws[0].values["kt"] == 3.2e18          # the model keeps it: the prediction runs the law itself
+
+
+def test_the_micro_slip_form_measured_from_an_origin_is_the_iwans_less_its_kbar_there():
+    """The micro-slip form a fit takes for an Iwan element measured from an origin (docs/laws.md, "Measured from
+    the reference") is, at the values it places back in the Iwan, that Iwan measured from the same origin: its
+    closed-form departure less the spring and damper of the departure at the origin, nothing at the origin."""
+    origin = Origin(2e-6, 2 * np.pi * 80.0)
+    X_max = 5e-5
+    X = np.geomspace(1e-7, X_max, 30)
+    w = np.full_like(X, 2 * np.pi * 81.0)
+    iwan = LAWS["iwan"].relative(origin)
+    (form,) = iwan.limit_forms(X_max)
+    assert form.from_reference and form.origin == origin and form.relative(origin) is form
+    values = {"chi": -0.3, "D": 3e-4}
+    placed = form.law_values(values)
+    np.testing.assert_allclose(form.describing_function(X, w, **values),
+                               iwan.describing_function(X, w, **placed), rtol=1e-9, atol=1e-9 * abs(
+                                   complex(LAWS["iwan"].relative().describing_function(X_max, w[0], **placed))))
+    assert abs(complex(form.describing_function(origin.X, origin.w, **values))) < 1e-12 * abs(
+        complex(form.describing_function(X_max, origin.w, **values)))

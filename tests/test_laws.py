@@ -11,6 +11,7 @@ is integrated.
 from __future__ import annotations
 
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from scipy.integrate import quad
 from scipy.special import beta as beta_function
 
 from analysis.laws import LAWS
+from analysis.laws.base import Origin
 from analysis.laws.iwan import MAX_REVERSALS, iwan_unit, slip_range
 from analysis.laws.jenkins import jenkins_unit
 from analysis.laws.tanh_softening import tanh_fundamental
@@ -167,10 +169,51 @@ def test_a_law_measured_from_the_reference_is_its_kernel_less_its_small_amplitud
     df = relative.describing_function(X[:, None], w[None, :], **values)
     quadrature = np.array([[kbar_by_quadrature(name, values, x, f, relative) for f in w] for x in X])
     assert np.max(np.abs(quadrature - df) / np.abs(absolute)) <= TOLERANCE
-    k0 = relative.parameter_vector(**values)[-1]
+    k0, c = relative.parameter_vector(**values)[-2:]
     np.testing.assert_allclose(absolute - df, k0, rtol=1e-12)
+    assert c == 0.0         # a damper only where the law is measured from an origin
     tiny = law.describing_function(1e-40 * X.min(), w, **values)     # X^(chi+1) falls slowly for chi near -1
     assert np.all(np.abs(tiny.real / k0 - 1) < 1e-2) and np.all(np.abs(tiny.imag) < 1e-2 * k0)
+
+
+FROM_ORIGIN = [c for c in CASES if LAWS[c[0]].amplitude_dependent and not LAWS[c[0]].placed]
+
+
+@pytest.mark.parametrize("name, values, X, w", FROM_ORIGIN, ids=[f"{c[0]}-{i}" for i, c in enumerate(FROM_ORIGIN)])
+def test_a_law_measured_from_an_origin_is_its_kernel_less_the_spring_and_damper_of_its_kbar_there(name, values, X,
+                                                                                                   w):
+    """docs/laws.md, "Measured from the reference": measured from the element's state at an origin (X0, w0), a
+    law's describing function is the quadrature of its own kernel (f - k x - c v), it vanishes at the origin, and
+    it differs from the law's own by the spring and damper that equal the law's kbar at the origin (less k0, which
+    the form from no amplitude takes off already), k + j c w with c = Im / w0."""
+    X0, w0 = float(np.sqrt(X.min() * X.max())), 1.3 * float(w.mean())
+    origin = Origin(X0, w0)
+    law, measured = LAWS[name], LAWS[name].relative(origin)
+    assert (measured.name, measured.params, measured.from_reference, measured.origin) == \
+        (law.name, law.params, True, origin)
+    assert pickle.loads(pickle.dumps(measured)) is measured and measured.relative() is law.relative()
+    at_origin = complex(law.relative().describing_function(X0, w0, **values))
+    assert at_origin != 0.0
+    df = measured.describing_function(X[:, None], w[None, :], **values)
+    expected = law.relative().describing_function(X[:, None], w[None, :], **values) - (
+        at_origin.real + 1j * at_origin.imag * w[None, :] / w0)
+    np.testing.assert_allclose(df, expected, rtol=1e-12, atol=1e-12 * abs(at_origin))
+    assert abs(complex(measured.describing_function(X0, w0, **values))) <= 1e-12 * abs(at_origin)
+    absolute = law.describing_function(X[:, None], w[None, :], **values)
+    quadrature = np.array([[kbar_by_quadrature(name, values, x, f, measured) for f in w] for x in X])
+    assert np.max(np.abs(quadrature - df) / np.maximum(np.abs(absolute), abs(at_origin))) <= TOLERANCE
+    k, c = measured.parameter_vector(**values)[-2:]
+    k0 = law.relative().parameter_vector(**values)[-2] if law.relative() is not law else 0.0
+    np.testing.assert_allclose([k, c * w0], [k0 + at_origin.real, at_origin.imag], rtol=1e-12)
+
+
+def test_amplitude_independent_and_placed_laws_are_measured_as_before_whatever_the_origin():
+    """A linear law measured from an origin would vanish (it corrects the reference itself), and a contact placed
+    in its structure has its balance's kbar at the origin, which no spring and damper carry."""
+    origin = Origin(1e-5, 500.0)
+    for law in LAWS.values():
+        if law.placed or not law.amplitude_dependent:
+            assert law.relative(origin) is law.relative()
 
 
 def test_the_laws_with_a_small_amplitude_stiffness_are_the_softening_and_stuck_ones():

@@ -97,7 +97,8 @@ def fit_laws(laws, X, w, kbar, sigma=None, start=None, *, grid_points: int = 7, 
         samples, amplitudes <= 0, sigma <= 0, or no more real observations (2N)
         than fit parameters.
     """
-    terms = _resolve_terms(laws, start, surroundings is not None and surroundings.in_reference)
+    terms = _resolve_terms(laws, start, surroundings is not None and surroundings.in_reference,
+                           surroundings.origin if surroundings is not None else None)
     X, w, kbar, w_re, w_im = _samples(X, w, kbar, sigma)
     opts = _Options(grid_points, grid_budget, n_starts, tolerance, max_evaluations, rank_rtol)
     data = _Samples(X, w, kbar, w_re, w_im, sigma is not None)

@@ -13,12 +13,15 @@ from ..common.errors import InputError
 from ..common.recent import Recent
 from ..common.statistics import part_weight
 from ..laws import Law, get_law
+from ..laws.base import Origin
 from ..mechanics.elements import LawTerm
 
 
-def _resolve_terms(laws, start, relative: bool = False) -> list[tuple[Law, dict[str, float]]]:
+def _resolve_terms(laws, start, relative: bool = False, origin: Origin | None = None
+                   ) -> list[tuple[Law, dict[str, float]]]:
     """(law, starting values) per term from names, Law objects or LawTerms; ``relative``: each law measured from
-    its small-amplitude state (:meth:`analysis.laws.base.Law.relative`), the element's reference holding it."""
+    its small-amplitude state, or from ``origin`` where the reference was made at one
+    (:meth:`analysis.laws.base.Law.relative`), the element's reference holding that state."""
     if isinstance(laws, (str, Law, LawTerm)):
         laws = [laws]
     try:
@@ -48,7 +51,7 @@ def _resolve_terms(laws, start, relative: bool = False) -> list[tuple[Law, dict[
                 raise InputError(f"must be a table of parameter values, got {type(start[i]).__name__}",
                                  None, f"start[{i}]")
             values.update(start[i])
-        terms.append((law.relative() if relative else law, law.check_params(values, field=where)))
+        terms.append((law.relative(origin) if relative else law, law.check_params(values, field=where)))
     return terms
 
 

@@ -214,6 +214,27 @@ def broadcast(X, w) -> tuple[np.ndarray, np.ndarray]:
     return X, w
 
 
+@dataclass(frozen=True)
+class Origin:
+    """Where an element's laws are measured from when its reference was made from a measured level: the element's
+    amplitude ``X`` (m, or rad for a rotation) at that level's resonance and the resonance's frequency ``w``
+    (rad/s), whose lines decide the reference's modal damping and frequency (docs/laws.md, "Measured from the
+    reference"). The reference holds the joint as it was there, its dissipation included; a law measured from the
+    origin adds only its change from that state."""
+
+    X: float
+    w: float
+
+    def offset(self, at_origin: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """The spring and viscous damper equal to the complex stiffnesses ``at_origin`` (p,) at the origin's line,
+        at the lines ``w`` (any shape): ``Re a + j Im a w / w0``, shape ``(p,) + w.shape``. A damper and not a
+        constant loss, so that the time-domain force is a law's (``c v`` with c = Im a / w0); the lines of a
+        reference's level lie within a few per cent of its resonance, where the two agree."""
+        w = np.asarray(w, float)
+        a = np.asarray(at_origin, complex).reshape((-1,) + (1,) * w.ndim)
+        return a.real + 1j * a.imag * (w / self.w)
+
+
 class KbarFunction:
     """``f(X, w) -> kbar`` of a law at fixed parameter values (:meth:`Law.kbar_function`): the sum of the law's
     basis functions times its linear coefficients, at its shape values. A class, not a closure, so that a fit
@@ -277,6 +298,8 @@ class Law(ABC):
     placed: ClassVar[bool] = False
     # True for the law measured from its small-amplitude state (:meth:`relative`)
     from_reference: ClassVar[bool] = False
+    # where such a law is measured from when not from no amplitude (:class:`Origin`, :meth:`relative`)
+    origin: ClassVar["Origin | None"] = None
 
     def __init_subclass__(cls, **kwargs):
         # A jitted function stored on a class binds like a method; keep the numba
@@ -364,8 +387,8 @@ class Law(ABC):
         it to round-off (a fit can run the linear parameter to 1e16 and more, where a relative departure below
         1e-16 is then a finite stiffness)."""
         B = self.basis(X, w, **shape)
-        k0 = np.asarray(self.small_amplitude_basis(**shape), float)
-        return B - k0.reshape((-1,) + (1,) * (B.ndim - 1))
+        k0 = self.small_amplitude_basis(**shape)
+        return B if k0 is None else B - np.asarray(k0, float).reshape((-1,) + (1,) * (B.ndim - 1))
 
     def __reduce_ex__(self, protocol):
         """A law of the library, or the library law's :meth:`relative`, crosses a pipe as its name and comes back as
@@ -373,24 +396,35 @@ class Law(ABC):
         time and could not be found by name, and code compares laws by identity. Other laws (a limit's form, whose
         values are its own) as any object."""
         library = LIBRARY.get(self.name)
-        if library is self or (library is not None and self.from_reference and library.relative() is self):
-            return _library_law, (self.name, library is not self)
+        if library is self or (library is not None and self.from_reference
+                               and library.relative(self.origin) is self):
+            return _library_law, (self.name, library is not self, self.origin)
         return super().__reduce_ex__(protocol)
 
-    def relative(self) -> "Law":
+    def relative(self, origin: "Origin | None" = None) -> "Law":
         """This law measured from its small-amplitude state: kbar(X, w) - kbar(0+), force f(x) - k0 x with k0 the
         small-amplitude stiffness at the law's values (:meth:`small_amplitude_basis`). The law an element uses
         where its reference structure was made from a measured level and so holds the element's small-amplitude
         stiffness already (docs/laws.md, "Measured from the reference"): added to such a reference, the law
         itself would hold it twice. The same law, name and parameters; itself where it has no small-amplitude
-        stiffness."""
+        stiffness.
+
+        With ``origin``, measured from the element's state at the origin instead, where the reference was made:
+        kbar(X, w) less the spring and damper equal to kbar(X0, w0) (:meth:`Origin.offset`), force f less
+        ``k x + c v``. The reference holds the law's stiffness and dissipation at that amplitude; from no
+        amplitude, the law would add them a second time. Not for a law without amplitude dependence (measured
+        from anywhere it would vanish: it corrects the reference itself) nor for a contact placed in its
+        structure (its kbar at the origin is its balance's, which no spring and damper carry; it is the
+        small-amplitude one, none, where the contact is open there)."""
+        if origin is not None and (self.placed or not self.amplitude_dependent):
+            origin = None
         if self.from_reference:
-            return self
+            return self if origin == self.origin else self.measured_from.relative(origin)
         cls = type(self)
-        if cls not in _RELATIVE:       # decided once per law class: fits ask at every term
-            nothing = self.small_amplitude_basis(**_example_shape(self)) is None
-            _RELATIVE[cls] = self if nothing else _relative_class(cls)()
-        return _RELATIVE[cls]
+        if (cls, origin) not in _RELATIVE:       # decided once per law class and origin: fits ask at every term
+            nothing = origin is None and self.small_amplitude_basis(**_example_shape(self)) is None
+            _RELATIVE[cls, origin] = self if nothing else _relative_class(cls, origin)()
+        return _RELATIVE[cls, origin]
 
     def reading(self, values: Mapping[str, float], X_min: float, X_max: float) -> LimitReading | None:
         """The limit the fitted ``values`` put the law in over the amplitudes ``X_min..X_max`` measured, or None
@@ -531,7 +565,7 @@ class Law(ABC):
         return f"<law {self.name}({', '.join(self.param_names)})>"
 
 
-_RELATIVE: dict[type, Law] = {}
+_RELATIVE: dict[tuple[type, "Origin | None"], Law] = {}
 #: The law library by name, filled where each of its laws is made (analysis.laws, as ``LAWS``): a law crosses a
 #: pipe as its name in it (:meth:`Law.__reduce_ex__`)
 LIBRARY: dict[str, Law] = {}
@@ -560,43 +594,57 @@ class LimitForm(Law):
         choosing (the other law takes the difference)."""
 
 
-def _library_law(name: str, relative: bool) -> Law:
+def _library_law(name: str, relative: bool, origin: "Origin | None" = None) -> Law:
     """The library's law ``name``, or its :meth:`Law.relative` (:meth:`Law.__reduce_ex__`)."""
-    return LIBRARY[name].relative() if relative else LIBRARY[name]
+    return LIBRARY[name].relative(origin) if relative else LIBRARY[name]
 
 
-def _relative_class(cls: type) -> type:
-    """The subclass of law class ``cls`` measured from its small-amplitude state (:meth:`Law.relative`): the basis
-    less its X -> 0 limit, and the kernel (and update) less ``k0 x``, with k0 appended to the kernel's
-    parameter vector after the law's own constants."""
-    law = cls()
+def _relative_class(cls: type, origin: "Origin | None") -> type:
+    """The subclass of law class ``cls`` measured from its small-amplitude state, or from ``origin``
+    (:meth:`Law.relative`): the basis less its X -> 0 limit (and less its offset at the origin), and the kernel
+    (and update) less ``k x + c v``, with k and c appended to the kernel's parameter vector after the law's own
+    constants (c = 0 without an origin)."""
+    library = LIBRARY.get(cls.name)
+    law = library if type(library) is cls else cls()
     contract = law.check_params(law.example, complete=True)
     at = len(law.params) + len(law.kernel_constants(*(contract[p.name] for p in law.params)))
-    kernel = _less_stiffness(cls.kernel, at)
     members = {
         "from_reference": True,
-        "__doc__": f"{cls.__doc__ or cls.__name__} Measured from its small-amplitude state (Law.relative).",
+        "origin": origin,
+        "__doc__": f"{cls.__doc__ or cls.__name__} Measured from its "
+                   f"{'small-amplitude state' if origin is None else 'state at an origin'} (Law.relative).",
         "basis": _relative_basis,
         "measured_from": law,       # the law itself, whose basis this one's is less its small-amplitude state
         "kernel_constants": _relative_constants,
-        "kernel": kernel,
+        "kernel": _less_spring_and_damper(cls.kernel, at),
         "stick_limit": None,        # a model's law, never simulated: the simulator takes its rig's laws
     }
     if cls.update is not None:
-        members["update"] = _less_stiffness_update(cls.update, at)
+        members["update"] = _less_spring_and_damper_update(cls.update, at)
         members["commit"] = cls.commit
     return type(f"Relative{cls.__name__}", (cls,), members)
 
 
 def _relative_basis(self, X, w, **shape):
-    return self.measured_from.basis_from_small_amplitude(X, w, **shape)
+    B = self.measured_from.basis_from_small_amplitude(X, w, **shape)
+    if self.origin is None:
+        return B
+    at_origin = self.measured_from.basis_from_small_amplitude(self.origin.X, self.origin.w, **shape)
+    return B - self.origin.offset(at_origin, np.broadcast_to(np.asarray(w, float), B.shape[1:]))
 
 
 def _relative_constants(self, *contract):
     base = super(type(self), self).kernel_constants(*contract)
     linear, shape = self.to_fit(dict(zip(self.param_names, contract)))
+    coefficients = np.array([linear[n] for n in self.linear], float)
     k0 = super(type(self), self).small_amplitude_basis(**shape)
-    return (*base, float(sum(linear[n] * b for n, b in zip(self.linear, k0))))
+    k = 0.0 if k0 is None else float(coefficients @ np.asarray(k0, float))
+    c = 0.0
+    if self.origin is not None:
+        a = complex(coefficients @ np.asarray(self.measured_from.basis_from_small_amplitude(
+            self.origin.X, self.origin.w, **shape), complex).reshape(-1))
+        k, c = k + a.real, a.imag / self.origin.w
+    return (*base, k, c)
 
 
 def _inlined(kernel):
@@ -607,19 +655,22 @@ def _inlined(kernel):
     return njit(inline="always")(kernel.py_func)
 
 
-def _less_stiffness(kernel, at: int):
+@functools.lru_cache(maxsize=None)
+def _less_spring_and_damper(kernel, at: int):
+    """``kernel - p[at] x - p[at + 1] v``: once per law kernel, whatever the origin (its k and c are constants)."""
     kernel = _inlined(kernel)
 
     @njit
     def relative(x, v, p, s):
-        return kernel(x, v, p, s) - p[at] * x
+        return kernel(x, v, p, s) - p[at] * x - p[at + 1] * v
     return relative
 
 
-def _less_stiffness_update(update, at: int):
+@functools.lru_cache(maxsize=None)
+def _less_spring_and_damper_update(update, at: int):
     update = _inlined(update)
 
     @njit
     def relative(x, v, p, s, out):
-        return update(x, v, p, s, out) - p[at] * x
+        return update(x, v, p, s, out) - p[at] * x - p[at + 1] * v
     return relative

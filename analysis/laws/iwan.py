@@ -79,7 +79,7 @@ import numpy as np
 from ..common.compiled import njit
 
 from ._special import slip_imag, slip_real
-from .base import Law, LimitForm, LimitReading, Param, broadcast
+from .base import Law, LimitForm, LimitReading, Origin, Param, broadcast
 from .jenkins import Jenkins
 
 MAX_REVERSALS = 64
@@ -355,7 +355,7 @@ class Iwan(Law):
                 "chi": shape["chi"], "beta": shape["beta"]}
 
     def limit_forms(self, X_max):
-        return (MicroSlip(X_max, self.from_reference),)
+        return (MicroSlip(X_max, self.from_reference, self.origin),)
 
     def small_amplitude_basis(self, xs, chi, beta):
         return np.ones(1)       # every slider stuck: the whole stiffness kt
@@ -455,17 +455,18 @@ class MicroSlip(LimitForm):
     example = {"kt": 1.0e5, "chi": -0.5, "D": 1e-6}
     stiffness = "kt"
 
-    def __init__(self, X_max: float, relative: bool = False):
+    def __init__(self, X_max: float, relative: bool = False, origin: Origin | None = None):
         self.X_max = float(X_max)
         self.from_reference = relative
+        self.origin = origin if relative else None
         if relative:
             self.params = self.params[1:]
             self.linear = ("D",)
             self.example = {"chi": -0.5, "D": 1e-6}
             self.stiffness = None
 
-    def relative(self) -> "MicroSlip":
-        return self if self.from_reference else MicroSlip(self.X_max, True)
+    def relative(self, origin: Origin | None = None) -> "MicroSlip":
+        return self if self.from_reference and origin == self.origin else MicroSlip(self.X_max, True, origin)
 
     def small_amplitude_basis(self, chi):
         return None if self.from_reference else np.array([1.0, 0.0])
@@ -476,7 +477,12 @@ class MicroSlip(LimitForm):
         xs = self.X_max * (chi + 1.0) / (chi + 2.0)
         per_kt = self.X_max ** 2 * 4.0 * (chi + 1.0) / ((chi + 2.0) * (chi + 3.0))     # D / kt there
         departure = iwan_unit(X, xs, chi, 0.0, less_stuck=True) / per_kt
-        return departure[None] if self.from_reference else np.stack([np.ones(X.shape, complex), departure])
+        if not self.from_reference:
+            return np.stack([np.ones(X.shape, complex), departure])
+        if self.origin is None:
+            return departure[None]
+        at_origin = iwan_unit(np.array([self.origin.X]), xs, chi, 0.0, less_stuck=True) / per_kt
+        return departure[None] - self.origin.offset(at_origin, w)
 
     def law_values(self, values, stiffness_seen=True):
         chi, D = float(values["chi"]), float(values["D"])

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..common.errors import InputError
 from ..common.measurements import Measurements, SineRun
+from ..laws.base import Origin
 from ..mechanics.elements import Element
 from ..mechanics.model import Model
 from ..mechanics.structures import load_structure
@@ -47,6 +48,8 @@ class LevelReference:
         Relative FRF error of the modal structure against the level's FRFs over all its lines and sensors.
     next_run : str or None
         The level compared with; ``next_fit`` its modal fit.
+    origin : Origin
+        The joint's state the reference holds (:func:`origin_of`), where its laws are measured from.
     """
 
     run: str
@@ -56,6 +59,7 @@ class LevelReference:
     frf_error: float
     next_run: str | None = None
     next_fit: ModalFit | None = None
+    origin: Origin | None = None
 
     @property
     def shifts(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -76,6 +80,9 @@ class LevelReference:
             out.append(f"  mode {r + 1}: {self.fit.frequency[r]:.6g} Hz, damping {self.fit.damping[r]:.4g}, "
                        f"fit error {self.fit.fit_error[r]:.3g} on {lo:.5g}-{hi:.5g} Hz")
         out.append(f"  FRF error of the reference on its level: {self.frf_error:.3g}")
+        if self.origin is not None:
+            out.append(f"  the joint's laws measured from its state at this level's resonance: amplitude "
+                       f"{self.origin.X:.4g}, {self.origin.w / (2 * np.pi):.6g} Hz")
         s = self.shifts
         if self.next_run is None:
             out.append("  no other level to judge its linearity by")
@@ -96,9 +103,25 @@ class LevelReference:
     def model(self) -> Model:
         """The model: this structure and the joint element at the drive point, grounded, no laws (``analyze``
         finds them). The structure holds the joint's stiffness at this level, so the element is marked
-        ``in_reference``: its laws are measured from their small-amplitude state."""
+        ``in_reference``: its laws are measured from its state at this level (:attr:`origin`)."""
         return Model(dict(self.table), load_structure(self.table),
-                     [Element(ELEMENT, (self.drive,), [], in_reference=True)])
+                     [Element(ELEMENT, (self.drive,), [], in_reference=True, origin=self.origin)])
+
+
+def origin_of(run: SineRun, fit: ModalFit, band=None) -> Origin:
+    """The joint's state the reference holds: the drive point's amplitude at the resonance of the mode that
+    responds most (within ``band``, Hz), at that mode's fitted frequency. The lines about a resonance decide the
+    modal fit's damping and frequency; a level held at a constant acceleration has its largest displacement at its
+    lowest line, not there. The joint element sits at the drive point, grounded: its amplitude is the drive
+    point's."""
+    k = run.sensor_dofs.index(run.excitation_dof)
+    size = np.abs(run.receptance[:, k]) * run.force_per_line
+    f = np.asarray(run.frequency_hz, float)
+    inside = np.ones(f.size, bool) if band is None else (f >= band[0]) & (f <= band[1])
+    peak = f[np.flatnonzero(inside)[np.argmax(size[inside])]]
+    f0 = float(fit.frequency[np.argmin(np.abs(np.asarray(fit.frequency) - peak))])
+    line = np.flatnonzero(inside)[np.argmin(np.abs(f[inside] - f0))]
+    return Origin(float(size[line]), 2.0 * np.pi * f0)
 
 
 def response_size(run: SineRun, drive: str) -> float:
@@ -172,7 +195,8 @@ def reference_from_level(measurements: Measurements, run: str | None = None, ban
         base = levels[0]
     fit = _fit(base, band)
     table = _table(base, fit)
-    out = LevelReference(base.name, base.excitation_dof, fit, table, _frf_error(base, table))
+    out = LevelReference(base.name, base.excitation_dof, fit, table, _frf_error(base, table),
+                         origin=origin_of(base, fit, band))
     above = [r for r in levels if response_size(r, r.excitation_dof) > response_size(base, base.excitation_dof)
              * (1 + 1e-9) and r.control.key() != base.control.key()]
     if above:

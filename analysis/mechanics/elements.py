@@ -8,6 +8,7 @@ function only, so an element carrying one has no time-domain force).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,13 +16,15 @@ import numpy as np
 from ..common.errors import InputError
 from ..common.tables import Fields
 from ..laws import Law, get_law
-from ..laws.base import broadcast
+from ..laws.base import Origin, broadcast
 from .nonparametric import NAME as NONPARAMETRIC, NonParametric
 from .structures import Structure
 from .surroundings import Surroundings, linear_part, placed_kbar, surroundings_of
 
 #: The model file's key of an element whose reference holds its small-amplitude stiffness (docs/contracts.md §4)
 IN_REFERENCE = "in_reference"
+#: ... and of where its laws are measured from, the state the reference holds it in (docs/contracts.md §4)
+ORIGIN = "origin"
 
 
 @dataclass
@@ -59,11 +62,14 @@ class Element:
     # the reference structure holds the element's small-amplitude stiffness (it was made from a measured level):
     # every law of the element is measured from its small-amplitude state (analysis.laws.base.Law.relative)
     in_reference: bool = False
+    # ... and where the reference records the element's state at the level it was made from, the laws are measured
+    # from that state (analysis.laws.base.Origin)
+    origin: Origin | None = None
 
     def law(self, name: str, source: str | None = None, field: str | None = None) -> Law:
         """The law called ``name`` as this element uses it: measured from its small-amplitude state where the
-        reference holds that state (:attr:`in_reference`)."""
-        return _element_law(name, self.in_reference, source, field)
+        reference holds that state (:attr:`in_reference`), from :attr:`origin` where it has one."""
+        return _element_law(name, self.in_reference, self.origin, source, field)
 
     @property
     def time_domain(self) -> bool:
@@ -115,9 +121,23 @@ class Element:
         return total
 
 
-def _element_law(name: str, in_reference: bool, source: str | None, field: str | None) -> Law:
+def _element_law(name: str, in_reference: bool, origin: Origin | None, source: str | None,
+                 field: str | None) -> Law:
     law = get_law(name, source, field)
-    return law.relative() if in_reference else law
+    return law.relative(origin) if in_reference else law
+
+
+def _origin(f: Fields, in_reference: bool) -> Origin | None:
+    """The element's ``origin = { amplitude = X0, frequency = f0 }`` (m or rad; Hz), where it has one: only beside
+    ``in_reference = true``, which it refines."""
+    if not f.has(ORIGIN):
+        return None
+    if not in_reference:
+        raise f.error(ORIGIN, "is where the laws of an element whose reference holds it are measured from: it "
+                              f"needs {IN_REFERENCE} = true")
+    o = f.sub(ORIGIN)
+    o.unknown_keys({"amplitude", "frequency"})
+    return Origin(o.number("amplitude", positive=True), 2.0 * math.pi * o.number("frequency", positive=True))
 
 
 def load_elements(document: dict, structure: Structure, source: str | None = None,
@@ -134,13 +154,14 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
     seen: set[str] = set()
     for i, f in enumerate(root.list_of_tables("element")):
         f.where = f"[[element]][{i}]"
-        f.unknown_keys({"name", "dof", "between", "laws", NONPARAMETRIC, IN_REFERENCE})
+        f.unknown_keys({"name", "dof", "between", "laws", NONPARAMETRIC, IN_REFERENCE, ORIGIN})
         in_reference = False
         if f.has(IN_REFERENCE):
             if complete:
                 raise f.error(IN_REFERENCE, "a rig's element is the truth, with its whole force: it cannot be "
                                             "measured from a reference")
             in_reference = f.boolean(IN_REFERENCE)
+        origin = _origin(f, in_reference)
         name = f.string("name")
         if not name or name != name.strip() or ":" in name:
             raise f.error("name", f"{name!r} is not an element name: give a non-empty name without a colon "
@@ -171,7 +192,7 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
                 entry = {"law": entry}
             if not isinstance(entry, dict) or "law" not in entry:
                 raise InputError("each law is a name or a table with a 'law' key", source, where)
-            law = _element_law(entry["law"], in_reference, source, f"{where}.law")
+            law = _element_law(entry["law"], in_reference, origin, source, f"{where}.law")
             values = {k: v for k, v in entry.items() if k != "law"}
             numbers = Fields(values, source, where)
             for key, value in values.items():
@@ -189,7 +210,7 @@ def load_elements(document: dict, structure: Structure, source: str | None = Non
                 raise f.error(NONPARAMETRIC, "a rig's element needs laws with a time-domain force; a "
                               "non-parametric part has none and cannot be simulated")
             part = NonParametric.from_toml(f.table[NONPARAMETRIC], source, f.path(NONPARAMETRIC))
-        element = Element(name, dofs, terms, part, in_reference=in_reference)
-        element.surroundings = surroundings_of(structure, element.vector(structure), in_reference)
+        element = Element(name, dofs, terms, part, in_reference=in_reference, origin=origin)
+        element.surroundings = surroundings_of(structure, element.vector(structure), in_reference, origin)
         elements.append(element)
     return elements

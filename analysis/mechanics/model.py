@@ -28,7 +28,7 @@ import numpy as np
 from ..common.errors import InputError
 from ..common.quantities import FORCE_RANGE, FREQUENCY_RANGE, RESPONSE_RANGE
 from ..common.tables import Fields
-from .elements import IN_REFERENCE, Element, LawTerm, load_elements
+from .elements import IN_REFERENCE, ORIGIN, Element, LawTerm, load_elements
 from .nonparametric import NAME as NONPARAMETRIC
 from .structures import Structure, load_structure, structure_parameter
 from .surroundings import surroundings_of
@@ -92,7 +92,8 @@ class Model:
         that has them (a copy's, sharing the receptances computed) keeps them."""
         for el in self.elements:
             if not (keep and el.surroundings is not None):
-                el.surroundings = surroundings_of(self.structure, el.vector(self.structure), el.in_reference)
+                el.surroundings = surroundings_of(self.structure, el.vector(self.structure), el.in_reference,
+                                                  el.origin)
 
     def element(self, name: str) -> Element:
         for el in self.elements:
@@ -104,7 +105,7 @@ class Model:
     def copy(self) -> "Model":
         return Model(copy.deepcopy(self.structure_table), self.structure,
                      [Element(e.name, e.dofs, [LawTerm(t.law, dict(t.values)) for t in e.laws], e.nonparametric,
-                             e.surroundings, e.in_reference)
+                             e.surroundings, e.in_reference, e.origin)
                       for e in self.elements],
                      list(self.updating_parameters), self.updating_modes, self.source, self.fitted_on)
 
@@ -143,6 +144,9 @@ class Model:
             out.append(f"laws = [{laws}]")
             if el.in_reference:
                 out.append(f"{IN_REFERENCE} = true")
+            if el.origin is not None:
+                out.append(f"{ORIGIN} = {{ amplitude = {_toml_value(el.origin.X)}, "
+                           f"frequency = {_toml_value(el.origin.w / (2.0 * math.pi))} }}")
             if el.nonparametric is not None:
                 out.append(f"{NONPARAMETRIC} = {_toml_value(el.nonparametric.to_toml())}")
         if self.fitted_on is not None:

@@ -39,7 +39,7 @@ from ..common.parallel import task_scope
 from ..common.recent import Recent
 from ..common.small_solve import NOT_FINITE, SINGULAR, solve_small
 from ..laws import Law
-from ..laws.base import broadcast
+from ..laws.base import Origin, broadcast
 from .structures import Structure
 
 #: Harmonics balanced besides the fundamental (0, 2, ..., N). On a single mass 5 are within 0.01 % of the
@@ -81,8 +81,10 @@ class Surroundings:
     # fit asks the same samples again and again, at parameters a step apart
     starts: "_Starts" = field(default_factory=lambda: _Starts(), repr=False, compare=False)
     # the structure was made from a measured level and holds the element's small-amplitude stiffness: the
-    # element's laws are measured from their small-amplitude state (analysis.laws.base.Law.relative)
+    # element's laws are measured from their small-amplitude state (analysis.laws.base.Law.relative), or from
+    # ``origin`` where the reference records the element's state at the level it was made from
     in_reference: bool = False
+    origin: Origin | None = None
 
     def receptance(self, W) -> np.ndarray:
         """R(W) for angular frequencies W (any shape), complex; NaN at a frequency that is not finite. Each
@@ -111,7 +113,7 @@ class Surroundings:
         """The same place with the element's amplitude-independent laws ``stiffness(W)`` in parallel (sharing
         the structure's receptances)."""
         return Surroundings(self.structure, self.vector, stiffness, self._receptances, starts=self.starts,
-                            in_reference=self.in_reference)
+                            in_reference=self.in_reference, origin=self.origin)
 
 
 class _Receptances:
@@ -178,10 +180,12 @@ def _starts_of(token: tuple) -> _Starts:
     return _LIVE_STARTS.get(token) or _Starts()
 
 
-def surroundings_of(structure: Structure, vector: np.ndarray, in_reference: bool = False) -> Surroundings:
+def surroundings_of(structure: Structure, vector: np.ndarray, in_reference: bool = False,
+                    origin: Origin | None = None) -> Surroundings:
     """The structure around the element of element vector ``vector`` (``x_element = vector @ x``);
-    ``in_reference``: it holds the element's small-amplitude stiffness (:attr:`Surroundings.in_reference`)."""
-    return Surroundings(structure, np.asarray(vector, float), in_reference=in_reference)
+    ``in_reference``: it holds the element's small-amplitude stiffness, or its state at ``origin``
+    (:attr:`Surroundings.in_reference`)."""
+    return Surroundings(structure, np.asarray(vector, float), in_reference=in_reference, origin=origin)
 
 
 def linear_part(terms) -> Callable[[np.ndarray], np.ndarray] | None:

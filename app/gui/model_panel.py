@@ -18,7 +18,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QFileDialog, QFrame, QGroupBox
 
 from analysis.prediction.comparison import gain_phrase
 from analysis.mechanics.nonparametric import NAME as NONPARAMETRIC
-from app.analyze import IN_REFERENCE_WHY
+from app.analyze import measured_from_why
 from app.predict import KIND_WORDS
 
 from app.kbar_view import legend_column, level_panels, panel_title
@@ -492,8 +492,11 @@ class ModelPanel(QWidget):
             if not el.laws:
                 QTreeWidgetItem(top, ["no laws yet (kbar identified only)"])
             elif el.in_reference:
-                note = QTreeWidgetItem(top, ["laws measured from their small-amplitude state (in the reference)"])
-                note.setToolTip(0, IN_REFERENCE_WHY[0].upper() + IN_REFERENCE_WHY[1:] + ".")
+                note = QTreeWidgetItem(top, ["laws measured from their small-amplitude state (in the reference)"
+                                             if el.origin is None else
+                                             "laws measured from the joint's state at the reference's level"])
+                why = measured_from_why(el.origin)
+                note.setToolTip(0, why[0].upper() + why[1:] + ".")
             for law in el.laws:
                 item = QTreeWidgetItem(top, [f"{law.law}, read as {law.limit}" if law.limit else law.law])
                 if law.why:

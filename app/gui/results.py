@@ -16,7 +16,7 @@ from analysis.prediction.comparison import LevelError
 from analysis.missing.diagnosis import Candidate, ElementSamples
 from analysis.common.measurements import Control, Measurements, SineRun
 from analysis.common.wording import parameter_words
-from analysis.laws.base import render_unit
+from analysis.laws.base import Origin, render_unit
 from analysis.loop.workbench import Workbench
 from analysis.mechanics.model import FittedOn
 from analysis.prediction.held_out import SessionPrediction
@@ -60,6 +60,7 @@ class ElementView:
     nonparametric: str = ""           # the non-parametric part, described; "" when the element has none
     model: np.ndarray | None = None   # the fitted laws' kbar at the samples; None before fitting
     in_reference: bool = False        # its laws are measured from their small-amplitude state (docs/laws.md)
+    origin: Origin | None = None      # ... or from its state at the reference's level (analysis.laws.base.Origin)
     yardstick: str = ""               # which noise judged it: the line noise or the scatter between runs
 
     @property
@@ -273,7 +274,7 @@ def element_views(wb: Workbench, with_laws: bool) -> list[ElementView]:
                                  "" if verdict is None else verdict.evidence, report.lines_used,
                                  report.lines_flagged, tuple(laws), part,
                                  el.describing_function(samples.X, samples.w) if fitted else None,
-                                 el.in_reference,
+                                 el.in_reference, el.origin,
                                  "" if report.yardstick is None or samples is None
                                  else report.yardstick.text(samples.units[0])))
     return views
