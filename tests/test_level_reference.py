@@ -12,6 +12,7 @@ import rk4_rig
 from analysis import InputError, load_structure
 from analysis.common.measurements import Measurements, SineRun
 from analysis.laws.base import Origin
+from analysis.linear.level_reference import reference_from_level
 from analysis.mechanics.model import load_model
 from analysis.loop.workbench import Workbench
 from app.cli import main
@@ -380,3 +381,25 @@ def test_the_window_says_where_an_elements_laws_are_measured_from(cubic_damping_
     [note] = [n for n in notes if n.text(0) == "laws measured from the joint's state at the reference's level"]
     origin = load_model(tomllib.loads(model.read_text())).elements[0].origin
     assert f"amplitude {origin.X:.4g}, {origin.w / (2 * np.pi):.6g} Hz" in note.toolTip(0)
+
+
+def test_the_origin_is_the_drive_point_at_the_resonance_not_at_the_largest_displacement():
+    """docs/laws.md, "Measured from the reference": a level held at a constant acceleration has its largest
+    displacement at its lowest line; the joint's state the reference holds is the one at its resonance, whose lines
+    decide the modal fit: the origin is the mode's fitted frequency and the drive point's amplitude at the line
+    nearest it, within ``--band`` where one is given."""
+    fn, zeta, acceleration = 80.0, 0.002, 5.0
+    f = np.linspace(78.0, 82.0, 81)
+    w, wn = 2 * np.pi * f, 2 * np.pi * fn
+    H = 1.0 / (wn ** 2 - w ** 2 + 2j * zeta * wn * w)              # m/N, a unit modal mass
+    force = acceleration / (w ** 2 * np.abs(H))                      # the controller holds |a| = 5 m/s^2
+    run = SineRun("sine_5mps2_up", 1.0, "up", "x1", ["x1"], f, H[:, None], force_achieved=force)
+    reference = reference_from_level(Measurements([run]))
+    fitted = reference.fit.frequency[0]
+    assert fitted == pytest.approx(fn, rel=1e-6)
+    assert reference.origin.w == pytest.approx(2 * np.pi * fitted, rel=1e-12)
+    line = np.argmin(np.abs(f - fitted))
+    assert reference.origin.X == pytest.approx(acceleration / w[line] ** 2, rel=1e-9)
+    assert reference.origin.X < 0.97 * acceleration / w[0] ** 2      # not the lowest line's larger displacement
+    band = reference_from_level(Measurements([run]), band=(79.0, 82.0))
+    assert (band.origin.X, band.origin.w) == pytest.approx((reference.origin.X, reference.origin.w), rel=1e-9)
