@@ -436,7 +436,8 @@ class MicroSlip(LimitForm):
     """The Iwan joint in micro-slip up to the largest amplitude ``X_max`` of the data: no element slips through,
     and kbar = kt + D (X / X_max)^(chi+1) (-r(chi) + j) / (pi X_max^2) (:meth:`Iwan.reading`), D the dissipation
     per cycle at X_max. Measured from the reference (``relative``) kt is the reference's, and the form is
-    D and chi alone.
+    D and chi alone; measured from an ``origin`` as well, it is less the spring and damper of its kbar there, as
+    the Iwan it places back is (:meth:`analysis.laws.base.Law.relative`).
 
     Placed back in the Iwan (:meth:`law_values`) with no spike (beta = 0, the continuum alone): with kt known the
     continuum's slip range follows from D, and the form has no Iwan where it falls below X_max (the data ask for
