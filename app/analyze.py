@@ -335,7 +335,7 @@ def measured_from_why(origin: Origin | None) -> str:
     if origin is None:
         return IN_REFERENCE_WHY
     return (f"the reference was made from a measured level and holds the element as it was at that level's resonance "
-            f"(amplitude {origin.X:.4g}, {origin.w / (2 * np.pi):.6g} Hz), its stiffness and dissipation "
+            f"({origin.text()}), its stiffness and dissipation "
             "there included, so each law enters as its change from that state (docs/laws.md, \"Measured from the "
             "reference\")")
 

@@ -225,14 +225,22 @@ class Origin:
     X: float
     w: float
 
-    def offset(self, at_origin: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """The spring and viscous damper equal to the complex stiffnesses ``at_origin`` (p,) at the origin's line,
-        at the lines ``w`` (any shape): ``Re a + j Im a w / w0``, shape ``(p,) + w.shape``. A damper and not a
-        constant loss, so that the time-domain force is a law's (``c v`` with c = Im a / w0); the lines of a
-        reference's level lie within a few per cent of its resonance, where the two agree."""
-        w = np.asarray(w, float)
+    @property
+    def hz(self) -> float:
+        """The origin's frequency in Hz, as model files and reports give it."""
+        return self.w / (2.0 * math.pi)
+
+    def text(self) -> str:
+        return f"amplitude {self.X:.4g}, {self.hz:.6g} Hz"
+
+    def less(self, basis: np.ndarray, at_origin: np.ndarray, w) -> np.ndarray:
+        """``basis`` (p, ...) less the spring and viscous damper equal to the complex stiffnesses ``at_origin``
+        (p,) at the origin's line: ``B - (Re a + j Im a w / w0)`` at the lines ``w`` (broadcast to the samples).
+        A damper and not a constant loss, so that the time-domain force is a law's (``c v`` with c = Im a / w0);
+        the lines of a reference's level lie within a few per cent of its resonance, where the two agree."""
+        w = np.broadcast_to(np.asarray(w, float), basis.shape[1:])
         a = np.asarray(at_origin, complex).reshape((-1,) + (1,) * w.ndim)
-        return a.real + 1j * a.imag * (w / self.w)
+        return basis - (a.real + 1j * a.imag * (w / self.w))
 
 
 class KbarFunction:
@@ -410,7 +418,7 @@ class Law(ABC):
         stiffness.
 
         With ``origin``, measured from the element's state at the origin instead, where the reference was made:
-        kbar(X, w) less the spring and damper equal to kbar(X0, w0) (:meth:`Origin.offset`), force f less
+        kbar(X, w) less the spring and damper equal to kbar(X0, w0) (:meth:`Origin.less`), force f less
         ``k x + c v``. The reference holds the law's stiffness and dissipation at that amplitude; from no
         amplitude, the law would add them a second time. Not for a law without amplitude dependence (measured
         from anywhere it would vanish: it corrects the reference itself) nor for a contact placed in its
@@ -627,10 +635,13 @@ def _relative_class(cls: type, origin: "Origin | None") -> type:
 
 def _relative_basis(self, X, w, **shape):
     B = self.measured_from.basis_from_small_amplitude(X, w, **shape)
-    if self.origin is None:
-        return B
-    at_origin = self.measured_from.basis_from_small_amplitude(self.origin.X, self.origin.w, **shape)
-    return B - self.origin.offset(at_origin, np.broadcast_to(np.asarray(w, float), B.shape[1:]))
+    return B if self.origin is None else self.origin.less(B, _at_origin(self, shape), w)
+
+
+def _at_origin(self, shape) -> np.ndarray:
+    """The relative law's basis from its small-amplitude state at its origin, shape (len(linear),) complex."""
+    return np.asarray(self.measured_from.basis_from_small_amplitude(self.origin.X, self.origin.w, **shape),
+                      complex).reshape(-1)
 
 
 def _relative_constants(self, *contract):
@@ -641,8 +652,7 @@ def _relative_constants(self, *contract):
     k = 0.0 if k0 is None else float(coefficients @ np.asarray(k0, float))
     c = 0.0
     if self.origin is not None:
-        a = complex(coefficients @ np.asarray(self.measured_from.basis_from_small_amplitude(
-            self.origin.X, self.origin.w, **shape), complex).reshape(-1))
+        a = complex(coefficients @ _at_origin(self, shape))
         k, c = k + a.real, a.imag / self.origin.w
     return (*base, k, c)
 

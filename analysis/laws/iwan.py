@@ -483,7 +483,7 @@ class MicroSlip(LimitForm):
         if self.origin is None:
             return departure[None]
         at_origin = iwan_unit(np.array([self.origin.X]), xs, chi, 0.0, less_stuck=True) / per_kt
-        return departure[None] - self.origin.offset(at_origin, w)
+        return self.origin.less(departure[None], at_origin, w)
 
     def law_values(self, values, stiffness_seen=True):
         chi, D = float(values["chi"]), float(values["D"])

@@ -81,8 +81,7 @@ class LevelReference:
                        f"fit error {self.fit.fit_error[r]:.3g} on {lo:.5g}-{hi:.5g} Hz")
         out.append(f"  FRF error of the reference on its level: {self.frf_error:.3g}")
         if self.origin is not None:
-            out.append(f"  the joint's laws measured from its state at this level's resonance: amplitude "
-                       f"{self.origin.X:.4g}, {self.origin.w / (2 * np.pi):.6g} Hz")
+            out.append(f"  the joint's laws measured from its state at this level's resonance: {self.origin.text()}")
         s = self.shifts
         if self.next_run is None:
             out.append("  no other level to judge its linearity by")
@@ -117,10 +116,10 @@ def origin_of(run: SineRun, fit: ModalFit, band=None) -> Origin:
     k = run.sensor_dofs.index(run.excitation_dof)
     size = np.abs(run.receptance[:, k]) * run.force_per_line
     f = np.asarray(run.frequency_hz, float)
-    inside = np.ones(f.size, bool) if band is None else (f >= band[0]) & (f <= band[1])
-    peak = f[np.flatnonzero(inside)[np.argmax(size[inside])]]
+    lines = np.arange(f.size) if band is None else np.flatnonzero((f >= band[0]) & (f <= band[1]))
+    peak = f[lines[np.argmax(size[lines])]]
     f0 = float(fit.frequency[np.argmin(np.abs(np.asarray(fit.frequency) - peak))])
-    line = np.flatnonzero(inside)[np.argmin(np.abs(f[inside] - f0))]
+    line = lines[np.argmin(np.abs(f[lines] - f0))]
     return Origin(float(size[line]), 2.0 * np.pi * f0)
 
 

@@ -88,7 +88,7 @@ class ElementReport:
                "lines_used": self.lines_used, "lines_flagged": self.lines_flagged, "laws": laws,
                "in_reference": element.in_reference}
         if element.origin is not None:
-            out["origin"] = {"amplitude": element.origin.X, "frequency": element.origin.w / (2 * np.pi)}
+            out["origin"] = {"amplitude": element.origin.X, "frequency": element.origin.hz}
         if self.verdict is not None:
             out["statistic"], out["threshold"] = self.verdict.statistic, self.verdict.threshold
         if self.yardstick is not None:

@@ -146,7 +146,7 @@ class Model:
                 out.append(f"{IN_REFERENCE} = true")
             if el.origin is not None:
                 out.append(f"{ORIGIN} = {{ amplitude = {_toml_value(el.origin.X)}, "
-                           f"frequency = {_toml_value(el.origin.w / (2.0 * math.pi))} }}")
+                           f"frequency = {_toml_value(el.origin.hz)} }}")
             if el.nonparametric is not None:
                 out.append(f"{NONPARAMETRIC} = {_toml_value(el.nonparametric.to_toml())}")
         if self.fitted_on is not None:
