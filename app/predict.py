@@ -108,16 +108,28 @@ def cross_validation_text(folds: list[Fold]) -> str:
     out = ["cross-validation over the levels (the laws refitted on half of them -- alternate, lower, upper -- each "
            "half predicting the others with nothing refitted):"]
     for fold in folds:
+        same = (f", the others fitted on themselves {fold.others_fitted_error:.3g} (x{fold.cost:.3g} for not seeing "
+                "them)" if np.isfinite(fold.cost) else "")
         out.append(f"  fitted on {', '.join(fold.levels)}: {fold.fitted_error:.3g} on its levels, "
-                   f"{fold.held_out_error:.3g} on the others (x{fold.ratio:.3g}); damping of the others within "
+                   f"{fold.held_out_error:.3g} on the others (x{fold.ratio:.3g}){same}; damping of the others within "
                    + _percent_size(fold.prediction.worst(HELD_OUT, "damping")))
     out.append(f"  {_verdict(max(f.ratio for f in folds))}")
+    costs = [f.cost for f in folds if np.isfinite(f.cost)]
+    if costs:
+        out.append(f"  against the same levels fitted on themselves: {_cost_verdict(max(costs))}")
     return "\n".join(out)
+
+
+def _cost_verdict(cost: float) -> str:
+    return (f"predicting a half costs at most x{cost:.3g}: the model predicts levels it did not see about as well as "
+            "a fit of them" if cost <= HELD_OUT_TOLERANCE else
+            f"predicting a half costs up to x{cost:.3g}: the laws fitted on one half do not carry to the other")
 
 
 def cross_validation_json(folds: list[Fold]) -> list[dict]:
     return [{"levels": list(f.levels), "fitted_error": f.fitted_error, "held_out_error": f.held_out_error,
-             "ratio": f.ratio, "held_out_damping_error": _number(f.prediction.worst(HELD_OUT, "damping"))}
+             "ratio": f.ratio, "held_out_damping_error": _number(f.prediction.worst(HELD_OUT, "damping")),
+             "others_fitted_error": _number(f.others_fitted_error), "cost": _number(f.cost)}
             for f in folds]
 
 

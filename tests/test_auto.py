@@ -127,6 +127,9 @@ def test_stiffness_and_damping_of_one_joint_are_both_found_in_independent_data(r
     # the pooled held-out error is the two folds' (each level predicted by the fit on the other) pooled again
     folds = cross_validate(wb, "")
     assert [f.levels for f in folds] == [("0.5 N",), ("2 N",)]
+    # each fold's held-out level was fitted on itself by the other: what not seeing it costs
+    assert folds[0].others_fitted_error == folds[1].fitted_error and folds[1].others_fitted_error == folds[0].fitted_error
+    assert folds[0].cost == pytest.approx(folds[0].held_out_error / folds[1].fitted_error, rel=1e-12)
     pooled = pooled_error([(f.prediction.comparison, [r for r in wb.measurements.sine if r.force != float(
         f.levels[0].split()[0])]) for f in folds])
     assert held_out(wb).error == pytest.approx(pooled, rel=1e-9)
@@ -256,7 +259,8 @@ def test_step_and_result_records():
                               "error_after": 0.125, "gain": 8.0, "reason": "why", "in_sample_error": 0.125,
                               "held_out_error": None, "held_out_fold_errors": [], "held_out_judges": None,
                               "backbone_error_before": None, "damping_error_before": None,
-                              "backbone_error_after": None, "damping_error_after": None}
+                              "backbone_error_after": None, "damping_error_after": None,
+                              "backbone_error_held_out": None, "damping_error_held_out": None}
     # judged on levels its fit did not see too: both errors, labelled
     step.held_out = 0.25
     assert step.line() == "add b:quadratic_damping: error 1 -> 0.125 (x8.00 better); held-out 0.25 against in-sample 0.125"
@@ -268,6 +272,11 @@ def test_step_and_result_records():
     assert step.line().endswith("held-out 0.25 against in-sample 0.125 (which cannot judge it: each fold's fit "
                                 "saw one level that does not show every law)")
     assert step.to_json()["held_out_judges"] is False
+    # the held-out response levels' modes, labelled beside the held-out FRF error
+    step.held_out_judges, step.held_out_modal = None, ModalError(0.0004, 0.05)
+    assert step.line().endswith("held-out 0.25 against in-sample 0.125 (held-out backbone error 0.0004, damping "
+                                "error 0.05)")
+    assert step.to_json()["damping_error_held_out"] == 0.05
     step.held_out = float("nan")
     modal = AutoStep("add", "b", ("cubic",), 1.0, 0.5, "why", ModalError(0.02, 0.3), ModalError(0.001, float("nan")))
     assert modal.line() == ("add b:cubic: error 1 -> 0.5 (x2.00 better); backbone error 0.02 -> 0.001, "
@@ -628,6 +637,34 @@ def test_a_law_is_kept_only_where_it_predicts_every_held_out_fold_better():
     assert cross_check.predicts_no_better(NOT_CHECKED, HeldOut(0.9, (0.9,))) == ""    # nothing held out
     # folds whose fits saw one level each (a session of two levels) and not the size of every law judge nothing
     assert cross_check.predicts_no_better(HeldOut(0.4, (0.3, 0.5), 1), HeldOut(0.9, (0.9, 0.9), 1)) == ""
+
+
+def test_the_held_out_modes_are_a_second_witness_with_the_same_margin():
+    """Where the session measures the modes, a law stays whose model predicts the held-out levels' natural frequency
+    or damping better by the margin a law must bring (x1.3), neither curve worse by it, and the held-out FRFs not
+    worse by it either; a law whose held-out FRFs are better on every fold is refused where a curve gets worse
+    by the margin."""
+    before = HeldOut(0.211, (0.169, 0.079, 0.323), 2, modes=ModalError(6.0e-4, 0.106))
+    tie = (0.25, 0.075, 0.277)             # the FRFs cannot tell: one fold worse, two better, pooled a hair worse
+    assert cross_check.predicts_no_better(before, HeldOut(0.212, tie, 2, modes=ModalError(6.2e-4, 0.047))) == ""
+    # the damping better by less than the margin: the FRFs' rule stands, and names both witnesses
+    why = cross_check.predicts_no_better(before, HeldOut(0.212, tie, 2, modes=ModalError(6.2e-4, 0.09)))
+    assert "held-out response levels' backbone error 0.0006 -> 0.00062, damping error 0.106 -> 0.09" in why
+    assert why.endswith("or the held-out natural frequency or damping better by x1.3, neither worse by it")
+    # damping better, frequency worse by the margin: refused
+    assert "modes are worse by more than the x1.3" in cross_check.predicts_no_better(
+        before, HeldOut(0.212, tie, 2, modes=ModalError(9.0e-4, 0.047)))
+    # damping better, the held-out FRFs worse by the margin: refused
+    assert "FRFs are worse by more than the x1.3" in cross_check.predicts_no_better(
+        before, HeldOut(0.3, (0.3, 0.1, 0.4), 2, modes=ModalError(6.0e-4, 0.047)))
+    # every fold's FRFs better, the damping worse by the margin: refused too
+    assert cross_check.predicts_no_better(before, HeldOut(0.2, (0.16, 0.07, 0.3), 2,
+                                                          modes=ModalError(6.0e-4, 0.15))) != ""
+    assert cross_check.predicts_no_better(before, HeldOut(0.2, (0.16, 0.07, 0.3), 2,
+                                                          modes=ModalError(6.0e-4, 0.11))) == ""
+    # below the floors (2e-4 in frequency, 2 % in damping) two errors are the same
+    low = HeldOut(0.211, (0.169, 0.079, 0.323), 2, modes=ModalError(1.0e-4, 0.015))
+    assert cross_check.predicts_no_better(low, HeldOut(0.212, tie, 2, modes=ModalError(0.5e-4, 0.005))) != ""
 
 
 def test_of_two_levels_a_law_every_fold_sees_must_predict_one_level_better_from_the_other():

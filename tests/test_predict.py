@@ -235,11 +235,18 @@ def test_cross_validation_tells_a_law_that_follows_the_amplitude_from_one_that_f
                                                      ["0.0004 m at x", "0.0008 m at x"],
                                                      ["0.0012 m at x", "0.0016 m at x"]]
     assert all(f["ratio"] < 2 and f["held_out_error"] < 3 * NOISE for f in folds["cubic"])
+    # each half's held-out levels are another half's fitted ones: the cost of not seeing them, on the same levels
+    cubic = folds["cubic"]
+    assert [cubic[k]["others_fitted_error"] for k in range(4)] == [cubic[k]["fitted_error"] for k in (1, 0, 3, 2)]
+    assert all(f["cost"] == pytest.approx(f["held_out_error"] / f["others_fitted_error"]) and f["cost"] < 2
+               for f in cubic)
     # beyond the levels it saw, a constant stiffness misses the amplitude's stiffening
     assert max(f["ratio"] for f in folds["linear"]) > 4
     assert main(["analyze", str(sessions / "duffing.h5"), str(sessions / "linear.toml"), "--no-history",
                  "--cross-validate"]) == 0
-    assert "describes its own levels better than it predicts others" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "describes its own levels better than it predicts others" in out
+    assert "against the same levels fitted on themselves: predicting a half costs" in out
 
 
 @pytest.mark.slow

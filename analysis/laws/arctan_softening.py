@@ -19,7 +19,7 @@ import math
 import numpy as np
 from ..common.compiled import njit
 
-from .base import Law, Param, broadcast
+from .base import Law, Param, broadcast, saturated_spring
 
 # beta is the law's shape parameter: the same object in both lists
 _BETA = Param("beta", "1/{L}", "inverse of the softening displacement", lower=0.0, lower_open=True)
@@ -43,6 +43,11 @@ class ArctanSoftening(Law):
     example = {"alpha": 10.0, "beta": 1.0e3}
     example_amplitude = (1e-4, 1e-1)
     kernel = arctan_softening_force
+
+    def reading(self, values, X_min, X_max):
+        """The saturated spring where beta X_min >= 10 (:func:`analysis.laws.base.saturated_spring`): kbar is then
+        within 10 % of 4 (pi/2) alpha / (pi X) at every amplitude measured."""
+        return saturated_spring(float(values["alpha"]), float(values["beta"]), X_min, "(pi/2) alpha")
 
     def small_amplitude_basis(self, beta):
         return np.array([beta])     # the tangent at x = 0: alpha beta

@@ -141,6 +141,25 @@ class LimitReading:
                 "undetermined": list(self.undetermined)}
 
 
+#: A saturating spring saturates below every amplitude measured where its softening displacement 1 / beta is at
+#: most this fraction of the smallest (a decade below, as a Jenkins slider's slip reads as Coulomb friction)
+SATURATED_BELOW = 0.1
+
+
+def saturated_spring(alpha: float, beta: float, X_min: float, force: str) -> LimitReading | None:
+    """The reading of a saturating spring ``alpha s(beta x)`` (s odd, bounded, slope 1 at 0) whose softening
+    displacement lies a decade or more below the smallest amplitude measured (``1 / beta <= SATURATED_BELOW
+    X_min``): over the data it is the saturated spring ``force`` sgn(x), kbar = 4 ``force`` / (pi X), its force
+    at saturation determined by alpha and beta not (any larger beta reads the same)."""
+    if not beta * X_min * SATURATED_BELOW >= 1.0:
+        return None
+    return LimitReading(
+        "saturated spring", {"alpha": alpha}, {"alpha": "{F}"},
+        f"the spring saturates a decade below the smallest amplitude (softening displacement {1.0 / beta:.3g} "
+        f"against {X_min:.3g}): kbar is a saturated force's, 4 {force} / (pi X), and only alpha is determined",
+        ("beta",))
+
+
 REQUIRED = ("name", "kind", "summary", "params", "linear", "example", "kernel", "force_text", "kbar_text",
             "explanation")
 

@@ -330,6 +330,7 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
                 current[0] = known if known is not None else held_out(wb)
                 step.held_out, step.held_out_folds = current[0].error, current[0].folds
                 step.held_out_judges = current[0].judges if current[0].folds else None
+                step.held_out_modal = current[0].modes
         finally:                        # a stop inside the check: the step is recorded and stays
             steps.append(step)
         if progress is not None:

@@ -20,6 +20,9 @@ from ..common.measurements import Measurements
 from ..common.parallel import map_tasks
 from ..identification.between_runs import BetweenRuns
 from ..mechanics.model import FittedOn, Model
+from ..missing.diagnosis import RankingRules
+from ..missing.modal_judge import ModalChange, ModalRules, measures_modes
+from ..prediction.backbone import ModalError, ModalResiduals, model_modal_residuals
 from ..prediction.comparison import pooled_error
 from ..prediction.held_out import FITTED, HELD_OUT, SessionPrediction, predict_session
 from .workbench import Workbench
@@ -27,10 +30,13 @@ from .workbench import Workbench
 
 @dataclass(frozen=True)
 class Fold:
-    """One half: ``levels`` the labels it was fitted on, ``prediction`` of every level by the refitted model."""
+    """One half: ``levels`` the labels it was fitted on, ``prediction`` of every level by the refitted model;
+    ``others_fitted_error`` the fitted error of the levels this half held out, where another half was fitted on
+    exactly them (NaN where none was)."""
 
     levels: tuple[str, ...]
     prediction: SessionPrediction
+    others_fitted_error: float = float("nan")
 
     @property
     def fitted_error(self) -> float:
@@ -42,14 +48,28 @@ class Fold:
 
     @property
     def ratio(self) -> float:
+        """The held-out error over this half's own fitted error: the two are of different levels."""
         return self.held_out_error / self.fitted_error if self.fitted_error > 0 else float("inf")
+
+    @property
+    def cost(self) -> float:
+        """The held-out error over the error of the same levels fitted on themselves: what not seeing them costs.
+        Levels differ in how well the test repeats them (a force-controlled level drifts through its resonance,
+        a response-controlled one is held at it), so :attr:`ratio` also measures which half is the harder one to
+        fit; the same levels against themselves measure the prediction alone. NaN where no half was fitted on
+        exactly the held-out levels."""
+        e = self.others_fitted_error
+        return self.held_out_error / e if e > 0 else float("nan")
 
 
 def cross_validate(wb: Workbench, created: str) -> list[Fold]:
     """The folds (up to four) of ``wb``'s model on ``wb``'s measurements (a session created at ``created``); none for a
     session with fewer than two stepped-sine levels (nothing to hold out)."""
     controls = wb.measurements.level_controls()
-    return [_fold(wb, half, created) for half in _halves(controls)] if len(controls) >= 2 else []
+    folds = [_fold(wb, half, created) for half in _halves(controls)] if len(controls) >= 2 else []
+    fitted = {frozenset(f.levels): f.fitted_error for f in folds}
+    every = frozenset(c.label() for c in controls)
+    return [replace(f, others_fitted_error=fitted.get(every - frozenset(f.levels), float("nan"))) for f in folds]
 
 
 def _fold(wb: Workbench, half: list, created: str) -> Fold:
@@ -108,12 +128,15 @@ LEVELS_TO_JUDGE = 2
 class HeldOut:
     """A model's FRF error on levels its fit did not see: ``error`` over all of them pooled, ``folds`` per fold
     (the levels one refit predicted), in fold order; ``seen`` the fewest levels any fold's fit saw;
-    ``sees_its_laws`` whether every fold's fit saw every law of the model (:func:`_sees_its_laws`)."""
+    ``sees_its_laws`` whether every fold's fit saw every law of the model (:func:`_sees_its_laws`); ``modes`` the
+    natural frequency and damping errors of the held-out response levels, each predicted by the fit that did not
+    see it, pooled over the folds (None where the session measures no mode)."""
 
     error: float
     folds: tuple[float, ...]
     seen: int = 0
     sees_its_laws: bool = False
+    modes: ModalError | None = None
 
     @property
     def judges(self) -> bool:
@@ -147,20 +170,54 @@ class HeldOut:
 NOT_CHECKED = HeldOut(float("nan"), ())
 
 
-def predicts_no_better(before: HeldOut, after: HeldOut) -> str:
-    """Why a law is refused for what its model predicts, "" where it stays: a law enters only
-    where the model with it predicts the held-out folds better than the model without it
-    (:meth:`HeldOut.better_than`: every fold; of two levels, each predicting the other, at least one). A law that
-    fits its own lines better and predicts the levels its fit did not see no better describes those lines, not
-    the joint. Nothing is judged where a fold's fit saw too little to determine a law (:attr:`HeldOut.judges`:
-    one level that does not show the size of every law of either model)."""
-    if not (before.judges and after.judges) or after.better_than(before):
+def predicts_no_better(before: HeldOut, after: HeldOut, min_gain: float = RankingRules().min_gain,
+                       modal: ModalRules = ModalRules()) -> str:
+    """Why a law is refused for what its model predicts, "" where it stays. Two witnesses speak of the levels the
+    fits did not see: their FRFs, and -- where the session measures the modes -- their natural frequency and damping
+    against amplitude (:attr:`HeldOut.modes`). A law stays where the model with it predicts better in one of them
+    and worse by the margin a law must bring (``min_gain``) in neither:
+
+    - better in the FRFs: every held-out fold better (:meth:`HeldOut.better_than`; of two levels, each predicting
+      the other, at least one). A law that fits its own lines better and predicts the levels its fit did not see
+      no better describes those lines, not the joint;
+    - better in the modes: either curve better by ``min_gain`` and neither worse by it (:class:`ModalChange`,
+      the points of every fold pooled: a fold holds a few response levels, one point of each curve each). On
+      measured data the FRF error of a level is mostly the test's own drift between runs, the mode moving by
+      about its half-power bandwidth, which no law predicts. The mode's frequency and damping at each amplitude
+      are what a joint's law is for: the drift shifts the frequency by a fraction of a per cent and leaves the
+      damping, where near resonance it changes the lines by tens of per cent;
+    - worse by the margin: the held-out FRF error pooled, or either curve, ``min_gain`` times the model's without
+      the law. The same margin in every witness, as in the ranking's veto (:mod:`analysis.missing.modal_judge`).
+
+    Nothing is judged where a fold's fit saw too little to determine a law (:attr:`HeldOut.judges`: one level that
+    does not show the size of every law of either model)."""
+    if not (before.judges and after.judges):
         return ""
+    change = _modal_change(before, after, modal)
+    frf_worse = after.error > min_gain * before.error
+    modes_worse = change is not None and change.worse(min_gain)
+    if not (frf_worse or modes_worse):
+        if after.better_than(before):
+            return ""
+        if change is not None and change.better(min_gain):
+            return ""
     folds = ", ".join(f"{a:.3g} against {b:.3g}" for a, b in zip(after.folds, before.folds))
     rule = ("every held-out fold better" if after.every_fold_with(before) else
             "at least one of the two levels better from the other")
-    return (f"it does not predict the levels its fits did not see better: held-out {after.error:.3g} against "
-            f"{before.error:.3g} without it (per fold {folds}); a law is kept only where it predicts {rule}")
+    modes = "" if change is None else f"; the held-out response levels' {change.words()}"
+    why = (f" and its {'FRFs' if frf_worse else 'modes'} are worse by more than the x{min_gain:g} a law must bring"
+           if frf_worse or modes_worse else "")
+    if change is not None:
+        rule += f", or the held-out natural frequency or damping better by x{min_gain:g}, neither worse by it"
+    return (f"it does not predict the levels its fits did not see better{why}: held-out {after.error:.3g} against "
+            f"{before.error:.3g} without it (per fold {folds}){modes}; a law is kept only where it predicts {rule}")
+
+
+def _modal_change(before: HeldOut, after: HeldOut, modal: ModalRules) -> ModalChange | None:
+    """What the law does to the held-out levels' modes, None where either model's were not measured."""
+    if before.modes is None or after.modes is None or not (before.modes.measured and after.modes.measured):
+        return None
+    return ModalChange.of(before.modes, after.modes, modal)
 
 
 def held_out(wb: Workbench, folds: int = HELD_OUT_FOLDS) -> HeldOut:
@@ -186,18 +243,24 @@ def held_out_of_each(wb: Workbench, starts: list[AsFitted], folds: int = HELD_OU
         return [NOT_CHECKED] * len(starts)
     measured = [_at(wb, held) for _, held in splits]     # only the levels a fit did not see are predicted
 
+    modes = measures_modes(wb.measurements)
+
     def one(j: int) -> tuple:
         v, k = divmod(j, len(splits))
         fold = _refitted(wb, splits[k][0], starts[v])
-        return predict_session(fold.model, measured[k], "", wb.harmonics).comparison, _sees_its_laws(fold)
+        residuals = (model_modal_residuals(fold.model.structure, fold.model.elements, measured[k].sine)
+                     if modes else None)
+        return (predict_session(fold.model, measured[k], "", wb.harmonics).comparison, _sees_its_laws(fold),
+                residuals)
 
     done = map_tasks(one, len(starts) * len(splits))
     out = []
     for v in range(len(starts)):
         mine = done[v * len(splits):(v + 1) * len(splits)]
-        parts = [(comparison, m.sine) for (comparison, _), m in zip(mine, measured)]
+        parts = [(comparison, m.sine) for (comparison, _, _), m in zip(mine, measured)]
+        held_modes = ModalResiduals.joined([r for _, _, r in mine]).error() if modes else None
         out.append(HeldOut(pooled_error(parts), tuple(pooled_error([part]) for part in parts),
-                           min(len(seen) for seen, _ in splits), all(sees for _, sees in mine)))
+                           min(len(seen) for seen, _ in splits), all(sees for _, sees, _ in mine), held_modes))
     return out
 
 

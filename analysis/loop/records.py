@@ -59,6 +59,9 @@ class AutoStep:
     # checked): where each fold's fit saw one level that does not show every law, the held-out error measures what
     # that fit could not determine, not the model
     held_out_judges: bool | None = None
+    # natural frequency and damping of the held-out response levels, each predicted by the fit that did not see it
+    # (None: not checked, or no mode measured)
+    held_out_modal: ModalError | None = None
 
     @property
     def gain(self) -> float:
@@ -73,6 +76,9 @@ class AutoStep:
                      f"damping error {self.modal_before.damping:.3g} -> {self.modal_after.damping:.3g}")
         held = (f"; held-out {self.held_out:.3g} against in-sample {self.error_after:.3g}"
                 f"{NOT_JUDGING if self.held_out_judges is False else ''}" if np.isfinite(self.held_out) else "")
+        if held and self.held_out_modal is not None and self.held_out_modal.measured:
+            held += (f" (held-out backbone error {self.held_out_modal.frequency:.3g}, damping error "
+                     f"{self.held_out_modal.damping:.3g})")
         return (f"{self.action} {what}: error {self.error_before:.3g} -> {self.error_after:.3g} "
                 f"({gain_phrase(self.gain)}){held}{modal}")
 
@@ -87,11 +93,11 @@ class AutoStep:
                 "held_out_fold_errors": [float(e) if np.isfinite(e) else None for e in self.held_out_folds],
                 "held_out_judges": self.held_out_judges,
                 "reason": self.reason, **_modal_json(self.modal_before, "_before"),
-                **_modal_json(self.modal_after, "_after")}
+                **_modal_json(self.modal_after, "_after"), **_modal_json(self.held_out_modal, "_held_out")}
 
 
 def _modal_json(error: ModalError | None, suffix: str) -> dict:
-    """``backbone_error_before`` etc.: null where nothing is measured."""
+    """``backbone_error_before``, ``damping_error_held_out`` etc.: null where nothing is measured."""
     values = {"backbone_error": None, "damping_error": None} if error is None else error.to_json()
     return {k + suffix: v for k, v in values.items()}
 

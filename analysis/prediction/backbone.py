@@ -354,17 +354,50 @@ class ModalError:
 def modal_error(pairs: Sequence[tuple[Backbone, Backbone]]) -> ModalError:
     """RMS relative frequency and damping errors over (measured, predicted) curves; damping over the points
     where it is measured."""
-    if not pairs:
-        return ModalError(float("nan"), float("nan"))
-    ef = np.concatenate([p.arrays()[1] / m.arrays()[1] - 1.0 for m, p in pairs])
-    ez = np.concatenate([p.arrays()[2] / m.arrays()[2] - 1.0 for m, p in pairs])
-    ez = ez[np.isfinite(ez)]
-    return ModalError(float(np.sqrt(np.mean(ef ** 2))),
-                      float(np.sqrt(np.mean(ez ** 2))) if len(ez) else float("nan"))
+    return ModalResiduals.of(pairs).error()
+
+
+@dataclass(frozen=True)
+class ModalResiduals:
+    """The relative errors ``predicted / measured - 1`` of a model's natural frequencies (every measured point) and
+    damping ratios (the points where it is measured), shape (points,) each: what :class:`ModalError` is the RMS
+    of, kept apart so that the points of several predictions pool (the levels of several held-out folds, each
+    predicted by the fit that did not see it)."""
+
+    frequency: np.ndarray
+    damping: np.ndarray
+
+    @classmethod
+    def of(cls, pairs: Sequence[tuple[Backbone, Backbone]]) -> "ModalResiduals":
+        """Of (measured, predicted) curves."""
+        if not pairs:
+            return cls(np.zeros(0), np.zeros(0))
+        ef = np.concatenate([p.arrays()[1] / m.arrays()[1] - 1.0 for m, p in pairs])
+        ez = np.concatenate([p.arrays()[2] / m.arrays()[2] - 1.0 for m, p in pairs])
+        return cls(ef, ez[np.isfinite(ez)])
+
+    @classmethod
+    def joined(cls, parts: Sequence["ModalResiduals"]) -> "ModalResiduals":
+        return cls(np.concatenate([np.zeros(0)] + [p.frequency for p in parts]),
+                   np.concatenate([np.zeros(0)] + [p.damping for p in parts]))
+
+    def error(self) -> ModalError:
+        """The RMS of each; NaN where nothing of it is measured."""
+        return ModalError(_rms(self.frequency), _rms(self.damping))
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values ** 2))) if len(values) else float("nan")
+
+
+def model_modal_residuals(structure: Structure, elements: Sequence[Element], runs: Sequence[SineRun],
+                          phase_runs: Sequence[PhaseRun] = ()) -> ModalResiduals:
+    """:class:`ModalResiduals` of the model (predicted at the measured amplitudes only: no curve for plots)."""
+    return ModalResiduals.of([(m, _predicted_at(structure, elements, m))
+                              for m in measured_backbones(structure, runs, phase_runs)])
 
 
 def model_modal_error(structure: Structure, elements: Sequence[Element], runs: Sequence[SineRun],
                       phase_runs: Sequence[PhaseRun] = ()) -> ModalError:
     """:func:`modal_error` of the model (predicted at the measured amplitudes only: no curve for plots)."""
-    return modal_error([(m, _predicted_at(structure, elements, m))
-                        for m in measured_backbones(structure, runs, phase_runs)])
+    return model_modal_residuals(structure, elements, runs, phase_runs).error()
