@@ -128,7 +128,8 @@ def test_stiffness_and_damping_of_one_joint_are_both_found_in_independent_data(r
     folds = cross_validate(wb, "")
     assert [f.levels for f in folds] == [("0.5 N",), ("2 N",)]
     # each fold's held-out level was fitted on itself by the other: what not seeing it costs
-    assert folds[0].others_fitted_error == folds[1].fitted_error and folds[1].others_fitted_error == folds[0].fitted_error
+    assert folds[0].others_fitted_error == folds[1].fitted_error
+    assert folds[1].others_fitted_error == folds[0].fitted_error
     assert folds[0].cost == pytest.approx(folds[0].held_out_error / folds[1].fitted_error, rel=1e-12)
     pooled = pooled_error([(f.prediction.comparison, [r for r in wb.measurements.sine if r.force != float(
         f.levels[0].split()[0])]) for f in folds])
