@@ -274,3 +274,38 @@ def test_the_model_tab_predicts_with_nothing_refitted_and_saves_what_it_was_fitt
         panel.analyze_button.click()
     saved = tomllib.loads(window.lab.analysis.model_toml)
     assert saved["fitted"]["session"] == "duffing.h5" and len(saved["fitted"]["levels"]) == len(AMPLITUDES)
+
+
+@pytest.mark.slow
+def test_the_held_out_check_predicts_each_held_out_level_s_mode_by_the_fit_that_did_not_see_it(sessions):
+    """The loop's held-out check (analysis/loop/cross_check.py ``held_out``) on response levels written from the
+    single-harmonic formula: its modes are those of each held-out level as predicted by the fold's refit that did
+    not see it, pooled over the folds; the cubic, which bends the backbone as the formula does, predicts them, the
+    linear spring does not, and the modes alone keep the cubic (the second witness)."""
+    from analysis.loop.cross_check import _at, _refitted, as_fitted, held_out, interleaved, predicts_no_better
+    from analysis.loop.workbench import Workbench
+    from analysis.prediction.held_out import predict_session
+    from app.analyze import read_measurements
+
+    measurements = read_measurements(sessions / "duffing.h5")
+    held, folds = {}, {}
+    for law in ("linear", "cubic"):
+        wb = Workbench(load_model(tomllib.loads((sessions / f"{law}.toml").read_text()), law), measurements)
+        wb.start()
+        held[law] = held_out(wb)
+        errors = []
+        for seen, out in interleaved(wb.measurements.level_controls(), 3):
+            fold = _refitted(wb, seen, as_fitted(wb))
+            errors += [lv.frequency_error for lv in predict_session(fold.model, _at(wb, out), "").levels]
+        folds[law] = float(np.sqrt(np.mean(np.square(errors))))
+    for law in ("linear", "cubic"):
+        assert held[law].modes.frequency == pytest.approx(folds[law], rel=1e-9)
+    # a constant stiffness misses how the natural frequency moves with the amplitude (0.0039 on 2026-12-07), ten
+    # times the floor of 2e-4 below which two frequency errors are the same; the cubic follows it (2.4e-5)
+    assert held["cubic"].modes.frequency < 1e-4 and held["linear"].modes.frequency > 10 * 2e-4
+    assert predicts_no_better(held["linear"], held["cubic"]) == ""
+    # the modes alone: the same FRF errors for both, the cubic still kept, the linear spring refused
+    frf = {law: type(held[law])(held["cubic"].error, held["cubic"].folds, held["cubic"].seen, True,
+                                held[law].modes) for law in held}
+    assert predicts_no_better(frf["linear"], frf["cubic"]) == ""
+    assert "modes are worse by more than the x1.3" in predicts_no_better(frf["cubic"], frf["linear"])
