@@ -50,6 +50,7 @@ import numpy as np
 
 from ..common.compiled import njit, njit_fixed
 from ..common.errors import InputError
+from ..common.recent import Recent
 from ..common.wording import parameter_words
 
 
@@ -257,9 +258,8 @@ class Origin:
         (p,) at the origin's line: ``B - (Re a + j Im a w / w0)`` at the lines ``w`` (broadcast to the samples).
         A damper and not a constant loss, so that the time-domain force is a law's (``c v`` with c = Im a / w0);
         the lines of a reference's level lie within a few per cent of its resonance, where the two agree."""
-        w = np.broadcast_to(np.asarray(w, float), basis.shape[1:])
-        a = np.asarray(at_origin, complex).reshape((-1,) + (1,) * w.ndim)
-        return basis - (a.real + 1j * a.imag * (w / self.w))
+        a = np.asarray(at_origin, complex).reshape((-1,) + (1,) * (basis.ndim - 1))
+        return basis - (a.real + 1j * a.imag * (np.asarray(w, float) / self.w))
 
 
 class KbarFunction:
@@ -658,9 +658,25 @@ def _relative_basis(self, X, w, **shape):
 
 
 def _at_origin(self, shape) -> np.ndarray:
-    """The relative law's basis from its small-amplitude state at its origin, shape (len(linear),) complex."""
-    return np.asarray(self.measured_from.basis_from_small_amplitude(self.origin.X, self.origin.w, **shape),
-                      complex).reshape(-1)
+    """The relative law's basis from its small-amplitude state at its origin, shape (len(linear),) complex. It
+    depends on the shape parameters alone, which a prediction holds while it asks for kbar at every line and
+    every Newton step: the last few are kept by their values (scalars only)."""
+    try:
+        key = tuple((name, float(value)) for name, value in sorted(shape.items()))
+    except TypeError:
+        key = None
+    kept = None if key is None else _ORIGIN_BASES.get((self, key))
+    if kept is None:
+        kept = np.asarray(self.measured_from.basis_from_small_amplitude(self.origin.X, self.origin.w, **shape),
+                          complex).reshape(-1)
+        kept.setflags(write=False)
+        if key is not None:
+            _ORIGIN_BASES.keep((self, key), kept)
+    return kept
+
+
+#: (relative law, its shape values) -> its basis at its origin (:func:`_at_origin`)
+_ORIGIN_BASES: Recent[np.ndarray] = Recent(32)
 
 
 def _relative_constants(self, *contract):
