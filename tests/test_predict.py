@@ -308,4 +308,4 @@ def test_the_held_out_check_predicts_each_held_out_level_s_mode_by_the_fit_that_
     frf = {law: type(held[law])(held["cubic"].error, held["cubic"].folds, held["cubic"].seen, True,
                                 held[law].modes) for law in held}
     assert predicts_no_better(frf["linear"], frf["cubic"]) == ""
-    assert "modes are worse by more than the x1.3" in predicts_no_better(frf["cubic"], frf["linear"])
+    assert "worse, its modes by more than the x1.3" in predicts_no_better(frf["cubic"], frf["linear"])

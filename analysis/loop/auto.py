@@ -259,7 +259,7 @@ def _checked_found(wb: Workbench, elements: list[ElementDiscovery], rules: AutoR
     for step in unneeded(wb, elements, rules.ranking.min_gain, rules.take_back_near_noise):
         yield step, None, False
     if rules.held_out:
-        for step, alone in predicting_no_better(wb, elements, checked):
+        for step, alone in predicting_no_better(wb, elements, checked, rules.ranking.min_gain, rules.modes):
             yield step, alone, True
 
 
@@ -271,7 +271,8 @@ def _read_again(wb: Workbench, found: Discovery, rules: AutoRules,
     :func:`_checked_found` does, the replacements first."""
     check = held_out_of_each if rules.held_out else (lambda _, starts: [NOT_CHECKED] * len(starts))
     replaced = []
-    for step, held in other_readings(wb, found, rules.ranking.min_gain, rules.readings_beyond_floor, checked, check):
+    for step, held in other_readings(wb, found, rules.ranking.min_gain, rules.readings_beyond_floor, checked, check,
+                                     rules.modes):
         yield step, held, False
         replaced += [e for e in found.elements if e.element == step.element]
     yield from _checked_found(wb, replaced, rules, checked)
@@ -411,7 +412,7 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             why = (f"the model refitted with it gains {gain_phrase(before / after)} ({before:.3g} -> {after:.3g}), "
                    f"not the x{rules.ranking.min_gain:g} it gained at its kbar fit")
         elif rules.held_out:
-            why = predicts_no_better(held_before, checked())
+            why = predicts_no_better(held_before, checked(), rules.ranking.min_gain, rules.modes)
         if why:
             wb.back_to(len(wb.history) - 2, f"take back {top.name}")
             take(AutoStep("take back", top.element, top.laws, after, wb.history[-1].error, why), known=held_before)

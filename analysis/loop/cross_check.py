@@ -171,7 +171,7 @@ NOT_CHECKED = HeldOut(float("nan"), ())
 
 
 def predicts_no_better(before: HeldOut, after: HeldOut, min_gain: float = RankingRules().min_gain,
-                       modal: ModalRules = ModalRules()) -> str:
+                       modal: ModalRules | None = ModalRules()) -> str:
     """Why a law is refused for what its model predicts, "" where it stays. Two witnesses speak of the levels the
     fits did not see: their FRFs, and -- where the session measures the modes -- their natural frequency and damping
     against amplitude (:attr:`HeldOut.modes`). A law stays where the model with it predicts better in one of them
@@ -190,7 +190,8 @@ def predicts_no_better(before: HeldOut, after: HeldOut, min_gain: float = Rankin
       the law. The same margin in every witness, as in the ranking's veto (:mod:`analysis.missing.modal_judge`).
 
     Nothing is judged where a fold's fit saw too little to determine a law (:attr:`HeldOut.judges`: one level that
-    does not show the size of every law of either model)."""
+    does not show the size of every law of either model). ``modal`` None: the FRFs alone judge, as the loop's
+    ranking does without the modes (``AutoRules.modes``)."""
     if not (before.judges and after.judges):
         return ""
     change = _modal_change(before, after, modal)
@@ -205,17 +206,19 @@ def predicts_no_better(before: HeldOut, after: HeldOut, min_gain: float = Rankin
     rule = ("every held-out fold better" if after.every_fold_with(before) else
             "at least one of the two levels better from the other")
     modes = "" if change is None else f"; the held-out response levels' {change.words()}"
-    why = (f" and its {'FRFs' if frf_worse else 'modes'} are worse by more than the x{min_gain:g} a law must bring"
-           if frf_worse or modes_worse else "")
+    head = (f"it predicts the levels its fits did not see worse, its {'FRFs' if frf_worse else 'modes'} by more than "
+            f"the x{min_gain:g} a law must bring" if frf_worse or modes_worse else
+            "it does not predict the levels its fits did not see better")
     if change is not None:
         rule += f", or the held-out natural frequency or damping better by x{min_gain:g}, neither worse by it"
-    return (f"it does not predict the levels its fits did not see better{why}: held-out {after.error:.3g} against "
-            f"{before.error:.3g} without it (per fold {folds}){modes}; a law is kept only where it predicts {rule}")
+    return (f"{head}: held-out {after.error:.3g} against {before.error:.3g} without it (per fold {folds}){modes}; "
+            f"a law is kept only where it predicts {rule}")
 
 
-def _modal_change(before: HeldOut, after: HeldOut, modal: ModalRules) -> ModalChange | None:
-    """What the law does to the held-out levels' modes, None where either model's were not measured."""
-    if before.modes is None or after.modes is None or not (before.modes.measured and after.modes.measured):
+def _modal_change(before: HeldOut, after: HeldOut, modal: ModalRules | None) -> ModalChange | None:
+    """What the law does to the held-out levels' modes, None where either model's were not measured (or the modes
+    do not judge: ``modal`` None)."""
+    if modal is None or before.modes is None or after.modes is None or not (before.modes.measured and after.modes.measured):
         return None
     return ModalChange.of(before.modes, after.modes, modal)
 

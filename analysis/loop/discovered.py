@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from typing import Callable, Iterator
 
+from ..missing.diagnosis import RankingRules
+from ..missing.modal_judge import ModalRules
 from ..prediction.comparison import Comparison
 from ..search.discovery import ElementDiscovery
 from .cross_check import HeldOut, as_fitted, held_out_of_each, predicts_no_better
@@ -13,8 +15,9 @@ from .records import AutoStep
 from .workbench import Workbench
 
 
-def predicting_no_better(wb: Workbench, found: list[ElementDiscovery],
-                          checked: Callable[[], HeldOut]) -> Iterator[tuple[AutoStep, HeldOut]]:
+def predicting_no_better(wb: Workbench, found: list[ElementDiscovery], checked: Callable[[], HeldOut],
+                         min_gain: float = RankingRules().min_gain, modal: ModalRules | None = ModalRules()
+                         ) -> Iterator[tuple[AutoStep, HeldOut]]:
     """Each law discovery found kept only where the model with it predicts every held-out fold better than the
     model refitted without it: the rule every law the loop adds meets (:func:`predicts_no_better`). Discovery
     chooses a set by its kbar and by the FRFs of the lines the set was fitted to; a law that only bends the fit to
@@ -35,7 +38,7 @@ def predicting_no_better(wb: Workbench, found: list[ElementDiscovery],
                     starts.append(as_fitted(wb))
             alones = held_out_of_each(wb, starts)      # every law's folds at once
             for law, alone in zip(laws, alones):
-                why = predicts_no_better(alone, current)
+                why = predicts_no_better(alone, current, min_gain, modal)
                 if why:
                     failing.append((alone.error, law, alone, why))
             if not failing:

@@ -10,6 +10,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from ..missing.modal_judge import ModalRules
 from ..search.discovery import Discovery, ElementDiscovery
 from ..common.parallel import map_tasks
 from .cross_check import AsFitted, HeldOut, as_fitted, held_out_of_each, predicts_no_better
@@ -32,8 +33,8 @@ class _Reading:
 
 
 def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: float, checked: Callable[[], HeldOut],
-                    check: Callable[[Workbench, list[AsFitted]], list[HeldOut]] = held_out_of_each
-                    ) -> Iterator[tuple[AutoStep, HeldOut]]:
+                    check: Callable[[Workbench, list[AsFitted]], list[HeldOut]] = held_out_of_each,
+                    modal: ModalRules | None = ModalRules()) -> Iterator[tuple[AutoStep, HeldOut]]:
     """On data without harmonics, where the model stays farther above what the test allows
     (:attr:`Workbench.error_floor`) than a right model can be (``beyond`` times it, :func:`unfinished`), the
     searched elements' other readings of their kbar (:attr:`ElementDiscovery.readings`, the sets each walk chose
@@ -69,7 +70,7 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
     left = list(found.elements)
     while left and unfinished(wb, beyond):
         error = wb.history[-1].error
-        weighed = _weighed(wb, left, error, min_gain, checked, check)
+        weighed = _weighed(wb, left, error, min_gain, checked, check, modal)
         best = _simplest_predicting(weighed, min_gain)
         if best is None:
             return
@@ -81,8 +82,8 @@ def other_readings(wb: Workbench, found: Discovery, min_gain: float, beyond: flo
 
 
 def _weighed(wb: Workbench, elements: list[ElementDiscovery], error: float, min_gain: float,
-             checked: Callable[[], HeldOut], check: Callable[[Workbench, list[AsFitted]], list[HeldOut]]
-             ) -> list[_Reading]:
+             checked: Callable[[], HeldOut], check: Callable[[Workbench, list[AsFitted]], list[HeldOut]],
+             modal: ModalRules | None = ModalRules()) -> list[_Reading]:
     """Each of ``elements``' readings other than its current set, with the model refitted with it: those that cut
     ``error`` by ``min_gain`` per law added (once for as many laws or fewer), with their held-out errors. The
     readings are fitted apart (:func:`analysis.common.parallel.map_tasks`: each from the model as it stands, which
@@ -106,7 +107,8 @@ def _weighed(wb: Workbench, elements: list[ElementDiscovery], error: float, min_
         return []
     before = checked()                  # the current model's, once a reading gains the margin
     held = check(wb, [start for *_, start in gaining])
-    return [_Reading(name, laws, added, after, h, predicts_no_better(before, h), before.judges and h.judges)
+    return [_Reading(name, laws, added, after, h, predicts_no_better(before, h, min_gain, modal),
+                     before.judges and h.judges)
             for (name, laws, added, after, _), h in zip(gaining, held)]
 
 
