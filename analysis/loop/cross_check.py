@@ -218,7 +218,7 @@ def predicts_no_better(before: HeldOut, after: HeldOut, min_gain: float = Rankin
 def _modal_change(before: HeldOut, after: HeldOut, modal: ModalRules | None) -> ModalChange | None:
     """What the law does to the held-out levels' modes, None where either model's were not measured (or the modes
     do not judge: ``modal`` None)."""
-    if modal is None or before.modes is None or after.modes is None or not (before.modes.measured and after.modes.measured):
+    if modal is None or not all(m is not None and m.measured for m in (before.modes, after.modes)):
         return None
     return ModalChange.of(before.modes, after.modes, modal)
 
