@@ -648,6 +648,10 @@ def test_the_held_out_modes_are_a_second_witness_with_the_same_margin():
     before = HeldOut(0.211, (0.169, 0.079, 0.323), 2, modes=ModalError(6.0e-4, 0.106))
     tie = (0.25, 0.075, 0.277)             # the FRFs cannot tell: one fold worse, two better, pooled a hair worse
     assert cross_check.predicts_no_better(before, HeldOut(0.212, tie, 2, modes=ModalError(6.2e-4, 0.047))) == ""
+    # the loop without the modes' word (AutoRules.modes None): the FRFs alone judge
+    assert cross_check.predicts_no_better(before, HeldOut(0.212, tie, 2, modes=ModalError(6.2e-4, 0.047)),
+                                          modal=None).endswith("a law is kept only where it predicts every held-out "
+                                                               "fold better")
     # the damping better by less than the margin: the FRFs' rule stands, and names both witnesses
     why = cross_check.predicts_no_better(before, HeldOut(0.212, tie, 2, modes=ModalError(6.2e-4, 0.09)))
     assert "held-out response levels' backbone error 0.0006 -> 0.00062, damping error 0.106 -> 0.09" in why
