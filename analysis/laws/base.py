@@ -156,7 +156,7 @@ def saturated_spring(alpha: float, beta: float, X_min: float, force: str) -> Lim
         return None
     return LimitReading(
         "saturated spring", {"alpha": alpha}, {"alpha": "{F}"},
-        f"the spring saturates a decade below the smallest amplitude (softening displacement {1.0 / beta:.3g} "
+        f"the spring saturates a decade or more below the smallest amplitude (softening displacement {1.0 / beta:.3g} "
         f"against {X_min:.3g}): kbar is a saturated force's, 4 {force} / (pi X), and only alpha is determined",
         ("beta",))
 
