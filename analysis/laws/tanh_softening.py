@@ -81,10 +81,11 @@ def tanh_fundamental(z) -> np.ndarray:
     """
     z = np.asarray(z, float)
     flat = z.ravel()
-    out = np.empty(flat.shape)
     large = flat > _LARGE_Z
-    r = 1.0 / flat[large]                   # powers of 1/z: no overflow however large z
-    out[large] = (4.0 / math.pi) * r * (1.0 - _C0 * r * r - 0.5 * _C1 * (r * r) ** 2)
+    if large.all():                         # saturated everywhere (a fit can run beta to 1e26): no masks
+        return _large_z(flat).reshape(z.shape)
+    out = np.empty(flat.shape)
+    out[large] = _large_z(flat[large])
     small = ~large
     if small.any():
         zs = flat[small]
@@ -96,6 +97,12 @@ def tanh_fundamental(z) -> np.ndarray:
         ratio = np.where(zc > 0, np.tanh(zc * sin_t) / safe, sin_t)
         out[small] = (4.0 / math.pi) * (ratio * sin_t) @ weights
     return out.reshape(z.shape)
+
+
+def _large_z(z: np.ndarray) -> np.ndarray:
+    """G(z) by the large-z expansion (module docstring), z > _LARGE_Z; powers of 1/z: no overflow however large z."""
+    r = 1.0 / z
+    return (4.0 / math.pi) * r * (1.0 - _C0 * r * r - 0.5 * _C1 * (r * r) ** 2)
 
 
 # G(z) - 1 = sum_{n>=2} g_n z^(2n-2) for |z| < pi/2: g_n = 2 a_n (2n-1)!!/(2n)!!, a_n the coefficient of u^(2n-1) in
@@ -110,8 +117,10 @@ def tanh_departure(z) -> np.ndarray:
     series below z = 0.1, the quadrature less 1 above. Same shape as ``z`` (>= 0)."""
     z = np.asarray(z, float)
     flat = z.ravel()
-    out = np.empty(flat.shape)
     large = flat >= _SERIES_Z
+    if large.all():
+        return (tanh_fundamental(flat) - 1.0).reshape(z.shape)
+    out = np.empty(flat.shape)
     out[large] = tanh_fundamental(flat[large]) - 1.0
     z2 = flat[~large] ** 2
     series = np.zeros_like(z2)
