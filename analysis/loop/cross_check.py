@@ -22,7 +22,7 @@ from ..identification.between_runs import BetweenRuns
 from ..mechanics.model import FittedOn, Model
 from ..missing.diagnosis import RankingRules
 from ..missing.modal_judge import ModalChange, ModalRules, measures_modes
-from ..prediction.backbone import ModalError, ModalResiduals, model_modal_residuals
+from ..prediction.backbone import ModalError, ModalResiduals
 from ..prediction.comparison import pooled_error
 from ..prediction.held_out import FITTED, HELD_OUT, SessionPrediction, predict_session
 from .workbench import Workbench
@@ -197,11 +197,9 @@ def predicts_no_better(before: HeldOut, after: HeldOut, min_gain: float = Rankin
     change = _modal_change(before, after, modal)
     frf_worse = after.error > min_gain * before.error
     modes_worse = change is not None and change.worse(min_gain)
-    if not (frf_worse or modes_worse):
-        if after.better_than(before):
-            return ""
-        if change is not None and change.better(min_gain):
-            return ""
+    better = after.better_than(before) or (change is not None and change.better(min_gain))
+    if better and not (frf_worse or modes_worse):
+        return ""
     folds = ", ".join(f"{a:.3g} against {b:.3g}" for a, b in zip(after.folds, before.folds))
     rule = ("every held-out fold better" if after.every_fold_with(before) else
             "at least one of the two levels better from the other")
@@ -251,10 +249,10 @@ def held_out_of_each(wb: Workbench, starts: list[AsFitted], folds: int = HELD_OU
     def one(j: int) -> tuple:
         v, k = divmod(j, len(splits))
         fold = _refitted(wb, splits[k][0], starts[v])
-        residuals = (model_modal_residuals(fold.model.structure, fold.model.elements, measured[k].sine)
-                     if modes else None)
-        return (predict_session(fold.model, measured[k], "", wb.harmonics).comparison, _sees_its_laws(fold),
-                residuals)
+        predicted = predict_session(fold.model, measured[k], "", wb.harmonics)
+        # the held-out levels' modes, as the prediction's backbones compared them
+        residuals = ModalResiduals.of([(c.measured, c.predicted) for c in predicted.backbones])
+        return predicted.comparison, _sees_its_laws(fold), residuals
 
     done = map_tasks(one, len(starts) * len(splits))
     out = []

@@ -390,14 +390,8 @@ def _rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(values ** 2))) if len(values) else float("nan")
 
 
-def model_modal_residuals(structure: Structure, elements: Sequence[Element], runs: Sequence[SineRun],
-                          phase_runs: Sequence[PhaseRun] = ()) -> ModalResiduals:
-    """:class:`ModalResiduals` of the model (predicted at the measured amplitudes only: no curve for plots)."""
-    return ModalResiduals.of([(m, _predicted_at(structure, elements, m))
-                              for m in measured_backbones(structure, runs, phase_runs)])
-
-
 def model_modal_error(structure: Structure, elements: Sequence[Element], runs: Sequence[SineRun],
                       phase_runs: Sequence[PhaseRun] = ()) -> ModalError:
     """:func:`modal_error` of the model (predicted at the measured amplitudes only: no curve for plots)."""
-    return model_modal_residuals(structure, elements, runs, phase_runs).error()
+    return modal_error([(m, _predicted_at(structure, elements, m))
+                        for m in measured_backbones(structure, runs, phase_runs)])
