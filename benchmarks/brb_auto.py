@@ -95,6 +95,9 @@ def report(result: dict, cpu: float, baseline: float, folds: list[dict]) -> list
             y = e["yardstick"]
             lines.append(f"  {e['name']}: judged by the {y['ruled_by'].replace('_', ' ')} (between runs "
                          f"{y['between_runs_std']:.4g}, line noise {y['line_noise_std']:.4g})")
+        if "lines_excluded_hz" not in e:        # no fit: the element was left without laws
+            lines.append(f"  {e['name']}: no laws")
+            continue
         share = len(e["lines_excluded_hz"]) / e["lines_used"] if e["lines_used"] else 0.0
         worst_share = max(worst_share, share)
         lines.append(f"  {e['name']}: {len(e['lines_excluded_hz'])} of {e['lines_used']} lines left out of the fit")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from analysis.fitting.fit import fit_laws
-from analysis.fitting.limits import settle_in_limits
+from analysis.fitting.limits import fit_in_limits, settle_in_limits
 from analysis.laws import LAWS
 from analysis.laws.iwan import SLIP_RANGE_BEYOND, MicroSlip, slip_range
 from analysis.mechanics.elements import LawTerm
@@ -59,6 +59,32 @@ def test_an_iwan_element_that_never_slips_through_is_fitted_as_its_micro_slip_li
         reading = iwan.reading(placed, X.min(), X.max())
         assert reading.limit == "micro-slip"
         assert {k: reading.values[k] for k in term.params} == pytest.approx(term.params, rel=1e-9)
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_a_fit_on_part_of_the_amplitudes_keeps_the_limit_the_whole_test_took(seed):
+    """A refit on part of the levels fits a law as the limit form the whole test's fit took it in
+    (``fit_in_limits``): on the whole samples it is the settled fit itself; on the lower amplitudes alone it
+    still places an Iwan that does not slip through at the whole test's largest amplitude, and its combination
+    is the truth's within its errors."""
+    iwan = LAWS["iwan"]
+    X = np.geomspace(1e-7, 5e-5, 40)
+    w, kbar, sigma = _samples(iwan, TRUTH, X, 0.005, seed)
+    _, settled = _settled(iwan, X, w, kbar, sigma, {"fs": 10.0, "chi": 0.0, "beta": 0.1})
+    form = settled.terms[0].limit.law
+    placed = LawTerm(iwan, settled.terms[0].params)
+    again = fit_in_limits([placed], {0: form}, X, w, kbar, sigma)
+    assert again.terms[0].params == pytest.approx(settled.terms[0].params, rel=1e-6)
+    assert again.terms[0].undetermined == settled.terms[0].undetermined
+
+    low = X < 5e-6
+    part = fit_in_limits([placed], {0: form}, X[low], w[low], kbar[low], sigma[low])
+    own, term = part.terms[0], part.terms[0].limit
+    assert own.law is iwan and term.law is form and {"fs", "beta"} <= set(own.undetermined)
+    assert slip_range(own.params["fs"] / own.params["kt"], own.params["chi"], own.params["beta"]) >= X.max()
+    truth = {"kt": TRUTH["kt"], "chi": TRUTH["chi"], "D": _dissipation(iwan, TRUTH, X.max())}
+    for name, value in truth.items():
+        assert abs(term.params[name] - value) < 4 * term.stderr[name], name
 
 
 def test_measured_from_the_reference_the_micro_slip_limit_is_the_dissipation_law_alone():

@@ -16,11 +16,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Mapping
 
 import numpy as np
 
 from ..common.errors import InputError
 from ..common.statistics import falls_above_noise, noise_scale
+from ..laws.base import Law, LimitForm
 from ..mechanics.elements import LawTerm
 from ..mechanics.surroundings import Surroundings
 from .fit import fit_laws
@@ -50,26 +52,52 @@ def settle_in_limits(fit: LawFit, laws: list[LawTerm], X, w, kbar, sigma, *, fal
                                  surroundings=surroundings)
             except InputError:
                 continue
-            shared = _shared_stiffness(limit, j)
-            form_fit = limit.terms[j]
-            placed_back = form_fit.law.law_values(form_fit.params, stiffness_seen=shared is None)
-            if placed_back is None or (fit.describes_the_data and not limit.describes_the_data):
+            placed = _placed(limit, j, term.law)
+            if placed is None or (fit.describes_the_data and not limit.describes_the_data):
                 continue
             scale = noise_scale(fit.judged_chi_square, n_obs, fit.n_parameters)
             if falls_above_noise(limit.judged_chi_square, fit.judged_chi_square,
                                  fit.n_parameters - limit.n_parameters, scale, false_alarm):
                 continue
-            terms = list(limit.terms)
-            terms[j] = _in_limit(fit.terms[j], form_fit, placed_back)
-            if shared is not None:          # the sum the data determine is kept
-                i, name = shared
-                stiffness = form_fit.law.stiffness
-                moved = dict(terms[i].params)
-                moved[name] -= placed_back[stiffness] - form_fit.params[stiffness]
-                terms[i] = replace(terms[i], params=moved)
-            fit = replace(limit, terms=terms)
+            fit = placed
             break
     return fit
+
+
+def fit_in_limits(laws: list[LawTerm], forms: Mapping[int, LimitForm], X, w, kbar, sigma, *,
+                  exclude_outliers: bool = False, surroundings: Surroundings | None = None) -> LawFit | None:
+    """The terms ``laws`` fitted to the samples (as :func:`analysis.fitting.fit.fit_laws` takes them) with term
+    ``j`` as its limit form ``forms[j]`` for every ``j`` given, each placed back in its law as
+    :func:`settle_in_limits` places a form it takes; the others as themselves. None where a form's fit places
+    back in no values of its law (the caller fits the law itself then)."""
+    trial = [LawTerm(forms[j], {p.name: t.values[p.name] for p in forms[j].shape if p.name in t.values})
+             if j in forms else t for j, t in enumerate(laws)]
+    fit = fit_laws(trial, X, w, kbar, sigma, exclude_outliers=exclude_outliers, surroundings=surroundings)
+    for j in forms:
+        fit = _placed(fit, j, laws[j].law)
+        if fit is None:
+            return None
+    return fit
+
+
+def _placed(fit: LawFit, j: int, law: Law) -> LawFit | None:
+    """``fit``, whose term ``j`` is a limit form of ``law``, with that term placed back in ``law``
+    (:meth:`analysis.laws.base.LimitForm.law_values`, :func:`_in_limit`): where the form's stiffness is determined
+    only in a sum with another law's linear parameter (:func:`_shared_stiffness`), that parameter takes the
+    difference, and the sum the data determine is kept. None where no values of ``law`` sit in the limit."""
+    shared = _shared_stiffness(fit, j)
+    form_fit = fit.terms[j]
+    placed_back = form_fit.law.law_values(form_fit.params, stiffness_seen=shared is None)
+    if placed_back is None:
+        return None
+    terms = list(fit.terms)
+    terms[j] = _in_limit(law, form_fit, placed_back)
+    if shared is not None:
+        i, name = shared
+        moved = dict(terms[i].params)
+        moved[name] -= placed_back[form_fit.law.stiffness] - form_fit.params[form_fit.law.stiffness]
+        terms[i] = replace(terms[i], params=moved)
+    return replace(fit, terms=terms)
 
 
 def _shared_stiffness(fit: LawFit, j: int) -> tuple[int, str] | None:
@@ -94,10 +122,11 @@ def _shared_stiffness(fit: LawFit, j: int) -> tuple[int, str] | None:
     return None
 
 
-def _in_limit(own: TermFit, form: TermFit, placed: dict[str, float]) -> TermFit:
-    """The law of ``own`` placed in its limit (contract values ``placed``), carrying ``form``, the fit of the
-    limit's own form: a parameter of both keeps the form's error; one the form does not have is left open."""
-    names = own.law.param_names
+def _in_limit(law: Law, form: TermFit, placed: dict[str, float]) -> TermFit:
+    """``law`` placed in its limit (contract values ``placed``), carrying ``form``, the fit of the limit's own
+    form (its label and surroundings, the form named as its law): a parameter of both keeps the form's error; one
+    the form does not have is left open."""
+    names = law.param_names
     stderr = {n: form.stderr.get(n, math.inf) for n in names}
     undetermined = tuple(n for n in names if n not in form.params or n in form.undetermined)
-    return TermFit(own.law, own.label, placed, stderr, {}, undetermined, own.surroundings, limit=form)
+    return TermFit(law, form.label, placed, stderr, {}, undetermined, form.surroundings, limit=form)

@@ -5,6 +5,8 @@ the whole fit (:class:`LawFit`: residuals, chi-square, information criteria, cov
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -288,6 +290,16 @@ class LawFit:
     def law_terms(self) -> list[LawTerm]:
         """The fitted terms as :class:`LawTerm` objects."""
         return [t.law_term() for t in self.terms]
+
+    def seen(self) -> list[list[str]]:
+        """Per term, the contract parameters the samples see: a finite standard error (not a degeneracy's
+        member, not left open by a limit the law was taken in). What a refinement of the same laws against the
+        FRFs may move: the single-harmonic FRFs see a law only through its describing function at the amplitudes
+        the lines reached, as the samples do, so a direction the samples do not see is one the FRFs do not see
+        either, and a search free to move it drifts along it (a damper measured from an origin, which the
+        origin's damper cancels, to 1e14; an Iwan joint in micro-slip out of its limit) to values whose
+        time-domain force is rounding."""
+        return [[n for n in t.law.param_names if t.stderr.get(n) != math.inf] for t in self.terms]
 
     def describing_function(self, X, w) -> np.ndarray:
         """kbar of the fitted sum of laws, complex, broadcast over X and w (rad/s)."""

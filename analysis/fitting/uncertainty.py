@@ -73,13 +73,16 @@ def _sparse_basis(rows: np.ndarray) -> np.ndarray:
     ``k + kt`` beside a combination of the iwan shapes, it says so instead of two mixtures of all four. For
     each set of parameters to leave out (most first), a combination without them exists when the basis
     restricted to them has a one-dimensional left null space; such combinations are taken, sparsest first,
-    while they add a dimension. Groups beyond ``_SPARSE_LIMIT`` parameters keep the given basis."""
+    while they add a dimension. Of equally sparse ones, those that leave out the parameters listed last come
+    first: the linear parameters (stiffnesses, sizes) are listed before the shapes, and a sum of stiffnesses the
+    samples fix reads as itself, not as two mixtures each with a shape in it. Groups beyond ``_SPARSE_LIMIT``
+    parameters keep the given basis."""
     m, g = rows.shape
     if g > _SPARSE_LIMIT or m == 0:
         return rows
     chosen: list[np.ndarray] = []
     for n_zero in range(g - 1, -1, -1):
-        for zero in itertools.combinations(range(g), n_zero):
+        for zero in reversed(list(itertools.combinations(range(g), n_zero))):
             restricted = rows[:, list(zero)]
             _, sv, vt = np.linalg.svd(restricted.T, full_matrices=True) if n_zero else (None, np.zeros(0), np.eye(m))
             null = vt[np.count_nonzero(sv > _SPARSE_TOL):]

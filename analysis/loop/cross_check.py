@@ -19,6 +19,7 @@ import numpy as np
 from ..common.measurements import Measurements
 from ..common.parallel import map_tasks
 from ..identification.between_runs import BetweenRuns
+from ..laws.base import LimitForm
 from ..mechanics.model import FittedOn, Model
 from ..missing.diagnosis import RankingRules
 from ..missing.modal_judge import ModalChange, ModalRules, measures_modes
@@ -82,24 +83,27 @@ def _fold(wb: Workbench, half: list, created: str) -> Fold:
 
 @dataclass(frozen=True)
 class AsFitted:
-    """A model as a fit of the whole test left it, and the scatter between runs (element -> yardstick) its samples
-    were judged by: what a fit on part of the levels starts from (:func:`as_fitted`)."""
+    """A model as a fit of the whole test left it, the scatter between runs (element -> yardstick) its samples
+    were judged by, and the limits its laws were taken in (:meth:`Workbench.limits`): what a fit on part of the
+    levels starts from and keeps (:func:`as_fitted`)."""
 
     model: Model
     yardsticks: dict[str, BetweenRuns]
+    limits: dict[str, dict[int, LimitForm]]
 
 
 def as_fitted(wb: Workbench) -> AsFitted:
-    """``wb``'s model and yardsticks as they stand, kept apart from what ``wb`` does next."""
-    return AsFitted(wb.model.copy(), wb.yardsticks())
+    """``wb``'s model, yardsticks and limits as they stand, kept apart from what ``wb`` does next."""
+    return AsFitted(wb.model.copy(), wb.yardsticks(), wb.limits())
 
 
 def _refitted(wb: Workbench, levels: list, start: AsFitted) -> Workbench:
     """A fresh workbench on ``wb``'s measurements at ``levels`` alone with the laws of ``start`` refitted from their
     current values (reference, identification, fit; its own error is not computed; started at the whole test's
-    fit), its samples judged by the whole test's scatter between runs (:meth:`Workbench._yardstick`)."""
+    fit), its samples judged by the whole test's scatter between runs (:meth:`Workbench._yardstick`) and its laws
+    kept in the limits the whole test's fit took them in (:meth:`Workbench.limits`)."""
     fold = Workbench(start.model, _at(wb, levels), wb.distortion_limit, wb.harmonics, start.yardsticks,
-                     started_at_fit=True)
+                     started_at_fit=True, limits=start.limits)
     fold.prepare()
     return fold
 

@@ -29,12 +29,12 @@ import numpy as np
 from ..common.errors import InputError
 from ..common.measurements import Measurements, SineRun
 from ..fitting.fit import LawFit, fit_laws
-from ..fitting.limits import settle_in_limits
+from ..fitting.limits import fit_in_limits, settle_in_limits
 from ..identification.between_runs import BetweenRuns, ErrorFloor, RunSensitivity, between_runs, frf_error_floor
 from ..identification.identify import identify_complex_stiffness
 from ..identification.linearity import LinearityVerdict, linearity_verdict
 from ..laws import get_law
-from ..laws.base import LimitReading
+from ..laws.base import LimitForm, LimitReading
 from ..linear.reference import ReferenceReport, reference_from_random
 from ..mechanics.elements import LawTerm
 from ..mechanics.model import Model
@@ -179,7 +179,8 @@ class Workbench:
 
     def __init__(self, model: Model, measurements: Measurements, distortion_limit: float = 0.05,
                  harmonics: HarmonicCriterion | None = HarmonicCriterion(),
-                 yardsticks: dict[str, BetweenRuns] | None = None, started_at_fit: bool = False):
+                 yardsticks: dict[str, BetweenRuns] | None = None, started_at_fit: bool = False,
+                 limits: dict[str, dict[int, LimitForm]] | None = None):
         if not measurements.sine:
             raise InputError("the session has no stepped-sine run to identify from")
         missing = sorted(d for d in measurements.dofs() if d not in model.structure.dofs)
@@ -194,6 +195,9 @@ class Workbench:
         # the model's values are where a fit of the whole test settled (a held-out check's refit on part of its
         # levels): no restart from the FRF-refined laws (:meth:`_corrected_from_refined`)
         self._started_at_fit = started_at_fit
+        # element -> term index -> the limit form the whole test's fit took that law in, for a workbench on part
+        # of its levels (:meth:`limits`)
+        self._given_limits = dict(limits or {})
         self.reference: ReferenceReport | None = None
         self.reports: dict[str, ElementReport] = {}
         self.history: list[HistoryStep] = []
@@ -274,6 +278,17 @@ class Workbench:
         """Element -> the scatter between runs its samples were judged by (elements without noise left out)."""
         return {name: r.yardstick for name, r in self.reports.items() if r.yardstick is not None}
 
+    def limits(self) -> dict[str, dict[int, LimitForm]]:
+        """Element -> term index -> the limit form its law was taken in (:mod:`analysis.fitting.limits`), for the
+        laws the fits took in a limit. A refit on part of the levels fits those laws as the same forms: which
+        limit a law sits in over the test's amplitudes is a finding of the whole test, and a part of its levels
+        determines no more than the whole does. Left free, the law's parameters on a part slide along the
+        direction the whole test did not determine (an Iwan joint in micro-slip slipping through at a force the
+        data never showed), and what the part's fit predicts would measure where its search stopped there, not
+        the model."""
+        return {name: found for name, r in self.reports.items() if r.fit is not None
+                and (found := {j: t.limit.law for j, t in enumerate(r.fit.terms) if t.limit is not None})}
+
     @staticmethod
     def _yardstick(samples: ElementSamples, given: BetweenRuns | None) -> BetweenRuns | None:
         """The scatter between runs of an element's samples (``given``: measured on the whole test, for a
@@ -323,11 +338,14 @@ class Workbench:
             if s is None:
                 raise InputError(f"element {el.name!r} has no well-conditioned line to fit its laws to")
             if el.laws:
-                fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std,
-                               exclude_outliers=self.harmonics_blind, surroundings=el.surroundings)
-                report.fit = settle_in_limits(fit, el.laws, s.X, s.w, s.kbar, s.kbar_std,
-                                              false_alarm=RankingRules().false_alarm,
-                                              exclude_outliers=self.harmonics_blind, surroundings=el.surroundings)
+                held = self._given_limits.get(el.name)
+                options = dict(exclude_outliers=self.harmonics_blind, surroundings=el.surroundings)
+                fit = fit_in_limits(el.laws, held, s.X, s.w, s.kbar, s.kbar_std, **options) if held else None
+                if fit is None:
+                    fit = fit_laws(el.laws, s.X, s.w, s.kbar, s.kbar_std, **options)
+                    fit = settle_in_limits(fit, el.laws, s.X, s.w, s.kbar, s.kbar_std,
+                                           false_alarm=RankingRules().false_alarm, **options)
+                report.fit = fit
                 el.laws = [LawTerm(t.law, dict(report.fit.terms[j].params)) for j, t in enumerate(el.laws)]
             if el.nonparametric is not None:
                 self._fit_nonparametric(el)
@@ -411,12 +429,13 @@ class Workbench:
             self._restore(before)
 
     def _refined_against_frfs(self, i: int) -> list[LawTerm]:
-        """Element ``i``'s laws with every parameter refined against the FRFs single-harmonically, the other
-        elements held at their laws."""
+        """Element ``i``'s laws with every parameter its kbar fit sees (:meth:`LawFit.seen`) refined against the
+        FRFs single-harmonically, the other elements held at their laws."""
         els = self.model.elements
         others = {j: terms_function(el.laws) for j, el in enumerate(els) if j != i}
-        return refine_against_frfs(self.predictor, i, els[i].laws, [list(t.law.param_names) for t in els[i].laws],
-                                   others).terms
+        fit = self.reports[els[i].name].fit
+        free = fit.seen() if fit is not None else [list(t.law.param_names) for t in els[i].laws]
+        return refine_against_frfs(self.predictor, i, els[i].laws, free, others).terms
 
     def _corrected_is_kept(self, before: Comparison, corrected: float) -> bool:
         """The balance's own sliders never stick (a Coulomb slider's force is sgn(v) along the balanced motion, whose

@@ -289,13 +289,15 @@ class _Judge:
         key = (search.index, s.laws)
         if key not in self._refined:
             others = {j: f for j, f in self.standins.items() if j != search.index}
-            self._refined[key] = self.refined_beside(search.index, _terms_of(s), others)
+            self._refined[key] = self.refined_beside(search.index, _terms_of(s), others, _seen_of(s))
         return self._refined[key]
 
-    def refined_beside(self, i: int, terms: list, others: dict[int, Callable]) -> FrfRefinement:
-        """Law ``terms``' parameters on element ``i`` refined against the FRFs from their values, the elements of
-        ``others`` held at those describing functions (:func:`analysis.prediction.frf_refinement.refine_against_frfs`)."""
-        return refine_against_frfs(self.predictor, i, terms, [list(t.law.param_names) for t in terms], others)
+    def refined_beside(self, i: int, terms: list, others: dict[int, Callable], free: list[list[str]]
+                       ) -> FrfRefinement:
+        """Law ``terms``' parameters ``free`` (per term: those their kbar fit sees, :meth:`LawFit.seen`) on element
+        ``i`` refined against the FRFs from their values, the elements of ``others`` held at those describing
+        functions (:func:`analysis.prediction.frf_refinement.refine_against_frfs`)."""
+        return refine_against_frfs(self.predictor, i, terms, free, others)
 
     def holds_with_harmonics(self, choice: dict[int, LawSet], i: int, before: LawSet, step: WalkStep) -> bool:
         """The model-form check of a step taken on element ``i`` (the overview in discovery.py, step 4): with every
@@ -388,6 +390,10 @@ def _terms_of(s: LawSet) -> list:
     return s.fit.law_terms() if s.fit is not None else []
 
 
+def _seen_of(s: LawSet) -> list[list[str]]:
+    return s.fit.seen() if s.fit is not None else []
+
+
 class _RefinedErrors:
     """A set's FRF errors with every element refined (:func:`_refined_errors`): single-harmonic, and with
     harmonics predicted when first asked (a harmonic prediction costs seconds)."""
@@ -415,15 +421,15 @@ def _refined_errors(judge: _Judge, i: int, s: LawSet, judged: dict[int, LawSet])
     beside it, then ``s`` again beside those. Each set judged has the others at their best beside it: their kbar
     fits' misfit is not ``s``'s laws to fill, nor is ``s``'s kbar fit's theirs."""
     fitted = {k: t.describing_function for k, t in judged.items() if k != i}
-    first = judge.refined_beside(i, _terms_of(s), fitted).terms
+    first = judge.refined_beside(i, _terms_of(s), fitted, _seen_of(s)).terms
     held = {}
     for j, other in judged.items():
         if j != i:
             beside = {**{k: f for k, f in fitted.items() if k != j}, i: terms_function(first)}
-            held[j] = judge.refined_beside(j, _terms_of(other), beside).terms
+            held[j] = judge.refined_beside(j, _terms_of(other), beside, _seen_of(other)).terms
     replace = {j: terms_function(ts) for j, ts in held.items()}
     # alone on the structure, the first refinement is already beside its best others
-    terms = judge.refined_beside(i, first, replace).terms if held else first
+    terms = judge.refined_beside(i, first, replace, _seen_of(s)).terms if held else first
     replace[i] = terms_function(terms)
     single = judge.predictor.compare(kbar_functions_with(judge.predictor.model.elements, replace)).error
     return _RefinedErrors(single, lambda: judge.predictor.with_laws({**held, i: terms}).compare(
