@@ -17,6 +17,7 @@ from analysis.loop.auto import AutoResult, AutoRules, AutoStep, kbar_unexplained
 from analysis.loop.cross_check import NOT_CHECKED, HeldOut, cross_validate, held_out
 from analysis.prediction.comparison import pooled_error
 from analysis.prediction.backbone import ModalError
+from analysis.missing.modal_judge import ModalRules, ModalYardstick
 from analysis.prediction.comparison import RunPrediction, compare_predictions
 from analysis.missing.diagnosis import Candidate, ElementSamples, RankingRules
 from analysis.search.discovery import Discovery, ElementDiscovery, LawSet, WalkStep
@@ -286,6 +287,15 @@ def test_step_and_result_records():
     result = AutoResult([step], "nothing significant is left")
     assert json.loads(json.dumps(result.to_json()))["stopped"] == "nothing significant is left"
     assert result.text().splitlines()[-1] == "  stopped: nothing significant is left"
+    assert result.to_json()["modal_yardstick"] is None
+    # where the session measures the modes: what they were judged against, and which of the two ruled
+    result.modal_yardstick = ModalYardstick(ModalRules(), ModalError(5e-4, 0.011))
+    assert result.text().splitlines()[1] == ("  the measured modes judged against 0.0005 in frequency (the test's "
+                                             "scatter between levels) and 0.02 in damping (what a fit resolves), "
+                                             "relative")
+    assert json.loads(json.dumps(result.to_json()))["modal_yardstick"] == {
+        "frequency_floor": 5e-4, "frequency_ruled_by": "scatter_between_levels", "frequency_scatter": 5e-4,
+        "damping_floor": 0.02, "damping_ruled_by": "resolution", "damping_scatter": 0.011}
 
 
 def test_no_law_is_supported_where_the_laws_already_explain_the_kbar_within_the_noise():

@@ -10,8 +10,9 @@ from analysis.missing.diagnosis import Candidate
 from analysis.mechanics.elements import load_elements
 from analysis.fitting.fit import fit_laws
 from analysis.common.measurements import Measurements, PhaseRun
-from analysis.missing.modal_judge import ModalChange, ModalRules, judge_by_modes, measures_modes, model_error
-from analysis.prediction.backbone import ModalError
+from analysis.missing.modal_judge import (ModalChange, ModalRules, ModalYardstick, judge_by_modes, measures_modes,
+                                         model_error)
+from analysis.prediction.backbone import Backbone, ModalError, ModalPoint, scatter_between_levels
 from analysis.mechanics.model import Model
 from analysis.mechanics.structures import Structure
 
@@ -102,3 +103,39 @@ def test_locked_points_are_kbar_samples_where_one_harmonic_describes_them():
     np.testing.assert_allclose(report.samples.X[locked], AMPLITUDES[:3], rtol=1e-9)
     np.testing.assert_allclose(report.samples.kbar[locked].real, 0.75 * K3 * AMPLITUDES[:3] ** 2, rtol=1e-6)
     assert report.lines_flagged == 1 and report.lines_used == len(f) + 3
+
+
+def _curve(amplitudes, frequencies, damping) -> Backbone:
+    points = [ModalPoint(a, f, z) for a, f, z in zip(amplitudes, frequencies, damping)]
+    return Backbone("x", "displacement", points, "measured")
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_the_scatter_between_levels_is_read_from_the_measured_curve_itself(seed):
+    """The Duffing backbone and a damping ratio growing as the amplitude's square root, at 16 levels over a factor
+    of four, each point moved by a relative scatter of 1e-3 (frequency) and 2 % (damping): the windows of four
+    within a factor of two leave that scatter, and the exact curves little: the backbone's cubic term in ln a, which
+    the windows do not cancel, 5.6e-5 where the frequency rises by 28 % over the factor of four."""
+    a = np.geomspace(1e-3, 4e-3, 16)
+    f = np.sqrt((K + 0.75 * K3 * a ** 2) / M) / (2 * np.pi)
+    z = 0.01 * np.sqrt(a / a[0])
+    exact = scatter_between_levels([_curve(a, f, z)])
+    assert exact.frequency < 1e-4 and exact.damping < 1e-12
+    rng = np.random.default_rng(seed)
+    moved = scatter_between_levels([_curve(a, f * (1 + 1e-3 * rng.standard_normal(16)),
+                                           z * (1 + 0.02 * rng.standard_normal(16)))])
+    assert 0.5 < moved.frequency / 1e-3 < 1.8 and 0.5 < moved.damping / 0.02 < 1.8
+    # points a factor of two or more apart in amplitude give no window
+    assert np.isnan(scatter_between_levels([_curve(a[::6], f[::6], z[::6])]).frequency)
+
+
+def test_the_measured_modes_are_judged_against_the_larger_of_resolution_and_scatter():
+    stick = ModalYardstick(ModalRules(frequency_floor=2e-4, damping_floor=0.02), ModalError(5e-4, 0.011))
+    assert stick.rules == ModalRules(frequency_floor=5e-4, damping_floor=0.02)
+    assert stick.to_json()["frequency_ruled_by"] == "scatter_between_levels"
+    assert stick.to_json()["damping_ruled_by"] == "resolution"
+    unknown = ModalYardstick(ModalRules(), ModalError(float("nan"), float("nan")))
+    assert unknown.rules == ModalRules() and unknown.to_json()["frequency_scatter"] is None
+    # two errors apart by less than the scatter are the same; apart by more, one is better
+    assert not ModalChange.of(ModalError(4e-4, 0.1), ModalError(2e-4, 0.1), stick.rules).better(1.3)
+    assert ModalChange.of(ModalError(2e-3, 0.1), ModalError(5e-4, 0.1), stick.rules).better(1.3)

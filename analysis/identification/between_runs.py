@@ -174,14 +174,14 @@ def _groups(u: np.ndarray, w: np.ndarray, kbar: np.ndarray, std: np.ndarray) -> 
             if nodes[-1] - nodes[0] > math.log(SPAN) or np.diff(nodes).min() <= 0:
                 j += 1
                 continue
-            c = _divided_difference(nodes)
+            c = divided_difference(nodes)
             residual.append(c @ kbar[group])
             variance.append(float(np.sum(c**2 * std[group] ** 2)))
             j += GROUP
     return np.asarray(residual, complex), np.asarray(variance, float)
 
 
-def _divided_difference(nodes: np.ndarray) -> np.ndarray:
+def divided_difference(nodes: np.ndarray) -> np.ndarray:
     """Weights of the highest divided difference over ``nodes`` (distinct), scaled to unit length: the
     combination that vanishes for every polynomial of degree ``len(nodes) - 2``."""
     c = np.array([1.0 / np.prod([nodes[a] - nodes[b] for b in range(nodes.size) if b != a])

@@ -20,7 +20,7 @@ stage shares (:mod:`analysis.loop.records`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Iterator
 
 import numpy as np
@@ -28,7 +28,7 @@ import numpy as np
 from ..common.interrupt import Interrupted, stoppable
 from ..laws import LAWS
 from ..missing.diagnosis import Candidate, check_model_form
-from ..missing.modal_judge import judge_by_modes, measures_modes, model_error
+from ..missing.modal_judge import ModalYardstick, judge_by_modes, measures_modes, model_error
 from ..missing.unexplained import unexplained
 from ..prediction.backbone import ModalError
 from ..prediction.comparison import gain_phrase
@@ -286,18 +286,26 @@ def run_auto(wb: Workbench, rules: AutoRules = AutoRules(),
     and ``wb.history`` holds every step; ``progress`` is called with each step as it is taken, ``note`` with a
     line of text while discovery searches an element. ``stop`` is asked before every step and, within a step, at
     every evaluation of a fit and every line of a prediction (:mod:`analysis.common.interrupt`): once it answers
-    True the loop ends there, the step under way is undone and the steps taken stay."""
+    True the loop ends there, the step under way is undone and the steps taken stay. Where the session measures the
+    modes, their floors (``rules.modes``) are raised to how well the test repeats them from level to level
+    (:class:`analysis.missing.modal_judge.ModalYardstick`, in the result)."""
     if not wb.history:
         raise ValueError("run_auto needs a started workbench (call wb.start() first)")
     steps: list[AutoStep] = []
     stopping = stop or (lambda: False)
     under_way = _UnderWay()
+    yardstick = None
+    if rules.modes is not None and measures_modes(wb.measurements):
+        yardstick = ModalYardstick.of(wb.model, wb.measurements, rules.modes)
+        rules = replace(rules, modes=yardstick.rules)
     with stoppable(stopping):
         try:
-            return _run(wb, rules, progress, note, stopping, steps, under_way)
+            result = _run(wb, rules, progress, note, stopping, steps, under_way)
         except Interrupted:
             wb.drop_unfinished()
-            return AutoResult(steps, STOPPED_BY_USER, [], under_way.found, under_way.what)
+            result = AutoResult(steps, STOPPED_BY_USER, [], under_way.found, under_way.what)
+    result.modal_yardstick = yardstick
+    return result
 
 
 @dataclass

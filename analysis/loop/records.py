@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..missing.diagnosis import Candidate, RankingRules
-from ..missing.modal_judge import ModalRules
+from ..missing.modal_judge import ModalRules, ModalYardstick
 from ..prediction.backbone import ModalError
 from ..prediction.comparison import gain_phrase
 from ..search.discovery import Discovery, DiscoveryRules
@@ -112,16 +112,21 @@ class AutoResult:
     candidates: list[Candidate] = field(default_factory=list)
     discovery: Discovery | None = None
     undone: str = ""
+    modal_yardstick: ModalYardstick | None = None   # what the measured modes were judged against, where measured
 
     def text(self) -> str:
         lines = [self.discovery.text()] if self.discovery is not None and self.discovery.elements else []
-        lines += ["automatic loop:"] + [f"  {i + 1}. {s.text()}" for i, s in enumerate(self.steps)]
+        lines += ["automatic loop:"]
+        if self.modal_yardstick is not None:
+            lines.append(f"  {self.modal_yardstick.words()}")
+        lines += [f"  {i + 1}. {s.text()}" for i, s in enumerate(self.steps)]
         inside = f" during {self.undone}, which was undone" if self.undone else ""
         return "\n".join(lines + [f"  stopped: {self.stopped}{inside}"])
 
     def to_json(self) -> dict:
         return {"steps": [s.to_json() for s in self.steps], "stopped": self.stopped, "undone": self.undone,
-                "discovery": None if self.discovery is None else self.discovery.to_json()}
+                "discovery": None if self.discovery is None else self.discovery.to_json(),
+                "modal_yardstick": None if self.modal_yardstick is None else self.modal_yardstick.to_json()}
 
 
 #: What a step's line adds where its held-out levels cannot judge its laws (:attr:`AutoStep.held_out_judges`)

@@ -14,8 +14,9 @@ locked points of a phase-resonance run are no sweep. So where a session measures
   do not.
 
 Each curve's error is the RMS relative error of the model's prediction at the measured points
-(:class:`analysis.prediction.backbone.ModalError`); below a floor -- what a phase lock or a single-mode fit resolves -- two
-errors are the same.
+(:class:`analysis.prediction.backbone.ModalError`); below a floor -- what a phase lock or a single-mode fit resolves,
+or, where larger, how well the test repeats the mode from level to level (:class:`ModalYardstick`) -- two errors are
+the same.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ import numpy as np
 
 from ..common.measurements import Measurements
 from ..mechanics.model import Model
-from ..prediction.backbone import ModalError, model_modal_error
+from ..prediction.backbone import ModalError, measured_backbones, model_modal_error, scatter_between_levels
 from .diagnosis import Candidate
 
 
@@ -37,6 +38,59 @@ class ModalRules:
                                      # frequency within ~1e-4 of the mode's
     damping_floor: float = 0.02      # relative; a single-mode fit or a power balance resolves the damping ratio
                                      # to a few per cent
+
+
+@dataclass(frozen=True)
+class ModalYardstick:
+    """What the measured modes are judged against: per curve, the larger of what a fit resolves (``resolution``)
+    and how well the test repeats it from one level to the next (``scatter``,
+    :func:`analysis.prediction.backbone.scatter_between_levels`). Two models' errors that differ below it differ by
+    what the test does not repeat, which no law predicts: on a real structure the mode moves by a fraction of a
+    per cent between runs, far beyond what a phase lock or a single-mode fit resolves, and a law judged against
+    the resolution alone would be kept or refused by that drift."""
+
+    resolution: ModalRules
+    scatter: ModalError
+
+    @classmethod
+    def of(cls, model: Model, measurements: Measurements, resolution: ModalRules) -> "ModalYardstick":
+        curves = measured_backbones(model.structure, measurements.sine, measurements.phase)
+        return cls(resolution, scatter_between_levels(curves))
+
+    @property
+    def rules(self) -> ModalRules:
+        """The floors the judgement uses."""
+        return ModalRules(*(max(floor, scatter) if np.isfinite(scatter) else floor
+                            for floor, scatter in self._pairs()))
+
+    def _pairs(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        return ((self.resolution.frequency_floor, self.scatter.frequency),
+                (self.resolution.damping_floor, self.scatter.damping))
+
+    def _ruled_by(self) -> tuple[str, str]:
+        return tuple("scatter_between_levels" if np.isfinite(scatter) and scatter > floor else "resolution"
+                     for floor, scatter in self._pairs())
+
+    def words(self) -> str:
+        """``the measured modes judged against 0.00054 in frequency (the test's scatter between levels) and 0.02 in
+        damping (what a fit resolves)``."""
+        ruled = self._ruled_by()
+        said = {"scatter_between_levels": "the test's scatter between levels", "resolution": "what a fit resolves"}
+        rules = self.rules
+        return (f"the measured modes judged against {rules.frequency_floor:.2g} in frequency ({said[ruled[0]]}) and "
+                f"{rules.damping_floor:.2g} in damping ({said[ruled[1]]}), relative")
+
+    def to_json(self) -> dict:
+        ruled = self._ruled_by()
+        rules = self.rules
+        return {"frequency_floor": rules.frequency_floor, "frequency_ruled_by": ruled[0],
+                "frequency_scatter": _number(self.scatter.frequency),
+                "damping_floor": rules.damping_floor, "damping_ruled_by": ruled[1],
+                "damping_scatter": _number(self.scatter.damping)}
+
+
+def _number(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 def measures_modes(measurements: Measurements) -> bool:

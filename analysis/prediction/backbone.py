@@ -35,6 +35,7 @@ import scipy.linalg
 
 from ..common.errors import InputError
 from ..common.measurements import CONTROL_UNITS, Measurements, PhaseRun, SineRun, response_amplitude
+from ..identification.between_runs import GROUP, SPAN, divided_difference
 from ..mechanics.elements import Element
 from ..mechanics.structures import Structure
 from ..signals.modal_fit import fit_modes
@@ -384,6 +385,33 @@ class ModalResiduals:
     def error(self) -> ModalError:
         """The RMS of each; NaN where nothing of it is measured."""
         return ModalError(_rms(self.frequency), _rms(self.damping))
+
+
+def scatter_between_levels(curves: Sequence[Backbone]) -> ModalError:
+    """How well the test repeats a mode's natural frequency and damping ratio from one level to the next, relative,
+    from the measured curves themselves: a mode's frequency and damping are functions of its amplitude, so
+    neighbouring points disagree beyond a smooth curve by what the test does not repeat (a joint that settles, the
+    temperature, the fixture; on a real structure the mode moves by a fraction of a per cent between runs). Each
+    curve's points, in order of ``u = ln amplitude``, are taken four at a time (every window of ``GROUP``
+    consecutive points within a factor ``SPAN`` in amplitude), and the combination of their ``ln f`` (``ln zeta``)
+    that vanishes for any quadratic in ``u`` (the third divided difference, ``|c| = 1``:
+    :func:`analysis.identification.between_runs.divided_difference`, the scatter between runs of the kbar turned
+    to the modes) leaves one point's scatter: the RMS over every window of every curve. NaN where no window is
+    found (fewer than four points within a factor two)."""
+    parts: tuple[list, list] = ([], [])
+    for curve in curves:
+        a, f, z = curve.arrays()
+        u = np.log(a)
+        for start in range(len(u) - GROUP + 1):
+            nodes = u[start:start + GROUP]
+            if nodes[-1] - nodes[0] > np.log(SPAN) or np.diff(nodes).min() <= 0:
+                continue
+            c = divided_difference(nodes)
+            for out, values in zip(parts, (f, z)):
+                window = values[start:start + GROUP]
+                if np.all(window > 0):
+                    out.append(float(c @ np.log(window)))
+    return ModalError(_rms(np.array(parts[0])), _rms(np.array(parts[1])))
 
 
 def _rms(values: np.ndarray) -> float:

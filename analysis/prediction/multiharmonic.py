@@ -218,10 +218,9 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     branch where the response is multivalued, and the lines are independent: they are solved all at once by
     Broyden's method from a difference Jacobian (:func:`_quasi_newton`, :class:`_MultiharmonicLines`). A line it
     leaves is one where a fresh Jacobian gives no step that lowers the residual (a contact that sticks), and it is
-    left unconverged: scipy's ``hybr`` from the same start, once the fallback, rescued 3 of 4441 such lines (the
-    Brake-Reuss beam's loop, the hidden-effect matrix) at a fifth of the beam's loop. Without ``y_start`` Newton
-    (``hybr``) runs at each line from the previous line's solution, the first started from the single-harmonic
-    solution.
+    left unconverged: another Newton-type method from the same start finds no more there, at many times the cost
+    of the batch (docs/workbench.md, "Every selected line at once"). Without ``y_start`` Newton (``hybr``) runs at
+    each line from the previous line's solution, the first started from the single-harmonic solution.
     """
     w = np.atleast_1d(np.asarray(w, float))
     H = int(n_harmonics)
