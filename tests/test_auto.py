@@ -392,6 +392,18 @@ def test_the_auto_button_runs_the_same_loop(qtbot, rk4_joint):
     assert [(s.action, s.laws) for s in expected.steps] == [("add", ("quadratic_damping",))]
 
 
+def test_the_analysis_view_says_what_the_measured_modes_were_judged_against(rk4_joint):
+    """The GUI's loop lines carry the yardstick line where the session measured the modes (here set by hand: the
+    rig has force levels only), and none where it did not."""
+    from app.gui.results import analysis_view
+
+    wb = started(rk4_joint, element("a", "x1", '"cubic"'))
+    plain = AutoResult([], "nothing significant is left")
+    assert analysis_view(wb, [], plain).auto == ["stopped: nothing significant is left"]
+    plain.modal_yardstick = ModalYardstick(ModalRules(), ModalError(5e-4, 0.011))
+    assert analysis_view(wb, [], plain).auto == [plain.modal_yardstick.words(), "stopped: nothing significant is left"]
+
+
 # ------------------------------------------------------------------------------------------------ jump rig
 @pytest.mark.acceptance
 def test_the_jump_rig_adds_coulomb_and_no_quintic(tmp_path):

@@ -332,6 +332,11 @@ def _discovered(auto: AutoResult) -> list[str]:
     return out
 
 
+def _judged_against(auto: AutoResult) -> list[str]:
+    """What the measured modes were judged against, where the session measures them."""
+    return [] if auto.modal_yardstick is None else [auto.modal_yardstick.words()]
+
+
 def _stopped(auto: AutoResult) -> str:
     """Why the loop ended; stopped by the user, what the model keeps and what was not tried."""
     if auto.stopped != STOPPED_BY_USER:
@@ -368,7 +373,8 @@ def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult |
         [j.text() for j in comp.jumps],
         [UnexplainedView(o.element, o.finding.text(), o.finding.noise_ratio, o.error, o.error_before, o.gain)
          for o in wb.unexplained()],
-        [] if auto is None else _discovered(auto) + [s.text() for s in auto.steps] + [_stopped(auto)],
+        [] if auto is None else _discovered(auto) + _judged_against(auto) + [s.text() for s in auto.steps]
+        + [_stopped(auto)],
         wb.single_harmonic_comparison().error,
         # a stopped loop leaves no ranking; an empty table would read as "every law was tried"
         auto is None or auto.stopped != STOPPED_BY_USER,
