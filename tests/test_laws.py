@@ -207,6 +207,26 @@ def test_a_law_measured_from_an_origin_is_its_kernel_less_the_spring_and_damper_
     np.testing.assert_allclose([k, c * w0], [k0 + at_origin.real, at_origin.imag], rtol=1e-12)
 
 
+def test_a_viscous_term_measured_from_an_origin_is_none_and_a_fit_leaves_it_at_zero():
+    """The origin's damper is the law's own viscous term: Anderson-Ferri's ``c |x'| sgn(x') = c x'`` gives
+    ``j c w``, which the damper equal to the law's kbar at the origin cancels at every line. Its basis column is
+    then exactly zero, not the rounding left of ``j c w - j c w0 (w / w0)``, which a fit scaling its columns to
+    unit length would take for a direction (it had put c at 2.5e14 +- 8.5e14, a time-domain force of
+    rounding); the fit reports c as not identifiable and leaves it at zero, and the kbar is the same."""
+    from analysis.fitting.fit import fit_laws
+
+    X, w = np.geomspace(1e-6, 1e-4, 30), np.linspace(490.0, 510.0, 30)
+    measured = LAWS["anderson_ferri"].relative(Origin(1e-5, 500.0))
+    B = measured.basis(X, w)
+    assert np.all(B[2] == 0.0) and np.all(np.abs(B[:2]).max(axis=1) > 0)
+    truth = {"a": 0.3, "b": 40.0, "c": 2.0}
+    kbar = measured.describing_function(X, w, **truth)
+    fit = fit_laws([measured], X, w, kbar, 1e-3 * np.abs(kbar).max())
+    term = fit.terms[0]
+    assert term.params["c"] == 0.0 and term.stderr["c"] == np.inf
+    assert {"a": term.params["a"], "b": term.params["b"]} == pytest.approx({"a": 0.3, "b": 40.0}, rel=1e-6)
+
+
 def test_amplitude_independent_and_placed_laws_are_measured_as_before_whatever_the_origin():
     """A linear law measured from an origin would vanish (it corrects the reference itself), and a contact placed
     in its structure has its balance's kbar at the origin, which no spring and damper carry."""

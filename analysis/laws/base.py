@@ -234,6 +234,11 @@ def broadcast(X, w) -> tuple[np.ndarray, np.ndarray]:
     return X, w
 
 
+#: What is left of a basis column less its spring and damper at the origin, relative to the column, below which the
+#: column counts as cancelled (:meth:`Origin.less`): rounding leaves about 1e-16, a law's own departure far more
+CANCELLED = 1e-12
+
+
 @dataclass(frozen=True)
 class Origin:
     """Where an element's laws are measured from when its reference was made from a measured level: the element's
@@ -259,7 +264,13 @@ class Origin:
         A damper and not a constant loss, so that the time-domain force is a law's (``c v`` with c = Im a / w0);
         the lines of a reference's level lie within a few per cent of its resonance, where the two agree."""
         a = np.asarray(at_origin, complex).reshape((-1,) + (1,) * (basis.ndim - 1))
-        return basis - (a.real + 1j * a.imag * (np.asarray(w, float) / self.w))
+        out = basis - (a.real + 1j * a.imag * (np.asarray(w, float) / self.w))
+        # a column that is itself a spring or a damper (a viscous term c w) is cancelled to round-off: what rounding
+        # leaves of it is no direction, and a fit that scales its columns to unit length would see one there
+        size = np.abs(basis).reshape(len(basis), -1).max(axis=1, initial=0.0)
+        left = np.abs(out).reshape(len(out), -1).max(axis=1, initial=0.0)
+        out[left <= CANCELLED * size] = 0.0
+        return out
 
 
 class KbarFunction:
