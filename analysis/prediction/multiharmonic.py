@@ -216,11 +216,10 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
 
     With ``y_start`` (single-harmonic element phasors, (L, r)) every line starts from its own, which picks the
     branch where the response is multivalued, and the lines are independent: they are solved all at once by
-    Broyden's method from a difference Jacobian (:func:`_quasi_newton`, :class:`_MultiharmonicLines`). A line it
-    leaves is one where a fresh Jacobian gives no step that lowers the residual (a contact that sticks), and it is
-    left unconverged: another Newton-type method from the same start finds no more there, at many times the cost
-    of the batch (docs/workbench.md, "Every selected line at once"). Without ``y_start`` Newton (``hybr``) runs at
-    each line from the previous line's solution, the first started from the single-harmonic solution.
+    Broyden's method from a difference Jacobian (:func:`_quasi_newton`, :class:`_MultiharmonicLines`), and a line
+    that does not converge so
+    is solved on its own by scipy's ``hybr`` from the same start. Without it Newton (``hybr``) runs at each line
+    from the previous line's solution, the first started from the single-harmonic solution.
     """
     w = np.atleast_1d(np.asarray(w, float))
     H = int(n_harmonics)
@@ -234,6 +233,10 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
         start[:, 1] = y_start
         z, _ = _quasi_newton(lines.residual, lines.jacobian, lines.pack(start, np.arange(len(w))),
                              MULTIHARMONIC_TOLERANCE, MULTIHARMONIC_CONVERGED)
+        left = np.linalg.norm(lines.residual(z, np.arange(len(w))), axis=1) >= MULTIHARMONIC_CONVERGED
+        for line in np.flatnonzero(left):
+            check_stop()        # one line: where a stop asked for is heard
+            z[line] = lines.solve_one(line, start[line])
     else:
         order = np.argsort(w) if direction == "up" else np.argsort(-w)
         start = np.zeros((H + 1, len(elements)), complex)
