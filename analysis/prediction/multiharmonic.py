@@ -234,7 +234,9 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
         z, _ = _quasi_newton(lines.residual, lines.jacobian, lines.pack(start, np.arange(len(w))),
                              MULTIHARMONIC_TOLERANCE, MULTIHARMONIC_CONVERGED)
         left = np.linalg.norm(lines.residual(z, np.arange(len(w))), axis=1) >= MULTIHARMONIC_CONVERGED
-        for line in np.flatnonzero(left):
+        # a batch that meets no line at all meets a force with no smooth balance at these motions (a law that
+        # sticks): a retry from the same start repeats that search line by line; a few lines left are local
+        for line in np.flatnonzero(left) if not left.all() else ():
             check_stop()        # one line: where a stop asked for is heard
             z[line] = lines.solve_one(line, start[line])
     else:
