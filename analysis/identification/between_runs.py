@@ -171,7 +171,7 @@ def _groups(u: np.ndarray, w: np.ndarray, kbar: np.ndarray, std: np.ndarray) -> 
         while j + GROUP <= members.size:
             group = members[j:j + GROUP]
             nodes = u[group]
-            if nodes[-1] - nodes[0] > math.log(SPAN) or np.diff(nodes).min() <= 0:
+            if not one_group(nodes):
                 j += 1
                 continue
             c = divided_difference(nodes)
@@ -179,6 +179,12 @@ def _groups(u: np.ndarray, w: np.ndarray, kbar: np.ndarray, std: np.ndarray) -> 
             variance.append(float(np.sum(c**2 * std[group] ** 2)))
             j += GROUP
     return np.asarray(residual, complex), np.asarray(variance, float)
+
+
+def one_group(nodes: np.ndarray) -> bool:
+    """Whether ascending ``u = ln X`` ``nodes`` may form a group: distinct, within a factor ``SPAN`` in amplitude,
+    where the divided difference's cubic term stays small."""
+    return bool(nodes[-1] - nodes[0] <= math.log(SPAN) and np.diff(nodes).min() > 0)
 
 
 def divided_difference(nodes: np.ndarray) -> np.ndarray:

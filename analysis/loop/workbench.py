@@ -433,8 +433,7 @@ class Workbench:
         FRFs single-harmonically, the other elements held at their laws."""
         els = self.model.elements
         others = {j: terms_function(el.laws) for j, el in enumerate(els) if j != i}
-        fit = self.reports[els[i].name].fit
-        free = fit.seen() if fit is not None else [list(t.law.param_names) for t in els[i].laws]
+        free = self.reports[els[i].name].fit.seen()
         return refine_against_frfs(self.predictor, i, els[i].laws, free, others).terms
 
     def _corrected_is_kept(self, before: Comparison, corrected: float) -> bool:

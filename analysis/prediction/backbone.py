@@ -35,7 +35,7 @@ import scipy.linalg
 
 from ..common.errors import InputError
 from ..common.measurements import CONTROL_UNITS, Measurements, PhaseRun, SineRun, response_amplitude
-from ..identification.between_runs import GROUP, SPAN, divided_difference
+from ..identification.between_runs import GROUP, divided_difference, one_group
 from ..mechanics.elements import Element
 from ..mechanics.structures import Structure
 from ..signals.modal_fit import fit_modes
@@ -404,7 +404,7 @@ def scatter_between_levels(curves: Sequence[Backbone]) -> ModalError:
         u = np.log(a)
         for start in range(len(u) - GROUP + 1):
             nodes = u[start:start + GROUP]
-            if nodes[-1] - nodes[0] > np.log(SPAN) or np.diff(nodes).min() <= 0:
+            if not one_group(nodes):
                 continue
             c = divided_difference(nodes)
             for out, values in zip(parts, (f, z)):
