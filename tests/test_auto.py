@@ -158,6 +158,22 @@ def test_a_pair_is_tried_where_no_single_law_is_significant(rk4_joint):
 
 
 @pytest.mark.slow
+def test_a_take_back_returns_the_model_to_the_ranking_it_had(rk4_joint, monkeypatch):
+    # every law added is refused by the held-out check: each take-back returns the model exactly as it was ranked,
+    # and the next step chooses from that same ranking, the law taken back now held back
+    wb = started(rk4_joint, element("a", "x1", ""))
+    rankings = []
+    ranked = Workbench.candidates
+    monkeypatch.setattr(Workbench, "candidates", lambda self, *a, **k: rankings.append(1) or ranked(self, *a, **k))
+    monkeypatch.setattr(auto_module, "predicts_no_better", lambda *a, **k: "refused here")
+    result = run_auto(wb, AutoRules(discovery=None))
+    actions = [s.action for s in result.steps]
+    assert actions and actions[1::2] == ["take back"] * (len(actions) // 2), (result.stopped, result.steps)
+    assert len(rankings) == 1           # the loop ranked again after every take-back, and asked for no new ranking
+    assert laws_of(wb) == {"a": []} and wb.history[-1].error == wb.history[0].error
+
+
+@pytest.mark.slow
 def test_nothing_missing_adds_nothing(rk4_joint):
     wb = started(rk4_joint, element("a", "x1", '"cubic", "quadratic_damping"'))
     result = run_auto(wb)

@@ -86,7 +86,7 @@ def test_friction_laws_refitted_without_their_harmonics_keep_the_rig_s_values(fr
     with monkeypatch.context() as m:
         m.setattr(Workbench, "_corrected_is_kept", lambda self, before, corrected: False)
         refused = _fitted(friction_runs)
-    monkeypatch.setattr(Workbench, "_correct_fundamental_bias", lambda self: None)
+    monkeypatch.setattr(Workbench, "_correct_fundamental_bias", lambda self, unsettled: None)
     plain = _fitted(friction_runs)
     assert values["linear"]["k"] == pytest.approx(KJ, rel=0.01)
     assert values["coulomb"]["fs"] == pytest.approx(FS, rel=0.02)
@@ -110,7 +110,57 @@ def test_a_joint_without_laws_leaves_the_others_corrected(friction_runs, monkeyp
     values = {t.law.name: t.values for t in beside.model.element("a").laws}
     assert values["linear"]["k"] == pytest.approx(KJ, rel=0.01)
     assert values["coulomb"]["fs"] == pytest.approx(FS, rel=0.02)
-    monkeypatch.setattr(Workbench, "_correct_fundamental_bias", lambda self: None)
+    monkeypatch.setattr(Workbench, "_correct_fundamental_bias", lambda self, unsettled: None)
     plain = Workbench(load_model(tomllib.loads(text)), friction_runs)
     plain.start()
     assert _capped(beside) < _capped(plain)
+
+
+def _contact_runs() -> Measurements:
+    """A one-sided contact at x1 (closing at 0.4 mm), two levels of single-harmonic receptances with 0.2 % noise:
+    data without harmonics, on which each fit corrects the bias and a clearance's fit may restart."""
+    truth = load_model(tomllib.loads(LUMPED + element("a", "x1", '{ law = "unilateral", k = 800.0, gap = 4e-4 }')))
+    freqs = np.arange(5.0, 11.01, 0.5)
+    rng = np.random.default_rng(5)
+    runs = []
+    for F in (0.5, 2.0):
+        h = predict_sweep(truth.structure, truth.elements, "x2", 2 * np.pi * freqs, F).receptance[:, 0]
+        std = 2e-3 * np.abs(h)
+        noisy = h + std / np.sqrt(2) * (rng.normal(size=h.shape) + 1j * rng.normal(size=h.shape))
+        runs.append(SineRun(f"sine_{F:g}N_up", F, "up", "x2", ["x1", "x2"], freqs, noisy, std))
+    return Measurements(sine=runs)
+
+
+def test_a_clearance_restarts_from_its_frf_refined_laws_once(monkeypatch):
+    # docs/fitting.md, "The restart chooses a clearance's basin once"
+    runs = _contact_runs()
+    restarts = []
+    refined = Workbench._refined_against_frfs
+    monkeypatch.setattr(Workbench, "_refined_against_frfs", lambda self, i: restarts.append(i) or refined(self, i))
+    wb = Workbench(load_model(tomllib.loads(LUMPED + element("a", "x1", '"unilateral"'))), runs)
+    wb.start()
+    assert restarts == [0]                          # a law just added: its values are no restart's
+    wb.fit()
+    assert restarts == [0]                          # started at the values it settled
+    given = wb.model.copy()
+    Workbench(given, runs).start()
+    assert restarts == [0, 0]                       # values given with the model are not settled
+    Workbench(given, runs, started_at_fit=True).start()
+    assert restarts == [0, 0]                       # a refit on part of the test starts at the whole test's fit
+    with wb.read_as("a", ("unilateral", "cubic")):
+        assert restarts == [0, 0]                   # a law beside it starts it at settled values
+    with wb.read_as("a", ("cubic",)):
+        pass
+    with wb.read_as("a", ("cubic", "unilateral")):
+        assert restarts == [0, 0]
+
+
+def test_the_fit_s_own_comparison_is_the_model_s():
+    wb = Workbench(load_model(tomllib.loads(LUMPED + element("a", "x1", '"unilateral"'))), _contact_runs())
+    wb.start()
+    kept = wb.compare()
+    again = wb.predictor.compare(locate_folds=True, harmonics=wb.harmonics)
+    assert not kept.jumps and sum(m.sum() for m in kept.multiharmonic.values()) > 0
+    assert kept.error == pytest.approx(again.error, rel=1e-9)
+    for run, compared in kept.compared.items():
+        np.testing.assert_allclose(compared, again.compared[run], rtol=1e-9, atol=0)

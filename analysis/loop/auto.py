@@ -386,11 +386,13 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
                           "linear verdict with a constant kbar offset: the reference is wrong there (the "
                           "corrections are coupled, so they are applied together)"))
     added = 0                          # laws (or pairs) added: a reading put in an element's place is not counted
+    ranking: list[Candidate] | None = None   # the workbench's ranking of the model as it stands, where known
     while added < rules.max_steps:
         if stopping():
             return AutoResult(steps, STOPPED_BY_USER, [], found)
         under_way.what = "the ranking of the missing effects"
-        ranked = _judged(wb, wb.candidates(rules=rules.ranking), rules, found, taken_back)
+        raw, ranking = ranking or wb.candidates(rules=rules.ranking), None
+        ranked = _judged(wb, [replace(c) for c in raw], rules, found, taken_back)
         top = next((c for c in ranked if c.significant), None)
         pairs_tried = top is None and rules.pairs
         if pairs_tried:
@@ -425,4 +427,6 @@ def _run(wb: Workbench, rules: AutoRules, progress, note, stopping: Callable[[],
             wb.back_to(len(wb.history) - 2, f"take back {top.name}")
             take(AutoStep("take back", top.element, top.laws, after, wb.history[-1].error, why), known=held_before)
             taken_back.add(top.name)
+            # the model exactly as it was ranked: the same ranking, the loop's holds now holding this law back
+            ranking = raw
     return AutoResult(steps, f"stopped after the {rules.max_steps} steps allowed (AutoRules.max_steps)", [], found)

@@ -150,6 +150,11 @@ def _nonzero(bias: dict[str, np.ndarray]) -> bool:
     return any(np.any(b) for b in bias.values())
 
 
+def _settled_key(element: str, term: LawTerm) -> tuple:
+    """A clearance law's values as :attr:`Workbench._settled` holds them."""
+    return element, term.law.name, tuple(sorted(term.values.items()))
+
+
 @dataclass(frozen=True)
 class _FittedState:
     """What a refit changes, to go back to: the kbar bias taken out, the element reports, each element's laws and
@@ -192,9 +197,12 @@ class Workbench:
         self.harmonics = harmonics                 # which lines are predicted multi-harmonically (None: none)
         # element -> the scatter between runs measured on the whole test, for a workbench on part of its levels
         self._given_yardsticks = dict(yardsticks or {})
-        # the model's values are where a fit of the whole test settled (a held-out check's refit on part of its
-        # levels): no restart from the FRF-refined laws (:meth:`_corrected_from_refined`)
-        self._started_at_fit = started_at_fit
+        # (element, law, values) of each clearance law whose values a restart from the FRF-refined laws judged, or
+        # a fit started from such values reached (:meth:`_corrected_from_refined`); a model started at the whole
+        # test's fit (a held-out check's refit on part of its levels) starts at such values
+        self._settled: set[tuple] = set()
+        if started_at_fit:
+            self._settle_clearances()
         # element -> term index -> the limit form the whole test's fit took that law in, for a workbench on part
         # of its levels (:meth:`limits`)
         self._given_limits = dict(limits or {})
@@ -319,12 +327,15 @@ class Workbench:
     def fit(self, names: list[str] | None = None) -> None:
         """Fit the laws of the named elements (default all) to their samples; values go into the model. On data
         without harmonics, the samples are then corrected by the fitted model's own harmonics and every element
-        refitted (:meth:`_correct_fundamental_bias`)."""
+        refitted (:meth:`_correct_fundamental_bias`), whose last comparison with harmonics is the fitted model's
+        own (kept for :meth:`compare` where it has no jump whose fold is to be located)."""
         if not self.reports:
             self.identify()
+        unsettled = self._unsettled_clearances()
         self._fit_elements(names)
-        self._correct_fundamental_bias()
-        self._comparison = self._single = None
+        known = self._correct_fundamental_bias(unsettled)
+        self._comparison = known if known is not None and not known.jumps else None
+        self._single = None
 
     def _fit_elements(self, names: list[str] | None) -> None:
         for el in self.model.elements:
@@ -350,7 +361,7 @@ class Workbench:
             if el.nonparametric is not None:
                 self._fit_nonparametric(el)
 
-    def _correct_fundamental_bias(self) -> None:
+    def _correct_fundamental_bias(self, unsettled: list[int]) -> Comparison | None:
         """On data without harmonics, the kbar the closed form identifies at a line is the fundamental's force over
         the fundamental's motion; where the joint's motion is not sinusoidal (friction that sticks for part of the
         cycle) that departs from every describing function, and laws fitted to it are biased and leave a misfit
@@ -359,25 +370,27 @@ class Workbench:
         samples and every element refitted; the bias is that of the model last fitted, so successive fits
         converge. The corrected fit is refused where it
         predicts the FRFs, with harmonics, worse than the fit it corrects by a law's margin
-        (:meth:`_corrected_is_kept`)."""
+        (:meth:`_corrected_is_kept`). ``unsettled``: the elements whose clearance laws started this fit at values
+        no restart judged (:meth:`_corrected_from_refined`). Returns the comparison with harmonics of the fit it
+        leaves (None where it made none)."""
         criterion = self._harmonics()
         if not (self.harmonics_blind and criterion is not None and self._forces_known()):
             if _nonzero(self._kbar_bias):
                 self._kbar_bias = {}
                 self.identify()
                 self._fit_elements(None)
-            return
+            return None
         found = self.predictor.fundamental_bias(criterion)
-        error = found.comparison.error          # of the fit kept so far, with harmonics
+        kept = found.comparison                 # of the fit kept so far, with harmonics
         if _nonzero(found.bias) or _nonzero(self._kbar_bias):
             before = self._fitted_state()
             self._refit_less(found.bias)
-            corrected = self.predictor.compare(harmonics=criterion).error
-            if self._corrected_is_kept(found.comparison, corrected):
-                error = corrected
+            corrected = self.predictor.compare(harmonics=criterion)
+            if self._corrected_is_kept(found.comparison, corrected.error):
+                kept = corrected
             else:
                 self._restore(before)
-        self._corrected_from_refined(criterion, error)
+        return self._corrected_from_refined(criterion, kept, unsettled)
 
     def _forces_known(self) -> bool:
         """Whether the model gives every element a time-domain force and some law is fitted: every law with its
@@ -405,28 +418,46 @@ class Workbench:
         self.identify()
         self._fit_elements(None)
 
-    def _corrected_from_refined(self, criterion: HarmonicCriterion, error: float) -> None:
+    def _corrected_from_refined(self, criterion: HarmonicCriterion, kept: Comparison,
+                                unsettled: list[int]) -> Comparison:
         """A clearance's corrected fit can have more than one fixed point: the bias of a model fitted at one
         contact stiffness moves the kbar so that the same stiffness fits it best: the kbar fit and every corrected
         pass after it can stay at a wrong contact stiffness, whose misfit the loop then credits to another law.
         Started from the laws refined against the FRFs
         (:func:`analysis.prediction.frf_refinement.refine_against_frfs`, single-harmonic), a corrected pass can
-        reach the right one. So where an element has a clearance law, the corrected fit is
-        also started from its FRF-refined laws, and the fixed point the FRFs with harmonics prefer by the margin
-        a law must bring (``RankingRules.min_gain``) is kept (``error``: the current fit's, with harmonics).
+        reach the right one. So where an element's clearance law started the fit at values no such restart has
+        judged (``unsettled``: a law just added, or values given with the model), the corrected fit is also started
+        from its FRF-refined laws, and the fixed point the FRFs with harmonics prefer by the margin a law must bring
+        (``RankingRules.min_gain``) is kept (``kept``: the current fit's comparison with harmonics; returned, or
+        the restart's where it is kept).
 
-        A workbench started at a fit (``started_at_fit``: a held-out check refitting the model on part of its
-        levels) makes no such restart: its laws start at the fixed point the whole test's FRFs preferred, and the
-        restart is for fits started elsewhere (it would be most of a held-out check's cost)."""
-        at = [i for i, el in enumerate(self.model.elements) if any(t.law.kind == "clearance" for t in el.laws)]
-        if not at or self._started_at_fit:
-            return
-        before = self._fitted_state()
-        for i in at:
-            self.model.elements[i].laws = self._refined_against_frfs(i)
-        self._refit_less(self.predictor.fundamental_bias(criterion).bias)
-        if not self.predictor.compare(harmonics=criterion).error * RankingRules().min_gain <= error:
-            self._restore(before)
+        The restart chooses the basin once: a fit that starts at values it chose -- a law added beside the
+        clearance or taken away, a held-out check's refit on part of the levels (``started_at_fit``) -- starts in
+        the basin the FRFs preferred, and what it reaches is settled as well (:attr:`_settled`). A restart there
+        would compare that basin with the one it already lost to (it was most of the cost of such fits)."""
+        at = [i for i in unsettled if any(t.law.kind == "clearance" for t in self.model.elements[i].laws)]
+        if at:
+            before = self._fitted_state()
+            for i in at:
+                self.model.elements[i].laws = self._refined_against_frfs(i)
+            self._refit_less(self.predictor.fundamental_bias(criterion).bias)
+            restarted = self.predictor.compare(harmonics=criterion)
+            if restarted.error * RankingRules().min_gain <= kept.error:
+                kept = restarted
+            else:
+                self._restore(before)
+        self._settle_clearances()
+        return kept
+
+    def _unsettled_clearances(self) -> list[int]:
+        """The elements with a clearance law whose values are not settled (:meth:`_corrected_from_refined`)."""
+        return [i for i, el in enumerate(self.model.elements)
+                if any(t.law.kind == "clearance" and _settled_key(el.name, t) not in self._settled for t in el.laws)]
+
+    def _settle_clearances(self) -> None:
+        """Every clearance law's values as they stand settled (:meth:`_corrected_from_refined`)."""
+        self._settled |= {_settled_key(el.name, t) for el in self.model.elements for t in el.laws
+                          if t.law.kind == "clearance" and t.complete}
 
     def _refined_against_frfs(self, i: int) -> list[LawTerm]:
         """Element ``i``'s laws with every parameter its kbar fit sees (:meth:`LawFit.seen`) refined against the
