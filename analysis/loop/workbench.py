@@ -36,7 +36,7 @@ from ..identification.linearity import LinearityVerdict, linearity_verdict
 from ..laws import get_law
 from ..laws.base import LimitForm, LimitReading
 from ..linear.reference import ReferenceReport, reference_from_random
-from ..mechanics.elements import LawTerm
+from ..mechanics.elements import Element, LawTerm
 from ..mechanics.model import Model
 from ..mechanics.nonparametric import NAME as NONPARAMETRIC, NonParametric, fit_nonparametric
 from ..missing.diagnosis import Candidate, ElementSamples, RankingRules, check_model_form, rank_candidates, rank_pairs
@@ -150,9 +150,10 @@ def _nonzero(bias: dict[str, np.ndarray]) -> bool:
     return any(np.any(b) for b in bias.values())
 
 
-def _settled_key(element: str, term: LawTerm) -> tuple:
-    """A clearance law's values as :attr:`Workbench._settled` holds them."""
-    return element, term.law.name, tuple(sorted(term.values.items()))
+def _settled_key(element: Element, term: LawTerm) -> tuple:
+    """A clearance law's values as :attr:`Workbench._settled` holds them: with the laws beside it on its element,
+    whose fit the restart judged."""
+    return element.name, tuple(t.law.name for t in element.laws), term.law.name, tuple(sorted(term.values.items()))
 
 
 @dataclass(frozen=True)
@@ -197,9 +198,9 @@ class Workbench:
         self.harmonics = harmonics                 # which lines are predicted multi-harmonically (None: none)
         # element -> the scatter between runs measured on the whole test, for a workbench on part of its levels
         self._given_yardsticks = dict(yardsticks or {})
-        # (element, law, values) of each clearance law whose values a restart from the FRF-refined laws judged, or
-        # a fit started from such values reached (:meth:`_corrected_from_refined`); a model started at the whole
-        # test's fit (a held-out check's refit on part of its levels) starts at such values
+        # (element, its laws, law, values) of each clearance law whose values a restart from the FRF-refined laws
+        # judged, or a fit of the same laws started from such values reached (:meth:`_corrected_from_refined`); a
+        # model started at the whole test's fit (a held-out check's refit on part of its levels) starts at such values
         self._settled: set[tuple] = set()
         if started_at_fit:
             self._settle_clearances()
@@ -426,15 +427,17 @@ class Workbench:
         Started from the laws refined against the FRFs
         (:func:`analysis.prediction.frf_refinement.refine_against_frfs`, single-harmonic), a corrected pass can
         reach the right one. So where an element's clearance law started the fit at values no such restart has
-        judged (``unsettled``: a law just added, or values given with the model), the corrected fit is also started
+        judged with the laws beside it (``unsettled``: a law just added to the element or taken off it, or values
+        given with the model), the corrected fit is also started
         from its FRF-refined laws, and the fixed point the FRFs with harmonics prefer by the margin a law must bring
         (``RankingRules.min_gain``) is kept (``kept``: the current fit's comparison with harmonics; returned, or
         the restart's where it is kept).
 
-        The restart chooses the basin once: a fit that starts at values it chose -- a law added beside the
-        clearance or taken away, a held-out check's refit on part of the levels (``started_at_fit``) -- starts in
-        the basin the FRFs preferred, and what it reaches is settled as well (:attr:`_settled`). A restart there
-        would compare that basin with the one it already lost to (it was most of the cost of such fits)."""
+        The restart chooses the basin once for a set of laws: a fit of the same laws that starts at values it chose
+        -- a refit, a held-out check's refit on part of the levels (``started_at_fit``) -- starts in the basin the
+        FRFs preferred, and what it reaches is settled as well (:attr:`_settled`); a restart there would compare
+        that basin with the one it already lost to. A law beside the clearance moves what the clearance fits, and
+        so its fixed points: a set with another law is judged anew."""
         at = [i for i in unsettled if any(t.law.kind == "clearance" for t in self.model.elements[i].laws)]
         if at:
             before = self._fitted_state()
@@ -452,11 +455,11 @@ class Workbench:
     def _unsettled_clearances(self) -> list[int]:
         """The elements with a clearance law whose values are not settled (:meth:`_corrected_from_refined`)."""
         return [i for i, el in enumerate(self.model.elements)
-                if any(t.law.kind == "clearance" and _settled_key(el.name, t) not in self._settled for t in el.laws)]
+                if any(t.law.kind == "clearance" and _settled_key(el, t) not in self._settled for t in el.laws)]
 
     def _settle_clearances(self) -> None:
         """Every clearance law's values as they stand settled (:meth:`_corrected_from_refined`)."""
-        self._settled |= {_settled_key(el.name, t) for el in self.model.elements for t in el.laws
+        self._settled |= {_settled_key(el, t) for el in self.model.elements for t in el.laws
                           if t.law.kind == "clearance" and t.complete}
 
     def _refined_against_frfs(self, i: int) -> list[LawTerm]:

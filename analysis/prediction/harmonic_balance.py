@@ -28,7 +28,6 @@ matter (bilinear, gap, contact), are :mod:`analysis.prediction.multiharmonic`'s;
 """
 from __future__ import annotations
 
-import collections
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -209,12 +208,6 @@ def _line_search(fun, z: np.ndarray, R: np.ndarray, norm: np.ndarray, active: np
     return improved
 
 
-#: A batch item of :func:`_quasi_newton` stops where its residual norm fell by less than a fraction
-#: ``1 - _STALLED_PROGRESS`` over the last ``_STALLED_PASSES`` passes
-_STALLED_PASSES = 5
-_STALLED_PROGRESS = 0.99
-
-
 def _quasi_newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray],
                   jac: Callable[[np.ndarray, np.ndarray], np.ndarray], z0: np.ndarray, tol: float,
                   stalled_tol: float, max_iter: int = 40) -> tuple[np.ndarray, np.ndarray]:
@@ -224,13 +217,7 @@ def _quasi_newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray],
     Jacobian gives no such step stops there.
 
     Broyden's ("good") update makes the Jacobian map the step taken ``s`` to the residual change ``y`` and
-    leaves it unchanged across ``s``: ``J += (y - J s) s^T / (s^T s)``.
-
-    An item whose residual norm fell by less than 1 % over five passes (``_STALLED_PASSES``,
-    ``_STALLED_PROGRESS``) stops too: near a root the iteration converges superlinearly, and on a smooth residual
-    the damped steps lower it steadily from afar; one that stalls with fresh Jacobians among its passes meets a
-    force with no smooth balance at that motion (a slider that sticks), and would take every pass allowed to end
-    where it stands (docs/workbench.md, "Every selected line at once")."""
+    leaves it unchanged across ``s``: ``J += (y - J s) s^T / (s^T s)``."""
     z = z0.copy()
     B = len(z)
     R = fun(z, np.arange(B))
@@ -241,7 +228,6 @@ def _quasi_newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray],
     if len(first):
         J[first] = jac(z[first], first)
     stuck = np.zeros(B, bool)
-    before = collections.deque(maxlen=_STALLED_PASSES)     # each item's norm before each of the last passes
 
     def broyden(take, step, change):
         J[take] += np.einsum("bi,bj->bij", change - np.einsum("bij,bj->bi", J[take], step), step) \
@@ -253,13 +239,10 @@ def _quasi_newton(fun: Callable[[np.ndarray, np.ndarray], np.ndarray],
         active = np.flatnonzero((norm > tol) & ~stuck)
         if not len(active):
             break
-        before.append(norm.copy())
         improved = _line_search(fun, z, R, norm, active, _direction(J[active], R[active]), 8, broyden)
         failed = active[~improved]
         stuck[failed[fresh[failed]]] = True
-        if len(before) == _STALLED_PASSES:
-            stuck[active[norm[active] > _STALLED_PROGRESS * before[0][active]]] = True
-        renew = failed[~fresh[failed] & ~stuck[failed]]
+        renew = failed[~fresh[failed]]
         if len(renew):
             J[renew] = jac(z[renew], renew)
             fresh[renew] = True
