@@ -132,7 +132,7 @@ def _contact_runs() -> Measurements:
 
 
 def test_a_clearance_restarts_from_its_frf_refined_laws_once(monkeypatch):
-    # docs/fitting.md, "The restart chooses a clearance's basin once"
+    # docs/fitting.md, "The restart chooses a clearance's basin once for a set of laws"
     runs = _contact_runs()
     restarts = []
     refined = Workbench._refined_against_frfs

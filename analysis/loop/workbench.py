@@ -438,10 +438,9 @@ class Workbench:
         FRFs preferred, and what it reaches is settled as well (:attr:`_settled`); a restart there would compare
         that basin with the one it already lost to. A law beside the clearance moves what the clearance fits, and
         so its fixed points: a set with another law is judged anew."""
-        at = [i for i in unsettled if any(t.law.kind == "clearance" for t in self.model.elements[i].laws)]
-        if at:
+        if unsettled:
             before = self._fitted_state()
-            for i in at:
+            for i in unsettled:
                 self.model.elements[i].laws = self._refined_against_frfs(i)
             self._refit_less(self.predictor.fundamental_bias(criterion).bias)
             restarted = self.predictor.compare(harmonics=criterion)
