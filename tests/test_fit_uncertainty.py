@@ -222,3 +222,39 @@ def test_the_lines_a_clearance_acts_on_alone_are_kept_as_its_evidence(monkeypatc
     assert robust.excluded.sum() < 3 and not robust.excluded[np.argmax(X)]
     monkeypatch.setattr(robust_module, "_sizes_determined", lambda fit: 0)     # without the rule
     assert not np.isfinite(fit_laws(["gap"], X, w, kbar, std, exclude_outliers=True).terms[0].stderr["k"])
+
+
+def test_a_law_keeps_the_lines_that_show_its_size_not_only_a_finite_error(monkeypatch):
+    # a hardening law fitted to a clearance's kbar (RK4, no harmonics): the clearance closes at the two
+    # largest-amplitude lines of the higher level only (90 and 600 N/m against a noise of 1.7). Leaving them out one
+    # pass after another leaves the quintic a finite error about a size of the other sign (-3.7e9 +- 1.2e9, a
+    # softening law for a contact that stiffens); the lines that determine a law's size stay in.
+    import analysis.fitting.robust as robust_module
+    table = np.loadtxt(Path(__file__).parent / "data" / "clearance_kbar_rk4_3dof.csv", delimiter=",", skiprows=3)
+    X, w, kbar, std = table[:, 0], table[:, 1], table[:, 2] + 1j * table[:, 3], table[:, 4]
+    top = np.argsort(X)[-2:]
+    fit = fit_laws(["quintic"], X, w, kbar, std, exclude_outliers=True)
+    k5 = fit.terms[0]
+    assert not k5.size_unseen and k5.params["k5"] > 0
+    assert not fit.excluded[top].any()
+    # with a finite standard error counted as a determined size (the rule before)
+    monkeypatch.setattr(robust_module, "_sizes_determined", lambda f: sum(
+        int(np.isfinite(t.stderr.get(n, np.inf))) for t in f.terms for n in t.law.linear))
+    finite_only = fit_laws(["quintic"], X, w, kbar, std, exclude_outliers=True)
+    assert finite_only.terms[0].params["k5"] < 0 and finite_only.excluded[top].all()
+
+
+def test_a_clearance_keeps_the_only_line_it_acts_on(monkeypatch):
+    # the same kbar fitted by a clearance: the best fit by the kbar closes it at the largest amplitude only, which
+    # it fits exactly (stiffness and clearance tied: neither determined apart). Left out, that line would leave a
+    # clearance open at every sample kept, at no stiffness: nothing of the law in the fit.
+    import analysis.fitting.robust as robust_module
+    table = np.loadtxt(Path(__file__).parent / "data" / "clearance_kbar_rk4_3dof.csv", delimiter=",", skiprows=3)
+    X, w, kbar, std = table[:, 0], table[:, 1], table[:, 2] + 1j * table[:, 3], table[:, 4]
+    largest = np.argmax(X)
+    fit = fit_laws(["gap"], X, w, kbar, std, exclude_outliers=True)
+    assert fit.terms[0].params["k"] > 0 and not fit.excluded[largest]
+    assert fit.describing_function(X[largest], w[largest]).real > 0
+    monkeypatch.setattr(robust_module, "_acts_only_on", lambda f, data, left_out: False)     # without the rule
+    without = fit_laws(["gap"], X, w, kbar, std, exclude_outliers=True)
+    assert without.terms[0].params["k"] == 0 and without.excluded[largest]

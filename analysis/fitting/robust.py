@@ -1,7 +1,8 @@
 """Fits that leave out the samples that do not follow the fitted laws (docs/fitting.md, "Outliers"): a Huber
 start that large outliers do not drag far (:func:`_robust_start`), then samples whose chi-square share exceeds the
 outlier limit (:func:`analysis.common.statistics.outlier_limit`) left out and the rest refitted until the set stops
-changing (:func:`_fit_robust`), never leaving out what determines a law's size.
+changing (:func:`_fit_robust`), never leaving out what determines a law's size: a pass that would leave a law's
+size unseen that was seen, or leave out every sample a law acts on, is not made.
 """
 from __future__ import annotations
 
@@ -89,7 +90,7 @@ def _fit_robust(terms, data: _Samples, opts: _Options) -> LawFit:
             break                               # too few samples would be left: keep the last set
         changed = not np.array_equal(new, keep)
         refit = _fit_once(_refit_terms(fit), data.subset(new), _quick(opts), inflate=True)
-        if _sizes_determined(refit) < _sizes_determined(fit):
+        if _sizes_determined(refit) < _sizes_determined(fit) or _acts_only_on(fit, data, ~new):
             break                               # the samples left out were what determined a law's size
         fit, keep = refit, new
         if not changed:
@@ -106,9 +107,24 @@ def _fit_robust(terms, data: _Samples, opts: _Options) -> LawFit:
 
 
 def _sizes_determined(fit: LawFit) -> int:
-    """How many of the laws' size parameters (each law's ``linear``, its force scale) have a finite standard
-    error."""
-    return sum(int(np.isfinite(t.stderr.get(n, np.inf))) for t in fit.terms for n in t.law.linear)
+    """How many of the laws have a size the samples determine: some force scale (the law's ``linear``) beyond its
+    95 % interval of zero (:attr:`analysis.fitting.results.TermFit.size_unseen`, the test every judgement of a
+    law's size uses). A finite standard error alone is not enough: leaving out the lines a law acts on alone can
+    leave it a finite error about a size indistinguishable from none, or of the other sign."""
+    return sum(not t.size_unseen for t in fit.terms)
+
+
+def _acts_only_on(fit: LawFit, data: _Samples, left_out: np.ndarray) -> bool:
+    """Whether some law of ``fit`` acts on samples ``left_out`` and on none of the others: its describing function
+    is zero at every sample kept (a clearance open at all of them). Leaving those out leaves nothing of the law in
+    the fit, whatever its size was."""
+    if not left_out.any():
+        return False
+    for t in fit.terms:
+        kbar = t.describing_function(data.X, data.w)
+        if np.any(kbar[left_out] != 0) and not np.any(kbar[~left_out] != 0):
+            return True
+    return False
 
 
 def _capped_loss(fit: LawFit, data: _Samples) -> float:
