@@ -208,13 +208,18 @@ def test_analyze_says_which_parameters_the_data_do_not_determine():
 
 
 # ------------------------------------------------------------------ a law that acts on a few lines alone
+def _rk4_kbar(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """An element's kbar samples identified from RK4 receptances (tests/data): X, w, kbar, its std."""
+    table = np.loadtxt(Path(__file__).parent / "data" / name, delimiter=",", skiprows=3)
+    return table[:, 0], table[:, 1], table[:, 2] + 1j * table[:, 3], table[:, 4]
+
+
 def test_the_lines_a_clearance_acts_on_alone_are_kept_as_its_evidence(monkeypatch):
     # a grounded clearance, identified from RK4 receptances without harmonics: it closes at three lines of the
     # higher level only, where its formula misses the samples by 37-390 sigma (the contact's harmonics move the
     # structure). Leaving them all out would leave its stiffness without a finite error.
     import analysis.fitting.robust as robust_module
-    table = np.loadtxt(Path(__file__).parent / "data" / "gap_kbar_rk4.csv", delimiter=",", skiprows=3)
-    X, w, kbar, std = table[:, 0], table[:, 1], table[:, 2] + 1j * table[:, 3], table[:, 4]
+    X, w, kbar, std = _rk4_kbar("gap_kbar_rk4.csv")
     robust = fit_laws(["gap"], X, w, kbar, std, exclude_outliers=True)
     k = robust.terms[0]
     assert np.isfinite(k.stderr["k"]) and abs(k.params["k"] / 991.8 - 1) < 0.02
@@ -230,8 +235,7 @@ def test_a_law_keeps_the_lines_that_show_its_size_not_only_a_finite_error(monkey
     # pass after another leaves the quintic a finite error about a size of the other sign (-3.7e9 +- 1.2e9, a
     # softening law for a contact that stiffens); the lines that determine a law's size stay in.
     import analysis.fitting.robust as robust_module
-    table = np.loadtxt(Path(__file__).parent / "data" / "clearance_kbar_rk4_3dof.csv", delimiter=",", skiprows=3)
-    X, w, kbar, std = table[:, 0], table[:, 1], table[:, 2] + 1j * table[:, 3], table[:, 4]
+    X, w, kbar, std = _rk4_kbar("clearance_kbar_rk4_3dof.csv")
     top = np.argsort(X)[-2:]
     fit = fit_laws(["quintic"], X, w, kbar, std, exclude_outliers=True)
     k5 = fit.terms[0]
@@ -249,8 +253,7 @@ def test_a_clearance_keeps_the_only_line_it_acts_on(monkeypatch):
     # it fits exactly (stiffness and clearance tied: neither determined apart). Left out, that line would leave a
     # clearance open at every sample kept, at no stiffness: nothing of the law in the fit.
     import analysis.fitting.robust as robust_module
-    table = np.loadtxt(Path(__file__).parent / "data" / "clearance_kbar_rk4_3dof.csv", delimiter=",", skiprows=3)
-    X, w, kbar, std = table[:, 0], table[:, 1], table[:, 2] + 1j * table[:, 3], table[:, 4]
+    X, w, kbar, std = _rk4_kbar("clearance_kbar_rk4_3dof.csv")
     largest = np.argmax(X)
     fit = fit_laws(["gap"], X, w, kbar, std, exclude_outliers=True)
     assert fit.terms[0].params["k"] > 0 and not fit.excluded[largest]
