@@ -171,7 +171,7 @@ _HANDLED = (signal.SIGINT, signal.SIGTERM)
 
 def _handle_signal(signum: int, frame: Any) -> None:
     _emergency_stops(signum)
-    if not deferred(signum, frame):                # else it acts at a held block's end (signals_held)
+    if not deferred(signum):                       # else it acts at a held block's end (signals_held)
         _chain(signum, frame)
 
 

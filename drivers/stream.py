@@ -187,7 +187,9 @@ class FrameDecoder:
         self.max_points = max_points
         self.stats = DecoderStats()
         self.ended = False
-        self._buffer = bytearray()
+        # immutable: a view of it that outlives a call (a frame an exception or a signal keeps) cannot stop the
+        # next feed, as it would the resize of a bytearray
+        self._buffer = b""
         self._consumed = 0           # stream position of _buffer[0]
         self._last_good_end = 0      # stream position just after the last good frame
         self._corrupt_since_good = 0
@@ -233,7 +235,7 @@ class FrameDecoder:
             pos = end + CRC.size
             if self.ended:
                 break
-        del buf[:pos]
+        self._buffer = buf[pos:]
         self._consumed += pos
         return frames
 
@@ -296,7 +298,7 @@ class FrameDecoder:
         self.stats.skipped_bytes += self._consumed + len(self._buffer) - self._last_good_end
         self.stats.corrupt_frames += self._corrupt_since_good
         self._corrupt_since_good = 0
-        self._buffer.clear()
+        self._buffer = b""
         self.ended = True
         if samples_sent == self._next_sample:
             return None
@@ -307,6 +309,5 @@ class FrameDecoder:
 
     def remainder(self) -> bytes:
         """Bytes received after the END frame (replies to later commands); empties the buffer."""
-        data = bytes(self._buffer)
-        self._buffer.clear()
+        data, self._buffer = self._buffer, b""
         return data

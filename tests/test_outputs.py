@@ -117,8 +117,9 @@ def test_an_interrupted_demo_with_overwrite_leaves_the_earlier_session_and_keeps
     (out / "paper-beam.h5").write_bytes(b"a complete earlier session")
     # Ctrl-C as a shell delivers it: a test run started in the background has SIGINT ignored, and a child
     # inherits that (Python then installs no KeyboardInterrupt handler)
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "demo", "--quick", "--overwrite", "--out", str(out)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    # faulthandler: a child that does not end is sent SIGABRT and prints where every thread of it stands
+    proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-m", "app.cli", "demo", "--quick", "--overwrite",
+                             "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     err, measuring = [], threading.Event()
 
@@ -133,7 +134,14 @@ def test_an_interrupted_demo_with_overwrite_leaves_the_earlier_session_and_keeps
     reader.start()
     assert measuring.wait(300)                     # a generous guard: a loaded machine starts slowly
     proc.send_signal(signum)
-    assert proc.wait(timeout=300) == status
+    try:
+        code = proc.wait(timeout=300)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)
+        proc.wait(timeout=60)
+        reader.join(10)
+        pytest.fail("the demo did not end within 300 s of the signal; its threads then:\n" + "".join(err[-200:]))
+    assert code == status
     reader.join(10)
     err = "".join(err)
     assert said in err

@@ -217,6 +217,32 @@ def test_a_second_signal_in_a_held_block_interrupts_at_once_and_the_next_block_h
             assert reached[-1] == "held"
 
 
+@pytest.mark.parametrize("guarded", [False, True])
+def test_a_signal_held_keeps_nothing_of_the_call_it_interrupted(ctrl_c, guarded):
+    """A held signal that kept the frame it came in kept that call's locals alive to the block's end: a view of
+    a buffer among them forbade the buffer's resize (the DAQ's stream decoder failed on its next frame)."""
+    import weakref
+
+    class Local:
+        pass
+
+    buffer, kept = bytearray(b"0123456789"), []
+
+    def interrupted():
+        view, local = memoryview(buffer)[2:6], Local()
+        kept.append(weakref.ref(local))
+        signal.raise_signal(signal.SIGINT)
+        return bytes(view)
+
+    with bench() as (rig, shaker, daq), (OutputGuard(shaker) if guarded else contextlib.nullcontext()):
+        with pytest.raises(KeyboardInterrupt):
+            with signals_held():
+                assert interrupted() == b"2345"
+                assert kept[0]() is None                        # the call's locals went with it
+                del buffer[:4]                                  # no view of the buffer is left
+        assert buffer == b"456789"
+
+
 def test_a_held_block_without_a_signal_or_outside_the_main_thread_leaves_the_handlers_as_they_were():
     import threading
     before = [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)]

@@ -73,6 +73,27 @@ def test_round_trip_in_any_chunking(seed, channels, max_points, cuts):
     assert decoder.stats.samples == total and decoder.stats.lost_samples == 0
 
 
+def test_a_view_of_the_data_kept_beyond_a_check_does_not_stop_the_next_feed(monkeypatch):
+    """A Ctrl-C in a frame's check leaves that check's frame, and its view of the decoder's data, in the
+    traceback; the decoder goes on decoding the frames that follow."""
+    import drivers.stream
+
+    rng = np.random.default_rng(3)
+    frames, total = make_frames(rng, 4, 2, 5)
+    views = []
+
+    def checked(data):
+        views.append(data)                                     # as a frame kept by a traceback keeps it
+        return crc32(data)
+
+    monkeypatch.setattr(drivers.stream, "crc32", checked)
+    decoder = FrameDecoder(2, 5)
+    decoded = decoder.feed(frames[0][0] + frames[1][0][:7])
+    decoded += decoder.feed(frames[1][0][7:] + frames[2][0])
+    decoded += decoder.feed(frames[3][0] + encode_end(4, total, 2))
+    assert [f.sequence for f in decoded] == [0, 1, 2, 3, 4] and views
+
+
 def test_every_single_bit_flip_is_detected_and_reported_as_a_gap():
     rng = np.random.default_rng(1)
     frames, total = make_frames(rng, 3, 2, 3)

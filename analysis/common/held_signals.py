@@ -7,6 +7,11 @@ instrument's port (it moves counts the instrument's threads share), a numba cach
 written after it), a report plot (Qt calls the plot items' Python code from its own frames). Such a step runs in
 :class:`signals_held`.
 
+A signal held keeps its number only, never the frame it interrupted: a frame object that outlives its call keeps
+every local of that call alive (Python 3.11 copies them into it), and a memoryview among them forbids the resize of
+its buffer until the block's end -- the stream decoder's next frame then fails. The handler acting at the block's
+end is handed ``None`` for the frame, which Python's signal handlers accept.
+
 A process-wide handler may cooperate (:func:`cooperate`; the output guards' handler of :mod:`drivers.safety`): it
 does what must be done at once (switch the shaker output off) and asks :func:`deferred` whether the rest waits for
 the block's end. A block then costs a counter. Under any other handler the block puts a holding handler of its own
@@ -25,7 +30,7 @@ _HANDLED = (signal.SIGINT, signal.SIGTERM)
 @dataclass(frozen=True)
 class Cooperating:
     """A process-wide handler that does at once what must be done and asks :func:`deferred` whether the rest
-    waits: ``handler`` itself and that rest (``rest(signum, frame)``), done at the held block's end."""
+    waits: ``handler`` itself and that rest (``rest(signum, None)``), done at the held block's end."""
 
     handler: Callable[[int, Any], None]
     rest: Callable[[int, Any], None]
@@ -33,7 +38,7 @@ class Cooperating:
 
 _cooperating: Cooperating | None = None   # in place for SIGINT and SIGTERM (main thread)
 _holding = 0                               # how deep the main thread is in held blocks under it
-_held: list[tuple[int, Any]] = []          # the signal that came in them
+_held: list[int] = []                      # the signal that came in them
 
 
 def cooperate(handler: Cooperating | None) -> None:
@@ -42,12 +47,12 @@ def cooperate(handler: Cooperating | None) -> None:
     _cooperating = handler
 
 
-def deferred(signum: int, frame: Any) -> bool:
+def deferred(signum: int) -> bool:
     """For the cooperating handler: whether this signal waits for the held block's end (the first in a block
     does; a second does not, and nothing is left waiting after it)."""
     global _held
     if _holding and not _held:
-        _held = [(signum, frame)]
+        _held = [signum]
         return True
     _held = []
     return False
@@ -78,14 +83,14 @@ class signals_held:
         elif threading.current_thread() is threading.main_thread() and _holding:
             _holding -= 1
             if not _holding and _held:
-                (signum, frame), _held = _held[0], []
+                signum, _held = _held[0], []
                 if _cooperating is not None:
-                    _cooperating.rest(signum, frame)   # its immediate part was done when the signal came
+                    _cooperating.rest(signum, None)    # its immediate part was done when the signal came
 
     def _hold(self) -> None:
         # a handler installed outside Python (None) could not be put back: such a signal is left as it is
         self._before = {s: h for s in _HANDLED if (h := signal.getsignal(s)) is not None}
-        self._caught: list[tuple[int, Any]] = []
+        self._caught: list[int] = []
         try:
             for signum in self._before:         # a signal between two of these still restores both
                 signal.signal(signum, self._on_signal)
@@ -100,7 +105,7 @@ class signals_held:
     def _release(self) -> None:
         self._restore()
         if self._caught:
-            self._act(*self._caught[0])
+            self._act(self._caught[0], None)
 
     def _act(self, signum: int, frame: Any) -> None:
         handler = self._before[signum]
@@ -115,4 +120,4 @@ class signals_held:
             self._restore()
             self._act(signum, frame)
         else:
-            self._caught.append((signum, frame))
+            self._caught.append(signum)
