@@ -728,8 +728,14 @@ def _raised_class(module: str, name: str) -> type[BaseException]:
 
 
 def _notes(exc: BaseException) -> str:
-    """What was added to an error on its way up (where an interrupted session went), for its one line."""
-    notes = getattr(exc, "__notes__", [])
+    """What was added to an error on its way up (where an interrupted session went), for its one line: its own
+    notes and those of the errors it was raised in the handling of. A second Ctrl-C during the first one's cleanup
+    replaces it after the session was closed and said; what was said still holds."""
+    notes, seen = [], set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        notes += [n for n in getattr(exc, "__notes__", []) if n not in notes]
+        exc = exc.__cause__ or exc.__context__
     return f"; {'; '.join(notes)}" if notes else ""
 
 

@@ -206,6 +206,29 @@ def test_a_second_ctrl_c_while_the_session_closes_still_says_where_it_went(tmp_p
         assert run.attrs["end_reason"] == "interrupted by Ctrl-C"
 
 
+def test_a_second_ctrl_c_after_the_session_was_said_still_says_where_it_went(capsys):
+    """The second Ctrl-C of a double one can come once the session is closed and its place noted on the first, in
+    the cleanup that follows (the compiling process ended, the instruments closed): it replaces the first, and the
+    command's line still says where the session went."""
+    from types import SimpleNamespace
+
+    from app.cli import EXIT_INTERRUPTED, _run
+
+    def interrupted_twice(args):
+        try:
+            first = KeyboardInterrupt()
+            first.add_note("c.h5 is left as it was: the new session is incomplete and was kept beside it as "
+                           "c.incomplete.h5")
+            raise first
+        finally:
+            raise KeyboardInterrupt                        # the second, in a later cleanup
+
+    assert _run(SimpleNamespace(run=interrupted_twice, debug=False)) == EXIT_INTERRUPTED
+    err = capsys.readouterr().err.strip()
+    assert err == ("contactid: interrupted; c.h5 is left as it was: the new session is incomplete and was kept "
+                   "beside it as c.incomplete.h5")
+
+
 @pytest.mark.slow
 def test_limit_breach_aborts_with_output_off(tmp_path):
     rig = load_rig(RIGS / "linear-shaker.toml")

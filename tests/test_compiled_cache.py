@@ -294,3 +294,35 @@ def test_two_saves_of_one_function_at_once_keep_their_own_entries(tmp_path):
     crossed = _save_side_by_side(tmp_path / "plain", compiled._numba_save)      # numba's own save
     assert crossed != (("one",), ("two",))     # the fault: a key lost, and the other's pointing at its data or not
     assert _save_side_by_side(tmp_path / "locked", IndexDataCacheFile.save) == (("one",), ("two",))
+
+
+def test_a_ctrl_c_during_a_compile_acts_once_the_function_is_compiled(ctrl_c):
+    """LLVM hands the object code it emits to a ctypes callback that swallows an exception raised in it: a Ctrl-C
+    there was lost and the function left without its code (``RuntimeError: no compiled object yet`` at its next
+    call, exit 1 where the command was interrupted). A compile is held whole (analysis/common/compiled.py). The
+    signal comes from the typing of a call the function makes: within its compile, whatever the machine's load."""
+    import signal
+
+    import numba
+    from numba.extending import overload
+
+    sent = []
+
+    def marked(x):
+        return x
+
+    @overload(marked)
+    def _typed(x):
+        if not sent:                                   # once: a second signal in a held step acts at once
+            sent.append(True)
+            signal.raise_signal(signal.SIGINT)
+        return lambda x: x + 1.0
+
+    @numba.njit
+    def uses_it(x):                                    # not disk-cached: it compiles here
+        return marked(x) * 2.0
+
+    with pytest.raises(KeyboardInterrupt):
+        uses_it(1.5)
+    assert sent and uses_it.signatures                  # compiled whole before the signal acted
+    assert uses_it(1.5) == 5.0

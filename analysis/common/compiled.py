@@ -23,6 +23,12 @@ again.
 numba's index of a function's cached copies is read, extended and written whole by each process that saves one;
 :func:`_serialised` makes that a critical section per index, so that two processes saving copies of one function at
 once cannot cross its entries.
+
+A compile (or a load from the cache) is one step against a signal (:func:`_held`): LLVM hands the object code it
+emits to a ctypes callback, which swallows an exception raised in it, so a Ctrl-C there was lost and the function
+left without its code -- its next call raised ``RuntimeError: no compiled object yet`` in the command's place of
+"interrupted". The output still goes off at once; the rest waits for the compile's end (a second signal acts at
+once, as in every held step).
 """
 import hashlib
 import os
@@ -199,7 +205,17 @@ def _serialised(save):
     return locked_save
 
 
+def _held(compile_):
+    """``compile_`` (numba's compile of a dispatcher or a C callback) run whole, a signal acting at its end."""
+    def held_compile(*args, **kwargs):
+        with signals_held():
+            return compile_(*args, **kwargs)
+    return held_compile
+
+
 _numba_save = IndexDataCacheFile.save
 if fcntl is not None:
     IndexDataCacheFile.save = _serialised(_numba_save)
+Dispatcher.compile = _held(Dispatcher.compile)
+CFunc.compile = _held(CFunc.compile)
 key_cache_on(_ROOTS)
