@@ -735,7 +735,7 @@ def _notes(exc: BaseException) -> str:
     while exc is not None and id(exc) not in seen:
         seen.add(id(exc))
         notes += [n for n in getattr(exc, "__notes__", []) if n not in notes]
-        exc = exc.__cause__ or exc.__context__
+        exc = exc.__cause__ or (None if exc.__suppress_context__ else exc.__context__)
     return f"; {'; '.join(notes)}" if notes else ""
 
 
@@ -867,8 +867,8 @@ def _run(args) -> int:
         print(f"contactid: interrupted{_notes(exc)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except SystemExit as exc:       # SIGTERM (drivers.safety): it ends the process as it asked, saying what it left
-        if getattr(exc, "__notes__", None):
-            print(f"contactid: stopped{_notes(exc)}", file=sys.stderr)
+        if notes := _notes(exc):
+            print(f"contactid: stopped{notes}", file=sys.stderr)
         raise
     except Exception as exc:  # a one-line report for anything unexpected; --debug shows the traceback
         if args.debug:

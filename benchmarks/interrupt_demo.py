@@ -130,9 +130,12 @@ def _measured(kept: Path) -> bool:
     first line (a random run's record, written as it comes)."""
     if not kept.exists():
         return False
-    with h5py.File(kept, "r") as f:
-        return any(g["frequency"].shape[0] or ("raw/data" in g and g["raw/data"].shape[0])
-                   for g in f["runs"].values())
+    try:
+        with h5py.File(kept, "r") as f:
+            return any(g["frequency"].shape[0] or ("raw/data" in g and g["raw/data"].shape[0])
+                       for g in f["runs"].values())
+    except (OSError, KeyError):          # unreadable, or not a session: counted as holding nothing, so wrong
+        return False
 
 
 def main() -> None:

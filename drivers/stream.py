@@ -187,9 +187,7 @@ class FrameDecoder:
         self.max_points = max_points
         self.stats = DecoderStats()
         self.ended = False
-        # immutable: a view of it that outlives a call (a frame an exception or a signal keeps) cannot stop the
-        # next feed, as it would the resize of a bytearray
-        self._buffer = b""
+        self._buffer = bytearray()
         self._consumed = 0           # stream position of _buffer[0]
         self._last_good_end = 0      # stream position just after the last good frame
         self._corrupt_since_good = 0
@@ -198,10 +196,9 @@ class FrameDecoder:
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """Add bytes; return the good frames completed by them, in stream order."""
+        self._append(data)
         if self.ended:
-            self._buffer += data
             return []
-        self._buffer += data
         frames: list[Frame] = []
         buf = self._buffer
         pos = 0
@@ -235,9 +232,24 @@ class FrameDecoder:
             pos = end + CRC.size
             if self.ended:
                 break
-        self._buffer = buf[pos:]
+        self._drop(pos)
         self._consumed += pos
         return frames
+
+    # A view of the buffer can outlive the call that took it (in a frame a traceback keeps), and a bytearray with a
+    # view cannot be resized: the buffer is then replaced by a copy, which costs a copy only then (appending in
+    # place keeps a frame fed in small reads linear in its size).
+    def _append(self, data) -> None:
+        try:
+            self._buffer += data
+        except BufferError:
+            self._buffer = self._buffer + data
+
+    def _drop(self, count: int) -> None:
+        try:
+            del self._buffer[:count]
+        except BufferError:
+            self._buffer = self._buffer[count:]
 
     def _plausible(self, points: int, channels: int, flags: int) -> bool:
         if channels != self.channels or flags & ~KNOWN_FLAGS:
@@ -298,7 +310,7 @@ class FrameDecoder:
         self.stats.skipped_bytes += self._consumed + len(self._buffer) - self._last_good_end
         self.stats.corrupt_frames += self._corrupt_since_good
         self._corrupt_since_good = 0
-        self._buffer = b""
+        self._buffer = bytearray()
         self.ended = True
         if samples_sent == self._next_sample:
             return None
@@ -309,5 +321,5 @@ class FrameDecoder:
 
     def remainder(self) -> bytes:
         """Bytes received after the END frame (replies to later commands); empties the buffer."""
-        data, self._buffer = self._buffer, b""
+        data, self._buffer = bytes(self._buffer), bytearray()
         return data

@@ -234,13 +234,38 @@ def test_a_signal_held_keeps_nothing_of_the_call_it_interrupted(ctrl_c, guarded)
         signal.raise_signal(signal.SIGINT)
         return bytes(view)
 
+    seen = []
     with bench() as (rig, shaker, daq), (OutputGuard(shaker) if guarded else contextlib.nullcontext()):
         with pytest.raises(KeyboardInterrupt):
             with signals_held():
-                assert interrupted() == b"2345"
-                assert kept[0]() is None                        # the call's locals went with it
+                seen.append(interrupted())
+                seen.append(kept[0]())                          # the call's locals went with it
                 del buffer[:4]                                  # no view of the buffer is left
-        assert buffer == b"456789"
+    assert seen == [b"2345", None] and buffer == b"456789"
+
+
+@pytest.mark.parametrize("guarded", [False, True])
+def test_a_second_signal_acts_at_once_in_held_blocks_within_one_another(ctrl_c, guarded):
+    """Held steps nest (a compile within a compile, a cache save within it): a second signal acts at once however
+    deep, and the handlers are as they were after the outermost block."""
+    with bench() as (rig, shaker, daq), (OutputGuard(shaker) if guarded else contextlib.nullcontext()):
+        installed = signal.getsignal(signal.SIGINT)
+        reached = []
+        with pytest.raises(KeyboardInterrupt):
+            with signals_held():
+                with signals_held():
+                    with signals_held():
+                        signal.raise_signal(signal.SIGINT)
+                        reached.append("after the first")
+                        signal.raise_signal(signal.SIGINT)
+                        reached.append("after the second")
+        assert reached == ["after the first"] and signal.getsignal(signal.SIGINT) is installed
+        with pytest.raises(KeyboardInterrupt):                 # the next block holds again
+            with signals_held():
+                with signals_held():
+                    signal.raise_signal(signal.SIGINT)
+                    reached.append("held")
+        assert reached[-1] == "held"
 
 
 def test_a_held_block_without_a_signal_or_outside_the_main_thread_leaves_the_handlers_as_they_were():

@@ -89,6 +89,7 @@ def test_a_view_of_the_data_kept_beyond_a_check_does_not_stop_the_next_feed(monk
     monkeypatch.setattr(drivers.stream, "crc32", checked)
     decoder = FrameDecoder(2, 5)
     decoded = decoder.feed(frames[0][0] + frames[1][0][:7])
+    views.append(memoryview(decoder._buffer))                 # and one of what it holds between two feeds
     decoded += decoder.feed(frames[1][0][7:] + frames[2][0])
     decoded += decoder.feed(frames[3][0] + encode_end(4, total, 2))
     assert [f.sequence for f in decoded] == [0, 1, 2, 3, 4] and views

@@ -30,6 +30,7 @@ left without its code -- its next call raised ``RuntimeError: no compiled object
 "interrupted". The output still goes off at once; the rest waits for the compile's end (a second signal acts at
 once, as in every held step).
 """
+import functools
 import hashlib
 import os
 import shutil
@@ -207,6 +208,7 @@ def _serialised(save):
 
 def _held(compile_):
     """``compile_`` (numba's compile of a dispatcher or a C callback) run whole, a signal acting at its end."""
+    @functools.wraps(compile_)
     def held_compile(*args, **kwargs):
         with signals_held():
             return compile_(*args, **kwargs)

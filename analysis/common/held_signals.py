@@ -39,6 +39,7 @@ class Cooperating:
 _cooperating: Cooperating | None = None   # in place for SIGINT and SIGTERM (main thread)
 _holding = 0                               # how deep the main thread is in held blocks under it
 _held: list[int] = []                      # the signal that came in them
+_outer: "signals_held | None" = None       # under any other handler, the block whose holding handler is in place
 
 
 def cooperate(handler: Cooperating | None) -> None:
@@ -62,23 +63,32 @@ class signals_held:
     """Within the block, SIGINT and SIGTERM act at its end; a second signal in the block acts at once, so that a
     step that does not end can still be interrupted. Outside the main thread, where Python runs no signal
     handler, the block runs as it is. Under the cooperating handler a block costs a counter (about 1 us); under
-    any other it puts a holding handler in place for its length (some 15 us)."""
+    any other it puts a holding handler in place for its length (some 15 us), and a block within it is part of
+    its step: blocks nest (a compile within a compile, a cache save within it), and a second signal acts at once
+    however deep they go."""
 
-    __slots__ = ("_before", "_caught")
+    __slots__ = ("_before", "_caught", "_inner")
 
     def __enter__(self) -> None:
-        global _holding
-        self._before = None
+        global _holding, _outer
+        self._before, self._inner = None, False
         if threading.current_thread() is not threading.main_thread():
             return
         if _cooperating is not None:
             _holding += 1
             return
+        if _outer is not None:
+            self._inner = True
+            return
         self._hold()
+        _outer = self
 
     def __exit__(self, *exc) -> None:
-        global _holding, _held
+        global _holding, _held, _outer
+        if self._inner:
+            return
         if self._before is not None:
+            _outer = None
             self._release()
         elif threading.current_thread() is threading.main_thread() and _holding:
             _holding -= 1
