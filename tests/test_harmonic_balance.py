@@ -673,3 +673,102 @@ def test_a_periodic_march_is_the_second_period_of_the_motion_marched_twice_from_
         for b in range(len(X)):
             twice = law.march(np.tile(x[b], 2), np.tile(v[b], 2), p)
             np.testing.assert_allclose(rows[b], twice[64:], rtol=0, atol=1e-14)
+
+
+def test_the_line_search_takes_the_step_that_halving_one_at_a_time_takes_in_three_calls_at_most():
+    """Each item takes the first of dz, dz/2, ... that lowers its residual norm, and the caller hears of the steps
+    taken: the same as trying them one after the other, in at most three calls of the residual."""
+    from analysis.prediction.harmonic_balance import _line_search
+    rng = np.random.default_rng(7)
+    B, halvings = 60, 12
+    target = rng.normal(size=(B, 2))
+
+    def fun(z, idx):
+        d = z - target[idx]
+        return np.stack([d[:, 0] + 0.3 * d[:, 1] ** 3, d[:, 1] + np.sin(3 * d[:, 0])], axis=1)
+
+    z0 = target + rng.normal(size=(B, 2))
+    # Newton-like directions overshooting by 2^k: the step that lowers the norm is found after k halvings or so
+    dz = -(z0 - target) * 2.0 ** rng.integers(0, 14, B)[:, None]
+    active = np.flatnonzero(rng.random(B) < 0.8)
+
+    def one_at_a_time():
+        z, R = z0.copy(), fun(z0, np.arange(B))
+        norm = np.linalg.norm(R, axis=1)
+        alpha, improved, steps = np.ones(len(active)), np.zeros(len(active), bool), {}
+        for _ in range(halvings):
+            left = np.flatnonzero(~improved)
+            items = active[left]
+            z_try = z[items] + alpha[left, None] * dz[left]
+            R_try = fun(z_try, items)
+            ok = np.linalg.norm(R_try, axis=1) < norm[items]
+            for i, zz in zip(items[ok], z_try[ok]):
+                steps[i] = zz - z[i]
+            z[items[ok]], norm[items[ok]] = z_try[ok], np.linalg.norm(R_try[ok], axis=1)
+            improved[left[ok]] = True
+            alpha[left[~ok]] *= 0.5
+        return z, norm, improved, steps
+
+    z_ref, norm_ref, improved_ref, steps_ref = one_at_a_time()
+    z, R = z0.copy(), fun(z0, np.arange(B))
+    norm, calls, heard = np.linalg.norm(R, axis=1), [], {}
+
+    def counted(zz, idx):
+        calls.append(len(idx))
+        return fun(zz, idx)
+
+    def taken(items, step, change):
+        heard.update(zip(items.tolist(), step))
+        np.testing.assert_allclose(change, fun(z[items] + step, items) - R[items], atol=1e-12)
+
+    improved = _line_search(counted, z, R, norm, active, dz, halvings, taken)
+    assert improved.tolist() == improved_ref.tolist() and 0 < improved.sum() < len(active)
+    np.testing.assert_array_equal(z, z_ref)
+    np.testing.assert_array_equal(norm, norm_ref)
+    np.testing.assert_allclose(R, fun(z, np.arange(B)), atol=0)
+    assert sorted(heard) == sorted(steps_ref)
+    for i in heard:
+        np.testing.assert_array_equal(heard[i], steps_ref[i])
+    assert len(calls) <= 3
+
+
+@pytest.mark.parametrize("meets", [False, True])
+def test_a_multiharmonic_batch_whose_probed_lines_meet_no_balance_solves_no_other_line(meets, monkeypatch):
+    """The lines whose single-harmonic start is nearest a balance are solved first; where none of them converges no
+    other line is solved (each is left at its start), and where one does every line is solved, as the batch alone
+    would be."""
+    from analysis.prediction import multiharmonic as mh_module
+    from analysis.prediction.multiharmonic import PROBED_LINES, _MultiharmonicLines
+    s = load_structure(CHAIN2)
+    els = load_elements({"element": [{"name": "b", "dof": "x2", "laws": [{"law": "cubic", "k3": 3e6}]}]}, s, None,
+                        True)
+    w = 2 * np.pi * np.arange(5.0, 11.01, 0.1)
+    single = predict_sweep(s, els, "x2", w, 0.5)
+    lines = _MultiharmonicLines(s, els, "x2", w, np.full(len(w), 0.5), 5, 128)
+    start = np.zeros((len(w), 6, 1), complex)
+    start[:, 1] = single.y[:, 0]
+    z0 = lines.pack(start, np.arange(len(w)))
+    nearest = np.argsort(np.linalg.norm(lines.residual(z0, np.arange(len(w))), axis=1))[:PROBED_LINES]
+    solver, solved = mh_module._quasi_newton, []
+
+    def recorded(fun, jac, z, tol, stalled_tol, max_iter=40):
+        solved.append(z.copy())
+        if meets:
+            return solver(fun, jac, z, tol, stalled_tol, max_iter)
+        return z, np.zeros(len(z), bool)                    # a force with no smooth balance: nothing met
+
+    monkeypatch.setattr(mh_module, "_quasi_newton", recorded)
+    mh = predict_multiharmonic(s, els, "x2", w, 0.5, 5, 128, y_start=single.y[:, 0])
+    assert len(solved[0]) == PROBED_LINES < len(w)
+    np.testing.assert_array_equal(solved[0], z0[np.sort(nearest)])          # the lines nearest a balance first
+    if not meets:
+        others = np.setdiff1d(np.arange(len(w)), nearest)
+        assert len(solved) == 1
+        # left at the start
+        np.testing.assert_allclose(mh.element_harmonics[others, 1, 0], single.y[others, 0, 0], rtol=1e-14)
+        return
+    assert sum(len(z) for z in solved) == len(w) and mh.converged.all()
+    z, _ = solver(lines.residual, lines.jacobian, z0, 1e-12, 1e-8)
+    # the same balance to the batch's rounding (a batch's products may be summed in another order)
+    np.testing.assert_allclose(mh.element_harmonics, lines.unpack(z, np.arange(len(w))), rtol=0,
+                               atol=1e-12 * np.abs(single.y).max())

@@ -217,9 +217,9 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     With ``y_start`` (single-harmonic element phasors, (L, r)) every line starts from its own, which picks the
     branch where the response is multivalued, and the lines are independent: they are solved all at once by
     Broyden's method from a difference Jacobian (:func:`_quasi_newton`, :class:`_MultiharmonicLines`), and a line
-    that does not converge so
-    is solved on its own by scipy's ``hybr`` from the same start. Without it Newton (``hybr``) runs at each line
-    from the previous line's solution, the first started from the single-harmonic solution.
+    that does not converge so is solved on its own by scipy's ``hybr`` from the same start. A batch where none of
+    the :data:`PROBED_LINES` lines nearest a balance at their start converges is left there, unconverged. Without it Newton (``hybr``)
+    runs at each line from the previous line's solution, the first started from the single-harmonic solution.
     """
     w = np.atleast_1d(np.asarray(w, float))
     H = int(n_harmonics)
@@ -231,14 +231,18 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     if y_start is not None:
         start = np.zeros((len(w), H + 1, len(elements)), complex)
         start[:, 1] = y_start
-        z, _ = _quasi_newton(lines.residual, lines.jacobian, lines.pack(start, np.arange(len(w))),
-                             MULTIHARMONIC_TOLERANCE, MULTIHARMONIC_CONVERGED)
-        left = np.linalg.norm(lines.residual(z, np.arange(len(w))), axis=1) >= MULTIHARMONIC_CONVERGED
+        z = lines.pack(start, np.arange(len(w)))
         # a batch that meets no line at all meets a force with no smooth balance at these motions (a law that
-        # sticks): a retry from the same start repeats that search line by line; a few lines left are local
-        for line in np.flatnonzero(left) if not left.all() else ():
-            check_stop()        # one line: where a stop asked for is heard
-            z[line] = lines.solve_one(line, start[line])
+        # sticks): the lines whose single-harmonic start is nearest a balance show that as well as all of them,
+        # and a retry from the same start would repeat the search line by line; a few lines left are local
+        probe = np.sort(np.argsort(np.linalg.norm(lines.residual(z, np.arange(len(w))), axis=1),
+                                   kind="stable")[:PROBED_LINES])
+        if _balanced(lines, z, probe).any():
+            _balanced(lines, z, np.setdiff1d(np.arange(len(w)), probe))
+            left = np.linalg.norm(lines.residual(z, np.arange(len(w))), axis=1) >= MULTIHARMONIC_CONVERGED
+            for line in np.flatnonzero(left):
+                check_stop()        # one line: where a stop asked for is heard
+                z[line] = lines.solve_one(line, start[line])
     else:
         order = np.argsort(w) if direction == "up" else np.argsort(-w)
         start = np.zeros((H + 1, len(elements)), complex)
@@ -251,6 +255,20 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     return lines.response(z)
 
 
+def _balanced(lines: "_MultiharmonicLines", z: np.ndarray, items: np.ndarray) -> np.ndarray:
+    """The lines ``items`` solved by :func:`_quasi_newton` from their unknowns in ``z`` (L, size), updated in
+    place; which of them converged."""
+    if not len(items):
+        return np.zeros(0, bool)
+    z[items], converged = _quasi_newton(lambda zz, i: lines.residual(zz, items[i]),
+                                        lambda zz, i: lines.jacobian(zz, items[i]), z[items],
+                                        MULTIHARMONIC_TOLERANCE, MULTIHARMONIC_CONVERGED)
+    return converged
+
+
+PROBED_LINES = 8
+"""A batch of more lines is first solved at this many, those whose single-harmonic start is nearest a balance
+(the least residual): where none converges, none of the others is solved (:func:`predict_multiharmonic`)."""
 MULTIHARMONIC_TOLERANCE = 1e-12
 """Residual norm (relative to the line's linear response) where the batched multi-harmonic Newton stops."""
 MULTIHARMONIC_CONVERGED = 1e-8
