@@ -727,30 +727,6 @@ def test_of_two_levels_a_law_every_fold_sees_must_predict_one_level_better_from_
     assert cross_check.predicts_no_better(HeldOut(0.4, (0.3, 0.5), 1), HeldOut(0.6, (0.35, 0.8), 1, True)) == ""
 
 
-def test_of_two_levels_a_law_is_refused_for_predicting_worse_only_where_it_does_so_each_way():
-    """Two levels, each fold's fit seeing one: the pooled held-out error is mostly the upward extrapolation's, where a
-    law fitted on the lower level carries its parameters' uncertainty amplified by its power of the amplitude. A law
-    that predicts the lower level better from the upper one and the upper one worse by more than the margin stays;
-    one worse by the margin both ways, or with a fold it does not predict, is refused. Of three folds or more, each
-    fit seeing two levels, the pooled error still decides."""
-    without = HeldOut(0.268, (0.0308, 0.38), 1, True)
-    cubic = HeldOut(0.498, (0.00829, 0.709), 1, True)          # x3.7 better down, x1.9 worse up
-    assert not cubic.worse_than(without, 1.3) and cubic.better_than(without)
-    assert cross_check.predicts_no_better(without, cubic) == ""
-    both = HeldOut(0.62, (0.05, 0.8), 1, True)                  # worse by the margin each way
-    assert both.worse_than(without, 1.3)
-    why = cross_check.predicts_no_better(without, both)
-    assert why.startswith("it predicts the levels its fits did not see worse, its FRFs by more than the x1.3 a law "
-                          "must bring each way: held-out 0.62 against 0.268")
-    assert HeldOut(0.3, (float("nan"), 0.4), 1, True).worse_than(without, 1.3) is False     # within the margin up
-    assert HeldOut(0.9, (float("nan"), 0.9), 1, True).worse_than(without, 1.3)
-    # three folds, each fit seeing two levels: pooled, as before
-    before = HeldOut(0.4, (0.3, 0.5, 0.4), 2)
-    assert HeldOut(0.53, (0.1, 0.9, 0.3), 2).worse_than(before, 1.3)
-    assert "by more than the x1.3 a law must bring:" in cross_check.predicts_no_better(
-        before, HeldOut(0.53, (0.1, 0.9, 0.3), 2))
-
-
 def test_a_fold_sees_its_laws_where_each_law_s_size_is_beyond_its_interval_of_zero():
     from analysis.loop.cross_check import _sees_its_laws
 

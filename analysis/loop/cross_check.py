@@ -165,18 +165,6 @@ class HeldOut:
         better = [bool(np.isfinite(a) and not a >= b) for a, b in zip(self.folds, other.folds)]
         return all(better) if self.every_fold_with(other) else any(better)
 
-    def worse_than(self, other: "HeldOut", margin: float) -> bool:
-        """Whether this model predicts the folds worse than ``other`` by more than ``margin`` (a ratio of errors),
-        asked as :meth:`better_than` asks: where every fold's fit saw :data:`LEVELS_TO_JUDGE` levels or more, of
-        the folds pooled; where each saw fewer (two levels, each predicting the other), of each fold. The pooled
-        error of two one-way extrapolations is mostly that of the upward one, where a law fitted on the lower
-        level carries its parameters' uncertainty amplified by its power of the amplitude: a law of the joint may
-        predict that way worse and the other way better, and only one worse both ways describes the level it was
-        fitted on alone. A fold this model does not predict (NaN) is worse."""
-        if self.every_fold_with(other):
-            return bool(self.error > margin * other.error)
-        return bool(self.folds) and all(not a <= margin * b for a, b in zip(self.folds, other.folds))
-
     def every_fold_with(self, other: "HeldOut") -> bool:
         """Whether :meth:`better_than` against ``other`` asks for every fold (each fold's fit saw
         :data:`LEVELS_TO_JUDGE` levels or more), not for one of two."""
@@ -202,9 +190,8 @@ def predicts_no_better(before: HeldOut, after: HeldOut, min_gain: float = Rankin
       about its half-power bandwidth, which no law predicts. The mode's frequency and damping at each amplitude
       are what a joint's law is for: the drift shifts the frequency by a fraction of a per cent and leaves the
       damping, where near resonance it changes the lines by tens of per cent;
-    - worse by the margin: the held-out FRF error (pooled; of two levels, each predicting the other, each way:
-      :meth:`HeldOut.worse_than`), or either curve, ``min_gain`` times the model's without the law. The same margin
-      in every witness, as in the ranking's veto (:mod:`analysis.missing.modal_judge`).
+    - worse by the margin: the held-out FRF error pooled, or either curve, ``min_gain`` times the model's without
+      the law. The same margin in every witness, as in the ranking's veto (:mod:`analysis.missing.modal_judge`).
 
     Nothing is judged where a fold's fit saw too little to determine a law (:attr:`HeldOut.judges`: one level that
     does not show the size of every law of either model). ``modal`` None: the FRFs alone judge, as the loop's
@@ -212,7 +199,7 @@ def predicts_no_better(before: HeldOut, after: HeldOut, min_gain: float = Rankin
     if not (before.judges and after.judges):
         return ""
     change = _modal_change(before, after, modal)
-    frf_worse = after.worse_than(before, min_gain)
+    frf_worse = after.error > min_gain * before.error
     modes_worse = change is not None and change.worse(min_gain)
     better = after.better_than(before) or (change is not None and change.better(min_gain))
     if better and not (frf_worse or modes_worse):
@@ -221,9 +208,8 @@ def predicts_no_better(before: HeldOut, after: HeldOut, min_gain: float = Rankin
     rule = ("every held-out fold better" if after.every_fold_with(before) else
             "at least one of the two levels better from the other")
     modes = "" if change is None else f"; the held-out response levels' {change.words()}"
-    each = "" if after.every_fold_with(before) or not frf_worse else " each way"
     head = (f"it predicts the levels its fits did not see worse, its {'FRFs' if frf_worse else 'modes'} by more than "
-            f"the x{min_gain:g} a law must bring{each}" if frf_worse or modes_worse else
+            f"the x{min_gain:g} a law must bring" if frf_worse or modes_worse else
             "it does not predict the levels its fits did not see better")
     if change is not None:
         rule += f", or the held-out natural frequency or damping better by x{min_gain:g}, neither worse by it"
