@@ -199,16 +199,15 @@ def _line_search(fun, z: np.ndarray, R: np.ndarray, norm: np.ndarray, active: np
     ``fun``: the same step is taken as one tried after the other would take, in fewer calls."""
     improved = np.zeros(len(active), bool)
     first = 0
-    rounds = list(_HALVINGS_AT_ONCE) + [halvings]
-    for size in rounds:
+    for size in _HALVINGS_AT_ONCE + (halvings,):
         tried = np.arange(first, min(first + size, halvings))
         left = np.flatnonzero(~improved)
         if not len(tried) or not len(left):
             break
-        first = tried[-1] + 1
+        first += len(tried)
         items = active[left]
         n, k = len(left), len(tried)
-        alpha = np.repeat(0.5 ** tried[None, :], n, axis=0).ravel()            # item by item, its steps in order
+        alpha = np.tile(0.5 ** tried, n)                                     # item by item, its steps in order
         rows = np.repeat(np.arange(n), k)
         z_try = z[items[rows]] + alpha[:, None] * dz[left[rows]]
         R_try = fun(z_try, items[rows])

@@ -218,8 +218,9 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     branch where the response is multivalued, and the lines are independent: they are solved all at once by
     Broyden's method from a difference Jacobian (:func:`_quasi_newton`, :class:`_MultiharmonicLines`), and a line
     that does not converge so is solved on its own by scipy's ``hybr`` from the same start. A batch where none of
-    the :data:`PROBED_LINES` lines nearest a balance at their start converges is left there, unconverged. Without it Newton (``hybr``)
-    runs at each line from the previous line's solution, the first started from the single-harmonic solution.
+    the :data:`PROBED_LINES` lines nearest a balance at their start converges is left there, unconverged. Without
+    it Newton (``hybr``) runs at each line from the previous line's solution, the first started from the
+    single-harmonic solution.
     """
     w = np.atleast_1d(np.asarray(w, float))
     H = int(n_harmonics)
