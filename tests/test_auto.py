@@ -18,7 +18,7 @@ from analysis.loop.cross_check import NOT_CHECKED, HeldOut, cross_validate, held
 from analysis.prediction.comparison import pooled_error
 from analysis.prediction.backbone import ModalError
 from analysis.missing.modal_judge import ModalRules, ModalYardstick
-from analysis.prediction.comparison import RunPrediction, compare_predictions
+from analysis.prediction.comparison import HarmonicCriterion, RunPrediction, compare_predictions
 from analysis.missing.diagnosis import Candidate, ElementSamples, RankingRules
 from analysis.search.discovery import Discovery, ElementDiscovery, LawSet, WalkStep
 from analysis.identification.linearity import linearity_verdict
@@ -916,14 +916,14 @@ def test_far_above_the_floor_a_law_its_kbar_does_not_call_for_is_tried_where_the
     def ranked() -> list[Candidate]:
         return [candidate("quintic", 0.08), candidate("cubic", 0.084), candidate("jenkins", 0.23)]
 
-    def refused_by_model_form(predictor, candidates, rules, n_harmonics, n_time):
+    def refused_by_model_form(predictor, candidates, rules, harmonics):
         for c in candidates:
             if c.law == "quintic":
                 c.significant, c.model_form = False, "only what one harmonic cannot represent"
 
     monkeypatch.setattr(auto_module, "check_model_form", refused_by_model_form)
     rules = AutoRules(modes=None)
-    harmonics = SimpleNamespace(n_harmonics=5, n_time=256)
+    harmonics = HarmonicCriterion(n_harmonics=5, n_time=256)
 
     def bench(error: float, blind: bool = True):
         return SimpleNamespace(harmonics_blind=blind, history=[SimpleNamespace(error=error)], predictor=None,

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from analysis.identification.between_runs import SPAN, BetweenRuns, between_runs
+from analysis.prediction.multiharmonic import HARMONIC_TRUNCATION
 from test_predict import C, FREQUENCY, K, K3, M, model_text
 
 
@@ -237,6 +238,9 @@ def test_the_frf_error_a_right_model_shows_against_runs_that_repeat_poorly_is_th
     calm = _workbench(steady)
     assert calm.error_floor.ruled_by == () and calm.error_floor.between_runs == 0.0
     assert calm.error_floor.total == pytest.approx(2e-3, rel=0.05)
+    # the harmonics resolve a tenth of what the test allows, never coarser where it repeats well
+    assert wb.harmonics.truncation == pytest.approx(max(HARMONIC_TRUNCATION, 0.1 * floor.total))
+    assert calm.harmonics.truncation == HARMONIC_TRUNCATION < wb.harmonics.truncation
 
 
 def test_the_floor_is_the_spread_a_scatter_of_kbar_gives_the_frfs_by_monte_carlo():

@@ -7,7 +7,8 @@ from scipy.integrate import solve_ivp
 from analysis import load_elements, load_structure
 from analysis.prediction.comparison import HarmonicCriterion
 from analysis.prediction.harmonic_balance import continue_response, predict_sweep, predict_sweeps
-from analysis.prediction.multiharmonic import _AFT, predict_multiharmonic, single_harmonic_distortion
+from analysis.prediction.multiharmonic import (HARMONIC_TRUNCATION, _AFT, omitted_harmonics, predict_multiharmonic,
+                                               predict_multiharmonic_converged, single_harmonic_distortion)
 
 SDOF = {"type": "lumped", "dofs": ["x"], "mass": [[1.0]], "stiffness": [[100.0]], "damping": [[0.2]]}
 
@@ -772,3 +773,90 @@ def test_a_multiharmonic_batch_whose_probed_lines_meet_no_balance_solves_no_othe
     # the same balance to the batch's rounding (a batch's products may be summed in another order)
     np.testing.assert_allclose(mh.element_harmonics, lines.unpack(z, np.arange(len(w))), rtol=0,
                                atol=1e-12 * np.abs(single.y).max())
+
+
+def _contact_chain():
+    """A one-sided contact between the first two masses of a chain driven at the third (modes 1.49, 4.25 and
+    8.39 Hz); its mass and stiffness matrices and damping."""
+    M = np.diag([0.695, 1.875, 1.982])
+    K = np.array([[1820.0, -658.0, 0.0], [-658.0, 1247.0, -589.0], [0.0, -589.0, 589.0]])
+    s = load_structure({"type": "lumped", "dofs": ["x1", "x2", "x3"], "mass": M.tolist(), "stiffness": K.tolist(),
+                        "rayleigh": [0.452, 0.0018]})
+    els = load_elements({"element": [{"name": "a", "between": ["x1", "x2"],
+                                      "laws": [{"law": "unilateral", "k": 3376.0, "gap": 0.0285}]}]}, s, None, True)
+    return s, els, M, K
+
+
+def _swept_start(s, els, f_hz, force):
+    """Single-harmonic element phasors at lines ``f_hz``, swept up to them from 1.1 Hz."""
+    sweep = 2 * np.pi * np.union1d(np.arange(1.1, max(f_hz), 0.0148), f_hz)
+    return predict_sweep(s, els, "x3", sweep, force, "up").y[np.searchsorted(sweep, 2 * np.pi * np.asarray(f_hz)), 0]
+
+
+def test_a_criterion_resolves_a_tenth_of_the_error_the_test_allows_and_never_coarser_than_its_tolerance():
+    assert HarmonicCriterion().truncation == HARMONIC_TRUNCATION
+    assert HarmonicCriterion().resolving(None).truncation == HARMONIC_TRUNCATION
+    assert HarmonicCriterion().resolving(2e-3).truncation == HARMONIC_TRUNCATION        # a test that repeats well
+    resolved = HarmonicCriterion(limit=0.02, n_harmonics=5).resolving(0.176)
+    assert resolved.truncation == pytest.approx(0.0176)
+    assert (resolved.limit, resolved.n_harmonics) == (0.02, 5)
+
+
+def test_the_estimate_of_what_the_harmonics_left_out_move_flags_every_line_they_move():
+    # lines of a contact about the first resonance, balanced with 7 and with 28 harmonics: wherever the fundamental
+    # moves by more than the tolerance between the two, the estimate made from the 7 says so
+    s, els, _, _ = _contact_chain()
+    f = np.array([1.25, 1.3963, 1.45, 1.5, 1.5444, 1.6])
+    w, y0 = 2 * np.pi * f, _swept_start(s, els, f, 3.68)
+    seven = predict_multiharmonic(s, els, "x3", w, 3.68, 7, 512, y_start=y0)
+    many = predict_multiharmonic(s, els, "x3", w, 3.68, 28, 512, y_start=y0)
+    assert seven.converged.all() and many.converged.all()
+    moved = np.abs(seven.element_harmonics[:, 1, 0] / many.element_harmonics[:, 1, 0] - 1)
+    estimate = omitted_harmonics(s, els, "x3", w, seven.element_harmonics, 14, 512)
+    assert (moved > HARMONIC_TRUNCATION).sum() >= 4
+    assert (estimate[moved > HARMONIC_TRUNCATION] > HARMONIC_TRUNCATION).all()
+    assert estimate[0] == moved[0] == 0.0                       # below the contact's closing: no harmonics
+
+
+def test_a_line_takes_no_more_harmonics_than_the_forces_samples_resolve():
+    # 64 points a period resolve 15 harmonics (n_time >= 4 H + 2): a line that would take 28 stops at 15
+    s, els, _, _ = _contact_chain()
+    w = 2 * np.pi * np.array([1.5444])
+    balanced = predict_multiharmonic_converged(s, els, "x3", w, 3.68, _swept_start(s, els, [1.5444], 3.68), 7, 64, 28)
+    assert balanced.converged.all() and 7 < balanced.n_used[0] <= 15
+
+
+@pytest.mark.slow
+def test_a_line_takes_the_harmonics_its_motion_needs_and_meets_the_time_march():
+    # the contact chain at its first resonance: the contact's harmonics fall off slowly, and seven of them miss
+    # the fundamental by percents where the harmonics left out still move it; the balance taken to the harmonics
+    # the line needs meets the time march (solve_ivp, no code of the project) to the tolerance, and a line where
+    # the contact stays open keeps seven
+    s, els, M, K = _contact_chain()
+    a, b, kc, gap, F = 0.452, 0.0018, 3376.0, 0.0285, 3.68
+
+    def rhs(t, z, w):
+        x, v = z[:3], z[3:]
+        fc = kc * max(x[1] - x[0] - gap, 0.0)
+        return np.concatenate([v, (np.array([fc, -fc, F * np.sin(w * t)]) - (a * M + b * K) @ v - K @ x) / np.diag(M)])
+
+    def fundamental(w, periods=60, n=256):
+        T = 2 * np.pi / w
+        settled = solve_ivp(rhs, (0, periods * T), np.zeros(6), args=(w,), rtol=1e-9, atol=1e-12, method="DOP853")
+        t = periods * T + np.arange(n) * T / n
+        last = solve_ivp(rhs, (periods * T, t[-1]), settled.y[:, -1], t_eval=t, args=(w,), rtol=1e-10, atol=1e-13,
+                         method="DOP853")
+        return 2 / n * np.sum(last.y[:3] * (np.sin(w * t) + 1j * np.cos(w * t)), axis=1)
+
+    w, y0 = 2 * np.pi * np.array([1.25, 1.5444]), _swept_start(s, els, [1.25, 1.5444], F)
+    seven = predict_multiharmonic(s, els, "x3", w, F, 7, 512, y_start=y0)
+    needed = predict_multiharmonic_converged(s, els, "x3", w, F, y0, 7, 512, 28)
+    assert needed.converged.all() and needed.n_used.tolist()[0] == 7 and needed.n_used[1] > 7
+    for line in range(2):
+        ref = fundamental(w[line])
+        miss = lambda X: np.linalg.norm(X - ref) / np.linalg.norm(ref)         # noqa: E731
+        assert miss(needed.harmonics[line, 1]) < 3 * HARMONIC_TRUNCATION
+        if line:
+            assert miss(seven.harmonics[line, 1]) > 0.02
+            assert needed.harmonics.shape[1] == needed.n_used[1] + 1
+            np.testing.assert_array_equal(needed.harmonics[0, 8:], 0.0)

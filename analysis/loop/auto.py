@@ -245,8 +245,7 @@ def _beyond_the_kbar(wb: Workbench, ranked: list[Candidate], rules: AutoRules, f
         return None
     for c in unsupported:
         c.significant, c.held_back = True, ""
-    check_model_form(wb.predictor, unsupported, rules.ranking, wb.harmonics_or_default.n_harmonics,
-                     wb.harmonics_or_default.n_time)
+    check_model_form(wb.predictor, unsupported, rules.ranking, wb.harmonics_or_default)
     return next((c for c in _judged(wb, unsupported, rules, found, taken_back) if c.significant), None)
 
 

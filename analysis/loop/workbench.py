@@ -27,6 +27,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..common.errors import InputError
+from ..common.fixed_point import secant_step
 from ..common.measurements import Measurements, SineRun
 from ..fitting.fit import LawFit, fit_laws
 from ..fitting.limits import fit_in_limits, settle_in_limits
@@ -41,7 +42,7 @@ from ..mechanics.model import Model
 from ..mechanics.nonparametric import NAME as NONPARAMETRIC, NonParametric, fit_nonparametric
 from ..missing.diagnosis import Candidate, ElementSamples, RankingRules, check_model_form, rank_candidates, rank_pairs
 from ..missing.unexplained import NonParametricOffer, offer_nonparametric, unexplained
-from ..prediction.comparison import Comparison, HarmonicCriterion, LevelError, Predictor
+from ..prediction.comparison import Comparison, FundamentalBias, HarmonicCriterion, LevelError, Predictor
 from ..prediction.frf_refinement import refine_against_frfs, terms_function
 from ..search.discovery import AmplitudeDependence, Discovery, DiscoveryRules, amplitude_dependence, discover
 
@@ -135,6 +136,12 @@ class HistoryStep:
 
 # a locked point is identified from only where one harmonic describes its motion this well (displacement THD)
 LOCKED_DISTORTION = 0.01
+
+#: The correction of the fundamental's bias is at its fixed point (:meth:`Workbench._corrected`) where the bias of
+#: the model a pass fits departs from the correction it was fitted with by at most this share of the larger; at
+#: most ``BIAS_PASSES`` passes, each a multi-harmonic balance of the lines with harmonics and a refit
+BIAS_SETTLED = 1e-2
+BIAS_PASSES = 6
 
 
 def _overruled(verdict: LinearityVerdict, found: AmplitudeDependence | None) -> LinearityVerdict:
@@ -279,9 +286,18 @@ class Workbench:
                     verdict = _overruled(verdict, amplitude_dependence(samples, robust=self.harmonics_blind))
             self.reports[el.name] = ElementReport(el.name, samples if len(X) else None, verdict, len(X),
                                                   flagged[el.name], yardstick=yardstick)
-        self.error_floor = frf_error_floor(sensitivities, [self.reports[e.name].yardstick for e in els],
-                                           [e.name for e in els])
+        self._floor_is(frf_error_floor(sensitivities, [self.reports[e.name].yardstick for e in els],
+                                       [e.name for e in els]))
         return self.reports
+
+    def _floor_is(self, floor: ErrorFloor | None) -> None:
+        """The FRF error the test itself allows, and the harmonics that resolve it
+        (:meth:`analysis.prediction.comparison.HarmonicCriterion.resolving`) where it is the floor of the samples
+        as identified: a correction of the fundamental's bias moves the floor a little, and a criterion that moved
+        with it would judge the passes of one correction, and the fit it keeps, each with other harmonics."""
+        self.error_floor = floor
+        if self.harmonics is not None and not _nonzero(self._kbar_bias):
+            self.harmonics = self.harmonics.resolving(None if floor is None else floor.total)
 
     def yardsticks(self) -> dict[str, BetweenRuns]:
         """Element -> the scatter between runs its samples were judged by (elements without noise left out)."""
@@ -368,8 +384,8 @@ class Workbench:
         cycle) that departs from every describing function, and laws fitted to it are biased and leave a misfit
         that another law can fill. Where the model's forces are known (:meth:`_forces_known`), the fitted model's own
         departure at each line (:meth:`analysis.prediction.comparison.Predictor.fundamental_bias`) is subtracted from the
-        samples and every element refitted; the bias is that of the model last fitted, so successive fits
-        converge. The corrected fit is refused where it
+        samples and every element refitted, until the correction is the bias of the model fitted with it
+        (:meth:`_corrected`). The corrected fit is refused where it
         predicts the FRFs, with harmonics, worse than the fit it corrects by a law's margin
         (:meth:`_corrected_is_kept`). ``unsettled``: the elements whose clearance laws started this fit at values
         no restart judged (:meth:`_corrected_from_refined`). Returns the comparison with harmonics of the fit it
@@ -385,8 +401,7 @@ class Workbench:
         kept = found.comparison                 # of the fit kept so far, with harmonics
         if _nonzero(found.bias) or _nonzero(self._kbar_bias):
             before = self._fitted_state()
-            self._refit_less(found.bias)
-            corrected = self.predictor.compare(harmonics=criterion)
+            corrected = self._corrected(criterion, found)
             if self._corrected_is_kept(found.comparison, corrected.error):
                 kept = corrected
             else:
@@ -407,11 +422,61 @@ class Workbench:
                             [(list(el.laws), el.nonparametric) for el in self.model.elements], self.error_floor)
 
     def _restore(self, state: _FittedState) -> None:
-        self._kbar_bias, self.reports, self.error_floor = state.bias, state.reports, state.error_floor
+        self._kbar_bias, self.reports = state.bias, state.reports
+        self._floor_is(state.error_floor)
         for name, fit in state.fits.items():
             self.reports[name].fit = fit
         for el, (laws, nonparametric) in zip(self.model.elements, state.parts):
             el.laws, el.nonparametric = laws, nonparametric
+
+    def _corrected(self, criterion: HarmonicCriterion, found: FundamentalBias, fitted: bool = True) -> Comparison:
+        """The samples corrected by the bias of the model fitted to them: the fixed point ``b = B(b)`` of the map
+        from a correction ``b`` (run -> (lines, elements)) to the bias ``B`` of the model fitted to the samples
+        less ``b``, started at the correction in place, ``found`` the bias of the model fitted with it (``fitted``;
+        otherwise the bias of other laws, a start that is no point of the map: the secant steps begin a pass later,
+        from the first point on it). A pass
+        ``b <- B(b)`` overshoots where a law's harmonics grow with its size: a law fitted too stiff has larger
+        harmonics, whose bias, corrected, fits it too soft, and so on; the passes then oscillate about the fixed
+        point, and the fit one pass leaves can predict the FRFs worse than the uncorrected one. Secant steps on
+        ``B(b) - b`` (:func:`analysis.common.fixed_point.secant_step`) reach it in a few passes where the map is
+        smooth, until ``B(b)`` and ``b`` differ by at most :data:`BIAS_SETTLED` of the larger, or a pass leaves the
+        FRF error with harmonics within that share of the fit's before it (the FRFs, which judge the fit, no longer
+        tell the passes apart). Converging, the secant steps shrink the departure faster than geometrically; a
+        secant step that does not halve the departure the secant step before it left ends them (a contact whose
+        harmonics switch on and off with its
+        stiffness: further passes cost a balance each and find nothing), as does :data:`BIAS_PASSES`. The FRFs
+        judge the passes: the one whose fit predicts them with harmonics best is left, and its comparison
+        returned."""
+        runs = sorted(found.bias)
+        shapes = [found.bias[n].shape for n in runs]
+        ends = np.cumsum([0] + [int(np.prod(shape)) for shape in shapes])
+
+        def flat(bias: dict[str, np.ndarray]) -> np.ndarray:
+            return np.concatenate([np.asarray(bias.get(n, np.zeros(shape)), complex).ravel()
+                                   for n, shape in zip(runs, shapes)])
+
+        def unflat(v: np.ndarray) -> dict[str, np.ndarray]:
+            return {n: v[a:b].reshape(shape) for n, shape, a, b in zip(runs, shapes, ends[:-1], ends[1:])}
+
+        # previous: the last point of the map, (b, B(b) - b), the secant's other end
+        x, g, previous, best, last = flat(self._kbar_bias), flat(found.bias), None, None, np.inf
+        for _ in range(BIAS_PASSES):
+            secant = previous is not None
+            step = secant_step(x, g - x, previous)
+            x, previous, before = step, (x, g - x) if fitted else None, found.comparison.error
+            fitted = True
+            self._refit_less(unflat(x))
+            found = self.predictor.fundamental_bias(criterion)
+            g = flat(found.bias)
+            if best is None or found.comparison.error < best[0].error:
+                best = (found.comparison, self._fitted_state())
+            departure = np.linalg.norm(g - x) / max(np.linalg.norm(g), np.linalg.norm(x), 1e-300)
+            unchanged = abs(found.comparison.error - before) <= BIAS_SETTLED * before
+            if departure <= BIAS_SETTLED or unchanged or departure > last / 2:
+                break
+            last = departure if secant else np.inf          # a plain step's departure is no secant's to halve
+        self._restore(best[1])
+        return best[0]
 
     def _refit_less(self, bias: dict[str, np.ndarray]) -> None:
         """Every element identified again less ``bias`` and refitted, from its laws' current values."""
@@ -442,8 +507,7 @@ class Workbench:
             before = self._fitted_state()
             for i in unsettled:
                 self.model.elements[i].laws = self._refined_against_frfs(i)
-            self._refit_less(self.predictor.fundamental_bias(criterion).bias)
-            restarted = self.predictor.compare(harmonics=criterion)
+            restarted = self._corrected(criterion, self.predictor.fundamental_bias(criterion), fitted=False)
             if restarted.error * RankingRules().min_gain <= kept.error:
                 kept = restarted
             else:
@@ -473,9 +537,9 @@ class Workbench:
         """The balance's own sliders never stick (a Coulomb slider's force is sgn(v) along the balanced motion, whose
         velocity only crosses zero), so its bias can be wrong where a joint sticks and slips in turn, and the
         corrected fit then predicts the FRFs with harmonics worse than the fit it corrects. The FRFs decide, by the
-        margin a law must bring (``RankingRules.min_gain``): the correction converges over successive fits, and
-        one pass may leave the error a little worse on the way (were such a pass refused, the bias would never
-        build up, and other laws would stand in for it)."""
+        margin a law must bring (``RankingRules.min_gain``): the corrected fit is the consistent one, its samples
+        less its own model's harmonics (:meth:`_corrected`), and within that margin the FRFs cannot tell it from
+        the fit it corrects."""
         return corrected <= RankingRules().min_gain * before.error
 
     @property
@@ -529,8 +593,7 @@ class Workbench:
         samples, fits, linear = self._ranking_inputs()
         ranked = rank_candidates(self.predictor, samples, fits, self.single_harmonic_comparison(), laws,
                                  linear_elements=linear, rules=rules, robust=self.harmonics_blind)
-        check_model_form(self.predictor, ranked, rules, self.harmonics_or_default.n_harmonics,
-                         self.harmonics_or_default.n_time)
+        check_model_form(self.predictor, ranked, rules, self.harmonics_or_default)
         return ranked
 
     def pair_candidates(self, element: str, pairs: list[tuple[str, str]],
@@ -539,13 +602,13 @@ class Workbench:
         samples, fits, linear = self._ranking_inputs()
         ranked = rank_pairs(self.predictor, samples, fits, self.single_harmonic_comparison(), element, pairs,
                             element in linear, rules)
-        check_model_form(self.predictor, ranked, rules, self.harmonics_or_default.n_harmonics,
-                         self.harmonics_or_default.n_time)
+        check_model_form(self.predictor, ranked, rules, self.harmonics_or_default)
         return ranked
 
     @property
     def harmonics_or_default(self) -> HarmonicCriterion:
-        return self.harmonics or HarmonicCriterion()
+        return self.harmonics or HarmonicCriterion().resolving(None if self.error_floor is None
+                                                               else self.error_floor.total)
 
     # ------------------------------------------------------------------ the loop
     def record(self, action: str) -> HistoryStep:
@@ -636,8 +699,8 @@ class Workbench:
         """The laws of every element that has none (:func:`analysis.search.discovery.discover`); the model is not
         changed (``add_laws`` adds a choice)."""
         samples, _, linear = self._ranking_inputs()
-        h = self.harmonics_or_default
-        return discover(self.predictor, samples, linear, rules, h.n_harmonics, h.n_time, note, self.harmonics_blind)
+        return discover(self.predictor, samples, linear, rules, self.harmonics_or_default, note,
+                        self.harmonics_blind)
 
     def _fit_nonparametric(self, el) -> None:
         """The element's non-parametric part fitted to what its (fitted) laws leave of its kbar samples."""

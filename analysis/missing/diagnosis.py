@@ -44,7 +44,7 @@ the physics of the law (its ``explanation`` template, filled with :class:`Signat
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -576,7 +576,7 @@ def rank_pairs(predictor: Predictor, samples: dict[str, ElementSamples], fits: d
 
 
 def check_model_form(predictor: Predictor, candidates: list[Candidate], rules: RankingRules = RankingRules(),
-                     n_harmonics: int = 7, n_time: int = 512) -> None:
+                     harmonics: HarmonicCriterion = HarmonicCriterion()) -> None:
     """Take significance away from a candidate that only fits what the single-harmonic balance cannot represent.
 
     Candidates are scored single-harmonically. Where the motion carries harmonics that are not negligible (a
@@ -589,7 +589,7 @@ def check_model_form(predictor: Predictor, candidates: list[Candidate], rules: R
     significant = [c for c in candidates if c.significant]
     if not significant:
         return
-    criterion = HarmonicCriterion(rules.model_form_thd, n_harmonics, n_time)
+    criterion = replace(harmonics, limit=rules.model_form_thd)
     base = predictor.compare(harmonics=criterion)
     index = {el.name: i for i, el in enumerate(predictor.model.elements)}
     for c in significant:

@@ -33,7 +33,7 @@ failed solution predicts nothing, and the rig would have left that branch. Those
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -42,7 +42,7 @@ from ..common.measurements import Control, Measurements, SineRun
 from ..common.statistics import chi_square_noise_bound, outlier_limit
 from ..mechanics.model import Model
 from .harmonic_balance import CondensedSystem, KbarFunction, NearStart, condense, continue_response, predict_sweeps
-from .multiharmonic import predict_multiharmonic, single_harmonic_distortion
+from .multiharmonic import HARMONIC_TRUNCATION, predict_multiharmonic_converged, single_harmonic_distortion
 
 
 @dataclass(frozen=True)
@@ -72,16 +72,35 @@ class HarmonicCriterion:
     displacement THD -- measured at the sensors, or implied by the single-harmonic solution itself
     (:func:`analysis.prediction.multiharmonic.single_harmonic_distortion`) -- exceeds ``limit``, and the multivalued
     lines (near a fold the fundamental is so sensitive that harmonics of 0.2 % move it by 2 %). They are
-    predicted with ``n_harmonics`` harmonics and the mean, forces sampled at ``n_time`` points per period (a
-    friction force's sign change is placed to 1/n_time of the period)."""
+    predicted with ``n_harmonics`` harmonics and the mean, and more, up to ``most_harmonics``, where those left
+    out would still move a line's fundamental by more than ``truncation`` of it
+    (:func:`analysis.prediction.multiharmonic.predict_multiharmonic_converged`), forces sampled at ``n_time``
+    points per period (a friction force's sign change is placed to 1/n_time of the period)."""
 
     limit: float = 0.01
     n_harmonics: int = 7
     n_time: int = 512
+    most_harmonics: int = 28
+    truncation: float = HARMONIC_TRUNCATION
+
+    def resolving(self, error: float | None) -> "HarmonicCriterion":
+        """This criterion with harmonics enough to resolve an FRF error ``error`` (relative: the FRF error the test
+        itself allows, :class:`analysis.identification.between_runs.ErrorFloor`; None where not known): a line's
+        truncation a tenth of it (:data:`TRUNCATION_OF_FLOOR`), where that is coarser than
+        :data:`~analysis.prediction.multiharmonic.HARMONIC_TRUNCATION`. A change in the fundamental ten times
+        below what the test repeats to cannot change which model predicts the test better, and balancing it away
+        costs a balance of twice the harmonics a line."""
+        coarsest = HARMONIC_TRUNCATION if error is None else max(HARMONIC_TRUNCATION, TRUNCATION_OF_FLOOR * error)
+        return replace(self, truncation=coarsest)
 
     def selects(self, measured: np.ndarray | None, implied: np.ndarray, multivalued: np.ndarray) -> np.ndarray:
         thd = implied if measured is None else np.maximum(np.nan_to_num(np.asarray(measured, float)), implied)
         return (thd > self.limit) | multivalued
+
+
+#: A line's harmonics resolve its fundamental to this share of the FRF error the test itself allows
+#: (:meth:`HarmonicCriterion.resolving`)
+TRUNCATION_OF_FLOOR = 0.1
 
 
 @dataclass
@@ -338,8 +357,9 @@ class Predictor:
             implied = single_harmonic_distortion(structure, elements, run.excitation_dof, run.w, force, y,
                                                  criterion.n_harmonics)[:, rows].max(axis=1)
             lines = np.flatnonzero(criterion.selects(run.distortion, implied, pred.multivalued()))
-            mh = (predict_multiharmonic(structure, elements, run.excitation_dof, run.w[lines], force[lines],
-                                        criterion.n_harmonics, criterion.n_time, y_start=y[lines])
+            mh = (predict_multiharmonic_converged(structure, elements, run.excitation_dof, run.w[lines],
+                                                  force[lines], y[lines], criterion.n_harmonics, criterion.n_time,
+                                                  criterion.most_harmonics, criterion.truncation)
                   if len(lines) else None)
             out.append((run, lines, mh))
         return out

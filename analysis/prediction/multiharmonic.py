@@ -11,6 +11,8 @@ With ``E`` the element vectors, ``q`` the excitation DOF and the structure's rec
 
 - :func:`predict_multiharmonic` -- the balance at every line, all lines at once where each starts from its own
   single-harmonic solution (:class:`_MultiharmonicLines`);
+- :func:`predict_multiharmonic_converged` -- the same, each line with the harmonics its motion needs
+  (:func:`omitted_harmonics`: what those left out would drive);
 - :func:`single_harmonic_distortion` -- the harmonics a single-harmonic solution implies (which lines need this);
 - :class:`_AFT` -- the element forces' harmonics of a batch of motions, each force jump placed where it happens
   (:func:`_jump_correction`).
@@ -45,6 +47,9 @@ class MultiharmonicResponse:
         The same of every element's relative displacement and of its force: ``element_forces[:, 1] /
         element_harmonics[:, 1]`` is the fundamental's force over the fundamental's motion, what the closed-form
         identification measures as kbar where the motion is not sinusoidal.
+    n_used : ndarray of int, shape (L,), or None
+        The harmonics each line was balanced with, where lines differ (:func:`predict_multiharmonic_converged`;
+        the arrays above are zero beyond them); None: all H.
     """
 
     w: np.ndarray
@@ -52,6 +57,7 @@ class MultiharmonicResponse:
     converged: np.ndarray
     element_harmonics: np.ndarray
     element_forces: np.ndarray
+    n_used: np.ndarray | None = None
 
     def receptance(self, force) -> np.ndarray:
         """Fundamental receptance ``X_1 / F``, shape (L, n); ``force`` one amplitude or one per line (L,)."""
@@ -201,7 +207,7 @@ def single_harmonic_distortion(structure: Structure, elements: Sequence[Element]
         f[:, :, i] = twice.reshape(L, 2 * n_time)[:, n_time:]
     Fk = 2.0 / n_time * (np.einsum("nk,lnr->lkr", aft.S, f) + 1j * np.einsum("nk,lnr->lkr", aft.C, f))
     Fk[:, 0] = f.mean(axis=1)
-    resp = structure.response((aft.k[None, :] * w[:, None]).ravel(), loads).reshape(L, H + 1, structure.n, -1)
+    resp = _at_harmonics(structure, loads, w, aft.k)
     Xk = -np.einsum("lknr,lkr->lkn", resp[..., :-1], Fk)
     X1 = resp[:, 1, :, -1] * np.broadcast_to(np.asarray(force, float), w.shape)[:, None] + Xk[:, 1]
     Xk[:, 1] = 0.0
@@ -214,13 +220,13 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     """Harmonic balance with ``n_harmonics`` harmonics and the mean, forces by AFT (:class:`_AFT`), at one
     force amplitude or one per line (``force`` shape (L,)).
 
-    With ``y_start`` (single-harmonic element phasors, (L, r)) every line starts from its own, which picks the
-    branch where the response is multivalued, and the lines are independent: they are solved all at once by
-    Broyden's method from a difference Jacobian (:func:`_quasi_newton`, :class:`_MultiharmonicLines`), and a line
-    that does not converge so is solved on its own by scipy's ``hybr`` from the same start. A batch where none of
-    the :data:`PROBED_LINES` lines nearest a balance at their start converges is left there, unconverged. Without
-    it Newton (``hybr``) runs at each line from the previous line's solution, the first started from the
-    single-harmonic solution.
+    With ``y_start`` (single-harmonic element phasors, (L, r), or harmonics 0..H0 of them, (L, H0 + 1, r))
+    every line starts from its own, which picks the branch where the response is multivalued, and the lines are
+    independent: they are solved all at once by Broyden's method from a difference Jacobian (:func:`_quasi_newton`,
+    :class:`_MultiharmonicLines`), and a line that does not converge so is solved on its own by scipy's ``hybr``
+    from the same start. A batch where none of the :data:`PROBED_LINES` lines nearest a balance at their start
+    converges is left there, unconverged. Without it Newton (``hybr``) runs at each line from the previous line's
+    solution, the first started from the single-harmonic solution.
     """
     w = np.atleast_1d(np.asarray(w, float))
     H = int(n_harmonics)
@@ -231,7 +237,11 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     z = np.zeros((len(w), lines.size))
     if y_start is not None:
         start = np.zeros((len(w), H + 1, len(elements)), complex)
-        start[:, 1] = y_start
+        given = np.asarray(y_start, complex)
+        if given.ndim == 2:
+            start[:, 1] = given
+        else:
+            start[:, :given.shape[1]] = given[:, :H + 1]
         z = lines.pack(start, np.arange(len(w)))
         # a batch that meets no line at all meets a force with no smooth balance at these motions (a law that
         # sticks): the lines whose single-harmonic start is nearest a balance show that as well as all of them,
@@ -254,6 +264,109 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
             z[line] = lines.solve_one(line, start)
             start = lines.unpack(z[line:line + 1], np.array([line]))[0]
     return lines.response(z)
+
+
+def predict_multiharmonic_converged(structure: Structure, elements: Sequence[Element], excitation_dof: str, w,
+                                    force, y_start, n_harmonics: int, n_time: int, most_harmonics: int,
+                                    truncation: float | None = None) -> MultiharmonicResponse:
+    """:func:`predict_multiharmonic` from ``y_start`` (L, r), each line with as many harmonics as its motion needs.
+    First ``n_harmonics``; then, at the lines whose fundamental the harmonics left out would move by more than
+    ``truncation`` of it (:func:`omitted_harmonics`, an estimate; :data:`HARMONIC_TRUNCATION` where None), twice
+    as many, started from the solution before; and twice as many again, up to ``most_harmonics``, wherever the
+    last doubling moved the elements' fundamental by more than that share (convergence in harmonics: what doubling
+    did not move, doubling again moves less, the forces' harmonics falling off). A force with a kink or a jump (a
+    contact, friction) has harmonics that fall off slowly, and where one of them meets a mode the truncated
+    balance misses the fundamental by percents; elsewhere a few harmonics suffice, and more would only cost. A
+    line whose balance with more harmonics does not converge keeps the one before. The result holds harmonics up
+    to the most any line took (zero above a line's own, ``n_used``). ``n_time`` bounds the harmonics a line can
+    take: the forces' samples must resolve them (``n_time >= 4 H + 2``)."""
+    w = np.atleast_1d(np.asarray(w, float))
+    forces = np.broadcast_to(np.asarray(force, float), w.shape)
+    H, tolerance = int(n_harmonics), HARMONIC_TRUNCATION if truncation is None else float(truncation)
+    most_harmonics = min(int(most_harmonics), (n_time - 2) // 4)
+    mh = predict_multiharmonic(structure, elements, excitation_dof, w, forces, H, n_time, y_start=y_start)
+    kept = [(np.arange(len(w)), mh)]
+    pending, before = np.flatnonzero(mh.converged), mh.element_harmonics[mh.converged]
+    if H < most_harmonics and len(pending):
+        needs = omitted_harmonics(structure, elements, excitation_dof, w[pending], before,
+                                  min(2 * H, most_harmonics), n_time) > tolerance
+        pending, before = pending[needs], before[needs]
+    while H < most_harmonics and len(pending):
+        H = min(2 * H, most_harmonics)
+        mh = predict_multiharmonic(structure, elements, excitation_dof, w[pending], forces[pending], H, n_time,
+                                   y_start=before)
+        ok = mh.converged
+        if ok.any():
+            kept.append((pending[ok], _rows(mh, ok)))
+        after = mh.element_harmonics[ok]
+        moved = _relative(after[:, 1] - before[ok, 1], after[:, 1]) > tolerance
+        pending, before = pending[ok][moved], after[moved]
+    return _merged(w, kept)
+
+
+def omitted_harmonics(structure: Structure, elements: Sequence[Element], excitation_dof: str, w, Yk, up_to: int,
+                      n_time: int) -> np.ndarray:
+    """What the harmonics a balance leaves out would change in its fundamental, per line, to first order: with the
+    balance's motion ``Yk`` (L, H+1, r) at lines ``w`` (L,), harmonics H+1..``up_to`` of its forces drive the
+    motion ``-G_k F_k`` that the balance leaves out; added to the motion, it changes the forces' fundamental by
+    ``dF_1``, which moves the elements' fundamental by ``-G_1 dF_1``. Returns that move relative to the
+    fundamental, the largest over the elements; shape (L,). The motion left out alone would overstate it wherever
+    the fundamental depends little on it (a stiff contact, whose harmonics are large against its own small motion);
+    the estimate leaves out how the balance's own harmonics take up the change, so it errs towards more harmonics
+    (docs/workbench.md, "Each line its own harmonics")."""
+    w = np.atleast_1d(np.asarray(w, float))
+    L, H, r = Yk.shape[0], Yk.shape[1] - 1, Yk.shape[2]
+    aft = _AFT(elements, up_to, n_time)
+    padded = np.zeros((L, up_to + 1, r), complex)
+    padded[:, :H + 1] = Yk
+    E, loads = _element_loads(structure, elements, excitation_dof)
+    G = np.einsum("ni,lknj->lkij", E, _at_harmonics(structure, loads[:, :-1], w,
+                                                    np.concatenate([[1], np.arange(H + 1, up_to + 1)])))
+    before = aft.forces_rows(padded, w)
+    moved = padded.copy()
+    moved[:, H + 1:] = -(G[:, 1:] @ before[:, H + 1:, :, None])[..., 0]
+    fundamental = (G[:, 0] @ (aft.forces_rows(moved, w) - before)[:, 1, :, None])[..., 0]
+    return _relative(fundamental, Yk[:, 1])
+
+
+def _at_harmonics(structure: Structure, loads: np.ndarray, w: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """The structure's response to ``loads`` (n, m) at harmonics ``k`` (K,) of lines ``w`` (L,); (L, K, n, m)."""
+    return structure.response((k[None, :] * w[:, None]).ravel(), loads).reshape(len(w), len(k), structure.n, -1)
+
+
+def _relative(change: np.ndarray, fundamental: np.ndarray) -> np.ndarray:
+    """The largest over the elements of a change of their fundamental (L, r) relative to it; (L,)."""
+    return (np.abs(change) / np.maximum(np.abs(fundamental), 1e-300)).max(axis=1, initial=0.0)
+
+
+HARMONIC_TRUNCATION = 1e-3
+"""A line's balance has harmonics enough where those it leaves out move its elements' fundamental by at most this
+share of it (:func:`predict_multiharmonic_converged`), unless told a coarser share: a tenth of the percent a good
+model's prediction misses measured FRFs by, so that what the truncation adds to an error is below what the
+comparison tells apart."""
+
+
+def _rows(mh: MultiharmonicResponse, rows: np.ndarray) -> MultiharmonicResponse:
+    return MultiharmonicResponse(mh.w[rows], mh.harmonics[rows], mh.converged[rows], mh.element_harmonics[rows],
+                                 mh.element_forces[rows])
+
+
+def _merged(w: np.ndarray, kept: list[tuple[np.ndarray, MultiharmonicResponse]]) -> MultiharmonicResponse:
+    """One response at lines ``w`` from balances at some of them, each (lines, response); a later balance of a
+    line replaces an earlier one. Harmonics above a balance's own are zero; ``n_used`` says how many it had."""
+    most = max(mh.harmonics.shape[1] for _, mh in kept) - 1
+    n, r = kept[0][1].harmonics.shape[2], kept[0][1].element_harmonics.shape[2]
+    out = MultiharmonicResponse(w, np.zeros((len(w), most + 1, n), complex), np.zeros(len(w), bool),
+                                np.zeros((len(w), most + 1, r), complex), np.zeros((len(w), most + 1, r), complex),
+                                np.zeros(len(w), int))
+    for lines, mh in kept:              # each balance of a line has more harmonics than the one before
+        h = mh.harmonics.shape[1]
+        out.harmonics[lines, :h] = mh.harmonics
+        out.element_harmonics[lines, :h] = mh.element_harmonics
+        out.element_forces[lines, :h] = mh.element_forces
+        out.converged[lines] = mh.converged
+        out.n_used[lines] = h - 1
+    return out
 
 
 def _balanced(lines: "_MultiharmonicLines", z: np.ndarray, items: np.ndarray) -> np.ndarray:
@@ -294,8 +407,7 @@ class _MultiharmonicLines:
         self.size = self.r * (2 * H + 1)
         E, loads = _element_loads(structure, elements, excitation_dof)
         self.aft = _AFT(elements, H, n_time)
-        k = self.aft.k
-        resp = structure.response((k[None, :] * w[:, None]).ravel(), loads).reshape(len(w), H + 1, structure.n, -1)
+        resp = _at_harmonics(structure, loads, w, self.aft.k)
         self.HE, self.Hq = resp[..., :-1], resp[..., -1]                  # (L, H+1, n, r), (L, H+1, n)
         self.G = np.einsum("ni,lknj->lkij", E, self.HE)                   # (L, H+1, r, r)
         self.gF = np.einsum("ni,ln->li", E, self.Hq[:, 1]) * forces[:, None]

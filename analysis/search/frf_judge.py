@@ -15,6 +15,7 @@ clearance judged at its refined parameters").
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -41,14 +42,14 @@ class _Judge:
     ``standins=False``, by nothing; a score with harmonics needs every searched element's laws (a stand-in has
     no time-domain force)."""
 
-    def __init__(self, predictor: Predictor, rules: DiscoveryRules, n_harmonics: int, n_time: int,
+    def __init__(self, predictor: Predictor, rules: DiscoveryRules, harmonics: HarmonicCriterion,
                  standins: dict[int, Callable], kbar_judges: bool = True):
         self.predictor = predictor
         self.rules = rules
         # whether a step must lower the kbar criterion too: not where lines depart from every describing function
         # (data without harmonics), whose capped criterion can prefer no law to a right one
         self.kbar_judges = kbar_judges
-        self.criterion = HarmonicCriterion(rules.ranking.model_form_thd, n_harmonics, n_time)
+        self.criterion = replace(harmonics, limit=rules.ranking.model_form_thd)
         self.standins = standins
         self._single: dict[tuple, Comparison] = {}
         self._multi: dict[tuple, Comparison] = {}

@@ -20,7 +20,7 @@ from ..fitting.fit import UNDETERMINED_Z
 from ..laws import LAWS, simplicity
 from ..mechanics.surroundings import Surroundings
 from ..missing.diagnosis import ElementSamples
-from ..prediction.comparison import Predictor
+from ..prediction.comparison import HarmonicCriterion, Predictor
 from ..prediction.frf_refinement import terms_function
 from .candidates import _Search, search_element
 from .frf_judge import _has_clearance, _Judge, _pruned_beside_clearance, _standins
@@ -351,7 +351,7 @@ def _holds_as_simpler(judge: "_Judge", s: LawSet, i: int, judged: dict[int, LawS
 
 
 def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: frozenset[str],
-             rules: DiscoveryRules = DiscoveryRules(), n_harmonics: int = 7, n_time: int = 512,
+             rules: DiscoveryRules = DiscoveryRules(), harmonics: HarmonicCriterion = HarmonicCriterion(),
              progress: Callable[[str], None] | None = None, robust: bool = False) -> Discovery:
     """The laws of every element of ``predictor.model`` that has none and has kbar samples (the overview in
     discovery.py).
@@ -373,7 +373,7 @@ def discover(predictor: Predictor, samples: dict[str, ElementSamples], linear: f
                      f"best {best.name}")
     if not searches:
         return Discovery([])
-    judge = _Judge(predictor, rules, n_harmonics, n_time, _standins(searches, robust), kbar_judges=not robust)
+    judge = _Judge(predictor, rules, harmonics, _standins(searches, robust), kbar_judges=not robust)
     elements = predictor.model.elements
     searches = [(_verdict_overruled(judge, search, rules, elements[search.index].surroundings)
                  if elements[search.index].name in linear else None) or search for search in searches]
