@@ -226,6 +226,8 @@ class Workbench:
         self._kbar_bias: dict[str, np.ndarray] = {}
         # the FRF error a model right in every law would show: the FRFs' noise and the scatter between runs
         self.error_floor: ErrorFloor | None = None
+        # the criterion of discovery and the model-form check where no line is predicted with harmonics
+        self._default_harmonics = HarmonicCriterion()
         self._states: dict[int, _FittedState] = {}   # history index -> the fitted state it recorded
 
     # ------------------------------------------------------------------ reference
@@ -296,8 +298,11 @@ class Workbench:
         as identified: a correction of the fundamental's bias moves the floor a little, and a criterion that moved
         with it would judge the passes of one correction, and the fit it keeps, each with other harmonics."""
         self.error_floor = floor
-        if self.harmonics is not None and not _nonzero(self._kbar_bias):
-            self.harmonics = self.harmonics.resolving(None if floor is None else floor.total)
+        if not _nonzero(self._kbar_bias):
+            total = None if floor is None else floor.total
+            self._default_harmonics = self._default_harmonics.resolving(total)
+            if self.harmonics is not None:
+                self.harmonics = self.harmonics.resolving(total)
 
     def yardsticks(self) -> dict[str, BetweenRuns]:
         """Element -> the scatter between runs its samples were judged by (elements without noise left out)."""
@@ -607,8 +612,7 @@ class Workbench:
 
     @property
     def harmonics_or_default(self) -> HarmonicCriterion:
-        return self.harmonics or HarmonicCriterion().resolving(None if self.error_floor is None
-                                                               else self.error_floor.total)
+        return self.harmonics or self._default_harmonics
 
     # ------------------------------------------------------------------ the loop
     def record(self, action: str) -> HistoryStep:

@@ -266,15 +266,22 @@ def predict_multiharmonic(structure: Structure, elements: Sequence[Element], exc
     return lines.response(z)
 
 
+HARMONIC_TRUNCATION = 1e-3
+"""A line's balance has harmonics enough where those it leaves out move its elements' fundamental by at most this
+share of it (:func:`predict_multiharmonic_converged`), unless told a coarser share: a tenth of the percent a good
+model's prediction misses measured FRFs by, so that what the truncation adds to an error is below what the
+comparison tells apart."""
+
+
 def predict_multiharmonic_converged(structure: Structure, elements: Sequence[Element], excitation_dof: str, w,
                                     force, y_start, n_harmonics: int, n_time: int, most_harmonics: int,
-                                    truncation: float | None = None) -> MultiharmonicResponse:
+                                    truncation: float = HARMONIC_TRUNCATION) -> MultiharmonicResponse:
     """:func:`predict_multiharmonic` from ``y_start`` (L, r), each line with as many harmonics as its motion needs.
     First ``n_harmonics``; then, at the lines whose fundamental the harmonics left out would move by more than
-    ``truncation`` of it (:func:`omitted_harmonics`, an estimate; :data:`HARMONIC_TRUNCATION` where None), twice
-    as many, started from the solution before; and twice as many again, up to ``most_harmonics``, wherever the
-    last doubling moved the elements' fundamental by more than that share (convergence in harmonics: what doubling
-    did not move, doubling again moves less, the forces' harmonics falling off). A force with a kink or a jump (a
+    ``truncation`` of it (:func:`omitted_harmonics`, an estimate), twice as many, started from the solution before;
+    and twice as many again, up to ``most_harmonics``, wherever the last doubling moved the elements' fundamental
+    by more than that share (convergence in harmonics: what doubling did not move, doubling again moves less, the
+    forces' harmonics falling off). A force with a kink or a jump (a
     contact, friction) has harmonics that fall off slowly, and where one of them meets a mode the truncated
     balance misses the fundamental by percents; elsewhere a few harmonics suffice, and more would only cost. A
     line whose balance with more harmonics does not converge keeps the one before. The result holds harmonics up
@@ -282,7 +289,7 @@ def predict_multiharmonic_converged(structure: Structure, elements: Sequence[Ele
     take: the forces' samples must resolve them (``n_time >= 4 H + 2``)."""
     w = np.atleast_1d(np.asarray(w, float))
     forces = np.broadcast_to(np.asarray(force, float), w.shape)
-    H, tolerance = int(n_harmonics), HARMONIC_TRUNCATION if truncation is None else float(truncation)
+    H, tolerance = int(n_harmonics), float(truncation)
     most_harmonics = min(int(most_harmonics), (n_time - 2) // 4)
     mh = predict_multiharmonic(structure, elements, excitation_dof, w, forces, H, n_time, y_start=y_start)
     kept = [(np.arange(len(w)), mh)]
@@ -337,13 +344,6 @@ def _at_harmonics(structure: Structure, loads: np.ndarray, w: np.ndarray, k: np.
 def _relative(change: np.ndarray, fundamental: np.ndarray) -> np.ndarray:
     """The largest over the elements of a change of their fundamental (L, r) relative to it; (L,)."""
     return (np.abs(change) / np.maximum(np.abs(fundamental), 1e-300)).max(axis=1, initial=0.0)
-
-
-HARMONIC_TRUNCATION = 1e-3
-"""A line's balance has harmonics enough where those it leaves out move its elements' fundamental by at most this
-share of it (:func:`predict_multiharmonic_converged`), unless told a coarser share: a tenth of the percent a good
-model's prediction misses measured FRFs by, so that what the truncation adds to an error is below what the
-comparison tells apart."""
 
 
 def _rows(mh: MultiharmonicResponse, rows: np.ndarray) -> MultiharmonicResponse:
