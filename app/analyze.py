@@ -391,7 +391,7 @@ def report_text(wb: Workbench, candidates, top: int = 5,
                 out.append(f"    {len(left_out)} line(s) left out of the fit, their kbar not following the fitted "
                            "laws (outliers): " + frequency_ranges(left_out))
     out += [f"  {line}" for line in admissibility_text(model_admissibility(wb))]
-    comp = wb.compare()
+    comp = wb.compare(folds=True)
     out.append("")
     single = wb.single_harmonic_comparison().error
     out.append(f"FRF error of the model: {comp.error:.4g}  (" +

@@ -204,6 +204,17 @@ def test_continuation_downwards_and_with_a_small_step_stays_in_the_span():
     assert fine.complete and fine.w.min() >= HZ * 1.1 * (1 - 1e-12) and len(fine.folds) == 2
 
 
+@pytest.mark.slow
+def test_continuation_until_the_first_fold_ends_there(paper_curve):
+    s, els = paper()
+    first = continue_response(s, els, "x2", 0.8, HZ * 0.8, HZ * 3.2, until_fold=True)
+    assert not first.complete and list(first.folds) == [len(first.w) - 1]
+    # the same curve as the whole one up to its first fold, which it ends on
+    k = paper_curve.folds[0]
+    assert first.fold_frequencies[0] == paper_curve.fold_frequencies[0]
+    np.testing.assert_array_equal(first.w, paper_curve.w[: k + 1])
+
+
 def _rk4(rhs, z0, dt, steps):
     z = np.array(z0, float)
     for i in range(steps):

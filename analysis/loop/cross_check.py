@@ -78,7 +78,7 @@ def _fold(wb: Workbench, half: list, created: str) -> Fold:
     predicted by them."""
     labels = tuple(c.label() for c in half)
     fitted = replace(_refitted(wb, half, as_fitted(wb)).model, fitted_on=FittedOn("", created, labels))
-    return Fold(labels, predict_session(fitted, wb.measurements, created, wb.harmonics))
+    return Fold(labels, predict_session(fitted, wb.measurements, created, wb.harmonics, folds=False))
 
 
 @dataclass(frozen=True)
@@ -253,7 +253,7 @@ def held_out_of_each(wb: Workbench, starts: list[AsFitted], folds: int = HELD_OU
     def one(j: int) -> tuple:
         v, k = divmod(j, len(splits))
         fold = _refitted(wb, splits[k][0], starts[v])
-        predicted = predict_session(fold.model, measured[k], "", wb.harmonics)
+        predicted = predict_session(fold.model, measured[k], "", wb.harmonics, folds=False)
         # the held-out levels' modes, as the prediction's backbones compared them
         residuals = ModalResiduals.of([(c.measured, c.predicted) for c in predicted.backbones])
         return predicted.comparison, _sees_its_laws(fold), residuals

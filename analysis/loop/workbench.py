@@ -350,13 +350,13 @@ class Workbench:
         """Fit the laws of the named elements (default all) to their samples; values go into the model. On data
         without harmonics, the samples are then corrected by the fitted model's own harmonics and every element
         refitted (:meth:`_correct_fundamental_bias`), whose last comparison with harmonics is the fitted model's
-        own (kept for :meth:`compare` where it has no jump whose fold is to be located)."""
+        own (kept for :meth:`compare`)."""
         if not self.reports:
             self.identify()
         unsettled = self._unsettled_clearances()
         self._fit_elements(names)
         known = self._correct_fundamental_bias(unsettled)
-        self._comparison = known if known is not None and not known.jumps else None
+        self._comparison = known
         self._single = None
 
     def _fit_elements(self, names: list[str] | None) -> None:
@@ -559,14 +559,17 @@ class Workbench:
             self._predictor = Predictor(self.model, self.measurements)
         return self._predictor
 
-    def compare(self) -> Comparison:
-        """Predict every stepped-sine run with the current model and compare."""
+    def compare(self, folds: bool = False) -> Comparison:
+        """Predict every stepped-sine run with the current model and compare. ``folds``: each jump's fold located
+        too (:meth:`Predictor.locate_folds`), for a report; no judgement reads it."""
         if self._comparison is None:
             for el in self.model.elements:
                 for t in el.laws:
                     if not t.complete:
                         raise InputError(f"element {el.name!r}: law {t.law.name} has no values; fit it first")
-            self._comparison = self.predictor.compare(locate_folds=True, harmonics=self._harmonics())
+            self._comparison = self.predictor.compare(harmonics=self._harmonics())
+        if folds:
+            self.predictor.locate_folds(self._comparison)
         return self._comparison
 
     def _harmonics(self) -> HarmonicCriterion | None:
@@ -821,7 +824,7 @@ class Workbench:
         self.fit()
 
     def to_json(self, candidates: list[Candidate] | None = None) -> dict:
-        comp = self.compare()
+        comp = self.compare(folds=True)
         out = {"elements": [self.reports[el.name].to_json(el) for el in self.model.elements],
                **comp.to_json(), "single_harmonic_error": self.single_harmonic_comparison().error,
                "other_branch_hz": comp.other_branch_hz(self.measurements.sine),

@@ -131,6 +131,15 @@ class RunPrediction:
         return self.swept_ok & self.opposite_ok & (gap > 1e-6 * np.linalg.norm(self.swept, axis=1))
 
 
+@dataclass(frozen=True)
+class FoldStart:
+    """The swept solution at the line before a jump, from which a continuation finds the fold: the element phasors
+    ``y`` (r,) complex, m, and the force measured at that line, N."""
+
+    y: np.ndarray
+    force: float
+
+
 @dataclass
 class Jump:
     """A jump of one run: where the swept prediction leaves its branch and where the measurement did.
@@ -141,12 +150,17 @@ class Jump:
     predicted_between : (Hz, Hz)
         The two lines (in sweep order) between which the swept prediction jumps.
     fold_hz : float or None
-        The predicted jump frequency: the fold where the swept branch ends (continuation); None until located.
+        The predicted jump frequency: the fold where the swept branch ends (continuation); None until located
+        (:meth:`Predictor.locate_folds`), and where the continuation found none.
     measured_between : (Hz, Hz)
         The last line measured on the swept branch and the first on the other one.
     lines_early : int
         How many measured lines sit on the other branch before the prediction jumps (0: the measurement
         jumped between the same two lines as the prediction).
+    start : FoldStart or None
+        Where the continuation to the fold starts: the swept solution at the line before the jump.
+    located : bool
+        Whether the fold has been looked for.
     """
 
     run: str
@@ -155,6 +169,8 @@ class Jump:
     fold_hz: float | None
     measured_between: tuple[float, float]
     lines_early: int
+    start: FoldStart | None = field(default=None, repr=False, compare=False)
+    located: bool = False
 
     @property
     def measured_hz(self) -> float:
@@ -324,7 +340,7 @@ class Predictor:
         predictions = self.predict(kbar_fns)
         comp = compare_predictions(self.runs, predictions)
         if locate_folds:
-            self._locate_folds(comp, predictions, kbar_fns)
+            self.locate_folds(comp, kbar_fns)
         if harmonics is not None:
             comp = self._with_harmonics(comp, self._multiharmonic_lines(comp, predictions, harmonics))
         return comp
@@ -386,22 +402,24 @@ class Predictor:
             out[run.name] = bias
         return FundamentalBias(out, self._with_harmonics(comp, balanced))
 
-    def _locate_folds(self, comp: Comparison, predictions: dict[str, RunPrediction], kbar_fns) -> None:
-        """Set ``fold_hz`` of each jump: continuation from the swept solution at the last line before the jump
-        to the next line; the first fold on the way is where the swept branch ends."""
+    def locate_folds(self, comp: Comparison, kbar_fns: Sequence[KbarFunction] | None = None) -> None:
+        """Set ``fold_hz`` of each jump of ``comp`` (the comparison made with ``kbar_fns``) not looked for yet:
+        continuation from the swept solution at the last line before the jump towards the next line, up to the
+        first fold on the way, where the swept branch ends. Only a report reads the fold: a comparison that
+        judges a model goes without it, since a continuation costs many balances per jump."""
         fns = self._functions(kbar_fns)
         runs = {r.name: r for r in self.runs}
         for jump in comp.jumps:
-            run = runs[jump.run]
+            if jump.located:
+                continue
             f_a, f_b = jump.predicted_between
-            a = int(np.argmin(np.abs(np.asarray(run.frequency_hz, float) - f_a)))
             # one force along the continuation: the one measured at the line before the jump
-            curve = continue_response(self.model.structure, self.model.elements, run.excitation_dof,
-                                      float(run.force_per_line[a]),
-                                      2 * np.pi * f_a, 2 * np.pi * f_b, kbar_fns=fns,
-                                      y_start=predictions[run.name].y[a])
+            curve = continue_response(self.model.structure, self.model.elements, runs[jump.run].excitation_dof,
+                                      jump.start.force, 2 * np.pi * f_a, 2 * np.pi * f_b, kbar_fns=fns,
+                                      y_start=jump.start.y, until_fold=True)
             if len(curve.folds):
                 jump.fold_hz = float(curve.fold_frequencies[0] / (2 * np.pi))
+            jump.located = True
 
 
 def compare_predictions(runs: Sequence[SineRun], predictions: dict[str, RunPrediction]) -> Comparison:
@@ -518,8 +536,10 @@ def _jumps(run: SineRun, pred: RunPrediction, other: np.ndarray) -> list[Jump]:
             while first_other > i and on_other[first_other - 1]:
                 first_other -= 1
             before = max(first_other - 1, 0)
-            out.append(Jump(run.name, run.direction, (float(f[order[end]]), float(f[order[end + 1]])), None,
-                            (float(f[order[before]]), float(f[order[first_other]])), end + 1 - first_other))
+            a = order[end]
+            out.append(Jump(run.name, run.direction, (float(f[a]), float(f[order[end + 1]])), None,
+                            (float(f[order[before]]), float(f[order[first_other]])), end + 1 - first_other,
+                            FoldStart(pred.y[a].copy(), float(run.force_per_line[a]))))
         i = end + 1
     return out
 

@@ -725,7 +725,8 @@ def _amplitude_scale(structure, elements, excitation_dof, force, w_start, w_stop
 
 def continue_response(structure: Structure, elements: Sequence[Element], excitation_dof: str, force: float,
                       w_start: float, w_stop: float, step: float | None = None, max_points: int = 5000,
-                      kbar_fns: Sequence[KbarFunction] | None = None, y_start=None) -> ResponseCurve:
+                      kbar_fns: Sequence[KbarFunction] | None = None, y_start=None,
+                      until_fold: bool = False) -> ResponseCurve:
     """Trace the single-harmonic response from ``w_start`` to ``w_stop`` (rad/s, either order) through folds.
 
     The unknowns are the element phasors scaled by the largest amplitude either sweep reaches in the span and
@@ -735,7 +736,9 @@ def continue_response(structure: Structure, elements: Sequence[Element], excitat
     the scaled curve). Folds are located where the tangent's w component changes sign (secant on the arclength
     to 1e-9), and the curve ends exactly at ``w_stop``. It also ends, ``complete`` False, after ``max_points``
     or if it turns back out of the span. ``y_start`` (element phasors at ``w_start``) picks the branch to
-    start on; default: a sweep's solution at ``w_start``.
+    start on; default: a sweep's solution at ``w_start``. ``until_fold``: the curve ends, ``complete`` False, at
+    the first fold (where a sweep's branch ends: all a jump needs; past it the curve can wind through the span
+    for thousands of steps).
     """
     fns = list(kbar_fns) if kbar_fns is not None else element_kbar_functions(elements)
     sgn = 1.0 if w_stop > w_start else -1.0
@@ -767,6 +770,8 @@ def continue_response(structure: Structure, elements: Sequence[Element], excitat
             folds.append(len(points))
             points.append(_locate_fold(bal, v, t, ds))
             dets.append(0.0)
+            if until_fold:
+                break
         w_new = v_new[-1] * span
         if sgn * (w_new - w_stop) >= 0:                        # past the end: the last point exactly at w_stop
             frac = (w_stop / span - v[-1]) / (v_new[-1] - v[-1])

@@ -84,10 +84,12 @@ def level_kind(fitted_on: FittedOn | None, created: str, label: str) -> str:
 
 
 def predict_session(model: Model, measurements: Measurements, created: str,
-                    harmonics: HarmonicCriterion | None = HarmonicCriterion()) -> SessionPrediction:
+                    harmonics: HarmonicCriterion | None = HarmonicCriterion(), folds: bool = True
+                    ) -> SessionPrediction:
     """Predict every stepped-sine run of ``measurements`` (a session created at ``created``) with ``model`` as it
     is. ``harmonics`` selects the lines predicted multi-harmonically, as the workbench does (None where an element
-    has a non-parametric part: it has no time-domain force).
+    has a non-parametric part: it has no time-domain force). ``folds``: each jump's fold located, which a report
+    shows and a judgement by the errors does without (:meth:`~analysis.prediction.comparison.Predictor.locate_folds`).
 
     Raises InputError where the session has no stepped-sine run, a measured DOF is not in the model, or a law has
     no values (a model to be fitted, not a fitted one)."""
@@ -103,7 +105,7 @@ def predict_session(model: Model, measurements: Measurements, created: str,
                                  "a fitted one (contactid analyze ... -o FITTED.toml)", model.source)
     if not all(el.time_domain for el in model.elements):
         harmonics = None
-    comp = Predictor(model, measurements).compare(locate_folds=True, harmonics=harmonics)
+    comp = Predictor(model, measurements).compare(locate_folds=folds, harmonics=harmonics)
     backbones = compare_backbones(model.structure, model.elements, measurements.sine, measurements.phase)
     modal = _modal_errors_by_run(backbones)
     levels, by_kind = [], {}

@@ -362,7 +362,7 @@ def analysis_view(wb: Workbench, candidates: list[Candidate], auto: AutoResult |
                   fitted_on: FittedOn | None = None) -> AnalysisView:
     """After :meth:`Workbench.start` / ``add`` / ``undo`` and the candidate ranking, or after the automatic loop
     (``auto``; its ranking is ``candidates``); ``fitted_on``: what the saved model says it was fitted to."""
-    comp = wb.compare()
+    comp = wb.compare(folds=True)
     return AnalysisView(
         element_views(wb, with_laws=True), comp.error, list(comp.error_by_level), list(wb.measurements.sine),
         dict(comp.predicted), dict(comp.residual_map),
