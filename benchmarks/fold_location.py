@@ -3,11 +3,11 @@
     python benchmarks/fold_location.py [--session SESSION.h5]
 
 A jump's fold (``Jump.fold_hz``) is found by continuation from the swept solution at the line before the jump,
-many balances per jump. Only a report reads it (the text, the JSON, the plots, the GUI); the errors that judge a
-model do not. Now the loop's comparisons go without it, a report locates it once per comparison
-(``Workbench.compare(folds=True)``), and the continuation ends at the first fold. Baseline, run in this process:
-every comparison, the held-out checks' predictions included, locates every jump's fold by a continuation carried
-to its end, as before 2026-12-08.
+many balances per jump. Only a report reads it (the text, the JSON, the GUI, ``contactid predict``); the errors
+that judge a model do not. Now the loop's comparisons go without it, a report locates it once per comparison
+(``Workbench.compare(folds=True)``, ``predict_session``), a fit's own comparison is kept where it has a jump, and
+the continuation ends at the first fold. Baseline, run in this process: the code before 2026-12-08 where it
+located folds (:class:`_Baseline`).
 
 The work measured: ``run_auto`` from a model with a hardening cubic at x1 and nothing at x2, on a 2-DOF rig with
 that cubic and Coulomb friction at x2 swept up at 0.5, 1 and 3 N (tests/test_jump_error.py's rig, simulated unless
@@ -17,6 +17,7 @@ ratio, each run's steps and final error (they must be the same) and the folds th
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -27,6 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
+import analysis.loop.cross_check as cross_check  # noqa: E402
 import analysis.prediction.comparison as comparison  # noqa: E402
 from analysis.loop.auto import run_auto  # noqa: E402
 from analysis.loop.workbench import Workbench  # noqa: E402
@@ -53,18 +55,28 @@ def session(path: Path) -> Path:
 
 
 class _Baseline:
-    """Every comparison locates its folds, and each continuation runs to the end of its span (before 2026-12-08)."""
+    """The code before 2026-12-08, where it located folds: every comparison of the workbench and every
+    prediction of a held-out check located every jump's fold, a fit's own comparison was dropped where it had a
+    jump (to be made again with its folds), and each continuation ran to the end of its span. The comparisons of
+    the ranking and of discovery located none, then as now."""
 
     def __enter__(self):
-        self.compare, self.continuation = comparison.Predictor.compare, comparison.continue_response
-        compare, continuation = self.compare, self.continuation
-        comparison.Predictor.compare = lambda predictor, kbar_fns=None, locate_folds=False, harmonics=None: compare(
-            predictor, kbar_fns, True, harmonics)
+        self.saved = (Workbench.compare, Workbench.fit, cross_check.predict_session, comparison.continue_response)
+        compare, fit, predict_session, continuation = self.saved
+
+        def fit_then_drop_a_comparison_with_jumps(wb, names=None):
+            fit(wb, names)
+            if wb._comparison is not None and wb._comparison.jumps:
+                wb._comparison = None
+
+        Workbench.compare = lambda wb, folds=False: compare(wb, folds=True)
+        Workbench.fit = fit_then_drop_a_comparison_with_jumps
+        cross_check.predict_session = lambda *args, folds=True, **kw: predict_session(*args, folds=True, **kw)
         comparison.continue_response = lambda *args, until_fold=False, **kw: continuation(*args, **kw)
         return self
 
     def __exit__(self, *exc):
-        comparison.Predictor.compare, comparison.continue_response = self.compare, self.continuation
+        Workbench.compare, Workbench.fit, cross_check.predict_session, comparison.continue_response = self.saved
 
 
 def loop(measurements) -> tuple[float, list[str], float, list[float | None]]:
@@ -82,6 +94,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--session", type=Path, help="a session of the jump rig (default: simulate one)")
     args = ap.parse_args(argv)
+    os.environ.setdefault("CONTACTID_WORKERS", "1")      # one process: its CPU is all the work
     with tempfile.TemporaryDirectory() as tmp:
         path = args.session or session(Path(tmp) / "jump.h5")
         with open_session(path) as s:
@@ -90,7 +103,7 @@ def main(argv=None) -> int:
     with _Baseline():
         before = loop(measurements)
     after = loop(measurements)
-    for name, (cpu, steps, error, folds) in (("every comparison locates its folds", before),
+    for name, (cpu, steps, error, folds) in (("the code before: the workbench's comparisons locate folds", before),
                                              ("folds for the report only", after)):
         print(f"{name}: CPU {cpu:.2f} s, final error {error:.6g}, folds {folds}")
         for line in steps:

@@ -123,6 +123,18 @@ def test_model_file_round_trip():
     np.testing.assert_array_equal(again.structure.K, wb.model.structure.K)
 
 
+def test_undo_twice_leaves_the_state_it_returns_to_as_recorded():
+    wb = workbench(load_model(model_doc({"left": [{"law": "cubic"}], "right": [{"law": "cubic"}]})),
+                   synthesise(PAPER_LAWS, lines=25))
+    wb.start()
+    for _ in range(2):
+        wb.add("right", "coulomb")
+        wb.undo()
+        # the law added after a return to the first step did not enter that step's state
+        assert [t.law.name for t in wb.model.element("right").laws] == ["cubic"]
+        assert wb.compare().error == pytest.approx(wb.history[0].error, rel=1e-12)
+
+
 def test_bad_workbench_input():
     meas = synthesise({"left": [], "right": []})
     doc = {"structure": STRUCTURE, "element": [{"name": "a", "dof": "x1"}, {"name": "b", "dof": "x2"},

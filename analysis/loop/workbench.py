@@ -349,8 +349,8 @@ class Workbench:
     def fit(self, names: list[str] | None = None) -> None:
         """Fit the laws of the named elements (default all) to their samples; values go into the model. On data
         without harmonics, the samples are then corrected by the fitted model's own harmonics and every element
-        refitted (:meth:`_correct_fundamental_bias`), whose last comparison with harmonics is the fitted model's
-        own (kept for :meth:`compare`)."""
+        refitted (:meth:`_correct_fundamental_bias`), whose comparison with harmonics of the fit it keeps is the
+        fitted model's own (kept for :meth:`compare`)."""
         if not self.reports:
             self.identify()
         unsettled = self._unsettled_clearances()
@@ -432,7 +432,8 @@ class Workbench:
         for name, fit in state.fits.items():
             self.reports[name].fit = fit
         for el, (laws, nonparametric) in zip(self.model.elements, state.parts):
-            el.laws, el.nonparametric = laws, nonparametric
+            # a list of its own: a law added to the model must not enter the state it was restored from
+            el.laws, el.nonparametric = list(laws), nonparametric
 
     def _corrected(self, criterion: HarmonicCriterion, found: FundamentalBias, fitted: bool = True) -> Comparison:
         """The samples corrected by the bias of the model fitted to them: the fixed point ``b = B(b)`` of the map

@@ -335,8 +335,9 @@ class Predictor:
     def compare(self, kbar_fns: Sequence[KbarFunction] | None = None, locate_folds: bool = False,
                 harmonics: HarmonicCriterion | None = None) -> Comparison:
         """The error for the given describing functions. ``locate_folds`` also finds the fold of every jump by
-        continuation; ``harmonics`` predicts the lines it selects by multi-harmonic balance (both for the report;
-        the ranking does without, and ``harmonics`` needs the model's own laws: ``kbar_fns`` None)."""
+        continuation (a report's: :meth:`locate_folds`); ``harmonics`` predicts the lines it selects by
+        multi-harmonic balance (the model's own error; the ranking does without, and ``harmonics`` needs the
+        model's own laws: ``kbar_fns`` None)."""
         predictions = self.predict(kbar_fns)
         comp = compare_predictions(self.runs, predictions)
         if locate_folds:

@@ -619,7 +619,8 @@ class ResponseCurve:
         Indices of the fold (turning) points, located to 1e-9 of the arclength.
     force : float
     complete : bool
-        Whether the curve reached ``w_stop`` (not stopped by ``max_points`` or by turning back out of the span).
+        Whether the curve reached ``w_stop`` (not stopped by ``max_points``, by turning back out of the span or,
+        asked to, at its first fold).
     """
 
     w: np.ndarray
@@ -738,7 +739,7 @@ def continue_response(structure: Structure, elements: Sequence[Element], excitat
     or if it turns back out of the span. ``y_start`` (element phasors at ``w_start``) picks the branch to
     start on; default: a sweep's solution at ``w_start``. ``until_fold``: the curve ends, ``complete`` False, at
     the first fold (where a sweep's branch ends: all a jump needs; past it the curve can wind through the span
-    for thousands of steps).
+    for hundreds of steps).
     """
     fns = list(kbar_fns) if kbar_fns is not None else element_kbar_functions(elements)
     sgn = 1.0 if w_stop > w_start else -1.0
