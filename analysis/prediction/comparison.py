@@ -157,7 +157,7 @@ class Jump:
     lines_early : int
         How many measured lines sit on the other branch before the prediction jumps (0: the measurement
         jumped between the same two lines as the prediction).
-    start : FoldStart or None
+    start : FoldStart
         Where the continuation to the fold starts: the swept solution at the line before the jump.
     located : bool
         Whether the fold has been looked for.
@@ -169,7 +169,7 @@ class Jump:
     fold_hz: float | None
     measured_between: tuple[float, float]
     lines_early: int
-    start: FoldStart | None = field(default=None, repr=False, compare=False)
+    start: FoldStart = field(repr=False, compare=False)
     located: bool = False
 
     @property
